@@ -1,0 +1,218 @@
+"""Effect library: physics the paper's model leaves out.
+
+Each effect is defined once here, with its formula, units and parameters.  The
+simulator switches effects on in its truth model through these functions, and
+the diagnosis tool proposes and fits the same definitions.  All effects are
+off by default.
+
+Identifiers (a contract): ``grade, load_transfer, gps_latency, wheel_radius,
+relaxation, draft_speed, drivetrain, mass, aero``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..config import G
+from ..errors import ConfigError
+
+AIR_DENSITY = 1.2
+"""Air density ρ_air [kg/m³] at 20 °C, sea level."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter of an effect."""
+
+    name: str
+    unit: str
+    default: float
+    lo: float
+    hi: float
+    doc: str
+
+
+@dataclass(frozen=True)
+class EffectDef:
+    """Definition of one effect: the single source of truth for sim and diagnosis."""
+
+    name: str
+    doc: str
+    formula: str
+    signature: str
+    params: tuple[ParamSpec, ...] = field(default_factory=tuple)
+
+    def defaults(self) -> dict[str, float]:
+        return {p.name: p.default for p in self.params}
+
+
+EFFECTS: dict[str, EffectDef] = {
+    e.name: e
+    for e in (
+        EffectDef(
+            "grade",
+            "Field grade: the slope component of weight acts along the track.",
+            "F_grade = m g sin θ,  θ = atan(dh/ds) from the terrain elevation along the track",
+            "speed-equation residual follows dh/ds and flips sign between opposite passes",
+            (ParamSpec("scale", "-", 1.0, 0.0, 5.0, "multiplier on the terrain relief (1 = real terrain)"),),
+        ),
+        EffectDef(
+            "load_transfer",
+            "Longitudinal load transfer from drawbar pull, acceleration and grade.",
+            "ΔF_z,rear = (F_dx h_hitch + m a h_cg + m g sin θ h_cg) / L;  the front axle loses ΔF_z,rear",
+            "front and rear slip residuals move in opposite directions; front axle load falls with pull",
+            (ParamSpec("h_hitch_m", "m", 0.5, 0.0, 2.0, "effective hitch height"),
+             ParamSpec("h_cg_m", "m", 1.0, 0.0, 3.0, "centre-of-gravity height")),
+        ),
+        EffectDef(
+            "gps_latency",
+            "GNSS speed is reported late.",
+            "v_gps(t) = v(t − τ)",
+            "GPS speed residual ∝ dv/dt; cross-correlation peak at lag τ",
+            (ParamSpec("tau_s", "s", 0.15, 0.0, 2.0, "latency τ"),),
+        ),
+        EffectDef(
+            "wheel_radius",
+            "The true rolling radius differs from the nominal formula (tyre wear, pressure, tyre model).",
+            "r_true = (1 + ε) r_d,nominal;  s_meas ≈ s + ε(1 − s)",
+            "constant slip offset when net traction is zero",
+            (ParamSpec("epsilon", "-", 0.02, -0.1, 0.1, "relative radius error ε"),),
+        ),
+        EffectDef(
+            "relaxation",
+            "Tyre relaxation length: the force follows slip with a first-order lag.",
+            "ds_dyn/dt = (|v|/σ)(s − s_dyn),  F_h = μ(s_dyn) F_z",
+            "residual during torque steps; lag grows at low speed",
+            (ParamSpec("sigma_m", "m", 0.8, 0.01, 5.0, "relaxation length σ"),),
+        ),
+        EffectDef(
+            "draft_speed",
+            "Implement draft depends on speed (ASABE D497: D = F_i (A + B S + C S²) W T).",
+            "F_dx = D_0 (1 + c (v² − v_ref²)),  c = C/(A + C v_ref²) in SI",
+            "draft and speed residual correlate with v²",
+            (ParamSpec("c_s2pm2", "s²/m²", 0.04, 0.0, 0.5, "quadratic speed coefficient c"),
+             ParamSpec("v_ref_mps", "m/s", 2.5, 0.1, 10.0, "reference speed of the nominal draft")),
+        ),
+        EffectDef(
+            "drivetrain",
+            "Drivetrain efficiency and loss torque between the measured drive torque and the wheel.",
+            "M_wheel = η M_d − M_loss sgn(ω)",
+            "a torque-proportional error that μ's parameter a absorbs",
+            (ParamSpec("eta", "-", 0.93, 0.5, 1.0, "efficiency η"),
+             ParamSpec("loss_nm", "N·m", 40.0, 0.0, 2000.0, "loss torque M_loss per wheel")),
+        ),
+        EffectDef(
+            "mass",
+            "The vehicle mass differs from nominal (ballast, fuel, implement).",
+            "m_true = m + Δm, distributed front/rear with share f_front",
+            "speed residual ∝ dv/dt during acceleration; higher axle loads",
+            (ParamSpec("delta_kg", "kg", 600.0, -3000.0, 5000.0, "mass difference Δm"),
+             ParamSpec("front_share", "-", 1.0, 0.0, 1.0, "share of Δm carried by the front axle (front ballast = 1)")),
+        ),
+        EffectDef(
+            "aero",
+            "Aerodynamic drag.",
+            "F_aero = ½ ρ_air C_d A v²",
+            "only at transport speed (≈ 17 N at 2.5 m/s: negligible in the field)",
+            (ParamSpec("cd_area_m2", "m²", 4.5, 0.0, 50.0, "drag area C_d A"),),
+        ),
+    )
+}
+
+EFFECT_NAMES = tuple(EFFECTS)
+
+
+def parse_effect_arg(arg: str) -> tuple[str, dict[str, float]]:
+    """Parse ``name`` or ``name=value`` or ``name:param=value,param=value``.
+
+    ``name=value`` sets the effect's first parameter.
+    """
+    if ":" in arg:
+        name, rest = arg.split(":", 1)
+        items = [kv.split("=", 1) for kv in rest.split(",") if kv]
+    elif "=" in arg:
+        name, val = arg.split("=", 1)
+        items = [[EFFECTS[name].params[0].name, val]] if name in EFFECTS else []
+    else:
+        name, items = arg, []
+    name = name.strip()
+    if name not in EFFECTS:
+        raise ConfigError(f"effect {name!r}: unknown (known: {', '.join(EFFECT_NAMES)})")
+    params = EFFECTS[name].defaults()
+    for kv in items:
+        if len(kv) != 2:
+            raise ConfigError(f"effect {name}: cannot parse {arg!r}")
+        k, v = kv[0].strip(), kv[1].strip()
+        if k not in params:
+            raise ConfigError(f"effect {name}.{k}: unknown parameter (known: {', '.join(params)})")
+        try:
+            params[k] = float(v)
+        except ValueError as exc:
+            raise ConfigError(f"effect {name}.{k}: {v!r} is not a number") from exc
+    return name, validate_params(name, params)
+
+
+def validate_params(name: str, params: Mapping[str, float]) -> dict[str, float]:
+    """Check an effect's parameters against their ranges; ConfigError names the key."""
+    out = EFFECTS[name].defaults()
+    for spec in EFFECTS[name].params:
+        v = float(params.get(spec.name, spec.default))
+        if not np.isfinite(v) or not spec.lo <= v <= spec.hi:
+            raise ConfigError(f"effect {name}.{spec.name} = {v} outside [{spec.lo}, {spec.hi}] {spec.unit}")
+        out[spec.name] = v
+    unknown = set(params) - set(out)
+    if unknown:
+        raise ConfigError(f"effect {name}.{sorted(unknown)[0]}: unknown parameter")
+    return out
+
+
+# ---- the physics, one pure function per effect ---------------------------------
+
+def grade_force(mass_kg: ArrayLike, theta_rad: ArrayLike) -> NDArray[np.float64]:
+    """grade: F = m g sin θ [N], resisting when climbing (θ > 0)."""
+    return np.asarray(mass_kg, dtype=float) * G * np.sin(np.asarray(theta_rad, dtype=float))
+
+
+def load_transfer_rear(fdx: ArrayLike, accel: ArrayLike, theta_rad: ArrayLike, mass_kg: float,
+                       wheelbase_m: float, h_hitch_m: float, h_cg_m: float) -> NDArray[np.float64]:
+    """load_transfer: ΔF_z,rear [N] = (F_dx h_hitch + m a h_cg + m g sin θ h_cg)/L."""
+    return (np.asarray(fdx, dtype=float) * h_hitch_m
+            + mass_kg * np.asarray(accel, dtype=float) * h_cg_m
+            + mass_kg * G * np.sin(np.asarray(theta_rad, dtype=float)) * h_cg_m) / wheelbase_m
+
+
+def draft_speed_factor(v: ArrayLike, c_s2pm2: float, v_ref_mps: float) -> NDArray[np.float64]:
+    """draft_speed: multiplier on nominal draft, 1 + c (v² − v_ref²) [-] (ASABE D497 quadratic form)."""
+    v = np.asarray(v, dtype=float)
+    return 1.0 + c_s2pm2 * (v * v - v_ref_mps * v_ref_mps)
+
+
+def drivetrain_torque(md: ArrayLike, omega: ArrayLike, eta: float, loss_nm: float) -> NDArray[np.float64]:
+    """drivetrain: M_wheel = η M_d − M_loss sgn(ω) [N·m]."""
+    return eta * np.asarray(md, dtype=float) - loss_nm * np.sign(np.asarray(omega, dtype=float))
+
+
+def aero_force(v: ArrayLike, cd_area_m2: float) -> NDArray[np.float64]:
+    """aero: F = ½ ρ_air C_d A v |v| [N]."""
+    v = np.asarray(v, dtype=float)
+    return 0.5 * AIR_DENSITY * cd_area_m2 * v * np.abs(v)
+
+
+def relaxation_rate(s_ss: ArrayLike, s_dyn: ArrayLike, v: ArrayLike, sigma_m: float) -> NDArray[np.float64]:
+    """relaxation: ds_dyn/dt = (|v|/σ)(s_ss − s_dyn) [1/s]."""
+    return np.abs(np.asarray(v, dtype=float)) / sigma_m * (np.asarray(s_ss, dtype=float) - np.asarray(s_dyn, dtype=float))
+
+
+def delayed(t: ArrayLike, x: ArrayLike, tau_s: float) -> NDArray[np.float64]:
+    """gps_latency: x(t − τ) by linear interpolation on the sample times t [s]."""
+    t = np.asarray(t, dtype=float)
+    return np.interp(t - tau_s, t, np.asarray(x, dtype=float))
+
+
+def wheel_radius_true(r_nominal: ArrayLike, epsilon: float) -> NDArray[np.float64]:
+    """wheel_radius: r_true = (1 + ε) r_nominal [m]."""
+    return (1.0 + epsilon) * np.asarray(r_nominal, dtype=float)
