@@ -1,0 +1,266 @@
+"""Read and write the can-utils ``candump -L`` log format.
+
+One frame per line::
+
+    (1700000000.123456) can0 18FF1080#0102030405060708
+
+- ``(seconds.microseconds)`` — epoch time [s], as ``candump -L`` prints it
+  (``%010lu.%06lu``);
+- interface name;
+- identifier: 3 hex digits for an 11-bit frame, 8 hex digits for a 29-bit
+  frame (can-utils' rule), ``#``, then 0..8 data bytes as hex pairs.
+
+The reader streams frames and never raises on bad input: a line it cannot
+use is skipped and counted in :class:`ReadStats` under one of these reasons
+
+==================  =======================================================
+``garbage``         not a candump line at all
+``truncated``       starts like one but stops early (no interface, no
+                    ``#``, odd number of data digits)
+``bad_timestamp``   the ``(...)`` field is not a number
+``bad_hex``         non-hex digits, or an identifier that is neither 3 nor 8
+                    digits (or exceeds 29 bits)
+``dlc_gt_8``        more than 8 data bytes on a classic CAN frame
+``canfd``           CAN FD frame (``ID##F...``): not supported
+``rtr``             remote frame (``ID#R``): carries no data
+``error_frame``     identifier with the CAN error flag (0x20000000)
+``time_backwards``  timestamp earlier than the previous accepted frame
+==================  =======================================================
+
+The writer formats exactly like can-utils: ``%08X`` for 29-bit IDs,
+``%03X`` for 11-bit IDs, upper-case data hex.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Iterable, Iterator, NamedTuple
+
+MAX_EXAMPLES = 5
+"""Line numbers kept per reject reason."""
+
+REJECT_REASONS = (
+    "garbage",
+    "truncated",
+    "bad_timestamp",
+    "bad_hex",
+    "dlc_gt_8",
+    "canfd",
+    "rtr",
+    "error_frame",
+    "time_backwards",
+)
+
+_HEX = frozenset("0123456789abcdefABCDEF")
+_CAN_ERR_FLAG = 0x20000000
+
+
+class Frame(NamedTuple):
+    """One CAN frame: time [s, epoch], interface, identifier, 29-bit?, data."""
+
+    t: float
+    channel: str
+    can_id: int
+    is_extended: bool
+    data: bytes
+
+
+@dataclass
+class ReadStats:
+    """Counts of lines read, frames accepted and lines rejected by reason.
+
+    ``examples[reason]`` holds the first :data:`MAX_EXAMPLES` line numbers
+    (1-based) of each reason; ``texts[reason]`` the first offending line
+    (shortened).  ``source`` names the file for messages.
+    """
+
+    source: str = ""
+    lines: int = 0
+    frames: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    examples: dict[str, list[int]] = field(default_factory=dict)
+    texts: dict[str, str] = field(default_factory=dict)
+
+    def reject(self, reason: str, lineno: int, text: str) -> None:
+        """Count one rejected line."""
+        self.rejected[reason] += 1
+        ex = self.examples.setdefault(reason, [])
+        if len(ex) < MAX_EXAMPLES:
+            ex.append(lineno)
+        if reason not in self.texts:
+            t = text.rstrip("\r\n")
+            self.texts[reason] = t if len(t) <= 80 else t[:77] + "..."
+
+    @property
+    def total_rejected(self) -> int:
+        """Number of lines rejected for any reason."""
+        return sum(self.rejected.values())
+
+    def describe(self) -> list[str]:
+        """One line per reject reason: ``reason: count (file lines a, b, ...)``."""
+        out = []
+        for reason in sorted(self.rejected):
+            lines = ", ".join(str(n) for n in self.examples.get(reason, []))
+            more = "" if self.rejected[reason] <= len(self.examples.get(reason, [])) else ", ..."
+            src = f"{self.source} " if self.source else ""
+            out.append(f"{reason}: {self.rejected[reason]} ({src}line {lines}{more})")
+        return out
+
+
+def _classify(line: str) -> tuple[str | None, Frame | None]:
+    """Parse one line; returns (reject reason, None) or (None, frame)."""
+    s = line.strip()
+    if not s.startswith("("):
+        return "garbage", None
+    close = s.find(")")
+    if close < 0:
+        return "truncated", None
+    ts = s[1:close]
+    rest = s[close + 1 :].split()
+    try:
+        t = float(ts)
+    except ValueError:
+        return "bad_timestamp", None
+    if not math.isfinite(t) or t < 0 or "." not in ts:
+        return "bad_timestamp", None
+    if len(rest) < 2:
+        return "truncated", None  # interface or frame missing
+    if len(rest) > 3:
+        return "garbage", None
+    # candump -L may append " T" / " R" direction flags (-x); ignore them.
+    if len(rest) == 3 and rest[2] not in ("T", "R"):
+        return "garbage", None
+    channel, frame = rest[0], rest[1]
+    if "#" not in frame:
+        return "truncated", None
+    ident, _, payload = frame.partition("#")
+    if payload.startswith("#"):
+        return "canfd", None
+    if not ident or any(c not in _HEX for c in ident):
+        return "bad_hex", None
+    if len(ident) == 3:
+        is_ext = False
+    elif len(ident) == 8:
+        is_ext = True
+    else:
+        return "bad_hex", None
+    can_id = int(ident, 16)
+    if is_ext and can_id & _CAN_ERR_FLAG:
+        return "error_frame", None
+    if can_id > (0x1FFFFFFF if is_ext else 0x7FF):
+        return "bad_hex", None
+    if payload[:1] in ("R", "r"):
+        return "rtr", None
+    # can-utils accepts '.' separators between bytes in the data field
+    payload = payload.replace(".", "")
+    if any(c not in _HEX for c in payload):
+        return "bad_hex", None
+    if len(payload) % 2:
+        return "truncated", None
+    if len(payload) > 16:
+        return "dlc_gt_8", None
+    return None, Frame(t, channel, can_id, is_ext, bytes.fromhex(payload))
+
+
+def iter_candump(
+    lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1
+) -> Iterator[Frame]:
+    """Yield frames from candump ``-L`` text lines, counting rejects in ``stats``.
+
+    Blank lines are skipped without being counted as rejects.  A frame
+    whose timestamp is earlier than the previous accepted frame's is
+    rejected as ``time_backwards`` (equal timestamps are accepted).
+    """
+    st = stats if stats is not None else ReadStats()
+    last_t = -math.inf
+    for lineno, line in enumerate(lines, start=first_lineno):
+        st.lines += 1
+        if not line.strip():
+            continue
+        reason, frame = _classify(line)
+        if reason is None and frame is not None and frame.t < last_t:
+            reason = "time_backwards"
+        if reason is not None:
+            st.reject(reason, lineno, line)
+            continue
+        assert frame is not None
+        last_t = frame.t
+        st.frames += 1
+        yield frame
+
+
+def read_candump(path: str | Path, stats: ReadStats | None = None) -> Iterator[Frame]:
+    """Stream frames from a candump ``-L`` file (see :func:`iter_candump`).
+
+    Undecodable bytes are replaced, so binary garbage is counted, not fatal.
+    ``OSError`` from opening the file propagates.
+    """
+    p = Path(path)
+    st = stats if stats is not None else ReadStats()
+    if not st.source:
+        st.source = p.name
+    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+        yield from iter_candump(fh, st)
+
+
+def format_line(t: float, channel: str, can_id: int, is_extended: bool, data: bytes) -> str:
+    """One candump ``-L`` line (without newline), formatted like can-utils.
+
+    ``t`` is epoch time [s], rounded to the microsecond.
+    """
+    if not math.isfinite(t) or t < 0:
+        raise ValueError(f"timestamp {t!r} is not a non-negative finite number")
+    data = bytes(data)
+    if len(data) > 8:
+        raise ValueError(f"classic CAN carries at most 8 bytes, got {len(data)}")
+    if is_extended:
+        if not 0 <= can_id <= 0x1FFFFFFF:
+            raise ValueError(f"29-bit ID {can_id:#x} out of range")
+        ident = f"{can_id:08X}"
+    else:
+        if not 0 <= can_id <= 0x7FF:
+            raise ValueError(f"11-bit ID {can_id:#x} out of range")
+        ident = f"{can_id:03X}"
+    if not channel or any(c.isspace() for c in channel):
+        raise ValueError(f"interface name {channel!r} is empty or has white space")
+    usec_total = round(t * 1e6)
+    sec, usec = divmod(usec_total, 1_000_000)
+    return f"({sec:010d}.{usec:06d}) {channel} {ident}#{data.hex().upper()}"
+
+
+class CandumpWriter:
+    """Write frames to a text stream in candump ``-L`` format, one per line (LF)."""
+
+    def __init__(self, stream: IO[str], channel: str = "can0") -> None:
+        self.stream = stream
+        self.channel = channel
+        self.count = 0
+
+    def write(
+        self,
+        t: float,
+        can_id: int,
+        data: bytes,
+        is_extended: bool = True,
+        channel: str | None = None,
+    ) -> None:
+        """Append one frame; ``t`` epoch seconds."""
+        self.stream.write(format_line(t, channel or self.channel, can_id, is_extended, data) + "\n")
+        self.count += 1
+
+    def write_frame(self, frame: Frame) -> None:
+        """Append a :class:`Frame` (or any 5-tuple of the same fields)."""
+        t, channel, can_id, is_ext, data = frame
+        self.write(t, can_id, data, is_ext, channel)
+
+
+def write_candump(path: str | Path, frames: Iterable[Frame | tuple]) -> int:
+    """Write frames ``(t, channel, can_id, is_extended, data)`` to ``path``; returns the count."""
+    with open(path, "w", encoding="ascii", newline="\n") as fh:
+        w = CandumpWriter(fh)
+        for f in frames:
+            w.write_frame(f)
+        return w.count
