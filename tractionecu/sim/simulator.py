@@ -1,0 +1,346 @@
+"""Truth model of the field simulator: a four-wheel-drive tractor pulling an implement.
+
+The truth model is the paper's model (section 2) with the true μ(s) curve of
+the soil under each wheel, plus the effects from :mod:`tractionecu.model.effects`
+that a scenario switches on.  Per wheel i (FL, FR, RL, RR):
+
+    J ω̇_i = M_w,i − r_i F_z,i (μ_i(s_i) + ρ_t sgn ω_i)                 (paper eq. 2, 4)
+    m v̇   = Σ μ_i F_z,i − F_dx − Σ ρ_s,i F_z,i − F_grade − F_aero        (paper eq. 8)
+
+with s_i the two-branch slip (eq. 6) from ω_i, v and the rolling radius
+r_i = r_d(F_z,i) (eq. 9).  The wheel–slip coupling is stiff (time constant
+J v / (r² F_z μ') ≈ 2 ms at field speed), so the ω, v system is integrated
+with a linearly implicit (Rosenbrock–Euler) step of 5 ms using the analytic
+Jacobian; it is L-stable, so the stiffness costs nothing.
+
+A PI speed controller with feed-forward sets four drive torques (shared by
+static axle load, limited by wheel torque and total power, with a 50 ms
+first-order inverter lag).  The implement's draft is a nominal force with
+Gauss–Markov fluctuation, ramped in and out as the implement is lowered and
+raised.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import G, VehicleParams
+from ..model import effects as fx
+from ..model.vehicle import rolling_radius, slip as slip_fn
+from .field import Field
+from .plan import Plan
+from .sensors import SensorSpec
+
+
+@dataclass(frozen=True)
+class ImplementSpec:
+    """Drawn implement."""
+
+    draft_n: float = 17000.0
+    """Nominal draft in work [N]: a 6 m shallow cultivator/harrow at 9 km/h (ASABE D497.7
+    Table 1: field cultivator 46–64 N per tine-cm depth; ≈ 2.8 kN/m at 10 cm)."""
+    draft_cv: float = 0.08
+    """Coefficient of variation of the draft fluctuation [-] (tillage draft varies 5–15 % within a field pass)."""
+    draft_tau_s: float = 0.7
+    """Correlation time of the draft fluctuation [s]."""
+    lower_time_s: float = 1.5
+    """Time to lower or raise the implement [s]."""
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """Speed controller of the driver / cruise control."""
+
+    accel_max: float = 0.35
+    """Acceleration limit of the speed reference [m/s²]."""
+    kp: float = 1.2
+    """Proportional gain [1/s]."""
+    ki: float = 0.4
+    """Integral gain [1/s²]."""
+    torque_tau_s: float = 0.05
+    """Inverter torque response time constant [s]."""
+    rho_guess: float = 0.07
+    """Rolling resistance used in the feed-forward [-]."""
+
+
+@dataclass
+class Scenario:
+    """Everything that defines one simulated run."""
+
+    name: str
+    field: Field
+    plan: Plan
+    vehicle: VehicleParams = field(default_factory=VehicleParams)
+    implement: ImplementSpec = field(default_factory=ImplementSpec)
+    controller: ControllerSpec = field(default_factory=ControllerSpec)
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    seed: int = 0
+    duration_s: float | None = None
+    """Stop after this many seconds; None = at the end of the plan."""
+    v0: float = 0.3
+    """Initial (creep) speed [m/s]."""
+    start_epoch: float = 1783670400.0
+    """UTC epoch of t = 0 [s] (2026-07-10 08:00:00 UTC)."""
+    control_dt: float = 0.01
+    """Control and recording period [s]."""
+    substeps: int = 2
+    """Integration substeps per control period."""
+
+
+@dataclass
+class TruthTrace:
+    """True signals at the control rate; arrays over time (n,) or (n, 4)."""
+
+    t: NDArray[np.float64]
+    omega: NDArray[np.float64]
+    v: NDArray[np.float64]
+    md: NDArray[np.float64]
+    """Drive torque at the motor (what the inverter reports) [N·m]."""
+    fz: NDArray[np.float64]
+    fzf: NDArray[np.float64]
+    fdx: NDArray[np.float64]
+    mu: NDArray[np.float64]
+    slip: NDArray[np.float64]
+    rho_s: NDArray[np.float64]
+    """Load-weighted soil rolling resistance Σρ_s,i F_z,i / (m g) [-]."""
+    a: NDArray[np.float64]
+    """Curve parameter a of the soil under the GPS antenna [-]."""
+    a_wheel: NDArray[np.float64]
+    soil: NDArray[np.int64]
+    soil_wheel: NDArray[np.int64]
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    alt: NDArray[np.float64]
+    theta: NDArray[np.float64]
+    work: NDArray[np.bool_]
+
+
+def simulate(scn: Scenario) -> TruthTrace:
+    """Run the truth model; deterministic for a given ``scn.seed``."""
+    rng = np.random.default_rng(scn.seed)
+    veh = scn.vehicle
+    eff = scn.effects
+    fld = scn.field
+    plan = scn.plan
+    dt = scn.control_dt
+    h = dt / scn.substeps
+
+    m_nom = veh.mass_kg
+    dm = eff["mass"]["delta_kg"] if "mass" in eff else 0.0
+    front_share = eff["mass"]["front_share"] if "mass" in eff else 0.0
+    m = m_nom + dm
+    J = veh.wheel_inertia_kgm2
+    rho_t = veh.rho_t
+    L = veh.wheelbase_m
+    fzf_static = veh.static_front_fraction * m_nom * G + dm * G * front_share
+    fzr_static = m * G - fzf_static
+    r_scale = 1.0 + eff["wheel_radius"]["epsilon"] if "wheel_radius" in eff else 1.0
+    relax = eff.get("relaxation")
+    share = np.array([veh.static_front_fraction / 2] * 2 + [(1 - veh.static_front_fraction) / 2] * 2)
+
+    # Regions as arrays for fast lookup.
+    reg_a = np.array([r.a for r in fld.regions])
+    reg_rho = np.array([r.rho_s for r in fld.regions])
+    reg_cls = [r.cls for r in fld.regions]
+    reg_p = np.array([c.p for c in reg_cls])
+    reg_a1 = np.array([c.alpha1 for c in reg_cls])
+    reg_a2 = np.array([c.alpha2 for c in reg_cls])
+
+    # Duration.
+    est_time = plan.length / max(float(np.mean(plan.v_target)), 0.1) * 1.15 + 20.0
+    t_end = scn.duration_s if scn.duration_s is not None else est_time
+    n_max = int(round(t_end / dt)) + 1
+
+    # Draft fluctuation: Gauss–Markov at the control rate.
+    phi = math.exp(-dt / scn.implement.draft_tau_s)
+    draft_w = rng.standard_normal(n_max) * scn.implement.draft_cv * math.sqrt(1 - phi * phi)
+
+    # State.
+    v = scn.v0
+    fz = np.array([fzf_static / 2] * 2 + [fzr_static / 2] * 2)
+    r = rolling_radius(fz, veh) * r_scale
+    omega = np.full(4, v / r[0]) * (r[0] / r)
+    s_dyn = np.zeros(4)
+    d = 0.0
+    v_ref = v
+    integ = 0.0
+    md_act = np.zeros(4)
+    work_level = 0.0
+    fluct = rng.standard_normal() * scn.implement.draft_cv
+    accel = 0.0
+
+    out = {k: [] for k in ("t", "omega", "v", "md", "fz", "fzf", "fdx", "mu", "slip", "rho_s", "a", "a_wheel",
+                           "soil", "soil_wheel", "x", "y", "heading", "alt", "theta", "work")}
+    half_l = L / 2.0
+    half_w = veh.track_width_m / 2.0
+    off_fwd = np.array([half_l, half_l, -half_l, -half_l])
+    off_lat = np.array([half_w, -half_w, half_w, -half_w])  # left positive
+
+    for k in range(n_max):
+        t = k * dt
+        if d >= plan.length - 0.5:
+            break
+        x, y, hd, v_tgt, work = plan.at(d)
+        ch, sh = math.cos(hd), math.sin(hd)
+        wx = x + off_fwd * ch - off_lat * sh
+        wy = y + off_fwd * sh + off_lat * ch
+        soil_w = fld.soil_index(wx, wy)
+        soil_c = int(fld.soil_index(np.array([x]), np.array([y]))[0])
+        theta = float(fld.grade(x, y, hd)) if "grade" in eff else 0.0
+        alt = float(fld.elevation(x, y)) if "grade" in eff else 0.0
+
+        # Implement and draft.
+        target_level = 1.0 if work else 0.0
+        step = dt / scn.implement.lower_time_s
+        work_level = min(work_level + step, target_level) if work_level < target_level else max(work_level - step, target_level)
+        fluct = phi * fluct + draft_w[k]
+        fdx = scn.implement.draft_n * work_level * (1.0 + fluct)
+        if "draft_speed" in eff:
+            p = eff["draft_speed"]
+            fdx *= float(fx.draft_speed_factor(v, p["c_s2pm2"], p["v_ref_mps"]))
+
+        # Speed controller.
+        dv_ref = max(-scn.controller.accel_max * dt, min(scn.controller.accel_max * dt, v_tgt - v_ref))
+        v_ref += dv_ref
+        a_ref = dv_ref / dt
+        e = v_ref - v
+        f_cmd = m_nom * (a_ref + scn.controller.kp * e + integ) + fdx + scn.controller.rho_guess * m_nom * G
+        r_nom = rolling_radius(fz, veh)
+        md_cmd = f_cmd * share * r_nom
+        md_cmd = np.clip(md_cmd, -veh.max_wheel_torque_nm, veh.max_wheel_torque_nm)
+        p_wheel = float(np.sum(np.abs(md_cmd * omega)))
+        saturated = False
+        if p_wheel > veh.rated_power_w:
+            md_cmd *= veh.rated_power_w / p_wheel
+            saturated = True
+        if np.any(np.abs(md_cmd) >= veh.max_wheel_torque_nm):
+            saturated = True
+        if not saturated or e * integ < 0:
+            integ += scn.controller.ki * e * dt
+        md_act += (md_cmd - md_act) * (1.0 - math.exp(-dt / scn.controller.torque_tau_s))
+        md_wheel = md_act
+        if "drivetrain" in eff:
+            md_wheel = fx.drivetrain_torque(md_act, omega, eff["drivetrain"]["eta"], eff["drivetrain"]["loss_nm"])
+
+        # Loads.
+        fz = np.array([fzf_static / 2] * 2 + [fzr_static / 2] * 2)
+        if "load_transfer" in eff:
+            lt = eff["load_transfer"]
+            dfr = float(fx.load_transfer_rear(fdx, accel, theta, m, L, lt["h_hitch_m"], lt["h_cg_m"]))
+            fz = fz + np.array([-dfr / 2, -dfr / 2, dfr / 2, dfr / 2])
+        fz = np.maximum(fz, 100.0)
+        r = rolling_radius(fz, veh) * r_scale
+        a_w = reg_a[soil_w]
+        rho_w = reg_rho[soil_w]
+        p_w, a1_w, a2_w = reg_p[soil_w], reg_a1[soil_w], reg_a2[soil_w]
+        f_other = fdx + (fx.grade_force(m, theta) if "grade" in eff else 0.0)
+        aero = eff.get("aero")
+
+        for _ in range(scn.substeps):
+            if aero is not None:
+                f_ext = f_other + float(fx.aero_force(v, aero["cd_area_m2"]))
+            else:
+                f_ext = f_other
+            omega, v, s_dyn, accel = _implicit_step(omega, v, s_dyn, h, md_wheel, fz, r, a_w, p_w, a1_w, a2_w,
+                                                    rho_w, rho_t, J, m, f_ext, relax)
+            d += v * h
+
+        s_kin = slip_fn(omega, v, r)
+        s_force = s_dyn if relax is not None else s_kin
+        mu = a_w * _g(s_force, p_w, a1_w, a2_w)
+        out["t"].append(t + dt)
+        out["omega"].append(omega.copy())
+        out["v"].append(v)
+        out["md"].append(md_act.copy())
+        out["fz"].append(fz.copy())
+        out["fzf"].append(fz[0] + fz[1])
+        out["fdx"].append(fdx)
+        out["mu"].append(mu)
+        out["slip"].append(s_kin)
+        out["rho_s"].append(float(np.sum(rho_w * fz) / (m * G)))
+        out["a"].append(reg_a[soil_c])
+        out["a_wheel"].append(a_w.copy())
+        out["soil"].append(soil_c)
+        out["soil_wheel"].append(soil_w.copy())
+        out["x"].append(x)
+        out["y"].append(y)
+        out["heading"].append(hd)
+        out["alt"].append(alt)
+        out["theta"].append(theta)
+        out["work"].append(work_level > 0.99)
+
+    arr = {k: np.asarray(vv) for k, vv in out.items()}
+    return TruthTrace(**arr)
+
+
+def _g(s: NDArray[np.float64], p: NDArray[np.float64], a1: NDArray[np.float64], a2: NDArray[np.float64]) -> NDArray[np.float64]:
+    sa = np.abs(s)
+    return np.sign(s) * (1.0 - p * np.exp(a1 * sa) - (1.0 - p) * np.exp(a2 * sa))
+
+
+def _dg(s: NDArray[np.float64], p: NDArray[np.float64], a1: NDArray[np.float64], a2: NDArray[np.float64]) -> NDArray[np.float64]:
+    sa = np.abs(s)
+    return -p * a1 * np.exp(a1 * sa) - (1.0 - p) * a2 * np.exp(a2 * sa)
+
+
+def _slip_and_partials(omega, v, r):
+    """Slip (eq. 6) and its partial derivatives ∂s/∂ω, ∂s/∂v for each wheel."""
+    vw = r * np.abs(omega)
+    va = abs(v)
+    vw = np.maximum(vw, 1e-4)
+    vas = max(va, 1e-4)
+    drive = va <= vw
+    s = np.where(drive, 1.0 - va / vw, -1.0 + vw / vas)
+    sgn_w = np.sign(omega) + (omega == 0)
+    sgn_v = 1.0 if v >= 0 else -1.0
+    ds_dw = np.where(drive, va * r * sgn_w / (vw * vw), r * sgn_w / vas)
+    ds_dv = np.where(drive, -sgn_v / vw, -vw * sgn_v / (vas * vas))
+    return s, ds_dw, ds_dv
+
+
+def _implicit_step(omega, v, s_dyn, h, md, fz, r, a, p, a1, a2, rho_s, rho_t, J, m, f_ext, relax):
+    """One linearly implicit Euler step of (ω1..4, v[, s_dyn1..4]) with the analytic Jacobian."""
+    s, ds_dw, ds_dv = _slip_and_partials(omega, v, r)
+    sgn_w = np.sign(omega)
+    sgn_v = math.copysign(1.0, v) if v != 0 else 0.0
+    if relax is None:
+        sf = s
+    else:
+        sf = s_dyn
+    mu = a * _g(sf, p, a1, a2)
+    dmu = a * _dg(sf, p, a1, a2)
+    f_om = (md - r * fz * (mu + rho_t * sgn_w)) / J
+    f_v = (float(np.sum(mu * fz)) - f_ext - float(np.sum(rho_s * fz)) * sgn_v) / m
+    if relax is None:
+        n = 5
+        jac = np.zeros((5, 5))
+        k_om = -r * fz * dmu / J
+        jac[np.arange(4), np.arange(4)] = k_om * ds_dw
+        jac[:4, 4] = k_om * ds_dv
+        jac[4, :4] = fz * dmu * ds_dw / m
+        jac[4, 4] = float(np.sum(fz * dmu * ds_dv)) / m
+        f = np.concatenate([f_om, [f_v]])
+    else:
+        sigma = relax["sigma_m"]
+        n = 9
+        jac = np.zeros((9, 9))
+        idx = np.arange(4)
+        rate = abs(v) / sigma
+        f_s = rate * (s - s_dyn)
+        jac[idx, 5 + idx] = -r * fz * dmu / J
+        jac[4, 5 + idx] = fz * dmu / m
+        jac[5 + idx, idx] = rate * ds_dw
+        jac[5 + idx, 4] = rate * ds_dv + sgn_v / sigma * (s - s_dyn)
+        jac[5 + idx, 5 + idx] = -rate
+        f = np.concatenate([f_om, [f_v], f_s])
+    dz = np.linalg.solve(np.eye(n) - h * jac, h * f)
+    omega_new = omega + dz[:4]
+    v_new = v + dz[4]
+    s_dyn_new = s_dyn + dz[5:9] if relax is not None else s_dyn
+    return omega_new, v_new, np.clip(s_dyn_new, -1.0, 1.0), dz[4] / h
