@@ -273,7 +273,7 @@ def simulate(scn: Scenario) -> TruthTrace:
         out["heading"].append(hd)
         out["alt"].append(alt)
         out["theta"].append(theta)
-        out["work"].append(work_level > 0.99)
+        out["work"].append(work_level >= 1.0)
 
     arr = {k: np.asarray(vv) for k, vv in out.items()}
     return TruthTrace(**arr)
