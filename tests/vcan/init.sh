@@ -4,62 +4,80 @@
 # The guest's root is the host's root (hostfs), so every path below is a host
 # path. The kernel command line hands over one variable, TECU_RUN: a private
 # host directory written by run-in-vcan.sh that holds
-#   env.sh    exports for the command (PATH, HOME, TECU_CWD, TECU_UML_MODULES, ...)
+#   env.sh    exports for the command (PATH, HOME, ...) and for this script:
+#             TECU_CWD, TECU_UML_MODULES, TECU_TTY_OUT, TECU_TTY_ERR
 #   argv      the command, NUL-separated
 # and receives
 #   booted    written as soon as this script runs
 #   rc        the command's exit status
 #   tmp/      mount point for the guest's private TMPDIR (tmpfs)
+# Guest console tty1 is the host's stdout, tty2 the host's stderr.
 
 export PATH=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
 umask 022
+BUSYBOX=$(command -v busybox) || BUSYBOX=/bin/busybox
+
+# True while a process other than PID 1 and the kernel threads is left.
+others_alive() {
+    local p c
+    for p in /proc/[0-9]*; do
+        [ "${p#/proc/}" = 1 ] && continue
+        c=
+        read -r -d "" c 2>/dev/null <"$p/cmdline"
+        [ -n "$c" ] && return 0 # kernel threads and zombies have no cmdline
+    done
+    return 1
+}
+
+# wait_others TENTHS: wait up to TENTHS/10 s for the other processes to end.
+wait_others() {
+    local i
+    for ((i = 0; i < $1; i++)); do
+        others_alive || return 0
+        sleep 0.1
+    done
+    return 1
+}
+
+finish() {
+    local rc=$1
+    exec 5>&- 6>&-
+    # A short grace period for stray background processes and the console
+    # relays to flush, then stop whatever is left.
+    if ! wait_others 10; then
+        kill -TERM -1 2>/dev/null
+        wait_others 5 || kill -KILL -1 2>/dev/null
+    fi
+    [ -n "${TECU_RUN:-}" ] && echo "$rc" >"$TECU_RUN/rc"
+    echo "$rc" >/proc/exitcode
+    sync
+    exec "$BUSYBOX" poweroff -f
+}
 
 fail() {
     echo "vcan guest: $*" >&2
     finish 125
 }
 
-finish() {
-    local rc=$1
-    # Give stray background processes a moment, then stop them.
-    kill -TERM -1 2>/dev/null
-    local i p c alive
-    for i in 1 2 3 4 5 6 7 8 9 10; do
-        alive=
-        for p in /proc/[0-9]*; do
-            [ "${p#/proc/}" = 1 ] && continue
-            c=
-            read -r -d "" c 2>/dev/null <"$p/cmdline"
-            [ -n "$c" ] && { alive=1; break; } # kernel threads have no cmdline
-        done
-        [ -z "$alive" ] && break
-        sleep 0.1
-    done
-    kill -KILL -1 2>/dev/null
-    [ -n "$TECU_RUN" ] && echo "$rc" >"$TECU_RUN/rc"
-    echo "$rc" >/proc/exitcode
-    sync
-    exec "$BUSYBOX" poweroff -f
-}
-
-BUSYBOX=$(command -v busybox) || BUSYBOX=/bin/busybox
-
 mountpoint -q /proc || mount -t proc proc /proc
-[ -n "$TECU_RUN" ] && [ -d "$TECU_RUN" ] || fail "TECU_RUN is not set or not a directory"
+[ -n "${TECU_RUN:-}" ] && [ -d "$TECU_RUN" ] || fail "TECU_RUN is not set or not a directory"
 : >"$TECU_RUN/booted"
 
-# Guest consoles wired to the host's stdout (tty1) and stderr (tty2).
 exec </dev/null
-if [ -c /dev/tty2 ]; then exec 2>/dev/tty2; fi
+[ -c /dev/tty2 ] && exec 2>/dev/tty2
 
 mountpoint -q /sys || mount -t sysfs sysfs /sys
 mountpoint -q /dev || mount -t devtmpfs devtmpfs /dev
 mkdir -p /dev/pts /dev/shm
+[ -e /dev/fd ] || ln -s /proc/self/fd /dev/fd
+[ -e /dev/stdin ] || ln -s /proc/self/fd/0 /dev/stdin
+[ -e /dev/stdout ] || ln -s /proc/self/fd/1 /dev/stdout
+[ -e /dev/stderr ] || ln -s /proc/self/fd/2 /dev/stderr
 mountpoint -q /dev/pts || mount -t devpts -o gid=5,mode=620,ptmxmode=666 devpts /dev/pts
 mount -t tmpfs -o mode=1777 tmpfs /dev/shm || fail "cannot mount /dev/shm"
 mount -t tmpfs -o mode=755 tmpfs /run || fail "cannot mount /run"
 mount -t tmpfs -o mode=1777 tmpfs "$TECU_RUN/tmp" || fail "cannot mount the guest TMPDIR"
-# Consoles must not turn \n into \r\n.
+# The consoles must pass bytes through unchanged (no \n -> \r\n).
 stty -F /dev/tty1 raw -echo 2>/dev/null
 stty -F /dev/tty2 raw -echo 2>/dev/null
 exec 2>/dev/tty2
@@ -77,11 +95,17 @@ done <"$TECU_UML_MODULES/modules.load"
 ip link set lo up || fail "cannot bring up lo"
 { ip link add dev vcan0 type vcan && ip link set vcan0 up; } || fail "cannot create vcan0"
 
-export TECU_IN_VCAN_GUEST=1
-export TMPDIR="$TECU_RUN/tmp"
 mapfile -d '' -t argv <"$TECU_RUN/argv"
 [ "${#argv[@]}" -gt 0 ] || fail "no command given"
-
 cd "$TECU_CWD" || fail "cannot cd to $TECU_CWD"
-"${argv[@]}" </dev/null >/dev/tty1 2>/dev/tty2
+
+# Where the host's stdout/stderr is not a terminal, relay through a pipe so
+# the command sees what it would see on the host.
+if [ "${TECU_TTY_OUT:-0}" = 1 ]; then exec 5>/dev/tty1; else exec 5> >(exec cat >/dev/tty1); fi
+if [ "${TECU_TTY_ERR:-0}" = 1 ]; then exec 6>/dev/tty2; else exec 6> >(exec cat >/dev/tty2); fi
+unset TECU_TTY_OUT TECU_TTY_ERR TECU_CWD TECU_UML_MODULES
+export TECU_IN_VCAN_GUEST=1
+export TMPDIR="$TECU_RUN/tmp"
+
+"${argv[@]}" </dev/null >&5 2>&6 5>&- 6>&-
 finish $?

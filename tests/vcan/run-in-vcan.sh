@@ -19,6 +19,7 @@
 set -uo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
+HOME=${HOME:-$(getent passwd "$(id -u)" | cut -d: -f6)}
 CACHE=${TECU_UML_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/tractionecu-uml}
 TOTAL=${TECU_VCAN_TIMEOUT:-3600}
 BOOT_TIMEOUT=${TECU_VCAN_BOOT_TIMEOUT:-60}
@@ -61,6 +62,8 @@ trap 'log "interrupted"; exit 130' INT TERM HUP
 {
     printf 'export TECU_CWD=%q\n' "$PWD"
     printf 'export TECU_UML_MODULES=%q\n' "$CACHE/modules"
+    if [ -t 1 ]; then echo 'export TECU_TTY_OUT=1'; fi
+    if [ -t 2 ]; then echo 'export TECU_TTY_ERR=1'; fi
     for v in $(compgen -e); do
         case "$v" in
             PATH | HOME | USER | LOGNAME | SHELL | LANG | LANGUAGE | LC_* | TERM | TZ | COLUMNS | \
@@ -68,7 +71,7 @@ trap 'log "interrupted"; exit 130' INT TERM HUP
                 TECU_*) ;;
             *) case " ${TECU_VCAN_PASSENV:-} " in *" $v "*) ;; *) continue ;; esac ;;
         esac
-        case "$v" in TECU_RUN | TECU_CWD | TECU_UML_MODULES | TECU_IN_VCAN_GUEST) continue ;; esac
+        case "$v" in TECU_RUN | TECU_CWD | TECU_UML_MODULES | TECU_TTY_* | TECU_IN_VCAN_GUEST) continue ;; esac
         printf 'export %s=%q\n' "$v" "${!v}"
     done
 } >"$run/env.sh"

@@ -1,0 +1,40 @@
+"""Suite-wide pytest hooks.
+
+`vcan`-marked tests need a real SocketCAN interface `vcan0`. They run inside
+the User-Mode Linux guest started by `tests/vcan/run-in-vcan.sh` (which sets
+TECU_IN_VCAN_GUEST=1) or on a host whose kernel has CAN and a vcan0, and are
+skipped with a reason everywhere else.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+
+import pytest
+
+VCAN_SKIP_REASON = (
+    "needs SocketCAN with vcan0; run inside the UML guest: "
+    "tests/vcan/run-in-vcan.sh .venv/bin/python -m pytest -m vcan tests"
+)
+
+
+def socketcan_available() -> bool:
+    """True inside the vcan guest, or where AF_CAN works and vcan0 exists."""
+    if os.environ.get("TECU_IN_VCAN_GUEST") == "1":
+        return True
+    try:
+        sock = socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW)
+    except (AttributeError, OSError):
+        return False
+    sock.close()
+    return os.path.exists("/sys/class/net/vcan0")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if socketcan_available():
+        return
+    skip = pytest.mark.skip(reason=VCAN_SKIP_REASON)
+    for item in items:
+        if item.get_closest_marker("vcan") is not None:
+            item.add_marker(skip)
