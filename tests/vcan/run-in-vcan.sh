@@ -19,7 +19,7 @@
 set -uo pipefail
 
 here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
-HOME=${HOME:-$(getent passwd "$(id -u)" | cut -d: -f6)}
+export HOME=${HOME:-$(getent passwd "$(id -u)" | cut -d: -f6)}
 CACHE=${TECU_UML_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/tractionecu-uml}
 TOTAL=${TECU_VCAN_TIMEOUT:-3600}
 BOOT_TIMEOUT=${TECU_VCAN_BOOT_TIMEOUT:-60}

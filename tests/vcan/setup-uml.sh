@@ -26,7 +26,7 @@ set -euo pipefail
 CAN_MODULES=(can can-raw can-bcm can-gw can-j1939 can-dev vcan vxcan)
 HOST_PACKAGES=(patchelf busybox-static iproute2 can-utils)
 SUITE=${TECU_UML_SUITE:-sid}
-HOME=${HOME:-$(getent passwd "$(id -u)" | cut -d: -f6)}
+export HOME=${HOME:-$(getent passwd "$(id -u)" | cut -d: -f6)}
 CACHE=${TECU_UML_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/tractionecu-uml}
 FORMAT=1 # bump when the cache layout changes
 
