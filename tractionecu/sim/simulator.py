@@ -32,7 +32,7 @@ from ..config import G, VehicleParams
 from ..model import effects as fx
 from ..model.vehicle import rolling_radius, slip as slip_fn
 from .field import Field
-from .plan import Plan
+from .plan import DS, Plan
 from .sensors import SensorSpec
 
 
@@ -182,18 +182,31 @@ def simulate(scn: Scenario) -> TruthTrace:
     off_fwd = np.array([half_l, half_l, -half_l, -half_l])
     off_lat = np.array([half_w, -half_w, half_w, -half_w])  # left positive
 
+    # Soil under each wheel, grade and altitude along the whole path, computed once.
+    ch_p, sh_p = np.cos(plan.heading), np.sin(plan.heading)
+    wx_p = plan.x[:, None] + off_fwd * ch_p[:, None] - off_lat * sh_p[:, None]
+    wy_p = plan.y[:, None] + off_fwd * sh_p[:, None] + off_lat * ch_p[:, None]
+    soil_w_p = fld.soil_index(wx_p, wy_p)
+    soil_c_p = fld.soil_index(plan.x, plan.y)
+    if "grade" in eff:
+        theta_p = fld.grade(plan.x, plan.y, plan.heading)
+        alt_p = fld.elevation(plan.x, plan.y)
+    else:
+        theta_p = np.zeros(len(plan.x))
+        alt_p = np.zeros(len(plan.x))
+    n_path = len(plan.s)
+
     for k in range(n_max):
         t = k * dt
         if d >= plan.length - 0.5:
             break
-        x, y, hd, v_tgt, work = plan.at(d)
-        ch, sh = math.cos(hd), math.sin(hd)
-        wx = x + off_fwd * ch - off_lat * sh
-        wy = y + off_fwd * sh + off_lat * ch
-        soil_w = fld.soil_index(wx, wy)
-        soil_c = int(fld.soil_index(np.array([x]), np.array([y]))[0])
-        theta = float(fld.grade(x, y, hd)) if "grade" in eff else 0.0
-        alt = float(fld.elevation(x, y)) if "grade" in eff else 0.0
+        ip = min(max(int(d / DS), 0), n_path - 1)
+        x, y, hd = float(plan.x[ip]), float(plan.y[ip]), float(plan.heading[ip])
+        v_tgt, work = float(plan.v_target[ip]), bool(plan.work[ip])
+        soil_w = soil_w_p[ip]
+        soil_c = int(soil_c_p[ip])
+        theta = float(theta_p[ip])
+        alt = float(alt_p[ip])
 
         # Implement and draft.
         target_level = 1.0 if work else 0.0
@@ -309,38 +322,34 @@ def _implicit_step(omega, v, s_dyn, h, md, fz, r, a, p, a1, a2, rho_s, rho_t, J,
     s, ds_dw, ds_dv = _slip_and_partials(omega, v, r)
     sgn_w = np.sign(omega)
     sgn_v = math.copysign(1.0, v) if v != 0 else 0.0
-    if relax is None:
-        sf = s
-    else:
-        sf = s_dyn
+    sf = s if relax is None else s_dyn
     mu = a * _g(sf, p, a1, a2)
     dmu = a * _dg(sf, p, a1, a2)
     f_om = (md - r * fz * (mu + rho_t * sgn_w)) / J
-    f_v = (float(np.sum(mu * fz)) - f_ext - float(np.sum(rho_s * fz)) * sgn_v) / m
+    f_v = ((mu * fz).sum() - f_ext - (rho_s * fz).sum() * sgn_v) / m
     if relax is None:
-        n = 5
-        jac = np.zeros((5, 5))
+        # (I − hJ)Δz = h f with J an arrow matrix (wheels couple only through v):
+        # solved in closed form by eliminating Δω.
         k_om = -r * fz * dmu / J
-        jac[np.arange(4), np.arange(4)] = k_om * ds_dw
-        jac[:4, 4] = k_om * ds_dv
-        jac[4, :4] = fz * dmu * ds_dw / m
-        jac[4, 4] = float(np.sum(fz * dmu * ds_dv)) / m
-        f = np.concatenate([f_om, [f_v]])
-    else:
-        sigma = relax["sigma_m"]
-        n = 9
-        jac = np.zeros((9, 9))
-        idx = np.arange(4)
-        rate = abs(v) / sigma
-        f_s = rate * (s - s_dyn)
-        jac[idx, 5 + idx] = -r * fz * dmu / J
-        jac[4, 5 + idx] = fz * dmu / m
-        jac[5 + idx, idx] = rate * ds_dw
-        jac[5 + idx, 4] = rate * ds_dv + sgn_v / sigma * (s - s_dyn)
-        jac[5 + idx, 5 + idx] = -rate
-        f = np.concatenate([f_om, [f_v], f_s])
-    dz = np.linalg.solve(np.eye(n) - h * jac, h * f)
-    omega_new = omega + dz[:4]
-    v_new = v + dz[4]
-    s_dyn_new = s_dyn + dz[5:9] if relax is not None else s_dyn
-    return omega_new, v_new, np.clip(s_dyn_new, -1.0, 1.0), dz[4] / h
+        d_inv = 1.0 / (1.0 - h * k_om * ds_dw)
+        c = k_om * ds_dv                       # ∂ω̇_i/∂v
+        b = fz * dmu * ds_dw / m               # ∂v̇/∂ω_i
+        e = (fz * dmu * ds_dv).sum() / m       # ∂v̇/∂v
+        hf_om = h * f_om
+        dv = (h * f_v + h * (b * d_inv * hf_om).sum()) / (1.0 - h * e - h * h * (b * d_inv * c).sum())
+        d_om = d_inv * (hf_om + h * c * dv)
+        return omega + d_om, v + dv, s_dyn, dv / h
+    # With relaxation the force follows the lagged slip state s_dyn: a full 9×9 solve.
+    sigma = relax["sigma_m"]
+    jac = np.zeros((9, 9))
+    idx = np.arange(4)
+    rate = abs(v) / sigma
+    f_s = rate * (s - s_dyn)
+    jac[idx, 5 + idx] = -r * fz * dmu / J
+    jac[4, 5 + idx] = fz * dmu / m
+    jac[5 + idx, idx] = rate * ds_dw
+    jac[5 + idx, 4] = rate * ds_dv + sgn_v / sigma * (s - s_dyn)
+    jac[5 + idx, 5 + idx] = -rate
+    f = np.concatenate([f_om, [f_v], f_s])
+    dz = np.linalg.solve(np.eye(9) - h * jac, h * f)
+    return omega + dz[:4], v + dz[4], np.clip(s_dyn + dz[5:9], -1.0, 1.0), dz[4] / h
