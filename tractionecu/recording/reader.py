@@ -335,7 +335,8 @@ class Recording:
         if not (math.isfinite(a) and math.isfinite(b)) or b < a:
             grid = np.empty(0)
         else:
-            n = int(math.floor((b - a) * rate_hz + 1e-9)) + 1
+            # 1e-3 step of tolerance: epoch times near 1.7e9 s carry ~2e-7 s of rounding
+            n = int(math.floor((b - a) * rate_hz + 1e-3)) + 1
             grid = a + np.arange(n) / rate_hz
         values: dict[str, np.ndarray] = {}
         ages: dict[str, np.ndarray] = {}

@@ -1,0 +1,361 @@
+"""Import CSV exports of already-decoded signals into a :class:`Recording`.
+
+Many field loggers export decoded signals as a wide CSV table: one time
+column and one column per signal, cells left empty where a signal has no
+new sample.  :func:`import_csv` maps such columns onto the project's
+signal names and SI units through a :class:`CsvMapping`.
+
+Column mapping
+--------------
+A mapping entry ``"CSV column" -> Column(target, unit)`` converts the
+column from ``unit`` to SI and stores it under ``target``:
+
+- ``target`` is a signal name (a DBC signal such as ``WheelSpeed_FL`` or an
+  extra name such as ``EngineSpeed``) or ``gps.<field>`` with field one of
+  ``lat, lon, alt, speed, course, fix_quality, hdop, nsat``;
+- ``unit`` is a key of :data:`UNITS` (``m/s``, ``km/h``, ``mph``, ``kn``,
+  ``rpm``, ``rad/s``, ``Nm``, ``kNm``, ``N``, ``kN``, ``deg``, ``m``, ``%``,
+  ``""``) or ``%ref_torque``: percent of the engine reference torque, which
+  the caller gives as ``reference_torque_nm`` [N·m] (J1939 SPN 544 value).
+
+A header matches a mapping key exactly, or after replacing ``.`` by
+``_`` (asammdf writes ``EEC1.EngineSpeed``).
+
+Presets
+-------
+:data:`CONTRACT_MAPPING` (time column ``t`` in s): every DBC data signal
+under its own name in its DBC unit, plus ``gps_lat, gps_lon, gps_alt,
+gps_speed, gps_course, gps_fix_quality, gps_hdop, gps_nsat`` (deg, m, m/s,
+deg).
+
+:data:`J1939_LOGGER_MAPPING` (time column ``timestamps`` in s, as asammdf
+exports of CANedge logs name it):
+
+=================================  ==========================  =============
+CSV column                         target                      CSV unit
+=================================  ==========================  =============
+``EEC1_ActualEnginePercentTorque`` ``EngineTorque`` [N·m]      % of reference
+``EEC1_EngineSpeed``               ``EngineSpeed`` [rad/s]     rpm
+``CCVS1_WheelBasedVehicleSpeed``   ``WheelBasedMachineSpeed``  km/h
+``WBSD_WheelBasedMachineSpeed``    ``WheelBasedMachineSpeed``  m/s
+``GBSD_GroundBasedMachineSpeed``   ``GroundBasedMachineSpeed`` m/s
+``gnss_speed_Speed``               ``gps.speed``               m/s
+``gnss_pos_Latitude``              ``gps.lat``                 deg
+``gnss_pos_Longitude``             ``gps.lon``                 deg
+``gnss_altitude_Altitude``         ``gps.alt``                 m
+``gnss_status_Satellites``         ``gps.nsat``                -
+``GNSS_Speed``                     ``gps.speed``               km/h
+``Latitude`` / ``Longitude``       ``gps.lat`` / ``gps.lon``   deg
+=================================  ==========================  =============
+
+Time
+----
+``time_unit`` is ``"s"`` or ``"ms"``; ``time_offset_s`` [s] is added after
+conversion (use it to turn a relative logger time into epoch seconds).
+Rows whose time is not a number or goes backwards are rejected and counted.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, default_codec
+from ..errors import ConfigError, RecordingError
+from .reader import (
+    GPS_FIELDS,
+    GpsTrack,
+    MessageStats,
+    Recording,
+    RecordingStats,
+    Series,
+)
+
+MAX_EXAMPLES = 5
+
+UNITS: dict[str, float] = {
+    "": 1.0,
+    "-": 1.0,
+    "m/s": 1.0,
+    "km/h": 1.0 / 3.6,
+    "mph": 0.44704,
+    "kn": 1852.0 / 3600.0,
+    "rad/s": 1.0,
+    "rpm": 2.0 * math.pi / 60.0,
+    "Nm": 1.0,
+    "kNm": 1000.0,
+    "N": 1.0,
+    "kN": 1000.0,
+    "deg": 1.0,
+    "m": 1.0,
+    "%": 1.0,
+}
+"""CSV unit -> factor to the SI (or kept-percent) unit of the target."""
+
+REF_TORQUE_UNIT = "%ref_torque"
+
+EXTRA_UNITS = {"EngineTorque": "Nm", "EngineSpeed": "rad/s"}
+"""SI units of targets that are not DBC signals."""
+
+
+@dataclass(frozen=True)
+class Column:
+    """Where one CSV column goes (``target``) and the unit it is written in."""
+
+    target: str
+    unit: str = ""
+
+    def __post_init__(self) -> None:
+        if self.unit not in UNITS and self.unit != REF_TORQUE_UNIT:
+            raise ConfigError(f"unit: {self.unit!r} for {self.target} is not one of {sorted(UNITS)} or {REF_TORQUE_UNIT}")
+        if self.target.startswith("gps.") and self.target[4:] not in GPS_FIELDS:
+            raise ConfigError(f"target: {self.target!r} is not gps.<{'|'.join(GPS_FIELDS)}>")
+
+
+@dataclass(frozen=True)
+class CsvMapping:
+    """Column mapping plus the time column's name and unit (``s`` or ``ms``)."""
+
+    columns: Mapping[str, Column]
+    time_column: str = "t"
+    time_unit: str = "s"
+
+
+def _contract_mapping() -> CsvMapping:
+    codec = default_codec()
+    cols: dict[str, Column] = {}
+    for m in codec.messages.values():
+        if m.pgn in NETWORK_MANAGEMENT_PGNS:
+            continue
+        for s in m.signals:
+            unit = codec.signals[s].unit
+            cols[s] = Column(s, unit if unit in UNITS else "")
+    for k, unit in zip(GPS_FIELDS, ("deg", "deg", "m", "m/s", "deg", "", "", "")):
+        cols[f"gps_{k}"] = Column(f"gps.{k}", unit)
+    return CsvMapping(cols, "t", "s")
+
+
+CONTRACT_MAPPING = _contract_mapping()
+"""Contract names, DBC units, time column ``t`` [s]."""
+
+J1939_LOGGER_MAPPING = CsvMapping(
+    {
+        "EEC1_ActualEnginePercentTorque": Column("EngineTorque", REF_TORQUE_UNIT),
+        "EEC1_EngineSpeed": Column("EngineSpeed", "rpm"),
+        "CCVS1_WheelBasedVehicleSpeed": Column("WheelBasedMachineSpeed", "km/h"),
+        "WBSD_WheelBasedMachineSpeed": Column("WheelBasedMachineSpeed", "m/s"),
+        "GBSD_GroundBasedMachineSpeed": Column("GroundBasedMachineSpeed", "m/s"),
+        "gnss_speed_Speed": Column("gps.speed", "m/s"),
+        "gnss_pos_Latitude": Column("gps.lat", "deg"),
+        "gnss_pos_Longitude": Column("gps.lon", "deg"),
+        "gnss_altitude_Altitude": Column("gps.alt", "m"),
+        "gnss_status_Satellites": Column("gps.nsat", ""),
+        "GNSS_Speed": Column("gps.speed", "km/h"),
+        "Latitude": Column("gps.lat", "deg"),
+        "Longitude": Column("gps.lon", "deg"),
+    },
+    time_column="timestamps",
+    time_unit="s",
+)
+"""Typical J1939 logger export names (see module docstring)."""
+
+
+@dataclass
+class CsvStats:
+    """Lines, data rows, accepted cells and rejects of one CSV file.
+
+    ``rejected`` counts by reason (``bad_time``, ``time_backwards``,
+    ``bad_value``, ``short_row``) with the first line numbers in ``examples``;
+    ``unmapped`` lists header columns the mapping does not use.
+    """
+
+    source: str = ""
+    lines: int = 0
+    rows: int = 0
+    accepted: int = 0
+    rejected: Counter = field(default_factory=Counter)
+    examples: dict[str, list[int]] = field(default_factory=dict)
+    unmapped: list[str] = field(default_factory=list)
+
+    def reject(self, reason: str, lineno: int) -> None:
+        """Count one rejected row or cell."""
+        self.rejected[reason] += 1
+        ex = self.examples.setdefault(reason, [])
+        if len(ex) < MAX_EXAMPLES:
+            ex.append(lineno)
+
+    @property
+    def total_rejected(self) -> int:
+        """Rejected rows and cells."""
+        return sum(self.rejected.values())
+
+    def describe(self) -> list[str]:
+        """One line per reason: ``reason: count (file line a, b, ...)``."""
+        out = []
+        for reason in sorted(self.rejected):
+            ex = self.examples.get(reason, [])
+            more = "" if self.rejected[reason] <= len(ex) else ", ..."
+            out.append(f"{reason}: {self.rejected[reason]} ({self.source} line {', '.join(map(str, ex))}{more})")
+        return out
+
+
+def _norm(h: str) -> str:
+    return h.strip().replace(".", "_")
+
+
+def import_csv(
+    path: str | Path,
+    mapping: CsvMapping | None = None,
+    *,
+    time_column: str | None = None,
+    time_unit: str | None = None,
+    time_offset_s: float = 0.0,
+    reference_torque_nm: float | None = None,
+    vehicle_toml: str | Path | None = None,
+) -> Recording:
+    """Read a decoded-signal CSV into a :class:`Recording`.
+
+    ``mapping`` defaults to :data:`CONTRACT_MAPPING`; ``time_column`` and
+    ``time_unit`` override the mapping's.  ``reference_torque_nm`` [N·m] is
+    required when a mapped column present in the file uses ``%ref_torque``.
+    The delimiter (``,``, ``;`` or tab) is detected from the header.
+
+    Raises :class:`RecordingError` (naming the file and line) for a missing,
+    unreadable or empty file, a missing time column, or no mapped column;
+    :class:`ConfigError` for a bad unit or a missing reference torque.
+    """
+    p = Path(path)
+    mp = mapping if mapping is not None else CONTRACT_MAPPING
+    tcol = time_column if time_column is not None else mp.time_column
+    tunit = time_unit if time_unit is not None else mp.time_unit
+    if tunit not in ("s", "ms"):
+        raise ConfigError(f"time_unit: {tunit!r} is not 's' or 'ms'")
+    tscale = 1e-3 if tunit == "ms" else 1.0
+
+    try:
+        fh = open(p, "r", encoding="utf-8-sig", errors="replace", newline="")
+    except OSError as e:
+        raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
+    stats = CsvStats(source=p.name)
+    with fh:
+        header_line = fh.readline()
+        if not header_line.strip():
+            raise RecordingError(f"{p}: line 1: empty file (no header)")
+        delim = max((",", ";", "\t"), key=header_line.count)
+        header = next(csv.reader([header_line], delimiter=delim))
+        stats.lines = 1
+        norm_keys = {_norm(k): k for k in mp.columns}
+        col_idx: dict[int, Column] = {}
+        t_idx = None
+        for i, h in enumerate(header):
+            hn = h.strip()
+            if hn == tcol or _norm(hn) == _norm(tcol):
+                t_idx = i
+                continue
+            key = hn if hn in mp.columns else norm_keys.get(_norm(hn))
+            if key is None:
+                stats.unmapped.append(hn)
+            else:
+                col_idx[i] = mp.columns[key]
+        if t_idx is None:
+            raise RecordingError(f"{p}: line 1: no time column {tcol!r} in header")
+        if not col_idx:
+            raise RecordingError(f"{p}: line 1: none of the mapped columns is in the header")
+        if any(c.unit == REF_TORQUE_UNIT for c in col_idx.values()):
+            if reference_torque_nm is None or not reference_torque_nm > 0:
+                raise ConfigError(
+                    "reference_torque_nm: needed (> 0 N·m) to convert percent engine torque"
+                )
+
+        sig_t: dict[str, list[float]] = {}
+        sig_v: dict[str, list[float]] = {}
+        gps_rows: dict[str, list] = {k: [] for k in ("t",) + GPS_FIELDS}
+        msg_stats: dict[str, MessageStats] = {}
+        last_t = -math.inf
+        for lineno, row in enumerate(csv.reader(fh, delimiter=delim), start=2):
+            stats.lines += 1
+            if not row or all(not c.strip() for c in row):
+                continue
+            stats.rows += 1
+            if len(row) <= t_idx:
+                stats.reject("short_row", lineno)
+                continue
+            try:
+                t = float(row[t_idx]) * tscale + time_offset_s
+            except ValueError:
+                stats.reject("bad_time", lineno)
+                continue
+            if not math.isfinite(t):
+                stats.reject("bad_time", lineno)
+                continue
+            if t < last_t:
+                stats.reject("time_backwards", lineno)
+                continue
+            last_t = t
+            gps_here: dict[str, float] = {}
+            for i, col in col_idx.items():
+                if i >= len(row):
+                    continue
+                cell = row[i].strip()
+                if cell == "":
+                    continue
+                try:
+                    raw = float(cell)
+                except ValueError:
+                    stats.reject("bad_value", lineno)
+                    continue
+                if col.unit == REF_TORQUE_UNIT:
+                    v = raw / 100.0 * float(reference_torque_nm)  # type: ignore[arg-type]
+                else:
+                    v = raw * UNITS[col.unit]
+                stats.accepted += 1
+                if col.target.startswith("gps."):
+                    gps_here[col.target[4:]] = v
+                    continue
+                sig_t.setdefault(col.target, []).append(t)
+                sig_v.setdefault(col.target, []).append(v)
+                ms = msg_stats.get(col.target)
+                if ms is None:
+                    ms = msg_stats[col.target] = MessageStats(col.target, None, t_first=t)
+                ms.count += 1
+                ms.t_last = t
+            if gps_here:
+                gps_rows["t"].append(t)
+                for k in GPS_FIELDS:
+                    gps_rows[k].append(gps_here.get(k))
+
+    if stats.rows == 0:
+        raise RecordingError(f"{p}: line 2: no data rows")
+
+    codec = default_codec()
+    signals: dict[str, Series] = {}
+    units: dict[str, str] = {}
+    for name, ts in sig_t.items():
+        unit = codec.signals[name].unit if name in codec.signals else EXTRA_UNITS.get(name, "")
+        t_arr = np.asarray(ts, dtype=float)
+        signals[name] = Series(t_arr, np.asarray(sig_v[name], dtype=float), np.full(t_arr.size, -1, dtype=np.int16), unit)
+        units[name] = unit
+        ms = msg_stats[name]
+        if t_arr.size >= 2:
+            ms.max_interval_s = float(np.diff(t_arr).max())
+
+    rstats = RecordingStats()
+    rstats.files[p.name] = stats
+    rstats.messages = msg_stats
+    gps = GpsTrack.from_columns(gps_rows)
+    rstats.gps_epochs = len(gps)
+    rstats.gps_alignment = f"GPS columns of {p.name} on the CSV time axis" if len(gps) else ""
+    return Recording(
+        path=p,
+        signals=signals,
+        gps=gps,
+        stats=rstats,
+        vehicle_toml_path=Path(vehicle_toml) if vehicle_toml is not None else None,
+        units=units,
+    )
