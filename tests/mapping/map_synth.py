@@ -19,11 +19,12 @@ def soil_xy(x, y):
     return np.where(x < 30.0, 0, np.where(y > 0.5 * (x - 30.0) + 20.0, 1, 2))
 
 
-def passes(width_m=70.0, length_m=50.0, spacing_m=6.0, step_m=0.25, x_start=3.0):
-    """Back-and-forth track (x, y) [m] with samples every ``step_m``."""
+def passes(width_m=70.0, length_m=50.0, spacing_m=6.0, step_m=0.25, x_start=3.13, y_start=0.07):
+    """Back-and-forth track (x, y) [m] with samples every ``step_m``, offset so
+    that no sample lies exactly on a cell edge."""
     xs, ys = [], []
     for k, x in enumerate(np.arange(x_start, width_m, spacing_m)):
-        y = np.arange(0.0, length_m, step_m)
+        y = np.arange(y_start, length_m, step_m)
         if k % 2:
             y = y[::-1]
         xs.append(np.full_like(y, x))

@@ -33,6 +33,8 @@ def classify_by_a(a: ArrayLike, typical_a: ArrayLike) -> NDArray[np.int64]:
     """
     a = np.asarray(a, dtype=np.float64)
     ta = np.asarray(typical_a, dtype=np.float64).ravel()
+    if ta.size == 0:
+        return np.full(a.shape, -1, dtype=np.int64)
     order = np.argsort(ta, kind="stable")
     ts = ta[order]
     # boundaries between neighbouring classes are the midpoints
