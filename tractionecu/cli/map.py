@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"tractionecu map export: {e}", file=sys.stderr)
         return EXIT_USAGE
-    out = args.out if args.out is not None else _default_out(store.directory, args.fmt)
+    out = args.out if args.out is not None else _default_out(Path(args.dir), args.fmt)
     try:
         path = export(store, args.fmt, out, **kwargs)
     except MissingExtraError as e:

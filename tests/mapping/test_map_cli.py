@@ -1,0 +1,84 @@
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from tractionecu.cli import map as map_cmd
+from tractionecu.mapping.store import MapStore
+
+from map_synth import ORIGIN, fill_store, passes
+
+
+def parse(argv):
+    """Build the parser the way the main CLI does and dispatch via args.func."""
+    parser = argparse.ArgumentParser(prog="tractionecu")
+    sub = parser.add_subparsers(dest="command")
+    map_cmd.add_subparser(sub)
+    return parser.parse_args(argv)
+
+
+@pytest.fixture(scope="module")
+def replay_dir(tmp_path_factory):
+    """A replay output directory with the map under ``map/``."""
+    out = tmp_path_factory.mktemp("run")
+    st = MapStore(out / "map", *ORIGIN)
+    x, y = passes(width_m=30.0, length_m=20.0)
+    fill_store(st, x, y, np.random.default_rng(2))
+    st.close()
+    return out
+
+
+@pytest.mark.parametrize("fmt,name", [("geotiff", "map.tif"), ("isoxml", "TASKDATA/TASKDATA.XML"),
+                                      ("png", "map.png"), ("geojson", "map.geojson")])
+def test_export_each_format(replay_dir, fmt, name, capsys):
+    if fmt in ("geotiff", "geojson"):
+        pytest.importorskip("rasterio")
+    if fmt == "png":
+        pytest.importorskip("matplotlib")
+    args = parse(["map", "export", str(replay_dir), "--format", fmt])
+    assert args.func(args) == 0
+    path = replay_dir / "export" / name
+    assert path.exists() and path.stat().st_size > 0
+    assert capsys.readouterr().out.strip() == str(path)
+
+
+def test_export_options(replay_dir, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    args = parse(["map", "export", str(replay_dir / "map"), "--format", "geotiff", "--out",
+                  str(tmp_path / "a.tif"), "--layers", "a", "--raw"])
+    assert args.func(args) == 0
+    with rasterio.open(tmp_path / "a.tif") as ds:
+        assert ds.count == 1 and ds.descriptions == ("a",)
+    args = parse(["map", "export", str(replay_dir), "--format", "geojson", "--out", str(tmp_path / "z.geojson"),
+                  "--soil-classes", "firm=0.75,soft=0.42"])
+    assert args.func(args) == 0
+    doc = json.loads((tmp_path / "z.geojson").read_text())
+    soils = {f["properties"].get("soil") for f in doc["features"] if f["properties"]["kind"] == "soil_zone"}
+    assert soils <= {"firm", "soft"} and soils
+
+
+def test_errors_give_exit_codes(tmp_path, replay_dir, capsys, monkeypatch):
+    args = parse(["map", "export", str(tmp_path / "nothing"), "--format", "png"])
+    assert args.func(args) == 1
+    assert "manifest" in capsys.readouterr().err
+    args = parse(["map", "export", str(replay_dir), "--format", "isoxml", "--layers", "nope"])
+    assert args.func(args) == 2
+    args = parse(["map", "export", str(replay_dir), "--format", "png", "--soil-classes", "junk"])
+    assert args.func(args) == 2
+    import sys
+
+    monkeypatch.setitem(sys.modules, "rasterio", None)
+    args = parse(["map", "export", str(replay_dir), "--format", "geotiff", "--out", str(tmp_path / "x.tif")])
+    assert args.func(args) == 3
+    assert "pip install 'tractionecu[maps]'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        parse(["map", "export", str(replay_dir), "--format", "shapefile"])
+
+
+def test_info(replay_dir, capsys):
+    args = parse(["map", "info", str(replay_dir)])
+    assert args.func(args) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["crs"] == "EPSG:32633" and info["tiles"] >= 1 and info["track_points"] > 0
+    assert info["corrupt_tiles"] == []
