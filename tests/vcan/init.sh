@@ -5,7 +5,7 @@
 # path. The kernel command line hands over one variable, TECU_RUN: a private
 # host directory written by run-in-vcan.sh that holds
 #   env.sh    exports for the command (PATH, HOME, ...) and for this script:
-#             TECU_CWD, TECU_UML_MODULES, TECU_TTY_OUT, TECU_TTY_ERR
+#             TECU_CWD, TECU_UML_MODULES, TECU_TTY_OUT/ERR/SIZE
 #   argv      the command, NUL-separated
 # and receives
 #   booted    written as soon as this script runs
@@ -77,13 +77,21 @@ mountpoint -q /dev/pts || mount -t devpts -o gid=5,mode=620,ptmxmode=666 devpts 
 mount -t tmpfs -o mode=1777 tmpfs /dev/shm || fail "cannot mount /dev/shm"
 mount -t tmpfs -o mode=755 tmpfs /run || fail "cannot mount /run"
 mount -t tmpfs -o mode=1777 tmpfs "$TECU_RUN/tmp" || fail "cannot mount the guest TMPDIR"
-# The consoles must pass bytes through unchanged (no \n -> \r\n).
-stty -F /dev/tty1 raw -echo 2>/dev/null
-stty -F /dev/tty2 raw -echo 2>/dev/null
 exec 2>/dev/tty2
 
 # shellcheck source=/dev/null
 . "$TECU_RUN/env.sh" || fail "cannot read $TECU_RUN/env.sh"
+
+# A console wired to a host terminal behaves like one (UML puts the host's
+# terminal in raw mode); one wired to a pipe or file passes bytes unchanged.
+for n in 1 2; do
+    if [ "$n" = 1 ]; then t=${TECU_TTY_OUT:-0}; else t=${TECU_TTY_ERR:-0}; fi
+    if [ "$t" = 1 ]; then
+        stty -F "/dev/tty$n" sane -echo 2>/dev/null
+    else
+        stty -F "/dev/tty$n" raw -echo 2>/dev/null
+    fi
+done
 
 # CAN modules in dependency order (the list is written by setup-uml.sh).
 [ -r "$TECU_UML_MODULES/modules.load" ] || fail "no module list in $TECU_UML_MODULES"
@@ -103,7 +111,11 @@ cd "$TECU_CWD" || fail "cannot cd to $TECU_CWD"
 # the command sees what it would see on the host.
 if [ "${TECU_TTY_OUT:-0}" = 1 ]; then exec 5>/dev/tty1; else exec 5> >(exec cat >/dev/tty1); fi
 if [ "${TECU_TTY_ERR:-0}" = 1 ]; then exec 6>/dev/tty2; else exec 6> >(exec cat >/dev/tty2); fi
-unset TECU_TTY_OUT TECU_TTY_ERR TECU_CWD TECU_UML_MODULES
+# The window size is reset when a console is first opened: set it now.
+if [ "${TECU_TTY_OUT:-0}" = 1 ] && [ -n "${TECU_TTY_SIZE:-}" ]; then
+    stty rows "${TECU_TTY_SIZE% *}" cols "${TECU_TTY_SIZE#* }" <&5 2>/dev/null
+fi
+unset TECU_TTY_OUT TECU_TTY_ERR TECU_TTY_SIZE TECU_CWD TECU_UML_MODULES
 export TECU_IN_VCAN_GUEST=1
 export TMPDIR="$TECU_RUN/tmp"
 

@@ -48,7 +48,7 @@ done
 mkdir "$run/tmp" "$run/uml"
 
 tty_state=
-if [ -t 1 ]; then tty_state=$(stty -g <&1 2>/dev/null); fi
+if [ -t 1 ]; then { tty_state=$(stty -g <&3 2>/dev/null); } 3>&1; fi
 uml_pid=
 cleanup() {
     if [ -n "$uml_pid" ]; then kill "$uml_pid" 2>/dev/null; wait "$uml_pid" 2>/dev/null; fi
@@ -58,12 +58,19 @@ cleanup() {
 trap cleanup EXIT
 trap 'log "interrupted"; exit 130' INT TERM HUP
 
-# What CMD gets: cwd, PATH and a chosen set of the caller's variables.
+# What CMD gets: cwd, PATH, a chosen set of the caller's variables, and
+# whether our stdout/stderr are terminals.
+tty_out='' tty_err='' tty_size=''
+if [ -t 1 ]; then tty_out=1; { tty_size=$(stty size <&3 2>/dev/null); } 3>&1; fi
+if [ -t 2 ]; then tty_err=1; fi
 {
     printf 'export TECU_CWD=%q\n' "$PWD"
     printf 'export TECU_UML_MODULES=%q\n' "$CACHE/modules"
-    if [ -t 1 ]; then echo 'export TECU_TTY_OUT=1'; fi
-    if [ -t 2 ]; then echo 'export TECU_TTY_ERR=1'; fi
+    if [ -n "$tty_out" ]; then
+        echo 'export TECU_TTY_OUT=1'
+        case "$tty_size" in [1-9]*" "[1-9]*) echo "export TECU_TTY_SIZE='$tty_size'" ;; esac
+    fi
+    if [ -n "$tty_err" ]; then echo 'export TECU_TTY_ERR=1'; fi
     for v in $(compgen -e); do
         case "$v" in
             PATH | HOME | USER | LOGNAME | SHELL | LANG | LANGUAGE | LC_* | TERM | TZ | COLUMNS | \
@@ -103,6 +110,7 @@ boot() {
         log "guest ($mode) init started after $(($(now_ms) - start)) ms"
     wait "$uml_pid"
     uml_rc=$?
+    elapsed_ms=$(($(now_ms) - start))
     uml_pid=
     if [ -n "$tty_state" ]; then stty "$tty_state" <&1 2>/dev/null; fi
     [ -e "$run/booted" ]
@@ -127,7 +135,7 @@ fi
 
 if [ ! -s "$run/rc" ]; then
     show_console "$mode"
-    if [ "$uml_rc" = 124 ] || [ "$uml_rc" = 137 ]; then
+    if [ "$uml_rc" = 124 ] || { [ "$uml_rc" = 137 ] && [ "$elapsed_ms" -ge $((TOTAL * 1000)) ]; }; then
         log "error: timed out after ${TOTAL}s"
         exit 124
     fi
