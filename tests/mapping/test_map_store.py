@@ -78,6 +78,8 @@ def test_rejections(tmp_path):
     assert not add_xy(st, 1.0, 1.0, {"a": math.nan})
     assert not add_xy(st, 1.0, 1.0, {"a": 0.7, "mu": math.inf})
     assert not add_xy(st, 1.0, 1.0, {"a": 0.7}, valid=False)
+    assert not add_xy(st, 1.0, 1.0, {"a": 0.7}, status=0x20)  # not converged
+    assert add_xy(st, 1.0, 1.0, {"a": 0.7}, status=0x80)      # one NIS-gated measurement is fine
     assert not add_xy(st, 1.0, 1.0, ok, fix_quality=1)
     assert add_xy(st, 1.0, 1.0, ok, fix_quality=4, hdop=0.8)
     assert not add_xy(st, 1.0, 1.0, ok, hdop=3.0)
@@ -85,17 +87,17 @@ def test_rejections(tmp_path):
     assert not st.add(math.nan, ORIGIN[1], ok, 0.0)
     assert not st.add(ORIGIN[0], ORIGIN[1], ok, math.nan)
     assert not st.add(ORIGIN[0] + 1.0, ORIGIN[1], ok, 0.0)  # 111 km away
-    assert st.stats["accepted"] == 2
+    assert st.stats["accepted"] == 3 and st.stats["rejected_status"] == 1
     assert st.stats["rejected_value"] == 2 and st.stats["rejected_invalid"] == 1
     assert st.stats["rejected_fix"] == 1 and st.stats["rejected_hdop"] == 1
     assert st.stats["rejected_no_layer"] == 1 and st.stats["rejected_position"] == 2
     assert st.stats["rejected_range"] == 1
     g = st.grid("a")
-    assert g.count.sum() == 2 and np.nanmax(g.mean) == pytest.approx(0.7)
+    assert g.count.sum() == 3 and np.nanmax(g.mean) == pytest.approx(0.7)
     # the track holds every position that passed the GNSS checks, flagged
     st.flush(force=True)
     tr = st.track()
-    assert len(tr) == 6 and tr[:, 3].sum() == 2
+    assert len(tr) == 8 and tr[:, 3].sum() == 3
     st.close()
 
 

@@ -66,7 +66,7 @@ from numpy.typing import NDArray
 
 from tractionecu.errors import TractionEcuError
 
-from .fill import DEFAULT_EPS_M, DEFAULT_WEIGHTS
+from .fill import DEFAULT_EPS_M
 from .projection import meridian_radius, normal_radius
 from .soil import classify_by_a, natural_classes
 from .store import LayerGrid, MapStore, open_store

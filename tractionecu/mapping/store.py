@@ -6,7 +6,8 @@ replay and service call.
     from tractionecu.mapping.store import MapStore
     store = MapStore(directory, origin_lat, origin_lon)        # new map, or resume a matching one
     store = MapStore.open(directory)                           # resume from manifest.json
-    ok = store.add(lat_deg, lon_deg, {"a": 0.71, "rho_s": 0.06, "mu": 0.4}, t)   # False if rejected
+    ok = store.add(lat_deg, lon_deg, {"a": 0.71, "rho_s": 0.06, "mu": 0.4}, t,
+                   valid=e.valid, status=e.status, fix_quality=gga_quality, hdop=hdop)  # False if rejected
     n = store.flush()                                          # dirty tiles written atomically
     mean, x0, y0, res = store.mean_grid("a")                  # NaN where empty
     store.close()
@@ -77,6 +78,10 @@ log = logging.getLogger(__name__)
 
 DEFAULT_RESOLUTION_M = 0.5
 DEFAULT_TILE_CELLS = 64
+DEFAULT_REJECT_STATUS_MASK = 0x17F
+"""EstimateStatus bits that make :meth:`MapStore.add` reject a sample: sensor
+timeouts (0x01–0x10), not converged (0x20), input rejected (0x40) and
+covariance repaired (0x100); a NIS-gated measurement (0x80) alone does not."""
 DEFAULT_MIN_FLUSH_INTERVAL_S = 0.1
 """Flushes closer together than this are skipped (≤ 10 writes per second)."""
 
@@ -163,6 +168,9 @@ class MapStore:
         (1 = autonomous GNSS, 2 = DGPS/SBAS, 4 = RTK fixed, 5 = RTK float).
     max_hdop:
         Highest accepted HDOP [-] when :meth:`add` is given one.
+    reject_status_mask:
+        EstimateStatus bits that reject a sample passed with ``status``
+        (default :data:`DEFAULT_REJECT_STATUS_MASK`).
     max_range_m:
         Positions farther than this from the origin (either axis) [m] are
         rejected as GNSS glitches.
@@ -179,6 +187,7 @@ class MapStore:
                  resolution_m: float = DEFAULT_RESOLUTION_M, tile_cells: int = DEFAULT_TILE_CELLS,
                  layers: Sequence[str] = LAYERS, soil_classes: Mapping[str, float] | None = None,
                  min_fix_quality: int = 1, max_hdop: float = 5.0, max_range_m: float = 50_000.0,
+                 reject_status_mask: int = DEFAULT_REJECT_STATUS_MASK,
                  min_flush_interval_s: float = DEFAULT_MIN_FLUSH_INTERVAL_S,
                  max_resident_tiles: int = 256, read_only: bool = False) -> None:
         self.directory = Path(directory)
@@ -202,6 +211,7 @@ class MapStore:
         self.min_fix_quality = int(min_fix_quality)
         self.max_hdop = float(max_hdop)
         self.max_range_m = float(max_range_m)
+        self.reject_status_mask = int(reject_status_mask)
         self.min_flush_interval_s = float(min_flush_interval_s)
         self.max_resident_tiles = int(max_resident_tiles)
         self.read_only = bool(read_only)
@@ -415,12 +425,15 @@ class MapStore:
         return False
 
     def add(self, lat_deg: float, lon_deg: float, values: Mapping[str, float], t: float, *,
-            valid: bool = True, fix_quality: int | None = None, hdop: float | None = None) -> bool:
+            valid: bool = True, status: int | None = None, fix_quality: int | None = None,
+            hdop: float | None = None) -> bool:
         """Accumulate one sample (meant for 10 Hz).  Returns False if rejected.
 
         ``values`` maps layer names to values; unknown names are ignored, missing
         layers are simply not updated.  Rejected (with ``stats['rejected_…']``):
-        ``valid`` false (estimator not converged / status not OK), fix quality
+        ``valid`` false (estimator not converged / status not OK), ``status``
+        (the estimator's EstimateStatus bitfield) with a bit of
+        ``reject_status_mask`` set, fix quality
         below ``min_fix_quality``, HDOP above ``max_hdop``, non-finite or
         out-of-range position or time, any non-finite layer value, no known
         layer, position farther than ``max_range_m`` from the origin.  The track
@@ -447,6 +460,8 @@ class MapStore:
         pairs: list[tuple[int, float]] = []
         ok = bool(valid)
         reason = "invalid"
+        if ok and status is not None and int(status) & self.reject_status_mask:
+            ok, reason = False, "status"
         if ok:
             for name, v in values.items():
                 li = self._layer_index.get(name)
@@ -665,4 +680,4 @@ def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:
     return MapStore.open(d, read_only=True)
 
 
-__all__ = ["LayerGrid", "MapStore", "open_store"]
+__all__ = ["CorruptTileError", "LayerGrid", "MapStore", "MapStoreError", "open_store"]
