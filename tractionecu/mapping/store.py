@@ -24,10 +24,13 @@ in the local frame of :class:`~tractionecu.mapping.projection.FieldFrame`
 
 Default resolution 0.5 m: the innermost fill band (ε_high = 1.5 m) then
 spans three cells, so the fill resolves the paper's 1.5/5/10 m bands; the
-cell is about one tyre contact-patch length and no finer than the position
-error of an RTK/SBAS receiver needs; and a 100 ha field is 4·10⁶ cells.
-Default tile 64 × 64 cells (32 m): one flush then typically rewrites one or
-two ~0.5 MB (uncompressed) tiles.
+cell is about one tyre contact-patch long, and finer cells would resolve
+nothing that the GNSS error (0.02 m RTK … ~0.5 m SBAS) and the distance
+travelled within the estimator's settling time do not already blur; a
+100 ha field is 4·10⁶ cells.  Default tile 64 × 64 cells (32 m): one flush
+typically rewrites one or two tiles of 0.49 MB raw (six layers × 4096 cells
+× 20 B), zlib-compressed on disk; at most ``max_resident_tiles`` clean tiles
+(default 256 ≈ 126 MB) stay in memory.
 """
 
 from __future__ import annotations
