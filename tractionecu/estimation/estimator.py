@@ -1,0 +1,518 @@
+"""AUKF-FS estimator with a push API: ``Estimator.step(t, inputs, measurements) -> Estimate``.
+
+Paper section 3: state x = (ω1..4, v, μ1..4, ρ_s), output y = (ω1..4, v),
+input u = (M_d1..4, F_zf, F_dx).  Sigma points go through
+:meth:`tractionecu.model.vehicle.FilterModel.step` (eqs. 2, 4, 8, 9 with RK4)
+in one call per step (:mod:`.ukf`); the process noise is adapted by
+covariance matching and the fuzzy supervisor (:mod:`.supervisor`, eqs.
+12–13); a and the surface class come from (μ̂, ŝ) pairs (:mod:`.curve`,
+eq. 14); slip is eq. 6 with r_d from eq. 9.
+
+Noise model
+-----------
+Measurement noise R comes from :class:`~tractionecu.sim.sensors.SensorSpec`
+(the documented sensor figures), never from the truth:
+
+    R_ω,i = (σ_ω,abs + σ_ω,rel |ω_i|)² + q_ω²/12,   R_v = σ_gps,v².
+
+Process noise Q_k = Q_in,k + f_k · A_k · diag(q) · Δt (see :mod:`.supervisor`):
+
+* Q_in is the measured-input noise (same SensorSpec) mapped through the
+  model: torque noise σ_M,i = σ_abs + σ_rel |M_d,i| acts on ω̇_i with gain
+  1/J; axle-load noise on all wheel torques and on v̇ through F_z = (F_zf/2,
+  F_zf/2, (mg−F_zf)/2, (mg−F_zf)/2); draft noise on v̇ with gain −1/m.  A
+  held (zero-order-hold) white sample of variance σ² and period T has the
+  spectral density σ² T, hence Q_in = G Σ_u Gᵀ·T·Δt.
+* q = (q_ω ×4, q_v, q_μ ×4, q_ρ) are the tuning densities: model error for
+  ω and v, random walks for μ and ρ_s (paper: "their dynamics are neglected").
+
+Timing and robustness
+---------------------
+Inputs given at t are the inputs over (t_prev, t]; each key is held
+(zero-order hold) until it is refreshed.  An input that is None, NaN or
+Inf is rejected (the held value stays, bit 0x40) and the step is predict
+only.  A sensor not refreshed within its timeout sets its status bit; an
+input timeout makes the step predict only; a missing measurement simply
+skips its part of the update.  Gaps longer than ``max_step_s`` are
+predicted in sub-steps.  Nothing depends on wall-clock time, so the same
+input sequence always gives the same estimates (offline = online).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import erfcinv
+
+from ..config import G, VehicleParams, _toml_value, _validate, from_mapping, to_toml
+from ..errors import ConfigError, EstimatorError
+from ..model.mucurve import SOIL_CLASSES
+from ..model.vehicle import IX_MU, IX_RHO, IX_V, N_STATE, FilterModel, slip as slip_fn
+from ..sim.sensors import SensorSpec
+from .curve import CurveEstimator
+from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzyConfig, FuzzySupervisor
+from .ukf import UnscentedFilter
+
+# ----------------------------------------------------------------------------- status bits
+WHEEL_TIMEOUT = 0x01
+GPS_TIMEOUT = 0x02
+TORQUE_TIMEOUT = 0x04
+AXLE_TIMEOUT = 0x08
+DRAFT_TIMEOUT = 0x10
+NOT_CONVERGED = 0x20
+INPUT_REJECTED = 0x40
+MEAS_GATED = 0x80
+COV_REPAIRED = 0x100
+
+STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed_timeout",
+                TORQUE_TIMEOUT: "torque_timeout", AXLE_TIMEOUT: "axle_load_timeout",
+                DRAFT_TIMEOUT: "draft_timeout", NOT_CONVERGED: "not_converged",
+                INPUT_REJECTED: "input_rejected", MEAS_GATED: "measurement_gated",
+                COV_REPAIRED: "covariance_repaired"}
+INVALID_MASK = WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED | INPUT_REJECTED
+"""Bits that make an estimate not ``valid`` (gating and a repaired covariance are notices only)."""
+
+
+def status_names(status: int) -> list[str]:
+    """Names of the bits set in an ``EstimateStatus`` word."""
+    return [name for bit, name in STATUS_NAMES.items() if status & bit]
+
+
+# ----------------------------------------------------------------------------- config
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Tuning of the AUKF-FS.  Measurement noise is not here: it comes from ``SensorSpec``."""
+
+    # UKF
+    alpha: float = field(default=1.0, metadata={"doc": "sigma-point spread α [-] (filterpy MerweScaledSigmaPoints)", "lo": 1e-4, "hi": 10.0})
+    beta: float = field(default=2.0, metadata={"doc": "sigma-point β [-] (2 is optimal for Gaussians)", "lo": 0.0, "hi": 10.0})
+    kappa: float = field(default=0.0, metadata={"doc": "sigma-point κ [-]", "lo": -9.0, "hi": 100.0})
+    max_step_s: float = field(default=0.02, metadata={"doc": "longest single prediction step; longer gaps are sub-stepped [s]", "lo": 1e-4, "hi": 1.0})
+    # process noise (tuning)
+    q_omega: float = field(default=1e-4, metadata={"doc": "model-error density on each ω [rad²/s³]", "lo": 0.0, "hi": 1e3})
+    q_v: float = field(default=1e-4, metadata={"doc": "model-error density on v [m²/s³]", "lo": 0.0, "hi": 1e3})
+    q_mu: float = field(default=2e-3, metadata={"doc": "random-walk density of each μ [1/s]", "lo": 0.0, "hi": 10.0})
+    q_rho: float = field(default=2e-5, metadata={"doc": "random-walk density of ρ_s [1/s]", "lo": 0.0, "hi": 10.0})
+    input_noise: bool = field(default=True, metadata={"doc": "add the measured-input noise (SensorSpec) to Q"})
+    # adaptation (paper eqs. 12–13) and fuzzy supervisor
+    adaptation: bool = field(default=True, metadata={"doc": "covariance-matching adaptation A_k of Q"})
+    adapt_window: int = field(default=100, metadata={"doc": "window M of updates for covariance matching [-]", "lo": 2, "hi": 100000})
+    adapt_min: float = field(default=0.5, metadata={"doc": "lower clip of A_k entries [-]", "lo": 1e-3, "hi": 1.0})
+    adapt_max: float = field(default=20.0, metadata={"doc": "upper clip of A_k entries [-]", "lo": 1.0, "hi": 1e4})
+    supervisor: bool = field(default=True, metadata={"doc": "fuzzy-logic supervisor factor f_k on Q"})
+    adapt_period_s: float = field(default=0.1, metadata={"doc": "period at which A_k and f_k are recomputed [s]", "lo": 1e-3, "hi": 10.0})
+    dynamics_tau_s: float = field(default=0.2, metadata={"doc": "low-pass time constant of |dv/dt|, |dM_d/dt| [s]", "lo": 1e-3, "hi": 10.0})
+    # robustness
+    gate_probability: float = field(default=1e-4, metadata={"doc": "false-alarm probability of the per-measurement NIS gate [-] (0 disables)", "lo": 0.0, "hi": 0.5})
+    mu_min: float = field(default=-1.2, metadata={"doc": "lower bound of μ [-]", "lo": -5.0, "hi": 0.0})
+    mu_max: float = field(default=1.2, metadata={"doc": "upper bound of μ [-]", "lo": 0.0, "hi": 5.0})
+    rho_min: float = field(default=0.0, metadata={"doc": "lower bound of ρ_s [-]", "lo": -1.0, "hi": 0.0})
+    rho_max: float = field(default=0.5, metadata={"doc": "upper bound of ρ_s [-]", "lo": 0.0, "hi": 5.0})
+    wheel_timeout_s: float = field(default=0.05, metadata={"doc": "wheel-speed timeout [s]", "lo": 1e-3, "hi": 60.0})
+    gps_timeout_s: float = field(default=0.5, metadata={"doc": "ground-speed timeout [s]", "lo": 1e-3, "hi": 60.0})
+    torque_timeout_s: float = field(default=0.05, metadata={"doc": "drive-torque timeout [s]", "lo": 1e-3, "hi": 60.0})
+    axle_timeout_s: float = field(default=0.1, metadata={"doc": "front-axle-load timeout [s]", "lo": 1e-3, "hi": 60.0})
+    draft_timeout_s: float = field(default=0.1, metadata={"doc": "draft-force timeout [s]", "lo": 1e-3, "hi": 60.0})
+    # initial uncertainty and convergence
+    sigma_v0: float = field(default=0.2, metadata={"doc": "initial standard deviation of v [m/s]", "lo": 1e-6, "hi": 100.0})
+    sigma_mu0: float = field(default=0.1, metadata={"doc": "initial standard deviation of μ [-]", "lo": 1e-6, "hi": 10.0})
+    rho_s0: float = field(default=0.06, metadata={"doc": "initial ρ_s [-]", "lo": 0.0, "hi": 1.0})
+    sigma_rho0: float = field(default=0.05, metadata={"doc": "initial standard deviation of ρ_s [-]", "lo": 1e-6, "hi": 10.0})
+    conv_sigma_mu: float = field(default=0.01, metadata={"doc": "converged when every σ_μ is below this [-]", "lo": 1e-6, "hi": 10.0})
+    conv_sigma_rho: float = field(default=0.01, metadata={"doc": "converged when σ_ρ is below this [-]", "lo": 1e-6, "hi": 10.0})
+    conv_min_s: float = field(default=1.0, metadata={"doc": "never converged earlier than this after start [s]", "lo": 0.0, "hi": 3600.0})
+    # curve parameter a (paper section 3.2)
+    soil_classes: tuple[str, ...] = field(default=("stubble",), metadata={"doc": "surface classes (shapes p, α1, α2) to fit; first = default"})
+    curve_tau_s: float = field(default=3.0, metadata={"doc": "smoothing time constant of a [s]", "lo": 1e-3, "hi": 3600.0})
+    curve_min_slip: float = field(default=0.03, metadata={"doc": "pairs with |s| below this are skipped [-]", "lo": 0.0, "hi": 0.5})
+    curve_max_rel_err: float = field(default=0.10, metadata={"doc": "pairs whose propagated relative error of a exceeds this are skipped [-]", "lo": 1e-4, "hi": 10.0})
+    curve_min_speed_mps: float = field(default=0.5, metadata={"doc": "no curve update below this speed [m/s]", "lo": 0.0, "hi": 50.0})
+    curve_period_s: float = field(default=0.1, metadata={"doc": "period of the curve update [s]", "lo": 1e-3, "hi": 10.0})
+    curve_switch_ratio: float = field(default=0.7, metadata={"doc": "class switch hysteresis: RSS_new < ratio·RSS_current [-]", "lo": 0.01, "hi": 1.0})
+    fuzzy: FuzzyConfig = field(default_factory=FuzzyConfig, metadata={"doc": "fuzzy supervisor breakpoints ([estimator.fuzzy])"})
+
+    def __post_init__(self) -> None:
+        _validate(self, "estimator")
+        if isinstance(self.soil_classes, list):
+            object.__setattr__(self, "soil_classes", tuple(self.soil_classes))
+        if not self.soil_classes:
+            raise ConfigError("estimator.soil_classes: at least one class is needed")
+        for c in self.soil_classes:
+            if c not in SOIL_CLASSES:
+                raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
+        if not isinstance(self.adapt_window, int) or isinstance(self.adapt_window, bool):
+            raise ConfigError(f"estimator.adapt_window: expected an integer, got {self.adapt_window!r}")
+        if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
+            raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
+        if self.mu_min >= self.mu_max:
+            raise ConfigError("estimator.mu_min: must be < mu_max")
+        if self.rho_min >= self.rho_max:
+            raise ConfigError("estimator.rho_min: must be < rho_max")
+        if not isinstance(self.fuzzy, FuzzyConfig):
+            raise ConfigError("estimator.fuzzy: expected a FuzzyConfig")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "EstimatorConfig":
+        """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``)."""
+        data = dict(data)
+        fz = data.pop("fuzzy", {})
+        if "soil_classes" in data:
+            sc = data.pop("soil_classes")
+            if not isinstance(sc, (list, tuple)) or not all(isinstance(x, str) for x in sc):
+                raise ConfigError("estimator.soil_classes: expected a list of class names")
+        else:
+            sc = None
+        base = from_mapping(_FlatView, {k: v for k, v in data.items()}, "estimator")
+        kw = {f.name: getattr(base, f.name) for f in fields(_FlatView)}
+        if sc is not None:
+            kw["soil_classes"] = tuple(sc)
+        kw["fuzzy"] = from_mapping(FuzzyConfig, fz, "estimator.fuzzy")
+        return cls(**kw)
+
+    def to_toml(self) -> str:
+        """TOML text with ``[estimator]`` and ``[estimator.fuzzy]`` tables, each key with its doc."""
+        lines = ["[estimator]"]
+        for f in fields(self):
+            if f.name == "fuzzy":
+                continue
+            doc = f.metadata.get("doc")
+            if doc:
+                lines.append(f"# {doc}")
+            lines.append(f"{f.name} = {_toml_value(getattr(self, f.name))}")
+        return "\n".join(lines) + "\n\n" + to_toml(self.fuzzy, "estimator.fuzzy")
+
+
+def _flat_fields() -> type:
+    """A dataclass with the scalar fields of EstimatorConfig (for config.from_mapping)."""
+    import dataclasses
+    spec = [(f.name, f.type, field(default=f.default, metadata=f.metadata))
+            for f in fields(EstimatorConfig) if f.name not in ("fuzzy", "soil_classes")]
+    return dataclasses.make_dataclass("_FlatView", spec, frozen=True)
+
+
+_FlatView = _flat_fields()
+
+
+# ----------------------------------------------------------------------------- estimate
+@dataclass(frozen=True)
+class Estimate:
+    """One estimator output (docs/architecture.md)."""
+
+    t: float
+    """Time [s] (the caller's clock, e.g. epoch seconds)."""
+    mu: NDArray[np.float64]
+    """Adhesion coefficient μ per wheel FL, FR, RL, RR [-]."""
+    rho_s: float
+    """Soil-deformation rolling resistance ρ_s [-]."""
+    a: float
+    """Curve parameter a of μ(s) (eq. 14) of the best class [-]; NaN until identified."""
+    soil_class: str
+    """Name of the best-fitting surface class."""
+    slip: NDArray[np.float64]
+    """Slip per wheel (eq. 6) [-]."""
+    v: float
+    """Ground speed [m/s]."""
+    omega: NDArray[np.float64]
+    """Wheel speeds [rad/s]."""
+    P_diag: NDArray[np.float64]
+    """Diagonal of the state covariance, order (ω1..4, v, μ1..4, ρ_s), in squared state units."""
+    nis: float
+    """Normalised innovation squared of this step's update [-]; NaN without an update."""
+    adapt: float
+    """Effective adaptation of the μ process noise f_k·mean(A_k,μ) [-]."""
+    status: int
+    """EstimateStatus bitfield (see module constants)."""
+    valid: bool
+    """Converged and no timeout / rejected input."""
+    nis_dof: int = 0
+    """Degrees of freedom of ``nis`` (number of accepted output components)."""
+    soil_class_index: int = 0
+    """Index of ``soil_class`` in the configured classes (DBC SoilClassIndex)."""
+
+
+# ----------------------------------------------------------------------------- estimator
+_INPUT_KEYS = ("Md", "Fzf", "Fdx")
+
+
+class Estimator:
+    """AUKF-FS traction estimator (paper section 3).
+
+    Parameters
+    ----------
+    vehicle : nominal vehicle parameters.
+    cfg : tuning (default: ``EstimatorConfig()``).
+    sensors : sensor noise figures used for R and the input part of Q
+        (default: the documented ``SensorSpec()``).
+    """
+
+    def __init__(self, vehicle: VehicleParams, cfg: EstimatorConfig | None = None, sensors: SensorSpec | None = None):
+        self.vehicle = vehicle
+        self.cfg = cfg = cfg or EstimatorConfig()
+        self.sensors = sensors or SensorSpec()
+        self.model = FilterModel(vehicle)
+        self.m = vehicle.mass_kg
+        self.J = vehicle.wheel_inertia_kgm2
+        sp = self.sensors
+        self._gate = math.inf if cfg.gate_probability <= 0 else float(2.0 * erfcinv(cfg.gate_probability) ** 2)
+        self._q_tune = np.array([cfg.q_omega] * 4 + [cfg.q_v] + [cfg.q_mu] * 4 + [cfg.q_rho])
+        self._lo = np.array([-np.inf] * 5 + [cfg.mu_min] * 4 + [cfg.rho_min])
+        self._hi = np.array([np.inf] * 5 + [cfg.mu_max] * 4 + [cfg.rho_max])
+        # Sensor figures (SensorSpec) used in R and Q_in.
+        self._w_abs, self._w_rel = sp.wheel_speed_sigma_abs, sp.wheel_speed_sigma_rel
+        self._w_q2 = sp.wheel_speed_quant ** 2 / 12.0
+        self._r_v = sp.gps_speed_sigma ** 2
+        self._tq_abs, self._tq_rel = sp.torque_sigma_abs, sp.torque_sigma_rel
+        self._tq_q2 = sp.torque_quant ** 2 / 12.0
+        self._tq_T = 1.0 / sp.wheel_rate_hz
+        self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
+        self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
+        self._pin_T = 1.0 / sp.loadpin_rate_hz
+        self._timeouts = {"Md": cfg.torque_timeout_s, "Fzf": cfg.axle_timeout_s, "Fdx": cfg.draft_timeout_s}
+        self._tbits = {"Md": TORQUE_TIMEOUT, "Fzf": AXLE_TIMEOUT, "Fdx": DRAFT_TIMEOUT}
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self) -> None:
+        """Forget everything (as after power-up)."""
+        cfg = self.cfg
+        self.ukf: UnscentedFilter | None = None
+        self.t: float | None = None
+        self.t_init: float | None = None
+        self._u = np.full(6, np.nan)
+        self._t_in = {k: -math.inf for k in _INPUT_KEYS}
+        self._t_omega = -math.inf
+        self._t_v = -math.inf
+        self._last_v_meas: float | None = None
+        self._fuzzy = FuzzySupervisor(cfg.fuzzy)
+        self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
+        self._cm = CovarianceMatching(N_STATE, cfg.adapt_window, cfg.adapt_min, cfg.adapt_max)
+        self._A = np.ones(N_STATE)
+        self._f = 1.0
+        self._t_adapt = -math.inf
+        self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_slip=cfg.curve_min_slip,
+                                     max_rel_err=cfg.curve_max_rel_err, switch_ratio=cfg.curve_switch_ratio)
+        self._curve_state = self._curve.state()
+        self._t_curve = -math.inf
+        self._loads_key = math.nan
+        self._fz = np.zeros(4)
+        self._rd = np.full(4, self.vehicle.r0_m)
+        self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
+                         "chol_repairs": 0, "resets": 0}
+
+    # ------------------------------------------------------------------ noise
+    def _loads(self) -> None:
+        fzf = self._u[4]
+        if fzf != self._loads_key:
+            fz, rd = self.model.loads(self._u)
+            self._fz, self._rd = fz, rd
+            self._loads_key = fzf
+
+    def _R_omega(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
+        s = self._w_abs + self._w_rel * np.abs(z)
+        return s * s + self._w_q2
+
+    def _Q(self, dt: float) -> NDArray[np.float64]:
+        """Process noise covariance for one step of dt [s]."""
+        q = self._q_tune * (self._f * dt)
+        q *= self._A
+        Q = np.diag(q)
+        if self.cfg.input_noise:
+            u = self._u
+            x = self.ukf.x  # type: ignore[union-attr]
+            J = self.J
+            sm = self._tq_abs + self._tq_rel * np.abs(u[:4])
+            idx = np.arange(4)
+            Q[idx, idx] += (sm * sm + self._tq_q2) * (self._tq_T * dt) / (J * J)
+            # axle load: dω̇_i/dF_zf = ∓ r_i (μ_i + ρ_t)/(2J), dv̇/dF_zf = (μ1+μ2−μ3−μ4)/(2m)
+            g = np.zeros(N_STATE)
+            mu = x[IX_MU]
+            sgn = np.array([-0.5, -0.5, 0.5, 0.5])
+            g[:4] = sgn * self._rd * (mu + self.vehicle.rho_t) / J
+            g[IX_V] = -float(sgn @ mu) / self.m
+            Q += np.outer(g, g) * (self._fz_var * self._pin_T * dt)
+            Q[IX_V, IX_V] += self._fd_var * self._pin_T * dt / (self.m * self.m)
+        return Q
+
+    # ------------------------------------------------------------------ init
+    def _init_filter(self, t: float, omega: NDArray[np.float64]) -> None:
+        cfg = self.cfg
+        self._loads()
+        md, fz, rd = self._u[:4], self._fz, self._rd
+        mu0 = np.clip(md / (rd * fz) - self.vehicle.rho_t * np.sign(omega), cfg.mu_min, cfg.mu_max)  # eq. 2, ω̇ = 0
+        if self._last_v_meas is not None and t - self._t_v <= cfg.gps_timeout_s:
+            v0 = self._last_v_meas
+        else:
+            v0 = float(np.mean(rd * omega))
+        rho0 = float(np.clip((float(mu0 @ fz) - self._u[5]) / (self.m * G), cfg.rho_min, cfg.rho_max))  # eq. 8, v̇ = 0
+        x0 = np.concatenate([omega, [v0], mu0, [rho0]])
+        sd = np.concatenate([np.sqrt(self._R_omega(omega)), [cfg.sigma_v0], [cfg.sigma_mu0] * 4, [cfg.sigma_rho0]])
+        self.ukf = UnscentedFilter(self.model.step, x0, np.diag(sd * sd), range(5), alpha=cfg.alpha, beta=cfg.beta,
+                                   kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate)
+        self.t_init = t
+
+    # ------------------------------------------------------------------ step
+    def step(self, t: float, inputs: Mapping[str, Any] | None = None,
+             measurements: Mapping[str, Any] | None = None) -> Estimate:
+        """Advance to time t [s] with new inputs and measurements (any subset; see module doc).
+
+        inputs: ``"Md"`` (4,) [N·m], ``"Fzf"`` [N], ``"Fdx"`` [N].
+        measurements: ``"omega"`` (4,) [rad/s], ``"v"`` [m/s].
+        """
+        cfg = self.cfg
+        t = float(t)
+        status = 0
+        predict_only = False
+        self.counters["steps"] += 1
+        # ---- inputs (zero-order hold, rejection)
+        if inputs:
+            for key in _INPUT_KEYS:
+                if key not in inputs:
+                    continue
+                val = inputs[key]
+                if key == "Md":
+                    arr = None if val is None else np.asarray(val, dtype=float)
+                    if arr is None or arr.shape != (4,) or not np.isfinite(arr).all():
+                        status |= INPUT_REJECTED
+                        continue
+                    self._u[:4] = arr
+                else:
+                    fv = math.nan if val is None else float(val)
+                    if not math.isfinite(fv):
+                        status |= INPUT_REJECTED
+                        continue
+                    self._u[4 if key == "Fzf" else 5] = fv
+                self._t_in[key] = t
+        if status & INPUT_REJECTED:
+            self.counters["rejected_inputs"] += 1
+            predict_only = True
+        for key in _INPUT_KEYS:
+            if t - self._t_in[key] > self._timeouts[key]:
+                status |= self._tbits[key]
+                predict_only = True
+        # ---- measurements
+        omega = v_meas = None
+        if measurements:
+            om = measurements.get("omega")
+            if om is not None:
+                omega = np.asarray(om, dtype=float)
+                if omega.shape != (4,):
+                    omega = None
+                    status |= INPUT_REJECTED
+                else:
+                    if not np.isfinite(omega).all():
+                        status |= INPUT_REJECTED
+                        self.counters["rejected_measurements"] += int((~np.isfinite(omega)).sum())
+                    if np.isfinite(omega).any():
+                        self._t_omega = t
+            vm = measurements.get("v")
+            if vm is not None:
+                v_meas = float(vm)
+                if math.isfinite(v_meas):
+                    self._t_v = t
+                    self._last_v_meas = v_meas
+                else:
+                    status |= INPUT_REJECTED
+                    self.counters["rejected_measurements"] += 1
+                    v_meas = None
+        if t - self._t_omega > cfg.wheel_timeout_s:
+            status |= WHEEL_TIMEOUT
+        if t - self._t_v > cfg.gps_timeout_s:
+            status |= GPS_TIMEOUT
+        # ---- initialisation
+        if self.ukf is None:
+            if (omega is not None and np.isfinite(omega).all()
+                    and all(math.isfinite(self._t_in[k]) for k in _INPUT_KEYS)):
+                self._init_filter(t, omega)
+                self.t = t
+            return self._estimate(t, status | NOT_CONVERGED, None)
+        ukf = self.ukf
+        # ---- predict
+        dt = t - self.t if self.t is not None else 0.0
+        if dt > 0.0:
+            n_sub = max(1, int(math.ceil(dt / cfg.max_step_s - 1e-9)))
+            h = dt / n_sub
+            try:
+                for _ in range(n_sub):
+                    ukf.predict(self._u, h, self._Q(h))
+            except EstimatorError:
+                self._recover(t)
+                status |= COV_REPAIRED
+                ukf = self.ukf
+            if ukf.repaired_last:
+                status |= COV_REPAIRED
+            self.t = t
+        # ---- update
+        updated = False
+        if not predict_only and (omega is not None or v_meas is not None):
+            if omega is not None and v_meas is not None:
+                z = np.append(omega, v_meas)
+                R = np.append(self._R_omega(omega), self._r_v)
+                ukf.update(z, slice(0, 5), R)
+            elif omega is not None:
+                ukf.update(omega, slice(0, 4), self._R_omega(omega))
+            else:
+                ukf.update(np.array([v_meas]), slice(4, 5), np.array([self._r_v]))
+            if ukf.last_gated:
+                status |= MEAS_GATED
+                self.counters["gated"] += bin(ukf.last_gated).count("1")
+            if ukf.last_dof:
+                updated = True
+                self.counters["updates"] += 1
+                if cfg.adaptation:
+                    self._cm.push(ukf.last_K @ ukf.last_innov, np.einsum("ij,ij->i", ukf.last_K, ukf.last_C))
+        # ---- adaptation and supervisor (paper eqs. 12–13, FLS)
+        x = ukf.x
+        self._dyn.update(t, float(x[IX_V]), float(self._u[:4].sum()))
+        if t - self._t_adapt >= cfg.adapt_period_s:
+            self._t_adapt = t
+            if cfg.adaptation:
+                self._A = self._cm.compute()
+            if cfg.supervisor:
+                self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
+        self.counters["chol_repairs"] = ukf.chol_repairs
+        return self._estimate(t, status, x, updated)
+
+    def _recover(self, t: float) -> None:
+        """Restart the filter from the last finite mean after a numerical failure."""
+        self.counters["resets"] += 1
+        old = self.ukf
+        x = old.x if old is not None and np.isfinite(old.x).all() else None
+        self.ukf = None
+        if x is not None:
+            self._init_filter(t, x[:4])
+            self.ukf.x = x.copy()  # type: ignore[union-attr]
+
+    # ------------------------------------------------------------------ output
+    def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, updated: bool = False) -> Estimate:
+        cfg = self.cfg
+        ukf = self.ukf
+        if x is None or ukf is None:
+            nan4 = np.full(4, np.nan)
+            return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
+                            nan4.copy(), np.full(N_STATE, np.nan), math.nan, self._f, status | NOT_CONVERGED, False,
+                            0, self._curve_state.class_index)
+        self._loads()
+        omega = x[:4].copy()
+        v = float(x[IX_V])
+        s = slip_fn(omega, v, self._rd)
+        pd = ukf.P.diagonal().copy()
+        mu = x[IX_MU].copy()
+        # curve parameter a (paper section 3.2) at the curve rate
+        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
+            self._t_curve = t
+            sig_mu = np.sqrt(pd[IX_MU])
+            sig_s = np.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)
+            self._curve_state = self._curve.update(t, mu, s, sig_mu, sig_s)
+        conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
+                and float(pd[IX_MU].max()) < cfg.conv_sigma_mu ** 2 and float(pd[IX_RHO]) < cfg.conv_sigma_rho ** 2)
+        if not conv:
+            status |= NOT_CONVERGED
+        cs = self._curve_state
+        adapt = self._f * float(self._A[IX_MU].mean())
+        nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
+        return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,
+                        adapt, status, (status & INVALID_MASK) == 0, dof, cs.class_index)

@@ -1,0 +1,192 @@
+"""Scorecard of an estimator run against simulation truth (issue 3 metrics; paper section 5).
+
+Definitions (all over the estimator's fixed-rate output; the truth sample
+used for an estimate at time t is the latest truth sample at or before t):
+
+``mu_mean_abs_rel_error``
+    mean over wheels and time of |μ̂ − μ|/|μ|, from the first convergence on
+    (first estimate with ``valid``).  Relative error is undefined at μ ≈ 0
+    (coasting, braking to the headland speed), so samples with
+    |μ| < ``mu_rel_floor`` are left out; their share is reported as
+    ``mu_rel_excluded_fraction`` and the plain ``mu_mean_abs_error`` covers
+    every sample.
+``rho_s_mean_abs_error``
+    mean |ρ̂_s − ρ_s| from the first convergence on.
+``r2_mu_curve``
+    per soil name (the soil under the GPS antenna): the paper's "average
+    representative μ(s) characteristic" a̅·g_class(s), a̅ the mean identified
+    a while on that soil (after the first convergence) and the class the most
+    frequently reported one, against the true a·g_true(s); R² = 1 − SS_res/SS_tot
+    over s ∈ [0, 0.4] (401 points).
+``reconvergence_s``
+    worst over soil changes (after the first convergence) of the time from
+    the change until every wheel's |μ̂ − μ|/|μ| < 5 % and stays so for
+    ``hold_s``; 0 when it never left the band.  Samples under the floor
+    count as within the band.
+``nis_within_95``
+    share of updates whose NIS lies inside the two-sided 95 % χ² interval of
+    its degrees of freedom.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import chi2
+
+from ..model.mucurve import SOIL_CLASSES
+from ..model.vehicle import WHEELS
+
+S_GRID = np.linspace(0.0, 0.4, 401)
+"""Slip grid of the R² comparison [-] (issue 3: 0–0.4)."""
+
+
+@dataclass
+class Truth:
+    """Truth columns of ``truth.csv`` plus the soil table of ``truth.toml``."""
+
+    t: NDArray[np.float64]
+    mu: NDArray[np.float64]
+    rho_s: NDArray[np.float64]
+    a: NDArray[np.float64]
+    soil_id: NDArray[np.int64]
+    soil_name: list[str]
+    slip: NDArray[np.float64]
+    v: NDArray[np.float64]
+    soils: dict[str, dict[str, Any]]
+    """name -> {"soil_class": str, "a": float, "rho_s": float}."""
+
+
+def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Truth:
+    """Read ``truth.csv`` (and ``truth.toml`` for the soil classes, if present)."""
+    with open(csv_path, newline="", encoding="utf-8") as fh:
+        rd = csv.reader(fh)
+        head = next(rd)
+        rows = list(rd)
+    col = {k: i for i, k in enumerate(head)}
+
+    def f(name: str) -> NDArray[np.float64]:
+        i = col[name]
+        return np.array([float(r[i]) for r in rows])
+
+    soils: dict[str, dict[str, Any]] = {}
+    if toml_path is not None and Path(toml_path).is_file():
+        data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        for s in data.get("soils", []):
+            soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"])}
+    names = [r[col["soil_name"]] for r in rows]
+    return Truth(
+        t=f("t"), mu=np.column_stack([f(f"mu_{w}") for w in WHEELS]), rho_s=f("rho_s"), a=f("a"),
+        soil_id=f("soil_id").astype(np.int64), soil_name=names,
+        slip=np.column_stack([f(f"slip_{w}") for w in WHEELS]), v=f("v"), soils=soils)
+
+
+def r_squared(y_hat: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+    """Coefficient of determination of y_hat against y [-]."""
+    ss_res = float(np.sum((y - y_hat) ** 2))
+    ss_tot = float(np.sum((y - np.mean(y)) ** 2))
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else math.nan
+
+
+def nis_bounds(dof: NDArray[np.int64], p: float = 0.95) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Two-sided χ² interval [lo, hi] of probability p for each degree of freedom."""
+    lo = chi2.ppf((1 - p) / 2, np.maximum(dof, 1))
+    hi = chi2.ppf(1 - (1 - p) / 2, np.maximum(dof, 1))
+    return lo, hi
+
+
+def scorecard(est: dict[str, NDArray[Any]], truth: Truth, *, mu_rel_floor: float = 0.05, band: float = 0.05,
+              hold_s: float = 1.0) -> dict[str, Any]:
+    """Compute the scorecard from estimator output arrays (see module doc).
+
+    ``est`` keys: ``t`` (n,), ``mu`` (n, 4), ``rho_s``, ``a``, ``soil_class`` (list of str),
+    ``nis``, ``nis_dof``, ``valid`` (n,).
+    """
+    t = est["t"]
+    k = np.clip(np.searchsorted(truth.t, t + 1e-9, side="right") - 1, 0, len(truth.t) - 1)
+    mu_t = truth.mu[k]
+    rho_t = truth.rho_s[k]
+    soil = truth.soil_id[k]
+    mu_e = est["mu"]
+    valid = np.asarray(est["valid"], dtype=bool)
+    out: dict[str, Any] = {}
+    if not valid.any():
+        out["error"] = "the estimator never converged"
+        return out
+    i0 = int(np.argmax(valid))
+    out["t_first_convergence_s"] = float(t[i0] - t[0])
+    sl = slice(i0, None)
+    err = np.abs(mu_e[sl] - mu_t[sl])
+    big = np.abs(mu_t[sl]) >= mu_rel_floor
+    rel = np.where(big, err / np.maximum(np.abs(mu_t[sl]), 1e-12), np.nan)
+    out["mu_mean_abs_rel_error"] = float(np.nanmean(rel))
+    out["mu_rel_floor"] = mu_rel_floor
+    out["mu_rel_excluded_fraction"] = float(1.0 - big.mean())
+    out["mu_mean_abs_error"] = float(np.mean(err))
+    out["rho_s_mean_abs_error"] = float(np.mean(np.abs(est["rho_s"][sl] - rho_t[sl])))
+
+    # μ(s) curve per soil (paper Fig. 5 and its R²)
+    r2: dict[str, float] = {}
+    curves: dict[str, dict[str, Any]] = {}
+    names = truth.soil_name
+    id_to_name = {int(truth.soil_id[j]): names[j] for j in range(len(names))}
+    a_e = est["a"]
+    cls_e = est["soil_class"]
+    for sid in sorted(set(soil[sl].tolist())):
+        name = id_to_name[sid]
+        m = (soil == sid) & valid & np.isfinite(a_e)
+        m[:i0] = False
+        info = truth.soils.get(name, {"soil_class": "stubble", "a": float(np.median(truth.a[truth.soil_id == sid]))})
+        true_cls = SOIL_CLASSES[info["soil_class"]]
+        mu_true_curve = true_cls.mu(S_GRID, info["a"])
+        if not m.any():
+            r2[name] = math.nan
+            continue
+        a_bar = float(np.mean(a_e[m]))
+        sel = [cls_e[j] for j in np.flatnonzero(m)]
+        cls_name = max(set(sel), key=sel.count)
+        mu_id_curve = SOIL_CLASSES[cls_name].mu(S_GRID, a_bar)
+        r2[name] = r_squared(mu_id_curve, mu_true_curve)
+        curves[name] = {"a_identified": a_bar, "class_identified": cls_name, "a_true": info["a"],
+                        "class_true": info["soil_class"]}
+    out["r2_mu_curve"] = r2
+    out["curves"] = curves
+
+    # reconvergence after soil changes
+    rel_all = np.abs(mu_e - mu_t) / np.maximum(np.abs(mu_t), 1e-12)
+    inband = np.all((rel_all < band) | (np.abs(mu_t) < mu_rel_floor), axis=1)
+    changes = np.flatnonzero(np.diff(soil) != 0) + 1
+    changes = changes[changes > i0]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.01
+    hold = max(1, int(round(hold_s / dt)))
+    worst = 0.0
+    per_change = []
+    # run-length of "in band from here on" (number of consecutive in-band samples starting at i)
+    run = np.zeros(len(t) + 1, dtype=np.int64)
+    for i in range(len(t) - 1, -1, -1):
+        run[i] = run[i + 1] + 1 if inband[i] else 0
+    for c in changes:
+        end = len(t)
+        ok = np.flatnonzero(run[c:end] >= np.minimum(hold, end - np.arange(c, end)))
+        rt = float(t[c + ok[0]] - t[c]) if ok.size else float(t[-1] - t[c])
+        per_change.append(rt)
+        worst = max(worst, rt)
+    out["reconvergence_s"] = worst
+    out["n_soil_changes"] = int(len(changes))
+    out["reconvergence_per_change_s"] = per_change
+
+    # NIS consistency
+    dof = np.asarray(est["nis_dof"], dtype=np.int64)
+    nis = np.asarray(est["nis"], dtype=float)
+    u = dof > 0
+    lo, hi = nis_bounds(dof[u])
+    out["nis_within_95"] = float(np.mean((nis[u] >= lo) & (nis[u] <= hi))) if u.any() else math.nan
+    out["nis_mean_per_dof"] = float(np.mean(nis[u] / dof[u])) if u.any() else math.nan
+    return out

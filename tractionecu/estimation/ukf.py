@@ -1,0 +1,277 @@
+"""Vectorised unscented Kalman filter (paper section 3.1, eqs. 10–11 and the UKF recursion).
+
+The filter follows the paper's description (Wan & van der Merwe 2000; Van der
+Merwe et al. 2004) with the scaled sigma points of filterpy's
+``MerweScaledSigmaPoints`` — identical points and weights:
+
+    λ = α²(n + κ) − n
+    χ⁽⁰⁾ = x̂,  χ⁽ⁱ⁾ = x̂ + [√((n+λ)P)]ᵢ,  χ⁽ⁿ⁺ⁱ⁾ = x̂ − [√((n+λ)P)]ᵢ,  i = 1..n
+    W_m⁽⁰⁾ = λ/(n+λ),  W_c⁽⁰⁾ = λ/(n+λ) + 1 − α² + β,  W⁽ⁱ⁾ = 1/(2(n+λ))
+
+with √ the Cholesky factor (row i of the upper factor, as filterpy does).
+
+Predict (paper eq. 11 and the a-priori covariance, eq. after 11):
+all 2n+1 sigma points go through the process model in ONE call
+``fx(sigmas (2n+1, n), u, dt) -> (2n+1, n)`` (for the estimator this is
+:meth:`tractionecu.model.vehicle.FilterModel.step`, RK4), then
+
+    x̂_{k|k-1} = Σ W_m⁽ⁱ⁾ χ⁽ⁱ⁾_{k|k-1}
+    P_{k|k-1} = Σ W_c⁽ⁱ⁾ (χ⁽ⁱ⁾ − x̂)(χ⁽ⁱ⁾ − x̂)ᵀ + Q.
+
+Update: the paper redraws the sigma points from N(x̂_{k|k-1}, P_{k|k-1})
+(as filterpy does).  The output here is a selection of states,
+y = h(x) = x[idx] (paper: y = (ω1..4, v), the first five states), and the
+unscented transform of a linear map is exact, so the redrawn-points sums
+reduce to closed forms that need no second Cholesky factorisation:
+
+    ŷ_k = Σ W_m⁽ⁱ⁾ h(χ⁽ⁱ⁾) = x̂[idx]
+    S_k = Σ W_c⁽ⁱ⁾ (h(χ⁽ⁱ⁾) − ŷ)(·)ᵀ + R = P[idx, idx] + R
+    C_k = Σ W_c⁽ⁱ⁾ (χ⁽ⁱ⁾ − x̂)(h(χ⁽ⁱ⁾) − ŷ)ᵀ = P[:, idx]
+    K_k = C_k S_k⁻¹,  x̂_{k|k} = x̂ + K_k(y_k − ŷ_k),  P_{k|k} = P − K_k S_k K_kᵀ.
+
+This holds for any (W_m, W_c) with Σ W_m = 1 and symmetric points; the
+cross-check against stock filterpy is in ``tests/estimation`` and in
+``benchmarks/estimator.py``.
+
+Robustness (issue 3, "never diverge or crash"):
+
+* partial updates: any subset ``idx`` of the outputs (wheels at 100 Hz, GPS
+  speed at 10 Hz);
+* non-finite measurement components are dropped (counted);
+* per-component Mahalanobis gating: component j is rejected when
+  ν_j² / S_jj > ``gate_chi2`` (χ²₁ quantile), then the update runs with the
+  rest; the NIS ν ᵀ S⁻¹ ν of the accepted components is kept with its degrees
+  of freedom for consistency checks;
+* P is symmetrised after every predict and update;
+* a failed Cholesky factorisation is repaired by adding growing diagonal
+  jitter (then, if needed, by clipping eigenvalues) and counted;
+* the mean is clamped into [x_lo, x_hi] (physical bounds of μ and ρ_s).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ..errors import EstimatorError
+
+ProcessFn = Callable[[NDArray[np.float64], NDArray[np.float64], float], NDArray[np.float64]]
+
+
+def merwe_weights(n: int, alpha: float, beta: float, kappa: float) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """Scaled sigma-point parameters (λ, W_m, W_c), as filterpy's ``MerweScaledSigmaPoints``."""
+    lam = alpha ** 2 * (n + kappa) - n
+    if n + lam <= 0:
+        raise ValueError(f"sigma points: n + λ = {n + lam} must be > 0 (alpha={alpha}, kappa={kappa})")
+    c = 0.5 / (n + lam)
+    wm = np.full(2 * n + 1, c)
+    wc = np.full(2 * n + 1, c)
+    wm[0] = lam / (n + lam)
+    wc[0] = lam / (n + lam) + (1.0 - alpha ** 2 + beta)
+    return lam, wm, wc
+
+
+def merwe_sigma_points(x: NDArray[np.float64], P: NDArray[np.float64], lam: float) -> NDArray[np.float64]:
+    """Sigma points (2n+1, n) of N(x, P) with the scaled spread √(n+λ) (filterpy ordering)."""
+    n = x.shape[0]
+    U = np.linalg.cholesky((n + lam) * P).T   # upper factor: row k is filterpy's U[k]
+    sig = np.empty((2 * n + 1, n))
+    sig[0] = x
+    np.add(x, U, out=sig[1:n + 1])
+    np.subtract(x, U, out=sig[n + 1:])
+    return sig
+
+
+class UnscentedFilter:
+    """UKF with vectorised sigma-point propagation and partial, gated measurement updates.
+
+    Parameters
+    ----------
+    fx : process model ``fx(sigmas (2n+1, n), u, dt [s]) -> (2n+1, n)``, one call for all points.
+    x0, P0 : initial mean (n,) and covariance (n, n), in the units of the state.
+    meas_index : state index of each output component: y_j = x[meas_index[j]].
+    alpha, beta, kappa : sigma-point scaling (Van der Merwe 2004); defaults α = 1,
+        β = 2, κ = 0 make every covariance weight W_c ≥ 0, so the predicted P is
+        positive semi-definite by construction.
+    x_lo, x_hi : bounds the mean is clamped into after each step (±inf = free).
+    gate_chi2 : per-component gate on ν_j²/S_jj (∞ disables gating).
+    """
+
+    def __init__(self, fx: ProcessFn, x0: ArrayLike, P0: ArrayLike, meas_index: Sequence[int], *,
+                 alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
+                 x_lo: ArrayLike | None = None, x_hi: ArrayLike | None = None, gate_chi2: float = math.inf):
+        self.fx = fx
+        self.x = np.array(x0, dtype=float)
+        self.n = n = self.x.shape[0]
+        self.P = np.array(P0, dtype=float).reshape(n, n)
+        self.meas_index = np.asarray(meas_index, dtype=np.intp)
+        self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
+        self.lam, self.Wm, self.Wc = merwe_weights(n, self.alpha, self.beta, self.kappa)
+        self._c = n + self.lam
+        self.x_lo = np.full(n, -np.inf) if x_lo is None else np.asarray(x_lo, dtype=float)
+        self.x_hi = np.full(n, np.inf) if x_hi is None else np.asarray(x_hi, dtype=float)
+        self._clamped_dims = np.flatnonzero(np.isfinite(self.x_lo) | np.isfinite(self.x_hi))
+        self.gate_chi2 = float(gate_chi2)
+        self._sig = np.empty((2 * n + 1, n))
+        self._eye = np.eye(n)
+        # Counters (cumulative) and last-step diagnostics.
+        self.chol_repairs = 0
+        """Number of Cholesky failures repaired with jitter / eigenvalue clipping."""
+        self.nonfinite_rejected = 0
+        """Number of measurement components dropped as NaN/Inf."""
+        self.gated_total = 0
+        """Number of measurement components rejected by the NIS gate."""
+        self.clamp_events = 0
+        """Number of steps on which the mean was clamped into its bounds."""
+        self.repaired_last = False
+        self.last_nis = math.nan
+        self.last_dof = 0
+        self.last_gated = 0
+        """Bit j set when output component j was gated on the last update."""
+        self.last_idx: NDArray[np.intp] = np.empty(0, dtype=np.intp)
+        """Output components used on the last update."""
+        self.last_innov: NDArray[np.float64] = np.empty(0)
+        self.last_S: NDArray[np.float64] = np.empty((0, 0))
+        self.last_K: NDArray[np.float64] = np.empty((n, 0))
+        self.last_C: NDArray[np.float64] = np.empty((n, 0))
+        """Cross covariance C_k of the last update; diag(K S Kᵀ) = Σ_j K_ij C_ij."""
+
+    # ------------------------------------------------------------------ helpers
+    def _chol(self, A: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Lower Cholesky factor of A; repairs (and counts) a failure."""
+        try:
+            return np.linalg.cholesky(A)
+        except np.linalg.LinAlgError:
+            pass
+        self.chol_repairs += 1
+        self.repaired_last = True
+        A = 0.5 * (A + A.T)
+        scale = float(np.max(np.abs(np.diag(A))))
+        if not math.isfinite(scale):
+            raise EstimatorError("covariance is not finite; cannot repair")
+        scale = max(scale, 1e-300)
+        jitter = 1e-12 * scale
+        for _ in range(8):
+            try:
+                L = np.linalg.cholesky(A + jitter * self._eye)
+                self.P = (A + jitter * self._eye) / self._c
+                return L
+            except np.linalg.LinAlgError:
+                jitter *= 100.0
+        w, V = np.linalg.eigh(A)
+        w = np.clip(w, 1e-12 * scale, None)
+        A = (V * w) @ V.T
+        A = 0.5 * (A + A.T)
+        self.P = A / self._c
+        return np.linalg.cholesky(A + 1e-12 * scale * self._eye)
+
+    # ------------------------------------------------------------------ predict
+    def sigma_points(self) -> NDArray[np.float64]:
+        """Sigma points of N(x, P), (2n+1, n); a failed factorisation is repaired."""
+        n = self.n
+        U = self._chol(self._c * self.P).T
+        sig = self._sig
+        sig[0] = self.x
+        np.add(self.x, U, out=sig[1:n + 1])
+        np.subtract(self.x, U, out=sig[n + 1:])
+        return sig
+
+    def predict(self, u: NDArray[np.float64], dt: float, Q: NDArray[np.float64]) -> None:
+        """Propagate mean and covariance over dt [s] with input u and process noise covariance Q (n, n).
+
+        The mean of μ and ρ_s cannot leave its bounds here (their dynamics are
+        zero), so clamping is done after the update only.
+        """
+        self.repaired_last = False
+        sf = self.fx(self.sigma_points(), u, dt)
+        x = self.Wm @ sf
+        d = sf - x
+        P = (d.T * self.Wc) @ d
+        P += Q
+        if not math.isfinite(float(x.sum()) + float(P.trace())):
+            raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
+        self.x = x
+        P += P.T
+        P *= 0.5
+        self.P = P
+
+    # ------------------------------------------------------------------ update
+    def update(self, z: ArrayLike, idx: ArrayLike | slice, R: ArrayLike) -> None:
+        """Measurement update with output components ``idx``, values z and noise R.
+
+        ``idx`` selects output components (positions in ``meas_index``), either
+        as an index array or as a ``slice`` (fast path).  R is the (m,)
+        diagonal of the measurement noise variances or an (m, m) matrix.
+        Results of the step are left in the ``last_*`` attributes.
+        """
+        z = np.asarray(z, dtype=float)
+        R = np.asarray(R, dtype=float)
+        if R.ndim == 1:
+            R = np.diag(R)
+        self.last_gated = 0
+        if isinstance(idx, slice):
+            idx = np.arange(idx.start or 0, idx.stop, idx.step or 1)
+        else:
+            idx = np.asarray(idx, dtype=np.intp)
+        if not math.isfinite(float(z.sum())):
+            ok = np.isfinite(z)
+            self.nonfinite_rejected += int((~ok).sum())
+            z, idx, R = z[ok], idx[ok], R[np.ix_(ok, ok)]
+        st = self.meas_index[idx]
+        m = st.size
+        if m == 0:
+            self._no_update()
+            return
+        P = self.P
+        # Contiguous state block (the usual ω1..4[, v]): plain slicing.
+        contiguous = st[-1] - st[0] == m - 1
+        if contiguous:
+            sl = slice(int(st[0]), int(st[0]) + m)
+            S = P[sl, sl] + R
+            C = P[:, sl]
+            nu = z - self.x[sl]
+        else:
+            S = P[np.ix_(st, st)] + R
+            C = P[:, st]
+            nu = z - self.x[st]
+        if self.gate_chi2 < math.inf:
+            keep = nu * nu <= self.gate_chi2 * S.diagonal()
+            if not keep.all():
+                self.gated_total += int((~keep).sum())
+                for j in idx[~keep]:
+                    self.last_gated |= 1 << int(j)
+                idx, st, nu = idx[keep], st[keep], nu[keep]
+                if st.size == 0:
+                    self._no_update()
+                    return
+                S = S[np.ix_(keep, keep)]
+                C = P[:, st]
+        Si = np.linalg.inv(S)
+        K = C @ Si
+        x = self.x + K @ nu
+        P = P - K @ C.T
+        P += P.T
+        P *= 0.5
+        self.P = P
+        np.minimum(np.maximum(x, self.x_lo), self.x_hi, out=self.x)
+        if self._clamped_dims.size and not np.array_equal(self.x, x):
+            self.clamp_events += 1
+        self.last_nis = float(nu @ (Si @ nu))
+        self.last_dof = int(st.size)
+        self.last_idx = idx
+        self.last_innov = nu
+        self.last_S = S
+        self.last_K = K
+        self.last_C = C
+
+    def _no_update(self) -> None:
+        self.last_nis = math.nan
+        self.last_dof = 0
+        self.last_idx = np.empty(0, dtype=np.intp)
+        self.last_innov = np.empty(0)
+        self.last_S = np.empty((0, 0))
+        self.last_K = np.empty((self.n, 0))
+        self.last_C = np.empty((self.n, 0))
