@@ -403,3 +403,39 @@ def test_crash_inside_an_atomic_write(tmp_path, where, expect_mean):
     assert st.corrupt_tiles == []
     assert not [p for p in (tmp_path / "tiles").iterdir() if ".tmp." in p.name]
     st.close()
+
+
+def test_add_many_equals_add_one_by_one(tmp_path):
+    rng = np.random.default_rng(8)
+    n = 3000
+    one = MapStore(tmp_path / "one", *ORIGIN, resolution_m=1.0, tile_cells=8, max_hdop=2.0)
+    x = rng.uniform(-20, 40, n)
+    y = rng.uniform(-10, 30, n)
+    lat, lon = one.to_latlon(x, y)
+    lat[5] = np.nan
+    lat[6] = ORIGIN[0] + 2.0
+    a = rng.normal(0.6, 0.1, n)
+    rho = rng.normal(0.08, 0.01, n)
+    a[rng.uniform(size=n) < 0.02] = np.nan
+    valid = rng.uniform(size=n) > 0.05
+    status = np.where(rng.uniform(size=n) < 0.05, 0x20, np.where(rng.uniform(size=n) < 0.1, 0x80, 0))
+    hdop = rng.uniform(0.5, 2.5, n)
+    t = 0.1 * np.arange(n)
+    ref = np.array([one.add(float(lat[i]), float(lon[i]), {"a": a[i], "rho_s": rho[i]}, float(t[i]),
+                            valid=bool(valid[i]), status=int(status[i]), hdop=float(hdop[i])) for i in range(n)])
+    many = MapStore(tmp_path / "many", *ORIGIN, resolution_m=1.0, tile_cells=8, max_hdop=2.0)
+    got = many.add_many(lat, lon, {"a": a, "rho_s": rho, "ignored": a}, t, valid=valid, status=status, hdop=hdop)
+    assert np.array_equal(got, ref) and 0 < got.sum() < n
+    assert many.stats == one.stats
+    for layer in ("a", "rho_s"):
+        g1, g2 = one.grid(layer), many.grid(layer)
+        assert (g1.x0, g1.y0) == (g2.x0, g2.y0)
+        assert np.array_equal(g1.count, g2.count)
+        assert np.allclose(g1.mean, g2.mean, rtol=1e-12, atol=0, equal_nan=True)
+        assert np.allclose(g1.var, g2.var, rtol=1e-9, atol=0, equal_nan=True)
+    t1, t2 = one.track(), many.track()
+    assert np.array_equal(t1[:, [0, 3]], t2[:, [0, 3]])
+    # scalar (math) and vectorised (numpy) projections differ by round-off only
+    assert np.max(np.abs(t1[:, 1:3] - t2[:, 1:3])) < 1e-9
+    one.close()
+    many.close()

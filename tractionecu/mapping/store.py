@@ -48,7 +48,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from tractionecu.errors import ConfigError
 
@@ -494,6 +494,83 @@ class MapStore:
             tile.version += 1
             self.stats["accepted"] += 1
         return True
+
+    def add_many(self, lat_deg: ArrayLike, lon_deg: ArrayLike, values: Mapping[str, ArrayLike], t: ArrayLike, *,
+                 valid: ArrayLike | None = None, status: ArrayLike | None = None,
+                 fix_quality: ArrayLike | None = None, hdop: ArrayLike | None = None) -> NDArray[np.bool_]:
+        """Vectorised :meth:`add` for a batch (e.g. a whole replay): same rules,
+        same statistics and track, in sample order; returns the accepted mask.
+
+        Every argument is an array of one length N (or broadcasts to it);
+        ``values`` maps layer names to arrays.
+        """
+        if self.read_only or self._closed:
+            raise MapStoreError(f"{self.directory}: map is {'read-only' if self.read_only else 'closed'}")
+        lat = np.asarray(lat_deg, dtype=np.float64).ravel()
+        n = lat.size
+        lon = np.broadcast_to(np.asarray(lon_deg, dtype=np.float64).ravel(), (n,))
+        tt = np.broadcast_to(np.asarray(t, dtype=np.float64).ravel(), (n,))
+        reason = np.full(n, "", dtype=object)
+
+        def mark(bad: NDArray[np.bool_], why: str) -> None:
+            reason[bad & (reason == "")] = why
+
+        mark(~(np.isfinite(lat) & np.isfinite(lon) & np.isfinite(tt) & (np.abs(lat) <= 90.0)
+               & (np.abs(lon) <= 180.0)), "position")
+        if fix_quality is not None:
+            fq = np.broadcast_to(np.asarray(fix_quality), (n,))
+            mark(~(fq >= self.min_fix_quality), "fix")
+        if hdop is not None:
+            hd = np.broadcast_to(np.asarray(hdop, dtype=np.float64), (n,))
+            mark(~(hd <= self.max_hdop), "hdop")
+        pos_ok = reason == ""
+        x = np.full(n, np.nan)
+        y = np.full(n, np.nan)
+        if pos_ok.any():
+            x[pos_ok], y[pos_ok] = self.frame.to_local(lat[pos_ok], lon[pos_ok])
+        with np.errstate(invalid="ignore"):
+            mark(~((np.abs(x) <= self.max_range_m) & (np.abs(y) <= self.max_range_m)), "range")
+        on_track = reason == ""
+        if valid is not None:
+            mark(~np.broadcast_to(np.asarray(valid, dtype=bool), (n,)), "invalid")
+        if status is not None:
+            stt = np.broadcast_to(np.asarray(status, dtype=np.int64), (n,))
+            mark((stt & self.reject_status_mask) != 0, "status")
+        layer_vals: list[tuple[int, NDArray[np.float64]]] = []
+        for name, v in values.items():
+            li = self._layer_index.get(name)
+            if li is None:
+                continue
+            arr = np.broadcast_to(np.asarray(v, dtype=np.float64).ravel(), (n,))
+            layer_vals.append((li, arr))
+            mark(~np.isfinite(arr), "value")
+        if not layer_vals:
+            mark(np.ones(n, dtype=bool), "no_layer")
+        ok = reason == ""
+        col = np.zeros(n, dtype=np.int64)
+        row = np.zeros(n, dtype=np.int64)
+        col[ok] = np.floor(x[ok] / self.resolution_m).astype(np.int64)
+        row[ok] = np.floor(y[ok] / self.resolution_m).astype(np.int64)
+        nt = self.tile_cells
+        idx = np.flatnonzero(ok)
+        keys = np.stack([col[idx] // nt, row[idx] // nt], axis=1) if idx.size else np.zeros((0, 2), np.int64)
+        uniq, inv = np.unique(keys, axis=0, return_inverse=True) if idx.size else (keys, np.zeros(0, np.int64))
+        inv = np.asarray(inv).ravel()
+        track = list(zip(tt[on_track].tolist(), x[on_track].tolist(), y[on_track].tolist(),
+                         ok[on_track].astype(int).tolist()))
+        with self._lock:
+            self._track_pending.extend(track)
+            for k, (tx, ty) in enumerate(uniq.tolist()):
+                sel = idx[inv == k]
+                tile = self._tile((int(tx), int(ty)))
+                r, c = row[sel] % nt, col[sel] % nt
+                for li, arr in layer_vals:
+                    tile.stats.merge_batch(li, r, c, arr[sel])
+                tile.version += 1
+            self.stats["accepted"] += int(ok.sum())
+            for why, cnt in collections.Counter(reason[~ok].tolist()).items():
+                self.stats["rejected_" + why] += cnt
+        return ok
 
     # ------------------------------------------------------------ flush
     def dirty_tiles(self) -> list[tuple[int, int]]:
