@@ -1,0 +1,149 @@
+"""``tractionecu run``: the in-cab service (daemon), or ``--simulate`` without hardware.
+
+``tractionecu run --config /etc/tractionecu/tractionecu.toml`` runs the
+daemon on the configured CAN interface and GNSS serial port until SIGTERM
+(see ``systemd/tractionecu.service``).
+
+``tractionecu run --simulate`` simulates a scenario, then plays it in real
+time (``--speed`` for faster) into the real service code over python-can's
+``virtual`` interface and a pseudo-terminal serial port, prints one status
+line a second and writes map tiles to ``--state-dir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+from pathlib import Path
+
+from ..errors import ConfigError
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="run the in-cab service (or --simulate it without hardware)",
+                       description=__doc__.splitlines()[0])
+    p.add_argument("--config", metavar="TOML", default=None, help="service configuration (default: built-in defaults)")
+    p.add_argument("--state-dir", metavar="DIR", default=None,
+                   help="state directory for map tiles and the resolved config "
+                        "(default: service.state_dir, $STATE_DIRECTORY or ./tractionecu-state)")
+    p.add_argument("--interface", default=None, help="override can.interface (python-can interface name)")
+    p.add_argument("--channel", default=None, help="override can.channel")
+    p.add_argument("--gps-port", default=None, help="override gps.port ('none' disables GNSS)")
+    p.add_argument("--quiet", action="store_true", help="no status line on stdout")
+    g = p.add_argument_group("simulation (no hardware needed)")
+    g.add_argument("--simulate", action="store_true",
+                   help="drive the service with the built-in simulator over a virtual CAN bus and a pty")
+    g.add_argument("--scenario", default="paper-three-soils", help="simulated scenario (default: %(default)s)")
+    g.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
+    g.add_argument("--speed", type=float, default=1.0, help="play the simulation this many times faster than real time")
+    g.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after S seconds of simulated driving (default: the whole scenario)")
+    p.set_defaults(func=run)
+
+
+def _config(args: argparse.Namespace):
+    from ..service.config import load_config, with_overrides
+
+    cfg = load_config(args.config)
+    over: dict[str, dict] = {}
+    if args.state_dir:
+        over.setdefault("service", {})["state_dir"] = str(args.state_dir)
+    if args.interface:
+        over.setdefault("can", {})["interface"] = args.interface
+    if args.channel:
+        over.setdefault("can", {})["channel"] = args.channel
+    if args.gps_port:
+        if args.gps_port == "none":
+            over.setdefault("gps", {})["source"] = "none"
+        else:
+            over.setdefault("gps", {}).update(source="serial", port=args.gps_port)
+    return with_overrides(cfg, **over) if over else cfg
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    if not args.simulate:
+        from ..service.daemon import run_service
+
+        return run_service(cfg, status_stream=None if args.quiet or not sys.stdout.isatty() else sys.stdout)
+    if not args.speed > 0:
+        raise ConfigError(f"--speed: must be > 0, got {args.speed}")
+    if args.duration is not None and not args.duration > 0:
+        raise ConfigError(f"--duration: must be > 0, got {args.duration}")
+    return asyncio.run(simulate_main(cfg, args))
+
+
+async def simulate_main(cfg, args: argparse.Namespace) -> int:
+    """Simulate, then run the service against the played simulation."""
+    from ..service.clock import ServiceClock
+    from ..service.config import with_overrides
+    from ..service.daemon import Service
+    from ..service.simulate import SimulatedMachine
+    from ..sim import scenarios
+    from ..sim.simulator import simulate
+    from ..sim.writer import write_recording
+
+    state = cfg.state_dir()
+    rec_dir = state / "simulation"
+    kw = {} if args.duration is None else {"duration_s": float(args.duration) + 1.0}
+    scn = scenarios.get(args.scenario, seed=args.seed, **kw)
+    out = sys.stdout
+    print(f"simulating {scn.name} (seed {scn.seed}) into {rec_dir} ...", file=out, flush=True)
+    loop = asyncio.get_running_loop()
+
+    def make() -> None:
+        write_recording(scn, simulate(scn), rec_dir)
+
+    await loop.run_in_executor(None, make)
+    lead = 0.5
+    from ..bus.candump import read_candump
+
+    first = next(iter(read_candump(rec_dir / "can.log")))
+    clock = ServiceClock(speed=args.speed, epoch0=first.t - lead)
+    machine = SimulatedMachine(rec_dir, clock)
+    lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * args.speed))
+    cfg = with_overrides(
+        cfg,
+        can={"interface": "virtual", "channel": machine.channel, "timestamps": "kernel", "options": {}},
+        gps={"source": "serial", "port": machine.port},
+        estimation={"vehicle": str(rec_dir / "vehicle.toml"), "lag_s": lag},
+        service={"state_dir": str(state)},
+    )
+    svc = Service(cfg, clock=clock, status_stream=None if args.quiet else out)
+    stop = asyncio.Event()
+    print(f"playing on virtual CAN channel {machine.channel} and NMEA pty {machine.port} "
+          f"at {args.speed:g}x; Ctrl-C stops", file=out, flush=True)
+    task = asyncio.create_task(svc.run(stop))
+    t_end = first.t + (args.duration if args.duration is not None else float("inf"))
+    try:
+        await asyncio.wait_for(svc.ready.wait(), timeout=30.0)
+        machine.start()
+        while not task.done():
+            if machine.done.is_set() or clock.now() >= t_end:
+                await asyncio.sleep(clock.wall(lag + 0.2))
+                stop.set()
+                break
+            await asyncio.sleep(0.1)
+        rc = await task
+    except asyncio.TimeoutError:
+        stop.set()
+        await task
+        print("the service did not become ready within 30 s", file=sys.stderr)
+        rc = 1
+    finally:
+        machine.stop()
+    c = svc.counters()
+    summary = {
+        "played_frames": machine.counts["frames"],
+        "played_nmea_lines": machine.counts["lines"],
+        "estimator_steps": c["service"].get("steps", 0),
+        "broadcasts": c["service"].get("broadcasts", 0),
+        "address": None if svc.address is None else f"0x{svc.address:02X}",
+        "map_dir": str(cfg.map_dir()),
+        "map_samples": c.get("map", {}).get("added", 0),
+        "map_tiles_written": c.get("map_store", {}).get("tiles_written", 0),
+    }
+    print("done: " + json.dumps(summary), file=out, flush=True)
+    return rc

@@ -1,0 +1,71 @@
+"""The estimate on the bus: three Proprietary B frames of the project DBC.
+
+==================  =======  ================================================
+message             PGN      signals
+==================  =======  ================================================
+TECU_EstAdhesion    65312    ``Adhesion_FL..RR`` = μ per wheel [-]
+TECU_EstSlip        65313    ``Slip_FL..RR`` = slip per wheel [-]
+TECU_EstSoil        65314    ``SoilRollingResistance`` = ρ_s [-],
+                             ``CurveParamA`` = a [-], ``EstimateStatus``,
+                             ``SoilClassIndex``
+==================  =======  ================================================
+
+A NaN (not yet estimated) goes out as the DBC's "not available" code;
+values beyond the DBC range are clipped (and counted by the codec).  Before
+the first estimate, :func:`no_estimate_frames` sends every value as not
+available with the timeout and not-converged bits set.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..bus.dbc import WHEELS, Codec
+
+MESSAGES = ("TECU_EstAdhesion", "TECU_EstSlip", "TECU_EstSoil")
+
+NO_DATA_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20
+"""Status sent before the first estimate: every input timed out, not converged."""
+
+
+def _f(x: Any) -> float:
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return math.nan
+    return v
+
+
+def estimate_values(est: Any) -> dict[str, dict[str, float]]:
+    """Signal values of the three messages for an ``Estimate``."""
+    mu = [_f(x) for x in est.mu]
+    slip = [_f(x) for x in est.slip]
+    idx = getattr(est, "soil_class_index", None)
+    return {
+        "TECU_EstAdhesion": {f"Adhesion_{w}": mu[i] for i, w in enumerate(WHEELS)},
+        "TECU_EstSlip": {f"Slip_{w}": slip[i] for i, w in enumerate(WHEELS)},
+        "TECU_EstSoil": {
+            "SoilRollingResistance": _f(est.rho_s),
+            "CurveParamA": _f(est.a),
+            "EstimateStatus": float(int(est.status) & 0xFFFF),
+            "SoilClassIndex": math.nan if idx is None or not math.isfinite(_f(idx)) else float(idx),
+        },
+    }
+
+
+def estimate_frames(codec: Codec, est: Any, sa: int, priority: int) -> list[tuple[int, bytes]]:
+    """``(can_id, data)`` of the three estimate frames from source address ``sa``."""
+    vals = estimate_values(est)
+    return [codec.encode(name, vals[name], sa=sa, priority=priority) for name in MESSAGES]
+
+
+def no_estimate_frames(codec: Codec, sa: int, priority: int, status: int = NO_DATA_STATUS) -> list[tuple[int, bytes]]:
+    """The three frames with every value "not available" and ``status``."""
+    out = []
+    for name in MESSAGES:
+        vals: dict[str, float] = {}
+        if name == "TECU_EstSoil":
+            vals["EstimateStatus"] = float(status & 0xFFFF)
+        out.append(codec.encode(name, vals, sa=sa, priority=priority))
+    return out

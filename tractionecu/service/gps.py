@@ -1,0 +1,350 @@
+"""NMEA 0183 from a serial port (pyserial) without blocking the event loop.
+
+The port is opened with ``timeout=0`` (non-blocking) and its file descriptor
+is watched by the event loop (``loop.add_reader``); each wake-up reads what
+is there, splits lines and parses them strictly
+(:func:`tractionecu.gnss.nmea.parse_line`: checksum required; GGA, RMC,
+VTG, GNS, ZDA of any talker).  A read error or end of file (USB receiver
+unplugged, pty closed) closes the port; it is reopened with a doubling
+backoff until it is back.
+
+Epochs
+------
+Sentences are grouped into receiver epochs by UTC time of day
+(:class:`~tractionecu.gnss.nmea.EpochAssembler`, the same grouping
+``replay`` uses).  An epoch is handed on as soon as it holds every sentence
+type the previous epoch had (so a GGA+RMC+VTG receiver costs no extra
+epoch of latency), otherwise when the next epoch starts.
+
+Gating and time
+---------------
+A fix is used only if its fix quality is at least ``gps.min_fix_quality``,
+its HDOP at most ``gps.max_hdop``, its RMC status is not ``V`` and it has a
+position; otherwise it is counted under ``gated_<reason>``.  Its time on
+the service axis is its UTC epoch (RMC/ZDA date, else the service clock's
+date) when that lies within :data:`UTC_TOLERANCE_S` of its arrival time
+(the host clock follows UTC, as ``replay`` assumes), else the arrival time
+minus ``gps.latency_s`` (counted as ``time_from_arrival``).
+
+Counters (:attr:`GpsReader.stats`): ``lines``, ``fixes``, ``accepted``,
+``rejected_<reason>`` (garbage, missing_checksum, bad_checksum, bad_field,
+overlong), ``ignored`` (valid sentences of other types), ``gated_<reason>``
+(fix_quality, hdop, invalid, no_position), ``time_backwards``, ``opens``,
+``open_failures``, ``link_failures``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import calendar
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass
+from datetime import date, datetime, timezone
+from typing import Any, Callable
+
+from ..errors import DecodeError
+from ..gnss.nmea import EpochAssembler, GpsFix, parse_line
+from .clock import ServiceClock
+from .config import GpsConfig
+
+log = logging.getLogger(__name__)
+
+UTC_TOLERANCE_S = 0.5
+"""Largest |UTC epoch − arrival time| for which the UTC epoch is taken as the fix time [service s]."""
+READ_CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class GpsSample:
+    """One accepted GNSS epoch on the service time axis.
+
+    ``t`` [s] service time of the epoch; ``t_arrival`` [s] when its first
+    sentence arrived; ``lat_deg``/``lon_deg`` [deg WGS84]; ``alt_m`` [m];
+    ``speed_mps`` [m/s] (None if no sentence gave it); ``course_deg``
+    [deg]; ``fix_quality``, ``hdop`` [-], ``nsat``.
+    """
+
+    t: float
+    t_arrival: float
+    lat_deg: float
+    lon_deg: float
+    alt_m: float | None
+    speed_mps: float | None
+    course_deg: float | None
+    fix_quality: int | None
+    hdop: float | None
+    nsat: int | None
+
+
+def utc_epoch(d: date, tod_s: float) -> float:
+    """Epoch seconds of UTC date ``d`` plus ``tod_s`` seconds (as the recording reader computes it)."""
+    return calendar.timegm((d.year, d.month, d.day, 0, 0, 0)) + tod_s
+
+
+class NmeaStream:
+    """Bytes in, gated :class:`GpsSample` out (no I/O: the reader and tests feed it).
+
+    Parameters
+    ----------
+    cfg:
+        The ``[gps]`` table (gating thresholds, line limit, latency).
+    on_sample:
+        Called with each accepted sample.
+    """
+
+    def __init__(self, cfg: GpsConfig, on_sample: Callable[[GpsSample], None]) -> None:
+        self.cfg = cfg
+        self.on_sample = on_sample
+        self.stats: Counter[str] = Counter()
+        self._buf = bytearray()
+        self._asm = EpochAssembler()
+        self._lineno = 0
+        self._cur_tod: float | None = None
+        self._cur_types: set[str] = set()
+        self._cur_arrival = math.nan
+        self._prev_types: frozenset[str] = frozenset()
+        self._emitted_tod: float | None = None
+        self._last_date: date | None = None
+        self._last_t = -math.inf
+        self.last_sample: GpsSample | None = None
+        self._warned: set[str] = set()
+
+    def reset_line(self) -> None:
+        """Forget a partial line (after the port was reopened)."""
+        self._buf.clear()
+
+    def feed(self, data: bytes, t_arrival: float) -> None:
+        """Add received bytes; ``t_arrival`` is their arrival [service s]."""
+        buf = self._buf
+        buf += data
+        while True:
+            i = buf.find(b"\n")
+            if i < 0:
+                if len(buf) > self.cfg.max_line_bytes:
+                    self._reject("overlong", bytes(buf[:40]).decode("ascii", "replace"))
+                    buf.clear()
+                return
+            line = bytes(buf[:i])
+            del buf[: i + 1]
+            if len(line) > self.cfg.max_line_bytes:
+                self._reject("overlong", line[:40].decode("ascii", "replace"))
+                continue
+            self._line(line.decode("ascii", "replace"), t_arrival)
+
+    def _reject(self, reason: str, text: str) -> None:
+        self.stats["lines"] += 1
+        self.stats["rejected_" + reason] += 1
+        if reason not in self._warned:
+            self._warned.add(reason)
+            log.warning("NMEA line rejected (%s): %r", reason, text[:60])
+        else:
+            log.debug("NMEA line rejected (%s): %r", reason, text[:60])
+
+    def _line(self, text: str, t_arrival: float) -> None:
+        self._lineno += 1
+        if not text.strip():
+            return
+        try:
+            rec = parse_line(text)
+        except DecodeError as e:
+            self._reject(getattr(e, "reason", "garbage"), text)
+            return
+        self.stats["lines"] += 1
+        if rec is None:
+            self.stats["ignored"] += 1
+            return
+        closing_arrival = self._cur_arrival
+        if rec.tod_s is not None and (self._cur_tod is None or abs(rec.tod_s - self._cur_tod) > 1e-3):
+            if self._cur_types:
+                self._prev_types = frozenset(self._cur_types)
+            self._cur_tod = rec.tod_s
+            self._cur_types = set()
+            self._cur_arrival = t_arrival
+        done = self._asm.push(self._lineno, rec)
+        if done is not None:
+            self._emit(done, closing_arrival)
+        if rec.tod_s is not None or rec.sentence == "VTG":
+            self._cur_types.add(rec.sentence)
+        if self._prev_types and self._prev_types <= self._cur_types:
+            fix = self._asm.flush()
+            if fix is not None:
+                self._emit(fix, self._cur_arrival)
+
+    def _emit(self, fix: GpsFix, t_arrival: float) -> None:
+        if self._emitted_tod is not None and abs(fix.tod_s - self._emitted_tod) <= 1e-3:
+            return  # rest of an epoch already handed on
+        self._emitted_tod = fix.tod_s
+        self.stats["fixes"] += 1
+        if fix.date is not None:
+            self._last_date = fix.date
+        reason = None
+        q = fix.fix_quality
+        if fix.valid is False:
+            reason = "invalid"
+        elif q is None or q < self.cfg.min_fix_quality:
+            reason = "fix_quality"
+        elif fix.hdop is not None and fix.hdop > self.cfg.max_hdop:
+            reason = "hdop"
+        elif fix.lat_deg is None or fix.lon_deg is None:
+            reason = "no_position"
+        if reason is not None:
+            self.stats["gated_" + reason] += 1
+            return
+        t = self._fix_time(fix.tod_s, t_arrival)
+        if t <= self._last_t:
+            self.stats["time_backwards"] += 1
+            return
+        self._last_t = t
+        self.stats["accepted"] += 1
+        s = GpsSample(t, t_arrival, float(fix.lat_deg), float(fix.lon_deg), fix.alt_m,  # type: ignore[arg-type]
+                      fix.speed_mps, fix.course_deg, q, fix.hdop, fix.nsat)
+        self.last_sample = s
+        self.on_sample(s)
+
+    def _fix_time(self, tod_s: float, t_arrival: float) -> float:
+        if math.isfinite(t_arrival):
+            if self._last_date is not None:
+                cands = [utc_epoch(self._last_date, tod_s)]
+            else:
+                d0 = datetime.fromtimestamp(t_arrival, tz=timezone.utc).date()
+                cands = [utc_epoch(date.fromordinal(d0.toordinal() + k), tod_s) for k in (-1, 0, 1)]
+            best = min(cands, key=lambda c: abs(c - t_arrival))
+            if abs(best - t_arrival) <= UTC_TOLERANCE_S:
+                return best
+        self.stats["time_from_arrival"] += 1
+        return t_arrival - self.cfg.latency_s
+
+
+class GpsReader:
+    """Supervised serial port feeding an :class:`NmeaStream`.
+
+    Parameters
+    ----------
+    cfg:
+        The ``[gps]`` table.
+    on_sample:
+        Called on the event-loop thread with each accepted :class:`GpsSample`.
+    clock:
+        Service clock (arrival times).
+    serial_factory:
+        Opens the port (default ``serial.Serial``); called as
+        ``serial_factory(port=..., baudrate=..., timeout=0)``.
+    """
+
+    def __init__(self, cfg: GpsConfig, on_sample: Callable[[GpsSample], None], clock: ServiceClock, *,
+                 serial_factory: Callable[..., Any] | None = None) -> None:
+        self.cfg = cfg
+        self.clock = clock
+        self.stream = NmeaStream(cfg, on_sample)
+        self.stats = self.stream.stats
+        self.serial_factory = serial_factory
+        self.is_open = asyncio.Event()
+        self.last_error = ""
+        self._port: Any = None
+        self._fd: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._failed: asyncio.Future[str] | None = None
+        self._closing = False
+        self._warned: set[str] = set()
+
+    def _factory(self) -> Callable[..., Any]:
+        if self.serial_factory is None:
+            import serial
+
+            self.serial_factory = serial.Serial
+        return self.serial_factory
+
+    def _open(self) -> Any:
+        port = self._factory()(port=self.cfg.port, baudrate=self.cfg.baudrate, timeout=0)
+        try:
+            port.reset_input_buffer()
+        except Exception:  # not every port supports it (pty, loop://)
+            pass
+        return port
+
+    async def run(self) -> None:
+        """Open, read, and reopen after failures until :meth:`close`."""
+        self._loop = loop = asyncio.get_running_loop()
+        backoff = self.cfg.reopen_min_s
+        while not self._closing:
+            try:
+                port = await loop.run_in_executor(None, self._open)
+            except asyncio.CancelledError:
+                raise
+            except Exception as e:  # SerialException, OSError, ValueError
+                self.stats["open_failures"] += 1
+                self.last_error = f"open: {e}"
+                self._warn_once("open", "GPS %s: cannot open (%s); retrying", self.cfg.port, e)
+                await asyncio.sleep(backoff)
+                backoff = min(2 * backoff, self.cfg.reopen_max_s)
+                continue
+            if self._closing:
+                port.close()
+                break
+            backoff = self.cfg.reopen_min_s
+            self.stats["opens"] += 1
+            self._warned.discard("open")
+            (log.warning if self.stats["opens"] > 1 else log.info)("GPS %s: open", self.cfg.port)
+            reason = await self._serve(port)
+            if self._closing:
+                break
+            self.stats["link_failures"] += 1
+            self.last_error = reason
+            self._warn_once("link", "GPS %s: lost (%s); reopening", self.cfg.port, reason)
+            await asyncio.sleep(backoff)
+            backoff = min(2 * backoff, self.cfg.reopen_max_s)
+
+    def _warn_once(self, kind: str, msg: str, *args: Any) -> None:
+        if kind in self._warned:
+            log.debug(msg, *args)
+        else:
+            self._warned.add(kind)
+            log.warning(msg, *args)
+
+    async def _serve(self, port: Any) -> str:
+        loop = self._loop
+        assert loop is not None
+        self._failed = loop.create_future()
+        self._port = port
+        self.stream.reset_line()
+        self._fd = port.fileno()
+        loop.add_reader(self._fd, self._on_readable)
+        self.is_open.set()
+        try:
+            return await self._failed
+        finally:
+            self.is_open.clear()
+            if self._fd is not None:
+                loop.remove_reader(self._fd)
+                self._fd = None
+            self._port = None
+            try:
+                port.close()
+            except Exception as e:
+                log.debug("GPS close: %s", e)
+
+    def _fail(self, reason: str) -> None:
+        if self._failed is not None and not self._failed.done():
+            self._failed.set_result(reason)
+
+    def _on_readable(self) -> None:
+        port = self._port
+        if port is None:
+            return
+        try:
+            data = port.read(READ_CHUNK)
+        except Exception as e:  # SerialException: device gone / EIO on a closed pty
+            if self._fd is not None and self._loop is not None:
+                self._loop.remove_reader(self._fd)
+                self._fd = None
+            self._fail(f"read: {e}")
+            return
+        if data:
+            self.stream.feed(data, self.clock.now())
+
+    async def close(self) -> None:
+        """Stop reading and close the port."""
+        self._closing = True
+        self._fail("closed")

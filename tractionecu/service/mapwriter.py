@@ -1,0 +1,181 @@
+"""Map writer: estimates at 10 Hz into :class:`~tractionecu.mapping.store.MapStore` tiles.
+
+* :meth:`MapWriter.add` runs on the event loop at the map rate; it only
+  updates in-memory running statistics (``MapStore.add`` is cheap and
+  thread-safe).
+* Tiles are written by :meth:`MapStore.flush` in a single worker thread every
+  ``map.flush_interval_s`` (atomic tile writes; the event loop never waits
+  for the disk), and once more by :meth:`MapWriter.close` on shutdown
+  (SIGTERM).
+* On start the store resumes the tiles already in the directory.  The field
+  origin is ``map.origin_lat/lon`` if given, else the existing map's, else
+  the first accepted fix.
+
+Layers written: ``a`` and the class shape ``p, alpha1, alpha2`` (once a is
+identified), ``rho_s``, and ``mu`` = mean adhesion over the four wheels.
+Only estimates with ``valid`` set are accumulated (the store counts the
+rest as ``rejected_invalid``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import math
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from ..mapping.tiles import MANIFEST_NAME
+from ..model.mucurve import SOIL_CLASSES
+from .config import MapConfig
+from .gps import GpsSample
+
+log = logging.getLogger(__name__)
+
+
+def layer_values(est: Any) -> dict[str, float]:
+    """Map layer values of an ``Estimate`` (finite values only)."""
+    out: dict[str, float] = {}
+    mu = [float(x) for x in est.mu]
+    if all(math.isfinite(x) for x in mu):
+        out["mu"] = sum(mu) / len(mu)
+    rho = float(est.rho_s)
+    if math.isfinite(rho):
+        out["rho_s"] = rho
+    a = float(est.a)
+    if math.isfinite(a):
+        out["a"] = a
+        cls = SOIL_CLASSES.get(getattr(est, "soil_class", ""))
+        if cls is not None:
+            out["p"], out["alpha1"], out["alpha2"] = cls.p, cls.alpha1, cls.alpha2
+    return out
+
+
+class MapWriter:
+    """Accumulate on the loop, flush in a worker thread.
+
+    Parameters
+    ----------
+    cfg:
+        The ``[map]`` table.
+    directory:
+        Map directory (created if missing).
+    """
+
+    def __init__(self, cfg: MapConfig, directory: Path) -> None:
+        self.cfg = cfg
+        self.directory = Path(directory)
+        self.store: Any = None
+        self.stats: Counter[str] = Counter()
+        self.last_error = ""
+        self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="map-flush")
+        self._flushing: asyncio.Future[Any] | None = None
+        self._opening: asyncio.Future[Any] | None = None
+        self._last_flush_mono = -math.inf
+
+    async def open(self) -> None:
+        """Resume an existing map (tiles read in the worker thread), or wait for the first fix."""
+        loop = asyncio.get_running_loop()
+        if math.isfinite(self.cfg.origin_lat):
+            await self._open_at(loop, self.cfg.origin_lat, self.cfg.origin_lon)
+        elif (self.directory / MANIFEST_NAME).exists():
+            from ..mapping.store import MapStore
+
+            self.store = await loop.run_in_executor(self._pool, lambda: MapStore.open(self.directory))
+            self._log_resume()
+
+    async def _open_at(self, loop: asyncio.AbstractEventLoop, lat: float, lon: float) -> None:
+        from ..mapping.store import MapStore
+
+        def make() -> Any:
+            return MapStore(self.directory, lat, lon, resolution_m=self.cfg.resolution_m)
+
+        if (self.directory / MANIFEST_NAME).exists():
+            def make() -> Any:  # noqa: F811 - an existing map keeps its own resolution
+                return MapStore.open(self.directory)
+        self.store = await loop.run_in_executor(self._pool, make)
+        self._log_resume()
+
+    def _log_resume(self) -> None:
+        n = len(self.store.tile_keys())
+        log.info("map %s: %s with %d tile(s), origin %.6f, %.6f", self.directory,
+                 "resumed" if n else "new", n, self.store.frame.origin_lat, self.store.frame.origin_lon)
+        self.stats["resumed_tiles"] = n
+
+    def add(self, est: Any, fix: GpsSample | None) -> bool:
+        """Accumulate one estimate at the fix's position; False if not used."""
+        if fix is None:
+            self.stats["no_fix"] += 1
+            return False
+        if self.store is None:
+            if self._opening is None:
+                loop = asyncio.get_running_loop()
+                self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
+                self._opening.add_done_callback(self._opened)
+            self.stats["waiting_for_store"] += 1
+            return False
+        try:
+            ok = self.store.add(fix.lat_deg, fix.lon_deg, layer_values(est), est.t, valid=bool(est.valid),
+                                fix_quality=fix.fix_quality, hdop=fix.hdop)
+        except Exception as e:  # a closed or broken store must not stop the loop
+            self.stats["add_errors"] += 1
+            self.last_error = str(e)
+            log.warning("map add failed: %s", e)
+            return False
+        self.stats["added" if ok else "rejected"] += 1
+        return ok
+
+    def _opened(self, fut: asyncio.Future[Any]) -> None:
+        if fut.cancelled():
+            return
+        e = fut.exception()
+        if e is not None:
+            self.stats["open_errors"] += 1
+            self.last_error = str(e)
+            log.error("map %s: cannot open: %s", self.directory, e)
+            self._opening = None
+
+    def maybe_flush(self, now_mono: float) -> None:
+        """Start a flush in the worker thread if the interval is over and none is running."""
+        if self.store is None or now_mono - self._last_flush_mono < self.cfg.flush_interval_s:
+            return
+        if self._flushing is not None and not self._flushing.done():
+            return
+        self._last_flush_mono = now_mono
+        loop = asyncio.get_running_loop()
+        self._flushing = loop.run_in_executor(self._pool, self.store.flush)
+        self._flushing.add_done_callback(self._flushed)
+
+    def _flushed(self, fut: asyncio.Future[Any]) -> None:
+        if fut.cancelled():
+            return
+        e = fut.exception()
+        if e is not None:
+            self.stats["flush_errors"] += 1
+            self.last_error = str(e)
+            log.error("map flush failed: %s", e)
+        else:
+            self.stats["flushes"] += 1
+            self.stats["tiles_written"] += int(fut.result() or 0)
+
+    async def close(self) -> None:
+        """Write every dirty tile and release the store (in the worker thread)."""
+        loop = asyncio.get_running_loop()
+        if self._opening is not None and not self._opening.done():
+            try:
+                await self._opening
+            except Exception:
+                pass
+        if self._flushing is not None:
+            try:
+                await self._flushing
+            except Exception:
+                pass
+        try:
+            if self.store is not None:
+                await loop.run_in_executor(self._pool, self.store.close)
+                self.stats["closed"] += 1
+        finally:
+            self._pool.shutdown(wait=True)

@@ -1,0 +1,183 @@
+"""``run --simulate``: the built-in simulator plays the rest of the tractor.
+
+A simulated recording (``tractionecu.sim``) is played in real time (or
+``speed`` times faster) into the real service code:
+
+* CAN frames go onto a python-can ``virtual`` bus channel from a second bus
+  object, stamped with their recorded times (``preserve_timestamps``), as a
+  kernel would stamp them on SocketCAN;
+* NMEA lines are written to the master side of a pseudo-terminal at their
+  epoch times; the service opens the slave side (``/dev/pts/N``) with
+  pyserial, exactly as it opens a USB receiver.
+
+The player runs in its own thread and never touches the service's objects;
+the only links are the bus channel and the pty.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+import tty
+import uuid
+from datetime import date
+from pathlib import Path
+from typing import Iterator
+
+import can
+
+from ..bus.candump import read_candump
+from ..errors import DecodeError
+from ..gnss.nmea import parse_line
+from .clock import ServiceClock
+from .gps import utc_epoch
+
+log = logging.getLogger(__name__)
+
+SEND_AHEAD_S = 0.0
+"""Frames are sent when the service clock reaches their time stamp [s]."""
+
+
+def nmea_schedule(path: str | Path) -> list[tuple[float, str]]:
+    """``(epoch time [s], line)`` for each line of an NMEA file, from the sentences' UTC time and date.
+
+    Lines without a time (VTG) take the time of the epoch before them.  The
+    date comes from the RMC/ZDA sentences (the first one dates the lines
+    before it); a time of day that drops by more than 12 h starts a new day.
+    """
+    lines = Path(path).read_text(encoding="ascii", errors="replace").splitlines()
+    parsed: list[tuple[str, float | None, date | None]] = []
+    first_date: date | None = None
+    for ln in lines:
+        if not ln.strip():
+            continue
+        try:
+            rec = parse_line(ln)
+        except DecodeError:
+            rec = None
+        tod = rec.tod_s if rec is not None else None
+        d = rec.date if rec is not None else None
+        if d is not None and first_date is None:
+            first_date = d
+        parsed.append((ln, tod, d))
+    if first_date is None:
+        raise ValueError(f"{path}: no RMC/ZDA date: cannot place the lines in time")
+    out: list[tuple[float, str]] = []
+    day = first_date
+    prev_tod: float | None = None
+    t_last = -math.inf
+    # lines before the first dated sentence use the first date
+    for ln, tod, d in parsed:
+        if tod is not None:
+            if prev_tod is not None and tod < prev_tod - 43200.0:
+                day = date.fromordinal(day.toordinal() + 1)
+            if d is not None:
+                day = d
+            prev_tod = tod
+            t_last = utc_epoch(day, tod)
+        out.append((t_last, ln))
+    t_first = next((t for t, _ in out if math.isfinite(t)), 0.0)
+    return [(t if math.isfinite(t) else t_first, ln) for t, ln in out]
+
+
+class SimulatedMachine:
+    """Plays a recording directory onto a virtual CAN channel and a pty.
+
+    Parameters
+    ----------
+    recording:
+        Directory with ``can.log`` and ``gps.nmea``.
+    clock:
+        The service clock (recording times are service times).
+    channel:
+        Virtual CAN channel name (default: a fresh unique one).
+
+    Attributes
+    ----------
+    port:
+        Path of the pty slave for the service's ``gps.port``.
+    done:
+        Set when everything has been played (or :meth:`stop` was called).
+    counts:
+        ``frames`` and ``lines`` played.
+    """
+
+    def __init__(self, recording: str | Path, clock: ServiceClock, channel: str | None = None) -> None:
+        self.recording = Path(recording)
+        self.clock = clock
+        self.channel = channel or f"tractionecu-sim-{uuid.uuid4().hex[:8]}"
+        self.done = threading.Event()
+        self.counts = {"frames": 0, "lines": 0, "lines_dropped": 0}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)  # no echo, no CR/LF translation before pyserial opens it
+        os.set_blocking(self._master, False)  # a full pty buffer drops lines instead of stalling the bus
+        self.port = os.ttyname(self._slave)
+        self._nmea = nmea_schedule(self.recording / "gps.nmea") if (self.recording / "gps.nmea").exists() else []
+        self.bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
+        first = next(iter(read_candump(self.recording / "can.log")), None)
+        self.t_first = first.t if first is not None else (self._nmea[0][0] if self._nmea else time.time())
+
+    def _events(self) -> Iterator[tuple[float, int, object]]:
+        """Frames and lines merged in time order: (t, kind 0 CAN / 1 NMEA, payload)."""
+        lines = iter(self._nmea)
+        nxt = next(lines, None)
+        for fr in read_candump(self.recording / "can.log"):
+            while nxt is not None and nxt[0] <= fr.t:
+                yield nxt[0], 1, nxt[1]
+                nxt = next(lines, None)
+            yield fr.t, 0, fr
+        while nxt is not None:
+            yield nxt[0], 1, nxt[1]
+            nxt = next(lines, None)
+
+    def start(self) -> None:
+        """Start playing in a background thread."""
+        self._thread = threading.Thread(target=self._play, name="sim-player", daemon=True)
+        self._thread.start()
+
+    def _play(self) -> None:
+        clock = self.clock
+        try:
+            for t, kind, payload in self._events():
+                if self._stop.is_set():
+                    break
+                wait = clock.mono_at(t - SEND_AHEAD_S) - time.monotonic()
+                if wait > 0 and self._stop.wait(wait):
+                    break
+                if kind == 0:
+                    fr = payload
+                    msg = can.Message(timestamp=fr.t, arbitration_id=fr.can_id,  # type: ignore[attr-defined]
+                                      is_extended_id=fr.is_extended, data=fr.data)  # type: ignore[attr-defined]
+                    try:
+                        self.bus.send(msg)
+                        self.counts["frames"] += 1
+                    except can.CanError as e:
+                        log.debug("simulated frame not sent: %s", e)
+                else:
+                    data = (str(payload) + "\r\n").encode("ascii", "replace")
+                    try:
+                        os.write(self._master, data)
+                        self.counts["lines"] += 1
+                    except OSError as e:
+                        self.counts["lines_dropped"] += 1
+                        log.debug("simulated NMEA line not written: %s", e)
+        finally:
+            self.done.set()
+
+    def stop(self) -> None:
+        """Stop playing and release the bus and the pty."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+        self.done.set()
+        self.bus.shutdown()
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
