@@ -76,74 +76,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def simulate_main(cfg, args: argparse.Namespace) -> int:
-    """Simulate, then run the service against the played simulation."""
-    from ..service.clock import ServiceClock
-    from ..service.config import with_overrides
-    from ..service.daemon import Service
-    from ..service.simulate import SimulatedMachine
-    from ..sim import scenarios
-    from ..sim.simulator import simulate
-    from ..sim.writer import write_recording
+    """Simulate the scenario, then run the service against the played simulation."""
+    from ..service.simulate import run_simulation, simulate_recording
 
-    state = cfg.state_dir()
-    rec_dir = state / "simulation"
-    kw = {} if args.duration is None else {"duration_s": float(args.duration) + 1.0}
-    scn = scenarios.get(args.scenario, seed=args.seed, **kw)
     out = sys.stdout
-    print(f"simulating {scn.name} (seed {scn.seed}) into {rec_dir} ...", file=out, flush=True)
-    loop = asyncio.get_running_loop()
-
-    def make() -> None:
-        write_recording(scn, simulate(scn), rec_dir)
-
-    await loop.run_in_executor(None, make)
-    lead = 0.5
-    from ..bus.candump import read_candump
-
-    first = next(iter(read_candump(rec_dir / "can.log")))
-    clock = ServiceClock(speed=args.speed, epoch0=first.t - lead)
-    machine = SimulatedMachine(rec_dir, clock)
-    lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * args.speed))
-    cfg = with_overrides(
-        cfg,
-        can={"interface": "virtual", "channel": machine.channel, "timestamps": "kernel", "options": {}},
-        gps={"source": "serial", "port": machine.port},
-        estimation={"vehicle": str(rec_dir / "vehicle.toml"), "lag_s": lag},
-        service={"state_dir": str(state)},
-    )
-    svc = Service(cfg, clock=clock, status_stream=None if args.quiet else out)
-    stop = asyncio.Event()
-    print(f"playing on virtual CAN channel {machine.channel} and NMEA pty {machine.port} "
-          f"at {args.speed:g}x; Ctrl-C stops", file=out, flush=True)
-    task = asyncio.create_task(svc.run(stop))
-    t_end = first.t + (args.duration if args.duration is not None else float("inf"))
-    try:
-        await asyncio.wait_for(svc.ready.wait(), timeout=30.0)
-        machine.start()
-        while not task.done():
-            if machine.done.is_set() or clock.now() >= t_end:
-                await asyncio.sleep(clock.wall(lag + 0.2))
-                stop.set()
-                break
-            await asyncio.sleep(0.1)
-        rc = await task
-    except asyncio.TimeoutError:
-        stop.set()
-        await task
-        print("the service did not become ready within 30 s", file=sys.stderr)
-        rc = 1
-    finally:
-        machine.stop()
-    c = svc.counters()
-    summary = {
-        "played_frames": machine.counts["frames"],
-        "played_nmea_lines": machine.counts["lines"],
-        "estimator_steps": c["service"].get("steps", 0),
-        "broadcasts": c["service"].get("broadcasts", 0),
-        "address": None if svc.address is None else f"0x{svc.address:02X}",
-        "map_dir": str(cfg.map_dir()),
-        "map_samples": c.get("map", {}).get("added", 0),
-        "map_tiles_written": c.get("map_store", {}).get("tiles_written", 0),
-    }
-    print("done: " + json.dumps(summary), file=out, flush=True)
-    return rc
+    rec_dir = cfg.state_dir() / "simulation"
+    print(f"simulating {args.scenario} (seed {args.seed}) into {rec_dir} ...", file=out, flush=True)
+    await asyncio.get_running_loop().run_in_executor(
+        None, lambda: simulate_recording(args.scenario, args.seed, rec_dir, args.duration))
+    res = await run_simulation(cfg, rec_dir, speed=args.speed, duration_s=args.duration,
+                               status_stream=None if args.quiet else out, info_stream=out)
+    print("done: " + json.dumps(res.summary), file=out, flush=True)
+    return res.exit_code

@@ -14,7 +14,8 @@ Sentences are grouped into receiver epochs by UTC time of day
 (:class:`~tractionecu.gnss.nmea.EpochAssembler`, the same grouping
 ``replay`` uses).  An epoch is handed on as soon as it holds every sentence
 type the previous epoch had (so a GGA+RMC+VTG receiver costs no extra
-epoch of latency), otherwise when the next epoch starts.
+epoch of latency), otherwise when the next epoch starts.  Until one epoch
+has been seen, GGA+RMC+VTG is expected.
 
 Gating and time
 ---------------
@@ -54,6 +55,8 @@ log = logging.getLogger(__name__)
 UTC_TOLERANCE_S = 0.5
 """Largest |UTC epoch − arrival time| for which the UTC epoch is taken as the fix time [service s]."""
 READ_CHUNK = 4096
+INITIAL_EPOCH_TYPES = frozenset({"GGA", "RMC", "VTG"})
+"""Sentence types expected in an epoch until the receiver's own set has been seen once."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,7 @@ class NmeaStream:
         self._cur_tod: float | None = None
         self._cur_types: set[str] = set()
         self._cur_arrival = math.nan
-        self._prev_types: frozenset[str] = frozenset()
+        self._prev_types: frozenset[str] = INITIAL_EPOCH_TYPES
         self._emitted_tod: float | None = None
         self._last_date: date | None = None
         self._last_t = -math.inf

@@ -16,6 +16,7 @@ the only links are the bus channel and the pty.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import math
 import os
@@ -23,9 +24,10 @@ import threading
 import time
 import tty
 import uuid
+from dataclasses import dataclass, field
 from datetime import date
 from pathlib import Path
-from typing import Iterator
+from typing import IO, Any, Callable, Iterator
 
 import can
 
@@ -39,6 +41,8 @@ log = logging.getLogger(__name__)
 
 SEND_AHEAD_S = 0.0
 """Frames are sent when the service clock reaches their time stamp [s]."""
+LEAD_WALL_S = 1.0
+"""The service starts this many wall seconds before the first simulated frame (time to open and claim)."""
 
 
 def nmea_schedule(path: str | Path) -> list[tuple[float, str]]:
@@ -181,3 +185,94 @@ class SimulatedMachine:
                 os.close(fd)
             except OSError:
                 pass
+
+
+def simulate_recording(scenario: str, seed: int, out: str | Path, duration_s: float | None = None) -> Path:
+    """Simulate a named scenario (optionally only its first ``duration_s`` s) into a recording directory."""
+    from ..sim import scenarios
+    from ..sim.simulator import simulate
+    from ..sim.writer import write_recording
+
+    kw = {} if duration_s is None else {"duration_s": float(duration_s) + 1.0}
+    scn = scenarios.get(scenario, seed=seed, **kw)
+    write_recording(scn, simulate(scn), out)
+    return Path(out)
+
+
+@dataclass
+class SimulationResult:
+    """What :func:`run_simulation` returns."""
+
+    exit_code: int
+    service: Any
+    machine: SimulatedMachine
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0, duration_s: float | None = None,
+                         status_stream: IO[str] | None = None, info_stream: IO[str] | None = None,
+                         before_play: Callable[[SimulatedMachine], None] | None = None,
+                         estimator_factory: Callable[[Any], Any] | None = None) -> SimulationResult:
+    """Run the real service against a recording played onto a virtual bus and a pty.
+
+    ``cfg`` is the base :class:`~tractionecu.service.config.ServiceConfig`;
+    its CAN and GPS sections are replaced by the virtual channel and the pty,
+    the vehicle by the recording's ``vehicle.toml``.  ``before_play`` is
+    called with the machine before anything is played (tests attach a
+    listener bus to ``machine.channel`` there).  Stops after ``duration_s``
+    simulated seconds, at the end of the recording, or on SIGINT/SIGTERM.
+    """
+    from ..bus.candump import read_candump
+    from .clock import ServiceClock
+    from .config import with_overrides
+    from .daemon import Service
+
+    rec = Path(recording)
+    first = next(iter(read_candump(rec / "can.log")), None)
+    if first is None:
+        raise ValueError(f"{rec / 'can.log'}: no frame to play")
+    clock = ServiceClock(speed=speed, epoch0=first.t - LEAD_WALL_S * speed)
+    machine = SimulatedMachine(rec, clock)
+    lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * speed))
+    cfg = with_overrides(
+        cfg,
+        can={"interface": "virtual", "channel": machine.channel, "timestamps": "kernel", "options": {}},
+        gps={"source": "serial", "port": machine.port},
+        estimation={"vehicle": str(rec / "vehicle.toml"), "lag_s": lag},
+        service={"state_dir": str(cfg.state_dir())},
+    )
+    svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory)
+    if before_play is not None:
+        before_play(machine)
+    if info_stream is not None:
+        print(f"playing on virtual CAN channel {machine.channel} and NMEA pty {machine.port} at {speed:g}x "
+              f"real time; Ctrl-C stops", file=info_stream, flush=True)
+    stop = asyncio.Event()
+    task = asyncio.create_task(svc.run(stop))
+    machine.start()
+    t_end = first.t + (duration_s if duration_s is not None else math.inf)
+    try:
+        while not task.done():
+            if machine.done.is_set() or clock.now() >= t_end:
+                await asyncio.sleep(clock.wall(lag + 0.2))
+                stop.set()
+                break
+            await asyncio.sleep(0.05)
+        rc = await task
+    finally:
+        stop.set()
+        if not task.done():
+            await asyncio.wait({task})
+        machine.stop()
+    c = svc.counters()
+    summary = {
+        "played_frames": machine.counts["frames"],
+        "played_nmea_lines": machine.counts["lines"],
+        "estimator_steps": c["service"].get("steps", 0),
+        "broadcasts": c["service"].get("broadcasts", 0),
+        "address": None if svc.address is None else f"0x{svc.address:02X}",
+        "map_dir": str(cfg.map_dir()),
+        "map_samples": c.get("map", {}).get("added", 0),
+        "map_tiles_written": c.get("map_store", {}).get("tiles_written", 0),
+    }
+    return SimulationResult(rc, svc, machine, summary)

@@ -79,8 +79,8 @@ class StepAssembler:
     Attributes
     ----------
     counts:
-        ``late`` (a sample stamped at or before a step already taken: it is
-        passed at the next step), ``time_backwards`` (stamped before the
+        ``late`` and ``late_<key>`` (a sample stamped at or before a step
+        already taken: it is passed at the next step), ``time_backwards`` (stamped before the
         previous sample of its group: dropped).
     """
 
@@ -97,6 +97,7 @@ class StepAssembler:
             return
         if t <= self.t_taken:
             self.counts["late"] += 1
+            self.counts["late_" + key] += 1
         r.seq += 1
         r.buf.append((t, r.seq, value))
 
