@@ -176,7 +176,7 @@ class EstimationConfig:
     """The fixed-rate estimation loop."""
 
     rate_hz: float = _f(100.0, "estimator step rate [Hz]", 1.0, 1000.0)
-    lag_s: float = _f(0.02, "each step runs this long after its grid time, so every frame stamped "
+    lag_s: float = _f(0.01, "each step runs this long after its grid time, so every frame stamped "
                             "before the grid time has arrived [s]", 0.0, 1.0)
     max_catch_up_s: float = _f(1.0, "when the loop falls further behind than this, it skips ahead [s]", 0.01, 60.0)
     vehicle: str = _f("", "vehicle.toml with the nominal VehicleParams; empty = built-in defaults")

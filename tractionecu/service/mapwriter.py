@@ -118,7 +118,7 @@ class MapWriter:
             return False
         try:
             ok = self.store.add(fix.lat_deg, fix.lon_deg, layer_values(est), est.t, valid=bool(est.valid),
-                                fix_quality=fix.fix_quality, hdop=fix.hdop)
+                                status=int(est.status), fix_quality=fix.fix_quality, hdop=fix.hdop)
         except Exception as e:  # a closed or broken store must not stop the loop
             self.stats["add_errors"] += 1
             self.last_error = str(e)
