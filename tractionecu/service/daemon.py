@@ -467,6 +467,7 @@ class Service:
                 log.error("shutdown: %s", e)
             self.exit_code = self.exit_code or 1
         log.info("stopped; counters: %s", self.counters())
+        self.notifier.close()
         return self.exit_code
 
     def _ready_text(self) -> str:

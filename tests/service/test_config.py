@@ -1,0 +1,107 @@
+"""Service configuration: defaults, the shipped example, errors that name the key."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from tractionecu.errors import ConfigError
+from tractionecu.service.config import (
+    ServiceConfig,
+    default_name,
+    from_dict,
+    load_config,
+    to_toml,
+    with_overrides,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_defaults() -> None:
+    cfg = ServiceConfig()
+    assert (cfg.can.interface, cfg.can.channel) == ("socketcan", "can0")
+    assert cfg.can.kernel_timestamps
+    assert cfg.estimation.rate_hz == 100.0 and cfg.broadcast.rate_hz == 10.0
+    name = cfg.broadcast.name_value()
+    assert name == default_name()
+    assert name.industry_group == 2 and name.arbitrary_address_capable
+
+
+def test_example_config_is_the_defaults() -> None:
+    cfg = load_config(REPO / "systemd" / "tractionecu.toml")
+    assert to_toml(cfg) == to_toml(ServiceConfig())
+
+
+def test_resolved_toml_round_trips() -> None:
+    cfg = with_overrides(ServiceConfig(), can={"interface": "virtual", "channel": "x", "options": {"bitrate": 250000}},
+                         map={"origin_lat": 47.5, "origin_lon": -110.5})
+    again = from_dict(tomllib.loads(to_toml(cfg)))
+    assert to_toml(again) == to_toml(cfg)
+    assert again.can.options == {"bitrate": 250000}
+
+
+def test_state_dir_resolution(tmp_path: Path) -> None:
+    cfg = ServiceConfig()
+    assert cfg.state_dir({}) == Path("tractionecu-state")
+    assert cfg.state_dir({"STATE_DIRECTORY": "/var/lib/tractionecu:/var/lib/other"}) == Path("/var/lib/tractionecu")
+    assert cfg.map_dir({"STATE_DIRECTORY": "/var/lib/tractionecu"}) == Path("/var/lib/tractionecu/map")
+    cfg2 = with_overrides(cfg, service={"state_dir": str(tmp_path)})
+    assert cfg2.state_dir({"STATE_DIRECTORY": "/elsewhere"}) == tmp_path
+
+
+@pytest.mark.parametrize(
+    "data, key",
+    [
+        ({"can": {"interface": "nosuchbus"}}, "can.interface"),
+        ({"can": {"bogus": 1}}, "can.bogus"),
+        ({"can": {"rx_queue_frames": 1}}, "can.rx_queue_frames"),
+        ({"can": {"rx_queue_frames": 100.5}}, "can.rx_queue_frames"),
+        ({"can": {"timestamps": "gps"}}, "can.timestamps"),
+        ({"can": {"reopen_min_s": 5.0, "reopen_max_s": 1.0}}, "can.reopen_max_s"),
+        ({"can": {"options": {"channel": "can1"}}}, "can.options.channel"),
+        ({"gps": {"baudrate": "fast"}}, "gps.baudrate"),
+        ({"gps": {"source": "usb"}}, "gps.source"),
+        ({"gps": {"max_hdop": 0.0}}, "gps.max_hdop"),
+        ({"estimation": {"rate_hz": 0}}, "estimation.rate_hz"),
+        ({"estimation": {"lag_s": float("inf")}}, "estimation.lag_s"),
+        ({"broadcast": {"rate_hz": 30.0}}, "broadcast.rate_hz"),
+        ({"broadcast": {"name": "zz"}}, "broadcast.name"),
+        ({"broadcast": {"name": "0x1000000000000000"}}, "broadcast.name"),  # industry group 1
+        ({"broadcast": {"preferred_address": 254}}, "broadcast.preferred_address"),
+        ({"broadcast": {"enabled": 1}}, "broadcast.enabled"),
+        ({"map": {"origin_lat": 47.0}}, "map.origin_lat"),
+        ({"map": {"origin_lat": 95.0, "origin_lon": 1.0}}, "map.origin_lat"),
+        ({"map": {"rate_hz": 3.0}}, "map.rate_hz"),
+        ({"service": {"status_interval_s": -1.0}}, "service.status_interval_s"),
+        ({"nonsense": {}}, "nonsense"),
+        ({"can": "socketcan"}, "can"),
+    ],
+)
+def test_errors_name_the_key(data: dict, key: str) -> None:
+    with pytest.raises(ConfigError) as ei:
+        from_dict(data)
+    assert str(ei.value).startswith(key), str(ei.value)
+
+
+def test_name_accepts_integer_and_hex() -> None:
+    hexname = "0xA000FF007D001092"
+    a = from_dict({"broadcast": {"name": hexname}}).broadcast.name_value()
+    b = from_dict({"broadcast": {"name": 0x2000FF007D001092}}).broadcast.name_value()
+    assert a.identity_number == b.identity_number == 4242
+    assert a.arbitrary_address_capable and not b.arbitrary_address_capable
+
+
+def test_file_errors_name_the_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[can\n")
+    with pytest.raises(ConfigError, match="bad.toml: not valid TOML"):
+        load_config(bad)
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text('[gps]\nport = 5\n')
+    with pytest.raises(ConfigError, match=r"wrong.toml: gps.port"):
+        load_config(wrong)

@@ -1,0 +1,258 @@
+"""The daemon on python-can's virtual bus and a real pty: readiness, bad input, broadcast,
+timeouts, watchdog, SIGTERM with flushed tiles and resume."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import signal
+import socket
+import tty
+import uuid
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from types import SimpleNamespace
+
+import can
+import numpy as np
+import pytest
+
+from tractionecu.bus import j1939
+from tractionecu.bus.dbc import default_codec
+from tractionecu.gnss import nmea
+from tractionecu.mapping.store import MapStore
+from tractionecu.service.config import ServiceConfig, with_overrides
+from tractionecu.service.daemon import Service
+
+CODEC = default_codec()
+
+
+class StandIn:
+    """A deterministic estimator stand-in: counts what it is given, always valid."""
+
+    def __init__(self, vehicle=None, fail_at: int | None = None) -> None:
+        self.calls: list[tuple[float, dict, dict]] = []
+        self.fail_at = fail_at
+        self.counters = {"steps": 0}
+
+    def step(self, t, inputs, meas):
+        self.calls.append((t, dict(inputs), dict(meas)))
+        self.counters["steps"] += 1
+        if self.fail_at is not None and len(self.calls) == self.fail_at:
+            raise FloatingPointError("stand-in failure")
+        return SimpleNamespace(t=t, mu=np.full(4, 0.4), slip=np.full(4, 0.05), rho_s=0.07, a=0.7,
+                               soil_class="stubble", soil_class_index=0, v=2.5, status=0, valid=True)
+
+    def reset(self) -> None:
+        pass
+
+
+class Rig:
+    """A Service on a fresh virtual channel, a pty GNSS and a notify socket."""
+
+    def __init__(self, tmp: Path, estimator=None, gps_present: bool = True, env: dict | None = None,
+                 **overrides) -> None:
+        self.channel = f"svc-{uuid.uuid4().hex[:8]}"
+        self.port = tmp / "ttyGNSS"
+        self.master = self.slave = None
+        if gps_present:
+            self.plug()
+        name = f"tecu-notify-{uuid.uuid4().hex}"
+        self.notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.notify.bind("\0" + name)
+        self.notify.setblocking(False)
+        sections = {
+            "can": {"interface": "virtual", "channel": self.channel, "reopen_min_s": 0.02, "reopen_max_s": 0.1},
+            "gps": {"port": str(self.port), "reopen_min_s": 0.02, "reopen_max_s": 0.1},
+            "service": {"state_dir": str(tmp / "state"), "status_interval_s": 0.2},
+            "map": {"flush_interval_s": 0.2},
+        }
+        for k, v in overrides.items():
+            sections.setdefault(k, {}).update(v)
+        self.cfg = with_overrides(ServiceConfig(), **sections)
+        self.estimator = estimator
+        env = {"NOTIFY_SOCKET": "@" + name, **(env or {})}
+        self.svc = Service(self.cfg, estimator_factory=(lambda v: estimator) if estimator else None, env=env)
+        self.peer = can.Bus(interface="virtual", channel=self.channel)
+        self.task: asyncio.Task | None = None
+        self.stop = asyncio.Event()
+
+    def plug(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.port.symlink_to(os.ttyname(self.slave))
+
+    async def __aenter__(self) -> Rig:
+        self.task = asyncio.create_task(self.svc.run(self.stop))
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        self.stop.set()
+        if self.task is not None:
+            await asyncio.wait_for(self.task, 20)
+        self.peer.shutdown()
+        self.notify.close()
+        for fd in (self.master, self.slave):
+            if fd is not None:
+                os.close(fd)
+
+    def notifications(self) -> list[str]:
+        out = []
+        while True:
+            try:
+                out.append(self.notify.recv(4096).decode())
+            except BlockingIOError:
+                return out
+
+    def send(self, name: str, values: dict, sa: int = 0x80) -> None:
+        cid, data = CODEC.encode(name, values, sa=sa)
+        self.peer.send(can.Message(arbitration_id=cid, data=data))
+
+    def inputs(self, torques: bool = True) -> None:
+        self.send("TECU_WheelSpeeds", {f"WheelSpeed_{w}": 3.2 for w in ("FL", "FR", "RL", "RR")})
+        if torques:
+            self.send("TECU_DriveTorques", {f"DriveTorque_{w}": 900.0 for w in ("FL", "FR", "RL", "RR")})
+        self.send("TECU_AxleLoad", {"FrontAxleLoad": 25000.0, "FrontAxleLoadStatus": 0})
+        self.send("RearHitchStatus", {"DraftForce": 12000.0}, sa=0x82)
+
+    def nmea(self, utc: datetime) -> None:
+        lat, lon = 47.88 + 1e-6 * utc.second, -110.55
+        lines = [nmea.format_gga(utc, lat, lon, 2, 12, 0.9, 850.0), nmea.format_rmc(utc, lat, lon, 2.5, 90.0),
+                 nmea.format_vtg(2.5, 90.0)]
+        os.write(self.master, ("\r\n".join(lines) + "\r\n").encode())
+
+    def received(self) -> list[can.Message]:
+        out = []
+        while (m := self.peer.recv(timeout=0)) is not None:
+            out.append(m)
+        return out
+
+
+async def until(pred, timeout: float = 10.0) -> None:
+    loop = asyncio.get_running_loop()
+    end = loop.time() + timeout
+    while not pred():
+        assert loop.time() < end, "condition not reached in time"
+        await asyncio.sleep(0.01)
+
+
+async def drive(rig: Rig, seconds: float, torques: bool = True, gps: bool = True) -> None:
+    """Send the inputs at 100 Hz and GNSS at 10 Hz for ``seconds``."""
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    k = 0
+    while loop.time() - t0 < seconds:
+        rig.inputs(torques)
+        if gps and k % 10 == 0:
+            rig.nmea(datetime.now(timezone.utc))
+        k += 1
+        await asyncio.sleep(0.01)
+
+
+async def test_ready_waits_for_bus_and_gps_then_claims_and_broadcasts(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn(), gps_present=False)
+    async with rig:
+        await asyncio.wait_for(rig.svc.can.is_open.wait(), 10)
+        await until(lambda: rig.svc.gps.stats["open_failures"] >= 2)
+        assert not rig.svc.ready.is_set()
+        assert not any("READY=1" in n for n in rig.notifications())
+        rig.plug()
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        seen: list[str] = []
+        await until(lambda: seen.extend(rig.notifications()) or any(n.startswith("READY=1") for n in seen))
+        await until(lambda: rig.svc.stats["broadcasts"] >= 3)
+        frames = rig.received()
+    ids = [m.arbitration_id for m in frames]
+    assert ids[0] == 0x18EEFF90 and bytes(frames[0].data) == rig.svc.claimer.name_bytes
+    est = [m for m in frames if j1939.pgn_of(m.arbitration_id) in (65312, 65313, 65314)]
+    assert est and all(m.arbitration_id & 0xFF == 0x90 for m in est)
+    # before any wheel speed: every value "not available", every timeout bit set
+    name, vals = CODEC.decode(est[2].arbitration_id, bytes(est[2].data))
+    assert name == "TECU_EstSoil" and int(vals["EstimateStatus"]) == 0x3F
+    assert math.isnan(vals["SoilRollingResistance"])
+    assert (tmp_path / "state" / "run-config.toml").is_file()
+
+
+async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn())
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        p = rig.peer
+        p.send(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x01"))
+        p.send(can.Message(arbitration_id=0x18FF1080, is_remote_frame=True, dlc=8))
+        p.send(can.Message(arbitration_id=0x20000004, is_error_frame=True, data=bytes(8)))
+        p.send(can.Message(arbitration_id=0x0CF00400, data=bytes(8)))            # EEC1: not in the DBC
+        p.send(can.Message(arbitration_id=0x18FF1080, data=b"\x01\x02\x03"))     # wheel speeds, DLC 3
+        p.send(can.Message(arbitration_id=0x18FF2033, data=bytes(8)))            # an estimate from another ECU
+        p.send(can.Message(arbitration_id=0x18FF10A5, data=bytes(8), is_fd=True))
+        rig.inputs()                                                              # then good frames, any SA
+        rig.send("TECU_WheelSpeeds", {"WheelSpeed_FL": 1.0}, sa=0x33)
+        await until(lambda: rig.svc.stats["rx_TECU_WheelSpeeds"] == 2)
+        st = rig.svc.stats
+        assert st["standard_id_frames"] == 1 and st["remote_frames"] == 1 and st["error_frames"] == 1
+        assert rig.svc.unknown_pgns[0xF004] == 1
+        assert rig.svc.bad_frames["TECU_WheelSpeeds"] == 1
+        assert st["foreign_estimate_frames"] == 1 and st["canfd_frames"] == 1
+        assert rig.task is not None and not rig.task.done()
+
+
+async def test_inputs_reach_the_estimator_and_a_timeout_sets_its_bit(tmp_path: Path) -> None:
+    rig = Rig(tmp_path)   # the real estimator
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        await drive(rig, 1.5)
+        assert rig.svc.grid_t0 is not None and rig.svc.stats["steps"] > 50
+        rig.received()
+        await drive(rig, 0.6, torques=False)        # drive torques stop
+        frames = rig.received()
+    soil = [CODEC.decode(m.arbitration_id, bytes(m.data))[1] for m in frames
+            if j1939.pgn_of(m.arbitration_id) == 65314]
+    assert soil, "no estimate broadcast"
+    assert int(soil[-1]["EstimateStatus"]) & 0x04, "torque timeout bit missing"
+    assert not int(soil[-1]["EstimateStatus"]) & 0x01, "wheel speeds kept coming"
+
+
+async def test_estimator_failure_is_counted_not_fatal(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn(fail_at=3))
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        await drive(rig, 0.3, gps=False)
+        await until(lambda: rig.svc.stats["steps"] >= 5)
+        assert rig.svc.stats["estimator_errors"] == 1
+
+
+async def test_watchdog_and_status_notifications(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn(), env={"WATCHDOG_USEC": "400000"})
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        seen: list[str] = []
+        await until(lambda: (seen.extend(rig.notifications()) or True)
+                    and "WATCHDOG=1" in seen and any(s.startswith("STATUS=") and "CAN open" in s for s in seen))
+    assert any(s.startswith("READY=1") for s in seen)
+
+
+async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn())
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        await drive(rig, 1.2)
+        await until(lambda: rig.svc.map is not None and rig.svc.map.stats["added"] >= 5)
+        os.kill(os.getpid(), signal.SIGTERM)           # the real signal, handled by the service's loop
+        assert rig.task is not None
+        rc = await asyncio.wait_for(rig.task, 20)
+    assert rc == 0
+    added = rig.svc.map.stats["added"]
+    map_dir = tmp_path / "state" / "map"
+    with MapStore.open(map_dir, read_only=True) as store:
+        mean, *_ = store.mean_grid("rho_s")
+        assert np.nansum(np.isfinite(mean)) >= 1
+        assert np.nanmax(mean) == pytest.approx(0.07)
+        n_tiles = len(store.tile_keys())
+
+    rig.port.unlink()
+    rig2 = Rig(tmp_path, StandIn())
+    async with rig2:
+        await asyncio.wait_for(rig2.svc.ready.wait(), 10)
+        assert rig2.svc.map.stats["resumed_tiles"] == n_tiles
+    assert added >= 5
