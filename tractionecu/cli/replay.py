@@ -43,7 +43,7 @@ from ..sim.sensors import SensorSpec
 GRID_MARGIN_S = 0.0015
 """Grid time after the wheel-speed frame time [s]: covers CAN arrival jitter and the spread of one burst."""
 
-CSV_COLUMNS = (["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_class"] + [f"slip_{w}" for w in WHEELS]
+CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_class"] + [f"slip_{w}" for w in WHEELS]
                + ["v"] + [f"omega_{w}" for w in WHEELS] + [f"var_{n}" for n in STATE_NAMES]
                + ["nis", "nis_dof", "adapt", "status", "valid"])
 

@@ -95,7 +95,7 @@ class EstimatorConfig:
     # process noise (tuning)
     q_omega: float = field(default=1e-4, metadata={"doc": "model-error density on each ω [rad²/s³]", "lo": 0.0, "hi": 1e3})
     q_v: float = field(default=1e-4, metadata={"doc": "model-error density on v [m²/s³]", "lo": 0.0, "hi": 1e3})
-    q_mu: float = field(default=2e-3, metadata={"doc": "random-walk density of each μ [1/s]", "lo": 0.0, "hi": 10.0})
+    q_mu: float = field(default=1e-3, metadata={"doc": "random-walk density of each μ [1/s]", "lo": 0.0, "hi": 10.0})
     q_rho: float = field(default=2e-5, metadata={"doc": "random-walk density of ρ_s [1/s]", "lo": 0.0, "hi": 10.0})
     input_noise: bool = field(default=True, metadata={"doc": "add the measured-input noise (SensorSpec) to Q"})
     # adaptation (paper eqs. 12–13) and fuzzy supervisor
@@ -108,6 +108,7 @@ class EstimatorConfig:
     dynamics_tau_s: float = field(default=0.2, metadata={"doc": "low-pass time constant of |dv/dt|, |dM_d/dt| [s]", "lo": 1e-3, "hi": 10.0})
     # robustness
     gate_probability: float = field(default=1e-4, metadata={"doc": "false-alarm probability of the per-measurement NIS gate [-] (0 disables)", "lo": 0.0, "hi": 0.5})
+    gate_max_consecutive: int = field(default=5, metadata={"doc": "a measurement gated this many updates in a row is accepted on the next [-]", "lo": 0, "hi": 100000})
     mu_min: float = field(default=-1.2, metadata={"doc": "lower bound of μ [-]", "lo": -5.0, "hi": 0.0})
     mu_max: float = field(default=1.2, metadata={"doc": "upper bound of μ [-]", "lo": 0.0, "hi": 5.0})
     rho_min: float = field(default=0.0, metadata={"doc": "lower bound of ρ_s [-]", "lo": -1.0, "hi": 0.0})
@@ -128,11 +129,12 @@ class EstimatorConfig:
     # curve parameter a (paper section 3.2)
     soil_classes: tuple[str, ...] = field(default=("stubble",), metadata={"doc": "surface classes (shapes p, α1, α2) to fit; first = default"})
     curve_tau_s: float = field(default=3.0, metadata={"doc": "smoothing time constant of a [s]", "lo": 1e-3, "hi": 3600.0})
-    curve_min_slip: float = field(default=0.03, metadata={"doc": "pairs with |s| below this are skipped [-]", "lo": 0.0, "hi": 0.5})
-    curve_max_rel_err: float = field(default=0.10, metadata={"doc": "pairs whose propagated relative error of a exceeds this are skipped [-]", "lo": 1e-4, "hi": 10.0})
+    curve_min_mu: float = field(default=0.15, metadata={"doc": "pairs with |μ| below this are skipped as ill-conditioned (low slip) [-]", "lo": 0.0, "hi": 2.0})
+    curve_min_slip: float = field(default=0.005, metadata={"doc": "pairs with |s| below this are skipped [-]", "lo": 0.0, "hi": 0.5})
     curve_min_speed_mps: float = field(default=0.5, metadata={"doc": "no curve update below this speed [m/s]", "lo": 0.0, "hi": 50.0})
     curve_period_s: float = field(default=0.1, metadata={"doc": "period of the curve update [s]", "lo": 1e-3, "hi": 10.0})
     curve_switch_ratio: float = field(default=0.7, metadata={"doc": "class switch hysteresis: RSS_new < ratio·RSS_current [-]", "lo": 0.01, "hi": 1.0})
+    curve_switch_min_delta: float = field(default=10.0, metadata={"doc": "class switch also needs RSS_current − RSS_new above this [χ² units]", "lo": 0.0, "hi": 1e9})
     fuzzy: FuzzyConfig = field(default_factory=FuzzyConfig, metadata={"doc": "fuzzy supervisor breakpoints ([estimator.fuzzy])"})
 
     def __post_init__(self) -> None:
@@ -144,8 +146,10 @@ class EstimatorConfig:
         for c in self.soil_classes:
             if c not in SOIL_CLASSES:
                 raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
-        if not isinstance(self.adapt_window, int) or isinstance(self.adapt_window, bool):
-            raise ConfigError(f"estimator.adapt_window: expected an integer, got {self.adapt_window!r}")
+        for name in ("adapt_window", "gate_max_consecutive"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool):
+                raise ConfigError(f"estimator.{name}: expected an integer, got {v!r}")
         if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
             raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
         if self.mu_min >= self.mu_max:
@@ -292,9 +296,14 @@ class Estimator:
         self._cm = CovarianceMatching(N_STATE, cfg.adapt_window, cfg.adapt_min, cfg.adapt_max)
         self._A = np.ones(N_STATE)
         self._f = 1.0
+        self._Qbase: NDArray[np.float64] | None = None
+        self._Qdt = math.nan
+        self._tq_gain = 0.0
+        self._adapt_mu = 1.0
         self._t_adapt = -math.inf
-        self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_slip=cfg.curve_min_slip,
-                                     max_rel_err=cfg.curve_max_rel_err, switch_ratio=cfg.curve_switch_ratio)
+        self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu,
+                                     min_slip=cfg.curve_min_slip, switch_ratio=cfg.curve_switch_ratio,
+                                     switch_min_delta=cfg.curve_switch_min_delta)
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._loads_key = math.nan
@@ -316,26 +325,38 @@ class Estimator:
         return s * s + self._w_q2
 
     def _Q(self, dt: float) -> NDArray[np.float64]:
-        """Process noise covariance for one step of dt [s]."""
+        """Process noise covariance for one step of dt [s] (module doc).
+
+        The parts that change slowly (tuning × adaptation, axle-load and draft
+        terms, which depend on μ̂ and r_d) are rebuilt when the adaptation is
+        recomputed or dt changes; the torque term is added every step.
+        """
+        if dt != self._Qdt or self._Qbase is None:
+            self._rebuild_Q(dt)
+        Q = self._Qbase.copy()  # type: ignore[union-attr]
+        if self.cfg.input_noise:
+            sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
+            Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
+        return Q
+
+    def _rebuild_Q(self, dt: float) -> None:
         q = self._q_tune * (self._f * dt)
         q *= self._A
         Q = np.diag(q)
-        if self.cfg.input_noise:
-            u = self._u
-            x = self.ukf.x  # type: ignore[union-attr]
-            J = self.J
-            sm = self._tq_abs + self._tq_rel * np.abs(u[:4])
-            idx = np.arange(4)
-            Q[idx, idx] += (sm * sm + self._tq_q2) * (self._tq_T * dt) / (J * J)
+        J = self.J
+        self._tq_gain = self._tq_T * dt / (J * J)
+        if self.cfg.input_noise and self.ukf is not None:
+            self._loads()
+            mu = self.ukf.x[IX_MU]
             # axle load: dω̇_i/dF_zf = ∓ r_i (μ_i + ρ_t)/(2J), dv̇/dF_zf = (μ1+μ2−μ3−μ4)/(2m)
             g = np.zeros(N_STATE)
-            mu = x[IX_MU]
             sgn = np.array([-0.5, -0.5, 0.5, 0.5])
             g[:4] = sgn * self._rd * (mu + self.vehicle.rho_t) / J
             g[IX_V] = -float(sgn @ mu) / self.m
             Q += np.outer(g, g) * (self._fz_var * self._pin_T * dt)
             Q[IX_V, IX_V] += self._fd_var * self._pin_T * dt / (self.m * self.m)
-        return Q
+        self._Qbase = Q
+        self._Qdt = dt
 
     # ------------------------------------------------------------------ init
     def _init_filter(self, t: float, omega: NDArray[np.float64]) -> None:
@@ -351,7 +372,8 @@ class Estimator:
         x0 = np.concatenate([omega, [v0], mu0, [rho0]])
         sd = np.concatenate([np.sqrt(self._R_omega(omega)), [cfg.sigma_v0], [cfg.sigma_mu0] * 4, [cfg.sigma_rho0]])
         self.ukf = UnscentedFilter(self.model.step, x0, np.diag(sd * sd), range(5), alpha=cfg.alpha, beta=cfg.beta,
-                                   kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate)
+                                   kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate,
+                                   gate_max_consecutive=cfg.gate_max_consecutive)
         self.t_init = t
 
     # ------------------------------------------------------------------ step
@@ -463,7 +485,7 @@ class Estimator:
                 updated = True
                 self.counters["updates"] += 1
                 if cfg.adaptation:
-                    self._cm.push(ukf.last_K @ ukf.last_innov, np.einsum("ij,ij->i", ukf.last_K, ukf.last_C))
+                    self._cm.push(ukf.last_dx, (ukf.last_K * ukf.last_C).sum(axis=1))
         # ---- adaptation and supervisor (paper eqs. 12–13, FLS)
         x = ukf.x
         self._dyn.update(t, float(x[IX_V]), float(self._u[:4].sum()))
@@ -473,6 +495,8 @@ class Estimator:
                 self._A = self._cm.compute()
             if cfg.supervisor:
                 self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
+            self._adapt_mu = self._f * float(self._A[IX_MU].mean())
+            self._Qbase = None
         self.counters["chol_repairs"] = ukf.chol_repairs
         return self._estimate(t, status, x, updated)
 
@@ -504,15 +528,13 @@ class Estimator:
         # curve parameter a (paper section 3.2) at the curve rate
         if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
             self._t_curve = t
-            sig_mu = np.sqrt(pd[IX_MU])
-            sig_s = np.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)
-            self._curve_state = self._curve.update(t, mu, s, sig_mu, sig_s)
+            self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]))
         conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
                 and float(pd[IX_MU].max()) < cfg.conv_sigma_mu ** 2 and float(pd[IX_RHO]) < cfg.conv_sigma_rho ** 2)
         if not conv:
             status |= NOT_CONVERGED
         cs = self._curve_state
-        adapt = self._f * float(self._A[IX_MU].mean())
+        adapt = self._adapt_mu
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
         return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,
                         adapt, status, (status & INVALID_MASK) == 0, dof, cs.class_index)

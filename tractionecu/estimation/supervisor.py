@@ -45,8 +45,8 @@ HIGH            LARGE     LARGE     LARGE
 ==============  ========  ========  ========
 
 Inference is Mamdani: AND = min, implication = min (clipping), aggregation =
-max; defuzzification = centroid of the aggregated set on a uniform grid of
-the output universe.  The adaptation factor is the log-linear map
+max; defuzzification = centroid ∫c·μ(c)dc / ∫μ(c)dc of the aggregated set,
+integrated with the trapezoid rule on a uniform grid of the output universe.  The adaptation factor is the log-linear map
 f = f_min·(f_max/f_min)^c, so MEDIUM (c = 0.5) gives the geometric mean.
 
 Covariance matching
@@ -101,11 +101,11 @@ def trapmf(x: ArrayLike, a: float, b: float, c: float, d: float) -> NDArray[np.f
 class FuzzyConfig:
     """Breakpoints and output range of the fuzzy supervisor."""
 
-    accel_low_mps2: float = field(default=0.03, metadata={"doc": "|dv/dt| where LOW starts to fall (a₁) [m/s²]", "lo": 0.0, "hi": 10.0})
-    accel_mid_mps2: float = field(default=0.12, metadata={"doc": "|dv/dt| peak of MEDIUM (a₂) [m/s²]", "lo": 0.0, "hi": 10.0})
+    accel_low_mps2: float = field(default=0.06, metadata={"doc": "|dv/dt| where LOW starts to fall (a₁) [m/s²]", "lo": 0.0, "hi": 10.0})
+    accel_mid_mps2: float = field(default=0.15, metadata={"doc": "|dv/dt| peak of MEDIUM (a₂) [m/s²]", "lo": 0.0, "hi": 10.0})
     accel_high_mps2: float = field(default=0.30, metadata={"doc": "|dv/dt| where HIGH is full (a₃) [m/s²]", "lo": 0.0, "hi": 10.0})
-    torque_rate_low_nmps: float = field(default=1500.0, metadata={"doc": "|dΣM_d/dt| where LOW starts to fall (m₁) [N·m/s]", "lo": 0.0, "hi": 1e7})
-    torque_rate_mid_nmps: float = field(default=4000.0, metadata={"doc": "|dΣM_d/dt| peak of MEDIUM (m₂) [N·m/s]", "lo": 0.0, "hi": 1e7})
+    torque_rate_low_nmps: float = field(default=2000.0, metadata={"doc": "|dΣM_d/dt| where LOW starts to fall (m₁) [N·m/s]", "lo": 0.0, "hi": 1e7})
+    torque_rate_mid_nmps: float = field(default=5000.0, metadata={"doc": "|dΣM_d/dt| peak of MEDIUM (m₂) [N·m/s]", "lo": 0.0, "hi": 1e7})
     torque_rate_high_nmps: float = field(default=10000.0, metadata={"doc": "|dΣM_d/dt| where HIGH is full (m₃) [N·m/s]", "lo": 0.0, "hi": 1e7})
     factor_min: float = field(default=0.5, metadata={"doc": "adaptation factor at intensity 0 (steady) [-]", "lo": 1e-3, "hi": 1e3})
     factor_max: float = field(default=8.0, metadata={"doc": "adaptation factor at intensity 1 (intense) [-]", "lo": 1e-3, "hi": 1e3})
@@ -138,6 +138,10 @@ class FuzzySupervisor:
         self.cfg = c = cfg or FuzzyConfig()
         self.grid = np.linspace(0.0, 1.0, c.grid_points)
         self.out_mf = np.stack([trimf(self.grid, *abc) for abc in OUTPUT_SETS])   # (3, G)
+        h = self.grid[1] - self.grid[0]
+        self._w = np.full(self.grid.size, h)          # trapezoid-rule weights
+        self._w[[0, -1]] = 0.5 * h
+        self._xw = self.grid * self._w
         self._log_ratio = math.log(c.factor_max / c.factor_min)
 
     def memberships(self, accel_abs: float, torque_rate_abs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -158,10 +162,10 @@ class FuzzySupervisor:
         strength = np.zeros(3)
         np.maximum.at(strength, RULES.ravel(), firing.ravel())  # one strength per output set (max)
         agg = np.max(np.minimum(strength[:, None], self.out_mf), axis=0)   # clip + aggregate
-        area = float(agg.sum())
+        area = float(agg @ self._w)
         if area <= 0.0:
             return 0.5
-        return float((agg * self.grid).sum() / area)
+        return float(agg @ self._xw) / area
 
     def factor(self, accel_abs: float, torque_rate_abs: float) -> float:
         """Adaptation factor f = f_min·(f_max/f_min)^c [-]."""

@@ -98,11 +98,16 @@ class UnscentedFilter:
         positive semi-definite by construction.
     x_lo, x_hi : bounds the mean is clamped into after each step (±inf = free).
     gate_chi2 : per-component gate on ν_j²/S_jj (∞ disables gating).
+    gate_max_consecutive : a component gated on this many updates in a row is
+        accepted on the next one (and its count restarts): a persistent
+        discrepancy is the model's, not the sensor's, and rejecting it for ever
+        would lock the filter out (gating-induced divergence).
     """
 
     def __init__(self, fx: ProcessFn, x0: ArrayLike, P0: ArrayLike, meas_index: Sequence[int], *,
                  alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0,
-                 x_lo: ArrayLike | None = None, x_hi: ArrayLike | None = None, gate_chi2: float = math.inf):
+                 x_lo: ArrayLike | None = None, x_hi: ArrayLike | None = None, gate_chi2: float = math.inf,
+                 gate_max_consecutive: int = 5):
         self.fx = fx
         self.x = np.array(x0, dtype=float)
         self.n = n = self.x.shape[0]
@@ -115,8 +120,13 @@ class UnscentedFilter:
         self.x_hi = np.full(n, np.inf) if x_hi is None else np.asarray(x_hi, dtype=float)
         self._clamped_dims = np.flatnonzero(np.isfinite(self.x_lo) | np.isfinite(self.x_hi))
         self.gate_chi2 = float(gate_chi2)
+        self.gate_max_consecutive = int(gate_max_consecutive)
+        self._gate_run = np.zeros(self.meas_index.size, dtype=np.int64)
+        self.gate_bypassed = 0
+        """Number of components accepted after ``gate_max_consecutive`` gated updates in a row."""
         self._sig = np.empty((2 * n + 1, n))
         self._eye = np.eye(n)
+        self._slice_cache: dict[tuple, NDArray[np.intp]] = {}
         # Counters (cumulative) and last-step diagnostics.
         self.chol_repairs = 0
         """Number of Cholesky failures repaired with jitter / eigenvalue clipping."""
@@ -136,6 +146,8 @@ class UnscentedFilter:
         self.last_innov: NDArray[np.float64] = np.empty(0)
         self.last_S: NDArray[np.float64] = np.empty((0, 0))
         self.last_K: NDArray[np.float64] = np.empty((n, 0))
+        self.last_dx: NDArray[np.float64] = np.zeros(n)
+        """Correction K ν of the last update (before clamping)."""
         self.last_C: NDArray[np.float64] = np.empty((n, 0))
         """Cross covariance C_k of the last update; diag(K S Kᵀ) = Σ_j K_ij C_ij."""
 
@@ -209,17 +221,20 @@ class UnscentedFilter:
         """
         z = np.asarray(z, dtype=float)
         R = np.asarray(R, dtype=float)
-        if R.ndim == 1:
-            R = np.diag(R)
         self.last_gated = 0
         if isinstance(idx, slice):
-            idx = np.arange(idx.start or 0, idx.stop, idx.step or 1)
+            key = (idx.start, idx.stop, idx.step)
+            cached = self._slice_cache.get(key)
+            if cached is None:
+                cached = self._slice_cache[key] = np.arange(self.meas_index.size)[idx]
+            idx = cached
         else:
             idx = np.asarray(idx, dtype=np.intp)
         if not math.isfinite(float(z.sum())):
             ok = np.isfinite(z)
             self.nonfinite_rejected += int((~ok).sum())
-            z, idx, R = z[ok], idx[ok], R[np.ix_(ok, ok)]
+            z, idx = z[ok], idx[ok]
+            R = R[ok] if R.ndim == 1 else R[np.ix_(ok, ok)]
         st = self.meas_index[idx]
         m = st.size
         if m == 0:
@@ -230,39 +245,56 @@ class UnscentedFilter:
         contiguous = st[-1] - st[0] == m - 1
         if contiguous:
             sl = slice(int(st[0]), int(st[0]) + m)
-            S = P[sl, sl] + R
+            S = P[sl, sl].copy()
             C = P[:, sl]
             nu = z - self.x[sl]
         else:
-            S = P[np.ix_(st, st)] + R
+            S = P[np.ix_(st, st)]
             C = P[:, st]
             nu = z - self.x[st]
+        if R.ndim == 1:
+            S.flat[::m + 1] += R
+        else:
+            S += R
         if self.gate_chi2 < math.inf:
             keep = nu * nu <= self.gate_chi2 * S.diagonal()
-            if not keep.all():
-                self.gated_total += int((~keep).sum())
-                for j in idx[~keep]:
-                    self.last_gated |= 1 << int(j)
-                idx, st, nu = idx[keep], st[keep], nu[keep]
-                if st.size == 0:
-                    self._no_update()
-                    return
-                S = S[np.ix_(keep, keep)]
-                C = P[:, st]
+            run = self._gate_run
+            if keep.all():
+                run[idx] = 0
+            else:
+                for pos in np.flatnonzero(~keep):
+                    j = int(idx[pos])
+                    if run[j] >= self.gate_max_consecutive:
+                        keep[pos] = True          # persistent: accept (see class doc)
+                        self.gate_bypassed += 1
+                    else:
+                        self.last_gated |= 1 << j
+                run[idx[keep]] = 0
+                run[idx[~keep]] += 1
+                if not keep.all():
+                    self.gated_total += int((~keep).sum())
+                    idx, st, nu = idx[keep], st[keep], nu[keep]
+                    if st.size == 0:
+                        self._no_update()
+                        return
+                    S = S[np.ix_(keep, keep)]
+                    C = P[:, st]
         Si = np.linalg.inv(S)
         K = C @ Si
-        x = self.x + K @ nu
+        dx = K @ nu
+        x = self.x + dx
         P = P - K @ C.T
         P += P.T
         P *= 0.5
         self.P = P
         np.minimum(np.maximum(x, self.x_lo), self.x_hi, out=self.x)
-        if self._clamped_dims.size and not np.array_equal(self.x, x):
+        if (self.x != x).any():
             self.clamp_events += 1
         self.last_nis = float(nu @ (Si @ nu))
         self.last_dof = int(st.size)
         self.last_idx = idx
         self.last_innov = nu
+        self.last_dx = dx
         self.last_S = S
         self.last_K = K
         self.last_C = C
@@ -275,3 +307,4 @@ class UnscentedFilter:
         self.last_S = np.empty((0, 0))
         self.last_K = np.empty((self.n, 0))
         self.last_C = np.empty((self.n, 0))
+        self.last_dx = np.zeros(self.n)

@@ -1,0 +1,187 @@
+"""Estimator push API on a small seeded truth loop: accuracy, robustness, determinism, config."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+
+import numpy as np
+import pytest
+from est_synth import synth_run
+
+from tractionecu.config import VehicleParams
+from tractionecu.errors import ConfigError
+from tractionecu.estimation.estimator import (AXLE_TIMEOUT, DRAFT_TIMEOUT, GPS_TIMEOUT, INPUT_REJECTED, MEAS_GATED,
+                                              NOT_CONVERGED, TORQUE_TIMEOUT, WHEEL_TIMEOUT, Estimate, Estimator,
+                                              EstimatorConfig, status_names)
+
+VEH = VehicleParams()
+
+
+@pytest.fixture(scope="module")
+def run15():
+    return synth_run(seed=4, duration=15.0)
+
+
+def _run(steps, cfg=None):
+    est = Estimator(VEH, cfg)
+    return est, [est.step(t, i, m) for t, i, m in steps]
+
+
+def test_tracks_mu_rho_and_a_on_synthetic_truth(run15):
+    est, out = _run(run15.steps)
+    mu = np.array([e.mu for e in out])
+    sl = slice(500, None)                       # after 5 s
+    rel = np.abs(mu[sl] - run15.mu[sl]) / run15.mu[sl]
+    assert rel.mean() < 0.02
+    rho = np.array([e.rho_s for e in out])
+    assert np.abs(rho[sl] - run15.rho_s[sl]).mean() < 0.01
+    assert out[-1].a == pytest.approx(0.7, rel=0.05)
+    assert out[-1].valid and out[-1].status == 0
+    assert out[-1].soil_class == "stubble"
+    s = np.array([e.slip for e in out])
+    assert np.abs(s[sl] - run15.slip[sl]).mean() < 0.01
+
+
+def test_soil_change_is_followed(run15):
+    r = synth_run(seed=5, duration=16.0, change=(8.0, 0.55, 0.11))
+    est, out = _run(r.steps)
+    mu = np.array([e.mu for e in out])
+    t = r.t
+    after = (t > 10.0)                          # 2 s after the change
+    rel = np.abs(mu[after] - r.mu[after]) / r.mu[after]
+    assert rel.mean() < 0.03
+    rho = np.array([e.rho_s for e in out])
+    assert np.abs(rho[t > 12.0] - 0.11).mean() < 0.01
+
+
+def test_estimate_fields_and_units(run15):
+    est, out = _run(run15.steps[:300])
+    e = out[-1]
+    assert isinstance(e, Estimate)
+    assert e.mu.shape == (4,) and e.slip.shape == (4,) and e.omega.shape == (4,) and e.P_diag.shape == (10,)
+    assert (e.P_diag > 0).all()
+    assert isinstance(e.status, int) and isinstance(e.valid, bool)
+    assert e.nis_dof in (4, 5) and e.nis >= 0
+    assert e.adapt > 0
+
+
+def test_first_step_before_initialisation_is_flagged():
+    est = Estimator(VEH)
+    e = est.step(0.0, {}, {})
+    assert not e.valid and e.status & NOT_CONVERGED and e.status & WHEEL_TIMEOUT and e.status & TORQUE_TIMEOUT
+    assert math.isnan(e.rho_s) and np.isnan(e.mu).all()
+
+
+def test_identical_input_gives_identical_output(run15):
+    _, a = _run(run15.steps[:600])
+    _, b = _run(run15.steps[:600])
+    for x, y in zip(a, b):
+        for f in ("mu", "rho_s", "a", "slip", "v", "omega", "P_diag", "nis", "adapt"):
+            assert np.array_equal(getattr(x, f), getattr(y, f), equal_nan=True), f
+        assert x.status == y.status and x.valid == y.valid and x.soil_class == y.soil_class
+
+
+def test_online_and_offline_are_identical(run15):
+    """Feeding step by step with pauses, or from a list, gives the same; reset() restores power-up state."""
+    est = Estimator(VEH)
+    first = [est.step(t, dict(i), dict(m)) for t, i, m in run15.steps[:400]]
+    est.reset()
+    second = []
+    for t, i, m in run15.steps[:400]:
+        second.append(est.step(t, {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in i.items()},
+                               {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in m.items()}))
+    assert all(np.array_equal(x.mu, y.mu, equal_nan=True) and np.array_equal(x.P_diag, y.P_diag, equal_nan=True)
+               for x, y in zip(first, second))
+
+
+def test_nan_inputs_are_rejected_and_step_is_predict_only(run15):
+    est = Estimator(VEH)
+    for t, i, m in run15.steps[:500]:
+        est.step(t, i, m)
+    t, i, m = run15.steps[500]
+    bad = dict(i)
+    bad["Md"] = np.array([np.nan, 1.0, 2.0, 3.0])
+    u_before = est._u.copy()
+    e = est.step(t, bad, m)
+    assert e.status & INPUT_REJECTED and not e.valid
+    assert math.isnan(e.nis) and e.nis_dof == 0           # predict only
+    assert np.array_equal(est._u[:4], u_before[:4])        # held value kept
+    assert np.isfinite(e.mu).all()
+    e2 = est.step(*run15.steps[501])
+    assert not e2.status & INPUT_REJECTED and e2.nis_dof >= 4
+    # None / Inf in scalar inputs and NaN in measurements
+    e3 = est.step(run15.steps[502][0], {"Fzf": None, "Fdx": math.inf}, {"omega": np.full(4, np.nan)})
+    assert e3.status & INPUT_REJECTED and np.isfinite(e3.mu).all()
+
+
+def test_timeouts_set_bits_and_predict_only(run15):
+    est = Estimator(VEH)
+    for t, i, m in run15.steps[:500]:
+        est.step(t, i, m)
+    t0 = run15.steps[500][0]
+    # wheel speeds and torques stop: predict only, bits set
+    for k in range(1, 21):
+        e = est.step(t0 + 0.01 * k, {}, {"v": 2.5} if k == 20 else {})
+    assert e.status & WHEEL_TIMEOUT and e.status & TORQUE_TIMEOUT and e.status & AXLE_TIMEOUT
+    assert e.status & DRAFT_TIMEOUT and not e.valid and e.nis_dof == 0
+    assert set(status_names(e.status)) >= {"wheel_speed_timeout", "torque_timeout"}
+    assert np.isfinite(e.mu).all() and np.isfinite(e.P_diag).all()
+    # GPS silent for longer than its timeout
+    est2 = Estimator(VEH)
+    for t, i, m in run15.steps[:300]:
+        m = {k: v for k, v in m.items() if k != "v"}
+        e = est2.step(t, i, m)
+    assert e.status & GPS_TIMEOUT and not e.status & WHEEL_TIMEOUT
+
+
+def test_outlier_measurement_is_gated(run15):
+    est = Estimator(VEH)
+    for t, i, m in run15.steps[:500]:
+        est.step(t, i, m)
+    t, i, m = run15.steps[500]
+    m = dict(m)
+    om = m["omega"].copy()
+    om[2] += 5.0
+    m["omega"] = om
+    e = est.step(t, i, m)
+    assert e.status & MEAS_GATED and e.nis_dof == 3 and e.valid
+
+
+def test_long_gap_is_sub_stepped(run15):
+    est = Estimator(VEH)
+    for t, i, m in run15.steps[:500]:
+        est.step(t, i, m)
+    n0 = est.ukf.chol_repairs
+    e = est.step(run15.steps[500][0] + 0.5, *run15.steps[550][1:])
+    assert np.isfinite(e.mu).all() and est.ukf.chol_repairs == n0
+
+
+def test_adaptation_and_supervisor_can_be_switched_off(run15):
+    cfg = EstimatorConfig(adaptation=False, supervisor=False)
+    est, out = _run(run15.steps[:800], cfg)
+    assert all(e.adapt == 1.0 for e in out[1:])
+    mu = np.array([e.mu for e in out])
+    assert (np.abs(mu[500:] - run15.mu[500:800]) / run15.mu[500:800]).mean() < 0.03
+
+
+def test_config_validation_names_the_key():
+    with pytest.raises(ConfigError, match="q_mu"):
+        EstimatorConfig(q_mu=-1.0)
+    with pytest.raises(ConfigError, match="soil_classes"):
+        EstimatorConfig(soil_classes=("moon-dust",))
+    with pytest.raises(ConfigError, match="adapt_window"):
+        EstimatorConfig(adapt_window=2.5)
+    with pytest.raises(ConfigError, match="rho_min"):
+        EstimatorConfig(rho_min=0.0, rho_max=0.0)
+    with pytest.raises(ConfigError, match="nonsense"):
+        EstimatorConfig.from_mapping({"nonsense": 1})
+
+
+def test_config_toml_round_trip():
+    cfg = EstimatorConfig(q_mu=3e-3, soil_classes=("stubble", "tilled"), adapt_window=50)
+    data = tomllib.loads(cfg.to_toml())
+    back = EstimatorConfig.from_mapping(data["estimator"])
+    assert back == cfg
+    assert dataclasses.is_dataclass(cfg) and cfg.__dataclass_params__.frozen
