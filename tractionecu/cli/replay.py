@@ -130,6 +130,7 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rec = read_recording(recording_path)
+    read_s = time.perf_counter() - wall0
     vehicle = load_vehicle(rec.vehicle_toml_path) if rec.vehicle_toml_path else VehicleParams()
     cfg = cfg or EstimatorConfig()
     sensors = sensors or SensorSpec()
@@ -199,6 +200,7 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
     arrays = {"t": grid, "mu": res_mu, "slip": res_slip, "omega": res_om, "P_diag": res_var, "nis_dof": res_dof,
               "status": res_status, "valid": res_valid, "soil_class": res_cls, **res}
     csv_path = out / "estimates.csv"
+    t_w = time.perf_counter()
     write_estimates_csv(csv_path, arrays)
     cfg_path = out / "config.toml"
     cfg_path.write_text("# Resolved configuration of this replay (SI units)\n" + to_toml(vehicle, "vehicle") + "\n"
@@ -208,8 +210,10 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
     # ---- map writer hook: tile writing / map_scorecard go here (uses `arrays`, `rec`, `out`) ----
 
     sim_s = float(grid[-1] - grid[0]) if n > 1 else 0.0
+    write_s = time.perf_counter() - t_w
     summary: dict[str, Any] = {"recording": str(recording_path), "steps": int(n), "rate_hz": float(rate_hz),
-                               "sim_seconds": sim_s, "loop_seconds": loop_s, "counters": dict(est.counters),
+                               "sim_seconds": sim_s, "read_seconds": read_s, "loop_seconds": loop_s,
+                               "write_seconds": write_s, "counters": dict(est.counters),
                                "estimates_csv": str(csv_path), "config": str(cfg_path)}
     if rec.truth_csv_path is not None:
         from ..estimation.scoring import read_truth, scorecard
@@ -233,19 +237,15 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
 
 def write_estimates_csv(path: Path, arrays: dict[str, Any]) -> None:
     """Write ``estimates.csv`` (columns :data:`CSV_COLUMNS`)."""
-    n = len(arrays["t"])
-    num = np.column_stack([arrays["t"], arrays["mu"], arrays["rho_s"], arrays["a"]])
-    num2 = np.column_stack([arrays["slip"], arrays["v"], arrays["omega"], arrays["P_diag"], arrays["nis"]])
+    left = np.column_stack([arrays["t"], arrays["mu"], arrays["rho_s"], arrays["a"]]).tolist()
+    right = np.column_stack([arrays["slip"], arrays["v"], arrays["omega"], arrays["P_diag"], arrays["nis"],
+                             arrays["nis_dof"], arrays["adapt"], arrays["status"], arrays["valid"]]).tolist()
+    fl = "%.3f" + ",%.6g" * 6 + ",%s,"
+    fr = ",".join(["%.6g"] * 20) + ",%d,%.4g,%d,%d"
+    cls = arrays["soil_class"]
     with open(path, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(",".join(CSV_COLUMNS) + "\n")
-        rows = []
-        cls = arrays["soil_class"]
-        dof, adapt, status, valid = arrays["nis_dof"], arrays["adapt"], arrays["status"], arrays["valid"]
-        fmt1 = "{:.3f}" + ",{:.6g}" * 6
-        fmt2 = ",".join(["{:.6g}"] * num2.shape[1])
-        for k in range(n):
-            rows.append(f"{fmt1.format(*num[k])},{cls[k]},{fmt2.format(*num2[k])},{dof[k]},{adapt[k]:.4g},{status[k]},{int(valid[k])}")
-        fh.write("\n".join(rows))
+        fh.write("\n".join([fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]))
         fh.write("\n")
 
 

@@ -397,7 +397,7 @@ class Estimator:
                 val = inputs[key]
                 if key == "Md":
                     arr = None if val is None else np.asarray(val, dtype=float)
-                    if arr is None or arr.shape != (4,) or not np.isfinite(arr).all():
+                    if arr is None or arr.shape != (4,) or not math.isfinite(float(arr.sum())):
                         status |= INPUT_REJECTED
                         continue
                     self._u[:4] = arr
@@ -424,11 +424,13 @@ class Estimator:
                 if omega.shape != (4,):
                     omega = None
                     status |= INPUT_REJECTED
+                elif math.isfinite(float(omega.sum())):
+                    self._t_omega = t
                 else:
-                    if not np.isfinite(omega).all():
-                        status |= INPUT_REJECTED
-                        self.counters["rejected_measurements"] += int((~np.isfinite(omega)).sum())
-                    if np.isfinite(omega).any():
+                    fin = np.isfinite(omega)
+                    status |= INPUT_REJECTED
+                    self.counters["rejected_measurements"] += int((~fin).sum())
+                    if fin.any():
                         self._t_omega = t
             vm = measurements.get("v")
             if vm is not None:

@@ -1,0 +1,226 @@
+"""Estimator benchmark: speed and agreement against stock filterpy, and replay real-time factor.
+
+Run from the repository root::
+
+    python benchmarks/estimator.py --json OUT.json [--seed 0] [--keep DIR]
+
+Figures (printed and written as JSON keys):
+
+``ukf_step_speedup_vs_filterpy``
+    time per predict+update step of stock ``filterpy.kalman.UnscentedKalmanFilter``
+    (``fx`` = ``FilterModel.step`` called once per sigma point, ``hx`` per
+    sigma point) divided by the time of :class:`UnscentedFilter` (all sigma
+    points through ``FilterModel.step`` in one call), both on the same
+    model, the same recorded inputs and measurements, the same Q and R, in
+    the same process, alternating blocks to share machine load.
+``max_rel_state_diff_vs_filterpy``
+    max over 10 000 steps and all states of |x_ours − x_filterpy| / |x_filterpy|,
+    same noise settings, adaptation and gating off.
+``replay_realtime_factor``
+    simulated seconds per wall second of ``replay()`` on a full
+    ``paper-three-soils`` recording: CAN decoding, NMEA parsing and GPS
+    alignment, the 100 Hz estimator, ``estimates.csv`` and the scorecard.
+
+Also reported: ``estimator_step_us`` (full AUKF-FS step with adaptation,
+supervisor, curve), ``ukf_step_us``, ``filterpy_step_us``,
+``model_call_us_21_points`` / ``model_call_us_1_point`` (the floor set by
+``FilterModel.step``) and the replay's loop-only factor.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # noqa: E402
+
+from tractionecu.cli.replay import _arrivals, _group, build_grid, replay  # noqa: E402
+from tractionecu.config import load_vehicle  # noqa: E402
+from tractionecu.estimation.estimator import Estimator, EstimatorConfig  # noqa: E402
+from tractionecu.estimation.ukf import UnscentedFilter  # noqa: E402
+from tractionecu.model.vehicle import WHEELS, FilterModel  # noqa: E402
+from tractionecu.recording.reader import read_recording  # noqa: E402
+from tractionecu.sim import scenarios  # noqa: E402
+from tractionecu.sim.sensors import SensorSpec  # noqa: E402
+from tractionecu.sim.simulator import simulate  # noqa: E402
+from tractionecu.sim.writer import write_recording  # noqa: E402
+
+
+def make_recording(out: Path, seed: int) -> None:
+    scn = scenarios.get("paper-three-soils", seed=seed)
+    write_recording(scn, simulate(scn), out)
+
+
+def recorded_data(rec_dir: Path) -> dict:
+    """Inputs held per 100 Hz step and measurements where new (as replay feeds them)."""
+    rec = read_recording(rec_dir)
+    grid = build_grid(rec, 100.0)
+    md, _ = _group(rec, [f"DriveTorque_{w}" for w in WHEELS], grid)
+    om, _ = _group(rec, [f"WheelSpeed_{w}" for w in WHEELS], grid)
+    fzf, _ = _group(rec, ["FrontAxleLoad"], grid)
+    fdx, _ = _group(rec, ["DraftForce"], grid)
+    gi, new_v = _arrivals(rec.gps.t, grid)
+    u = np.column_stack([md, fzf[:, 0], fdx[:, 0]])
+    return {"u": u, "omega": om, "v": rec.gps.speed[np.maximum(gi, 0)], "new_v": new_v,
+            "vehicle": load_vehicle(rec.vehicle_toml_path)}
+
+
+def filter_setup(data: dict, cfg: EstimatorConfig, sensors: SensorSpec):
+    """Initial state, P0, Q (fixed, from the estimator's tuning and input-noise figures) and R per step."""
+    veh = data["vehicle"]
+    model = FilterModel(veh)
+    k0 = 1500                                       # start in steady work (15 s)
+    u0 = data["u"][k0]
+    fz, rd = model.loads(u0)
+    mu0 = u0[:4] / (rd * fz) - veh.rho_t
+    x0 = np.concatenate([data["omega"][k0], [data["v"][k0]], mu0, [0.06]])
+    P0 = np.diag([1e-4] * 4 + [cfg.sigma_v0 ** 2] + [cfg.sigma_mu0 ** 2] * 4 + [cfg.sigma_rho0 ** 2])
+    dt = 0.01
+    sm = sensors.torque_sigma_abs + sensors.torque_sigma_rel * np.abs(u0[:4])
+    q = np.array([cfg.q_omega] * 4 + [cfg.q_v] + [cfg.q_mu] * 4 + [cfg.q_rho]) * dt
+    q[:4] += sm ** 2 * (dt * dt) / veh.wheel_inertia_kgm2 ** 2
+    Q = np.diag(q)
+
+    def R(k: int, n: int) -> np.ndarray:
+        om = data["omega"][k]
+        r = (sensors.wheel_speed_sigma_abs + sensors.wheel_speed_sigma_rel * np.abs(om)) ** 2
+        return np.append(r, sensors.gps_speed_sigma ** 2)[:n]
+
+    return model, k0, x0, P0, Q, R, dt
+
+
+def run_pair(data: dict, n_steps: int, cfg: EstimatorConfig, sensors: SensorSpec, time_block: int = 0):
+    """Run ours and filterpy side by side; returns (max rel diff, t_ours/step, t_fp/step)."""
+    model, k0, x0, P0, Q, R, dt = filter_setup(data, cfg, sensors)
+    ours = UnscentedFilter(model.step, x0, P0, range(5), alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa)
+    sp = MerweScaledSigmaPoints(10, cfg.alpha, cfg.beta, cfg.kappa)
+    fp = UnscentedKalmanFilter(10, 5, dt, lambda x: x[:5], lambda x, dt, u: model.step(x, u, dt), sp)
+    fp.x, fp.P, fp.Q = x0.copy(), P0.copy(), Q.copy()
+    hx = {4: lambda x: x[:4], 5: lambda x: x[:5]}
+    sl = {4: slice(0, 4), 5: slice(0, 5)}
+    worst = 0.0
+    t_o = t_f = 0.0
+    for j in range(n_steps):
+        k = k0 + 1 + j
+        u = data["u"][k]
+        n = 5 if data["new_v"][k] else 4
+        z = np.append(data["omega"][k], data["v"][k])[:n]
+        Rk = R(k, n)
+        t0 = time.perf_counter()
+        fp.predict(u=u)
+        fp.update(z, R=np.diag(Rk), hx=hx[n])
+        t1 = time.perf_counter()
+        ours.predict(u, dt, Q)
+        ours.update(z, sl[n], Rk)
+        t2 = time.perf_counter()
+        t_f += t1 - t0
+        t_o += t2 - t1
+        worst = max(worst, float(np.max(np.abs(ours.x - fp.x) / np.abs(fp.x))))
+    return worst, t_o / n_steps, t_f / n_steps
+
+
+def time_model(data: dict) -> tuple[float, float]:
+    model = FilterModel(data["vehicle"])
+    x = np.tile(np.concatenate([data["omega"][2000], [2.5, 0.3, 0.3, 0.3, 0.3, 0.06]]), (21, 1))
+    u = data["u"][2000]
+    best21 = best1 = np.inf
+    for _ in range(5):
+        t0 = time.perf_counter()
+        for _ in range(2000):
+            model.step(x, u, 0.01)
+        t1 = time.perf_counter()
+        for _ in range(2000):
+            model.step(x[0], u, 0.01)
+        t2 = time.perf_counter()
+        best21 = min(best21, (t1 - t0) / 2000)
+        best1 = min(best1, (t2 - t1) / 2000)
+    return best21, best1
+
+
+def time_estimator(rec_dir: Path, data: dict, n: int = 10000) -> float:
+    est = Estimator(data["vehicle"], EstimatorConfig())
+    rec = read_recording(rec_dir)
+    grid = build_grid(rec, 100.0)
+    steps = []
+    for k in range(min(n, grid.size)):
+        inp = {"Md": data["u"][k, :4], "Fzf": float(data["u"][k, 4]), "Fdx": float(data["u"][k, 5])}
+        meas = {"omega": data["omega"][k]}
+        if data["new_v"][k]:
+            meas["v"] = float(data["v"][k])
+        steps.append((float(grid[k]), inp, meas))
+    t0 = time.perf_counter()
+    for s in steps:
+        est.step(*s)
+    return (time.perf_counter() - t0) / len(steps)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", required=True, help="write the figures to this JSON file")
+    ap.add_argument("--seed", type=int, default=0, help="simulation seed of the recording")
+    ap.add_argument("--keep", default=None, help="keep the recording and replay output in this directory")
+    ap.add_argument("--steps", type=int, default=10000, help="steps of the filterpy comparison (default 10000)")
+    args = ap.parse_args(argv)
+
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="tecu-bench-"))
+    work.mkdir(parents=True, exist_ok=True)
+    rec_dir = work / "paper-three-soils"
+    try:
+        print(f"simulating paper-three-soils (seed {args.seed}) ...", flush=True)
+        make_recording(rec_dir, args.seed)
+        data = recorded_data(rec_dir)
+        cfg = EstimatorConfig()
+        sensors = SensorSpec()
+        print(f"filterpy comparison over {args.steps} steps ...", flush=True)
+        worst, t_o, t_f = run_pair(data, args.steps, cfg, sensors)
+        m21, m1 = time_model(data)
+        est_us = time_estimator(rec_dir, data)
+        print("replay ...", flush=True)
+        res = replay(rec_dir, work / "run", rate_hz=100.0)
+        figures = {
+            "ukf_step_speedup_vs_filterpy": t_f / t_o,
+            "max_rel_state_diff_vs_filterpy": worst,
+            "replay_realtime_factor": res["realtime_factor"],
+            "replay_loop_realtime_factor": res["sim_seconds"] / res["loop_seconds"],
+            "ukf_step_us": t_o * 1e6,
+            "filterpy_step_us": t_f * 1e6,
+            "estimator_step_us": est_us * 1e6,
+            "model_call_us_21_points": m21 * 1e6,
+            "model_call_us_1_point": m1 * 1e6,
+            "comparison_steps": args.steps,
+            "replay_sim_seconds": res["sim_seconds"],
+            "replay_wall_seconds": res["wall_seconds"],
+        }
+        sc = res.get("scorecard", {})
+        for k in ("mu_mean_abs_rel_error", "reconvergence_s", "nis_within_95"):
+            if k in sc:
+                figures[f"scorecard_{k}"] = sc[k]
+        if "r2_mu_curve" in sc:
+            figures["scorecard_r2_mu_curve_min"] = min(sc["r2_mu_curve"].values())
+        targets = {"ukf_step_speedup_vs_filterpy": (">=", 20.0), "max_rel_state_diff_vs_filterpy": ("<=", 1e-6),
+                   "replay_realtime_factor": (">=", 100.0)}
+        for k, v in figures.items():
+            tgt = targets.get(k)
+            mark = ""
+            if tgt:
+                ok = v >= tgt[1] if tgt[0] == ">=" else v <= tgt[1]
+                mark = f"   (target {tgt[0]} {tgt[1]:g}: {'met' if ok else 'NOT met'})"
+            print(f"{k:34s} {v:.6g}{mark}")
+        Path(args.json).write_text(json.dumps(figures, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
