@@ -1,19 +1,12 @@
-"""Curve parameter a of μ(s) from estimated (μ, s) pairs (paper section 3.2, eq. 14).
+"""Curve parameter a of μ(s) from estimated (μ, s) pairs (paper section 3.2, eq. 18).
 
 Within a surface class p, α1, α2 are fixed, so μ(s) = a·g(s) with
 g(s) = 1 − p e^{α1 s} − (1−p) e^{α2 s}; each wheel's estimated pair (μ̂_i, ŝ_i)
 gives a_i = μ̂_i / g(ŝ_i) (:func:`tractionecu.model.mucurve.solve_a_array`, the
-vectorised :func:`~tractionecu.model.mucurve.solve_a`).  Points whose slip is
-below ``min_slip`` or whose propagated relative error
-
-    δa/a = √((σ_μ/μ)² + (g'(s) σ_s / g(s))²)
-
-exceeds ``max_rel_err`` are skipped (low slip: g → 0 amplifies the slip
-error).  The accepted values are smoothed over time with an exponentially
-forgetting, inverse-variance weighted mean (time constant ``tau_s``):
-
-    N_k = λ N_{k−1} + Σ_i w_i a_i,   D_k = λ D_{k−1} + Σ_i w_i,
-    â = N_k / D_k,  λ = e^{−Δt/τ},  w_i = 1/(a_i δa_i/a_i)².
+vectorised :func:`~tractionecu.model.mucurve.solve_a`).  Near s = 0, g → 0 and
+the division amplifies the slip error, δa/a = (g'(s)/g(s))·δs; such
+ill-conditioned low-slip pairs are skipped and the rest are smoothed over time
+as described below.
 
 Why no per-point error threshold: the slip ŝ comes from the estimated speed,
 whose error (≈ 0.01–0.02 m/s, correlated over seconds) is a slip error of
@@ -29,8 +22,9 @@ sign changes and g ≈ 0.  The accepted pairs are combined as a ratio of sums,
 
 the g-weighted mean of the per-pair solutions, with forgetting λ = e^{−Δt/τ}
 and w = 1/σ_μ².  Being linear in g(ŝ) it is first-order unbiased under slip
-noise (the remaining bias is ½ g''(s) σ_s², < 1 % here); ill-conditioned
-pairs (small g) carry small weight automatically.
+noise; the remaining bias is −½ g''(s) σ_s² / g(s) (curvature of g), about
++1–2 % of a at the lowest slips of paper-three-soils (s ≈ 0.03, σ_s ≈ 0.009)
+and less elsewhere.  Ill-conditioned pairs (small g) carry small weight.
 
 Class selection (several classes configured): every class c is scored on
 the same pairs by RSS_c = Σ w (μ̂ − â_c g_c(ŝ))², from the sufficient
@@ -38,6 +32,13 @@ statistics Σ w μ̂², Σ w μ̂ g_c, Σ w g_c² under the same forgetting.  Th
 class with the smallest RSS fits best; a switch needs RSS_new <
 ``switch_ratio``·RSS_current and RSS_current − RSS_new > ``switch_min_delta``
 (hysteresis), because with a narrow slip range all shapes fit almost equally.
+
+Equation numbers are those of the paper's source (Kobelski et al. 2020), in
+order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
+(12) predicted distribution; (13) a-priori covariance; (14) mean update;
+(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
+innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
+and ``model/mucurve.py`` calls (18) "eq. 14".
 """
 
 from __future__ import annotations

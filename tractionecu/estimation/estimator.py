@@ -5,8 +5,8 @@ input u = (M_d1..4, F_zf, F_dx).  Sigma points go through
 :meth:`tractionecu.model.vehicle.FilterModel.step` (eqs. 2, 4, 8, 9 with RK4)
 in one call per step (:mod:`.ukf`); the process noise is adapted by
 covariance matching and the fuzzy supervisor (:mod:`.supervisor`, eqs.
-12–13); a and the surface class come from (μ̂, ŝ) pairs (:mod:`.curve`,
-eq. 14); slip is eq. 6 with r_d from eq. 9.
+16–17); a and the surface class come from (μ̂, ŝ) pairs (:mod:`.curve`,
+eq. 18); slip is eq. 6 with r_d from eqs. 9–10.
 
 Noise model
 -----------
@@ -36,6 +36,13 @@ input timeout makes the step predict only; a missing measurement simply
 skips its part of the update.  Gaps longer than ``max_step_s`` are
 predicted in sub-steps.  Nothing depends on wall-clock time, so the same
 input sequence always gives the same estimates (offline = online).
+
+Equation numbers are those of the paper's source (Kobelski et al. 2020), in
+order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
+(12) predicted distribution; (13) a-priori covariance; (14) mean update;
+(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
+innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
+and ``model/mucurve.py`` calls (18) "eq. 14".
 """
 
 from __future__ import annotations
@@ -98,7 +105,7 @@ class EstimatorConfig:
     q_mu: float = field(default=1e-3, metadata={"doc": "random-walk density of each μ [1/s]", "lo": 0.0, "hi": 10.0})
     q_rho: float = field(default=2e-5, metadata={"doc": "random-walk density of ρ_s [1/s]", "lo": 0.0, "hi": 10.0})
     input_noise: bool = field(default=True, metadata={"doc": "add the measured-input noise (SensorSpec) to Q"})
-    # adaptation (paper eqs. 12–13) and fuzzy supervisor
+    # adaptation (paper eqs. 16–17) and fuzzy supervisor
     adaptation: bool = field(default=True, metadata={"doc": "covariance-matching adaptation A_k of Q"})
     adapt_window: int = field(default=100, metadata={"doc": "window M of updates for covariance matching [-]", "lo": 2, "hi": 100000})
     adapt_min: float = field(default=0.5, metadata={"doc": "lower clip of A_k entries [-]", "lo": 1e-3, "hi": 1.0})
@@ -213,7 +220,7 @@ class Estimate:
     rho_s: float
     """Soil-deformation rolling resistance ρ_s [-]."""
     a: float
-    """Curve parameter a of μ(s) (eq. 14) of the best class [-]; NaN until identified."""
+    """Curve parameter a of μ(s) (eq. 18) of the best class [-]; NaN until identified."""
     soil_class: str
     """Name of the best-fitting surface class."""
     slip: NDArray[np.float64]
@@ -488,7 +495,7 @@ class Estimator:
                 self.counters["updates"] += 1
                 if cfg.adaptation:
                     self._cm.push(ukf.last_dx, (ukf.last_K * ukf.last_C).sum(axis=1))
-        # ---- adaptation and supervisor (paper eqs. 12–13, FLS)
+        # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
         x = ukf.x
         self._dyn.update(t, float(x[IX_V]), float(self._u[:4].sum()))
         if t - self._t_adapt >= cfg.adapt_period_s:

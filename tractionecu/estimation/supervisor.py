@@ -2,7 +2,7 @@
 
 Paper section 3.1: the effective state noise covariance is A_k·Q, with the
 adaptation matrix A_k from covariance matching over the last M innovations
-(eqs. 12–13, after Jiang et al. 2007), and a fuzzy-logic system (FLS) that
+(eqs. 16–17, after Jiang et al. 2007), and a fuzzy-logic system (FLS) that
 "sets the adaptation factor high if the vehicle undergoes a phase of intense
 dynamics, small if the dynamics are steady" (Abdelnour et al. 1993;
 Osinenko et al. 2014, 2015).  The estimator uses
@@ -51,9 +51,9 @@ f = f_min·(f_max/f_min)^c, so MEDIUM (c = 0.5) gives the geometric mean.
 
 Covariance matching
 -------------------
-Paper eq. 13: S̄_k = 1/(M−1) Σ_{i=k−M+1..k} ν_i ν_iᵀ.  In state space the
+Paper eq. 17: S̄_k = 1/(M−1) Σ_{i=k−M+1..k} ν_i ν_iᵀ.  In state space the
 corrections Δx_i = K_i ν_i have the empirical covariance K S̄ Kᵀ and the model
-covariance K S Kᵀ (= P_{k|k−1} − P_{k|k}).  Eq. 12 asks for the A_k that
+covariance K S Kᵀ (= P_{k|k−1} − P_{k|k}).  Eq. 16 asks for the A_k that
 matches the two; with a diagonal A_k and the parameter states dominated by
 their random-walk noise the solution is the per-state ratio
 
@@ -62,6 +62,13 @@ their random-walk noise the solution is the per-state ratio
 (Mohamed & Schwarz 1999, covariance matching; Jiang et al. 2007 use it for the
 UKF).  Windowed sums over the last M updates make it work with partial
 updates of varying size (wheels at 100 Hz, GPS at 10 Hz).
+
+Equation numbers are those of the paper's source (Kobelski et al. 2020), in
+order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
+(12) predicted distribution; (13) a-priori covariance; (14) mean update;
+(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
+innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
+and ``model/mucurve.py`` calls (18) "eq. 14".
 """
 
 from __future__ import annotations
@@ -209,7 +216,7 @@ class DynamicsMonitor:
 
 
 class CovarianceMatching:
-    """Diagonal adaptation matrix A_k from the last M state corrections (paper eqs. 12–13).
+    """Diagonal adaptation matrix A_k from the last M state corrections (paper eqs. 16–17).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""Vectorised unscented Kalman filter (paper section 3.1, eqs. 10–11 and the UKF recursion).
+"""Vectorised unscented Kalman filter (paper section 3.1, eqs. 11–15).
 
 The filter follows the paper's description (Wan & van der Merwe 2000; Van der
 Merwe et al. 2004) with the scaled sigma points of filterpy's
@@ -10,7 +10,7 @@ Merwe et al. 2004) with the scaled sigma points of filterpy's
 
 with √ the Cholesky factor (row i of the upper factor, as filterpy does).
 
-Predict (paper eq. 11 and the a-priori covariance, eq. after 11):
+Predict (paper eqs. 12–13):
 all 2n+1 sigma points go through the process model in ONE call
 ``fx(sigmas (2n+1, n), u, dt) -> (2n+1, n)`` (for the estimator this is
 :meth:`tractionecu.model.vehicle.FilterModel.step`, RK4), then
@@ -18,7 +18,7 @@ all 2n+1 sigma points go through the process model in ONE call
     x̂_{k|k-1} = Σ W_m⁽ⁱ⁾ χ⁽ⁱ⁾_{k|k-1}
     P_{k|k-1} = Σ W_c⁽ⁱ⁾ (χ⁽ⁱ⁾ − x̂)(χ⁽ⁱ⁾ − x̂)ᵀ + Q.
 
-Update: the paper redraws the sigma points from N(x̂_{k|k-1}, P_{k|k-1})
+Update (paper eqs. 14–15 and the unnumbered ŷ, S, C above them): the paper redraws the sigma points from N(x̂_{k|k-1}, P_{k|k-1})
 (as filterpy does).  The output here is a selection of states,
 y = h(x) = x[idx] (paper: y = (ω1..4, v), the first five states), and the
 unscented transform of a linear map is exact, so the redrawn-points sums
@@ -46,6 +46,13 @@ Robustness (issue 3, "never diverge or crash"):
 * a failed Cholesky factorisation is repaired by adding growing diagonal
   jitter (then, if needed, by clipping eigenvalues) and counted;
 * the mean is clamped into [x_lo, x_hi] (physical bounds of μ and ρ_s).
+
+Equation numbers are those of the paper's source (Kobelski et al. 2020), in
+order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
+(12) predicted distribution; (13) a-priori covariance; (14) mean update;
+(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
+innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
+and ``model/mucurve.py`` calls (18) "eq. 14".
 """
 
 from __future__ import annotations
