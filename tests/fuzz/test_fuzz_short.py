@@ -1,0 +1,70 @@
+"""Short, seeded versions of the fuzz harnesses (``fuzz/run.py``) and the
+regression inputs of every crash they found (``tests/data/fuzz``).
+
+The long form (1,000,000 inputs per path) is ``python fuzz/run.py``; its
+figures are in ``fuzz/README.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import random
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from fuzz.corpus import build_seeds  # noqa: E402
+from fuzz.run import fuzz_worker  # noqa: E402
+from fuzz.targets import TARGETS  # noqa: E402
+
+FIXTURES = REPO / "tests" / "data" / "fuzz"
+
+SHORT_INPUTS = {"can": 4000, "nmea": 6000, "candump": 8000, "csv": 8000, "config": 2500}
+"""Inputs per path in CI (a few seconds each)."""
+
+
+@pytest.fixture(scope="module")
+def seeds():
+    return build_seeds()
+
+
+@pytest.mark.parametrize("path", list(TARGETS))
+def test_fuzz_short(path, seeds, tmp_path):
+    res = fuzz_worker((path, SHORT_INPUTS[path], 20240601, 0, seeds, str(tmp_path / "work"),
+                       str(tmp_path / "crashes"), 0.0))
+    assert res["inputs"] >= SHORT_INPUTS[path]
+    problems = [f"{f['count']} x {sig}: {f['message'][:200]} ({f['file']})" for sig, f in res["failures"].items()]
+    assert not problems, "\n".join(problems)
+    rejects = sum(v for k, v in res["counts"].items() if k.startswith("reject:"))
+    accepted = sum(v for k, v in res["counts"].items() if k.startswith("ok:"))
+    assert rejects > 0 and accepted > 0  # the mutations reach both sides of every check
+
+
+def _fixtures() -> list[Path]:
+    return sorted(FIXTURES.glob("*.json"))
+
+
+@pytest.mark.parametrize("fixture", _fixtures(), ids=lambda p: p.stem)
+def test_regression(fixture, seeds, tmp_path):
+    """Every input that once crashed a harness now runs through without an unhandled exception."""
+    rec = json.loads(fixture.read_text(encoding="utf-8"))
+    target = TARGETS[rec["path"]](seeds, random.Random(0), tmp_path)
+    prev = logging.root.manager.disable
+    logging.disable(logging.CRITICAL)
+    try:
+        target.run(target.load(rec["case"]))
+    finally:
+        logging.disable(prev)
+
+
+def test_fixtures_name_their_bug():
+    for f in _fixtures():
+        rec = json.loads(f.read_text(encoding="utf-8"))
+        assert rec["path"] in TARGETS and rec.get("bug") and rec.get("fixed_in"), f.name
