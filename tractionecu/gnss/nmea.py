@@ -449,7 +449,7 @@ def parse_line(line: str) -> NmeaRecord | None:
     if day is not None and month is not None and year is not None:
         try:
             zdate = date(year, month, day)
-        except ValueError:
+        except (ValueError, OverflowError):  # OverflowError: beyond a C int
             raise _fail("bad_field", f"ZDA date {day}/{month}/{year}") from None
     return NmeaRecord("ZDA", talker, tod_s=_tod(_field(d, 0)), date=zdate)
 
