@@ -450,6 +450,16 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Seri
 
 
 # --------------------------------------------------------------------------- GPS
+def _add_days(d: date | None, days: int) -> date | None:
+    """``d`` plus ``days``, or None if that leaves datetime's range (years 1..9999) or ``d`` is None."""
+    if d is None:
+        return None
+    try:
+        return d + timedelta(days=days)
+    except OverflowError:
+        return None
+
+
 def _epoch_of(d: date, tod_s: float) -> float:
     return calendar.timegm((d.year, d.month, d.day, 0, 0, 0)) + tod_s
 
@@ -473,30 +483,39 @@ def align_gps(
         day_idx.append(d)
         prev = f.tod_s
     dated = [i for i, f in enumerate(fixes) if f.date is not None]
-    dates: list[date] = []
+    dates: list[date | None] = []
     if dated:
         i0 = dated[0]
-        base = fixes[i0].date - timedelta(days=day_idx[i0])  # type: ignore[operator]
+        base = _add_days(fixes[i0].date, -day_idx[i0])
         method = "UTC date from RMC/ZDA, time of day from the same epoch; midnight rollover by day counter"
         for i, f in enumerate(fixes):
             if f.date is not None and i >= i0:
-                base = f.date - timedelta(days=day_idx[i])
-            dates.append(base + timedelta(days=day_idx[i]))
+                base = _add_days(f.date, -day_idx[i])
+            dates.append(_add_days(base, day_idx[i]))
     else:
         if can_t0 is None or not math.isfinite(can_t0):
             raise RecordingError("GPS has no date (no RMC/ZDA) and there is no CAN time to take it from")
-        d0 = datetime.fromtimestamp(can_t0, tz=timezone.utc).date()
-        cands = [d0 + timedelta(days=k) for k in (-1, 0, 1)]
+        try:
+            d0 = datetime.fromtimestamp(can_t0, tz=timezone.utc).date()
+        except (OverflowError, ValueError, OSError):
+            raise RecordingError(
+                f"GPS has no date (no RMC/ZDA) and the first CAN time {can_t0!r} s is not a calendar date"
+            ) from None
+        cands = [c for c in (_add_days(d0, k) for k in (-1, 0, 1)) if c is not None]
         best = min(cands, key=lambda c: abs(_epoch_of(c, fixes[0].tod_s) - can_t0))
         method = (
             f"no date in NMEA: UTC date {best.isoformat()} taken from the first CAN frame "
             "(nearest of the day before/of/after); midnight rollover by day counter"
         )
-        dates = [best + timedelta(days=k) for k in day_idx]
+        dates = [_add_days(best, k) for k in day_idx]
 
     cols: dict[str, list] = {k: [] for k in ("t",) + GPS_FIELDS}
     last_t = -math.inf
     for f, dd in zip(fixes, dates):
+        if dd is None:  # before 0001-01-01 or after 9999-12-31 (a ZDA year at the ends of the range)
+            if stats is not None:
+                stats.reject("date_out_of_range", f.lineno, "")
+            continue
         t = _epoch_of(dd, f.tod_s)
         if t <= last_t:
             if stats is not None:
