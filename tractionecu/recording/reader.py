@@ -100,6 +100,18 @@ class Series:
         return int(self.t.size)
 
 
+def _code(v: object) -> int:
+    """A fix-quality or satellite-count value as an int16 code: -1 (unknown) for None,
+    NaN, ±inf or anything outside 0..32767."""
+    if v is None:
+        return -1
+    try:
+        f = float(v)  # type: ignore[arg-type]
+    except (TypeError, ValueError, OverflowError):
+        return -1
+    return int(f) if 0.0 <= f <= 32767.0 else -1
+
+
 @dataclass
 class GpsTrack:
     """GPS epochs as parallel arrays.
@@ -138,7 +150,7 @@ class GpsTrack:
             return np.array([np.nan if v is None else float(v) for v in cols.get(key, [])], dtype=float)
 
         def ia(key: str) -> np.ndarray:
-            return np.array([-1 if v is None else int(v) for v in cols.get(key, [])], dtype=np.int16)
+            return np.array([_code(v) for v in cols.get(key, [])], dtype=np.int16)
 
         n = len(cols.get("t", []))
         out = cls(
