@@ -630,7 +630,10 @@ def read_recording(path: str | Path, codec: Codec | None = None) -> Recording:
 def _fmt_t(t: float) -> str:
     if not math.isfinite(t):
         return "-"
-    return datetime.fromtimestamp(t, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + "Z"
+    try:
+        return datetime.fromtimestamp(t, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + "Z"
+    except (OverflowError, ValueError, OSError):  # beyond years 1..9999 or the platform's time_t
+        return f"{t:.6f} s"
 
 
 def summarize(recording: Recording) -> str:
