@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import sys
 from pathlib import Path
 from typing import Iterator
@@ -47,18 +48,31 @@ def read_polycan(
     """
     p = Path(path)
     try:
-        fh = open(p, newline="", encoding="utf-8")
+        fh = open(p, newline="", encoding="utf-8", errors="replace")
     except OSError as e:
         raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
     with fh:
         reader = csv.DictReader(fh)
         need = {"time", "pgn", "priority", "source", "destination", "data"}
-        if reader.fieldnames is None or not need <= set(reader.fieldnames):
+        try:
+            fieldnames = reader.fieldnames
+        except csv.Error as e:  # e.g. a field beyond csv.field_size_limit()
+            raise RecordingError(f"{p}: line 1: {e}") from None
+        if fieldnames is None or not need <= set(fieldnames):
             raise RecordingError(f"{p}: line 1: not a PolyCAN export (columns {sorted(need)})")
-        for n, row in enumerate(reader):
-            if max_rows is not None and n >= max_rows:
-                break
+        n = 0
+        while max_rows is None or n < max_rows:
             lineno = n + 2
+            try:
+                row = next(reader, None)
+            except csv.Error as e:
+                raise RecordingError(f"{p}: line {lineno}: {e}") from None
+            if row is None:
+                break
+            n += 1
+            missing = sorted(k for k in need if row.get(k) is None)
+            if missing:
+                raise RecordingError(f"{p}: line {lineno}: short row, no {', '.join(missing)}")
             try:
                 t = epoch0 + float(row["time"]) / 1000.0
                 pgn = int(row["pgn"])
@@ -69,6 +83,8 @@ def read_polycan(
                 can_id = j1939.make_id(prio, pgn, sa, da if j1939.is_pdu1(pgn) else None)
             except (TypeError, ValueError) as e:
                 raise RecordingError(f"{p}: line {lineno}: {e}") from None
+            if not (math.isfinite(t) and t >= 0.0):
+                raise RecordingError(f"{p}: line {lineno}: time {row['time']!r} ms gives {t!r} s, not an epoch time")
             if len(data) > 8:
                 raise RecordingError(f"{p}: line {lineno}: {len(data)} data bytes")
             yield Frame(t, channel, can_id, True, data)
