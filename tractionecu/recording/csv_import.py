@@ -171,7 +171,9 @@ class CsvStats:
     """Lines, data rows, accepted cells and rejects of one CSV file.
 
     ``rejected`` counts by reason (``bad_time``, ``time_backwards``,
-    ``bad_value``, ``short_row``) with the first line numbers in ``examples``;
+    ``bad_value``, ``short_row``, ``bad_row``: a row the csv module cannot
+    parse, such as a field beyond its 128 KiB limit) with the first line
+    numbers in ``examples``;
     ``unmapped`` lists header columns the mapping does not use.
     """
 
@@ -203,6 +205,19 @@ class CsvStats:
             more = "" if self.rejected[reason] <= len(ex) else ", ..."
             out.append(f"{reason}: {self.rejected[reason]} ({self.source} line {', '.join(map(str, ex))}{more})")
         return out
+
+
+def _rows(fh, delim: str):
+    """CSV rows of ``fh``; None for a row the csv module refuses (e.g. a field
+    beyond ``csv.field_size_limit()``), after which reading goes on."""
+    rd = csv.reader(fh, delimiter=delim)
+    while True:
+        try:
+            yield next(rd)
+        except StopIteration:
+            return
+        except csv.Error:
+            yield None
 
 
 def _norm(h: str) -> str:
@@ -248,7 +263,10 @@ def import_csv(
         if not header_line.strip():
             raise RecordingError(f"{p}: line 1: empty file (no header)")
         delim = max((",", ";", "\t"), key=header_line.count)
-        header = next(csv.reader([header_line], delimiter=delim))
+        try:
+            header = next(csv.reader([header_line], delimiter=delim))
+        except csv.Error as e:  # e.g. a field beyond csv.field_size_limit()
+            raise RecordingError(f"{p}: line 1: {e}") from None
         stats.lines = 1
         norm_keys = {_norm(k): k for k in mp.columns}
         col_idx: dict[int, Column] = {}
@@ -278,8 +296,12 @@ def import_csv(
         gps_rows: dict[str, list] = {k: [] for k in ("t",) + GPS_FIELDS}
         msg_stats: dict[str, MessageStats] = {}
         last_t = -math.inf
-        for lineno, row in enumerate(csv.reader(fh, delimiter=delim), start=2):
+        for lineno, row in enumerate(_rows(fh, delim), start=2):
             stats.lines += 1
+            if row is None:
+                stats.rows += 1
+                stats.reject("bad_row", lineno)
+                continue
             if not row or all(not c.strip() for c in row):
                 continue
             stats.rows += 1
