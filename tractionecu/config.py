@@ -125,7 +125,9 @@ def load_vehicle(path: str | Path) -> VehicleParams:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError as exc:
         raise ConfigError(f"{p}: vehicle file not found") from exc
-    except tomllib.TOMLDecodeError as exc:
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from exc
+    except ValueError as exc:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
         raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
     table = data.get("vehicle", data)
     return from_mapping(VehicleParams, table, "vehicle")

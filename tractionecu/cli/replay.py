@@ -80,7 +80,9 @@ def load_config(path: str | Path) -> EstimatorConfig:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except FileNotFoundError as exc:
         raise ConfigError(f"{p}: configuration file not found") from exc
-    except tomllib.TOMLDecodeError as exc:
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from exc
+    except ValueError as exc:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
         raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
     return EstimatorConfig.from_mapping(data.get("estimator", data))
 

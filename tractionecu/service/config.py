@@ -344,7 +344,7 @@ def load_config(path: str | Path | None) -> ServiceConfig:
         raise ConfigError(f"{p}: config file not found") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{p}: cannot read: {e}") from None
-    except tomllib.TOMLDecodeError as e:
+    except ValueError as e:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
         raise ConfigError(f"{p}: not valid TOML: {e}") from None
     try:
         return from_dict(data)
