@@ -88,9 +88,9 @@ def _validate(obj: Any, section: str) -> None:
     for f in fields(obj):
         v = getattr(obj, f.name)
         lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
-        if isinstance(v, bool) or lo is None and hi is None:
+        if lo is None and hi is None:
             continue
-        if not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or isinstance(v, float) and not math.isfinite(v):
             raise ConfigError(f"{section}.{f.name}: expected a finite number, got {v!r}")
         if lo is not None and v < lo or hi is not None and v > hi:
             raise ConfigError(f"{section}.{f.name} = {v!r} is outside [{lo}, {hi}] ({f.metadata.get('doc', '')})")
@@ -107,10 +107,16 @@ def from_mapping(cls: type, data: Mapping[str, Any], section: str) -> Any:
     kwargs = {}
     for k, v in data.items():
         default = known[k].default
-        if isinstance(default, float) and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
-        if isinstance(default, (int, float)) and not isinstance(default, bool) and not isinstance(v, (int, float)):
+        numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
+        if numeric and (isinstance(v, bool) or not isinstance(v, (int, float))):
             raise ConfigError(f"{section}.{k}: expected a number, got {v!r}")
+        if isinstance(default, bool) and not isinstance(v, bool):
+            raise ConfigError(f"{section}.{k}: expected true or false, got {v!r}")
+        if isinstance(default, float) and isinstance(v, int):
+            try:
+                v = float(v)
+            except OverflowError:
+                raise ConfigError(f"{section}.{k}: {len(str(v))}-digit integer is out of range") from None
         kwargs[k] = v
     try:
         return cls(**kwargs)
