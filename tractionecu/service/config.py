@@ -96,7 +96,7 @@ def _check(obj: Any, section: str) -> None:
                 raise ConfigError(f"{key}: expected an integer, got {v!r}")
             if f.metadata.get("nan_ok") and isinstance(v, float) and math.isnan(v):
                 continue
-            if not math.isfinite(float(v)):
+            if isinstance(v, float) and not math.isfinite(v):
                 raise ConfigError(f"{key}: expected a finite number, got {v!r}")
             lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
             if (lo is not None and v < lo) or (hi is not None and v > hi):
@@ -317,7 +317,10 @@ def _section(cls: type, data: Any, name: str) -> Any:
     for k, v in data.items():
         d = known[k].default
         if isinstance(d, float) and isinstance(v, int) and not isinstance(v, bool):
-            v = float(v)
+            try:
+                v = float(v)
+            except OverflowError:  # too large for a float: left an int, refused by the range check
+                pass
         kw[k] = v
     return cls(**kw)
 
