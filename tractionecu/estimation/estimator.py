@@ -169,6 +169,8 @@ class EstimatorConfig:
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "EstimatorConfig":
         """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``)."""
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"estimator: expected a table, got {type(data).__name__}")
         data = dict(data)
         fz = data.pop("fuzzy", {})
         if "soil_classes" in data:
