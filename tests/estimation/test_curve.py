@@ -69,15 +69,26 @@ def test_best_class_is_found_from_a_slip_range():
     for k in range(300):
         s = rng.uniform(0.03, 0.3, 4)
         mu = tilled.mu(s, 0.6) + 0.002 * rng.standard_normal(4)
-        st = ce.update(k * 0.1, mu, s, SIG)
+        st = ce.update(k * 0.1, mu, s, SIG, np.full(4, 0.002))
     assert st.class_name == "tilled" and st.class_index == 2
     assert st.a == pytest.approx(0.6, rel=0.02)
-    assert np.argmin(st.rss_per_class) == 2
+    assert np.argmin(st.nll_per_class) == 2
 
 
 def test_class_switch_needs_a_clear_margin():
-    ce = CurveEstimator(["stubble", "grassland"], switch_ratio=0.7)
+    ce = CurveEstimator(["stubble", "grassland"])
     s = np.full(4, 0.06)                     # one slip value: shapes cannot be told apart
     for k in range(50):
-        st = ce.update(k * 0.1, STUBBLE.mu(s, 0.7), s, SIG)
+        st = ce.update(k * 0.1, STUBBLE.mu(s, 0.7), s, SIG, np.full(4, 0.005))
+    assert st.class_name == "stubble"
+
+
+def test_flat_class_does_not_win_on_slip_noise():
+    """Stubble data at low slip with a noisy slip: the default class must stay (road's g is flat there)."""
+    rng = np.random.default_rng(11)
+    ce = CurveEstimator(["stubble", "grassland", "tilled", "road"], tau_s=3.0)
+    for k in range(3000):
+        s = rng.uniform(0.03, 0.08, 4)
+        mu = STUBBLE.mu(s, 0.8) + 0.003 * rng.standard_normal(4)
+        st = ce.update(k * 0.1, mu, s + 0.009 * rng.standard_normal(4), SIG, np.full(4, 0.009))
     assert st.class_name == "stubble"

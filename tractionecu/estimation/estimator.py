@@ -140,8 +140,9 @@ class EstimatorConfig:
     curve_min_slip: float = field(default=0.005, metadata={"doc": "pairs with |s| below this are skipped [-]", "lo": 0.0, "hi": 0.5})
     curve_min_speed_mps: float = field(default=0.5, metadata={"doc": "no curve update below this speed [m/s]", "lo": 0.0, "hi": 50.0})
     curve_period_s: float = field(default=0.1, metadata={"doc": "period of the curve update [s]", "lo": 1e-3, "hi": 10.0})
-    curve_switch_ratio: float = field(default=0.7, metadata={"doc": "class switch hysteresis: RSS_new < ratio·RSS_current [-]", "lo": 0.01, "hi": 1.0})
-    curve_switch_min_delta: float = field(default=10.0, metadata={"doc": "class switch also needs RSS_current − RSS_new above this [χ² units]", "lo": 0.0, "hi": 1e9})
+    curve_class_tau_s: float = field(default=30.0, metadata={"doc": "forgetting time constant of the class evidence [s]", "lo": 1e-3, "hi": 1e6})
+    curve_switch_min_delta: float = field(default=10.0, metadata={"doc": "class switch needs the new class's log-likelihood this much better [nats]", "lo": 0.0, "hi": 1e9})
+    curve_slip_corr_s: float = field(default=0.5, metadata={"doc": "correlation time of the slip error for the class evidence [s]", "lo": 1e-3, "hi": 1e3})
     fuzzy: FuzzyConfig = field(default_factory=FuzzyConfig, metadata={"doc": "fuzzy supervisor breakpoints ([estimator.fuzzy])"})
 
     def __post_init__(self) -> None:
@@ -311,7 +312,8 @@ class Estimator:
         self._adapt_mu = 1.0
         self._t_adapt = -math.inf
         self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu,
-                                     min_slip=cfg.curve_min_slip, switch_ratio=cfg.curve_switch_ratio,
+                                     min_slip=cfg.curve_min_slip, class_tau_s=cfg.curve_class_tau_s,
+                                     slip_corr_s=cfg.curve_slip_corr_s,
                                      switch_min_delta=cfg.curve_switch_min_delta)
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
@@ -539,7 +541,8 @@ class Estimator:
         # curve parameter a (paper section 3.2) at the curve rate
         if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
             self._t_curve = t
-            self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]))
+            sig_s = math.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
+            self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s)
         conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
                 and float(pd[IX_MU].max()) < cfg.conv_sigma_mu ** 2 and float(pd[IX_RHO]) < cfg.conv_sigma_rho ** 2)
         if not conv:
