@@ -68,3 +68,22 @@ def test_fixtures_name_their_bug():
     for f in _fixtures():
         rec = json.loads(f.read_text(encoding="utf-8"))
         assert rec["path"] in TARGETS and rec.get("bug") and rec.get("fixed_in"), f.name
+
+
+def test_epoch_same_time_flood_is_linear():
+    """One epoch that never closes (the same GGA time over and over, as
+    ``tests/data/fuzz/epoch-same-time-flood.nmea`` repeated) took quadratic time:
+    200,000 sentences 73 s, because every merge copied the growing list of
+    sentence names.  100,000 must now take well under a second or two."""
+    from tractionecu.gnss.nmea import EpochAssembler, parse_line
+
+    line = (FIXTURES / "epoch-same-time-flood.nmea").read_text(encoding="ascii").strip()
+    rec = parse_line(line)
+    asm = EpochAssembler()
+    t0 = time.perf_counter()
+    for i in range(100_000):
+        assert asm.push(i + 1, rec) is None
+    fix = asm.flush()
+    elapsed = time.perf_counter() - t0
+    assert fix is not None and len(fix.sentences) <= 16
+    assert elapsed < 5.0, f"{elapsed:.1f} s for 100,000 sentences of one epoch"
