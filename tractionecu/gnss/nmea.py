@@ -49,6 +49,9 @@ REJECT_REASONS = ("garbage", "missing_checksum", "bad_checksum", "bad_field", "t
 
 MAX_EXAMPLES = 5
 
+MAX_SENTENCES_PER_EPOCH = 16
+"""Sentence names kept per epoch: a stream that repeats one time forever must not grow it without bound."""
+
 _CHECKSUM_RE = re.compile(r"\*([0-9A-Fa-f]{2})$")
 
 
@@ -523,7 +526,7 @@ class GpsFix:
     ``alt_m`` [m above MSL], ``speed_mps`` [m/s], ``course_deg`` [deg from
     true north].  ``date`` is set when an RMC or ZDA of the epoch carried
     one.  ``lineno`` is the first line of the epoch; ``sentences`` lists the
-    sentence types merged.
+    sentence types merged (the first :data:`MAX_SENTENCES_PER_EPOCH`).
     """
 
     tod_s: float
@@ -542,7 +545,8 @@ class GpsFix:
 
 
 def _merge(fix: GpsFix, rec: NmeaRecord) -> GpsFix:
-    upd: dict = {"sentences": fix.sentences + (rec.sentence,)}
+    names = fix.sentences if len(fix.sentences) >= MAX_SENTENCES_PER_EPOCH else fix.sentences + (rec.sentence,)
+    upd: dict = {"sentences": names}
     s = rec.sentence
     if rec.date is not None:
         upd["date"] = rec.date
