@@ -18,7 +18,8 @@ Outputs in RUN:
   ρ_s over time, paper Fig. 6) and ``fig5_mu_curves.png`` (identified
   against true μ(s) per soil, paper Fig. 5).
 
-Exit codes: 0 ok, 1 the recording cannot be read (message names the file).
+Exit codes: 0 ok, 1 the recording or configuration cannot be read (the
+message names the file or key), 3 ``--plot`` without matplotlib.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -68,6 +70,12 @@ def run(args: argparse.Namespace) -> int:
         cfg = replace(cfg, soil_classes=tuple(c.strip() for c in args.classes.split(",") if c.strip()))
     if not args.rate > 0:
         raise ConfigError(f"--rate: must be > 0, got {args.rate}")
+    if args.plot:
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            print("tractionecu replay: --plot needs matplotlib (pip install 'tractionecu[maps]')", file=sys.stderr)
+            return 3
     res = replay(args.recording, args.out, rate_hz=args.rate, plot=args.plot, cfg=cfg)
     print(format_summary(res))
     return 0
