@@ -112,6 +112,8 @@ def from_mapping(cls: type, data: Mapping[str, Any], section: str) -> Any:
             raise ConfigError(f"{section}.{k}: expected a number, got {v!r}")
         if isinstance(default, bool) and not isinstance(v, bool):
             raise ConfigError(f"{section}.{k}: expected true or false, got {v!r}")
+        if isinstance(default, int) and not isinstance(default, bool) and not isinstance(v, int):
+            raise ConfigError(f"{section}.{k}: expected an integer, got {v!r}")
         if isinstance(default, float) and isinstance(v, int):
             try:
                 v = float(v)
