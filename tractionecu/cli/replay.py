@@ -56,6 +56,7 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="RUN", help="output directory")
     p.add_argument("--rate", type=float, default=100.0, help="estimator rate [Hz] (default: %(default)s)")
     p.add_argument("--plot", action="store_true", help="also write the paper's Fig. 5 and Fig. 6 as PNG")
+    p.add_argument("--no-map", action="store_true", help="do not write map tiles (RUN/map) and map_scorecard.json")
     p.add_argument("--config", metavar="TOML", default=None,
                    help="estimator configuration ([estimator] table, optional [estimator.fuzzy])")
     p.add_argument("--classes", default=None, metavar="A,B,...",
@@ -76,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("tractionecu replay: --plot needs matplotlib (pip install 'tractionecu[maps]')", file=sys.stderr)
             return 3
-    res = replay(args.recording, args.out, rate_hz=args.rate, plot=args.plot, cfg=cfg)
+    res = replay(args.recording, args.out, rate_hz=args.rate, plot=args.plot, cfg=cfg, write_map=not args.no_map)
     print(format_summary(res))
     return 0
 
@@ -128,7 +129,7 @@ def _group(rec: Recording, names: list[str], grid: np.ndarray) -> tuple[np.ndarr
 # ----------------------------------------------------------------------------- replay
 def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100.0, plot: bool = False,
            on_estimate: Callable[[Estimate], None] | None = None, cfg: EstimatorConfig | None = None,
-           sensors: SensorSpec | None = None) -> dict[str, Any]:
+           sensors: SensorSpec | None = None, write_map: bool = True) -> dict[str, Any]:
     """Run the estimator over a recording and write the outputs (module doc).
 
     ``on_estimate`` is called with every :class:`Estimate` in time order (the
@@ -217,14 +218,18 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
                         + to_toml(sensors, "sensors") + "\n" + cfg.to_toml()
                         + f"\n[replay]\nrate_hz = {float(rate_hz)!r}\ngrid_margin_s = {GRID_MARGIN_S!r}\n",
                         encoding="utf-8")
-    # ---- map writer hook: tile writing / map_scorecard go here (uses `arrays`, `rec`, `out`) ----
+    if write_map:
+        from ..mapping.from_replay import write_replay_map
+        summary_map = write_replay_map(out, rec, arrays)
+    else:
+        summary_map = {}
 
     sim_s = float(grid[-1] - grid[0]) if n > 1 else 0.0
     write_s = time.perf_counter() - t_w
     summary: dict[str, Any] = {"recording": str(recording_path), "steps": int(n), "rate_hz": float(rate_hz),
                                "sim_seconds": sim_s, "read_seconds": read_s, "loop_seconds": loop_s,
                                "write_seconds": write_s, "counters": dict(est.counters),
-                               "estimates_csv": str(csv_path), "config": str(cfg_path)}
+                               "estimates_csv": str(csv_path), "config": str(cfg_path), **summary_map}
     if rec.truth_csv_path is not None:
         from ..estimation.scoring import read_truth, scorecard
         truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
@@ -283,6 +288,13 @@ def format_summary(res: dict[str, Any]) -> str:
             w2 = max(len(r[1]) for r in rows)
             lines.append(f"{'metric':<{w}}  {'value':<{w2}}  target")
             lines += [f"{a:<{w}}  {b:<{w2}}  {c}" for a, b, c in rows]
+    msc = res.get("map_scorecard")
+    if msc:
+        lines.append(f"{'map_soil_accuracy':<22}  {msc['map_soil_accuracy'] * 100:.1f} %  (target >= 95 %)")
+        lines.append(f"{'map_a_rmse':<22}  {msc['map_a_rmse']:.4f}")
+        lines.append(f"{'map_rho_s_rmse':<22}  {msc['map_rho_s_rmse']:.4f}")
+    if "map_samples" in res:
+        lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped -> {res['map_dir']}")
     for k in ("estimates_csv", "scorecard_json", "config"):
         if k in res:
             lines.append(f"{k}: {res[k]}")
