@@ -2,8 +2,10 @@
 
 The paper (section 4) stores p_soil = {a, p, α1, α2, ρ_s} at 10 Hz with the
 GNSS position of the same instant.  Here each GNSS epoch takes the estimate
-of the fixed-rate step at or just after it; the shape parameters p, α1, α2 are
-those of the surface class the curve fit chose at that step.  Only estimates
+of the fixed-rate step at or just after it, and the values are combined over
+a window centred on the epoch (:mod:`tractionecu.mapping.sampler`, the same
+computation the service does online with a delay); the shape parameters p,
+α1, α2 are those of the surface class the curve fit chose at that epoch.  Only estimates
 marked valid with a clean status and a good fix reach the map (the store's
 rules).
 
@@ -20,13 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from ..model.mucurve import SOIL_CLASSES
 from ..sim.field import Field, SoilRegion
+from .sampler import DEFAULT_HALF_WINDOW_S, centred_map_values
 from .score import map_scorecard, write_map_scorecard
 from .store import MapStore
 
 
-def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None) -> dict[str, Any]:
+def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
+                     half_window_s: float = DEFAULT_HALF_WINDOW_S) -> dict[str, Any]:
     """Write ``out/map`` from replay ``arrays`` (keys t, mu, rho_s, a, status, valid, soil_class).
 
     A previous map in ``out/map`` is replaced: a replay's map is a product of
@@ -52,12 +55,9 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     idx = np.searchsorted(t, gps.t - 1e-9)
     inside = (idx < t.size) & (gps.t >= t[0])
     idx = np.minimum(idx, t.size - 1)
-    cls_names = np.asarray(arrays["soil_class"], dtype=object)[idx]
-    p = np.array([SOIL_CLASSES[c].p if c in SOIL_CLASSES else np.nan for c in cls_names])
-    a1 = np.array([SOIL_CLASSES[c].alpha1 if c in SOIL_CLASSES else np.nan for c in cls_names])
-    a2 = np.array([SOIL_CLASSES[c].alpha2 if c in SOIL_CLASSES else np.nan for c in cls_names])
-    values = {"a": arrays["a"][idx], "p": p, "alpha1": a1, "alpha2": a2, "rho_s": arrays["rho_s"][idx],
-              "mu": np.nanmean(arrays["mu"][idx], axis=1)}
+    values = centred_map_values(gps.t, arrays["mu"][idx], arrays["slip"][idx], arrays["P_diag"][idx, 5:9],
+                                arrays["v"][idx], arrays["rho_s"][idx],
+                                np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s)
     accepted = store.add_many(gps.lat, gps.lon, values, gps.t, valid=arrays["valid"][idx] & inside,
                               status=arrays["status"][idx], fix_quality=gps.fix_quality, hdop=gps.hdop)
     store.close()

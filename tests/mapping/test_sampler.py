@@ -1,0 +1,57 @@
+"""The centred map window: online (service) and offline (replay) give the same values."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tractionecu.mapping.sampler import CentredSampler, centred_map_values
+from tractionecu.model.mucurve import SOIL_CLASSES
+
+
+def _run(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    t = 1000.0 + 0.1 * np.arange(n)
+    s_true = np.where(t < t[n // 2], 0.05, 0.10)
+    a_true = np.where(t < t[n // 2], 0.8, 0.6)
+    slip = s_true[:, None] + rng.normal(0, 0.003, (n, 4))
+    mu = SOIL_CLASSES["stubble"].mu(s_true, a_true)[:, None] + rng.normal(0, 0.003, (n, 4))
+    var_mu = np.full((n, 4), 1e-5)
+    v = np.full(n, 2.5)
+    rho = 0.06 + rng.normal(0, 0.002, n)
+    cls = ["stubble"] * n
+    return t, mu, slip, var_mu, v, rho, cls, a_true
+
+
+def test_online_equals_offline():
+    t, mu, slip, var_mu, v, rho, cls, _ = _run()
+    off = centred_map_values(t, mu, slip, var_mu, v, rho, cls, half_window_s=2.0)
+    smp = CentredSampler(half_window_s=2.0)
+    got = []
+    for k in range(t.size):
+        P = np.zeros(10)
+        P[5:9] = var_mu[k]
+        est = SimpleNamespace(mu=mu[k], slip=slip[k], P_diag=P, v=v[k], rho_s=rho[k], valid=True, status=0,
+                              soil_class="stubble")
+        got += smp.push(float(t[k]), 47.0, 8.0, 4, 0.8, est)
+    got += smp.drain()
+    assert [g[0] for g in got] == pytest.approx(list(t))
+    for key in ("a", "rho_s", "mu", "p"):
+        assert np.array([g[3][key] for g in got]) == pytest.approx(off[key], rel=1e-9, nan_ok=True)
+
+
+def test_window_is_centred_so_boundaries_do_not_move():
+    t, mu, slip, var_mu, v, rho, cls, a_true = _run(n=600)
+    off = centred_map_values(t, mu, slip, var_mu, v, rho, cls, half_window_s=3.0)
+    # Away from the change by more than the window, a is the true value; at the change it is in between.
+    far = np.abs(t - t[300]) > 3.5
+    assert np.nanmax(np.abs(off["a"][far] - a_true[far])) < 0.03
+    mid = off["a"][299:301].mean()
+    assert 0.65 < mid < 0.75
+
+
+def test_ill_conditioned_pairs_give_nan_not_garbage():
+    t, mu, slip, var_mu, v, rho, cls, _ = _run(n=50)
+    slip[:] = 0.001  # below MIN_SLIP everywhere
+    off = centred_map_values(t, mu, slip, var_mu, v, rho, cls, half_window_s=1.0)
+    assert np.all(np.isnan(off["a"]))
