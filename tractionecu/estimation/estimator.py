@@ -161,9 +161,9 @@ class EstimatorConfig:
         if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
             raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
         if self.mu_min >= self.mu_max:
-            raise ConfigError("estimator.mu_min: must be < mu_max")
+            raise ConfigError(f"estimator.mu_min = {self.mu_min} must be < estimator.mu_max = {self.mu_max}")
         if self.rho_min >= self.rho_max:
-            raise ConfigError("estimator.rho_min: must be < rho_max")
+            raise ConfigError(f"estimator.rho_min = {self.rho_min} must be < estimator.rho_max = {self.rho_max}")
         if not isinstance(self.fuzzy, FuzzyConfig):
             raise ConfigError("estimator.fuzzy: expected a FuzzyConfig")
 
