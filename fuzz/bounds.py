@@ -2,10 +2,10 @@
 
 Each check runs in a fresh process (so peak RSS is its own) and measures
 the growth of the peak resident set size (``ru_maxrss``) while one reader
-consumes a hostile input, at two input sizes.  A reader is *bounded* when
-the growth does not follow the input size (live paths), or stays below
-the input size itself (file readers, which hold their result in memory
-by design and are bounded by the file).
+consumes a hostile input, at two input sizes.  The service's byte stream
+and the epoch assembler must not grow with the input at all; the offline
+file readers hold one line at a time and their result in memory by design,
+so for them the growth is reported as a multiple of the huge line.
 """
 
 from __future__ import annotations
@@ -126,6 +126,15 @@ CHECKS: dict[str, tuple[str, ...]] = {
 LIVE = {"gps_stream_no_newline", "gps_stream_ubx_flood"}
 """Service paths: memory must not grow with the input at all."""
 
+CONSTANT = {"epoch_same_time_flood"}
+"""Offline checks whose memory must not grow with the input either."""
+
+FILE_FACTOR = 4.0
+"""File readers read one line at a time, so a huge line is held whole (plus a
+copy or two while it is stripped, split or decoded): peak growth up to this
+many times the line is accepted as bounded by the file.  A constant bound
+would need a line reader with a length limit (see fuzz/README.md)."""
+
 
 def run_one(name: str, size: int, timeout_s: float = 300.0) -> dict:
     ctx = mp.get_context("spawn")
@@ -149,13 +158,15 @@ def run_bounds(paths: list[str], sizes: tuple[int, ...] = (16 << 20, 64 << 20)) 
         for name in CHECKS.get(path, ()):
             res = [run_one(name, s) for s in sizes]
             small, big = res[0], res[-1]
+            ratio = big["rss_growth_mib"] / big["input_mib"]
             if any(r["error"] for r in res):
-                ok = False
-            elif name in LIVE:
+                ok, verdict = False, "FAILED"
+            elif name in LIVE or name in CONSTANT:
                 ok = big["rss_growth_mib"] < 8.0
+                verdict = "bounded (constant)" if ok else "NOT BOUNDED"
             else:
-                ok = big["rss_growth_mib"] <= big["input_mib"] + 8.0
-            verdict = "bounded" if ok else "NOT BOUNDED" if not any(r["error"] for r in res) else "FAILED"
+                ok = ratio <= FILE_FACTOR
+                verdict = f"bounded by the file ({ratio:.1f} x the line)" if ok else f"NOT BOUNDED ({ratio:.1f} x the line)"
             figs = "; ".join(f"{r['input_mib']:.0f} MiB input -> +{r['rss_growth_mib']:.1f} MiB RSS, {r['seconds']:.2f} s"
                              for r in res)
             line = f"bound    {name:<24} {verdict}: {figs}  ({big['note'] or big['error']})"

@@ -29,6 +29,7 @@ import math
 import random
 import re
 import tomllib
+import warnings
 from collections import Counter
 from dataclasses import fields
 from datetime import datetime, timedelta, timezone
@@ -235,7 +236,11 @@ class CanTarget(Target):
                 if self.grid_t is None:
                     self.grid_t = svc.anchor
                 while self.grid_t <= self.t:
-                    svc._step(self.grid_t)
+                    with warnings.catch_warnings(record=True) as caught:
+                        warnings.simplefilter("always")
+                        svc._step(self.grid_t)
+                    for w in caught:  # counted, not raised: the daemon runs with default warning filters
+                        self.extra[f"estimator_warning.{w.category.__name__}: {str(w.message)[:60]}"] += 1
                     self.grid_t += 0.01
         return len(case["frames"])
 
