@@ -127,7 +127,8 @@ class FuzzyConfig:
         if not (self.torque_rate_low_nmps < self.torque_rate_mid_nmps < self.torque_rate_high_nmps):
             raise ConfigError("estimator.fuzzy.torque_rate_*_nmps: need low < mid < high")
         if not self.factor_min <= self.factor_max:
-            raise ConfigError("estimator.fuzzy.factor_min: must be ≤ factor_max")
+            raise ConfigError(f"estimator.fuzzy.factor_min = {self.factor_min} must be ≤ "
+                              f"estimator.fuzzy.factor_max = {self.factor_max}")
 
 
 # Output sets on the intensity universe [0, 1] and the rule table (row: |dv/dt|, column: |dM/dt|).
