@@ -31,6 +31,7 @@ unknown PGNs, wrong DLCs and undecodable NMEA lines are counted in
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
 import math
 import signal
@@ -135,6 +136,7 @@ class Service:
         self.estimator: Any = None
         self.last_estimate: Any = None
         self.last_fix: GpsSample | None = None
+        self._fixes: collections.deque[GpsSample] = collections.deque(maxlen=64)
         self.anchor: float | None = None
         self.grid_t0: float | None = None
         self.ready = asyncio.Event()
@@ -148,6 +150,8 @@ class Service:
         self._rate_mono = time.monotonic()
         self.rates: dict[str, float] = {}
         self.exit_code = 0
+        self.max_tick_delay_s = 0.0
+        """Longest a step ran after it was due [wall s] (scheduling latency of the loop)."""
 
     # ------------------------------------------------------------ helpers
     def _warn_once(self, kind: str, msg: str, *args: Any) -> None:
@@ -216,9 +220,21 @@ class Service:
 
     def _on_fix(self, s: GpsSample) -> None:
         self.last_fix = s
+        self._fixes.append(s)
         self.stats["gps_fixes"] += 1
         if s.speed_mps is not None:
+            late = self.steps.counts["late"]
             self.steps.push_speed(s.t, s.speed_mps)
+            if self.steps.counts["late"] > late:
+                self._warn_once("late-gps", "GNSS epoch %.3f arrived %.3f s after it (lag %.3f s): it is used one "
+                                "step late; raise estimation.lag_s", s.t, s.t_arrival - s.t, self.cfg.estimation.lag_s)
+
+    def fix_at(self, t: float) -> GpsSample | None:
+        """The latest accepted fix at or before ``t`` and at most ``map.max_fix_age_s`` older, or None."""
+        for s in reversed(self._fixes):
+            if s.t <= t:
+                return s if t - s.t <= self.cfg.map.max_fix_age_s else None
+        return None
 
     # ------------------------------------------------------------ address claim / transmit
     def _log_claim(self, st: tuple[ClaimState, int | None]) -> None:
@@ -292,6 +308,8 @@ class Service:
             if delay > 0:
                 await asyncio.sleep(delay)
                 continue
+            if -delay > self.max_tick_delay_s:
+                self.max_tick_delay_s = -delay
             if -delay * clock.speed > ec.max_catch_up_s:
                 k_new = math.ceil((clock.now() - lag - g0) * rate)
                 self.stats["skipped_steps"] += k_new - k
@@ -300,6 +318,8 @@ class Service:
                 k = k_new
                 continue
             self.can.drain()
+            if self.gps is not None:
+                self.gps.drain()
             if anchored:
                 est = self._step(t_k)
             else:
@@ -307,10 +327,7 @@ class Service:
             if k % bc_every == 0:
                 self._broadcast(est if anchored else None)
             if anchored and est is not None and self.map is not None and k % map_every == 0:
-                fix = self.last_fix
-                if fix is not None and abs(fix.t - t_k) > self.cfg.map.max_fix_age_s:
-                    fix = None
-                self.map.add(est, fix)
+                self.map.add(est, self.fix_at(t_k))
             now_m = loop.time()
             if self.map is not None:
                 self.map.maybe_flush(now_m)
@@ -367,11 +384,11 @@ class Service:
 
     def counters(self) -> dict[str, Any]:
         """Every counter, for logs and tests."""
-        out: dict[str, Any] = {"service": dict(self.stats), "can": dict(self.can.stats),
+        out: dict[str, Any] = {"service": {**self.stats, "max_tick_delay_s": self.max_tick_delay_s}, "can": dict(self.can.stats),
                                "unknown_pgns": dict(self.unknown_pgns), "bad_frames": dict(self.bad_frames),
-                               "steps": dict(self.steps.counts)}
+                               "steps": {**self.steps.counts, "max_late_s": self.steps.max_late_s}}
         if self.gps is not None:
-            out["gps"] = dict(self.gps.stats)
+            out["gps"] = {**self.gps.stats, "max_delay_s": self.gps.stream.max_delay_s}
         if self.claimer is not None:
             out["address_claim"] = dict(self.claimer.counts)
         if self.map is not None:

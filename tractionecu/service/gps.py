@@ -112,6 +112,8 @@ class NmeaStream:
         self._last_date: date | None = None
         self._last_t = -math.inf
         self.last_sample: GpsSample | None = None
+        self.max_delay_s = 0.0
+        """Largest arrival − UTC time of an epoch [s] (receiver output latency plus transport)."""
         self._warned: set[str] = set()
 
     def reset_line(self) -> None:
@@ -215,6 +217,7 @@ class NmeaStream:
                 cands = [utc_epoch(date.fromordinal(d0.toordinal() + k), tod_s) for k in (-1, 0, 1)]
             best = min(cands, key=lambda c: abs(c - t_arrival))
             if abs(best - t_arrival) <= UTC_TOLERANCE_S:
+                self.max_delay_s = max(self.max_delay_s, t_arrival - best)
                 return best
         self.stats["time_from_arrival"] += 1
         return t_arrival - self.cfg.latency_s
@@ -346,6 +349,12 @@ class GpsReader:
             return
         if data:
             self.stream.feed(data, self.clock.now())
+
+    def drain(self) -> None:
+        """Read whatever the port holds now (called before each estimator step, so an epoch
+        that arrived while the process was not scheduled is not used a step late)."""
+        if self._port is not None and self._fd is not None:
+            self._on_readable()
 
     async def close(self) -> None:
         """Stop reading and close the port."""

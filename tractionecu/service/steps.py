@@ -88,6 +88,8 @@ class StepAssembler:
         self._rings = {k: _Ring(depth) for k in (*GROUPS, "v")}
         self._signal_group = {names[0]: key for key, names in GROUPS.items()}
         self.t_taken = -math.inf
+        self.max_late_s = 0.0
+        """Largest (last step time − sample time) of a late sample [s]: how much more lag was needed."""
         self.counts: Counter[str] = Counter()
 
     def _push(self, key: str, t: float, value: Any) -> None:
@@ -98,6 +100,7 @@ class StepAssembler:
         if t <= self.t_taken:
             self.counts["late"] += 1
             self.counts["late_" + key] += 1
+            self.max_late_s = max(self.max_late_s, self.t_taken - t)
         r.seq += 1
         r.buf.append((t, r.seq, value))
 
