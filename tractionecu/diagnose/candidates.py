@@ -1,0 +1,89 @@
+"""Candidate explanations: the effect library's effects, with what diagnosis fits of each.
+
+Every candidate uses the parameters and bounds of its
+:class:`~tractionecu.model.effects.EffectDef`; the terms are the library's own
+functions, applied inside the channels (:mod:`.channels`).  Some parameters
+cannot be told apart from the nominal model's free parameters with forward
+driving only; they are held at a stated value and the report says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..model.effects import EFFECTS
+
+
+@dataclass(frozen=True)
+class FitParam:
+    """One fitted parameter: bounds and unit from the library, its null value (effect absent)
+    and the grid searched for a starting point."""
+
+    name: str
+    null: float
+    starts: tuple[float, ...]
+    """Grid of starting values (the search picks the best, then refines)."""
+    lo: float
+    hi: float
+    unit: str
+
+
+def _fp(effect: str, name: str, null: float, starts: tuple[float, ...]) -> FitParam:
+    spec = {p.name: p for p in EFFECTS[effect].params}[name]
+    return FitParam(name, null, starts, spec.lo, spec.hi, spec.unit)
+
+
+@dataclass(frozen=True)
+class Candidate:
+    name: str
+    fitted: tuple[FitParam, ...]
+    fixed: dict[str, float] = field(default_factory=dict)
+    fixed_reason: str = ""
+    plain: str = ""
+    """The effect in plain words, for the verdict."""
+
+    @property
+    def formula(self) -> str:
+        return EFFECTS[self.name].formula
+
+    def params(self, x) -> dict[str, float]:
+        """Full parameter dict of the effect for fitted values ``x``."""
+        out = dict(EFFECTS[self.name].defaults())
+        out.update(self.fixed)
+        for fp, v in zip(self.fitted, x):
+            out[fp.name] = float(v)
+        return out
+
+    def null_params(self) -> dict[str, float]:
+        return self.params([fp.null for fp in self.fitted])
+
+
+CANDIDATES: dict[str, Candidate] = {
+    c.name: c
+    for c in (
+        Candidate("grade", (_fp("grade", "scale", 0.0, (0.0, 0.5, 1.0, 2.0)),),
+                  plain="field grade: the slope component of weight, F = m g sin θ"),
+        Candidate("load_transfer", (_fp("load_transfer", "h_hitch_m", 0.0, (0.0, 0.5, 1.0)), _fp("load_transfer", "h_cg_m", 0.0, (0.0, 1.0))),
+                  plain="longitudinal load transfer: pull, acceleration and slope move load from the front to the rear axle"),
+        Candidate("gps_latency", (_fp("gps_latency", "tau_s", 0.0, (0.0, 0.03, 0.07, 0.12, 0.2, 0.3, 0.45, 0.7, 1.0, 1.5, 2.0)),),
+                  plain="GNSS speed latency: the receiver reports the speed τ late"),
+        Candidate("wheel_radius", (_fp("wheel_radius", "epsilon", 0.0, (-0.1, -0.06, -0.035, -0.02, -0.01, -0.004, 0.0, 0.004, 0.01, 0.02, 0.035, 0.06, 0.1)),),
+                  plain="rolling-radius error: the true radius is (1 + ε) times the nominal formula"),
+        Candidate("relaxation", (_fp("relaxation", "sigma_m", 0.01, (0.01, 0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8, 2.7, 4.0, 5.0)),),
+                  plain="tyre relaxation: the traction force follows slip with the lag σ/v"),
+        Candidate("draft_speed", (_fp("draft_speed", "c_s2pm2", 0.0, (0.0, 0.02, 0.05, 0.1, 0.2, 0.4)),), fixed={"v_ref_mps": 2.5},
+                  fixed_reason="v_ref is a reference point, not a separate parameter: D_0 and v_ref trade off; "
+                               "c is reported at v_ref = 2.5 m/s",
+                  plain="draft depends on speed (ASABE D497 quadratic term)"),
+        Candidate("drivetrain", (_fp("drivetrain", "eta", 1.0, (0.6, 0.8, 0.9, 0.95, 1.0)),), fixed={"loss_nm": 0.0},
+                  fixed_reason="a constant loss torque acts like soil rolling resistance in forward driving "
+                               "and is not separable from ρ_s; it is held at 0",
+                  plain="drivetrain losses between the measured drive torque and the wheel"),
+        Candidate("mass", (_fp("mass", "delta_kg", 0.0, (-1500.0, -500.0, 0.0, 500.0, 1500.0, 3000.0)), _fp("mass", "front_share", 0.5, (0.0, 0.5, 1.0))),
+                  plain="the vehicle mass differs from nominal (ballast)"),
+        Candidate("aero", (_fp("aero", "cd_area_m2", 0.0, (0.0, 2.0, 5.0, 15.0, 50.0)),),
+                  plain="aerodynamic drag"),
+    )
+}
+
+assert set(CANDIDATES) == set(EFFECTS), "every library effect is a candidate"

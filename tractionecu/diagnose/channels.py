@@ -1,0 +1,558 @@
+"""Residual channels: each compares one recorded signal with what the nominal model predicts.
+
+A channel has rows (time samples, windows or wheel samples), a measured
+quantity ``y``, a prediction ``f`` from the model with a set of effects
+switched on (the effect library's own functions), and *nuisance* parameters
+the nominal model leaves free, which are always re-fitted (profiled out) on
+whatever rows are used.  Its residual e = y − f − N β̂ is what diagnosis ranks.
+
+Channels (units of the residual in brackets):
+
+``speed`` [N] — equation error of the speed equation (paper eq. 8 with
+F_h,i from eq. 2) over windows of :data:`SPEED_WINDOW_S`:
+
+    y = ⟨Σ F_h,i − F_dx⟩ − m Δv_gps/Δt,     f = Δm Δv_ref/Δt + ⟨F_grade⟩ + ⟨F_aero⟩,
+    nuisance ρ_s,cell m g (one soil rolling resistance per field cell).
+
+``gps_speed`` [m/s] — GNSS speed against the force-integrated speed:
+
+    y = v_gps(t),  f = v_int(t − τ),  v_int = (1/m)∫(Σ F_h,i − F_dx − F_grade − F_aero) dt,
+    nuisance b(t) cubic B-spline (slow forces: ρ_s, unknown grade).
+
+``front_load`` [N] — measured front-axle load against the static split:
+
+    y = F_zf − f_front m g,   f = −ΔF_z,rear(F_dx, a, θ) + Δm f_Δm g.
+
+``draft`` [N] — measured draft in full work against a speed-independent draft:
+
+    y = F_dx,   f = D_seg · (1 + c (v² − v_ref²)),   nuisance D_seg per work segment.
+
+``slip`` [-] — per-wheel adhesion from the torque balance against the μ(s) curve
+(paper eq. 14) at the measured slip:
+
+    y = μ_i = F_h,i / F_z,i,   f = a_cell g_class(s_i'),   nuisance a per field cell,
+
+where s_i' is the slip the effect implies (radius (1 + ε) r_d; relaxed slip
+ds'/dt = (|v|/σ)(s − s'); rear loads with Δm).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..config import G
+from ..model import effects as fx
+from ..model.mucurve import SOIL_CLASSES, SoilClass
+from .features import Features, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
+
+SPEED_WINDOW_S = 2.0
+"""Window of the speed-equation error [s]."""
+SLIP_MIN_SPEED = 0.8
+"""Slip rows need at least this ground speed [m/s]."""
+FRONT_LOAD_SMOOTH_S = 1.0
+"""Moving average applied alike to the front-axle load and its regressors [s]."""
+DRAFT_EDGE_S = 1.0
+"""Draft rows skip this much at each end of a work segment [s] (implement ramps)."""
+DRAFT_SPEED_SMOOTH_S = 5.0
+"""Averaging window of the speed in the draft channel [s]."""
+
+Effects = Mapping[str, Mapping[str, float]]
+
+
+def _p(eff: Effects, name: str, key: str, default: float) -> float:
+    return float(eff[name][key]) if name in eff and key in eff[name] else default
+
+
+class _WheelCache:
+    """wheel_state() memoised on the parameters that change it."""
+
+    def __init__(self, feat: Features):
+        self.feat = feat
+        self._cache: dict[tuple, WheelState] = {}
+
+    def v_ref(self, eff: Effects) -> NDArray:
+        """Fused ground speed; re-fitted when the candidate delays the GNSS speed."""
+        tau = _p(eff, "gps_latency", "tau_s", 0.0)
+        if tau == 0.0:
+            return self.feat.v_ref
+        key = ("v", tau)
+        v = self._cache.get(key)
+        if v is None:
+            f = self.feat
+            ws = self.get({})
+            v = fused_speed(f.frame, np.nansum(ws.fh, axis=1), f.valid, tau)
+            self._put(key, v)
+        return v
+
+    def _put(self, key, val) -> None:
+        if len(self._cache) > 64:
+            self._cache.clear()
+        self._cache[key] = val
+
+    def get(self, eff: Effects, with_slip: bool = False) -> WheelState:
+        key = (_p(eff, "mass", "delta_kg", 0.0), _p(eff, "wheel_radius", "epsilon", 0.0),
+               _p(eff, "drivetrain", "eta", 1.0), _p(eff, "drivetrain", "loss_nm", 0.0),
+               _p(eff, "gps_latency", "tau_s", 0.0) if with_slip else None, with_slip)
+        ws = self._cache.get(key)
+        if ws is None:
+            f = self.feat
+            v = self.v_ref(eff) if with_slip else None
+            ws = wheel_state(f.frame, f.omega_dot, v, delta_m=key[0], eps_r=key[1], eta=key[2], loss_nm=key[3])
+            self._put(key, ws)
+        return ws
+
+
+@dataclass
+class Channel:
+    """Base: rows, fold and time index per row; subclasses give y, f and the nuisance fit."""
+
+    name: str
+    unit: str
+    signal: str
+    """What the residual is about, in words."""
+    effects: frozenset[str]
+    """Effects whose terms act on this channel."""
+    t: NDArray[np.float64]
+    tidx: NDArray[np.int64]
+    """Time index of each row (rows sharing one are aggregated before HAC)."""
+    fold: NDArray[np.int64]
+    nuisance: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def m(self) -> int:
+        return int(self.t.size)
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray[np.float64]:  # pragma: no cover
+        raise NotImplementedError
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:  # pragma: no cover
+        """(measured y, full prediction f + nuisance) on ``rows``."""
+        raise NotImplementedError
+
+    def freeze(self, on: bool) -> None:
+        """Hold discrete nuisance choices at their last values (for derivatives)."""
+
+
+def _onehot_scaled_fit(y: NDArray, x: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
+    """β_g = Σ x y / Σ x² per group; returns the fitted values β_g x."""
+    num = np.bincount(group, weights=x * y, minlength=ng)
+    den = np.bincount(group, weights=x * x, minlength=ng)
+    beta = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+    return beta[group] * x
+
+
+# --------------------------------------------------------------------------- speed
+class SpeedChannel(Channel):
+    def __init__(self, feat: Features, wc: _WheelCache):
+        fr = feat.frame
+        self.feat, self.wc = feat, wc
+        W = int(round(SPEED_WINDOW_S * fr.rate_hz))
+        self.W = W
+        self.k_avg = max(1, W // 4)
+        starts = np.arange(0, fr.n - W, W)
+        ok = np.array([feat.valid[a:a + W].all() for a in starts], dtype=bool)
+        self.starts = starts[ok]
+        mid = self.starts + W // 2
+        super().__init__("speed", "N", "speed equation (eq. 8): unexplained resistive force",
+                         frozenset({"grade", "mass", "drivetrain", "aero", "wheel_radius"}),
+                         fr.t[mid], mid.astype(np.int64), feat.fold[mid], "ρ_s per field cell")
+        self.cell = feat.cell[mid]
+        self.ncell = feat.n_cells
+        ka = self.k_avg
+        idx = self.starts[:, None] + np.arange(W)[None, :]
+        self._idx = idx
+        self._a = self.starts + (ka - 1) / 2.0
+        self._b = self.starts + W - 1 - (ka - 1) / 2.0
+        self.dt_win = (self._b - self._a) * fr.dt
+        v = feat.v_gps
+        self.dv = v[idx[:, W - ka:]].mean(axis=1) - v[idx[:, :ka]].mean(axis=1)
+        # The same speed change from the fused speed: the regressor of a mass error (its GNSS noise
+        # would attenuate the fitted mass; the GNSS Δv stays on the measured side).
+        vr = feat.v_ref
+        self.dv_ref = vr[idx[:, W - ka:]].mean(axis=1) - vr[idx[:, :ka]].mean(axis=1)
+        th = feat.theta
+        self.theta = np.nan_to_num(th) if th is not None else np.zeros(fr.n)
+        self.v_ref = feat.v_ref
+
+    def _win_mean(self, x: NDArray) -> NDArray:
+        """Mean of x over the span between the two speed-averaging centroids (trapezoid)."""
+        cs = np.concatenate([[0.0], np.cumsum(x)])
+        a = np.floor(self._a).astype(int)
+        b = np.ceil(self._b).astype(int)
+        s = cs[b + 1] - cs[a] - 0.5 * (x[a] + x[b])
+        return s / (b - a)
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        fr = self.feat.frame
+        ws = self.wc.get(eff)
+        dm = _p(eff, "mass", "delta_kg", 0.0)
+        m = fr.vehicle.mass_kg + dm
+        force = np.nansum(ws.fh, axis=1) - np.nan_to_num(fr.fdx)
+        y = self._win_mean(force) - fr.vehicle.mass_kg * self.dv / self.dt_win
+        f = dm * self.dv_ref / self.dt_win
+        if "grade" in eff:
+            f = f + eff["grade"]["scale"] * self._win_mean(fx.grade_force(m, self.theta))
+        if "aero" in eff:
+            f = f + self._win_mean(fx.aero_force(self.v_ref, eff["aero"]["cd_area_m2"]))
+        y, f = y[rows], f[rows]
+        nu = _onehot_scaled_fit(y - f, np.full(y.size, m * G), self.cell[rows], self.ncell)
+        return y, f + nu
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
+# --------------------------------------------------------------------------- GNSS speed
+class GpsSpeedChannel(Channel):
+    def __init__(self, feat: Features, wc: _WheelCache):
+        fr = feat.frame
+        self.feat, self.wc = feat, wc
+        rows = np.nonzero(feat.valid & np.isfinite(feat.v_gps))[0]
+        super().__init__("gps_speed", "m/s", "GNSS speed against the force-integrated speed",
+                         frozenset({"gps_latency", "mass", "drivetrain", "wheel_radius"}),
+                         fr.t[rows], rows.astype(np.int64), feat.fold[rows], "slow speed correction b(t), cubic spline")
+        self.rows_idx = rows
+        self.B = spline_basis(fr.t, SPLINE_KNOT_S)[rows]
+        self.y = feat.v_gps[rows]
+        self.theta = np.nan_to_num(feat.theta) if feat.theta is not None else np.zeros(fr.n)
+        self._qr: dict[bytes, tuple] = {}
+
+    def _project(self, r: NDArray, rows: NDArray[np.bool_]) -> NDArray:
+        """Least-squares fit of the spline nuisance to r on ``rows``: B (BᵀB)⁻¹ Bᵀ r (B is sparse, banded)."""
+        from scipy.linalg import cho_factor, cho_solve
+        from scipy.sparse import csr_matrix
+
+        key = np.packbits(rows).tobytes()
+        q = self._qr.get(key)
+        if q is None:
+            B = self.B[rows]
+            cols = B.sum(axis=0) > 1e-6
+            Bs = csr_matrix(B[:, cols])
+            G = (Bs.T @ Bs).toarray()
+            G[np.diag_indices_from(G)] += 1e-9 * np.trace(G) / G.shape[0]
+            if len(self._qr) > 8:
+                self._qr.clear()
+            q = self._qr[key] = (Bs, cho_factor(G))
+        Bs, cf = q
+        return Bs @ cho_solve(cf, Bs.T @ r)
+
+    def v_model(self, eff: Effects) -> NDArray:
+        fr = self.feat.frame
+        ws = self.wc.get(eff)
+        m = fr.vehicle.mass_kg + _p(eff, "mass", "delta_kg", 0.0)
+        force = np.nansum(ws.fh, axis=1) - np.nan_to_num(fr.fdx)
+        if "grade" in eff:
+            force = force - eff["grade"]["scale"] * fx.grade_force(m, self.theta)
+        if "aero" in eff and self.feat.v_ref is not None:
+            force = force - fx.aero_force(self.feat.v_ref, eff["aero"]["cd_area_m2"])
+        v = cumtrapz0(force / m, fr.dt)
+        if "gps_latency" in eff:
+            v = fx.delayed(fr.t, v, eff["gps_latency"]["tau_s"])
+        return v[self.rows_idx]
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        f = self.v_model(eff)[rows]
+        y = self.y[rows]
+        return y, f + self._project(y - f, rows)
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
+# --------------------------------------------------------------------------- front axle load
+class FrontLoadChannel(Channel):
+    def __init__(self, feat: Features):
+        fr = feat.frame
+        self.feat = feat
+        rows = np.nonzero(feat.valid & np.isfinite(fr.fzf))[0]
+        super().__init__("front_load", "N", "front-axle load against the static split",
+                         frozenset({"load_transfer", "mass"}), fr.t[rows], rows.astype(np.int64), feat.fold[rows],
+                         "none (static split from vehicle.toml)")
+        self.rows_idx = rows
+        veh = fr.vehicle
+        # The measured load and the regressors pass through the same moving average: the relation is
+        # linear, so it is kept, while the sensors' white noise in the regressors (which would
+        # attenuate the fitted heights) drops.
+        k = max(1, int(round(FRONT_LOAD_SMOOTH_S * fr.rate_hz)))
+
+        def sm(x: NDArray | None) -> NDArray:
+            if x is None:
+                return np.zeros(rows.size)
+            return np.convolve(np.nan_to_num(x), np.ones(k) / k, mode="same")[rows]
+
+        self.y = sm(fr.fzf) - veh.static_front_load_n()
+        self.fdx = sm(fr.fdx)
+        self.acc = sm(feat.accel)
+        self.theta = sm(feat.theta)
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        veh = self.feat.frame.vehicle
+        f = np.zeros(self.y.size)
+        dm = _p(eff, "mass", "delta_kg", 0.0)
+        if "load_transfer" in eff:
+            lt = eff["load_transfer"]
+            f = f - fx.load_transfer_rear(self.fdx, self.acc, self.theta, veh.mass_kg + dm, veh.wheelbase_m,
+                                          lt["h_hitch_m"], lt["h_cg_m"])
+        if "mass" in eff:
+            f = f + dm * eff["mass"]["front_share"] * G
+        return self.y[rows], f[rows]
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
+# --------------------------------------------------------------------------- draft
+class DraftChannel(Channel):
+    def __init__(self, feat: Features):
+        fr = feat.frame
+        self.feat = feat
+        edge = int(round(DRAFT_EDGE_S * fr.rate_hz))
+        keep = np.zeros(fr.n, dtype=bool)
+        for s in range(int(feat.segment.max()) + 1 if feat.segment.size else 0):
+            idx = np.nonzero(feat.segment == s)[0]
+            if idx.size > 2 * edge + 10:
+                keep[idx[edge:-edge]] = True
+        keep &= feat.valid & np.isfinite(fr.fdx) if fr.fdx is not None else False
+        rows = np.nonzero(keep)[0]
+        super().__init__("draft", "N", "draft in work against a speed-independent draft per work segment",
+                         frozenset({"draft_speed"}), fr.t[rows], rows.astype(np.int64), feat.fold[rows],
+                         "draft level D per work segment")
+        self.rows_idx = rows
+        self.y = fr.fdx[rows] if rows.size else np.zeros(0)
+        seg = feat.segment[rows]
+        _, self.seg = np.unique(seg, return_inverse=True)
+        self.nseg = int(self.seg.max()) + 1 if rows.size else 0
+        # Speed regressor: v_ref averaged over DRAFT_SPEED_SMOOTH_S.  The draft's own fluctuation
+        # slows the tractor within a second (feedback); the average keeps the operator's speed
+        # changes and drops most of that feedback, which would bias c towards negative values.
+        k = max(1, int(round(DRAFT_SPEED_SMOOTH_S * fr.rate_hz)))
+        vs = np.convolve(np.nan_to_num(feat.v_ref), np.ones(k) / k, mode="same") if feat.v_ref is not None else np.zeros(fr.n)
+        self.v = vs[rows]
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        if "draft_speed" in eff:
+            p = eff["draft_speed"]
+            x = fx.draft_speed_factor(self.v, p["c_s2pm2"], p["v_ref_mps"])
+        else:
+            x = np.ones(self.y.size)
+        y = self.y[rows]
+        return y, _onehot_scaled_fit(y, x[rows], self.seg[rows], self.nseg)
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
+# --------------------------------------------------------------------------- slip
+def relaxed(s: NDArray, v: NDArray, sigma_m: float, dt: float) -> NDArray:
+    """Relaxed slip s' of the effect library's ``relaxation_rate``, ds'/dt = (|v|/σ)(s − s').
+
+    Integrated exactly for an input held over each step:
+    s'_k = s'_{k−1} + (1 − e^{−λ_k Δt})(s_k − s'_{k−1}), λ_k = |v_k|/σ.
+    Non-finite samples restart the filter.
+    """
+    lam = fx.relaxation_rate(1.0, 0.0, v, sigma_m)
+    alpha = 1.0 - np.exp(-lam * dt)
+    out = np.empty_like(s)
+    prev = np.full(s.shape[1:], np.nan)
+    for k in range(s.shape[0]):
+        sk = s[k]
+        ak = alpha[k]
+        nxt = np.where(np.isfinite(prev), prev + ak * (sk - prev), sk)
+        out[k] = nxt
+        prev = nxt
+    return out
+
+
+class _CurveInverse:
+    """s = g⁻¹(q) of a surface class by table lookup (g is odd and increasing)."""
+
+    def __init__(self, cls: SoilClass, s_max: float = 0.6):
+        self.cls = cls
+        self.s = np.linspace(0.0, s_max, 3001)
+        self.g = cls.g(self.s)
+
+    def __call__(self, q: NDArray) -> NDArray:
+        aq = np.minimum(np.abs(q), self.g[-1])
+        return np.sign(q) * np.interp(aq, self.g, self.s)
+
+
+A_GRID = np.linspace(0.2, 1.3, 45)
+"""Grid of the curve parameter a searched per field cell [-] (refined by a parabola)."""
+
+
+class SlipChannel(Channel):
+    """Per-wheel slip against the slip the μ(s) curve needs for the measured adhesion.
+
+    Slip carries the noise (the ground speed's), adhesion from the torque
+    balance is precise, so the curve is inverted, s = g⁻¹(μ/a), and the
+    residual is taken in measured slip, where its scale does not depend on
+    the candidate:
+
+        e_i = (s_i − ŝ_i) r_nom,i |ω_i|,   s_i = 1 − v_ref/(r_nom,i ω_i)   (nominal radius and speed),
+        ŝ_i = 1 − (v_ref/v_ref') (r_i / r_nom,i) (1 − s_i'),
+        s_i' = s_dyn + (σ/|v|) ṡ_dyn,   s_dyn = g⁻¹(μ_i / a_cell),
+
+    where r_i, v_ref', μ_i are the radius, ground speed and adhesion the
+    candidate implies and the relaxation term (inverse of ds_dyn/dt =
+    (|v|/σ)(s − s_dyn)) is present only for the relaxation candidate.
+    The nuisance is the surface class (shape) and a per field cell.  The
+    factor r_nom|ω| turns the slip error into the ground-speed error [m/s]
+    that causes it, so slow and fast driving weigh alike.
+    """
+
+    def __init__(self, feat: Features, wc: _WheelCache):
+        fr = feat.frame
+        self.feat, self.wc = feat, wc
+        ws = wc.get({}, with_slip=True)
+        ok = (feat.valid[:, None] & (np.abs(feat.v_ref)[:, None] > SLIP_MIN_SPEED) & np.isfinite(ws.slip)
+              & np.isfinite(ws.mu) & (np.abs(ws.slip) < 0.5))
+        ti, wi = np.nonzero(ok)
+        super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
+                         frozenset({"wheel_radius", "relaxation", "gps_latency"}),
+                         fr.t[ti], ti.astype(np.int64), feat.fold[ti], "soil class shape and curve parameter a per field cell")
+        self.ti, self.wi = ti, wi
+        self.cell = feat.cell[ti]
+        self.ncell = feat.n_cells
+        self.soil: SoilClass = SOIL_CLASSES["stubble"]
+        self.a_cell = np.full(self.ncell, np.nan)
+        self.y = ws.slip[ti, wi]
+        self.r_nom = ws.r[ti, wi]
+        self.wv = ws.r[ti, wi] * np.abs(fr.omega[ti, wi])
+        self.v0 = feat.v_ref[ti]
+        self.inv = {name: _CurveInverse(c) for name, c in SOIL_CLASSES.items()}
+        self._frozen = False
+
+    def freeze(self, on: bool) -> None:
+        self._frozen = on
+
+    def _inputs(self, eff: Effects) -> tuple[NDArray, NDArray, NDArray | None]:
+        """(adhesion μ, slip-scale factor k with ŝ = 1 − k (1 − s'), μ̇·σ/|v| or None) on all rows."""
+        ws = self.wc.get(eff)
+        mu_full = ws.mu
+        mu = mu_full[self.ti, self.wi]
+        k = ws.r[self.ti, self.wi] / self.r_nom
+        if "gps_latency" in eff:
+            k = k * self.v0 / self.wc.v_ref(eff)[self.ti]
+        lead = None
+        if "relaxation" in eff:
+            mu_dot = self._mu_dot(ws)[self.ti, self.wi]
+            lam = fx.relaxation_rate(1.0, 0.0, self.wc.v_ref(eff)[self.ti], eff["relaxation"]["sigma_m"])
+            lead = mu_dot / lam
+        return mu, k, lead
+
+    def _mu_dot(self, ws: WheelState) -> NDArray:
+        """dμ/dt averaged over each bin [1/s]: difference of μ at the bin edges.
+
+        At an edge, μ = (M_edge − J (ω̄_k − ω̄_{k−1})/Δ)/(r F_z) − ρ_t sgn ω with the
+        torque sampled at the edge and the wheel acceleration from the bin means on
+        either side; without edge data, the central difference of the bin means.
+        """
+        fr = self.feat.frame
+        if fr.md_edge is None:
+            return np.gradient(np.nan_to_num(ws.mu), fr.dt, axis=0)
+        veh = fr.vehicle
+        om = np.nan_to_num(fr.omega)
+        wd = np.zeros_like(fr.md_edge)
+        wd[1:-1] = np.diff(om, axis=0) / fr.dt
+        rf = ws.r * ws.fz
+        rf_e = np.concatenate([rf[:1], 0.5 * (rf[1:] + rf[:-1]), rf[-1:]])
+        sg = np.sign(np.concatenate([om[:1], om]))
+        mu_e = (np.nan_to_num(fr.md_edge) - veh.wheel_inertia_kgm2 * wd) / rf_e - veh.rho_t * sg
+        return np.diff(mu_e, axis=0) / fr.dt
+
+    def _predict(self, inv: _CurveInverse, mu: NDArray, k: NDArray, lead: NDArray | None, a: NDArray) -> NDArray:
+        s_dyn = inv(mu / a)
+        if lead is not None:
+            s_dyn = s_dyn + lead / (a * np.maximum(inv.cls.dg(s_dyn), 1e-3))
+        return 1.0 - k * (1.0 - s_dyn)
+
+    def _grid_a(self, inv: _CurveInverse, mu, k, lead, y, wv, cell) -> NDArray:
+        """a per cell by a grid search with parabolic refinement."""
+        nc = self.ncell
+        sse = np.empty((A_GRID.size, nc))
+        for j, a in enumerate(A_GRID):
+            e = (y - self._predict(inv, mu, k, lead, a)) * wv
+            sse[j] = np.bincount(cell, weights=e * e, minlength=nc)
+        jb = np.argmin(sse, axis=0)
+        cidx = np.arange(nc)
+        s0 = sse[np.clip(jb - 1, 0, None), cidx]
+        s1 = sse[jb, cidx]
+        s2 = sse[np.clip(jb + 1, None, A_GRID.size - 1), cidx]
+        den = s0 - 2 * s1 + s2
+        inner = (jb > 0) & (jb < A_GRID.size - 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            off = np.where(inner & (den > 0), 0.5 * (s0 - s2) / den, 0.0)
+        return A_GRID[jb] + np.clip(off, -0.5, 0.5) * (A_GRID[1] - A_GRID[0])
+
+    def _gauss_newton_a(self, inv: _CurveInverse, mu, k, lead, y, wv, cell, a0: NDArray, iters: int = 6) -> NDArray:
+        """Refine a per cell by Gauss–Newton steps on the cell's sum of squares."""
+        a = a0.copy()
+        nc = self.ncell
+        for _ in range(iters):
+            ac = a[cell]
+            s_dyn = inv(mu / ac)
+            dg = np.maximum(inv.cls.dg(s_dyn), 1e-3)
+            ds = -(mu / (ac * ac)) / dg
+            sp = s_dyn
+            if lead is not None:
+                sp = s_dyn + lead / (ac * dg)
+                ds = ds - lead / (ac * ac * dg)
+            e = (y - (1.0 - k * (1.0 - sp))) * wv
+            J = -k * ds * wv
+            num = np.bincount(cell, weights=J * e, minlength=nc)
+            den = np.bincount(cell, weights=J * J, minlength=nc)
+            step = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+            a = np.clip(a - step, A_GRID[0] * 0.5, A_GRID[-1] * 1.5)
+        return a
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        mu, k, lead = self._inputs(eff)
+        mu, k, y, cell, wv = mu[rows], k[rows], self.y[rows], self.cell[rows], self.wv[rows]
+        lead = lead[rows] if lead is not None else None
+        if not hasattr(self, "_a_start"):
+            m0, k0, _ = self._inputs({})
+            self._a_start = {name: self._grid_a(inv, m0, k0, None, self.y, self.wv, self.cell)
+                             for name, inv in self.inv.items()}
+        best, best_sse = None, math.inf
+        invs = {self.soil.name: self.inv[self.soil.name]} if self._frozen else self.inv
+        for name, inv in invs.items():
+            a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
+            p = self._predict(inv, mu, k, lead, a[cell])
+            total = float(np.sum(((y - p) * wv) ** 2))
+            if total < best_sse:
+                best, best_sse = p, total
+                self.soil, self.a_cell = inv.cls, a
+        return y * wv, best * wv
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
+def build_channels(feat: Features) -> list[Channel]:
+    """Every channel the frame's signals support."""
+    fr = feat.frame
+    out: list[Channel] = []
+    wc = _WheelCache(feat)
+    wheels = fr.has("omega", "md", "fzf")
+    if wheels and feat.v_gps is not None:
+        out.append(SpeedChannel(feat, wc))
+        out.append(GpsSpeedChannel(feat, wc))
+        out.append(SlipChannel(feat, wc))
+    if fr.has("fzf"):
+        out.append(FrontLoadChannel(feat))
+    if fr.has("fdx") and fr.work is not None and (feat.segment >= 0).any():
+        ch = DraftChannel(feat)
+        if ch.m > 50:
+            out.append(ch)
+    return [c for c in out if c.m > 20]

@@ -1,0 +1,445 @@
+"""Physical quantities diagnosis derives from a :class:`~tractionecu.diagnose.data.Frame`.
+
+Everything is computed from recorded signals and the nominal vehicle file:
+
+- wheel loads from the measured front-axle load (paper section 3.1):
+  F_z,front = F_zf/2,  F_z,rear = (m g − F_zf)/2;
+- rolling radius r_d(F_z) (paper eq. 9);
+- the per-wheel horizontal force from the torque balance (paper eq. 2),
+  F_h,i = (M_i − J ω̇_i)/r_i − ρ_t F_z,i sgn ω_i, and μ_i = F_h,i / F_z,i;
+- the force-integrated speed v_int(t) = (1/m) ∫ (Σ F_h,i − F_dx) dt
+  (paper eq. 8 without the unknown resistances);
+- a fused ground speed v_ref = v_int + b(t), b a cubic B-spline (knots every
+  :data:`SPLINE_KNOT_S`) fitted to the GNSS speed: GNSS accuracy at low
+  frequency, the force balance's smoothness at high frequency;
+- the grade along the track θ = atan(dh/ds) from the GNSS altitude, by a
+  local-linear kernel surface h(x, y) pooled over all passes (Gaussian kernel
+  of :data:`DEM_BANDWIDTH_M`), so that independent altitude errors of
+  different passes average out;
+- work segments (passes), pass direction, spatial cells on the field and
+  held-out folds.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import BSpline
+from scipy.spatial import cKDTree
+
+from ..config import G
+from ..model.vehicle import rolling_radius, wheel_loads
+from .data import Frame
+
+SPLINE_KNOT_S = 3.0
+"""Knot spacing of the low-frequency speed correction b(t) [s]."""
+DEM_BANDWIDTH_M = 20.0
+"""Gaussian kernel standard deviation of the pooled altitude surface [m]."""
+CELL_M = 40.0
+"""Edge of a spatial cell of the field, along and across the passes [m]."""
+CELL_MIN_S = 10.0
+"""Cells with less data than this [s] are merged into the nearest cell."""
+FOLD_BLOCK_S = 40.0
+"""Length of the alternating time blocks that form the two held-out folds [s]."""
+MOVING_MPS = 0.5
+"""Below this speed [m/s] samples are not used (slip and grade undefined)."""
+
+
+@dataclass
+class Features:
+    """Derived arrays over the frame grid (n,) or (n, 4)."""
+
+    frame: Frame
+    valid: NDArray[np.bool_]
+    """Moving, with the signals the force balance needs."""
+    omega_dot: NDArray[np.float64] | None
+    v_gps: NDArray[np.float64] | None
+    v_ref: NDArray[np.float64] | None
+    """Fused ground speed [m/s]."""
+    accel: NDArray[np.float64] | None
+    """dv_ref/dt [m/s²]."""
+    theta: NDArray[np.float64] | None
+    """Grade along the heading from the GNSS altitude [rad] (NaN where unknown)."""
+    grade: "GradeEstimate | None"
+    """How θ was obtained (calibration λ, method)."""
+    segment: NDArray[np.int64]
+    """Work segment index (−1 outside work)."""
+    direction: NDArray[np.int64]
+    """+1 / −1 along / against the field's main axis, 0 unknown."""
+    cell: NDArray[np.int64]
+    """Spatial cell index (0 when positions are unknown)."""
+    n_cells: int
+    fold: NDArray[np.int64]
+    """Held-out fold (0 or 1) by alternating time blocks."""
+    u: NDArray[np.float64] | None = None
+    """Position along the field's main axis [m]."""
+    w: NDArray[np.float64] | None = None
+    """Position across the main axis [m]."""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        return self.frame.n
+
+
+# --------------------------------------------------------------------------- wheel physics
+@dataclass
+class WheelState:
+    """Per-wheel quantities (n, 4) under a set of effect parameters."""
+
+    fz: NDArray[np.float64]
+    r: NDArray[np.float64]
+    fh: NDArray[np.float64]
+    mu: NDArray[np.float64]
+    slip: NDArray[np.float64] | None
+
+
+def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64] | None, *,
+                delta_m: float = 0.0, eps_r: float = 0.0, eta: float = 1.0, loss_nm: float = 0.0) -> WheelState:
+    """Wheel loads, radii, forces, μ and slip for the recorded inputs.
+
+    ``delta_m`` [kg] adds mass (the rear wheels carry what the front pin does
+    not see: F_z,rear = ((m + Δm) g − F_zf)/2); ``eps_r`` scales the rolling
+    radius r = (1 + ε) r_d (effect ``wheel_radius``); ``eta``, ``loss_nm`` are
+    the drivetrain effect M_wheel = η M_d − M_loss sgn ω.
+    """
+    from ..model import effects as fx
+
+    veh = fr.vehicle
+    fz = wheel_loads(fr.fzf, veh, weight_n=(veh.mass_kg + delta_m) * G)
+    r = rolling_radius(fz, veh)
+    if eps_r != 0.0:
+        r = fx.wheel_radius_true(r, eps_r)
+    md = fr.md
+    if eta != 1.0 or loss_nm != 0.0:
+        md = fx.drivetrain_torque(md, fr.omega, eta, loss_nm)
+    fh = (md - veh.wheel_inertia_kgm2 * omega_dot) / r - veh.rho_t * fz * np.sign(fr.omega)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mu = fh / fz
+        slip = None
+        if v is not None:
+            vw = np.abs(r * fr.omega)
+            va = np.abs(v)[:, None]
+            slip = np.where(va <= vw, 1.0 - va / vw, -1.0 + vw / va)
+    return WheelState(fz, r, fh, mu, slip)
+
+
+# --------------------------------------------------------------------------- helpers
+def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+    """Cumulative trapezoid integral starting at 0 (NaN treated as 0)."""
+    y = np.nan_to_num(y)
+    out = np.zeros_like(y)
+    out[1:] = np.cumsum(0.5 * (y[1:] + y[:-1])) * dt
+    return out
+
+
+def spline_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Cubic B-spline design matrix with knots every ``knot_s`` [s] over the span of ``t``,
+    evaluated at ``t_eval`` (default ``t``; clamped to the span)."""
+    t0, t1 = float(np.min(t)), float(np.max(t))
+    nk = max(int(math.ceil((t1 - t0) / knot_s)), 1)
+    inner = np.linspace(t0, t1, nk + 1)
+    k = 3
+    knots = np.concatenate([[t0] * k, inner, [t1] * k])
+    tt = np.clip(t if t_eval is None else t_eval, t0, t1)
+    return BSpline.design_matrix(tt, knots, k).toarray()
+
+
+def smooth_derivative(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+    """Central difference dy/dt [unit/s] (one-sided at the ends)."""
+    return np.gradient(y, dt, axis=0)
+
+
+def runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """[start, stop) index pairs of the True runs of ``mask``."""
+    m = np.concatenate([[False], mask.astype(bool), [False]])
+    d = np.diff(m.astype(int))
+    return list(zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]))
+
+
+def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_],
+                tau_s: float = 0.0) -> NDArray[np.float64]:
+    """Fused ground speed v_ref(t) = v_int(t) + b(t) [m/s].
+
+    v_int = (1/m) ∫ (Σ F_h,i − F_dx) dt; the slow correction b is a cubic
+    B-spline fitted to the GNSS speed.  With a GNSS latency τ the fit is
+    v_gps(t) = v_int(t − τ) + b(t − τ) (effect ``gps_latency``) and the
+    returned speed is undelayed.
+    """
+    from ..model.effects import delayed
+
+    m = fr.vehicle.mass_kg
+    force = fh_sum - np.nan_to_num(fr.fdx)
+    v_int = cumtrapz0(force / m, fr.dt)
+    ok = valid & np.isfinite(fr.v_gps)
+    B = spline_basis(fr.t, SPLINE_KNOT_S)
+    cols = B[ok].sum(axis=0) > 1e-9
+    model = delayed(fr.t, v_int, tau_s) if tau_s else v_int
+    beta, *_ = np.linalg.lstsq(B[ok][:, cols], fr.v_gps[ok] - model[ok], rcond=None)
+    if tau_s:
+        Bs = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s)
+        return v_int + Bs[:, cols] @ beta
+    return v_int + B[:, cols] @ beta
+
+
+def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, dt_min: float = 0.0,
+                  dt_max: float = math.inf) -> tuple[NDArray, NDArray, NDArray]:
+    """Local-linear kernel fit of h(x, y) from the fit points whose time differs from the
+    evaluation point's by ``dt_min < |Δt| < dt_max`` [s]; returns (h0, gx, gy) at (ex, ey)."""
+    tree = cKDTree(np.c_[x, y])
+    h0 = np.full(ex.shape, np.nan)
+    gx = np.full(ex.shape, np.nan)
+    gy = np.full(ex.shape, np.nan)
+    neigh = tree.query_ball_point(np.c_[ex, ey], 3.0 * bw)
+    lam = 1e-3
+    for k, idx in enumerate(neigh):
+        if len(idx) < 8:
+            continue
+        idx = np.asarray(idx)
+        adt = np.abs(tf[idx] - te[k])
+        idx = idx[(adt > dt_min) & (adt < dt_max)]
+        if idx.size < 8:
+            continue
+        dx = x[idx] - ex[k]
+        dy = y[idx] - ey[k]
+        wgt = np.exp(-0.5 * (dx * dx + dy * dy) / (bw * bw))
+        A = np.c_[np.ones(idx.size), dx, dy]
+        Aw = A * wgt[:, None]
+        M = A.T @ Aw
+        reg = lam * wgt.sum() * bw * bw
+        M[1, 1] += reg
+        M[2, 2] += reg
+        sol = np.linalg.solve(M, Aw.T @ h[idx])
+        h0[k], gx[k], gy[k] = sol
+    return h0, gx, gy
+
+
+RELIEF_SNR = 1.5
+"""Relief counts as real when the altitude surfaces of passes with independent errors agree:
+cov(h_own, h_other) ≥ RELIEF_SNR · var(h_own − h_other)/2 (relief variance against error variance).
+Calibrated on flat simulated fields, where the ratio stayed below 1."""
+RELIEF_MIN_M = 4.0
+"""Altitude range [m] that counts as relief when no second pass can check it (4 × a 1 m DGPS error)."""
+ALT_INDEPENDENT_S = 90.0
+"""GNSS altitude errors further apart in time than this [s] are treated as independent
+(three correlation times of a DGPS receiver's slowly wandering error)."""
+
+
+@dataclass
+class GradeEstimate:
+    """Grade along the track from the GNSS altitude (see :func:`grade_from_altitude`)."""
+
+    theta: NDArray[np.float64]
+    """Calibrated grade θ_cal = atan(λ · dh/ds_other) [rad] (NaN where unknown)."""
+    theta_raw: NDArray[np.float64]
+    """Grade from all passes pooled, uncalibrated [rad]."""
+    reliability: float
+    """λ = cov(own, other)/var(pooled): share of the pooled slope's variance that is relief [-]
+    (NaN when no pass overlaps another)."""
+    reliability_se: float
+    """Block-jackknife standard error of λ [-]."""
+    relief: bool
+    """The altitude shows relief beyond its error (else θ is zero: no grade to test)."""
+    method: str
+
+
+def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BANDWIDTH_M) -> GradeEstimate | None:
+    """Grade θ along the heading from the pooled GNSS altitude surface.
+
+    A classical error in the regressor attenuates a fitted grade force, so the
+    slope used as regressor is calibrated: with g_own the slope from the same
+    pass (|Δt| < 20 s) and g_other the slope from data at least
+    :data:`ALT_INDEPENDENT_S` away in time (other passes over the same
+    ground), whose altitude errors are independent,
+
+        λ = Σ g_own g_other / Σ g_pooled²,   θ_cal = atan(λ g_pooled),
+
+    where g_pooled uses all data: cov(own, other) estimates the variance of
+    the true slope, so λ g_pooled is the best linear predictor of the true
+    slope given the pooled one (regression calibration).  Without overlapping passes the pooled slope is used and
+    the method says so.
+    """
+    if not fr.has("alt", "x", "y", "heading"):
+        return None
+    ok = valid & np.isfinite(fr.alt) & np.isfinite(fr.x) & np.isfinite(fr.y) & np.isfinite(fr.heading)
+    if ok.sum() < 20:
+        return None
+    idx = np.nonzero(ok)[0]
+    step = max(1, int(round(fr.rate_hz / 2)))
+    sub = idx[::step]
+    x, y, h, t = fr.x[sub], fr.y[sub], fr.alt[sub], fr.t[sub]
+    hd = fr.heading[sub]
+
+    def surface(dt_min: float, dt_max: float) -> tuple[NDArray, NDArray]:
+        h0, gx, gy = _dem_gradient(x, y, h, t, x, y, t, bw, dt_min, dt_max)
+        return h0, gx * np.cos(hd) + gy * np.sin(hd)
+
+    _, g_all = surface(-1.0, math.inf)
+    h_other, g_other = surface(ALT_INDEPENDENT_S, math.inf)
+    lam = float("nan")
+    lam_se = float("nan")
+    snr_relief = float("nan")
+    if np.isfinite(g_other).sum() >= 0.3 * sub.size:
+        h_own, g_own = surface(-1.0, 20.0)
+        pair = np.isfinite(g_other) & np.isfinite(g_own) & np.isfinite(g_all)
+        den = float(np.sum(g_all[pair] ** 2))
+        if den > 0 and pair.sum() > 10:
+            # cov(own, other) estimates the relief's variance (independent errors); var(pooled) its
+            # variance plus the pooled error's.  λ = var(relief)/var(pooled) gives the best linear
+            # predictor λ·g_pooled of the true slope.
+            prod = g_own[pair] * g_other[pair]
+            lam = float(np.clip(np.sum(prod) / den, 0.0, 1.0))
+            # Block jackknife over K slabs across the field's main axis (each slab holds every pass
+            # over that ground): the relief has few independent features, so λ is uncertain and
+            # that uncertainty belongs in a fitted grade's interval.
+            K = 8
+            xy = np.c_[x[pair], y[pair]]
+            xy = xy - xy.mean(axis=0)
+            axis = np.linalg.svd(xy, full_matrices=False)[2][0]
+            along = xy @ axis
+            edges = np.quantile(along, np.linspace(0, 1, K + 1)[1:-1])
+            blk = np.searchsorted(edges, along)
+            g2 = g_all[pair] ** 2
+            loo = np.array([np.sum(prod[blk != k]) / max(np.sum(g2[blk != k]), 1e-30) for k in range(K)])
+            lam_se = float(math.sqrt((K - 1) / K * np.sum((loo - loo.mean()) ** 2)))
+            a = h_own[pair] - h_own[pair].mean()
+            b = h_other[pair] - h_other[pair].mean()
+            noise = float(np.var(a - b)) / 2.0
+            snr_relief = float(np.mean(a * b)) / noise if noise > 0 else math.inf
+    if np.isfinite(lam):
+        if not snr_relief >= RELIEF_SNR:
+            return GradeEstimate(np.zeros(fr.n), np.full(fr.n, np.nan), 0.0, math.nan, False,
+                                 f"no relief beyond the GNSS altitude error: relief/error variance ratio "
+                                 f"{snr_relief:.2f} < {RELIEF_SNR}")
+        g_use = lam * g_all
+        real = True
+        method = (f"pooled GNSS altitude surface (kernel {bw:.0f} m), slope calibrated by λ = {lam:.2f} ± {lam_se:.2f} "
+                  f"(regression calibration: relief variance from passes with independent altitude errors, "
+                  f"relief/error variance ratio {snr_relief:.1f})")
+    else:
+        alt = h[np.isfinite(h)]
+        relief = float(np.percentile(alt, 95) - np.percentile(alt, 5)) if alt.size > 10 else 0.0
+        real = relief >= RELIEF_MIN_M
+        if not real:
+            return GradeEstimate(np.zeros(fr.n), np.full(fr.n, np.nan), math.nan, math.nan, False,
+                                 f"altitude range {relief:.1f} m < {RELIEF_MIN_M:.0f} m and no overlapping pass to "
+                                 "check it against: no relief beyond the GNSS altitude error")
+        g_use = g_all
+        method = (f"GNSS altitude along the track (kernel {bw:.0f} m), altitude range {relief:.1f} m; no "
+                  "overlapping pass to calibrate the altitude error: a fitted grade may be attenuated")
+    good = np.isfinite(g_use)
+    if good.sum() < 2:
+        return None
+    th = np.full(fr.n, np.nan)
+    th_raw = np.full(fr.n, np.nan)
+    th[idx] = np.arctan(np.interp(fr.t[idx], t[good], g_use[good]))
+    g2 = np.isfinite(g_all)
+    th_raw[idx] = np.arctan(np.interp(fr.t[idx], t[g2], g_all[g2]))
+    return GradeEstimate(th, th_raw, lam, lam_se, real, method)
+
+
+def main_axis(fr: Frame, mask: NDArray[np.bool_]) -> float | None:
+    """Direction [rad] of the field's main pass axis (heading modulo π, weighted by speed)."""
+    if fr.heading is None:
+        return None
+    h = fr.heading[mask & np.isfinite(fr.heading)]
+    if h.size < 10:
+        return None
+    c = np.mean(np.cos(2 * h))
+    s = np.mean(np.sin(2 * h))
+    return 0.5 * math.atan2(s, c)
+
+
+def _cells(u: NDArray, w: NDArray, ok: NDArray[np.bool_], rate_hz: float) -> tuple[NDArray[np.int64], int]:
+    iu = np.floor(u / CELL_M).astype(np.int64)
+    iw = np.floor(w / CELL_M).astype(np.int64)
+    key = np.where(ok, iu * 100003 + iw, -1)
+    uniq, inv, cnt = np.unique(key[ok], return_inverse=True, return_counts=True)
+    cent_u = np.bincount(inv, weights=u[ok]) / cnt
+    cent_w = np.bincount(inv, weights=w[ok]) / cnt
+    big = cnt >= CELL_MIN_S * rate_hz
+    if not big.any():
+        big[np.argmax(cnt)] = True
+    bi = np.nonzero(big)[0]
+    remap = np.empty(uniq.size, dtype=np.int64)
+    for j in range(uniq.size):
+        if big[j]:
+            remap[j] = j
+        else:
+            d = (cent_u[bi] - cent_u[j]) ** 2 + (cent_w[bi] - cent_w[j]) ** 2
+            remap[j] = bi[np.argmin(d)]
+    labels = np.unique(remap[bi])
+    dense = {int(l): k for k, l in enumerate(labels)}
+    cell = np.zeros(u.size, dtype=np.int64)
+    cell[ok] = np.array([dense[int(remap[j])] for j in inv]) if inv.size else 0
+    # Samples without a position join the cell nearest in time.
+    if (~ok).any() and ok.any():
+        t_idx = np.nonzero(ok)[0]
+        near = t_idx[np.clip(np.searchsorted(t_idx, np.nonzero(~ok)[0]), 0, t_idx.size - 1)]
+        cell[~ok] = cell[near]
+    return cell, len(labels)
+
+
+def compute(fr: Frame) -> Features:
+    """All derived features of a frame that has per-wheel drive data."""
+    notes: list[str] = []
+    n = fr.n
+    have_wheels = fr.has("omega", "md", "fzf")
+    v_gps = fr.v_gps if fr.has("v_gps") else None
+    valid = np.ones(n, dtype=bool)
+    if v_gps is not None:
+        valid &= np.isfinite(v_gps)
+    if have_wheels:
+        valid &= np.all(np.isfinite(fr.omega), axis=1) & np.all(np.isfinite(fr.md), axis=1) & np.isfinite(fr.fzf)
+    omega_dot = None
+    if have_wheels:
+        omega_dot = fr.omega_dot if fr.omega_dot is not None else smooth_derivative(np.nan_to_num(fr.omega), fr.dt)
+        omega_dot = np.where(np.isfinite(omega_dot), omega_dot, smooth_derivative(np.nan_to_num(fr.omega), fr.dt))
+    v_ref = accel = None
+    if have_wheels and v_gps is not None:
+        ws = wheel_state(fr, omega_dot, None)
+        fh_sum = np.nansum(ws.fh, axis=1)
+        v_ref = fused_speed(fr, fh_sum, valid)
+        # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m, plus the slope of the slow
+        # correction b = v_ref − v_int (resistances the balance does not know).
+        v_int = cumtrapz0((fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg, fr.dt)
+        accel = (fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg + smooth_derivative(v_ref - v_int, fr.dt)
+    elif v_gps is not None:
+        v_ref = v_gps
+        accel = smooth_derivative(np.nan_to_num(v_gps), fr.dt)
+    if v_ref is not None:
+        valid &= np.abs(v_ref) > MOVING_MPS
+    grade = grade_from_altitude(fr, valid)
+    theta = grade.theta if grade is not None and grade.relief else None
+    if grade is None:
+        notes.append("no usable GNSS altitude/position: grade cannot be tested")
+    elif not grade.relief:
+        notes.append(grade.method)
+
+    # Work segments.
+    segment = np.full(n, -1, dtype=np.int64)
+    if fr.work is not None:
+        k = 0
+        for a, b in runs(fr.work):
+            if (b - a) * fr.dt >= 5.0:
+                segment[a:b] = k
+                k += 1
+    # Field axis, direction, cells.
+    axis = main_axis(fr, valid & (segment >= 0) if (segment >= 0).any() else valid)
+    direction = np.zeros(n, dtype=np.int64)
+    u = w = None
+    if axis is not None and fr.has("x", "y"):
+        ca, sa = math.cos(axis), math.sin(axis)
+        u = fr.x * ca + fr.y * sa
+        w = -fr.x * sa + fr.y * ca
+        direction = np.where(np.cos(fr.heading - axis) >= 0, 1, -1)
+        okp = np.isfinite(u) & np.isfinite(w)
+        cell, n_cells = _cells(np.nan_to_num(u), np.nan_to_num(w), okp, fr.rate_hz)
+    else:
+        cell, n_cells = np.zeros(n, dtype=np.int64), 1
+    fold = (np.floor(fr.t / FOLD_BLOCK_S).astype(np.int64) % 2)
+    return Features(fr, valid, omega_dot, v_gps, v_ref, accel, theta, grade, segment, direction, cell,
+                    n_cells, fold, u, w, notes)

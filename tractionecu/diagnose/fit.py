@@ -1,0 +1,361 @@
+"""Fitting candidate effects across channels, with autocorrelation-robust intervals.
+
+Estimation
+----------
+For a candidate with parameters x (its fitted :class:`FitParam` s) the
+weighted least-squares problem over the channels it acts on is
+
+    min_x  Σ_c ‖ e_c(x) ‖² / σ_c²,
+
+with e_c the channel residual after the nuisance parameters are profiled out
+(variable projection).  A first solve weighs channels by their null residual
+RMS; the second by σ_c² = (mean square of the channel's residual at the first
+solution) · κ_c, κ_c = tr(S_c)/(s_c² tr(A_c)) the inflation of the channel's
+score variance by autocorrelation (S_c, A_c below), so that channels count by
+their independent information (a feasible approximation to generalised
+least squares).  It is solved
+from the best point of the candidate's start grid (the full product grid), by
+a bounded Brent search for one parameter and bounded trust-region least
+squares (``scipy.optimize.least_squares``) for more.  The search is robust to
+the small steps the discrete nuisance (surface class) puts into the cost.
+
+Uncertainty
+-----------
+Residuals of a vehicle log are autocorrelated (draft fluctuation, GNSS
+error, spline nuisance), so the covariance is the sandwich
+
+    Cov(x̂) = A⁻¹ (Σ_c S_c) A⁻¹,   A = Σ_c J̃_cᵀ J̃_c,
+
+with J̃ the Jacobian of the weighted residuals and S_c the Newey–West (HAC,
+Bartlett kernel) long-run covariance of the channel's scores g_t = Σ J̃ᵀ ẽ
+aggregated per time index; the bandwidth follows Andrews (1991, AR(1) plug-in,
+L = 1.1447 (α T)^{1/3}).  95 % intervals are x̂ ± 1.96 SE, clipped to the bounds.
+
+Held-out score
+--------------
+Two folds of alternating time blocks.  A candidate is fitted on one fold and
+its parameters are held while the nuisance is re-fitted on the other; the
+held-out sums of squares of both folds are added.  Against the null (no
+effect, same nuisance) the held-out log-likelihood ratio of channel c is
+
+    ΔLL_c = ½ n_eff,c ln(SSE_null,c / SSE_cand,c),
+
+with n_eff = T (1 − ρ₁)/(1 + ρ₁) from the lag-1 autocorrelation ρ₁ of the
+candidate's held-out residual (T distinct times): the noise left once the
+candidate has explained its part (the null's own residual would count the
+unexplained effect's smoothness as noise correlation).  The candidate's score is Σ_c ΔLL_c.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from .candidates import CANDIDATES, Candidate
+from .channels import Channel, Effects
+from .features import Features
+
+
+@dataclass
+class FitResult:
+    candidate: str
+    x: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    params: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    se: dict[str, float]
+    sse: dict[str, float]
+    n: dict[str, int]
+    cost: float
+    ok: bool
+    message: str = ""
+
+
+@dataclass
+class HeldOut:
+    candidate: str
+    sse: dict[str, float]
+    n: dict[str, int]
+    resid: dict[str, NDArray[np.float64]]
+    """Held-out residuals per channel in row order (both folds)."""
+    fold_params: list[dict[str, float]] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- HAC
+def _ar1(x: NDArray) -> float:
+    x = x - x.mean()
+    d = float(np.dot(x[:-1], x[:-1]))
+    return float(np.clip(np.dot(x[1:], x[:-1]) / d, -0.97, 0.97)) if d > 0 else 0.0
+
+
+def andrews_bandwidth(g: NDArray) -> int:
+    """Bartlett-kernel bandwidth by the AR(1) plug-in of Andrews (1991)."""
+    T = g.shape[0]
+    num = den = 0.0
+    for j in range(g.shape[1]):
+        col = g[:, j]
+        rho = _ar1(col)
+        s2 = float(np.var(col[1:] - rho * col[:-1])) if T > 2 else 0.0
+        num += 4 * rho * rho * s2 * s2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
+        den += s2 * s2 / (1 - rho) ** 4
+    alpha = num / den if den > 0 else 0.0
+    L = int(math.ceil(1.1447 * (alpha * T) ** (1.0 / 3.0)))
+    return int(np.clip(L, 1, max(1, T // 3)))
+
+
+def hac_meat(g: NDArray, lag: int | None = None) -> NDArray:
+    """Newey–West long-run covariance Σ_l w_l (Γ_l + Γ_lᵀ) of the score rows g (T, k)."""
+    g = np.asarray(g, dtype=float)
+    if g.ndim == 1:
+        g = g[:, None]
+    L = andrews_bandwidth(g) if lag is None else lag
+    S = g.T @ g
+    for l in range(1, min(L, g.shape[0] - 1) + 1):
+        w = 1.0 - l / (L + 1.0)
+        G = g[l:].T @ g[:-l]
+        S += w * (G + G.T)
+    return S
+
+
+def n_effective(resid: NDArray, tidx: NDArray[np.int64]) -> float:
+    """Effective sample size T (1 − ρ₁)/(1 + ρ₁) of residuals aggregated per time index."""
+    _, inv = np.unique(tidx, return_inverse=True)
+    agg = np.bincount(inv, weights=resid)
+    T = agg.size
+    if T < 3:
+        return float(T)
+    rho = max(_ar1(agg), 0.0)
+    return float(max(1.0, T * (1 - rho) / (1 + rho)))
+
+
+# --------------------------------------------------------------------------- problem
+class Problem:
+    """Channels of one recording with their null-residual scales."""
+
+    def __init__(self, feat: Features, channels: list[Channel]):
+        self.feat = feat
+        self.channels = {c.name: c for c in channels}
+        self.sigma: dict[str, float] = {}
+        for c in channels:
+            r = c.residual({}, np.ones(c.m, dtype=bool))
+            self.sigma[c.name] = float(np.sqrt(np.mean(r * r))) or 1.0
+
+    def acting(self, cand: Candidate) -> list[Channel]:
+        return [c for c in self.channels.values() if cand.name in c.effects]
+
+    def rows(self, ch: Channel, fold: int | None, train: bool) -> NDArray[np.bool_]:
+        if fold is None:
+            return np.ones(ch.m, dtype=bool)
+        return (ch.fold != fold) if train else (ch.fold == fold)
+
+    def stacked(self, cand: Candidate, x, chans: list[Channel], rows: dict[str, NDArray]) -> NDArray:
+        eff: Effects = {cand.name: cand.params(x)}
+        parts = [c.residual(eff, rows[c.name]) / self.sigma[c.name] for c in chans]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def fit(problem: Problem, name: str, fold: int | None = None, with_cov: bool = True) -> FitResult:
+    """Fit candidate ``name`` on all rows (``fold`` None) or on the rows outside ``fold``."""
+    cand = CANDIDATES[name]
+    chans = problem.acting(cand)
+    rows = {c.name: problem.rows(c, fold, train=True) for c in chans}
+    lo = np.array([p.lo for p in cand.fitted])
+    hi = np.array([p.hi for p in cand.fitted])
+    if not chans:
+        x = np.array([p.null for p in cand.fitted])
+        return FitResult(name, x, np.full((x.size, x.size), np.nan), cand.params(x), {}, {}, {}, {}, math.nan, False,
+                         "no channel for this effect")
+
+    def fun(x):
+        return problem.stacked(cand, x, chans, rows)
+
+    x, ok, msg = _minimise(fun, cand, lo, hi)
+    if len(chans) > 1:
+        # Re-weight by each channel's score autocorrelation at the solution, κ_c = tr(S_c)/(s_c² tr(A_c))
+        # (1 for independent scores), and solve again: channels whose evidence is serially
+        # correlated count for what it is worth.
+        kap = _kappa(problem, cand, x, chans, rows, lo, hi)
+        saved = dict(problem.sigma)
+        eff0 = {name: cand.params(x)}
+        try:
+            for c in chans:
+                r = c.residual(eff0, rows[c.name])
+                ms = float(np.mean(r * r)) if r.size else saved[c.name] ** 2
+                problem.sigma[c.name] = math.sqrt(max(ms, 1e-30) * kap.get(c.name, 1.0))
+            x, ok, msg = _minimise(fun, cand, lo, hi)
+            if with_cov:
+                cov_w = sandwich(problem, cand, x, chans, rows, lo, hi)
+        finally:
+            problem.sigma.update(saved)
+    sse = {}
+    nrow = {}
+    eff = {name: cand.params(x)}
+    for c in chans:
+        r = c.residual(eff, rows[c.name])
+        sse[c.name] = float(np.sum(r * r))
+        nrow[c.name] = int(r.size)
+    cost = float(np.sum(fun(x) ** 2))
+    cov = np.full((x.size, x.size), np.nan)
+    if with_cov:
+        cov = cov_w if len(chans) > 1 else sandwich(problem, cand, x, chans, rows, lo, hi)
+    if name == "grade" and with_cov:
+        cov = cov + _grade_calibration_var(problem, x)
+    se = {p.name: float(math.sqrt(cov[j, j])) if np.isfinite(cov[j, j]) and cov[j, j] >= 0 else math.nan
+          for j, p in enumerate(cand.fitted)}
+    ci = {}
+    for j, p in enumerate(cand.fitted):
+        s = se[p.name]
+        if math.isfinite(s):
+            ci[p.name] = (float(max(p.lo, x[j] - 1.96 * s)), float(min(p.hi, x[j] + 1.96 * s)))
+        else:
+            ci[p.name] = (math.nan, math.nan)
+    return FitResult(name, x, cov, cand.params(x), ci, se, sse, nrow, cost, ok, msg)
+
+
+def _grade_calibration_var(problem: Problem, x: NDArray) -> NDArray:
+    """Variance a fitted grade scale inherits from the slope calibration λ (features.GradeEstimate).
+
+    The regressor is λ·g_pooled, so the scale s scales as 1/λ: Var_λ(s) = s² (SE_λ/λ)².
+    """
+    g = problem.feat.grade
+    k = x.size
+    if g is None or not (math.isfinite(g.reliability) and math.isfinite(g.reliability_se)) or g.reliability <= 0:
+        return np.zeros((k, k))
+    out = np.zeros((k, k))
+    out[0, 0] = float(x[0]) ** 2 * (g.reliability_se / g.reliability) ** 2
+    return out
+
+
+def _minimise(fun, cand: Candidate, lo: NDArray, hi: NDArray) -> tuple[NDArray, bool, str]:
+    import itertools
+
+    from scipy.optimize import minimize_scalar
+
+    grids = [np.clip(np.asarray(p.starts, dtype=float), p.lo, p.hi) for p in cand.fitted]
+    pts = [np.array(c) for c in itertools.product(*grids)]
+    costs = [float(np.sum(fun(x0) ** 2)) for x0 in pts]
+    jb = int(np.argmin(costs))
+    x0 = pts[jb]
+    if len(grids) == 1:
+        g = np.unique(grids[0])
+        i = int(np.searchsorted(g, x0[0]))
+        a = g[max(i - 1, 0)]
+        b = g[min(i + 1, g.size - 1)]
+        if b <= a:
+            return x0, True, "grid point"
+        res = minimize_scalar(lambda v: float(np.sum(fun(np.array([v])) ** 2)), bounds=(a, b), method="bounded",
+                              options={"xatol": 1e-4 * (hi[0] - lo[0])})
+        x = np.array([res.x]) if res.fun <= costs[jb] else x0
+        return x, bool(res.success), str(res.message)
+    scale = np.maximum(np.abs(hi - lo) * 0.01, 1e-6)
+    try:
+        res = least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale=scale, diff_step=1e-3, max_nfev=200)
+        return res.x, bool(res.success), str(res.message)
+    except (ValueError, np.linalg.LinAlgError) as exc:  # pragma: no cover - defensive
+        return x0, False, str(exc)
+
+
+def _pieces(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> dict[str, tuple[NDArray, NDArray, float]]:
+    """Per channel: (A_c = J̃ᵀJ̃, S_c HAC long-run covariance of the scores, mean square of ẽ)."""
+    k = x.size
+    eff = {cand.name: cand.params(x)}
+    res = {c.name: c.residual(eff, rows[c.name]) / problem.sigma[c.name] for c in chans}
+    # Hold discrete nuisance choices (surface class) at the solution while differentiating.
+    for c in chans:
+        c.freeze(True)
+    jac = {c.name: np.zeros((res[c.name].size, k)) for c in chans}
+    try:
+        for j in range(k):
+            h = max(abs(x[j]) * 1e-3, (hi[j] - lo[j]) * 1e-4)
+            xp = x.copy()
+            xm = x.copy()
+            xp[j] = min(x[j] + h, hi[j])
+            xm[j] = max(x[j] - h, lo[j])
+            if xp[j] == xm[j]:
+                continue
+            ep = {cand.name: cand.params(xp)}
+            em = {cand.name: cand.params(xm)}
+            for c in chans:
+                rp = c.residual(ep, rows[c.name]) / problem.sigma[c.name]
+                rm = c.residual(em, rows[c.name]) / problem.sigma[c.name]
+                jac[c.name][:, j] = (rp - rm) / (xp[j] - xm[j])
+    finally:
+        for c in chans:
+            c.freeze(False)
+    out = {}
+    for c in chans:
+        J = jac[c.name]
+        e = res[c.name]
+        tid = c.tidx[rows[c.name]]
+        _, inv = np.unique(tid, return_inverse=True)
+        T = inv.max() + 1 if inv.size else 0
+        g = np.zeros((T, k))
+        for j in range(k):
+            g[:, j] = np.bincount(inv, weights=J[:, j] * e, minlength=T)
+        S = hac_meat(g) if T > 3 else np.zeros((k, k))
+        out[c.name] = (J.T @ J, S, float(np.mean(e * e)) if e.size else 0.0)
+    return out
+
+
+def _kappa(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> dict[str, float]:
+    out = {}
+    for name, (A, S, ms) in _pieces(problem, cand, x, chans, rows, lo, hi).items():
+        ta = float(np.trace(A))
+        out[name] = float(np.clip(np.trace(S) / (ms * ta), 1.0, 1e4)) if ta > 0 and ms > 0 else 1.0
+    return out
+
+
+def sandwich(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> NDArray:
+    """HAC sandwich covariance of the fitted parameters (module doc)."""
+    k = x.size
+    pieces = _pieces(problem, cand, x, chans, rows, lo, hi)
+    A = sum(p[0] for p in pieces.values())
+    meat = sum(p[1] for p in pieces.values())
+    try:
+        Ainv = np.linalg.pinv(A)
+    except np.linalg.LinAlgError:  # pragma: no cover
+        return np.full((k, k), np.nan)
+    return Ainv @ meat @ Ainv
+
+
+def held_out(problem: Problem, name: str | None) -> HeldOut:
+    """Held-out sums of squares of every channel for candidate ``name`` (None = null)."""
+    sse = {c: 0.0 for c in problem.channels}
+    n = {c: 0 for c in problem.channels}
+    resid = {c: np.full(ch.m, np.nan) for c, ch in problem.channels.items()}
+    fold_params = []
+    for fold in (0, 1):
+        eff: Effects = {}
+        if name is not None:
+            fr = fit(problem, name, fold=fold, with_cov=False)
+            eff = {name: fr.params}
+            fold_params.append(fr.params)
+        for cname, ch in problem.channels.items():
+            rows = ch.fold == fold
+            if not rows.any():
+                continue
+            r = ch.residual(eff if (name is None or name in ch.effects) else {}, rows)
+            resid[cname][rows] = r
+            sse[cname] += float(np.sum(r * r))
+            n[cname] += int(r.size)
+    return HeldOut(name or "null", sse, n, resid, fold_params)
+
+
+def score(problem: Problem, null: HeldOut, cand: HeldOut) -> tuple[float, dict[str, float]]:
+    """Held-out log-likelihood ratio of a candidate against the null (module doc)."""
+    per = {}
+    for c, ch in problem.channels.items():
+        s0, s1 = null.sse[c], cand.sse[c]
+        if not (s0 > 0 and s1 > 0):
+            per[c] = 0.0
+            continue
+        # The noise is what is left once the candidate explains its part: the effective sample
+        # size comes from the candidate's held-out residual (equal to the null's when it explains nothing).
+        ok = np.isfinite(cand.resid[c])
+        neff = n_effective(cand.resid[c][ok], ch.tidx[ok])
+        per[c] = 0.5 * neff * math.log(s0 / s1)
+    return float(sum(per.values())), per
