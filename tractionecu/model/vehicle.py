@@ -21,10 +21,31 @@ Rolling resistances act against the direction of motion (sign of ω resp. v).
 
 from __future__ import annotations
 
+import math
+import os
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..config import G, VehicleParams
+
+JIT_ENV = "TRACTIONECU_JIT"
+"""Environment variable: ``0`` runs the filter core in plain numpy even when numba is installed."""
+
+
+def _load_njit():
+    if os.environ.get(JIT_ENV, "1").strip().lower() in ("0", "false", "no", "off"):
+        return None
+    try:
+        from numba import njit
+    except ImportError:  # pragma: no cover - numba is a dependency; the numpy path stays as fallback
+        return None
+    return njit
+
+
+njit = _load_njit()
+"""``numba.njit`` when the compiled filter core is in use, else None (plain numpy)."""
+JIT = njit is not None
 
 N_WHEELS = 4
 WHEELS = ("FL", "FR", "RL", "RR")
@@ -100,6 +121,12 @@ class FilterModel:
         self.m = params.mass_kg
         self.J = params.wheel_inertia_kgm2
         self.rho_t = params.rho_t
+        # Constants of the compiled step: m g, the deflection stiffness of eq. 9, the 30 % limit, r0, ρ_t, J, m.
+        k = 2.0 * np.pi * params.tyre_pressure_pa * np.sqrt(params.tyre_width_m / 2.0 * params.r0_m)
+        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, params.r0_m, self.rho_t, self.J, self.m])
+        self._fzf_key: float | None = None
+        self._floats = (math.nan,) * 4
+        self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def loads(self, u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(F_z (..., 4) [N], r_d (..., 4) [m]) from the inputs."""
@@ -124,10 +151,81 @@ class FilterModel:
         dx[..., IX_V] = dv
         return dx
 
+    def load_floats(self, fzf: float) -> tuple[float, float, float, float]:
+        """(F_z front, F_z rear [N], r_d front, r_d rear [m]) of one front-axle load F_zf [N].
+
+        Plain floats, equal to :func:`wheel_loads` and :func:`rolling_radius`
+        (same operations, bit for bit); the last F_zf is cached.
+        """
+        if fzf != self._fzf_key:
+            w_n, k, lim, r0 = self._kc[0], self._kc[1], self._kc[2], self._kc[3]
+            ff = 0.5 * fzf
+            fr = 0.5 * (w_n - fzf)
+            rd = []
+            for fz in (ff, fr):
+                d = (0.0 if fz <= 0.0 else fz) if not fz > 0.0 else fz    # clip(F_z, 0, None), NaN kept
+                d = d / k
+                rd.append(r0 - (lim if d > lim else d))
+            self._floats = (float(ff), float(fr), float(rd[0]), float(rd[1]))
+            self._fzf_key = fzf
+            self._consts = None
+        return self._floats
+
+    def _load_terms(self, fzf: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(F_z, r_d, r_d ρ_t F_z) arrays (4,) for one front-axle load, kept until F_zf changes."""
+        ff, fr, rdf, rdr = self.load_floats(fzf)
+        if self._consts is None:
+            fz = np.array([ff, ff, fr, fr])
+            r_d = np.array([rdf, rdf, rdr, rdr])
+            self._consts = (fz, r_d, r_d * self.rho_t * fz)
+        return self._consts
+
     def step(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
-        """One RK4 step of length dt [s] for all states at once (paper section 3.1)."""
-        fz, r_d = self.loads(u)
-        return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
+        """One RK4 step of length dt [s] for all states at once (paper section 3.1).
+
+        With μ, ρ_s and u held over the step, ω̇ and v̇ depend on ω and v only
+        through sign(ω) and sign(v) (rolling resistance against the motion).
+        When no state's ω or v changes sign within the step (checked on the
+        stage states x + dt/2·k1 and x + dt·k1), all four RK4 stages are equal,
+        k1 = k2 = k3 = k4, and the step is evaluated from k1 alone with the
+        same arithmetic as :func:`rk4`, so the result is bit for bit the full
+        RK4 step.  Otherwise the four stages are evaluated.  With numba (see
+        :data:`JIT`) the four stages run compiled, in the same operation order.
+        """
+        if u.ndim != 1 or x.ndim > 2 or x.shape[-1] != N_STATE:
+            fz, r_d = self.loads(u)
+            return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
+        if JIT and x.dtype == np.float64 and u.dtype == np.float64 and u.shape[0] == N_INPUT:
+            # Compiled RK4 (all four stages, same operation order as rk4(rhs)).
+            if x.ndim == 1:
+                return _rk4_points(np.ascontiguousarray(x).reshape(1, N_STATE), np.ascontiguousarray(u),
+                                   self._kc, float(dt))[0]
+            return _rk4_points(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, float(dt))
+        fz, r_d, c = self._load_terms(float(u[IU_FZF]))
+        k = np.empty(x.shape[:-1] + (5,))
+        fh = x[..., IX_MU] * fz                                          # eq. 4
+        kom = k[..., IX_OMEGA]
+        np.subtract(u[IU_MD], r_d * fh, out=kom)                         # eq. 2
+        kom -= c * np.sign(x[..., IX_OMEGA])
+        kom /= self.J
+        kv = k[..., IX_V]
+        np.subtract(fh.sum(axis=-1), u[IU_FDX], out=kv)                  # eq. 8
+        kv -= x[..., IX_RHO] * self.m * G * np.sign(x[..., IX_V])
+        kv /= self.m
+        x5 = x[..., :5]
+        y = dt * k
+        y += x5
+        y *= x5
+        if not (y > 0.0).all():      # a sign change (or a zero / non-finite speed): all four stages
+            return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
+        k2 = 2.0 * k
+        s = k + k2                   # k1 + 2 k2 + 2 k3 + k4 with k1 = k2 = k3 = k4, same order as rk4()
+        s += k2
+        s += k
+        s *= dt / 6.0
+        out = x + dt / 6.0 * 0.0     # the zero increment of μ and ρ_s, as in rk4()
+        out[..., :5] += s
+        return out
 
     def outputs(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """y = h(x) = (ω1..4, v)."""
@@ -141,3 +239,93 @@ def rk4(f, x: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     k3 = f(x + 0.5 * dt * k2)
     k4 = f(x + dt * k3)
     return x + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+def _sign(a: float) -> float:
+    """np.sign of one float: ±1, 0 for ±0, NaN for NaN."""
+    if a > 0.0:
+        return 1.0
+    if a < 0.0:
+        return -1.0
+    if a == 0.0:
+        return 0.0
+    return a
+
+
+def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, ff, fr, rdf, rdr, cf, cr, J, m):  # pragma: no cover - compiled
+    """(ω̇1..4, v̇) of one state, with FilterModel.rhs's operation order.
+
+    ff, fr: front / rear wheel load [N]; rdf, rdr: their rolling radii [m];
+    cf, cr: r_d ρ_t F_z of a front / rear wheel.
+    """
+    fh0 = mu0 * ff
+    fh1 = mu1 * ff
+    fh2 = mu2 * fr
+    fh3 = mu3 * fr
+    return (((u[0] - rdf * fh0) - cf * _sign(w0)) / J,
+            ((u[1] - rdf * fh1) - cf * _sign(w1)) / J,
+            ((u[2] - rdr * fh2) - cr * _sign(w2)) / J,
+            ((u[3] - rdr * fh3) - cr * _sign(w3)) / J,
+            ((((fh0 + fh1) + fh2) + fh3 - u[5]) - rho * m * G * _sign(v)) / m)
+
+
+def _radius(fz, r0, k, lim):                                  # pragma: no cover - compiled
+    """rolling_radius() of one load: r0 − min(max(F_z, 0)/k, lim)."""
+    if fz < 0.0:
+        fz = 0.0
+    d = fz / k
+    if d > lim:
+        d = lim
+    return r0 - d
+
+
+def _rk4_points(x, u, kc, dt):                              # pragma: no cover - compiled
+    """Classical RK4 over dt for every row of x (N, 10), as rk4(FilterModel.rhs) computes it.
+
+    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m) (see FilterModel._kc).  The
+    stage states of μ and ρ_s are x + h·0 (their derivative is zero), as in rk4().
+    """
+    w_n, k, lim, r0, rho_t, J, m = kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6]
+    fzf = u[4]
+    ff = 0.5 * fzf                     # wheel_loads()
+    fr = 0.5 * (w_n - fzf)
+    rdf = _radius(ff, r0, k, lim)
+    rdr = _radius(fr, r0, k, lim)
+    cf = rdf * rho_t * ff
+    cr = rdr * rho_t * fr
+    npt = x.shape[0]
+    out = np.empty_like(x)
+    h = 0.5 * dt
+    w = dt / 6.0
+    zh = h * 0.0
+    zd = dt * 0.0
+    zw = w * 0.0
+    for p in range(npt):
+        x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
+        m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m)
+        h0, h1, h2, h3, hr = m0 + zh, m1 + zh, m2 + zh, m3 + zh, r + zh
+        b0, b1, b2, b3, b4 = _rhs5(x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4,
+                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m)
+        c0, c1, c2, c3, c4 = _rhs5(x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4,
+                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m)
+        d0, d1, d2, d3, d4 = _rhs5(x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4,
+                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m)
+        out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
+        out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
+        out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
+        out[p, 3] = x3 + w * (((a3 + 2.0 * b3) + 2.0 * c3) + d3)
+        out[p, 4] = x4 + w * (((a4 + 2.0 * b4) + 2.0 * c4) + d4)
+        out[p, 5] = m0 + zw
+        out[p, 6] = m1 + zw
+        out[p, 7] = m2 + zw
+        out[p, 8] = m3 + zw
+        out[p, 9] = r + zw
+    return out
+
+
+if JIT:
+    _sign = njit(cache=True, inline="always")(_sign)
+    _rhs5 = njit(cache=True, inline="always")(_rhs5)
+    _radius = njit(cache=True, inline="always")(_radius)
+    _rk4_points = njit(cache=True)(_rk4_points)
