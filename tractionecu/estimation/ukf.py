@@ -62,8 +62,12 @@ from typing import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg.lapack import dgesv, dpotrf
 
 from ..errors import EstimatorError
+from ..model.vehicle import FilterModel
+from . import _kernels
+from ._kernels import JIT
 
 ProcessFn = Callable[[NDArray[np.float64], NDArray[np.float64], float], NDArray[np.float64]]
 
@@ -109,6 +113,25 @@ class UnscentedFilter:
         accepted on the next one (and its count restarts): a persistent
         discrepancy is the model's, not the sensor's, and rejecting it for ever
         would lock the filter out (gating-induced divergence).
+
+    Implementation notes (the filter runs at 100 Hz on a 10-state model, so
+    the cost is the number of numpy calls, not arithmetic):
+
+    * with numba (``_kernels``), sigma points, unscented transform and update
+      are compiled; when ``fx`` is :meth:`FilterModel.step
+      <tractionecu.model.vehicle.FilterModel.step>` the whole predict,
+      including the model's compiled RK4 over all sigma points, is one call;
+    * without numba, the sigma points are x + E·Lᵀ with L the lower Cholesky factor of P
+      (LAPACK ``potrf``) and E the constant (2n+1, n) matrix [0; √(n+λ)·I;
+      −√(n+λ)·I], one matrix product;
+    * with all W_c ≥ 0 the predicted covariance is Dᵀ D + Q with the weighted
+      deviations D = √W_c (χ − x̂), a product that numpy evaluates with
+      ``syrk`` and that is therefore exactly symmetric (Q must be symmetric,
+      as a covariance is);
+    * an update whose measurements are finite, contiguous in the state and
+      within the gate runs without fancy indexing; anything else (NaN/Inf
+      components, gating, index arrays) takes the general path, with the
+      same results.
     """
 
     def __init__(self, fx: ProcessFn, x0: ArrayLike, P0: ArrayLike, meas_index: Sequence[int], *,
@@ -123,17 +146,30 @@ class UnscentedFilter:
         self.alpha, self.beta, self.kappa = float(alpha), float(beta), float(kappa)
         self.lam, self.Wm, self.Wc = merwe_weights(n, self.alpha, self.beta, self.kappa)
         self._c = n + self.lam
-        self.x_lo = np.full(n, -np.inf) if x_lo is None else np.asarray(x_lo, dtype=float)
-        self.x_hi = np.full(n, np.inf) if x_hi is None else np.asarray(x_hi, dtype=float)
+        self.x_lo = np.full(n, -np.inf) if x_lo is None else np.array(x_lo, dtype=float).reshape(n)
+        self.x_hi = np.full(n, np.inf) if x_hi is None else np.array(x_hi, dtype=float).reshape(n)
         self._clamped_dims = np.flatnonzero(np.isfinite(self.x_lo) | np.isfinite(self.x_hi))
+        self._bounds = [(int(j), float(self.x_lo[j]), float(self.x_hi[j])) for j in self._clamped_dims]
         self.gate_chi2 = float(gate_chi2)
         self.gate_max_consecutive = int(gate_max_consecutive)
         self._gate_run = np.zeros(self.meas_index.size, dtype=np.int64)
+        self._gate_run_any = False
         self.gate_bypassed = 0
         """Number of components accepted after ``gate_max_consecutive`` gated updates in a row."""
         self._sig = np.empty((2 * n + 1, n))
         self._eye = np.eye(n)
+        # Sigma-point offsets: rows 1..n and n+1..2n of E·Lᵀ are ±√(n+λ)·(row k of Lᵀ).
+        self._E1 = np.concatenate([np.zeros((1, n)), np.eye(n), -np.eye(n)])
+        self._Ec = self._E1 * math.sqrt(self._c)
+        self._sqrt_wc = np.sqrt(self.Wc)[:, None] if bool((self.Wc >= 0.0).all()) else None
+        self._sqrt_c = math.sqrt(self._c)
+        # The project's own process model: predict runs in one compiled call (same RK4 code as fx).
+        owner = getattr(fx, "__self__", None)
+        self._model = owner if (JIT and isinstance(owner, FilterModel) and n == 10
+                                and getattr(fx, "__func__", None) is FilterModel.step) else None
+        self._ksk: NDArray[np.float64] | None = None
         self._slice_cache: dict[tuple, NDArray[np.intp]] = {}
+        self._fast: dict[tuple, tuple | None] = {}
         # Counters (cumulative) and last-step diagnostics.
         self.chol_repairs = 0
         """Number of Cholesky failures repaired with jitter / eigenvalue clipping."""
@@ -190,12 +226,18 @@ class UnscentedFilter:
     # ------------------------------------------------------------------ predict
     def sigma_points(self) -> NDArray[np.float64]:
         """Sigma points of N(x, P), (2n+1, n); a failed factorisation is repaired."""
-        n = self.n
-        U = self._chol(self._c * self.P).T
         sig = self._sig
-        sig[0] = self.x
-        np.add(self.x, U, out=sig[1:n + 1])
-        np.subtract(self.x, U, out=sig[n + 1:])
+        if JIT:
+            if _kernels.sigma_points(self.x, self.P, self._sqrt_c, sig):
+                return sig
+        else:
+            L, info = dpotrf(self.P, lower=1, clean=1)
+            if info == 0:
+                np.matmul(self._Ec, L.T, out=sig)
+                sig += self.x
+                return sig
+        np.matmul(self._E1, self._chol(self._c * self.P).T, out=sig)
+        sig += self.x
         return sig
 
     def predict(self, u: NDArray[np.float64], dt: float, Q: NDArray[np.float64]) -> None:
@@ -205,19 +247,64 @@ class UnscentedFilter:
         zero), so clamping is done after the update only.
         """
         self.repaired_last = False
+        model = self._model
+        if model is not None and u.dtype == np.float64 and u.shape == (6,):
+            n = self.n
+            x = np.empty(n)
+            P = np.empty((n, n))
+            code = _kernels.predict_model(self.x, self.P, self._sqrt_c, np.ascontiguousarray(u), model._kc,
+                                          float(dt), self.Wm, self.Wc, np.ascontiguousarray(Q, dtype=np.float64),
+                                          self._sig, x, P)
+            if code == 0:
+                self.x = x
+                self.P = P
+                return
+            if code == 2:
+                raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
         sf = self.fx(self.sigma_points(), u, dt)
+        if JIT and sf.dtype == np.float64 and sf.shape == self._sig.shape:
+            n = self.n
+            x = np.empty(n)
+            P = np.empty((n, n))
+            if not _kernels.mean_cov(np.ascontiguousarray(sf), self.Wm, self.Wc,
+                                     np.ascontiguousarray(Q, dtype=np.float64), x, P):
+                raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
+            self.x = x
+            self.P = P
+            return
         x = self.Wm @ sf
         d = sf - x
-        P = (d.T * self.Wc) @ d
-        P += Q
-        if not math.isfinite(float(x.sum()) + float(P.trace())):
+        sw = self._sqrt_wc
+        if sw is not None:
+            d *= sw
+            P = d.T @ d                      # syrk: exactly symmetric
+            P += Q
+        else:
+            P = (d.T * self.Wc) @ d
+            P += Q
+            P += P.T
+            P *= 0.5
+        # A non-finite sigma point makes x̂ or a deviation non-finite, and so a diagonal entry of P.
+        if not math.isfinite(P.trace()):
             raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
         self.x = x
-        P += P.T
-        P *= 0.5
         self.P = P
 
     # ------------------------------------------------------------------ update
+    def _fast_spec(self, idx: slice) -> tuple | None:
+        """(index array, state slice, m, I_m) of an output slice whose states are contiguous, else None."""
+        key = (idx.start, idx.stop, idx.step)
+        if key not in self._fast:
+            comp = np.arange(self.meas_index.size)[idx]
+            self._slice_cache[key] = comp
+            st = self.meas_index[comp]
+            m = int(st.size)
+            if m == 0 or st[-1] - st[0] != m - 1 or (m > 1 and (np.diff(st) != 1).any()):
+                self._fast[key] = None
+            else:
+                self._fast[key] = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m))
+        return self._fast[key]
+
     def update(self, z: ArrayLike, idx: ArrayLike | slice, R: ArrayLike) -> None:
         """Measurement update with output components ``idx``, values z and noise R.
 
@@ -230,13 +317,105 @@ class UnscentedFilter:
         R = np.asarray(R, dtype=float)
         self.last_gated = 0
         if isinstance(idx, slice):
-            key = (idx.start, idx.stop, idx.step)
-            cached = self._slice_cache.get(key)
-            if cached is None:
-                cached = self._slice_cache[key] = np.arange(self.meas_index.size)[idx]
-            idx = cached
+            spec = self._fast_spec(idx)
+            if spec is not None and R.ndim == 1 and z.shape == (spec[2],):
+                if self._update_fast(z, R, spec):
+                    return
+            idx = self._slice_cache[(idx.start, idx.stop, idx.step)]
         else:
             idx = np.asarray(idx, dtype=np.intp)
+        self._update_general(z, idx, R)
+
+    def ksk_diag(self) -> NDArray[np.float64]:
+        """diag(K S Kᵀ) = Σ_j K_ij C_ij of the last update (the covariance it removed), (n,)."""
+        if self._ksk is None:
+            self._ksk = (self.last_K * self.last_C).sum(axis=1)
+        return self._ksk
+
+    def _update_fast(self, z: NDArray[np.float64], R: NDArray[np.float64], spec: tuple) -> bool:
+        """Update of contiguous states with a diagonal R; False (nothing changed) if a component
+        is non-finite or outside the gate, which the general path then handles."""
+        comp, sl, m, eye = spec
+        P = self.P
+        if JIT:
+            n = self.n
+            x = np.empty(n)
+            Pn = np.empty((n, n))
+            work = np.empty((n, m + 2))
+            small = np.empty((2 * m + 1, m))
+            code, nis, clamped = _kernels.update_block(self.x, P, np.ascontiguousarray(z), np.ascontiguousarray(R),
+                                                       sl.start, self.gate_chi2, self.x_lo, self.x_hi,
+                                                       x, Pn, work, small)
+            if code != _kernels.OK:
+                return False
+            K = work[:, :m]
+            dx = work[:, m]
+            ksk = work[:, m + 1]
+            S = small[:m]
+            nu = small[2 * m]
+            if self._gate_run_any:
+                run = self._gate_run
+                run[comp] = 0
+                self._gate_run_any = bool(run.any())
+            self.x = x
+            self.P = Pn
+            if clamped:
+                self.clamp_events += 1
+            self.last_nis = nis
+            self.last_dof = m
+            self.last_idx = comp
+            self.last_innov = nu
+            self.last_dx = dx
+            self.last_S = S
+            self.last_K = K
+            self.last_C = P[:, sl]
+            self._ksk = ksk
+            return True
+        self._ksk = None
+        S = P[sl, sl].copy()
+        S.ravel()[::m + 1] += R
+        nu = z - self.x[sl]
+        g = self.gate_chi2
+        for q, s in zip(nu.tolist(), S.diagonal().tolist()):
+            q *= q
+            if not (q <= g * s and q < math.inf):     # NaN/Inf or gated: general path
+                return False
+        if self._gate_run_any:
+            run = self._gate_run
+            run[comp] = 0
+            self._gate_run_any = bool(run.any())
+        Si, info = dgesv(S, eye)[2:]
+        if info != 0:
+            Si = np.linalg.inv(S)                     # singular S: raises LinAlgError as before
+        C = P[:, sl]
+        K = C @ Si
+        dx = K @ nu
+        x = self.x + dx
+        P = P - K @ C.T
+        P += P.T
+        P *= 0.5
+        self.P = P
+        xl = x.tolist()
+        for j, lo, hi in self._bounds:
+            if not lo <= xl[j] <= hi:
+                np.minimum(np.maximum(x, self.x_lo), self.x_hi, out=self.x)
+                self.clamp_events += 1
+                break
+        else:
+            self.x = x
+        self.last_nis = float(nu @ (Si @ nu))
+        self.last_dof = m
+        self.last_idx = comp
+        self.last_innov = nu
+        self.last_dx = dx
+        self.last_S = S
+        self.last_K = K
+        self.last_C = C
+        return True
+
+    def _update_general(self, z: NDArray[np.float64], idx: NDArray[np.intp], R: NDArray[np.float64]) -> None:
+        """Any subset of outputs, non-finite components dropped, per-component gating."""
+        self._ksk = None
         if not math.isfinite(float(z.sum())):
             ok = np.isfinite(z)
             self.nonfinite_rejected += int((~ok).sum())
@@ -282,10 +461,12 @@ class UnscentedFilter:
                     self.gated_total += int((~keep).sum())
                     idx, st, nu = idx[keep], st[keep], nu[keep]
                     if st.size == 0:
+                        self._gate_run_any = bool(run.any())
                         self._no_update()
                         return
                     S = S[np.ix_(keep, keep)]
                     C = P[:, st]
+            self._gate_run_any = bool(run.any())
         Si = np.linalg.inv(S)
         K = C @ Si
         dx = K @ nu
@@ -307,6 +488,7 @@ class UnscentedFilter:
         self.last_C = C
 
     def _no_update(self) -> None:
+        self._ksk = None
         self.last_nis = math.nan
         self.last_dof = 0
         self.last_idx = np.empty(0, dtype=np.intp)
