@@ -58,8 +58,10 @@ from scipy.special import erfcinv
 from ..config import G, VehicleParams, _toml_value, _validate, from_mapping, to_toml
 from ..errors import ConfigError, EstimatorError
 from ..model.mucurve import SOIL_CLASSES
-from ..model.vehicle import IX_MU, IX_RHO, IX_V, N_STATE, FilterModel, slip as slip_fn
+from ..model.vehicle import IX_MU, IX_RHO, IX_V, N_STATE, FilterModel
 from ..sim.sensors import SensorSpec
+from . import _kernels
+from ._kernels import JIT
 from .curve import CurveEstimator
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzyConfig, FuzzySupervisor
 from .ukf import UnscentedFilter
@@ -250,6 +252,10 @@ class Estimate:
 
 # ----------------------------------------------------------------------------- estimator
 _INPUT_KEYS = ("Md", "Fzf", "Fdx")
+_ABSENT = object()
+_SL_W = slice(0, 4)
+_SL_WV = slice(0, 5)
+_SL_V = slice(4, 5)
 
 
 class Estimator:
@@ -285,8 +291,6 @@ class Estimator:
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._pin_T = 1.0 / sp.loadpin_rate_hz
-        self._timeouts = {"Md": cfg.torque_timeout_s, "Fzf": cfg.axle_timeout_s, "Fdx": cfg.draft_timeout_s}
-        self._tbits = {"Md": TORQUE_TIMEOUT, "Fzf": AXLE_TIMEOUT, "Fdx": DRAFT_TIMEOUT}
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -297,6 +301,7 @@ class Estimator:
         self.t: float | None = None
         self.t_init: float | None = None
         self._u = np.full(6, np.nan)
+        self._md_sum = math.nan
         self._t_in = {k: -math.inf for k in _INPUT_KEYS}
         self._t_omega = -math.inf
         self._t_v = -math.inf
@@ -317,7 +322,6 @@ class Estimator:
                                      switch_min_delta=cfg.curve_switch_min_delta)
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
-        self._loads_key = math.nan
         self._fz = np.zeros(4)
         self._rd = np.full(4, self.vehicle.r0_m)
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
@@ -325,15 +329,21 @@ class Estimator:
 
     # ------------------------------------------------------------------ noise
     def _loads(self) -> None:
-        fzf = self._u[4]
-        if fzf != self._loads_key:
-            fz, rd = self.model.loads(self._u)
-            self._fz, self._rd = fz, rd
-            self._loads_key = fzf
+        """self._fz, self._rd (4,) for the held F_zf (cached by the model per F_zf)."""
+        self._fz, self._rd, _ = self.model._load_terms(float(self._u[4]))
 
     def _R_omega(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
         s = self._w_abs + self._w_rel * np.abs(z)
         return s * s + self._w_q2
+
+    def _R_list(self, w: list[float]) -> list[float]:
+        """_R_omega of the wheel speeds as floats (same operations)."""
+        a, r, q2 = self._w_abs, self._w_rel, self._w_q2
+        out = []
+        for x in w:
+            s = a + r * abs(x)
+            out.append(s * s + q2)
+        return out
 
     def _Q(self, dt: float) -> NDArray[np.float64]:
         """Process noise covariance for one step of dt [s] (module doc).
@@ -344,10 +354,16 @@ class Estimator:
         """
         if dt != self._Qdt or self._Qbase is None:
             self._rebuild_Q(dt)
+        if not self.cfg.input_noise:
+            return self._Qbase  # type: ignore[return-value]
+        if JIT:
+            Q = np.empty((N_STATE, N_STATE))
+            _kernels.add_torque_noise(self._Qbase, self._u, self._tq_abs, self._tq_rel, self._tq_q2,
+                                      self._tq_gain, Q)
+            return Q
         Q = self._Qbase.copy()  # type: ignore[union-attr]
-        if self.cfg.input_noise:
-            sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
-            Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
+        sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
+        Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
         return Q
 
     def _rebuild_Q(self, dt: float) -> None:
@@ -399,35 +415,51 @@ class Estimator:
         t = float(t)
         status = 0
         predict_only = False
-        self.counters["steps"] += 1
+        counters = self.counters
+        counters["steps"] += 1
+        t_in = self._t_in
+        u = self._u
         # ---- inputs (zero-order hold, rejection)
         if inputs:
-            for key in _INPUT_KEYS:
-                if key not in inputs:
-                    continue
-                val = inputs[key]
-                if key == "Md":
-                    arr = None if val is None else np.asarray(val, dtype=float)
-                    if arr is None or arr.shape != (4,) or not math.isfinite(float(arr.sum())):
-                        status |= INPUT_REJECTED
-                        continue
-                    self._u[:4] = arr
+            val = inputs.get("Md", _ABSENT)
+            if val is not _ABSENT:
+                arr = None if val is None else np.asarray(val, dtype=float)
+                if arr is None or arr.shape != (4,):
+                    status |= INPUT_REJECTED
                 else:
-                    fv = math.nan if val is None else float(val)
-                    if not math.isfinite(fv):
+                    a0, a1, a2, a3 = arr.tolist()
+                    sm = a0 + a1 + a2 + a3           # = arr.sum(): also catches an overflowing sum
+                    if math.isfinite(sm):
+                        u[:4] = arr
+                        self._md_sum = sm
+                        t_in["Md"] = t
+                    else:
                         status |= INPUT_REJECTED
-                        continue
-                    self._u[4 if key == "Fzf" else 5] = fv
-                self._t_in[key] = t
+            for key, i in (("Fzf", 4), ("Fdx", 5)):
+                val = inputs.get(key, _ABSENT)
+                if val is _ABSENT:
+                    continue
+                fv = math.nan if val is None else float(val)
+                if math.isfinite(fv):
+                    u[i] = fv
+                    t_in[key] = t
+                else:
+                    status |= INPUT_REJECTED
         if status & INPUT_REJECTED:
-            self.counters["rejected_inputs"] += 1
+            counters["rejected_inputs"] += 1
             predict_only = True
-        for key in _INPUT_KEYS:
-            if t - self._t_in[key] > self._timeouts[key]:
-                status |= self._tbits[key]
-                predict_only = True
+        if t - t_in["Md"] > cfg.torque_timeout_s:
+            status |= TORQUE_TIMEOUT
+            predict_only = True
+        if t - t_in["Fzf"] > cfg.axle_timeout_s:
+            status |= AXLE_TIMEOUT
+            predict_only = True
+        if t - t_in["Fdx"] > cfg.draft_timeout_s:
+            status |= DRAFT_TIMEOUT
+            predict_only = True
         # ---- measurements
         omega = v_meas = None
+        wl: list[float] = []
         if measurements:
             om = measurements.get("omega")
             if om is not None:
@@ -435,14 +467,16 @@ class Estimator:
                 if omega.shape != (4,):
                     omega = None
                     status |= INPUT_REJECTED
-                elif math.isfinite(float(omega.sum())):
-                    self._t_omega = t
                 else:
-                    fin = np.isfinite(omega)
-                    status |= INPUT_REJECTED
-                    self.counters["rejected_measurements"] += int((~fin).sum())
-                    if fin.any():
+                    wl = omega.tolist()
+                    if math.isfinite(wl[0] + wl[1] + wl[2] + wl[3]):
                         self._t_omega = t
+                    else:
+                        fin = np.isfinite(omega)
+                        status |= INPUT_REJECTED
+                        counters["rejected_measurements"] += int((~fin).sum())
+                        if fin.any():
+                            self._t_omega = t
             vm = measurements.get("v")
             if vm is not None:
                 v_meas = float(vm)
@@ -451,20 +485,20 @@ class Estimator:
                     self._last_v_meas = v_meas
                 else:
                     status |= INPUT_REJECTED
-                    self.counters["rejected_measurements"] += 1
+                    counters["rejected_measurements"] += 1
                     v_meas = None
         if t - self._t_omega > cfg.wheel_timeout_s:
             status |= WHEEL_TIMEOUT
         if t - self._t_v > cfg.gps_timeout_s:
             status |= GPS_TIMEOUT
         # ---- initialisation
-        if self.ukf is None:
+        ukf = self.ukf
+        if ukf is None:
             if (omega is not None and np.isfinite(omega).all()
-                    and all(math.isfinite(self._t_in[k]) for k in _INPUT_KEYS)):
+                    and all(math.isfinite(t_in[k]) for k in _INPUT_KEYS)):
                 self._init_filter(t, omega)
                 self.t = t
             return self._estimate(t, status | NOT_CONVERGED, None)
-        ukf = self.ukf
         # ---- predict
         dt = t - self.t if self.t is not None else 0.0
         if dt > 0.0:
@@ -472,7 +506,7 @@ class Estimator:
             h = dt / n_sub
             try:
                 for _ in range(n_sub):
-                    ukf.predict(self._u, h, self._Q(h))
+                    ukf.predict(u, h, self._Q(h))
             except EstimatorError:
                 self._recover(t)
                 status |= COV_REPAIRED
@@ -484,24 +518,25 @@ class Estimator:
         updated = False
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
-                z = np.append(omega, v_meas)
-                R = np.append(self._R_omega(omega), self._r_v)
-                ukf.update(z, slice(0, 5), R)
+                R = self._R_list(wl)
+                R.append(self._r_v)
+                wl.append(v_meas)
+                ukf.update(np.array(wl), _SL_WV, np.array(R))
             elif omega is not None:
-                ukf.update(omega, slice(0, 4), self._R_omega(omega))
+                ukf.update(omega, _SL_W, np.array(self._R_list(wl)))
             else:
-                ukf.update(np.array([v_meas]), slice(4, 5), np.array([self._r_v]))
+                ukf.update(np.array([v_meas]), _SL_V, np.array([self._r_v]))
             if ukf.last_gated:
                 status |= MEAS_GATED
-                self.counters["gated"] += bin(ukf.last_gated).count("1")
+                counters["gated"] += bin(ukf.last_gated).count("1")
             if ukf.last_dof:
                 updated = True
-                self.counters["updates"] += 1
+                counters["updates"] += 1
                 if cfg.adaptation:
-                    self._cm.push(ukf.last_dx, (ukf.last_K * ukf.last_C).sum(axis=1))
+                    self._cm.push(ukf.last_dx, ukf.ksk_diag())
         # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
         x = ukf.x
-        self._dyn.update(t, float(x[IX_V]), float(self._u[:4].sum()))
+        self._dyn.update(t, float(x[IX_V]), self._md_sum)
         if t - self._t_adapt >= cfg.adapt_period_s:
             self._t_adapt = t
             if cfg.adaptation:
@@ -510,7 +545,7 @@ class Estimator:
                 self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
             self._adapt_mu = self._f * float(self._A[IX_MU].mean())
             self._Qbase = None
-        self.counters["chol_repairs"] = ukf.chol_repairs
+        counters["chol_repairs"] = ukf.chol_repairs
         return self._estimate(t, status, x, updated)
 
     def _recover(self, t: float) -> None:
@@ -524,6 +559,21 @@ class Estimator:
             self.ukf.x = x.copy()  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ output
+    def _slip(self, w: list[float], v: float) -> list[float]:
+        """Slip per wheel (eq. 6, :func:`~tractionecu.model.vehicle.slip`) from floats, same operations."""
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        va = abs(v)
+        out = []
+        for x, rd in zip(w, (rdf, rdf, rdr, rdr)):
+            vw = abs(rd * x)
+            if vw < 1e-6 and va < 1e-6:
+                out.append(0.0)
+            elif va <= vw:
+                out.append(1.0 - va / vw)
+            else:
+                out.append(-1.0 + vw / va if va != 0.0 else math.nan)
+        return out
+
     def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, updated: bool = False) -> Estimate:
         cfg = self.cfg
         ukf = self.ukf
@@ -532,23 +582,26 @@ class Estimator:
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
                             nan4.copy(), np.full(N_STATE, np.nan), math.nan, self._f, status | NOT_CONVERGED, False,
                             0, self._curve_state.class_index)
-        self._loads()
-        omega = x[:4].copy()
-        v = float(x[IX_V])
-        s = slip_fn(omega, v, self._rd)
+        xl = x.tolist()
+        v = xl[IX_V]
+        s = np.array(self._slip(xl[:4], v))
         pd = ukf.P.diagonal().copy()
+        pl = pd.tolist()
         mu = x[IX_MU].copy()
+        omega = x[:4].copy()
         # curve parameter a (paper section 3.2) at the curve rate
         if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
             self._t_curve = t
-            sig_s = math.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
+            self._loads()
+            sig_s = math.sqrt(pl[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
             self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s)
+        c_mu = cfg.conv_sigma_mu ** 2
         conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
-                and float(pd[IX_MU].max()) < cfg.conv_sigma_mu ** 2 and float(pd[IX_RHO]) < cfg.conv_sigma_rho ** 2)
+                and pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu
+                and pl[IX_RHO] < cfg.conv_sigma_rho ** 2)
         if not conv:
             status |= NOT_CONVERGED
         cs = self._curve_state
-        adapt = self._adapt_mu
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,
-                        adapt, status, (status & INVALID_MASK) == 0, dof, cs.class_index)
+        return Estimate(t, mu, xl[IX_RHO], cs.a, cs.class_name, s, v, omega, pd, nis,
+                        self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index)
