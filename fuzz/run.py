@@ -70,6 +70,7 @@ def _where(exc: BaseException) -> str:
 def fuzz_worker(args: tuple) -> dict:
     """Run ``n`` inputs of one path in this process; returns counters and failures."""
     path, n, seed, worker, seeds, workroot, crash_dir, timeout_s = args
+    prev_disable = logging.root.manager.disable
     logging.disable(logging.CRITICAL)  # the code under test warns about every bad input
     rng = random.Random(f"{seed}:{path}:{worker}")
     workdir = Path(workroot) / f"{path}-{worker}"
@@ -78,14 +79,15 @@ def fuzz_worker(args: tuple) -> dict:
     inputs = cases = 0
     max_case_s, max_case_inputs = 0.0, 0
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    old = signal.signal(signal.SIGALRM, _alarm)
+    old = signal.signal(signal.SIGALRM, _alarm) if timeout_s > 0 else None
     t0 = time.perf_counter()
     try:
         while inputs < n:
             case = target.generate()
             c0 = time.perf_counter()
             kind = None
-            signal.setitimer(signal.ITIMER_REAL, timeout_s)
+            if timeout_s > 0:
+                signal.setitimer(signal.ITIMER_REAL, timeout_s)
             try:
                 k = target.run(case)
             except CaseTimeout as e:
@@ -95,7 +97,8 @@ def fuzz_worker(args: tuple) -> dict:
             except Exception as e:  # noqa: BLE001 - the point of the exercise
                 kind, exc, k = "unhandled", e, target.size(case)
             finally:
-                signal.setitimer(signal.ITIMER_REAL, 0)
+                if timeout_s > 0:
+                    signal.setitimer(signal.ITIMER_REAL, 0)
             dt = time.perf_counter() - c0
             if dt > max_case_s:
                 max_case_s, max_case_inputs = dt, k
@@ -119,10 +122,12 @@ def fuzz_worker(args: tuple) -> dict:
                            "case": target.dump(case)}
                     out.write_text(json.dumps(rec, indent=1) + "\n", encoding="utf-8")
                     f["size"], f["file"], f["message"] = size, str(out), str(exc)[:500]
+        if hasattr(target, "finish"):
+            target.finish()
     finally:
-        signal.signal(signal.SIGALRM, old)
-    if hasattr(target, "finish"):
-        target.finish()
+        if old is not None:
+            signal.signal(signal.SIGALRM, old)
+        logging.disable(prev_disable)
     elapsed = time.perf_counter() - t0
     return {
         "inputs": inputs, "cases": cases, "elapsed_s": elapsed, "counts": dict(target.counts),
@@ -185,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     ap.add_argument("--seed", type=int, default=1, help="random seed (a run is reproducible from it)")
     ap.add_argument("--crash-dir", type=Path, default=REPO / "fuzz" / "crashes", help="where failing inputs go")
-    ap.add_argument("--timeout", type=float, default=30.0, help="per-case limit [s]; longer counts as a hang")
+    ap.add_argument("--timeout", type=float, default=30.0, help="per-case limit [s]; longer counts as a hang (0: none)")
     ap.add_argument("--bounds", action=argparse.BooleanOptionalAction, default=True,
                     help="also run the memory-bound checks (huge single lines, floods)")
     a = ap.parse_args(argv)
