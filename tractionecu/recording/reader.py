@@ -12,7 +12,8 @@ A recording is a directory (see ``docs/architecture.md``)::
 
 CAN decoding
 ------------
-Every 29-bit frame is decoded by its PGN through :class:`~tractionecu.bus.dbc.Codec`,
+Frames are decoded in bulk (:mod:`.fastdecode`), with the same results as
+frame by frame (:func:`read_can_per_frame`).  Every 29-bit frame is decoded by its PGN through :class:`~tractionecu.bus.dbc.Codec`,
 whatever its source (and, for PDU1, destination) address.  Frames whose
 PGN the DBC lacks are skipped and counted per PGN (with the source
 addresses seen); frames of a known PGN with the wrong DLC are skipped and
@@ -380,6 +381,63 @@ class _SeriesBuilder:
 
 
 def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
+    """Read and decode ``can.log`` with the vectorised decoder (:mod:`.fastdecode`).
+
+    Same signals, statistics and counters as :func:`read_can_per_frame`.
+    """
+    from . import fastdecode
+
+    rs = ReadStats(source=path.name)
+    stats.files[path.name] = rs
+    try:
+        table = fastdecode.scan_candump(path, rs)
+    except OSError as e:
+        raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
+    messages, signals, claims = fastdecode.decode_table(table, codec, stats, MAX_EXAMPLES)
+    _check_frames(path, rs)
+    for msg, (_lines, arr, sa) in messages.items():
+        info = codec.message(msg)
+        ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s)
+        ms.count = int(arr.size)
+        vals, first, counts = np.unique(sa, return_index=True, return_counts=True)
+        for k in np.argsort(first, kind="stable").tolist():
+            ms.sources[int(vals[k])] = int(counts[k])
+        _message_times(ms, arr)
+    stats.address_claims = sorted((AddressClaim(sa, name, t, n, line) for (sa, _), (t, n, line, name) in claims.items()),
+                                  key=lambda c: (c.t_first, c.sa))
+    return {name: Series(np.asarray(t, dtype=float), np.asarray(v, dtype=float), sa.astype(np.int16),
+                         codec.signals[name].unit)
+            for name, (_lines, t, v, sa) in signals.items()}
+
+
+def _check_frames(path: Path, rs: ReadStats) -> None:
+    if rs.frames == 0 and rs.total_rejected == 0:
+        raise RecordingError(f"{path}: empty file (no candump line)")
+    if rs.frames == 0:
+        first = min(
+            ((lines[0], reason) for reason, lines in rs.examples.items() if lines),
+            default=(None, None),
+        )
+        where = f", line {first[0]}: {first[1]}" if first[0] is not None else ""
+        raise RecordingError(f"{path}: no valid candump frame in {rs.lines} lines{where}")
+
+
+def _message_times(ms: MessageStats, arr: np.ndarray) -> None:
+    ms.t_first, ms.t_last = float(arr[0]), float(arr[-1])
+    if arr.size >= 2:
+        dt = np.diff(arr)
+        ms.max_interval_s = float(dt.max())
+        if ms.nominal_period_s:
+            big = np.nonzero(dt > GAP_FACTOR * ms.nominal_period_s)[0]
+            ms.n_gaps = int(big.size)
+            ms.gaps = [(float(arr[i]), float(dt[i])) for i in big[:MAX_EXAMPLES]]
+
+
+def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
+    """Read and decode ``can.log`` frame by frame (candump line reader, :meth:`Codec.decode` per frame).
+
+    The reference for :func:`_read_can`'s vectorised decoding; same results.
+    """
     rs = ReadStats(source=path.name)
     stats.files[path.name] = rs
     builders: dict[str, _SeriesBuilder] = {}
@@ -436,27 +494,9 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Seri
     except OSError as e:
         raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
 
-    if rs.frames == 0 and rs.total_rejected == 0:
-        raise RecordingError(f"{path}: empty file (no candump line)")
-    if rs.frames == 0:
-        first = min(
-            ((lines[0], reason) for reason, lines in rs.examples.items() if lines),
-            default=(None, None),
-        )
-        where = f", line {first[0]}: {first[1]}" if first[0] is not None else ""
-        raise RecordingError(f"{path}: no valid candump frame in {rs.lines} lines{where}")
-
+    _check_frames(path, rs)
     for msg, ts in times.items():
-        ms = stats.messages[msg]
-        arr = np.asarray(ts)
-        ms.t_first, ms.t_last = float(arr[0]), float(arr[-1])
-        if arr.size >= 2:
-            dt = np.diff(arr)
-            ms.max_interval_s = float(dt.max())
-            if ms.nominal_period_s:
-                big = np.nonzero(dt > GAP_FACTOR * ms.nominal_period_s)[0]
-                ms.n_gaps = int(big.size)
-                ms.gaps = [(float(arr[i]), float(dt[i])) for i in big[:MAX_EXAMPLES]]
+        _message_times(stats.messages[msg], np.asarray(ts))
     stats.address_claims = sorted(claims.values(), key=lambda c: (c.t_first, c.sa))
     return {name: b.build(codec.signals[name].unit) for name, b in builders.items()}
 

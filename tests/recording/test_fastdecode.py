@@ -1,0 +1,183 @@
+"""Vectorised candump decoding (recording/fastdecode.py) against the per-frame reader, line for line."""
+
+from __future__ import annotations
+
+import math
+import random
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tractionecu.bus.candump import format_line
+from tractionecu.bus.dbc import Codec
+from tractionecu.errors import RecordingError
+from tractionecu.recording.reader import RecordingStats, _read_can, read_can_per_frame
+
+REPO = Path(__file__).resolve().parents[2]
+CANDUMP = REPO / "tests" / "data" / "candump"
+T0 = 1_715_940_000.0
+WHEELS = ("FL", "FR", "RL", "RR")
+
+
+@pytest.fixture(scope="module")
+def codec():
+    return Codec()
+
+
+def _read(fn, path: Path, codec: Codec):
+    stats = RecordingStats()
+    try:
+        return fn(path, codec, stats), stats, None
+    except RecordingError as e:
+        return None, stats, str(e)
+
+
+def assert_same(path: Path, codec: Codec) -> tuple[dict, RecordingStats]:
+    """Vectorised and per-frame decoding of ``path`` give identical signals, statistics and dict orders."""
+    sa, sta, ea = _read(_read_can, path, codec)
+    sb, stb, eb = _read(read_can_per_frame, path, codec)
+    assert ea == eb
+    assert vars(sta.files[path.name]) == vars(stb.files[path.name])
+    if ea is not None:
+        return {}, sta
+    assert list(sa) == list(sb)
+    for name in sa:
+        x, y = sa[name], sb[name]
+        assert x.unit == y.unit, name
+        for f in ("t", "value", "sa"):
+            a, b = getattr(x, f), getattr(y, f)
+            assert a.dtype == b.dtype and np.array_equal(a, b, equal_nan=True), (name, f)
+    assert list(sta.messages) == list(stb.messages)
+    for m in sta.messages:
+        assert vars(sta.messages[m]) == vars(stb.messages[m]), m
+        assert list(sta.messages[m].sources) == list(stb.messages[m].sources), m
+    for attr in ("unknown_pgns", "unknown_pgn_sources", "decode_errors", "decode_error_lines"):
+        a, b = getattr(sta, attr), getattr(stb, attr)
+        assert a == b and list(a) == list(b), attr
+    assert sta.non_extended_frames == stb.non_extended_frames
+    assert [vars(c) for c in sta.address_claims] == [vars(c) for c in stb.address_claims]
+    for attr in ("can_t_first", "can_t_last"):
+        a, b = getattr(sta, attr), getattr(stb, attr)
+        assert a == b or (math.isnan(a) and math.isnan(b)), attr
+    return sa, sta
+
+
+def _frames(codec: Codec, n: int = 300) -> list[str]:
+    """Canonical lines of every contract input message, some with not-available values."""
+    lines = []
+    for k in range(n):
+        t = T0 + 0.01 * k
+        ws = {f"WheelSpeed_{w}": (math.nan if k % 37 == 0 and i == 2 else 3.0 + 0.01 * k - 2.5 * i)
+              for i, w in enumerate(WHEELS)}
+        cid, d = codec.encode("TECU_WheelSpeeds", ws, sa=0x80 + k % 3)
+        lines.append(format_line(t, "can0", cid, True, d))
+        cid, d = codec.encode("TECU_DriveTorques", {f"DriveTorque_{w}": -3000.0 + 25.0 * k for w in WHEELS})
+        lines.append(format_line(t + 0.0002, "can0", cid, True, d))
+        if k % 2 == 0:
+            cid, d = codec.encode("TECU_AxleLoad", {"FrontAxleLoad": 24500.0 + k, "FrontAxleLoadStatus": k % 4})
+            lines.append(format_line(t + 0.0004, "can0", cid, True, d))
+            cid, d = codec.encode("RearHitchStatus", {"DraftForce": 12340.0 - 100 * k}, sa=0x2A)
+            lines.append(format_line(t + 0.0006, "can0", cid, True, d))
+        if k % 10 == 0:
+            cid, d = codec.encode("GBSD", {"GroundBasedMachineSpeed": 2.5, "GroundBasedMachineDistance": k})
+            lines.append(format_line(t + 0.0008, "vcan0", cid, True, d))
+    return lines
+
+
+def test_fixture_with_bad_lines_decodes_identically(codec):
+    sig, st = assert_same(CANDUMP / "bad_lines.log", codec)
+    assert st.files["bad_lines.log"].total_rejected == 10 and st.decode_errors     # the fixture's bad lines
+    assert np.allclose(sig["WheelSpeed_FL"].value, [1.0, 1.1, 1.2, 1.4])
+
+
+def test_real_capture_with_unknown_pgns_and_claims_decodes_identically(codec):
+    sig, st = assert_same(CANDUMP / "jd5055e_excerpt.log", codec)
+    assert len(st.unknown_pgns) == 27 and st.address_claims and "Request" in st.messages
+
+
+def test_recording_with_bad_lines_decodes_identically(tmp_path, codec):
+    lines = _frames(codec)
+
+    def ts(i: int) -> str:
+        return lines[i][:19]
+
+    bad = {
+        5: "this is not a candump line",
+        17: lines[17][:-3],                                      # odd number of data digits
+        30: lines[30].replace("(17159", "(17x59", 1),             # not a number: bad timestamp
+        44: lines[44].replace("#", "##", 1),                     # CAN FD
+        61: lines[61][:-16] + "R",                               # remote frame
+        77: lines[77][:-2],                                      # 7 data bytes: wrong DLC, decode error
+        90: "(1715940000.000000) can0 123#0102030405060708",     # 11-bit frame, time going backwards
+        91: ts(91) + " can0 123#0102030405060708",                 # 11-bit frame
+        102: lines[102] + " T",                                  # direction flag: accepted
+        118: "\t" + lines[118] + "  ",                           # white space around: accepted
+        130: lines[130].replace("0CFF", "2CFF", 1),              # error flag
+        150: "",                                                 # blank line
+        171: lines[171].replace("can0", "cän0", 1),              # non-ASCII interface name: accepted
+        190: lines[190][:30] + "G" + lines[190][31:],            # bad hex
+        205: lines[205].replace("(17159", "(17158", 1),          # time going backwards
+        222: ts(222) + " can0 18EEFF47#4D74300400340220",          # address claim
+        240: ts(240) + " can0 18FEF100#0000000000000000",          # PGN not in the DBC
+        260: lines[260][:34] + "ff" + lines[260][36:],           # lower-case hex
+    }
+    text = [bad.get(i, line) for i, line in enumerate(lines)]
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(text) + "\n", encoding="utf-8")
+    sig, st = assert_same(path, codec)
+    rs = st.files["can.log"]
+    assert set(rs.rejected) >= {"garbage", "truncated", "bad_timestamp", "canfd", "rtr", "error_frame", "bad_hex",
+                                "time_backwards"}
+    assert st.decode_errors and st.non_extended_frames and st.unknown_pgns and st.address_claims
+    assert np.isnan(sig["WheelSpeed_RL"].value).any()            # not-available code
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_mutated_lines_decode_identically(tmp_path, codec, seed):
+    rng = random.Random(seed)
+    pool = _frames(codec, 120) + (CANDUMP / "bad_lines.log").read_text().split("\n") \
+        + (CANDUMP / "jd5055e_excerpt.log").read_text().split("\n")[:200]
+    out = []
+    for line in rng.sample(pool, 250):
+        if line and rng.random() < 0.4:
+            i = rng.randrange(len(line))
+            op = rng.randrange(5)
+            if op == 0:
+                line = line[:i] + rng.choice("0123456789ABCDEFabcdefRr#.() g\t") + line[i + 1:]
+            elif op == 1:
+                line = line[:i] + line[i + 1:]
+            elif op == 2:
+                line = line[:i] + rng.choice("0A#. é") + line[i:]
+            elif op == 3:
+                line = line + "\r"
+            else:
+                line = line.replace("(17", "(16", 1)
+        out.append(line)
+    if seed % 2:
+        out.sort()
+    path = tmp_path / "can.log"
+    path.write_bytes(("\n".join(out) + ("\n" if seed % 3 else "")).encode("utf-8") + (b"\xff(1\n" if seed == 5 else b""))
+    assert_same(path, codec)
+
+
+def test_read_in_chunks_equals_one_piece(tmp_path, codec, monkeypatch):
+    from tractionecu.recording import fastdecode
+    path = tmp_path / "can.log"
+    lines = _frames(codec, 200)
+    lines[50] = lines[50].replace("(17159", "(17158", 1)           # time going backwards across chunks
+    path.write_text("\n".join(lines) + "\n")
+    whole = _read(_read_can, path, codec)
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", 997)
+    sig, st = assert_same(path, codec)
+    assert vars(st.files["can.log"]) == vars(whole[1].files["can.log"])
+    assert all(np.array_equal(sig[k].value, whole[0][k].value, equal_nan=True) for k in sig)
+
+
+def test_empty_and_frameless_files_fail_the_same(tmp_path, codec):
+    for text in ("", "\n\n", "hello\n(1.0) can0\n"):
+        path = tmp_path / "can.log"
+        path.write_text(text)
+        _, _, err = _read(_read_can, path, codec)
+        assert err is not None
+        assert_same(path, codec)
