@@ -1,0 +1,65 @@
+"""Simulation versus recording: locate the mismatch, name the missing physics, fit it.
+
+Entry points: :func:`diagnose_path` (what ``tractionecu diagnose`` runs) and
+:func:`tractionecu.diagnose.engine.diagnose` (the analysis of one recording).
+Diagnosis reads only what a real logger records: never ``truth.csv`` or
+``truth.toml``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path | None = None,
+                  csv_mapping: str | None = None, reference_torque_nm: float | None = None,
+                  time_offset_s: float = 0.0, estimator: bool = True) -> dict:
+    """Diagnose a recording directory (or a decoded CSV export) and write the report into ``out``.
+
+    A CSV export (``csv_mapping`` ``"contract"`` or ``"j1939"``, or a path ending in ``.csv``) goes
+    through :func:`tractionecu.recording.csv_import.import_csv`; engine-level exports without
+    per-wheel data get the reduced analysis of :mod:`.reduced`.  Returns the ``report.json`` dict.
+    """
+    import json
+
+    from ..errors import ConfigError
+    from . import data as _data
+    from . import report as _report
+
+    p = Path(recording)
+    out = Path(out)
+    is_csv = csv_mapping is not None or (p.is_file() and p.suffix.lower() == ".csv")
+    if is_csv:
+        from ..recording.csv_import import CONTRACT_MAPPING, J1939_LOGGER_MAPPING, import_csv
+
+        mapping = {"contract": CONTRACT_MAPPING, "j1939": J1939_LOGGER_MAPPING}.get(csv_mapping or "j1939")
+        if mapping is None:
+            raise ConfigError(f"csv_mapping: {csv_mapping!r} is not 'contract' or 'j1939'")
+        rec = import_csv(p, mapping, time_offset_s=time_offset_s, reference_torque_nm=reference_torque_nm,
+                         vehicle_toml=vehicle)
+        fr = _data.load(rec, vehicle)
+        if not fr.has("omega", "md"):
+            from .reduced import diagnose_reduced
+
+            rep = diagnose_reduced(fr)
+            out.mkdir(parents=True, exist_ok=True)
+            (out / "report.json").write_text(json.dumps(_report._num(rep), indent=2, ensure_ascii=False),
+                                             encoding="utf-8")
+            (out / "report.md").write_text(_report.to_markdown(_report._num(rep)), encoding="utf-8")
+            _report.plot_reduced(rep, fr, out)
+            return _report._num(rep)
+        source = fr
+    else:
+        source = _data.load(p, vehicle)
+    from .engine import diagnose
+
+    d = diagnose(source)
+    est = None
+    if estimator and not is_csv and p.is_dir():
+        from .innovations import estimator_view
+
+        est = estimator_view(p, d.features)
+    return _report.write(d, out, est)
+
+
+__all__ = ["diagnose_path"]

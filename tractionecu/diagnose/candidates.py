@@ -5,6 +5,16 @@ Every candidate uses the parameters and bounds of its
 functions, applied inside the channels (:mod:`.channels`).  Some parameters
 cannot be told apart from the nominal model's free parameters with forward
 driving only; they are held at a stated value and the report says why.
+
+Each fitted parameter has a *negligible* half-width around its null value:
+an effect counts as found only when a parameter's 95 % interval lies outside
+it.  The sizes: grade scale 0.1 (a tenth of the relief); hitch 0.05 m and
+centre of gravity 0.1 m; GNSS latency 0.02 s (a fifth of a 10 Hz epoch);
+radius error 0.3 % (0.3 slip points, against optimum slips of 6–12 %);
+relaxation length 0.1 m (a time constant under 40 ms at 2.5 m/s, within the
+50 ms inverter response); draft coefficient 0.005 s²/m² (under 2 % of draft
+across field speeds); drivetrain efficiency 1 %; mass 50 kg; drag area
+10 m² (under 40 N at 2.5 m/s).
 """
 
 from __future__ import annotations
@@ -26,11 +36,13 @@ class FitParam:
     lo: float
     hi: float
     unit: str
+    negligible: float = 0.0
+    """Half-width around the null value within which the effect is physically negligible."""
 
 
-def _fp(effect: str, name: str, null: float, starts: tuple[float, ...]) -> FitParam:
+def _fp(effect: str, name: str, null: float, starts: tuple[float, ...], negligible: float = 0.0) -> FitParam:
     spec = {p.name: p for p in EFFECTS[effect].params}[name]
-    return FitParam(name, null, starts, spec.lo, spec.hi, spec.unit)
+    return FitParam(name, null, starts, spec.lo, spec.hi, spec.unit, negligible)
 
 
 @dataclass(frozen=True)
@@ -61,27 +73,27 @@ class Candidate:
 CANDIDATES: dict[str, Candidate] = {
     c.name: c
     for c in (
-        Candidate("grade", (_fp("grade", "scale", 0.0, (0.0, 0.5, 1.0, 2.0)),),
+        Candidate("grade", (_fp("grade", "scale", 0.0, (0.0, 0.5, 1.0, 2.0), 0.1),),
                   plain="field grade: the slope component of weight, F = m g sin θ"),
-        Candidate("load_transfer", (_fp("load_transfer", "h_hitch_m", 0.0, (0.0, 0.5, 1.0)), _fp("load_transfer", "h_cg_m", 0.0, (0.0, 1.0))),
+        Candidate("load_transfer", (_fp("load_transfer", "h_hitch_m", 0.0, (0.0, 0.5, 1.0), 0.05), _fp("load_transfer", "h_cg_m", 0.0, (0.0, 1.0), 0.1)),
                   plain="longitudinal load transfer: pull, acceleration and slope move load from the front to the rear axle"),
-        Candidate("gps_latency", (_fp("gps_latency", "tau_s", 0.0, (0.0, 0.03, 0.07, 0.12, 0.2, 0.3, 0.45, 0.7, 1.0, 1.5, 2.0)),),
+        Candidate("gps_latency", (_fp("gps_latency", "tau_s", 0.0, (0.0, 0.03, 0.07, 0.12, 0.2, 0.3, 0.45, 0.7, 1.0, 1.5, 2.0), 0.02),),
                   plain="GNSS speed latency: the receiver reports the speed τ late"),
-        Candidate("wheel_radius", (_fp("wheel_radius", "epsilon", 0.0, (-0.1, -0.06, -0.035, -0.02, -0.01, -0.004, 0.0, 0.004, 0.01, 0.02, 0.035, 0.06, 0.1)),),
+        Candidate("wheel_radius", (_fp("wheel_radius", "epsilon", 0.0, (-0.1, -0.06, -0.035, -0.02, -0.01, -0.004, 0.0, 0.004, 0.01, 0.02, 0.035, 0.06, 0.1), 0.003),),
                   plain="rolling-radius error: the true radius is (1 + ε) times the nominal formula"),
-        Candidate("relaxation", (_fp("relaxation", "sigma_m", 0.01, (0.01, 0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8, 2.7, 4.0, 5.0)),),
+        Candidate("relaxation", (_fp("relaxation", "sigma_m", 0.01, (0.01, 0.05, 0.15, 0.3, 0.5, 0.8, 1.2, 1.8, 2.7, 4.0, 5.0), 0.09),),
                   plain="tyre relaxation: the traction force follows slip with the lag σ/v"),
-        Candidate("draft_speed", (_fp("draft_speed", "c_s2pm2", 0.0, (0.0, 0.02, 0.05, 0.1, 0.2, 0.4)),), fixed={"v_ref_mps": 2.5},
+        Candidate("draft_speed", (_fp("draft_speed", "c_s2pm2", 0.0, (0.0, 0.02, 0.05, 0.1, 0.2, 0.4), 0.005),), fixed={"v_ref_mps": 2.5},
                   fixed_reason="v_ref is a reference point, not a separate parameter: D_0 and v_ref trade off; "
                                "c is reported at v_ref = 2.5 m/s",
                   plain="draft depends on speed (ASABE D497 quadratic term)"),
-        Candidate("drivetrain", (_fp("drivetrain", "eta", 1.0, (0.6, 0.8, 0.9, 0.95, 1.0)),), fixed={"loss_nm": 0.0},
+        Candidate("drivetrain", (_fp("drivetrain", "eta", 1.0, (0.6, 0.8, 0.9, 0.95, 1.0), 0.01),), fixed={"loss_nm": 0.0},
                   fixed_reason="a constant loss torque acts like soil rolling resistance in forward driving "
                                "and is not separable from ρ_s; it is held at 0",
                   plain="drivetrain losses between the measured drive torque and the wheel"),
-        Candidate("mass", (_fp("mass", "delta_kg", 0.0, (-1500.0, -500.0, 0.0, 500.0, 1500.0, 3000.0)), _fp("mass", "front_share", 0.5, (0.0, 0.5, 1.0))),
+        Candidate("mass", (_fp("mass", "delta_kg", 0.0, (-1500.0, -500.0, 0.0, 500.0, 1500.0, 3000.0), 50.0), _fp("mass", "front_share", 0.5, (0.0, 0.5, 1.0))),
                   plain="the vehicle mass differs from nominal (ballast)"),
-        Candidate("aero", (_fp("aero", "cd_area_m2", 0.0, (0.0, 2.0, 5.0, 15.0, 50.0)),),
+        Candidate("aero", (_fp("aero", "cd_area_m2", 0.0, (0.0, 2.0, 5.0, 15.0, 50.0), 10.0),),
                   plain="aerodynamic drag"),
     )
 }

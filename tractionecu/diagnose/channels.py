@@ -372,6 +372,114 @@ def relaxed(s: NDArray, v: NDArray, sigma_m: float, dt: float) -> NDArray:
         prev = nxt
     return out
 
+WHEEL_FORCE_SMOOTH_S = 0.05
+"""Centred moving average of the raw-rate slip [s] (removes wheel-speed sensor noise, keeps a few hertz)."""
+WHEEL_FORCE_HP_S = 2.0
+"""Moving-average window removed from both sides of the wheel-force channel [s]."""
+
+
+def _highpass(x: NDArray, k: int) -> NDArray:
+    """x minus its centred moving average over k samples, per column (edges use the available samples)."""
+    from scipy.ndimage import uniform_filter1d
+
+    return x - uniform_filter1d(x, size=k, axis=0, mode="nearest")
+
+
+def relaxed_by_distance(t: NDArray, s: NDArray, v: NDArray, sigma_m: float, dx: float = 0.02) -> NDArray:
+    """Relaxed slip of the library's ``relaxation_rate``, ds'/dt = (|v|/σ)(s − s'), for columns of s (n, k).
+
+    In travelled distance x = ∫|v| dt the equation is ds'/dx = (s − s')/σ, a filter with
+    constant coefficients: s is resampled on a uniform distance grid (step ``dx`` [m]),
+    filtered exactly for an input held over each step, s'_j = φ s'_{j−1} + (1 − φ) s_j with
+    φ = e^{−dx/σ} (= exp(−relaxation_rate(1, 0, 1, σ)·dx)), and resampled back.
+    """
+    from scipy.signal import lfilter
+
+    x = cumtrapz0(np.abs(v), float(np.median(np.diff(t))) if t.size > 1 else 1.0)
+    x = np.maximum.accumulate(x + 1e-9 * np.arange(x.size))
+    xg = np.arange(x[0], x[-1] + dx, dx)
+    phi = float(np.exp(-fx.relaxation_rate(1.0, 0.0, 1.0, sigma_m) * dx))
+    out = np.empty_like(s)
+    for j in range(s.shape[1]):
+        sg = np.interp(xg, x, np.nan_to_num(s[:, j]))
+        yg, _ = lfilter([1.0 - phi], [1.0, -phi], sg, zi=[phi * sg[0]])
+        out[:, j] = np.interp(x, xg, yg)
+    return out
+
+
+class WheelForceChannel(Channel):
+    """Per-wheel adhesion from the torque balance against the μ(s) curve at the raw wheel-speed rate.
+
+        y_i = HP[μ_i],  μ_i = ((M_i − J ω̇_i)/r_i − ρ_t F_z,i sgn ω_i)/F_z,i      (bin means, paper eq. 2),
+        f_i = a_cell HP[⟨g(s_i')⟩],   s_i = 1 − v/(r_i ω_i) at the raw rate,
+
+    with ⟨·⟩ the bin mean, HP[x] = x minus its moving average over :data:`WHEEL_FORCE_HP_S` and s_i' = s_i, or the relaxed slip of
+    :func:`relaxed_by_distance` for the relaxation candidate.  Relaxation turns the
+    wheel into a lightly damped oscillator of a few hertz, which only the raw-rate
+    slip resolves.  Nuisance: the surface class and a per field cell.
+    """
+
+    def __init__(self, feat: Features, wc: _WheelCache):
+        fr = feat.frame
+        self.feat, self.wc = feat, wc
+        ws = wc.get({}, with_slip=True)
+        k = fr.hf_t.size // fr.n
+        self.k = k
+        ok = (feat.valid[:, None] & (np.abs(feat.v_ref)[:, None] > SLIP_MIN_SPEED) & np.isfinite(ws.mu)
+              & np.isfinite(ws.slip) & (np.abs(ws.slip) < 0.5)
+              & np.all(np.isfinite(fr.hf_omega.reshape(fr.n, k, 4)), axis=1))
+        ti, wi = np.nonzero(ok)
+        super().__init__("wheel_force", "-", "per-wheel adhesion from torque against μ(s) at the raw slip",
+                         frozenset({"relaxation"}), fr.t[ti], ti.astype(np.int64), feat.fold[ti],
+                         "soil class shape and curve parameter a per field cell")
+        self.ti, self.wi = ti, wi
+        self.cell = feat.cell[ti]
+        self.ncell = feat.n_cells
+        # Both sides high-passed (minus a WHEEL_FORCE_HP_S moving average): the slow error of the
+        # ground speed, which dominates slip, cancels, and the fast dynamics remain.
+        self.kw = max(3, int(round(WHEEL_FORCE_HP_S * fr.rate_hz)))
+        self.y_hp = _highpass(np.nan_to_num(ws.mu), self.kw)[ti, wi]
+        v_hf = np.interp(fr.hf_t, fr.t, feat.v_ref)
+        r_hf = np.repeat(ws.r, k, axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vw = np.abs(r_hf * np.nan_to_num(fr.hf_omega))
+            va = np.abs(v_hf)[:, None]
+            s = np.where(va <= vw, 1.0 - va / np.maximum(vw, 1e-6), -1.0 + vw / np.maximum(va, 1e-6))
+        # Zero-phase smoothing over WHEEL_FORCE_SMOOTH_S of the raw slip (sensor noise): a causal
+        # relaxation filter must not win by denoising the regressor, only by a real lag.
+        from scipy.ndimage import uniform_filter1d
+
+        ks = max(1, int(round(WHEEL_FORCE_SMOOTH_S / float(np.median(np.diff(fr.hf_t))))))
+        self.s_hf = uniform_filter1d(np.clip(np.nan_to_num(s), -0.9, 0.9), size=ks, axis=0, mode="nearest")
+        self.v_hf = v_hf
+        self.soil: SoilClass = SOIL_CLASSES["stubble"]
+        self._frozen = False
+
+    def freeze(self, on: bool) -> None:
+        self._frozen = on
+
+    def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
+        fr = self.feat.frame
+        s = self.s_hf
+        if "relaxation" in eff:
+            s = relaxed_by_distance(fr.hf_t, s, self.v_hf, eff["relaxation"]["sigma_m"])
+        y = self.y_hp[rows]
+        ti, wi, cell = self.ti[rows], self.wi[rows], self.cell[rows]
+        best, best_sse = None, math.inf
+        classes = {self.soil.name: self.soil} if self._frozen else SOIL_CLASSES
+        for cls in classes.values():
+            gb = _highpass(cls.g(s).reshape(fr.n, self.k, 4).mean(axis=1), self.kw)[ti, wi]
+            p = _onehot_scaled_fit(y, gb, cell, self.ncell)
+            sse = float(np.sum((y - p) ** 2))
+            if sse < best_sse:
+                best, best_sse, self.soil = p, sse, cls
+        return y, best
+
+    def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
+        y, p = self.parts(eff, rows)
+        return y - p
+
+
 
 class _CurveInverse:
     """s = g⁻¹(q) of a surface class by table lookup (g is odd and increasing)."""
@@ -418,7 +526,7 @@ class SlipChannel(Channel):
               & np.isfinite(ws.mu) & (np.abs(ws.slip) < 0.5))
         ti, wi = np.nonzero(ok)
         super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
-                         frozenset({"wheel_radius", "relaxation", "gps_latency"}),
+                         frozenset({"wheel_radius", "gps_latency"}),
                          fr.t[ti], ti.astype(np.int64), feat.fold[ti], "soil class shape and curve parameter a per field cell")
         self.ti, self.wi = ti, wi
         self.cell = feat.cell[ti]
@@ -549,6 +657,8 @@ def build_channels(feat: Features) -> list[Channel]:
         out.append(SpeedChannel(feat, wc))
         out.append(GpsSpeedChannel(feat, wc))
         out.append(SlipChannel(feat, wc))
+        if fr.hf_omega is not None:
+            out.append(WheelForceChannel(feat, wc))
     if fr.has("fzf"):
         out.append(FrontLoadChannel(feat))
     if fr.has("fdx") and fr.work is not None and (feat.segment >= 0).any():

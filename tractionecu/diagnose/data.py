@@ -53,6 +53,10 @@ class Frame:
     """Bin-mean wheel acceleration (n, 4) [rad/s²]: (ω(t + Δ/2) − ω(t − Δ/2))/Δ from the raw samples."""
     md_edge: NDArray[np.float64] | None = None
     """Drive torques at the bin edges t_k − Δ/2 (n + 1, 4) [N·m] (for rates of change within a bin)."""
+    hf_t: NDArray[np.float64] | None = None
+    """Times of the raw-rate wheel-speed grid [s] (k per frame bin, in bin order)."""
+    hf_omega: NDArray[np.float64] | None = None
+    """Wheel speeds on the raw-rate grid (n·k, 4) [rad/s]."""
     fzf: NDArray[np.float64] | None = None
     """Front-axle load [N]."""
     fdx: NDArray[np.float64] | None = None
@@ -192,6 +196,13 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
             fr.omega_dot = np.diff(om_e, axis=0) / period
             fr.md_edge = np.stack([_bin_mean(sig[f"DriveTorque_{w}"].t, sig[f"DriveTorque_{w}"].value, edges, eh)
                                    for w in WHEELS], axis=1)
+            # Raw wheel speeds on a uniform grid of the raw period (bin means), for dynamics
+            # faster than the frame rate (tyre relaxation).
+            k = int(round(period / raw_dt))
+            hf_grid = (grid[:, None] + (np.arange(k) - (k - 1) / 2.0)[None, :] * raw_dt).ravel()
+            fr.hf_t = hf_grid - grid[0]
+            fr.hf_omega = np.stack([_bin_mean(sig[f"WheelSpeed_{w}"].t, sig[f"WheelSpeed_{w}"].value, hf_grid,
+                                              raw_dt / 2) for w in WHEELS], axis=1)
     fr.fzf = mean("FrontAxleLoad")
     fr.fdx = mean("DraftForce")
     wk = mean("RearHitchInWorkIndication")

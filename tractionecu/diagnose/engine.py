@@ -7,7 +7,8 @@ scored on held-out data (:mod:`.fit`).  With S_e the held-out
 log-likelihood ratio of effect e against the null:
 
 1. *detected*: S_e ≥ :data:`DETECT_LLR` and the 95 % interval of at least
-   one parameter excludes the value at which the effect vanishes;
+   one parameter lies outside the negligible band around the value at which
+   the effect vanishes (:mod:`.candidates`);
 2. no detection → verdict ``none``, unless an effect whose driver is
    observed (the GNSS altitude shows a material grade) cannot be separated
    from the nominal model's free constants in this recording → verdict
@@ -129,7 +130,7 @@ def _excludes_null(fr: FitResult) -> bool:
             continue
         if p.name == "front_share":
             continue  # meaningful only through delta_kg
-        if not (lo <= p.null <= hi):
+        if lo > p.null + p.negligible or hi < p.null - p.negligible:
             return True
     return False
 

@@ -185,16 +185,20 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     return v_int + B[:, cols] @ beta
 
 
-def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, dt_min: float = 0.0,
-                  dt_max: float = math.inf) -> tuple[NDArray, NDArray, NDArray]:
-    """Local-linear kernel fit of h(x, y) from the fit points whose time differs from the
-    evaluation point's by ``dt_min < |Δt| < dt_max`` [s]; returns (h0, gx, gy) at (ex, ey)."""
+def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float = 0.0,
+                  dt_max: float = math.inf) -> tuple[NDArray, NDArray]:
+    """Local-linear kernel fit h ≈ h0 + g_u·Δu along the field's main axis, from the fit points
+    whose time differs from the evaluation point's by ``dt_min < |Δt| < dt_max`` [s].
+
+    Returns (h0, g_u) at (ex, ey).  Only the slope along the passes is fitted: across them the
+    passes lie a few metres apart and each carries its own slowly wandering GNSS altitude error,
+    so a cross slope would be that error, not relief.
+    """
     tree = cKDTree(np.c_[x, y])
     h0 = np.full(ex.shape, np.nan)
-    gx = np.full(ex.shape, np.nan)
-    gy = np.full(ex.shape, np.nan)
+    gu = np.full(ex.shape, np.nan)
+    ca, sa = math.cos(axis), math.sin(axis)
     neigh = tree.query_ball_point(np.c_[ex, ey], 3.0 * bw)
-    lam = 1e-3
     for k, idx in enumerate(neigh):
         if len(idx) < 8:
             continue
@@ -206,15 +210,16 @@ def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, dt_min: float = 0.0,
         dx = x[idx] - ex[k]
         dy = y[idx] - ey[k]
         wgt = np.exp(-0.5 * (dx * dx + dy * dy) / (bw * bw))
-        A = np.c_[np.ones(idx.size), dx, dy]
-        Aw = A * wgt[:, None]
-        M = A.T @ Aw
-        reg = lam * wgt.sum() * bw * bw
-        M[1, 1] += reg
-        M[2, 2] += reg
-        sol = np.linalg.solve(M, Aw.T @ h[idx])
-        h0[k], gx[k], gy[k] = sol
-    return h0, gx, gy
+        du = dx * ca + dy * sa
+        sw = wgt.sum()
+        mu_ = np.sum(wgt * du) / sw
+        mh = np.sum(wgt * h[idx]) / sw
+        suu = np.sum(wgt * (du - mu_) ** 2)
+        if suu < 1e-3 * sw * bw * bw:
+            continue
+        g = np.sum(wgt * (du - mu_) * (h[idx] - mh)) / suu
+        h0[k], gu[k] = mh - g * mu_, g
+    return h0, gu
 
 
 RELIEF_SNR = 1.5
@@ -247,7 +252,8 @@ class GradeEstimate:
 
 
 def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BANDWIDTH_M) -> GradeEstimate | None:
-    """Grade θ along the heading from the pooled GNSS altitude surface.
+    """Grade θ along the heading from the pooled GNSS altitude surface,
+    θ = atan(g_u cos(ψ − ψ_axis)) with g_u the slope along the field's main axis.
 
     A classical error in the regressor attenuates a fitted grade force, so the
     slope used as regressor is calibrated: with g_own the slope from the same
@@ -273,9 +279,14 @@ def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BAN
     x, y, h, t = fr.x[sub], fr.y[sub], fr.alt[sub], fr.t[sub]
     hd = fr.heading[sub]
 
+    xy = np.c_[x, y] - np.c_[x, y].mean(axis=0)
+    ax_vec = np.linalg.svd(xy, full_matrices=False)[2][0]
+    axis = math.atan2(ax_vec[1], ax_vec[0])
+    along = np.cos(hd - axis)
+
     def surface(dt_min: float, dt_max: float) -> tuple[NDArray, NDArray]:
-        h0, gx, gy = _dem_gradient(x, y, h, t, x, y, t, bw, dt_min, dt_max)
-        return h0, gx * np.cos(hd) + gy * np.sin(hd)
+        h0, gu = _dem_gradient(x, y, h, t, x, y, t, bw, axis, dt_min, dt_max)
+        return h0, gu * along
 
     _, g_all = surface(-1.0, math.inf)
     h_other, g_other = surface(ALT_INDEPENDENT_S, math.inf)
@@ -296,12 +307,9 @@ def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BAN
             # over that ground): the relief has few independent features, so λ is uncertain and
             # that uncertainty belongs in a fitted grade's interval.
             K = 8
-            xy = np.c_[x[pair], y[pair]]
-            xy = xy - xy.mean(axis=0)
-            axis = np.linalg.svd(xy, full_matrices=False)[2][0]
-            along = xy @ axis
-            edges = np.quantile(along, np.linspace(0, 1, K + 1)[1:-1])
-            blk = np.searchsorted(edges, along)
+            pos = xy[pair] @ ax_vec
+            edges = np.quantile(pos, np.linspace(0, 1, K + 1)[1:-1])
+            blk = np.searchsorted(edges, pos)
             g2 = g_all[pair] ** 2
             loo = np.array([np.sum(prod[blk != k]) / max(np.sum(g2[blk != k]), 1e-30) for k in range(K)])
             lam_se = float(math.sqrt((K - 1) / K * np.sum((loo - loo.mean()) ** 2)))
@@ -335,9 +343,16 @@ def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BAN
         return None
     th = np.full(fr.n, np.nan)
     th_raw = np.full(fr.n, np.nan)
-    th[idx] = np.arctan(np.interp(fr.t[idx], t[good], g_use[good]))
-    g2 = np.isfinite(g_all)
-    th_raw[idx] = np.arctan(np.interp(fr.t[idx], t[g2], g_all[g2]))
+    # Interpolate the slope along the axis in time, then project on each sample's own heading.
+    gu_use = np.where(np.abs(along) > 1e-6, g_use / np.where(np.abs(along) > 1e-6, along, 1.0), np.nan)
+    okg = np.isfinite(gu_use) & (np.abs(along) > 0.3)
+    if okg.sum() < 2:
+        return None
+    th[idx] = np.arctan(np.interp(fr.t[idx], t[okg], gu_use[okg]) * np.cos(fr.heading[idx] - axis))
+    gu_all = np.where(np.abs(along) > 0.3, g_all / np.where(np.abs(along) > 0.3, along, 1.0), np.nan)
+    g2 = np.isfinite(gu_all)
+    if g2.sum() >= 2:
+        th_raw[idx] = np.arctan(np.interp(fr.t[idx], t[g2], gu_all[g2]) * np.cos(fr.heading[idx] - axis))
     return GradeEstimate(th, th_raw, lam, lam_se, real, method)
 
 
@@ -354,8 +369,10 @@ def main_axis(fr: Frame, mask: NDArray[np.bool_]) -> float | None:
 
 
 def _cells(u: NDArray, w: NDArray, ok: NDArray[np.bool_], rate_hz: float) -> tuple[NDArray[np.int64], int]:
-    iu = np.floor(u / CELL_M).astype(np.int64)
-    iw = np.floor(w / CELL_M).astype(np.int64)
+    u0 = float(np.min(u[ok])) if ok.any() else 0.0
+    w0 = float(np.min(w[ok])) if ok.any() else 0.0
+    iu = np.floor((u - u0) / CELL_M).astype(np.int64)
+    iw = np.floor((w - w0) / CELL_M).astype(np.int64)
     key = np.where(ok, iu * 100003 + iw, -1)
     uniq, inv, cnt = np.unique(key[ok], return_inverse=True, return_counts=True)
     cent_u = np.bincount(inv, weights=u[ok]) / cnt

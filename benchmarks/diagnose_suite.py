@@ -1,0 +1,133 @@
+"""Diagnosis suite: concealed-effect recordings, diagnosed blind, scored against what was concealed.
+
+Run from the repository root::
+
+    python benchmarks/diagnose_suite.py --json OUT.json [--fast] [--jobs 2] [--workdir DIR] [--reuse]
+
+Each case of :func:`tractionecu.diagnose.suite.cases` is simulated and written as a
+recording directory (``can.log``, ``gps.nmea``, ``vehicle.toml``; the truth files are
+written too but diagnosis never opens them), then diagnosed by
+:func:`tractionecu.diagnose.engine.diagnose` exactly as ``tractionecu diagnose`` would.
+
+Figures (printed and written as JSON keys, see :func:`tractionecu.diagnose.suite.summarize`):
+
+``top1_accuracy``
+    share of effect recordings whose verdict is ``effect`` naming the concealed effect.
+``ci_coverage``
+    share of (effect recording, fitted parameter with a true value) pairs whose 95 % interval
+    holds the true value, for the concealed effect's candidate (``ci_coverage_primary``: the
+    effect's first parameter only).
+``median_heldout_rmse_reduction``
+    median over effect recordings of 1 − RMSE_after/RMSE_before on held-out data, on the
+    signal the effect affects most.
+``null_false_alarms``
+    null recordings whose verdict is not ``none``.
+``confounded_as_ambiguous``
+    whether every confounded recording is reported ``ambiguous``.
+
+``cases`` holds one row per recording (verdict, ranking, fitted parameters, intervals).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tractionecu.diagnose.engine import diagnose  # noqa: E402
+from tractionecu.diagnose.suite import all_cases, cases, fast_cases, score_case, summarize, write_case  # noqa: E402
+
+
+def run_case(name: str, workdir: str, reuse: bool) -> dict:
+    case = next(c for c in all_cases() if c.name == name)
+    rec = Path(workdir) / name
+    t0 = time.perf_counter()
+    if not (reuse and (rec / "can.log").is_file()):
+        write_case(case, rec)
+    t1 = time.perf_counter()
+    d = diagnose(rec)
+    t2 = time.perf_counter()
+    row = score_case(case, d)
+    row["simulate_s"] = round(t1 - t0, 2)
+    row["diagnose_s"] = round(t2 - t1, 2)
+    return row
+
+
+def _fmt_params(r: dict) -> str:
+    out = []
+    for k, f in r.get("fitted", {}).items():
+        ok = "✓" if r["covered"].get(k) else "✗"
+        out.append(f"{k} {f['value']:.4g} [{f['ci95'][0]:.3g}, {f['ci95'][1]:.3g}] true {f['true']:.4g} {ok}")
+    return "; ".join(out)
+
+
+def table(rows: list[dict]) -> str:
+    head = f"{'case':32s} {'kind':10s} {'truth':13s} {'verdict':9s} {'named':13s} {'ok':2s} {'RMSE red.':>9s}  parameters (95 % CI)"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        red = r.get("rmse_reduction")
+        reds = f"{red:9.2f}" if red is not None else f"{'':9s}"
+        named = r["effect"] or ("/".join(r["ambiguous_between"])[:13] if r["ambiguous_between"] else "-")
+        lines.append(f"{r['case']:32s} {r['kind']:10s} {str(r['truth']):13s} {r['verdict']:9s} {named:13s} "
+                     f"{'✓' if r['correct'] else '✗':2s} {reds}  {_fmt_params(r)}")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", required=True, help="write the figures and rows here")
+    ap.add_argument("--fast", action="store_true", help="only the quick subset run in CI")
+    ap.add_argument("--cases", default=None, help="comma-separated case names (default: all)")
+    ap.add_argument("--jobs", type=int, default=2, help="parallel processes (default: %(default)s)")
+    ap.add_argument("--workdir", default=None, help="keep the recordings here (default: a temporary directory)")
+    ap.add_argument("--reuse", action="store_true", help="diagnose recordings already in --workdir")
+    args = ap.parse_args(argv)
+    sel = fast_cases() if args.fast else cases()
+    if args.cases:
+        want = {c.strip() for c in args.cases.split(",")}
+        sel = [c for c in all_cases() if c.name in want]
+    tmp = None
+    workdir = args.workdir
+    if workdir is None:
+        tmp = tempfile.TemporaryDirectory()
+        workdir = tmp.name
+    Path(workdir).mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    names = [c.name for c in sel]
+    if args.jobs > 1:
+        with ProcessPoolExecutor(max_workers=args.jobs) as ex:
+            rows = list(ex.map(run_case, names, [workdir] * len(names), [args.reuse] * len(names)))
+    else:
+        rows = [run_case(n, workdir, args.reuse) for n in names]
+    wall = time.perf_counter() - t0
+    figs = summarize(rows)
+    figs["wall_s"] = round(wall, 1)
+    print(table(rows))
+    print()
+    for k, v in figs.items():
+        print(f"{k:32s} {v}")
+    out = {**figs, "cases": rows}
+    Path(args.json).write_text(json.dumps(out, indent=2, ensure_ascii=False, default=_json_default), encoding="utf-8")
+    if tmp is not None:
+        tmp.cleanup()
+    return 0
+
+
+def _json_default(o):
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    try:
+        return float(o)
+    except (TypeError, ValueError):
+        return str(o)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,36 @@
+"""``tractionecu diagnose``: find why a recording and the model disagree, name the effect, fit it."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+
+def add_subparser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks")
+    p.add_argument("recording", help="recording directory (can.log, gps.nmea, vehicle.toml) or a decoded CSV export")
+    p.add_argument("--out", required=True, help="directory for report.json, report.md and the figures")
+    p.add_argument("--vehicle", default=None, help="vehicle.toml (default: the recording's own)")
+    p.add_argument("--csv-mapping", choices=("contract", "j1939"), default=None,
+                   help="the recording is a decoded CSV export with these column names")
+    p.add_argument("--reference-torque", type=float, default=None,
+                   help="engine reference torque [N·m] for percent-torque CSV columns (J1939 SPN 544)")
+    p.add_argument("--time-offset", type=float, default=0.0, help="added to the CSV time column [s]")
+    p.add_argument("--no-estimator", action="store_true", help="skip the estimator-innovation view")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..diagnose import diagnose_path
+
+    t0 = time.perf_counter()
+    rep = diagnose_path(args.recording, args.out, vehicle=args.vehicle, csv_mapping=args.csv_mapping,
+                        reference_torque_nm=args.reference_torque, time_offset_s=args.time_offset,
+                        estimator=not args.no_estimator)
+    dt = time.perf_counter() - t0
+    head = rep["verdict"] + (f": {rep['effect']}" if rep.get("effect") else "")
+    if rep.get("ambiguous_between"):
+        head += " (" + " / ".join(rep["ambiguous_between"]) + ")"
+    print(f"{head}\n{rep['statement']}\n-> {Path(args.out) / 'report.md'} ({dt:.1f} s)")
+    return 0
