@@ -139,6 +139,41 @@ RULES = np.array([[SMALL, MEDIUM, LARGE],
                   [LARGE, LARGE, LARGE]])
 
 
+_RULES_L = RULES.tolist()
+
+
+def _min(a: float, b: float) -> float:
+    """np.minimum of two floats (NaN if either is NaN)."""
+    if a != a or b != b:
+        return math.nan
+    return a if a <= b else b
+
+
+def _max(a: float, b: float) -> float:
+    """np.maximum of two floats (NaN if either is NaN)."""
+    if a != a or b != b:
+        return math.nan
+    return a if a >= b else b
+
+
+def _tri1(x: float, a: float, b: float, c: float) -> float:
+    """:func:`trimf` of one float."""
+    left = 1.0 if b == a else (x - a) / (b - a)
+    right = 1.0 if c == b else (c - x) / (c - b)
+    y = 0.0 if (x < a or x > c) else _min(left, right)
+    return _min(_max(y, 0.0), 1.0)
+
+
+def _trap1(x: float, a: float, b: float, c: float, d: float) -> float:
+    """:func:`trapmf` of one float (b > a, or the rise is 1)."""
+    rise = 1.0 if b == a else (x - a) / (b - a)
+    fall = 1.0 if (d == c or math.isinf(d)) else (d - x) / (d - c)
+    y = _min(_min(rise, 1.0), fall)
+    if x < a or (not math.isinf(d) and x > d):
+        y = 0.0
+    return _min(_max(y, 0.0), 1.0)
+
+
 class FuzzySupervisor:
     """Mamdani fuzzy system mapping dynamic intensity to the Q adaptation factor (rule table in module doc)."""
 
@@ -154,22 +189,28 @@ class FuzzySupervisor:
 
     def memberships(self, accel_abs: float, torque_rate_abs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Degrees (LOW, MEDIUM, HIGH) of e₁ = |dv/dt| [m/s²] and e₂ = |dM_d/dt| [N·m/s]."""
+        mu1, mu2 = self._degrees(accel_abs, torque_rate_abs)
+        return np.array(mu1, dtype=float), np.array(mu2, dtype=float)
+
+    def _degrees(self, accel_abs: float, torque_rate_abs: float) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """:meth:`memberships` as floats (scalar :func:`trapmf` / :func:`trimf`, same operations)."""
         c = self.cfg
         a1, a2, a3 = c.accel_low_mps2, c.accel_mid_mps2, c.accel_high_mps2
         m1, m2, m3 = c.torque_rate_low_nmps, c.torque_rate_mid_nmps, c.torque_rate_high_nmps
-        e1 = abs(accel_abs)
-        e2 = abs(torque_rate_abs)
-        mu1 = np.array([trapmf(e1, 0.0, 0.0, a1, a2), trimf(e1, a1, a2, a3), trapmf(e1, a2, a3, math.inf, math.inf)], dtype=float)
-        mu2 = np.array([trapmf(e2, 0.0, 0.0, m1, m2), trimf(e2, m1, m2, m3), trapmf(e2, m2, m3, math.inf, math.inf)], dtype=float)
-        return mu1, mu2
+        e1 = abs(float(accel_abs))
+        e2 = abs(float(torque_rate_abs))
+        return ((_trap1(e1, 0.0, 0.0, a1, a2), _tri1(e1, a1, a2, a3), _trap1(e1, a2, a3, math.inf, math.inf)),
+                (_trap1(e2, 0.0, 0.0, m1, m2), _tri1(e2, m1, m2, m3), _trap1(e2, m2, m3, math.inf, math.inf)))
 
     def intensity(self, accel_abs: float, torque_rate_abs: float) -> float:
         """Defuzzified intensity c ∈ [0, 1] (centroid of the aggregated output set)."""
-        mu1, mu2 = self.memberships(accel_abs, torque_rate_abs)
-        firing = np.minimum.outer(mu1, mu2)                    # AND = min, (3, 3)
-        strength = np.zeros(3)
-        np.maximum.at(strength, RULES.ravel(), firing.ravel())  # one strength per output set (max)
-        agg = np.max(np.minimum(strength[:, None], self.out_mf), axis=0)   # clip + aggregate
+        mu1, mu2 = self._degrees(accel_abs, torque_rate_abs)
+        strength = [0.0, 0.0, 0.0]
+        for i in range(3):                                     # AND = min, one strength per output set (max)
+            for j in range(3):
+                k = _RULES_L[i][j]
+                strength[k] = _max(strength[k], _min(mu1[i], mu2[j]))
+        agg = np.max(np.minimum(np.array(strength)[:, None], self.out_mf), axis=0)   # clip + aggregate
         area = float(agg @ self._w)
         if area <= 0.0:
             return 0.5
