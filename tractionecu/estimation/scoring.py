@@ -33,6 +33,7 @@ from __future__ import annotations
 import csv
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -67,25 +68,27 @@ class Truth:
 def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Truth:
     """Read ``truth.csv`` (and ``truth.toml`` for the soil classes, if present)."""
     with open(csv_path, newline="", encoding="utf-8") as fh:
-        rd = csv.reader(fh)
-        head = next(rd)
-        rows = list(rd)
+        head = next(csv.reader(fh))
     col = {k: i for i, k in enumerate(head)}
-
-    def f(name: str) -> NDArray[np.float64]:
-        i = col[name]
-        return np.array([float(r[i]) for r in rows])
+    numeric = ["t", *(f"mu_{w}" for w in WHEELS), "rho_s", "a", "soil_id", *(f"slip_{w}" for w in WHEELS), "v"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)          # a truth file with no rows
+        # numpy's reader (quoted fields as in the csv module); floats parse as float() does
+        vals = np.loadtxt(csv_path, delimiter=",", skiprows=1, usecols=[col[k] for k in numeric], dtype=float,
+                          quotechar='"', encoding="utf-8", ndmin=2)
+        names = np.loadtxt(csv_path, delimiter=",", skiprows=1, usecols=[col["soil_name"]], dtype=str,
+                           quotechar='"', encoding="utf-8", ndmin=1).tolist()
+    c = {k: vals[:, i].copy() for i, k in enumerate(numeric)}
 
     soils: dict[str, dict[str, Any]] = {}
     if toml_path is not None and Path(toml_path).is_file():
         data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
         for s in data.get("soils", []):
             soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"])}
-    names = [r[col["soil_name"]] for r in rows]
     return Truth(
-        t=f("t"), mu=np.column_stack([f(f"mu_{w}") for w in WHEELS]), rho_s=f("rho_s"), a=f("a"),
-        soil_id=f("soil_id").astype(np.int64), soil_name=names,
-        slip=np.column_stack([f(f"slip_{w}") for w in WHEELS]), v=f("v"), soils=soils)
+        t=c["t"], mu=np.column_stack([c[f"mu_{w}"] for w in WHEELS]), rho_s=c["rho_s"], a=c["a"],
+        soil_id=c["soil_id"].astype(np.int64), soil_name=names,
+        slip=np.column_stack([c[f"slip_{w}"] for w in WHEELS]), v=c["v"], soils=soils)
 
 
 def r_squared(y_hat: NDArray[np.float64], y: NDArray[np.float64]) -> float:
