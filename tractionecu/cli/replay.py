@@ -42,6 +42,9 @@ from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording
 from ..sim.sensors import SensorSpec
 
+_BATCH = 2048
+"""Estimates kept before they are copied into the result arrays (bounded memory, bulk copies)."""
+
 GRID_MARGIN_S = 0.0015
 """Grid time after the wheel-speed frame time [s]: covers CAN arrival jitter and the spread of one burst."""
 
@@ -159,6 +162,12 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
     else:
         new_v, vg = np.zeros(n, dtype=bool), np.zeros(n)
 
+    md_l = md if md is not None else None
+    fz_l = fzf[:, 0].tolist() if fzf is not None else None
+    fd_l = fdx[:, 0].tolist() if fdx is not None else None
+    vg_l = vg.tolist()
+    t_l = grid.tolist()
+    new_md_l, new_om_l, new_fz_l, new_fd_l, new_v_l = (a.tolist() for a in (new_md, new_om, new_fzf, new_fdx, new_v))
     res = {k: np.empty(n) for k in ("rho_s", "a", "v", "nis", "adapt")}
     res_mu = np.empty((n, 4))
     res_slip = np.empty((n, 4))
@@ -169,13 +178,22 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
     res_valid = np.empty(n, dtype=bool)
     res_cls: list[str] = []
 
-    md_l = md if md is not None else None
-    fz_l = fzf[:, 0].tolist() if fzf is not None else None
-    fd_l = fdx[:, 0].tolist() if fdx is not None else None
-    vg_l = vg.tolist()
-    t_l = grid.tolist()
-    new_md_l, new_om_l, new_fz_l, new_fd_l, new_v_l = (a.tolist() for a in (new_md, new_om, new_fzf, new_fdx, new_v))
+    def flush(batch: list[Estimate], k0: int) -> None:
+        """Copy a batch of estimates into the result arrays (rows k0..), field by field."""
+        k1 = k0 + len(batch)
+        for name, arr in res.items():
+            arr[k0:k1] = [getattr(e, name) for e in batch]
+        for name, arr in (("mu", res_mu), ("slip", res_slip), ("omega", res_om), ("P_diag", res_var)):
+            arr[k0:k1] = [getattr(e, name) for e in batch]
+        res_dof[k0:k1] = [e.nis_dof for e in batch]
+        res_status[k0:k1] = [e.status for e in batch]
+        res_valid[k0:k1] = [e.valid for e in batch]
+        res_cls.extend(e.soil_class for e in batch)
+
     step = est.step
+    batch: list[Estimate] = []
+    keep = batch.append
+    k0 = 0
     wall_loop = time.perf_counter()
     for k in range(n):
         inp: dict[str, Any] = {}
@@ -191,21 +209,14 @@ def replay(recording_path: str | Path, out_dir: str | Path, rate_hz: float = 100
         if new_v_l[k]:
             meas["v"] = vg_l[k]
         e = step(t_l[k], inp, meas)
-        res_mu[k] = e.mu
-        res_slip[k] = e.slip
-        res_om[k] = e.omega
-        res_var[k] = e.P_diag
-        res["rho_s"][k] = e.rho_s
-        res["a"][k] = e.a
-        res["v"][k] = e.v
-        res["nis"][k] = e.nis
-        res["adapt"][k] = e.adapt
-        res_dof[k] = e.nis_dof
-        res_status[k] = e.status
-        res_valid[k] = e.valid
-        res_cls.append(e.soil_class)
+        keep(e)
         if on_estimate is not None:
             on_estimate(e)
+        if len(batch) == _BATCH:
+            flush(batch, k0)
+            k0 += _BATCH
+            batch.clear()
+    flush(batch, k0)
     loop_s = time.perf_counter() - wall_loop
 
     arrays = {"t": grid, "mu": res_mu, "slip": res_slip, "omega": res_om, "P_diag": res_var, "nis_dof": res_dof,
