@@ -133,6 +133,10 @@ class CurveEstimator:
         self._num *= lam
         self._den *= lam
         self._nll *= math.exp(-dt / self.class_tau)
+        if len(self.classes) == 1:
+            self._update_single(np.asarray(mu, dtype=float), np.asarray(s, dtype=float),
+                                np.asarray(sigma_mu, dtype=float))
+            return self.state()
         ok = np.isfinite(mu) & np.isfinite(s) & (np.abs(mu) >= self.min_mu) & (mu * s > 0)
         self.n_used = 0
         if ok.any():
@@ -162,10 +166,43 @@ class CurveEstimator:
             self.n_used = used
         return self.state()
 
+    def _update_single(self, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64]) -> None:
+        """The one-class update of :meth:`update` (no class evidence), with floats where the
+        multi-class code uses arrays: same pairs, same operations and summation order."""
+        ml, sl = mu.tolist(), s.tolist()
+        sel = [i for i, (m, x) in enumerate(zip(ml, sl))
+               if math.isfinite(m) and math.isfinite(x) and abs(m) >= self.min_mu and m * x > 0]
+        self.n_used = 0
+        if not sel:
+            return
+        g = self.classes[0].g(s[sel]).tolist()
+        sig = np.broadcast_to(sigma_mu, s.shape)[sel].tolist()
+        wa: list[float] = []
+        wg: list[float] = []
+        for gi, i, sm in zip(g, sel, sig):
+            # solve_a_array's conditions (its error bound is not used here: max_rel_err = inf)
+            if not (abs(sl[i]) >= self.min_slip and abs(gi) > 1e-9):
+                continue
+            a = ml[i] / gi
+            if not a > 0:
+                continue
+            sm = sm if (sm != sm or sm >= 1e-6) else 1e-6          # np.maximum(σ_μ, 1e-6), NaN kept
+            w = 1.0 / (sm * sm) * gi
+            wa.append(w * a)
+            wg.append(w)
+        if not wg:
+            return
+        num, den = wa[0], wg[0]
+        for k in range(1, len(wg)):
+            num += wa[k]
+            den += wg[k]
+        self._num[0] += num       # = Σ w μ̂
+        self._den[0] += den       # = Σ w g(ŝ)
+        self.n_used = len(wg)
+
     def state(self) -> CurveState:
         """The current identification (a, best class, per-class a and evidence)."""
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a = np.where(self._den > 0, self._num / self._den, np.nan)
+        a = np.array([n / d if d > 0 else math.nan for n, d in zip(self._num.tolist(), self._den.tolist())])
         if len(self.classes) > 1:
             cand = int(np.argmin(self._nll))
             if cand != self._best and self._nll[self._best] - self._nll[cand] > self.switch_min_delta:
