@@ -212,6 +212,36 @@ def add_torque_noise(Qb, u, a, r, q2, gain, Q):             # pragma: no cover -
         Q[i, i] += (sm * sm + q2) * gain
 
 
+def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, out):      # pragma: no cover - compiled
+    """out (22,) = [μ (4), slip (4, eq. 6 as model.vehicle.slip), ω (4), diag P (10)] of the state x;
+    returns whether every P_μμ < c_mu and P_ρρ < c_rho (False for NaN)."""
+    va = abs(x[4])
+    for i in range(4):
+        w = x[i]
+        vw = abs((rdf if i < 2 else rdr) * w)
+        if vw < 1e-6 and va < 1e-6:
+            s = 0.0
+        elif va <= vw:
+            s = 1.0 - va / vw
+        elif va != 0.0:
+            s = -1.0 + vw / va
+        else:
+            s = math.nan
+        out[i] = x[5 + i]
+        out[4 + i] = s
+        out[8 + i] = w
+    conv = True
+    n = x.shape[0]
+    for j in range(n):
+        p = P[j, j]
+        out[12 + j] = p
+        if 5 <= j <= 8 and not p < c_mu:
+            conv = False
+    if not P[9, 9] < c_rho:
+        conv = False
+    return conv
+
+
 _rk4_points = _vehicle._rk4_points
 
 if JIT:
@@ -220,3 +250,4 @@ if JIT:
     predict_model = njit(cache=True)(predict_model)
     update_block = njit(cache=True)(update_block)
     add_torque_noise = njit(cache=True)(add_torque_noise)
+    estimate_outputs = njit(cache=True)(estimate_outputs)

@@ -582,26 +582,33 @@ class Estimator:
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
                             nan4.copy(), np.full(N_STATE, np.nan), math.nan, self._f, status | NOT_CONVERGED, False,
                             0, self._curve_state.class_index)
-        xl = x.tolist()
-        v = xl[IX_V]
-        s = np.array(self._slip(xl[:4], v))
-        pd = ukf.P.diagonal().copy()
-        pl = pd.tolist()
-        mu = x[IX_MU].copy()
-        omega = x[:4].copy()
+        c_mu = cfg.conv_sigma_mu ** 2
+        c_rho = cfg.conv_sigma_rho ** 2
+        if JIT:
+            _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+            buf = np.empty(22)
+            conv_p = _kernels.estimate_outputs(x, ukf.P, rdf, rdr, c_mu, c_rho, buf)
+            mu, s, omega, pd = buf[0:4], buf[4:8], buf[8:12], buf[12:22]
+            v = float(x[IX_V])
+        else:
+            xl = x.tolist()
+            v = xl[IX_V]
+            s = np.array(self._slip(xl[:4], v))
+            pd = ukf.P.diagonal().copy()
+            pl = pd.tolist()
+            mu = x[IX_MU].copy()
+            omega = x[:4].copy()
+            conv_p = (pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu and pl[IX_RHO] < c_rho)
         # curve parameter a (paper section 3.2) at the curve rate
         if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
             self._t_curve = t
             self._loads()
-            sig_s = math.sqrt(pl[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
+            sig_s = math.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
             self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s)
-        c_mu = cfg.conv_sigma_mu ** 2
-        conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
-                and pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu
-                and pl[IX_RHO] < cfg.conv_sigma_rho ** 2)
+        conv = self.t_init is not None and t - self.t_init >= cfg.conv_min_s and conv_p
         if not conv:
             status |= NOT_CONVERGED
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        return Estimate(t, mu, xl[IX_RHO], cs.a, cs.class_name, s, v, omega, pd, nis,
+        return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index)
