@@ -92,16 +92,18 @@ def mean_cov(sf, Wm, Wc, Q, x, P):                     # pragma: no cover - comp
     return finite
 
 
-def predict_model(x, P, sqrt_c, u, kc, dt, Wm, Wc, Q, sig, xo, Po):  # pragma: no cover - compiled
+def predict_model(x, P, u, dt, Q, w, kc, sig, xo, Po):    # pragma: no cover - compiled
     """Predict through FilterModel's compiled RK4 in one call: sigma points into sig, x̂ into xo, P into Po.
 
+    w = [√(n+λ), W_m (2n+1), W_c (2n+1)]; kc: FilterModel's constants.
     Returns 0, 1 if P is not positive definite (nothing computed: the caller
     repairs it) or 2 if the prediction is not finite.
     """
-    if not sigma_points(x, P, sqrt_c, sig):
+    npt = sig.shape[0]
+    if not sigma_points(x, P, w[0], sig):
         return 1
     sf = _rk4_points(sig, u, kc, dt)
-    if not mean_cov(sf, Wm, Wc, Q, xo, Po):
+    if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
         return 2
     return 0
 

@@ -533,7 +533,7 @@ class Estimator:
                 updated = True
                 counters["updates"] += 1
                 if cfg.adaptation:
-                    self._cm.push(ukf.last_dx, ukf.ksk_diag())
+                    self._cm.push(*ukf.correction())
         # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
         x = ukf.x
         self._dyn.update(t, float(x[IX_V]), self._md_sum)

@@ -163,13 +163,13 @@ class UnscentedFilter:
         self._Ec = self._E1 * math.sqrt(self._c)
         self._sqrt_wc = np.sqrt(self.Wc)[:, None] if bool((self.Wc >= 0.0).all()) else None
         self._sqrt_c = math.sqrt(self._c)
+        self._w = np.concatenate([[self._sqrt_c], self.Wm, self.Wc])
         # The project's own process model: predict runs in one compiled call (same RK4 code as fx).
         owner = getattr(fx, "__self__", None)
         self._model = owner if (JIT and isinstance(owner, FilterModel) and n == 10
                                 and getattr(fx, "__func__", None) is FilterModel.step) else None
-        self._ksk: NDArray[np.float64] | None = None
         self._slice_cache: dict[tuple, NDArray[np.intp]] = {}
-        self._fast: dict[tuple, tuple | None] = {}
+        self._fast: dict[int, tuple] = {}
         # Counters (cumulative) and last-step diagnostics.
         self.chol_repairs = 0
         """Number of Cholesky failures repaired with jitter / eigenvalue clipping."""
@@ -186,13 +186,61 @@ class UnscentedFilter:
         """Bit j set when output component j was gated on the last update."""
         self.last_idx: NDArray[np.intp] = np.empty(0, dtype=np.intp)
         """Output components used on the last update."""
-        self.last_innov: NDArray[np.float64] = np.empty(0)
-        self.last_S: NDArray[np.float64] = np.empty((0, 0))
-        self.last_K: NDArray[np.float64] = np.empty((n, 0))
-        self.last_dx: NDArray[np.float64] = np.zeros(n)
+        self._lazy: tuple | None = None
+        self._set_last(np.empty(0), np.zeros(n), np.empty((0, 0)), np.empty((n, 0)), np.empty((n, 0)))
+
+    # ------------------------------------------------------------------ diagnostics of the last update
+    def _set_last(self, nu, dx, S, K, C, ksk=None) -> None:
+        self._lazy = None
+        self._last = (nu, dx, S, K, C)
+        self._ksk = ksk
+
+    def _last_parts(self) -> tuple:
+        lz = self._lazy
+        if lz is not None:                 # compiled update: views into its output arrays
+            work, small, m, P, sl = lz
+            self._set_last(small[2 * m], work[:, m], small[:m], work[:, :m], P[:, sl], work[:, m + 1])
+        return self._last
+
+    @property
+    def last_innov(self) -> NDArray[np.float64]:
+        """Innovation ν = z − ŷ of the accepted components of the last update."""
+        return self._last_parts()[0]
+
+    @property
+    def last_dx(self) -> NDArray[np.float64]:
         """Correction K ν of the last update (before clamping)."""
-        self.last_C: NDArray[np.float64] = np.empty((n, 0))
+        return self._last_parts()[1]
+
+    @property
+    def last_S(self) -> NDArray[np.float64]:
+        """Innovation covariance S of the last update."""
+        return self._last_parts()[2]
+
+    @property
+    def last_K(self) -> NDArray[np.float64]:
+        """Gain K of the last update."""
+        return self._last_parts()[3]
+
+    @property
+    def last_C(self) -> NDArray[np.float64]:
         """Cross covariance C_k of the last update; diag(K S Kᵀ) = Σ_j K_ij C_ij."""
+        return self._last_parts()[4]
+
+    def ksk_diag(self) -> NDArray[np.float64]:
+        """diag(K S Kᵀ) = Σ_j K_ij C_ij of the last update (the covariance it removed), (n,)."""
+        parts = self._last_parts()
+        if self._ksk is None:
+            self._ksk = (parts[3] * parts[4]).sum(axis=1)
+        return self._ksk
+
+    def correction(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(last_dx, ksk_diag()) of the last update, for covariance matching."""
+        lz = self._lazy
+        if lz is not None:
+            work, m = lz[0], lz[2]
+            return work[:, m], work[:, m + 1]
+        return self.last_dx, self.ksk_diag()
 
     # ------------------------------------------------------------------ helpers
     def _chol(self, A: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -252,8 +300,8 @@ class UnscentedFilter:
             n = self.n
             x = np.empty(n)
             P = np.empty((n, n))
-            code = _kernels.predict_model(self.x, self.P, self._sqrt_c, np.ascontiguousarray(u), model._kc,
-                                          float(dt), self.Wm, self.Wc, np.ascontiguousarray(Q, dtype=np.float64),
+            code = _kernels.predict_model(self.x, self.P, np.ascontiguousarray(u), float(dt),
+                                          np.ascontiguousarray(Q, dtype=np.float64), self._w, model._kc,
                                           self._sig, x, P)
             if code == 0:
                 self.x = x
@@ -291,19 +339,21 @@ class UnscentedFilter:
         self.P = P
 
     # ------------------------------------------------------------------ update
-    def _fast_spec(self, idx: slice) -> tuple | None:
-        """(index array, state slice, m, I_m) of an output slice whose states are contiguous, else None."""
+    def _fast_entry(self, idx: slice) -> tuple:
+        """(the slice, fast spec or None, index array) of an output slice; the spec is
+        (index array, state slice, m, I_m, (m,)) when its states are contiguous."""
         key = (idx.start, idx.stop, idx.step)
-        if key not in self._fast:
-            comp = np.arange(self.meas_index.size)[idx]
-            self._slice_cache[key] = comp
-            st = self.meas_index[comp]
-            m = int(st.size)
-            if m == 0 or st[-1] - st[0] != m - 1 or (m > 1 and (np.diff(st) != 1).any()):
-                self._fast[key] = None
-            else:
-                self._fast[key] = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m))
-        return self._fast[key]
+        comp = np.arange(self.meas_index.size)[idx]
+        st = self.meas_index[comp]
+        m = int(st.size)
+        if m == 0 or (m > 1 and (np.diff(st) != 1).any()):
+            spec = None
+        else:
+            spec = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m), (m,))
+        ent = (idx, spec, comp)
+        self._slice_cache[key] = comp
+        self._fast[id(idx)] = ent            # the entry holds the slice, so its id stays unique
+        return ent
 
     def update(self, z: ArrayLike, idx: ArrayLike | slice, R: ArrayLike) -> None:
         """Measurement update with output components ``idx``, values z and noise R.
@@ -316,26 +366,22 @@ class UnscentedFilter:
         z = np.asarray(z, dtype=float)
         R = np.asarray(R, dtype=float)
         self.last_gated = 0
-        if isinstance(idx, slice):
-            spec = self._fast_spec(idx)
-            if spec is not None and R.ndim == 1 and z.shape == (spec[2],):
-                if self._update_fast(z, R, spec):
-                    return
-            idx = self._slice_cache[(idx.start, idx.stop, idx.step)]
+        if idx.__class__ is slice:
+            ent = self._fast.get(id(idx))
+            if ent is None or ent[0] is not idx:
+                ent = self._fast_entry(idx)
+            spec = ent[1]
+            if spec is not None and R.ndim == 1 and z.shape == spec[4] and self._update_fast(z, R, spec):
+                return
+            idx = ent[2]
         else:
             idx = np.asarray(idx, dtype=np.intp)
         self._update_general(z, idx, R)
 
-    def ksk_diag(self) -> NDArray[np.float64]:
-        """diag(K S Kᵀ) = Σ_j K_ij C_ij of the last update (the covariance it removed), (n,)."""
-        if self._ksk is None:
-            self._ksk = (self.last_K * self.last_C).sum(axis=1)
-        return self._ksk
-
     def _update_fast(self, z: NDArray[np.float64], R: NDArray[np.float64], spec: tuple) -> bool:
         """Update of contiguous states with a diagonal R; False (nothing changed) if a component
         is non-finite or outside the gate, which the general path then handles."""
-        comp, sl, m, eye = spec
+        comp, sl, m, eye, _ = spec
         P = self.P
         if JIT:
             n = self.n
@@ -348,11 +394,6 @@ class UnscentedFilter:
                                                        x, Pn, work, small)
             if code != _kernels.OK:
                 return False
-            K = work[:, :m]
-            dx = work[:, m]
-            ksk = work[:, m + 1]
-            S = small[:m]
-            nu = small[2 * m]
             if self._gate_run_any:
                 run = self._gate_run
                 run[comp] = 0
@@ -364,14 +405,8 @@ class UnscentedFilter:
             self.last_nis = nis
             self.last_dof = m
             self.last_idx = comp
-            self.last_innov = nu
-            self.last_dx = dx
-            self.last_S = S
-            self.last_K = K
-            self.last_C = P[:, sl]
-            self._ksk = ksk
+            self._lazy = (work, small, m, P, sl)
             return True
-        self._ksk = None
         S = P[sl, sl].copy()
         S.ravel()[::m + 1] += R
         nu = z - self.x[sl]
@@ -406,16 +441,11 @@ class UnscentedFilter:
         self.last_nis = float(nu @ (Si @ nu))
         self.last_dof = m
         self.last_idx = comp
-        self.last_innov = nu
-        self.last_dx = dx
-        self.last_S = S
-        self.last_K = K
-        self.last_C = C
+        self._set_last(nu, dx, S, K, C)
         return True
 
     def _update_general(self, z: NDArray[np.float64], idx: NDArray[np.intp], R: NDArray[np.float64]) -> None:
         """Any subset of outputs, non-finite components dropped, per-component gating."""
-        self._ksk = None
         if not math.isfinite(float(z.sum())):
             ok = np.isfinite(z)
             self.nonfinite_rejected += int((~ok).sum())
@@ -481,19 +511,10 @@ class UnscentedFilter:
         self.last_nis = float(nu @ (Si @ nu))
         self.last_dof = int(st.size)
         self.last_idx = idx
-        self.last_innov = nu
-        self.last_dx = dx
-        self.last_S = S
-        self.last_K = K
-        self.last_C = C
+        self._set_last(nu, dx, S, K, C)
 
     def _no_update(self) -> None:
-        self._ksk = None
         self.last_nis = math.nan
         self.last_dof = 0
         self.last_idx = np.empty(0, dtype=np.intp)
-        self.last_innov = np.empty(0)
-        self.last_S = np.empty((0, 0))
-        self.last_K = np.empty((self.n, 0))
-        self.last_C = np.empty((self.n, 0))
-        self.last_dx = np.zeros(self.n)
+        self._set_last(np.empty(0), np.zeros(self.n), np.empty((0, 0)), np.empty((self.n, 0)), np.empty((self.n, 0)))
