@@ -47,6 +47,18 @@ njit = _load_njit()
 """``numba.njit`` when the compiled filter core is in use, else None (plain numpy)."""
 JIT = njit is not None
 
+
+def compiled(fn, inline: bool = False):
+    """``fn`` compiled with numba (cached on disk when a cache directory is writable), or ``fn`` itself
+    without numba.  Float division by zero gives inf/NaN as in numpy (``error_model="numpy"``)."""
+    if njit is None:
+        return fn
+    kw = {"error_model": "numpy", "inline": "always" if inline else "never"}
+    try:
+        return njit(cache=True, **kw)(fn)
+    except RuntimeError:     # numba found no writable cache directory (see README): compile per process
+        return njit(**kw)(fn)
+
 N_WHEELS = 4
 WHEELS = ("FL", "FR", "RL", "RR")
 
@@ -324,8 +336,7 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     return out
 
 
-if JIT:
-    _sign = njit(cache=True, inline="always")(_sign)
-    _rhs5 = njit(cache=True, inline="always")(_rhs5)
-    _radius = njit(cache=True, inline="always")(_radius)
-    _rk4_points = njit(cache=True)(_rk4_points)
+_sign = compiled(_sign, inline=True)
+_rhs5 = compiled(_rhs5, inline=True)
+_radius = compiled(_radius, inline=True)
+_rk4_points = compiled(_rk4_points)
