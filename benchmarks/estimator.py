@@ -27,7 +27,9 @@ supervisor, curve), ``ukf_step_us``, ``filterpy_step_us``,
 ``model_call_us_21_points`` / ``model_call_us_1_point`` (the floor set by
 ``FilterModel.step``), ``ukf_first_step_s`` (the first step of ours in the
 process: numba compilation, or loading its on-disk cache, and first-call
-costs) and the replay's loop-only factor.
+costs), ``compiled_core`` (1 when the filter core runs compiled with numba,
+0 for the numpy fallback, ``TRACTIONECU_JIT=0``) and the replay's loop-only
+factor.
 """
 
 from __future__ import annotations
@@ -50,7 +52,7 @@ from tractionecu.cli.replay import _arrivals, _group, build_grid, replay  # noqa
 from tractionecu.config import load_vehicle  # noqa: E402
 from tractionecu.estimation.estimator import Estimator, EstimatorConfig  # noqa: E402
 from tractionecu.estimation.ukf import UnscentedFilter  # noqa: E402
-from tractionecu.model.vehicle import WHEELS, FilterModel  # noqa: E402
+from tractionecu.model.vehicle import JIT, WHEELS, FilterModel  # noqa: E402
 from tractionecu.recording.reader import read_recording  # noqa: E402
 from tractionecu.sim import scenarios  # noqa: E402
 from tractionecu.sim.sensors import SensorSpec  # noqa: E402
@@ -242,6 +244,7 @@ def main(argv: list[str] | None = None) -> int:
             "model_call_us_21_points": m21 * 1e6,
             "model_call_us_1_point": m1 * 1e6,
             "ukf_first_step_s": first,
+            "compiled_core": int(JIT),
             "comparison_steps": args.steps,
             "replay_sim_seconds": res["sim_seconds"],
             "replay_wall_seconds": res["wall_seconds"],

@@ -260,7 +260,9 @@ def warm_up() -> None:
     """Compile every kernel now (or load it from numba's on-disk cache) instead of on the first step.
 
     With a cache this takes ≈ 0.1–0.3 s, without one a few seconds; afterwards
-    it returns at once.  Without numba it does nothing.
+    it returns at once.  Without numba it does nothing.  Kernels not warmed up
+    compile on first use, so calling this is optional (a service can call it,
+    or step a throwaway estimator, before its real-time loop starts).
     """
     global _warm
     if _warm or not JIT:

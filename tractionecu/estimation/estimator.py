@@ -291,7 +291,6 @@ class Estimator:
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._pin_T = 1.0 / sp.loadpin_rate_hz
-        _kernels.warm_up()       # compile the filter core now, not on the first step
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
