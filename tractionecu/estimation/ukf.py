@@ -125,9 +125,7 @@ class UnscentedFilter:
       (LAPACK ``potrf``) and E the constant (2n+1, n) matrix [0; √(n+λ)·I;
       −√(n+λ)·I], one matrix product;
     * with all W_c ≥ 0 the predicted covariance is Dᵀ D + Q with the weighted
-      deviations D = √W_c (χ − x̂), a product that numpy evaluates with
-      ``syrk`` and that is therefore exactly symmetric (Q must be symmetric,
-      as a covariance is);
+      deviations D = √W_c (χ − x̂), one product (numpy's ``syrk``);
     * an update whose measurements are finite, contiguous in the state and
       within the gate runs without fancy indexing; anything else (NaN/Inf
       components, gating, index arrays) takes the general path, with the
@@ -325,13 +323,12 @@ class UnscentedFilter:
         sw = self._sqrt_wc
         if sw is not None:
             d *= sw
-            P = d.T @ d                      # syrk: exactly symmetric
-            P += Q
+            P = d.T @ d
         else:
             P = (d.T * self.Wc) @ d
-            P += Q
-            P += P.T
-            P *= 0.5
+        P += Q
+        P += P.T
+        P *= 0.5
         # A non-finite sigma point makes x̂ or a deviation non-finite, and so a diagonal entry of P.
         if not math.isfinite(P.trace()):
             raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
