@@ -166,7 +166,6 @@ class UnscentedFilter:
         owner = getattr(fx, "__self__", None)
         self._model = owner if (JIT and isinstance(owner, FilterModel) and n == 10
                                 and getattr(fx, "__func__", None) is FilterModel.step) else None
-        self._slice_cache: dict[tuple, NDArray[np.intp]] = {}
         self._fast: dict[int, tuple] = {}
         # Counters (cumulative) and last-step diagnostics.
         self.chol_repairs = 0
@@ -339,7 +338,6 @@ class UnscentedFilter:
     def _fast_entry(self, idx: slice) -> tuple:
         """(the slice, fast spec or None, index array) of an output slice; the spec is
         (index array, state slice, m, I_m, (m,)) when its states are contiguous."""
-        key = (idx.start, idx.stop, idx.step)
         comp = np.arange(self.meas_index.size)[idx]
         st = self.meas_index[comp]
         m = int(st.size)
@@ -348,7 +346,6 @@ class UnscentedFilter:
         else:
             spec = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m), (m,))
         ent = (idx, spec, comp)
-        self._slice_cache[key] = comp
         self._fast[id(idx)] = ent            # the entry holds the slice, so its id stays unique
         return ent
 

@@ -44,9 +44,9 @@ from pathlib import Path
 import numpy as np
 
 from ..bus import j1939
-from ..bus.candump import Frame, ReadStats, _classify
+from ..bus.candump import ReadStats, _classify
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
-from ..errors import DecodeError, RecordingError, UnknownFrame
+from ..errors import DecodeError, UnknownFrame
 
 CHUNK_CHARS = 1 << 22
 """Characters read at a time (whole lines are processed per chunk)."""
