@@ -24,6 +24,8 @@ compiled code costs more than passing them in); inputs are not changed.
 
 from __future__ import annotations
 
+import hashlib
+import inspect
 import math
 
 import numpy as np
@@ -92,20 +94,39 @@ def mean_cov(sf, Wm, Wc, Q, x, P):                     # pragma: no cover - comp
     return finite
 
 
-def predict_model(x, P, u, dt, Q, w, kc, sig, xo, Po):    # pragma: no cover - compiled
-    """Predict through FilterModel's compiled RK4 in one call: sigma points into sig, x̂ into xo, P into Po.
+def _model_tag() -> int:
+    """A number that changes with the source of FilterModel's compiled RK4 (and its helpers).
 
-    w = [√(n+λ), W_m (2n+1), W_c (2n+1)]; kc: FilterModel's constants.
-    Returns 0, 1 if P is not positive definite (nothing computed: the caller
-    repairs it) or 2 if the prediction is not finite.
+    :func:`predict_model` compiles that code in; numba's on-disk cache keys a
+    function by its own file and bytecode and by the values it closes over,
+    not by the functions it calls from other files.  Closing over this number
+    makes an edit of the model kernels recompile predict_model instead of
+    reusing a stale cached copy.
     """
-    npt = sig.shape[0]
-    if not sigma_points(x, P, w[0], sig):
-        return 1
-    sf = _rk4_points(sig, u, kc, dt)
-    if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
-        return 2
-    return 0
+    src = "".join(inspect.getsource(getattr(f, "py_func", f))
+                  for f in (_vehicle._sign, _vehicle._rhs5, _vehicle._radius, _vehicle._rk4_points))
+    return int(hashlib.sha256(src.encode("utf-8")).hexdigest()[:15], 16)
+
+
+def _make_predict_model(tag: int):
+    def predict_model(x, P, u, dt, Q, w, kc, sig, xo, Po):  # pragma: no cover - compiled
+        """Predict through FilterModel's compiled RK4 in one call: sigma points into sig, x̂ into xo, P into Po.
+
+        w = [√(n+λ), W_m (2n+1), W_c (2n+1)]; kc: FilterModel's constants.
+        Returns 0, 1 if P is not positive definite (nothing computed: the caller
+        repairs it) or 2 if the prediction is not finite.
+        """
+        if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
+            return 3
+        npt = sig.shape[0]
+        if not sigma_points(x, P, w[0], sig):
+            return 1
+        sf = _rk4_points(sig, u, kc, dt)
+        if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
+            return 2
+        return 0
+
+    return predict_model
 
 
 def update_block(x, P, z, R, i0, gate, lo, hi, xn, Pn, work, small):  # pragma: no cover - compiled
@@ -248,7 +269,7 @@ _rk4_points = _vehicle._rk4_points
 
 sigma_points = compiled(sigma_points)
 mean_cov = compiled(mean_cov)
-predict_model = compiled(predict_model)
+predict_model = compiled(_make_predict_model(_model_tag()))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
 estimate_outputs = compiled(estimate_outputs)
