@@ -29,6 +29,8 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import socket
+import struct
 import threading
 from collections import Counter
 from typing import Any, Callable
@@ -48,6 +50,80 @@ THREAD_POLL_S = 0.1
 """Receive timeout of the reader thread, so it notices a close [s]."""
 
 FrameHandler = Callable[[float, can.Message], None]
+
+_CAN_HEADER = struct.Struct("=IB3x")          # struct can_frame / canfd_frame: can_id, len, pad
+_TIMESPEC = struct.Struct("@ll")
+_U32 = struct.Struct("=I")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size) + socket.CMSG_SPACE(_U32.size)
+_CANFD_MTU = 72
+_EFF, _RTR, _ERR = 0x80000000, 0x40000000, 0x20000000
+_SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
+try:
+    from can.interfaces.socketcan.constants import SO_TIMESTAMPNS as _SO_TIMESTAMPNS
+except ImportError:  # pragma: no cover - python-can layout changed
+    _SO_TIMESTAMPNS = 35
+
+
+class SocketcanReader:
+    """Reads frames from the raw socket of a python-can ``socketcan`` bus, without waiting.
+
+    * one ``recvmsg`` per frame on the non-blocking socket;
+    * the frame time is the kernel's receive time (``SO_TIMESTAMPNS``, enabled
+      by python-can) truncated to microseconds, the value ``candump -L``
+      prints, so a capture replayed offline has the daemon's exact times;
+    * ``SO_RCVBUF`` is raised to ``rx_buffer_bytes`` (the kernel caps it at
+      ``net.core.rmem_max``) so a process that is not scheduled for a while
+      loses nothing, and ``SO_RXQ_OVFL`` makes the kernel report frames it
+      dropped anyway: :attr:`dropped` (cumulative).
+    """
+
+    def __init__(self, sock: socket.socket, channel: str, rx_buffer_bytes: int) -> None:
+        self.sock = sock
+        self.channel = channel
+        self.dropped = 0
+        sock.setblocking(False)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, rx_buffer_bytes)
+        except OSError as e:
+            log.warning("CAN %s: cannot set SO_RCVBUF to %d: %s", channel, rx_buffer_bytes, e)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, _SO_RXQ_OVFL, 1)
+        except OSError as e:
+            log.debug("CAN %s: no SO_RXQ_OVFL: %s", channel, e)
+        self.rcvbuf = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+    def read(self) -> can.Message | None:
+        """One frame, or None if none is waiting.  Raises :class:`can.CanOperationError`
+        on a socket error (``ENETDOWN``, ``ENODEV`` when the interface goes away)."""
+        try:
+            cf, anc, _flags, _addr = self.sock.recvmsg(_CANFD_MTU, _ANCILLARY)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError as e:
+            raise can.CanOperationError(f"Error receiving: {e.strerror}", e.errno) from e
+        can_id, length = _CAN_HEADER.unpack_from(cf)
+        ts = 0.0
+        for level, kind, data in anc:
+            if level != socket.SOL_SOCKET:
+                continue
+            if kind == _SO_TIMESTAMPNS:
+                sec, nsec = _TIMESPEC.unpack_from(data)
+                ts = float(f"{sec}.{nsec // 1000:06d}")
+            elif kind == _SO_RXQ_OVFL and len(data) >= 4:
+                self.dropped = _U32.unpack_from(data)[0]
+        ext = bool(can_id & _EFF)
+        return can.Message(
+            timestamp=ts,
+            arbitration_id=can_id & (0x1FFFFFFF if ext else 0x7FF),
+            is_extended_id=ext,
+            is_remote_frame=bool(can_id & _RTR),
+            is_error_frame=bool(can_id & _ERR),
+            is_fd=len(cf) == _CANFD_MTU,
+            dlc=length,
+            data=cf[8:8 + length],
+            channel=self.channel,
+            check=False,
+        )
 
 
 class CanLink:
@@ -77,6 +153,7 @@ class CanLink:
     stats:
         ``rx_frames``, ``tx_frames``, ``tx_errors``, ``tx_not_open``,
         ``opens``, ``open_failures``, ``link_failures``, ``rx_overflow``,
+        ``rx_kernel_dropped`` (socketcan: frames the kernel dropped, buffer full),
         ``stamp_fallback``, ``handler_errors``, ``silence_reopens``.
     is_open:
         An :class:`asyncio.Event` set while the bus is open.
@@ -107,6 +184,9 @@ class CanLink:
         self._wake_pending = False
         self._use_kernel_stamps = cfg.kernel_timestamps
         self._warned: set[str] = set()
+        self._read_one: Callable[[], can.Message | None] = lambda: None
+        self._sc_reader: SocketcanReader | None = None
+        self._dropped_base = 0
 
     # ------------------------------------------------------------ logging
     def _warn_once(self, kind: str, msg: str, *args: Any) -> None:
@@ -171,6 +251,7 @@ class CanLink:
             fd = -1
         if isinstance(fd, int) and fd >= 0:
             self._fd = fd
+            self._read_one = self._raw_reader(bus)
             loop.add_reader(fd, self._on_readable)
         else:
             self._start_thread(bus)
@@ -240,13 +321,34 @@ class CanLink:
             self.stats["handler_errors"] += 1
             self._warn_once("handler", "CAN frame handler failed on %s: %r", msg, e)
 
+    def _raw_reader(self, bus: can.BusABC) -> Callable[[], can.Message | None]:
+        """A function reading one frame or None without waiting.
+
+        socketcan: :class:`SocketcanReader` on the bus's socket (one ``recvmsg``
+        per frame where ``bus.recv(timeout=0)`` adds a ``select``; candump's
+        microsecond times; kernel drop counter).  Other interfaces:
+        ``bus.recv(timeout=0)``.
+        """
+        sock = getattr(bus, "socket", None)
+        # python-can filters in software when the kernel refused the filters: keep its recv() then
+        kernel_filtered = bool(getattr(bus, "_is_filtered", False)) or not getattr(bus, "filters", None)
+        if self.cfg.interface == "socketcan" and isinstance(sock, socket.socket) and kernel_filtered:
+            reader = SocketcanReader(sock, self.cfg.channel, self.cfg.rx_buffer_bytes)
+            self._sc_reader = reader
+            self._dropped_base = self.stats["rx_kernel_dropped"]
+            log.info("CAN %s: receive buffer %d bytes", self.cfg.channel, reader.rcvbuf)
+            return reader.read
+        self._sc_reader = None
+        return lambda: bus.recv(timeout=0)
+
     def _on_readable(self) -> None:
         bus = self.bus
         if bus is None:
             return
+        read = self._read_one
         for _ in range(MAX_BATCH):
             try:
-                msg = bus.recv(timeout=0)
+                msg = read()
             except Exception as e:  # CanOperationError on ENETDOWN / ENODEV ...
                 if self._fd is not None and self._loop is not None:
                     self._loop.remove_reader(self._fd)
@@ -258,6 +360,12 @@ class CanLink:
             t = self.clock.now()
             self.last_rx_mono = self._loop.time() if self._loop else 0.0
             self._deliver(self._stamp(msg, t), msg)
+        sc = self._sc_reader
+        if sc is not None and self._dropped_base + sc.dropped > self.stats["rx_kernel_dropped"]:
+            new = self._dropped_base + sc.dropped - self.stats["rx_kernel_dropped"]
+            self.stats["rx_kernel_dropped"] += new
+            self._warn_once("dropped", "CAN %s: the kernel dropped %d frame(s): receive buffer full (%d bytes; "
+                            "raise can.rx_buffer_bytes and net.core.rmem_max)", self.cfg.channel, new, sc.rcvbuf)
 
     def _start_thread(self, bus: can.BusABC) -> None:
         stop = threading.Event()
@@ -291,11 +399,18 @@ class CanLink:
         self._thread.start()
 
     def drain(self) -> int:
-        """Process every frame already received (call before an estimator step).  Returns the count."""
+        """Process every frame already received (call before an estimator step).  Returns the count.
+
+        With a file descriptor this reads the device (system calls); see :meth:`drain_queued`.
+        """
         if self._fd is not None:
             before = self.stats["rx_frames"]
             self._on_readable()
             return self.stats["rx_frames"] - before
+        return self.drain_queued()
+
+    def drain_queued(self) -> int:
+        """Process the frames a reader thread has queued (no system call; 0 on the fd path)."""
         self._wake_pending = False
         q = self._queue
         n = 0

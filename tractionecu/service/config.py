@@ -113,10 +113,14 @@ class CanConfig:
     channel: str = _f("can0", "python-can channel (socketcan: network interface name)")
     timestamps: str = _f("auto", "frame times: 'kernel' (the driver's receive time), 'receipt' (when read), "
                                  "'auto' (kernel for socketcan, else receipt)")
+    rx_buffer_bytes: int = _f(2 * 1024 * 1024, "socketcan receive buffer (SO_RCVBUF; the kernel caps it at "
+                                                 "net.core.rmem_max) [bytes]", 16384, 256 * 1024 * 1024)
     rx_queue_frames: int = _f(4096, "bound of the receive queue between a reader thread and the event loop [frames]", 16, 1_000_000)
     reopen_min_s: float = _f(0.5, "first wait before reopening a failed interface [s]", 0.01, 60.0)
     reopen_max_s: float = _f(10.0, "longest wait between reopen attempts (doubling backoff) [s]", 0.01, 600.0)
     silence_reopen_s: float = _f(0.0, "reopen the interface after this long without any frame [s]; 0 = never", 0.0, 3600.0)
+    kernel_filters: bool = _f(True, "receive only the DBC's PGNs (any source address): SocketCAN drops the rest in "
+                                    "the kernel; false = receive everything and count what is skipped")
     options: Mapping[str, Any] = field(default_factory=dict, metadata={"doc": "extra keyword arguments for can.Bus (e.g. bitrate)"})
 
     def __post_init__(self) -> None:
@@ -136,7 +140,7 @@ class CanConfig:
             raise ConfigError(f"can.reopen_max_s = {self.reopen_max_s} is below can.reopen_min_s = {self.reopen_min_s}")
         if not isinstance(self.options, Mapping):
             raise ConfigError(f"can.options: expected a table, got {self.options!r}")
-        for k in ("interface", "channel"):
+        for k in ("interface", "channel", "can_filters"):
             if k in self.options:
                 raise ConfigError(f"can.options.{k}: set can.{k} instead")
         object.__setattr__(self, "options", dict(self.options))

@@ -73,6 +73,40 @@ def default_estimator_factory(vehicle: Any) -> Any:
     return Estimator(vehicle)
 
 
+def pgn_filters(pgns: list[int]) -> list[dict[str, Any]]:
+    """python-can ``can_filters`` passing these PGNs from any source (and, PDU1, to any destination)."""
+    out = []
+    for pgn in pgns:
+        pdu1 = ((pgn >> 8) & 0xFF) < 240
+        out.append({"can_id": (pgn & (0x3FF00 if pdu1 else 0x3FFFF)) << 8,
+                    "can_mask": (0x3FF00 if pdu1 else 0x3FFFF) << 8, "extended": True})
+    return out
+
+
+def warm_up(factory: EstimatorFactory, vehicle: Any) -> float:
+    """Run a throwaway estimator through every kind of step; returns the seconds it took.
+
+    The estimator's compiled (numba) kernels are compiled or loaded from their
+    cache on first use, which takes seconds; done here, before the estimation
+    loop starts, it delays neither the first steps nor the watchdog.
+    """
+    import numpy as np
+
+    t0 = time.perf_counter()
+    est = factory(vehicle)
+    md = np.full(4, 900.0)
+    om = np.full(4, 3.2)
+    for k in range(60):
+        t = 0.01 * k
+        meas: dict[str, Any] = {"omega": om + 0.001 * k}
+        if k % 10 == 0:
+            meas["v"] = 2.4
+        inputs = {"Md": md, "Fzf": 25000.0, "Fdx": 12000.0} if k % 7 else {}
+        est.step(t, inputs, meas if k % 5 else {})
+    est.step(1.0, {"Md": md, "Fzf": math.nan}, {"v": 2.4})
+    return time.perf_counter() - t0
+
+
 def _pgn(can_id: int) -> int:
     raw = (can_id >> 8) & 0x3FFFF
     return raw & 0x3FF00 if ((raw >> 8) & 0xFF) < 240 else raw
@@ -101,6 +135,8 @@ class Service:
         (None: no lines).
     env:
         Environment for ``$STATE_DIRECTORY`` and the watchdog (default os.environ).
+    warm_up_estimator:
+        Run :func:`warm_up` on a throwaway estimator before the loop starts.
     """
 
     def __init__(self, cfg: ServiceConfig, *, clock: ServiceClock | None = None,
@@ -111,7 +147,8 @@ class Service:
                  notifier: Notifier | None = None,
                  status_stream: IO[str] | None = None,
                  env: dict[str, str] | None = None,
-                 codec: Codec | None = None) -> None:
+                 codec: Codec | None = None,
+                 warm_up_estimator: bool = True) -> None:
         self.cfg = cfg
         self.clock = clock or ServiceClock()
         self.codec = codec or default_codec()
@@ -123,8 +160,11 @@ class Service:
         self.unknown_pgns: Counter[int] = Counter()
         self.bad_frames: Counter[str] = Counter()
         self.steps = StepAssembler(depth=max(256, int(cfg.estimation.lag_s * 200) + 64))
+        bus_kwargs = dict(extra_bus_kwargs or {})
+        if cfg.can.kernel_filters:
+            bus_kwargs.setdefault("can_filters", pgn_filters(self.codec.pgns()))
         self.can = CanLink(cfg.can, self._on_frame, self.clock, bus_factory=bus_factory,
-                           extra_bus_kwargs=extra_bus_kwargs, on_open=self._on_can_open)
+                           extra_bus_kwargs=bus_kwargs, on_open=self._on_can_open)
         self.gps: GpsReader | None = None
         if cfg.gps.source == "serial":
             self.gps = GpsReader(cfg.gps, self._on_fix, self.clock, serial_factory=serial_factory)
@@ -150,6 +190,7 @@ class Service:
         self._rate_mono = time.monotonic()
         self.rates: dict[str, float] = {}
         self.exit_code = 0
+        self.warm_up_estimator = warm_up_estimator
         self.max_tick_delay_s = 0.0
         """Longest a step ran after it was due [wall s] (scheduling latency of the loop)."""
 
@@ -317,9 +358,14 @@ class Service:
                                 -delay * clock.speed, k_new - k)
                 k = k_new
                 continue
-            self.can.drain()
-            if self.gps is not None:
-                self.gps.drain()
+            if -delay > 1.0 / rate:
+                # the process was not scheduled for a while: read what arrived meanwhile before
+                # stepping (on time, the readers' callbacks have already run in this loop pass)
+                self.can.drain()
+                if self.gps is not None:
+                    self.gps.drain()
+            else:
+                self.can.drain_queued()
             if anchored:
                 est = self._step(t_k)
             else:
@@ -450,6 +496,13 @@ class Service:
             tasks.append(("can", asyncio.create_task(self.can.run(), name="can")))
             if self.gps is not None:
                 tasks.append(("gps", asyncio.create_task(self.gps.run(), name="gps")))
+            if self.warm_up_estimator:
+                self.notifier.status("preparing the estimator")
+                try:
+                    dt = await loop.run_in_executor(None, warm_up, self.estimator_factory, self._load_vehicle())
+                    log.info("estimator compiled and ready in %.2f s", dt)
+                except Exception as e:  # the real steps will show it; do not stop here
+                    log.warning("estimator warm-up failed: %r", e)
             tasks.append(("estimation", asyncio.create_task(self._estimation_loop(), name="estimation")))
             tasks.append(("status", asyncio.create_task(self._status_loop(), name="status")))
             self.notifier.status("waiting for the CAN bus" + (" and GPS" if self.gps else ""))
