@@ -107,6 +107,10 @@ def _arrivals(src_t: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return idx, (idx >= 0) & (idx != prev)
 
 
+GRID_MAX_GAP_S = 2.0
+"""Wheel-speed gaps longer than this [s] are left out of the replay grid."""
+
+
 def build_grid(rec: Recording, rate_hz: float) -> np.ndarray:
     """Fixed-rate grid [s] phased to the wheel-speed frames (see module doc)."""
     ws = rec.signals.get("WheelSpeed_FL")
@@ -114,8 +118,21 @@ def build_grid(rec: Recording, rate_hz: float) -> np.ndarray:
         raise ConfigError("recording has no WheelSpeed_FL signal (TECU_WheelSpeeds)")
     t0 = float(ws.t[0]) + GRID_MARGIN_S
     t1 = float(rec.t_end)
-    n = int(math.floor((t1 - t0) * rate_hz + 1e-9)) + 1
-    return t0 + np.arange(max(n, 0)) / rate_hz
+    # Gaps in the wheel-speed stream longer than GRID_MAX_GAP_S (logger paused, a clock jump
+    # in the capture) get no grid steps: the grid covers the spans that hold data, so a jump
+    # of years cannot ask for an absurd number of steps; the estimator restarts after a gap.
+    gaps = np.flatnonzero(np.diff(ws.t) > GRID_MAX_GAP_S)
+    if gaps.size == 0:
+        n = int(math.floor((t1 - t0) * rate_hz + 1e-9)) + 1
+        return t0 + np.arange(max(n, 0)) / rate_hz
+    starts = np.concatenate([[t0], ws.t[gaps + 1] + GRID_MARGIN_S])
+    ends = np.concatenate([ws.t[gaps], [t1]])
+    parts = []
+    for a, b in zip(starts, ends):
+        n = int(math.floor((float(b) - float(a)) * rate_hz + 1e-9)) + 1
+        if n > 0:
+            parts.append(float(a) + np.arange(n) / rate_hz)
+    return np.concatenate(parts) if parts else np.empty(0)
 
 
 def _group(rec: Recording, names: list[str], grid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:

@@ -100,6 +100,7 @@ class EstimatorConfig:
     alpha: float = field(default=1.0, metadata={"doc": "sigma-point spread α [-] (filterpy MerweScaledSigmaPoints)", "lo": 1e-4, "hi": 10.0})
     beta: float = field(default=2.0, metadata={"doc": "sigma-point β [-] (2 is optimal for Gaussians)", "lo": 0.0, "hi": 10.0})
     kappa: float = field(default=0.0, metadata={"doc": "sigma-point κ [-]", "lo": -9.0, "hi": 100.0})
+    max_gap_s: float = field(default=2.0, metadata={"doc": "a gap between steps longer than this restarts the filter [s]", "lo": 0.01, "hi": 3600.0})
     max_step_s: float = field(default=0.02, metadata={"doc": "longest single prediction step; longer gaps are sub-stepped [s]", "lo": 1e-4, "hi": 1.0})
     # process noise (tuning)
     q_omega: float = field(default=1e-4, metadata={"doc": "model-error density on each ω [rad²/s³]", "lo": 0.0, "hi": 1e3})
@@ -291,6 +292,7 @@ class Estimator:
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._pin_T = 1.0 / sp.loadpin_rate_hz
+        self._weight = vehicle.weight_n
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -325,7 +327,7 @@ class Estimator:
         self._fz = np.zeros(4)
         self._rd = np.full(4, self.vehicle.r0_m)
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
-                         "chol_repairs": 0, "resets": 0}
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0}
 
     # ------------------------------------------------------------------ noise
     def _loads(self) -> None:
@@ -440,7 +442,9 @@ class Estimator:
                 if val is _ABSENT:
                     continue
                 fv = math.nan if val is None else float(val)
-                if math.isfinite(fv):
+                # The front-axle load must leave both axles loaded: 0 < F_zf < m g
+                # (F_zf = 0 would divide by zero in μ = F_h / F_z).
+                if math.isfinite(fv) and (i != 4 or 0.0 < fv < self._weight):
                     u[i] = fv
                     t_in[key] = t
                 else:
@@ -501,6 +505,13 @@ class Estimator:
             return self._estimate(t, status | NOT_CONVERGED, None)
         # ---- predict
         dt = t - self.t if self.t is not None else 0.0
+        if dt > cfg.max_gap_s:
+            # A gap in the data (logger paused, bus down): propagating the model
+            # blindly across it means nothing; start again from the next data.
+            counters["gap_resets"] += 1
+            self.ukf = None
+            self.t = t
+            return self._estimate(t, status | NOT_CONVERGED, None)
         if dt > 0.0:
             n_sub = max(1, int(math.ceil(dt / cfg.max_step_s - 1e-9)))
             h = dt / n_sub
