@@ -7,7 +7,9 @@ inside its thread or reader callback under asyncio (python-can #907, #1667,
 * :meth:`CanLink.run` opens ``can.Bus(interface=..., channel=..., **options)``
   (off the event loop), attaches a reader and waits for it to fail; then it
   closes the bus and reopens it with a doubling backoff
-  (``can.reopen_min_s`` .. ``can.reopen_max_s``) until it succeeds again.
+  (``can.reopen_min_s`` .. ``can.reopen_max_s``) until it succeeds again;
+  while a socketcan interface is missing from sysfs, its reappearance ends
+  the wait at once.
   A vanished interface (``ip link del can0``, USB adapter unplugged) or one
   taken down thus costs only the frames sent while it was gone.
 * Reader: if the bus has a file descriptor (socketcan), the event loop reads
@@ -29,6 +31,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import os
 import socket
 import struct
 import threading
@@ -48,6 +51,10 @@ STAMP_TOLERANCE_S = 1.0
 """Largest accepted difference between a driver time stamp and the service clock [wall s]."""
 THREAD_POLL_S = 0.1
 """Receive timeout of the reader thread, so it notices a close [s]."""
+LINK_POLL_S = 0.1
+"""While a socketcan interface is missing, how often sysfs is checked for it to come back [s]."""
+LINK_SETTLE_S = 0.05
+"""Pause between the interface appearing and the open attempt (``ip link set up`` follows ``add``) [s]."""
 
 FrameHandler = Callable[[float, can.Message], None]
 
@@ -212,7 +219,7 @@ class CanLink:
                 self.last_error = f"open: {e}"
                 self._warn_once("open", "CAN %s: cannot open (%s); retrying every ≤ %.1f s",
                                 desc, e, self.cfg.reopen_max_s)
-                await asyncio.sleep(backoff)
+                await self._backoff(backoff)
                 backoff = min(2 * backoff, self.cfg.reopen_max_s)
                 continue
             if self._closing:
@@ -231,8 +238,31 @@ class CanLink:
             self.stats["link_failures"] += 1
             self.last_error = reason
             self._warn_once("link", "CAN %s: lost (%s); reopening", desc, reason)
-            await asyncio.sleep(backoff)
+            await self._backoff(backoff)
             backoff = min(2 * backoff, self.cfg.reopen_max_s)
+
+    def _link_present(self) -> bool | None:
+        """socketcan: whether the network interface exists (from sysfs); None for other interfaces."""
+        if self.cfg.interface != "socketcan":
+            return None
+        return os.path.exists(f"/sys/class/net/{self.cfg.channel}")
+
+    async def _backoff(self, seconds: float) -> None:
+        """Wait before the next open attempt; for socketcan, stop waiting as soon as a missing
+        interface appears (``ip link add``, adapter plugged in), so recovery does not wait for the
+        backoff to run out."""
+        present = self._link_present()
+        if present is None or present:
+            await asyncio.sleep(seconds)
+            return
+        loop = asyncio.get_running_loop()
+        end = loop.time() + seconds
+        while (left := end - loop.time()) > 0 and not self._closing:
+            await asyncio.sleep(min(LINK_POLL_S, left))
+            if self._link_present():
+                self.stats["link_appeared"] += 1
+                await asyncio.sleep(LINK_SETTLE_S)
+                return
 
     def _open(self) -> can.BusABC:
         return self.bus_factory(interface=self.cfg.interface, channel=self.cfg.channel,

@@ -117,7 +117,7 @@ class CanConfig:
                                                  "net.core.rmem_max) [bytes]", 16384, 256 * 1024 * 1024)
     rx_queue_frames: int = _f(4096, "bound of the receive queue between a reader thread and the event loop [frames]", 16, 1_000_000)
     reopen_min_s: float = _f(0.5, "first wait before reopening a failed interface [s]", 0.01, 60.0)
-    reopen_max_s: float = _f(10.0, "longest wait between reopen attempts (doubling backoff) [s]", 0.01, 600.0)
+    reopen_max_s: float = _f(1.0, "longest wait between reopen attempts (doubling backoff) [s]", 0.01, 600.0)
     silence_reopen_s: float = _f(0.0, "reopen the interface after this long without any frame [s]; 0 = never", 0.0, 3600.0)
     kernel_filters: bool = _f(True, "receive only the DBC's PGNs (any source address): SocketCAN drops the rest in "
                                     "the kernel; false = receive everything and count what is skipped")
