@@ -227,10 +227,6 @@ def test_vcan0_recreated_broadcasts_again_within_2s(tmp_path: Path, recording: P
     assert rec_s <= 2.0
 
 
-@pytest.mark.xfail(strict=True, reason="can.reopen_max_s defaults to 10 s with a doubling backoff from 0.5 s "
-                   "(tractionecu/service/config.py CanConfig): after an outage of 4 s the attempts fall at "
-                   "about 0.5, 1.5, 3.5, 7.5 s, so the bus is reopened about 3.5 s after vcan0 is back, "
-                   "beyond the 2 s recovery target; a cap of 1 s (or a retry on RTM_NEWLINK) meets it")
 def test_vcan0_recreated_after_a_longer_outage_broadcasts_again_within_2s(tmp_path: Path, recording: Path) -> None:
     ensure_vcan0()
     cfg = write_config(tmp_path / "s.toml", tmp_path / "state", recording / "vehicle.toml", None)
