@@ -23,7 +23,8 @@ from ..errors import ConfigError
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("run", help="run the in-cab service (or --simulate it without hardware)",
-                       description=__doc__.splitlines()[0])
+                       description="Run the in-cab service on a CAN interface and a GNSS serial port, "
+                                   "or with --simulate on the built-in simulator (no hardware, no root).")
     p.add_argument("--config", metavar="TOML", default=None, help="service configuration (default: built-in defaults)")
     p.add_argument("--state-dir", metavar="DIR", default=None,
                    help="state directory for map tiles and the resolved config "
