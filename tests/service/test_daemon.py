@@ -42,6 +42,7 @@ class StandIn:
         if self.fail_at is not None and len(self.calls) == self.fail_at:
             raise FloatingPointError("stand-in failure")
         return SimpleNamespace(t=t, mu=np.full(4, 0.4), slip=np.full(4, 0.05), rho_s=0.07, a=0.7,
+                               P_diag=np.array([1e-4] * 5 + [1e-5] * 4 + [1e-6]),
                                soil_class="stubble", soil_class_index=0, v=2.5, status=0, valid=True)
 
     def reset(self) -> None:
@@ -66,7 +67,7 @@ class Rig:
             "can": {"interface": "virtual", "channel": self.channel, "reopen_min_s": 0.02, "reopen_max_s": 0.1},
             "gps": {"port": str(self.port), "reopen_min_s": 0.02, "reopen_max_s": 0.1},
             "service": {"state_dir": str(tmp / "state"), "status_interval_s": 0.2},
-            "map": {"flush_interval_s": 0.2},
+            "map": {"flush_interval_s": 0.2, "window_half_s": 0.3},   # short runs: map samples 0.3 s late
         }
         for k, v in overrides.items():
             sections.setdefault(k, {}).update(v)

@@ -246,6 +246,7 @@ class MapConfig:
     origin_lon: float = _f(math.nan, "field origin longitude [deg]; NaN = from the existing map, else the first fix", -180.0, 180.0, nan_ok=True)
     resolution_m: float = _f(0.5, "cell size of a new map [m]", 0.05, 100.0)
     max_fix_age_s: float = _f(0.5, "a position older than this is not mapped [s]", 0.01, 10.0)
+    window_half_s: float = _f(10.0, "half width H of the centred map window; samples are mapped H seconds late [s] (tractionecu.mapping.sampler)", 0.1, 120.0)
 
     def __post_init__(self) -> None:
         _check(self, "map")

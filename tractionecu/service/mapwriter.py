@@ -13,8 +13,12 @@
 
 Layers written: ``a`` and the class shape ``p, alpha1, alpha2`` (once a is
 identified), ``rho_s``, and ``mu`` = mean adhesion over the four wheels.
-Only estimates with ``valid`` set are accumulated (the store counts the
-rest as ``rejected_invalid``).
+The values are those of a window centred on each 10 Hz sample
+(:class:`~tractionecu.mapping.sampler.CentredSampler`, the same computation
+``replay`` applies offline), so a sample is mapped ``map.window_half_s``
+seconds after it was taken; on shutdown the pending samples are mapped with
+the window they have.  Only estimates with ``valid`` set are accumulated (the
+store counts the rest as ``rejected_invalid``).
 """
 
 from __future__ import annotations
@@ -27,6 +31,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from ..mapping.sampler import CentredSampler
 from ..mapping.tiles import MANIFEST_NAME
 from ..model.mucurve import SOIL_CLASSES
 from .config import MapConfig
@@ -74,6 +79,7 @@ class MapWriter:
         self._flushing: asyncio.Future[Any] | None = None
         self._opening: asyncio.Future[Any] | None = None
         self._last_flush_mono = -math.inf
+        self.sampler = CentredSampler(cfg.window_half_s)
 
     async def open(self) -> None:
         """Resume an existing map (tiles read in the worker thread), or wait for the first fix."""
@@ -105,27 +111,46 @@ class MapWriter:
         self.stats["resumed_tiles"] = n
 
     def add(self, est: Any, fix: GpsSample | None) -> bool:
-        """Accumulate one estimate at the fix's position; False if not used."""
+        """Take one estimate at the fix's position; map the samples whose window is complete.
+
+        Returns False if this estimate cannot be mapped (no fix) or a ready
+        sample was not accepted.
+        """
         if fix is None:
             self.stats["no_fix"] += 1
             return False
-        if self.store is None:
-            if self._opening is None:
-                loop = asyncio.get_running_loop()
-                self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
-                self._opening.add_done_callback(self._opened)
-            self.stats["waiting_for_store"] += 1
-            return False
+        if self.store is None and self._opening is None:
+            loop = asyncio.get_running_loop()
+            self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
+            self._opening.add_done_callback(self._opened)
         try:
-            ok = self.store.add(fix.lat_deg, fix.lon_deg, layer_values(est), est.t, valid=bool(est.valid),
-                                status=int(est.status), fix_quality=fix.fix_quality, hdop=fix.hdop)
-        except Exception as e:  # a closed or broken store must not stop the loop
+            ready = self.sampler.push(est.t, fix.lat_deg, fix.lon_deg, fix.fix_quality, fix.hdop, est)
+        except Exception as e:  # a malformed estimate must not stop the loop
             self.stats["add_errors"] += 1
             self.last_error = str(e)
-            log.warning("map add failed: %s", e)
+            log.warning("map sample failed: %s", e)
             return False
-        self.stats["added" if ok else "rejected"] += 1
-        return ok
+        return self._add_ready(ready)
+
+    def _add_ready(self, ready: list[tuple]) -> bool:
+        all_ok = True
+        for (t, lat, lon, values, valid, status, fix_quality, hdop) in ready:
+            if self.store is None:
+                self.stats["waiting_for_store"] += 1
+                all_ok = False
+                continue
+            vals = {k: v for k, v in values.items() if math.isfinite(v)}
+            try:
+                ok = self.store.add(lat, lon, vals, t, valid=valid, status=status, fix_quality=fix_quality, hdop=hdop)
+            except Exception as e:  # a closed or broken store must not stop the loop
+                self.stats["add_errors"] += 1
+                self.last_error = str(e)
+                log.warning("map add failed: %s", e)
+                all_ok = False
+                continue
+            self.stats["added" if ok else "rejected"] += 1
+            all_ok = all_ok and ok
+        return all_ok
 
     def _opened(self, fut: asyncio.Future[Any]) -> None:
         if fut.cancelled():
@@ -168,6 +193,7 @@ class MapWriter:
                 await self._opening
             except Exception:
                 pass
+        self._add_ready(self.sampler.drain())
         if self._flushing is not None:
             try:
                 await self._flushing
