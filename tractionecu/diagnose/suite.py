@@ -108,7 +108,7 @@ def all_cases() -> list[Case]:
     C: list[Case] = []
 
     def add(name, kind, effect, params, build, fast=False, note="", full=True):
-        C.append(Case(name, kind, effect, params, build, fast, note, full))
+        C.append(Case(name, kind, effect, params, build, fast=fast, full=full, note=note))
 
     # grade: the real HENRYS relief, passes across the contour lines in both directions.
     add("grade_henrys_a", "effect", "grade", {"scale": 1.0},
@@ -292,3 +292,46 @@ def summarize(rows: list[dict]) -> dict:
         "confounded_as_ambiguous": bool(conf) and all(r["correct"] for r in conf),
         "n_confounded_cases": len(conf),
     }
+
+
+# --------------------------------------------------------------------------- rough exports
+def export_engine_csv(recording: str | Path, path: str | Path, *, gear_ratio: float = 60.0,
+                      reference_torque_nm: float = 450.0, rate_hz: float = 1.0) -> Path:
+    """Write a J1939-style decoded export of a recording, as a CAN logger's 1 Hz CSV would hold it.
+
+    The simulated tractor drives its wheels directly; the export pretends one engine drives all
+    four wheels through a fixed ratio ``gear_ratio`` [-] without loss:
+    engine speed ω_e = i ω̄_wheel, engine torque T_e = Σ M_i / i, written as percent of
+    ``reference_torque_nm`` (EEC1 SPN 513, 1 % resolution) and rpm (SPN 190, 0.125 rpm);
+    wheel-based speed from WBSD in km/h (CCVS SPN 84, 1/256 km/h); GNSS speed in km/h, position
+    and altitude from the NMEA fixes.  Each column holds the latest value at each export tick
+    (a logger's sample-and-hold); there is no per-wheel signal and no draft.  Time column
+    ``timestamps`` in seconds since the start.
+    """
+    import csv
+
+    from ..model.vehicle import WHEELS
+    from ..recording.reader import read_recording
+
+    rec = read_recording(recording)
+    tab = rec.table(rate_hz)
+    t = tab.t - tab.t[0]
+    om = np.mean([tab[f"WheelSpeed_{w}"] for w in WHEELS], axis=0)
+    md = np.sum([tab[f"DriveTorque_{w}"] for w in WHEELS], axis=0)
+    eng_speed_rpm = np.round(gear_ratio * om * 60.0 / (2 * math.pi) / 0.125) * 0.125
+    torque_pct = np.round(md / gear_ratio / reference_torque_nm * 100.0)
+    ccvs_kmh = np.round(tab["WheelBasedMachineSpeed"] * 3.6 * 256.0) / 256.0
+    gnss_kmh = tab["gps_speed"] * 3.6
+    out = Path(path)
+    with open(out, "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh)
+        w.writerow(["timestamps", "EEC1_ActualEnginePercentTorque", "EEC1_EngineSpeed", "CCVS1_WheelBasedVehicleSpeed",
+                    "GNSS_Speed", "Latitude", "Longitude", "gnss_altitude_Altitude"])
+        for k in range(t.size):
+            vals = [torque_pct[k], eng_speed_rpm[k], ccvs_kmh[k], gnss_kmh[k], tab["gps_lat"][k], tab["gps_lon"][k],
+                    tab["gps_alt"][k]]
+            if not all(np.isfinite(vals)):
+                continue
+            w.writerow([f"{t[k]:.3f}", f"{vals[0]:.0f}", f"{vals[1]:.3f}", f"{vals[2]:.4f}", f"{vals[3]:.3f}",
+                        f"{vals[4]:.8f}", f"{vals[5]:.8f}", f"{vals[6]:.2f}"])
+    return out

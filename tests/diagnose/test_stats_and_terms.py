@@ -1,0 +1,132 @@
+"""Building blocks of diagnosis against closed-form results: filters, curve inverse, HAC, scoring."""
+
+import math
+
+import numpy as np
+import pytest
+
+from tractionecu.diagnose.candidates import CANDIDATES
+from tractionecu.diagnose.channels import _CurveInverse, _onehot_scaled_fit, relaxed, relaxed_by_distance
+from tractionecu.diagnose.fit import andrews_bandwidth, hac_meat, n_effective
+from tractionecu.diagnose.suite import Case, summarize
+from tractionecu.model.effects import EFFECTS
+from tractionecu.model.mucurve import SOIL_CLASSES
+
+
+def test_every_library_effect_is_a_candidate_with_library_bounds():
+    assert set(CANDIDATES) == set(EFFECTS)
+    for name, cand in CANDIDATES.items():
+        specs = {p.name: p for p in EFFECTS[name].params}
+        for fp in cand.fitted:
+            assert (fp.lo, fp.hi, fp.unit) == (specs[fp.name].lo, specs[fp.name].hi, specs[fp.name].unit)
+            assert fp.lo <= fp.null <= fp.hi
+        # Fitted and held parameters together are exactly the library's parameters.
+        assert {fp.name for fp in cand.fitted} | set(cand.fixed) == set(specs)
+
+
+@pytest.mark.parametrize("sigma", [0.3, 0.8, 2.0])
+def test_relaxation_by_distance_matches_first_order_step_response(sigma):
+    """A slip step at constant speed relaxes as 1 − exp(−x/σ), x the distance after the step."""
+    dt, v = 0.01, 2.0
+    t = np.arange(0.0, 6.0, dt)
+    s = np.where(t >= 1.0, 0.1, 0.0)[:, None]
+    out = relaxed_by_distance(t, s, np.full(t.size, v), sigma, dx=0.005)[:, 0]
+    x_after = np.clip((t - 1.0) * v, 0.0, None)
+    expect = np.where(t >= 1.0, 0.1 * (1.0 - np.exp(-x_after / sigma)), 0.0)
+    # The step is known only to within one sample of travel (v·dt): the response may be off by
+    # what the filter does over that distance.
+    assert np.max(np.abs(out - expect)) <= 0.1 * (1.0 - math.exp(-v * dt / sigma))
+
+
+def test_relaxation_time_and_distance_forms_agree_at_varying_speed():
+    """The exact-step time-domain filter and the distance-domain filter solve the same equation."""
+    dt = 0.002
+    t = np.arange(0.0, 8.0, dt)
+    v = 1.0 + 0.8 * np.sin(0.7 * t)
+    s = (0.05 + 0.03 * np.sin(3.0 * t) + 0.02 * (t > 4))[:, None]
+    a = relaxed(s, v, 0.6, dt)[:, 0]
+    b = relaxed_by_distance(t, s, v, 0.6, dx=0.002)[:, 0]
+    assert np.max(np.abs(a[500:] - b[500:])) < 2e-3
+
+
+@pytest.mark.parametrize("cls", list(SOIL_CLASSES))
+def test_curve_inverse_inverts_g(cls):
+    c = SOIL_CLASSES[cls]
+    inv = _CurveInverse(c)
+    s = np.linspace(-0.5, 0.5, 101)
+    assert np.max(np.abs(inv(c.g(s)) - s)) < 1e-3
+
+
+def test_onehot_scaled_fit_is_least_squares_per_group():
+    rng = np.random.default_rng(0)
+    g = np.repeat(np.arange(3), 50)
+    x = rng.uniform(0.5, 1.5, g.size)
+    beta = np.array([0.5, 1.0, 2.0])
+    y = beta[g] * x
+    assert np.allclose(_onehot_scaled_fit(y, x, g, 3), y)
+
+
+def test_effective_sample_size_of_white_and_ar1_noise():
+    rng = np.random.default_rng(1)
+    n = 20000
+    e = rng.standard_normal(n)
+    assert n_effective(e, np.arange(n)) == pytest.approx(n, rel=0.05)
+    rho = 0.9
+    x = np.empty(n)
+    x[0] = e[0]
+    for k in range(1, n):
+        x[k] = rho * x[k - 1] + e[k]
+    assert n_effective(x, np.arange(n)) == pytest.approx(n * (1 - rho) / (1 + rho), rel=0.15)
+
+
+def test_hac_long_run_variance_of_ar1_mean():
+    """Newey–West on an AR(1) recovers the long-run variance σ²/(1 − ρ)² of its mean."""
+    rng = np.random.default_rng(2)
+    rho, n, reps = 0.8, 4000, 40
+    ratios = []
+    for _ in range(reps):
+        e = rng.standard_normal(n)
+        x = np.empty(n)
+        x[0] = e[0] / math.sqrt(1 - rho * rho)
+        for k in range(1, n):
+            x[k] = rho * x[k - 1] + e[k]
+        lrv = hac_meat((x - x.mean())[:, None])[0, 0] / n
+        ratios.append(lrv / (1.0 / (1 - rho) ** 2))
+    # Bartlett HAC is biased low by a few per cent at this bandwidth; the mean ratio must be near 1.
+    assert 0.8 < float(np.mean(ratios)) < 1.1
+    assert andrews_bandwidth(x[:, None]) > 5
+
+
+def test_summarize_counts_each_kind():
+    rows = [
+        {"kind": "effect", "correct": True, "covered": {"a": True, "b": False}, "rmse_reduction": 0.9},
+        {"kind": "effect", "correct": False, "covered": {"a": True}, "rmse_reduction": 0.5},
+        {"kind": "effect", "correct": True, "covered": {"a": False}, "rmse_reduction": 0.7},
+        {"kind": "null", "correct": True},
+        {"kind": "null", "correct": False},
+        {"kind": "confounded", "correct": True},
+    ]
+    s = summarize(rows)
+    assert s["top1_accuracy"] == pytest.approx(2 / 3)
+    assert s["ci_coverage"] == pytest.approx(2 / 4)
+    assert s["ci_coverage_primary"] == pytest.approx(2 / 3)
+    assert s["median_heldout_rmse_reduction"] == pytest.approx(0.7)
+    assert s["null_false_alarms"] == 1
+    assert s["confounded_as_ambiguous"] is True
+
+
+def test_suite_cases_conceal_valid_library_effects():
+    from tractionecu.diagnose.suite import all_cases, cases, fast_cases
+
+    names = [c.name for c in all_cases()]
+    assert len(names) == len(set(names))
+    full = cases()
+    kinds = {c.kind for c in full}
+    assert kinds == {"effect", "null", "confounded"}
+    assert sum(c.kind == "null" for c in full) >= 2
+    concealed = {c.effect for c in full if c.kind == "effect"}
+    assert {"grade", "load_transfer", "gps_latency", "wheel_radius", "relaxation", "draft_speed", "mass"} <= concealed
+    assert fast_cases() and all(isinstance(c, Case) for c in fast_cases())
+    # Seeds differ between cases.
+    seeds = [c.build().seed for c in all_cases()]
+    assert len(set(seeds)) == len(seeds)
