@@ -253,6 +253,10 @@ class GpsSpeedChannel(Channel):
         if "aero" in eff and self.feat.v_ref is not None:
             force = force - fx.aero_force(self.feat.v_ref, eff["aero"]["cd_area_m2"])
         v = cumtrapz0(force / m, fr.dt)
+        if fr.can_time_offset_s:
+            # The force samples of bin k stand for time t_k + δ (δ = can_time_offset_s); the GNSS speed
+            # is at t_k.
+            v = np.interp(fr.t, fr.t + fr.can_time_offset_s, v)
         if "gps_latency" in eff:
             v = fx.delayed(fr.t, v, eff["gps_latency"]["tau_s"])
         return v[self.rows_idx]
@@ -416,7 +420,8 @@ class WheelForceChannel(Channel):
     with ⟨·⟩ the bin mean, HP[x] = x minus its moving average over :data:`WHEEL_FORCE_HP_S` and s_i' = s_i, or the relaxed slip of
     :func:`relaxed_by_distance` for the relaxation candidate.  Relaxation turns the
     wheel into a lightly damped oscillator of a few hertz, which only the raw-rate
-    slip resolves.  Nuisance: the surface class and a per field cell.
+    slip resolves.  Nuisance: a per field cell; the surface class is the one the
+    slip channel's nominal fit selects.
     """
 
     def __init__(self, feat: Features, wc: _WheelCache):
@@ -453,7 +458,14 @@ class WheelForceChannel(Channel):
         self.s_hf = uniform_filter1d(np.clip(np.nan_to_num(s), -0.9, 0.9), size=ks, axis=0, mode="nearest")
         self.v_hf = v_hf
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
+        self.fixed_class = False
         self._frozen = False
+
+    def use_class(self, cls: SoilClass) -> None:
+        """Hold the surface class (the level information of the slip channel fixes it better than the
+        high-passed fluctuations here, where class shape and relaxation length trade off)."""
+        self.soil = cls
+        self.fixed_class = True
 
     def freeze(self, on: bool) -> None:
         self._frozen = on
@@ -466,7 +478,7 @@ class WheelForceChannel(Channel):
         y = self.y_hp[rows]
         ti, wi, cell = self.ti[rows], self.wi[rows], self.cell[rows]
         best, best_sse = None, math.inf
-        classes = {self.soil.name: self.soil} if self._frozen else SOIL_CLASSES
+        classes = {self.soil.name: self.soil} if (self._frozen or self.fixed_class) else SOIL_CLASSES
         for cls in classes.values():
             gb = _highpass(cls.g(s).reshape(fr.n, self.k, 4).mean(axis=1), self.kw)[ti, wi]
             p = _onehot_scaled_fit(y, gb, cell, self.ncell)
@@ -658,7 +670,11 @@ def build_channels(feat: Features) -> list[Channel]:
         out.append(GpsSpeedChannel(feat, wc))
         out.append(SlipChannel(feat, wc))
         if fr.hf_omega is not None:
-            out.append(WheelForceChannel(feat, wc))
+            wf = WheelForceChannel(feat, wc)
+            slip_ch = out[-1]
+            slip_ch.residual({}, np.ones(slip_ch.m, dtype=bool))
+            wf.use_class(slip_ch.soil)
+            out.append(wf)
     if fr.has("fzf"):
         out.append(FrontLoadChannel(feat))
     if fr.has("fdx") and fr.work is not None and (feat.segment >= 0).any():

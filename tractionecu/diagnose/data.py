@@ -77,6 +77,9 @@ class Frame:
     """Engine torque [N·m] (CSV exports)."""
     engine_speed: NDArray[np.float64] | None = None
     """Engine speed [rad/s] (CSV exports)."""
+    can_time_offset_s: float = 0.0
+    """Mean time of the CAN samples in a bin minus the bin's grid time [s] (an even number of
+    samples per bin cannot be centred exactly); GNSS values are at the grid times."""
     source: str = ""
     notes: list[str] = field(default_factory=list)
 
@@ -203,6 +206,11 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
             fr.hf_t = hf_grid - grid[0]
             fr.hf_omega = np.stack([_bin_mean(sig[f"WheelSpeed_{w}"].t, sig[f"WheelSpeed_{w}"].value, hf_grid,
                                               raw_dt / 2) for w in WHEELS], axis=1)
+    s0 = sig.get("WheelSpeed_FL")
+    if s0 is not None and len(s0) > 2:
+        tb = _bin_mean(s0.t, s0.t - s0.t[0], grid, half) + s0.t[0]
+        d = tb - grid
+        fr.can_time_offset_s = float(np.nanmedian(d)) if np.isfinite(d).any() else 0.0
     fr.fzf = mean("FrontAxleLoad")
     fr.fdx = mean("DraftForce")
     wk = mean("RearHitchInWorkIndication")

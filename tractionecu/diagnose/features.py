@@ -174,6 +174,8 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     m = fr.vehicle.mass_kg
     force = fh_sum - np.nan_to_num(fr.fdx)
     v_int = cumtrapz0(force / m, fr.dt)
+    if fr.can_time_offset_s:
+        v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
     ok = valid & np.isfinite(fr.v_gps)
     B = spline_basis(fr.t, SPLINE_KNOT_S)
     cols = B[ok].sum(axis=0) > 1e-9
@@ -423,6 +425,8 @@ def compute(fr: Frame) -> Features:
         # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m, plus the slope of the slow
         # correction b = v_ref − v_int (resistances the balance does not know).
         v_int = cumtrapz0((fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg, fr.dt)
+        if fr.can_time_offset_s:
+            v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
         accel = (fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg + smooth_derivative(v_ref - v_int, fr.dt)
     elif v_gps is not None:
         v_ref = v_gps

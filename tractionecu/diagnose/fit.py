@@ -305,7 +305,7 @@ def _kappa(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> dict[st
     out = {}
     for name, (A, S, ms) in _pieces(problem, cand, x, chans, rows, lo, hi).items():
         ta = float(np.trace(A))
-        out[name] = float(np.clip(np.trace(S) / (ms * ta), 1.0, 1e4)) if ta > 0 and ms > 0 else 1.0
+        out[name] = float(np.clip(np.trace(S) / (ms * ta), 0.05, 1e4)) if ta > 0 and ms > 0 else 1.0
     return out
 
 
