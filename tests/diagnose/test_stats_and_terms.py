@@ -130,3 +130,21 @@ def test_suite_cases_conceal_valid_library_effects():
     # Seeds differ between cases.
     seeds = [c.build().seed for c in all_cases()]
     assert len(set(seeds)) == len(seeds)
+
+
+def test_nis_coverage_is_95_percent_for_white_noise_and_falls_with_a_systematic_error():
+    from types import SimpleNamespace
+
+    from tractionecu.diagnose.locate import nis_coverage, noise_sigma
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    ch = SimpleNamespace(tidx=np.arange(n))
+    white = rng.normal(0.0, 2.0, n)
+    sigma = noise_sigma(ch, white)
+    assert abs(sigma - 2.0) < 0.1
+    assert abs(nis_coverage(ch, white, sigma) - 0.95) < 0.015
+    # a slow systematic error (a grade-like sine) leaves the noise level alone but drops the coverage
+    slow = white + 6.0 * np.sin(np.arange(n) / 200.0)
+    assert abs(noise_sigma(ch, slow) - 2.0) < 0.1
+    assert nis_coverage(ch, slow, noise_sigma(ch, slow)) < 0.6

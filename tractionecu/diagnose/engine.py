@@ -36,7 +36,7 @@ from .candidates import CANDIDATES
 from .channels import Channel, build_channels
 from .features import Features, compute
 from .fit import FitResult, HeldOut, Problem, fit, held_out, score
-from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, regimes
+from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, nis_coverage, noise_sigma, regimes
 
 DETECT_LLR = 10.0
 """Held-out log-likelihood ratio an effect needs to count as detected (a likelihood ratio of e^10)."""
@@ -245,12 +245,15 @@ def _signal_stats(problem: Problem, null: HeldOut, cand: HeldOut | None) -> tupl
         rb = null.resid[c]
         sb = channel_stats(rb)
         sst = _sst(problem, ch)
+        sigma = noise_sigma(ch, rb)
         before[c] = {"rmse": sb.rmse, "ljung_box_p": sb.ljung_box_p, "n": sb.n,
+                     "nis_coverage_95": nis_coverage(ch, rb, sigma), "noise_sigma": sigma,
                      "r2": 1.0 - (sb.rmse ** 2 * sb.n) / sst if sst > 0 else math.nan, "unit": ch.unit,
                      "signal": ch.signal}
         ra = cand.resid[c] if cand is not None else rb
         sa = channel_stats(ra)
         after[c] = {"rmse": sa.rmse, "ljung_box_p": sa.ljung_box_p, "n": sa.n,
+                    "nis_coverage_95": nis_coverage(ch, ra, sigma), "noise_sigma": sigma,
                     "r2": 1.0 - (sa.rmse ** 2 * sa.n) / sst if sst > 0 else math.nan, "unit": ch.unit,
                     "signal": ch.signal}
     return before, after

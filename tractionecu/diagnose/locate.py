@@ -1,7 +1,12 @@
 """Where, when and under which regime the model and the recording disagree.
 
 - *which*: residual RMSE per channel, whiteness by Ljung–Box
-  (``statsmodels.stats.diagnostic.acorr_ljungbox``);
+  (``statsmodels.stats.diagnostic.acorr_ljungbox``), and NIS coverage: the
+  share of per-time residuals r_t with r_t²/σ² inside the χ²(1) 95 % bound
+  (3.841), σ the channel's measurement-noise level from successive
+  differences, σ = 1.4826 · MAD(Δr)/√2 (slow model errors cancel in Δr, so σ
+  is the same before and after an effect is modelled; white residuals at the
+  noise level give 0.95, a systematic mismatch gives less);
 - *when*: change points of the residual level by PELT (``ruptures``, ``l2``
   cost) on 2-s means, with a penalty of 3 ln(n) σ²_lr (σ²_lr the residual's
   long-run variance), so that autocorrelated noise does not fragment it;
@@ -44,6 +49,28 @@ def ljung_box_p(resid: NDArray, lags: int = 10) -> float:
         warnings.simplefilter("ignore")
         out = acorr_ljungbox(r - r.mean(), lags=[lags])
     return float(out["lb_pvalue"].iloc[0])
+
+
+CHI2_1_95 = 3.841458820694124
+"""95 % quantile of χ² with one degree of freedom."""
+
+
+def noise_sigma(ch: Channel, resid: NDArray) -> float:
+    """Measurement-noise level of a channel's residual [channel unit] from successive differences (module doc)."""
+    _, r = per_time(ch, np.asarray(resid, dtype=float))
+    if r.size < 10:
+        return math.nan
+    d = np.diff(r)
+    mad = float(np.median(np.abs(d - np.median(d))))
+    return 1.4826 * mad / math.sqrt(2.0)
+
+
+def nis_coverage(ch: Channel, resid: NDArray, sigma: float) -> float:
+    """Share of per-time residuals with r²/σ² ≤ χ²₁(0.95) (module doc); NaN without a noise level."""
+    _, r = per_time(ch, np.asarray(resid, dtype=float))
+    if r.size == 0 or not (math.isfinite(sigma) and sigma > 0):
+        return math.nan
+    return float(np.mean((r / sigma) ** 2 <= CHI2_1_95))
 
 
 def channel_stats(resid: NDArray) -> ChannelStats:

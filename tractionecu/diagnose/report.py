@@ -8,7 +8,8 @@
 - ``parameters``: ``{name: {"value", "ci95": [lo, hi], "unit"}}`` of the named (or leading
   ambiguous) effect;
 - ``signals``: per channel ``{rmse_before, rmse_after, r2_before, r2_after, ljung_box_p_before,
-  ljung_box_p_after, unit, signal}`` on held-out data;
+  ljung_box_p_after, nis_coverage_before, nis_coverage_after, noise_sigma, unit, signal}`` on
+  held-out data (NIS coverage: share inside the χ²(1) 95 % bound, see :mod:`.locate`);
 - ``locate``: lead channel, change points, regimes, signature correlations;
 - ``statement``, ``grade_check``, ``notes``, and ``estimator`` when the innovation view ran.
 
@@ -77,7 +78,9 @@ def to_json(d: Diagnosis, estimator: dict | None = None) -> dict:
         signals[ch] = {"signal": sb["signal"], "unit": sb["unit"], "n": sb["n"],
                        "rmse_before": sb["rmse"], "rmse_after": sa["rmse"],
                        "r2_before": sb["r2"], "r2_after": sa["r2"],
-                       "ljung_box_p_before": sb["ljung_box_p"], "ljung_box_p_after": sa["ljung_box_p"]}
+                       "ljung_box_p_before": sb["ljung_box_p"], "ljung_box_p_after": sa["ljung_box_p"],
+                       "nis_coverage_before": sb["nis_coverage_95"], "nis_coverage_after": sa["nis_coverage_95"],
+                       "noise_sigma": sb["noise_sigma"]}
     out = {
         "source": d.source,
         "verdict": d.verdict,
@@ -211,8 +214,9 @@ def to_markdown(rep: dict) -> str:
             L.append(f"| {k} | {p['value']:.4g} | {cis} | {p['unit']} |")
         L.append("")
     L += ["## Signals (held-out: each half predicted from a fit on the other half)", "",
-          "| channel | what | RMSE before | RMSE after | R² before | R² after | Ljung–Box p before | after |",
-          "|---|---|---|---|---|---|---|---|"]
+          "| channel | what | RMSE before | RMSE after | R² before | R² after | Ljung–Box p before | after "
+          "| NIS coverage before | after |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
 
     def f(v, fmt=".3g"):
         return "—" if v is None else format(v, fmt)
@@ -220,7 +224,8 @@ def to_markdown(rep: dict) -> str:
     for ch, s in rep["signals"].items():
         L.append(f"| {ch} [{s['unit']}] | {s['signal']} | {f(s['rmse_before'])} | {f(s['rmse_after'])} | "
                  f"{f(s['r2_before'], '.3f')} | {f(s['r2_after'], '.3f')} | {f(s['ljung_box_p_before'], '.2g')} | "
-                 f"{f(s['ljung_box_p_after'], '.2g')} |")
+                 f"{f(s['ljung_box_p_after'], '.2g')} | {f(s.get('nis_coverage_before'), '.3f')} | "
+                 f"{f(s.get('nis_coverage_after'), '.3f')} |")
     L += ["", "## Candidates (held-out log-likelihood ratio against the nominal model)", "",
           "| rank | effect | score | detected | strongest channel | formula |", "|---|---|---|---|---|---|"]
     k = 0
