@@ -13,8 +13,15 @@ v_g = v_w.  What the signals support:
 - the gross traction ratio μ = F_h / (m g) (four equal wheels);
 - slip s = 1 − v_g / v_w (paper eq. 6) and the μ(s) curve (paper eq. 14):
   the model with slip predicts v̂_g = v_w (1 + ε)(1 − g⁻¹(μ / a)), with a and
-  the surface class fitted and ε the rolling-radius error of the effect
-  ``wheel_radius`` (slip offset at low traction).
+  the surface class fitted and ε a speed-ratio offset (a nuisance: the form of
+  the ``wheel_radius`` effect, slip offset at low traction).
+
+``wheel_radius`` is reported untestable here although ε is fitted: with one
+wheel-based speed (rear axle) and one total force, the offset also takes up the
+slip difference between the axles and the soil-class mismatch.  Measured on
+the 18 diagnosis-suite recordings exported at 1 Hz, ε's interval excluded 0 on
+two of three null recordings (ε = +0.024, +0.032) and missed one of the two
+true radius errors, so a verdict on it would be a guess.
 
 Held-out check: two folds of alternating 40-s blocks; RMSE of v_g − v̂_g
 before (no slip, ε = 0) and after.  Intervals are HAC (Newey–West).  Every
@@ -47,6 +54,8 @@ UNTESTABLE = {
     "gps_latency": "1 Hz samples cannot resolve a GNSS latency of tenths of a second",
     "relaxation": "no per-wheel data and 1 Hz samples: a lag of tenths of a second is invisible",
     "draft_speed": "no draft signal",
+    "wheel_radius": ("one wheel-based speed and one total force: a rolling-radius offset cannot be told from "
+                     "the unmeasured slip difference between the axles (ε is fitted as a nuisance of the slip model)"),
     "drivetrain": "drivetrain efficiency scales the power-balance force like the curve parameter a: not separable",
     "mass": "no draft signal: an inertia error cannot be told from the unknown pull",
     "aero": "no draft signal (and about 20 N at field speed: negligible)",
@@ -147,51 +156,42 @@ def diagnose_reduced(fr: Frame) -> dict:
     from .engine import DETECT_LLR
 
     slip_found = score_slip >= DETECT_LLR
-    eps_found = score_eps >= DETECT_LLR and not (ci_e[0] <= 0.0 <= ci_e[1])
+    after = "slip_eps" if sse["slip_eps"] < sse["slip"] else "slip"   # the offset must earn its place held out
     s_meas = 1.0 - vg / vw
     load = mu > np.percentile(mu, 75)
     light = mu < np.percentile(mu, 25)
     for name in EFFECTS:
-        if name == "wheel_radius":
-            cands.append({"name": name, "score": score_eps, "testable": True, "detected": bool(eps_found),
-                          "reason": "", "per_channel": {"ground_speed": score_eps},
-                          "parameters": {"epsilon": {"value": eps_hat, "ci95": ci_e, "unit": "-"}},
-                          "formula": EFFECTS[name].formula})
-        else:
-            cands.append({"name": name, "score": None, "testable": False, "detected": False,
-                          "reason": UNTESTABLE[name], "per_channel": {}, "parameters": {},
-                          "formula": EFFECTS[name].formula})
-    verdict = "effect" if eps_found else "none"
-    effect = "wheel_radius" if eps_found else None
+        cands.append({"name": name, "score": None, "testable": False, "detected": False,
+                      "reason": UNTESTABLE[name], "per_channel": {}, "parameters": {},
+                      "formula": EFFECTS[name].formula})
+    verdict, effect = "none", None
     slip_txt = (f"Wheel slip under load: the GNSS speed falls below the wheel-based speed as the traction ratio "
                 f"rises (mean slip {100 * np.mean(s_meas[load]):.1f} % at high load, "
                 f"{100 * np.mean(s_meas[light]):.1f} % at light load); the μ(s) curve (paper eq. 14, class "
                 f"{cls_name}) fits with a = {a_hat:.3f} [{ci_a[0]:.3f}, {ci_a[1]:.3f}] "
                 f"(held-out score {score_slip:.1f} against no slip).") if slip_found else (
                 "No significant wheel slip: the GNSS speed follows the wheel-based speed.")
-    if eps_found:
-        statement = (f"{slip_txt}  In addition a rolling-radius error: {EFFECTS['wheel_radius'].formula}, "
-                     f"ε = {eps_hat:.4f} [{ci_e[0]:.4f}, {ci_e[1]:.4f}] (slip offset at low traction).")
-    else:
-        statement = slip_txt + "  No effect from the library is supported by these signals."
+    statement = (slip_txt + "  No effect from the library can be tested with these signals (engine torque and "
+                 "speed, one wheel-based speed, GNSS; no per-wheel data, no draft): see the candidates' reasons.")
     signals = {"ground_speed": {
         "signal": "GNSS speed against the wheel-based speed (model without slip) and with the μ(s) curve",
         "unit": "m/s", "n": int(t.size),
-        "rmse_before": math.sqrt(sse["no_slip"] / t.size), "rmse_after": math.sqrt(sse["slip_eps" if eps_found else "slip"] / t.size),
+        "rmse_before": math.sqrt(sse["no_slip"] / t.size), "rmse_after": math.sqrt(sse[after] / t.size),
         "r2_before": None, "r2_after": None,
         "ljung_box_p_before": ljung_box_p(resid["no_slip"]),
-        "ljung_box_p_after": ljung_box_p(resid["slip_eps" if eps_found else "slip"])}}
+        "ljung_box_p_after": ljung_box_p(resid[after])}}
     corr = {}
     if np.std(mu) > 0:
         corr["slip vs traction ratio μ"] = float(np.corrcoef(s_meas, mu)[0, 1])
     return {
         "source": fr.source, "verdict": verdict, "effect": effect, "ambiguous_between": [],
         "statement": statement, "candidates": sorted(cands, key=lambda c: (not c["testable"], c["name"])),
-        "parameters": ({"epsilon": {"value": eps_hat, "ci95": ci_e, "unit": "-"}} if eps_found else {}),
+        "parameters": {},
         "parameters_of": effect,
         "slip_model": {"detected": bool(slip_found), "score": score_slip, "soil_class": cls_name,
                        "a": {"value": a_hat, "ci95": ci_a, "unit": "-"},
-                       "epsilon": {"value": eps_hat, "ci95": ci_e, "unit": "-"},
+                       "epsilon": {"value": eps_hat, "ci95": ci_e, "unit": "-", "held_out_score": score_eps,
+                                   "used": after == "slip_eps"},
                        "formula": "v_g = v_w (1 + ε)(1 − g⁻¹(μ/a)),  μ = T_e ω_e / (v_w m g)"},
         "signals": signals,
         "locate": {"lead_channel": "ground_speed", "change_points": [], "regimes": [], "signature_correlation": corr},
