@@ -51,6 +51,7 @@ def test_cli_names_a_concealed_grade_and_shows_the_fit_improve(recordings, tmp_p
     assert 0.7 < scale["value"] < 1.3
     speed = rep["signals"]["speed"]
     assert speed["rmse_after"] < 0.6 * speed["rmse_before"]  # held-out fit of the speed equation improves
+    assert speed["nis_coverage_after"] > speed["nis_coverage_before"] + 0.2  # residuals move back to the noise level
     assert rep["candidates"][0]["name"] == "grade"
     for key in ("verdict", "effect", "candidates", "parameters", "signals"):
         assert key in rep
