@@ -105,3 +105,31 @@ def test_cli_run_simulate(tmp_path: Path, capsys) -> None:
     assert "done:" in out and '"address": "0x90"' in out
     assert (state / "run-config.toml").is_file()
     assert (state / "map" / "manifest.json").is_file()
+
+
+def test_slow_first_estimator_build_does_not_leave_the_loop_behind(short_recording: Path, tmp_path: Path) -> None:
+    """Regression: on a fresh install the first estimator compiles its kernels for seconds; the
+    simulated machine used to start playing meanwhile, and the loop began 15 s behind (skipping)."""
+    import time
+
+    from tractionecu.service.daemon import default_estimator_factory
+
+    builds: list[float] = []
+
+    def slow_first(vehicle):
+        if not builds:
+            time.sleep(1.5)                    # > max_catch_up_s (1 s) even at 1x
+        builds.append(time.monotonic())
+        return default_estimator_factory(vehicle)
+
+    cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state")})
+
+    async def go():
+        return await run_simulation(cfg, short_recording, speed=4.0, duration_s=4.0, estimator_factory=slow_first)
+
+    res = asyncio.run(go())
+    c = res.service.counters()
+    assert res.exit_code == 0
+    assert len(builds) >= 2                      # the warm-up and the service's own estimator
+    assert c["service"].get("steps", 0) > 300
+    assert c["service"].get("skipped_steps", 0) == 0

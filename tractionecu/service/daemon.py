@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import gc
 import logging
 import math
 import signal
@@ -81,6 +82,18 @@ def pgn_filters(pgns: list[int]) -> list[dict[str, Any]]:
         out.append({"can_id": (pgn & (0x3FF00 if pdu1 else 0x3FFFF)) << 8,
                     "can_mask": (0x3FF00 if pdu1 else 0x3FFFF) << 8, "extended": True})
     return out
+
+
+def settle_heap() -> None:
+    """Collect once and move every object start-up made out of the cyclic collector's reach.
+
+    Modules, compiled kernels and the DBC live as long as the process; left in
+    the collector, every full collection during the run scans them again, a
+    pause of ≈ 40 ms for the ≈ 130,000 start-up objects, four 100 Hz steps.
+    After :func:`gc.freeze` a full collection scans only what the loop made.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 def warm_up(factory: EstimatorFactory, vehicle: Any) -> float:
@@ -503,6 +516,7 @@ class Service:
                     log.info("estimator compiled and ready in %.2f s", dt)
                 except Exception as e:  # the real steps will show it; do not stop here
                     log.warning("estimator warm-up failed: %r", e)
+            settle_heap()
             tasks.append(("estimation", asyncio.create_task(self._estimation_loop(), name="estimation")))
             tasks.append(("status", asyncio.create_task(self._status_loop(), name="status")))
             self.notifier.status("waiting for the CAN bus" + (" and GPS" if self.gps else ""))

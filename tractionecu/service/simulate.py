@@ -225,12 +225,17 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     from ..bus.candump import read_candump
     from .clock import ServiceClock
     from .config import with_overrides
-    from .daemon import Service
+    from ..config import load_vehicle
+    from .daemon import Service, default_estimator_factory, warm_up
 
     rec = Path(recording)
     first = next(iter(read_candump(rec / "can.log")), None)
     if first is None:
         raise ValueError(f"{rec / 'can.log'}: no frame to play")
+    # Compile (or load) the estimator's kernels before the simulated clock starts: on a fresh
+    # install that takes seconds, and a machine already playing would leave the loop behind.
+    factory = estimator_factory or default_estimator_factory
+    await asyncio.get_running_loop().run_in_executor(None, warm_up, factory, load_vehicle(rec / "vehicle.toml"))
     clock = ServiceClock(speed=speed, epoch0=first.t - LEAD_WALL_S * speed)
     machine = SimulatedMachine(rec, clock)
     lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * speed))
