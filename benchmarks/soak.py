@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ctypes
 import gc
 import json
 import math
@@ -39,11 +40,57 @@ from pathlib import Path
 import can
 
 
-def rss_kb() -> int:
+def status_kb(field: str = "VmRSS") -> int:
+    """A memory figure of /proc/self/status [KiB]: VmRSS, RssAnon (heap, stacks: what a leak grows)
+    or RssFile (pages of mapped files, e.g. shared libraries touched for the first time); -1 if absent."""
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(field + ":"):
             return int(line.split()[1])
     return -1
+
+
+def rss_kb() -> int:
+    return status_kb("VmRSS")
+
+
+class _Mallinfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks",
+                                                 "fsmblks", "uordblks", "fordblks", "keepcost")]
+
+
+def heap_kb() -> dict[str, int]:
+    """glibc's heap figures [KiB]: in use, free but kept (fragmentation), mmapped; {} off glibc."""
+    try:
+        libc = ctypes.CDLL(None)
+        f = libc.mallinfo2
+    except (OSError, AttributeError):
+        return {}
+    f.restype = _Mallinfo2
+    mi = f()
+    return {"heap_used_kb": mi.uordblks // 1024, "heap_free_kb": mi.fordblks // 1024, "mmap_kb": mi.hblkhd // 1024}
+
+
+def print_census(n: int) -> None:
+    """The n largest containers the cyclic collector tracks (objects made since start-up), by length,
+    each with the type of what holds it."""
+    top: list = []
+    for o in gc.get_objects():
+        try:
+            ln = len(o)
+        except TypeError:
+            continue
+        if len(top) < n or ln > top[-1][0]:
+            top.append((ln, o))
+            top.sort(key=lambda r: -r[0])
+            del top[n:]
+    objs = [o for _, o in top]
+    lens = [ln for ln, _ in top]
+    del top
+    for ln, o in zip(lens, objs):
+        holders = [r for r in gc.get_referrers(o) if r is not objs and not isinstance(r, type(sys._getframe()))]
+        ref = ", ".join(type(r).__name__ + (f"({', '.join(list(r)[:4])})" if isinstance(r, dict) else "")
+                        for r in holders[:2]) or "?"
+        print(f"  census: {type(o).__name__:<12} len {ln:>8}  held by {ref}", flush=True)
 
 
 def fds() -> int:
@@ -61,10 +108,10 @@ def serpentine(dist_m: float, side: float = 200.0, swath: float = 6.0) -> tuple[
     return x - side / 2, i * swath - side / 2
 
 
-async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) -> dict:
+async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, census: int = 0) -> dict:
     from tractionecu.bus.candump import read_candump
     from tractionecu.service.config import ServiceConfig, with_overrides
-    from tractionecu.service.daemon import Service, warm_up, default_estimator_factory
+    from tractionecu.service.daemon import Service, default_estimator_factory, settle_heap, warm_up
     from tractionecu.service.gps import GpsSample
     from tractionecu.service.simulate import simulate_recording
     from tractionecu.config import VehicleParams
@@ -78,8 +125,12 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) ->
     svc = Service(cfg, env={}, warm_up_estimator=False)
     warm_up(default_estimator_factory, VehicleParams())
     svc.estimator = svc.estimator_factory(svc._load_vehicle())
+    settle_heap()                          # as Service.run does before its loop
     svc._loop = asyncio.get_running_loop()
     await svc.map.open()
+    # Simulated time runs ~70x faster than the wall clock, so the writer's 5 s flushes come ~70 ms apart;
+    # the store's 10-per-second write limit (wall clock) would skip most of them, which the daemon never does.
+    svc.map.store.min_flush_interval_s = 0.0
     lat0, lon0 = 47.88, -110.55
     m_per_deg_lat = 111_320.0
     m_per_deg_lon = m_per_deg_lat * math.cos(math.radians(lat0))
@@ -100,10 +151,12 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) ->
 
     def sample(h: float) -> dict:
         gc.collect()
-        return {"sim_hours": round(h, 3), "rss_kb": rss_kb(), "fds": fds(), "tasks": len(asyncio.all_tasks()),
+        return {"sim_hours": round(h, 3), "rss_kb": rss_kb(), "rss_anon_kb": status_kb("RssAnon"),
+                "rss_file_kb": status_kb("RssFile"), "fds": fds(), "tasks": len(asyncio.all_tasks()),
                 "threads": threading.active_count(), "wall_s": round(time.monotonic() - wall0, 1),
                 "steps": svc.stats["steps"], "tiles": len(svc.map.store.tile_keys()) if svc.map.store else 0,
-                "flush_errors": svc.map.stats["flush_errors"]}
+                "flush_errors": svc.map.stats["flush_errors"], "py_blocks": sys.getallocatedblocks(),
+                **heap_kb()}
 
     for k in range(steps_total):
         t = t0 + k / rate
@@ -137,10 +190,16 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) ->
                 await svc.map._flushing
             row = sample(h)
             rows.append(row)
+            if census:
+                print_census(census)
             if base is None and h >= warmup_h:
                 base = row
-            print(f"soak: {row['sim_hours']:6.2f} h simulated  RSS {row['rss_kb'] / 1024:7.1f} MiB  fds {row['fds']}"
-                  f"  tasks {row['tasks']}  threads {row['threads']}  tiles {row['tiles']}  wall {row['wall_s']} s",
+            print(f"soak: {row['sim_hours']:6.2f} h simulated  RSS {row['rss_kb'] / 1024:7.1f} MiB"
+                  f" (anon {row['rss_anon_kb'] / 1024:.1f}, file {row['rss_file_kb'] / 1024:.1f})  fds {row['fds']}"
+                  f"  tasks {row['tasks']}  threads {row['threads']}  tiles {row['tiles']}  wall {row['wall_s']} s"
+                  + (f"  heap used {row['heap_used_kb'] / 1024:.1f} free {row['heap_free_kb'] / 1024:.1f}"
+                     f" mmap {row['mmap_kb'] / 1024:.1f} MiB" if "heap_used_kb" in row else "")
+                  + f"  py blocks {row['py_blocks']}",
                   flush=True)
         if max_minutes and k % 1000 == 0 and time.monotonic() - wall0 > 60 * max_minutes:
             stopped_early = True
@@ -158,6 +217,8 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) ->
         "wall_s": last["wall_s"], "speed_x_real_time": round(last["sim_hours"] * 3600 / max(last["wall_s"], 1e-9), 1),
         "warmup_hours": base["sim_hours"], "rss_kb_after_warmup": base["rss_kb"], "rss_kb_last": last["rss_kb"],
         "rss_growth_pct_after_warmup": round(growth, 2),
+        "rss_anon_kb_after_warmup": base["rss_anon_kb"], "rss_anon_kb_last": last["rss_anon_kb"],
+        "rss_file_kb_after_warmup": base["rss_file_kb"], "rss_file_kb_last": last["rss_file_kb"],
         "fds_min_max": [min(r["fds"] for r in rows), max(r["fds"] for r in rows)],
         "tasks_min_max": [min(r["tasks"] for r in rows), max(r["tasks"] for r in rows)],
         "tasks_at_start": tasks0,
@@ -167,7 +228,8 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path) ->
     }
     print(f"soak: {res['hours_simulated']:.2f} h simulated in {res['wall_s']:.0f} s ({res['speed_x_real_time']}x); "
           f"RSS after warm-up {base['rss_kb'] / 1024:.1f} MiB -> {last['rss_kb'] / 1024:.1f} MiB ({growth:+.2f} %, "
-          f"target <= 5 %); fds {res['fds_min_max']}; asyncio tasks {res['tasks_min_max']}; "
+          f"target <= 5 %; anon {base['rss_anon_kb'] / 1024:.1f} -> {last['rss_anon_kb'] / 1024:.1f}, "
+          f"file {base['rss_file_kb'] / 1024:.1f} -> {last['rss_file_kb'] / 1024:.1f}); fds {res['fds_min_max']}; asyncio tasks {res['tasks_min_max']}; "
           f"threads {res['threads_min_max']}; estimator errors {res['estimator_errors']}", flush=True)
     return res
 
@@ -178,9 +240,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", metavar="OUT", default=None, help="write the figures here")
     ap.add_argument("--max-minutes", type=float, default=0.0, help="stop after this much wall time (0 = no limit)")
     ap.add_argument("--warmup-hours", type=float, default=1.0, help="RSS growth is measured from here (default 1)")
+    ap.add_argument("--census", type=int, default=0, metavar="N",
+                    help="each simulated hour, print the N largest containers the collector tracks")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="tecu-soak-") as work:
-        res = asyncio.run(soak(args.hours, args.max_minutes, args.warmup_hours, Path(work)))
+        res = asyncio.run(soak(args.hours, args.max_minutes, args.warmup_hours, Path(work),
+                               args.census))
     if args.json:
         Path(args.json).write_text(json.dumps(res, indent=2) + "\n", encoding="utf-8")
     ok = res["rss_growth_pct_after_warmup"] <= 5.0 and res["fds_min_max"][0] == res["fds_min_max"][1] \

@@ -439,3 +439,42 @@ def test_add_many_equals_add_one_by_one(tmp_path):
     assert np.max(np.abs(t1[:, 1:3] - t2[:, 1:3])) < 1e-9
     one.close()
     many.close()
+
+
+def test_track_waits_in_order_while_the_disk_is_full_and_is_bounded(tmp_path, monkeypatch):
+    """Unwritten track records are kept in order across failed flushes, written when space returns,
+    and held to ``max_track_pending`` (oldest dropped, counted) if the disk stays full."""
+    st = MapStore(tmp_path, *ORIGIN, resolution_m=1.0, tile_cells=10, max_track_pending=50)
+    for k in range(10):
+        add_xy(st, 1.0 + k, 1.0, {"a": 0.5}, t=float(k))
+    st.flush(force=True)
+    real_open = open
+
+    def full(path, mode="r", *a, **kw):
+        if str(path).endswith("track.log") and "a" in mode:
+            raise OSError(28, "No space left on device")
+        return real_open(path, mode, *a, **kw)
+
+    monkeypatch.setattr("builtins.open", full)
+    for k in range(10, 40):
+        add_xy(st, 1.0, 1.0 + k % 5, {"a": 0.5}, t=float(k))
+        if k % 10 == 9:
+            with pytest.raises(MapStoreError, match="No space"):
+                st.flush(force=True)
+    monkeypatch.undo()
+    assert st.stats["track_dropped"] == 0
+    np.testing.assert_array_equal(st.track()[:, 0], np.arange(40.0))
+    st.flush(force=True)
+    on_disk, _ = read_track(tmp_path / "track.log")
+    np.testing.assert_array_equal(on_disk[:, 0], np.arange(40.0))
+
+    # the disk stays full: memory holds at most 50 records, the oldest go first and are counted
+    monkeypatch.setattr("builtins.open", full)
+    for k in range(40, 200):
+        add_xy(st, 1.0, 1.0, {"a": 0.5}, t=float(k))
+    monkeypatch.undo()
+    pending = st.track()[40:, 0]
+    assert 45 <= len(pending) <= 50
+    assert st.stats["track_dropped"] == 160 - len(pending)
+    np.testing.assert_array_equal(pending, np.arange(200.0 - len(pending), 200.0))
+    st.close()

@@ -35,6 +35,7 @@ typically rewrites one or two tiles of 0.49 MB raw (six layers × 4096 cells
 
 from __future__ import annotations
 
+import array
 import collections
 import datetime as _dt
 import logging
@@ -85,6 +86,8 @@ DEFAULT_REJECT_STATUS_MASK = 0x17F
 """EstimateStatus bits that make :meth:`MapStore.add` reject a sample: sensor
 timeouts (0x01–0x10), not converged (0x20), input rejected (0x40) and
 covariance repaired (0x100); a NIS-gated measurement (0x80) alone does not."""
+DEFAULT_MAX_TRACK_PENDING = 360_000
+"""Track records kept in memory while they cannot be written (10 h at 10 Hz, 11.5 MB)."""
 DEFAULT_MIN_FLUSH_INTERVAL_S = 0.1
 """Flushes closer together than this are skipped (≤ 10 writes per second)."""
 
@@ -182,6 +185,10 @@ class MapStore:
     max_resident_tiles:
         Clean tiles beyond this many are dropped from memory (LRU) and
         re-read from disk when touched again; dirty tiles are never dropped.
+    max_track_pending:
+        Track records not yet written (a full disk keeps them) are held up to
+        this many; beyond it the oldest tenth is dropped and counted as
+        ``track_dropped``.
     read_only:
         Open an existing map for reading (exports); no lock, no writes.
     """
@@ -192,7 +199,8 @@ class MapStore:
                  min_fix_quality: int = 1, max_hdop: float = 5.0, max_range_m: float = 50_000.0,
                  reject_status_mask: int = DEFAULT_REJECT_STATUS_MASK,
                  min_flush_interval_s: float = DEFAULT_MIN_FLUSH_INTERVAL_S,
-                 max_resident_tiles: int = 256, read_only: bool = False) -> None:
+                 max_resident_tiles: int = 256, max_track_pending: int = DEFAULT_MAX_TRACK_PENDING,
+                 read_only: bool = False) -> None:
         self.directory = Path(directory)
         if not (math.isfinite(resolution_m) and resolution_m > 0):
             raise ConfigError(f"resolution_m must be > 0, got {resolution_m}")
@@ -217,13 +225,15 @@ class MapStore:
         self.reject_status_mask = int(reject_status_mask)
         self.min_flush_interval_s = float(min_flush_interval_s)
         self.max_resident_tiles = int(max_resident_tiles)
+        self.max_track_pending = max(1, int(max_track_pending))
         self.read_only = bool(read_only)
 
         self._lock = threading.Lock()
         self._flush_lock = threading.Lock()
         self._tiles: collections.OrderedDict[tuple[int, int], _Tile] = collections.OrderedDict()
         self._on_disk: set[tuple[int, int]] = set()
-        self._track_pending: list[tuple[float, float, float, int]] = []
+        self._track_pending = array.array("d")
+        """Track records not yet written, flat: t [s], x [m], y [m], accepted flag (0/1), ..."""
         self._last_flush = -math.inf
         self._lockf: Any = None
         self._closed = False
@@ -485,7 +495,8 @@ class MapStore:
         row = math.floor(y / self.resolution_m)
         n = self.tile_cells
         with self._lock:
-            self._track_pending.append((tt, x, y, 1 if ok else 0))
+            self._track_pending.extend((tt, x, y, 1.0 if ok else 0.0))
+            self._bound_track()
             if not ok:
                 self.stats["rejected_" + reason] += 1
                 return False
@@ -556,10 +567,10 @@ class MapStore:
         keys = np.stack([col[idx] // nt, row[idx] // nt], axis=1) if idx.size else np.zeros((0, 2), np.int64)
         uniq, inv = np.unique(keys, axis=0, return_inverse=True) if idx.size else (keys, np.zeros(0, np.int64))
         inv = np.asarray(inv).ravel()
-        track = list(zip(tt[on_track].tolist(), x[on_track].tolist(), y[on_track].tolist(),
-                         ok[on_track].astype(int).tolist()))
+        track = np.column_stack([tt[on_track], x[on_track], y[on_track], ok[on_track]]).astype(np.float64)
         with self._lock:
-            self._track_pending.extend(track)
+            self._track_pending.frombytes(track.tobytes())
+            self._bound_track()
             for k, (tx, ty) in enumerate(uniq.tolist()):
                 sel = idx[inv == k]
                 tile = self._tile((int(tx), int(ty)))
@@ -576,6 +587,16 @@ class MapStore:
     def dirty_tiles(self) -> list[tuple[int, int]]:
         with self._lock:
             return [k for k, t in self._tiles.items() if t.dirty]
+
+    def _bound_track(self) -> None:
+        """Hold at most ``max_track_pending`` unwritten track records (caller holds the lock)."""
+        n = len(self._track_pending) // 4
+        if n > self.max_track_pending:
+            drop = n - self.max_track_pending + self.max_track_pending // 10
+            del self._track_pending[:4 * drop]
+            self.stats["track_dropped"] += drop
+            if self.stats["track_dropped"] == drop:
+                log.warning("map %s: track records cannot be written; dropping the oldest (%d)", self.directory, drop)
 
     def flush(self, *, force: bool = False) -> int:
         """Write the dirty tiles (and new track records) atomically.
@@ -595,7 +616,7 @@ class MapStore:
             self._last_flush = now
             with self._lock:
                 todo = [(k, t, t.version, t.stats.copy()) for k, t in self._tiles.items() if t.dirty]
-                track, self._track_pending = self._track_pending, []
+                track, self._track_pending = self._track_pending, array.array("d")
             written = 0
             errors: list[str] = []
             tdir = self.directory / TILES_DIRNAME
@@ -611,14 +632,17 @@ class MapStore:
                     self._on_disk.add(key)
             if track:
                 try:
+                    records = zip(track[0::4], track[1::4], track[2::4], (int(f) for f in track[3::4]))
                     with open(self.directory / TRACK_NAME, "ab") as f:
-                        f.write(encode_track_records(track))
+                        f.write(encode_track_records(list(records)))
                         f.flush()
                         os.fsync(f.fileno())
                 except OSError as e:
                     errors.append(f"{TRACK_NAME}: {e}")
                     with self._lock:
-                        self._track_pending[:0] = track
+                        track.extend(self._track_pending)
+                        self._track_pending = track
+                        self._bound_track()
             self.stats["tiles_written"] += written
             self.stats["flushes"] += 1
             if errors:
@@ -742,7 +766,7 @@ class MapStore:
         """Vehicle track so far: (N, 4) array of t [s], x [m], y [m], accepted flag."""
         arr, _ = read_track(self.directory / TRACK_NAME)
         with self._lock:
-            pending = np.array(self._track_pending, dtype=np.float64).reshape(-1, 4)
+            pending = np.frombuffer(self._track_pending, dtype=np.float64).reshape(-1, 4).copy()
         return np.vstack([arr, pending]) if len(pending) else arr
 
 
