@@ -140,3 +140,14 @@ def test_symmetric_covariance_after_every_step():
         assert np.array_equal(f.P, f.P.T)
         f.update(z[:4], slice(0, 4), R[:4])
         assert np.array_equal(f.P, f.P.T)
+
+
+def test_slice_cache_stays_bounded_for_new_slice_objects():
+    """Regression: the update's per-slice cache was keyed by the slice object, so a caller
+    writing ``update(z, slice(0, 5), R)`` every step grew it by one entry per step."""
+    f = UnscentedFilter(MODEL.step, X0, P0, range(5))
+    for z in _truth_and_meas(200, seed=5):
+        f.predict(U, DT, Q)
+        f.update(z, slice(0, 5), R)
+    assert len(f._fast) <= 32
+    assert np.isfinite(f.x).all()

@@ -346,6 +346,8 @@ class UnscentedFilter:
         else:
             spec = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m), (m,))
         ent = (idx, spec, comp)
+        if len(self._fast) >= 32:            # a caller making a new slice per step must not grow it
+            self._fast.clear()
         self._fast[id(idx)] = ent            # the entry holds the slice, so its id stays unique
         return ent
 
