@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import ctypes
 import logging
 import math
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ..mapping.sampler import CentredSampler
 from ..mapping.tiles import MANIFEST_NAME
@@ -38,6 +39,31 @@ from .config import MapConfig
 from .gps import GpsSample
 
 log = logging.getLogger(__name__)
+
+
+def _malloc_trim() -> Callable[[int], int] | None:
+    try:
+        fn = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):  # not glibc
+        return None
+    fn.argtypes, fn.restype = [ctypes.c_size_t], ctypes.c_int
+    return fn  # type: ignore[no-any-return]
+
+
+_MALLOC_TRIM = _malloc_trim()
+
+
+def release_free_heap() -> None:
+    """Return the C heap's free pages to the OS (glibc ``malloc_trim(0)``; a no-op elsewhere).
+
+    glibc keeps memory that was freed inside its heaps, and the flush worker
+    has an arena of its own: after a burst of tile snapshots the resident size
+    stays up although nothing is in use (seen in the soak as +20 MiB "free"
+    heap in one step).  Trimming after each flush, in the worker thread, costs
+    about a millisecond every ``map.flush_interval_s``.
+    """
+    if _MALLOC_TRIM is not None:
+        _MALLOC_TRIM(0)
 
 
 def layer_values(est: Any) -> dict[str, float]:
@@ -170,8 +196,15 @@ class MapWriter:
             return
         self._last_flush_mono = now_mono
         loop = asyncio.get_running_loop()
-        self._flushing = loop.run_in_executor(self._pool, self.store.flush)
+        self._flushing = loop.run_in_executor(self._pool, self._flush_and_trim)
         self._flushing.add_done_callback(self._flushed)
+
+    def _flush_and_trim(self) -> int:
+        """Worker thread: write the dirty tiles, then hand the C heap's free pages back to the OS."""
+        try:
+            return int(self.store.flush() or 0)
+        finally:
+            release_free_heap()
 
     def _flushed(self, fut: asyncio.Future[Any]) -> None:
         if fut.cancelled():
