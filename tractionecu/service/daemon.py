@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import ctypes
 import gc
 import logging
 import math
@@ -84,16 +85,35 @@ def pgn_filters(pgns: list[int]) -> list[dict[str, Any]]:
     return out
 
 
-def settle_heap() -> None:
-    """Collect once and move every object start-up made out of the cyclic collector's reach.
+M_MMAP_THRESHOLD = -3
+"""glibc ``mallopt`` parameter number (malloc.h)."""
+MMAP_THRESHOLD_BYTES = 128 * 1024
+"""Blocks this large or larger are mapped on their own and unmapped when freed [B]."""
 
-    Modules, compiled kernels and the DBC live as long as the process; left in
-    the collector, every full collection during the run scans them again, a
-    pause of ≈ 40 ms for the ≈ 130,000 start-up objects, four 100 Hz steps.
-    After :func:`gc.freeze` a full collection scans only what the loop made.
+
+def settle_heap() -> None:
+    """Prepare the heap for a run of hours, once start-up is over.
+
+    * Collect once and move every object start-up made out of the cyclic
+      collector's reach.  Modules, compiled kernels and the DBC live as long
+      as the process; left in the collector, every full collection during the
+      run scans them again, a pause of ≈ 40 ms for the ≈ 130,000 start-up
+      objects, four 100 Hz steps.  After :func:`gc.freeze` a full collection
+      scans only what the loop made.
+    * Fix glibc's mmap threshold at 128 KiB.  By default glibc raises it each
+      time a mapped block is freed, after which the map writer's 200 kB tile
+      snapshots come from the heap and leave it fragmented: resident memory
+      crept up ≈ 0.5 MiB per hour in the soak.  Fixed, each snapshot is mapped
+      and returned whole (soak: flat within 0.3 %).  A no-op off glibc.
     """
     gc.collect()
     gc.freeze()
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
 
 
 def warm_up(factory: EstimatorFactory, vehicle: Any) -> float:
