@@ -118,3 +118,22 @@ def test_one_hertz_engine_export_reports_slip_and_what_cannot_be_tested(recordin
     assert math.isfinite(sm["epsilon"]["value"])  # the offset is still fitted, as a nuisance of the slip model
     for png in ("residual_before_after.png", "residual_map.png", "ranking.png"):
         _png_size(out / png)
+
+
+def test_real_engine_export_of_a_standing_machine_says_why_nothing_can_be_diagnosed(tmp_path):
+    """A real CANedge log (J1939 engine bus + GNSS, engine idling, machine standing), exported at 1 Hz:
+    diagnosis runs through the CSV importer and says, in the user's terms, why there is nothing to test
+    (it said "fewer than 30 usable samples" of a file with 128)."""
+    from pathlib import Path
+
+    csv_path = Path(__file__).resolve().parents[1] / "data" / "csv" / "css_engine_gnss_1hz.csv"
+    out = tmp_path / "rep"
+    assert main(["diagnose", str(csv_path), "--out", str(out), "--csv-mapping", "j1939",
+                 "--reference-torque", "1500", "--time-offset", "1635188454"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["verdict"] == "none" and rep["effect"] is None
+    assert "0 of 128 samples usable" in rep["statement"]
+    assert "does not drive" in rep["statement"] and "wheel-based speed at most 0.00 m/s" in rep["statement"]
+    assert "GNSS speed at most 0.92 m/s" in rep["statement"]
+    assert all(not c["testable"] and c["reason"] for c in rep["candidates"])
+    assert "does not drive" in (out / "report.md").read_text()

@@ -72,6 +72,31 @@ def _rows(fr: Frame):
     return ok, []
 
 
+def _why_unusable(fr: Frame, ok: np.ndarray) -> str:
+    """Why fewer than 30 rows are usable, in the user's terms (which condition removed how many rows)."""
+    n = int(ok.size)
+    parts = []
+    for key, what in (("engine_torque", "engine torque"), ("engine_speed", "engine speed"),
+                      ("v_wheel_bus", "wheel-based speed"), ("v_gps", "GNSS speed")):
+        bad = int((~np.isfinite(getattr(fr, key))).sum())
+        if bad:
+            parts.append(f"{bad} without {what}")
+    vw = fr.v_wheel_bus
+    slow = int((np.isfinite(vw) & (vw <= MIN_SPEED)).sum())
+    if slow:
+        parts.append(f"{slow} at a wheel-based speed ≤ {MIN_SPEED:g} m/s")
+    reason = f"{int(ok.sum())} of {n} samples usable, 30 needed ({'; '.join(parts) or 'no rows'})"
+    with np.errstate(invalid="ignore"):
+        vmax = float(np.nanmax(vw)) if np.isfinite(vw).any() else math.nan
+    if n and slow >= 0.9 * n:
+        vg = fr.v_gps
+        gmax = float(np.nanmax(vg)) if np.isfinite(vg).any() else math.nan
+        reason += (f": the machine does not drive in this recording (wheel-based speed at most {vmax:.2f} m/s"
+                   + (f", GNSS speed at most {gmax:.2f} m/s" if math.isfinite(gmax) else "")
+                   + "), so traction and slip cannot be observed")
+    return reason
+
+
 def _model(x, cls_inv: _CurveInverse, mu, vw, with_eps: bool):
     a = x[0]
     eps = x[1] if with_eps else 0.0
@@ -86,7 +111,7 @@ def diagnose_reduced(fr: Frame) -> dict:
     ok, missing = _rows(fr)
     cands = []
     if ok is None or ok.sum() < 30:
-        reason = f"missing signals: {', '.join(missing)}" if missing else "fewer than 30 usable samples"
+        reason = f"missing signals: {', '.join(missing)}" if missing else _why_unusable(fr, ok)
         for name in EFFECTS:
             cands.append({"name": name, "score": None, "testable": False, "detected": False, "reason": reason,
                           "per_channel": {}, "parameters": {}, "formula": EFFECTS[name].formula})
