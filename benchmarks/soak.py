@@ -111,7 +111,8 @@ def serpentine(dist_m: float, side: float = 200.0, swath: float = 6.0) -> tuple[
 async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, census: int = 0) -> dict:
     from tractionecu.bus.candump import read_candump
     from tractionecu.service.config import ServiceConfig, with_overrides
-    from tractionecu.service.daemon import Service, default_estimator_factory, settle_heap, warm_up
+    from tractionecu.service.daemon import Service, default_estimator_factory, warm_up
+    from tractionecu.service.heap import settle_heap
     from tractionecu.service.gps import GpsSample
     from tractionecu.service.simulate import simulate_recording
     from tractionecu.config import VehicleParams

@@ -19,6 +19,7 @@ Modules, in data-flow order:
 ``broadcast``      the three estimate frames of the DBC
 ``mapwriter``      10 Hz accumulation, tile flushes in a worker thread
 ``notify``         ``sd_notify`` over ``$NOTIFY_SOCKET``
+``heap``           GC freeze after start-up, glibc heap trim and mmap threshold
 ``daemon``         :class:`~.daemon.Service`: start-up, loops, shutdown
 ``simulate``       ``run --simulate``: a recording played onto a virtual bus and a pty
 =================  ============================================================

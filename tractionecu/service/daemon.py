@@ -7,7 +7,9 @@ Start-up, in order (shutdown runs it backwards and gathers the errors):
 3. CAN link and GNSS reader tasks (each reopens its device on its own);
 4. ``READY=1`` to systemd once the bus and the GNSS port are open;
 5. J1939 address claim (again after every reopen of the bus);
-6. the estimation loop and the status task.
+6. estimator warm-up (its compiled kernels), then :func:`settle_heap` (GC
+   freeze of the start-up objects, glibc's mmap threshold fixed);
+7. the estimation loop and the status task.
 
 Estimation loop
 ---------------
@@ -32,8 +34,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import ctypes
-import gc
 import logging
 import math
 import signal
@@ -52,6 +52,7 @@ from ..errors import ConfigError, DecodeError
 from . import broadcast
 from .address_claim import AddressClaimer, ClaimState, Tx
 from .canlink import CanLink
+from .heap import settle_heap
 from .clock import ServiceClock
 from .config import ServiceConfig, to_toml
 from .gps import GpsReader, GpsSample
@@ -83,37 +84,6 @@ def pgn_filters(pgns: list[int]) -> list[dict[str, Any]]:
         out.append({"can_id": (pgn & (0x3FF00 if pdu1 else 0x3FFFF)) << 8,
                     "can_mask": (0x3FF00 if pdu1 else 0x3FFFF) << 8, "extended": True})
     return out
-
-
-M_MMAP_THRESHOLD = -3
-"""glibc ``mallopt`` parameter number (malloc.h)."""
-MMAP_THRESHOLD_BYTES = 128 * 1024
-"""Blocks this large or larger are mapped on their own and unmapped when freed [B]."""
-
-
-def settle_heap() -> None:
-    """Prepare the heap for a run of hours, once start-up is over.
-
-    * Collect once and move every object start-up made out of the cyclic
-      collector's reach.  Modules, compiled kernels and the DBC live as long
-      as the process; left in the collector, every full collection during the
-      run scans them again, a pause of ≈ 40 ms for the ≈ 130,000 start-up
-      objects, four 100 Hz steps.  After :func:`gc.freeze` a full collection
-      scans only what the loop made.
-    * Fix glibc's mmap threshold at 128 KiB.  By default glibc raises it each
-      time a mapped block is freed, after which the map writer's 200 kB tile
-      snapshots come from the heap and leave it fragmented: resident memory
-      crept up ≈ 0.5 MiB per hour in the soak.  Fixed, each snapshot is mapped
-      and returned whole (soak: flat within 0.3 %).  A no-op off glibc.
-    """
-    gc.collect()
-    gc.freeze()
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):  # not glibc
-        return
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
 
 
 def warm_up(factory: EstimatorFactory, vehicle: Any) -> float:

@@ -25,45 +25,20 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-import ctypes
 import logging
 import math
 from collections import Counter
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ..mapping.sampler import CentredSampler
 from ..mapping.tiles import MANIFEST_NAME
 from ..model.mucurve import SOIL_CLASSES
 from .config import MapConfig
 from .gps import GpsSample
+from .heap import release_free_heap
 
 log = logging.getLogger(__name__)
-
-
-def _malloc_trim() -> Callable[[int], int] | None:
-    try:
-        fn = ctypes.CDLL(None).malloc_trim
-    except (OSError, AttributeError):  # not glibc
-        return None
-    fn.argtypes, fn.restype = [ctypes.c_size_t], ctypes.c_int
-    return fn  # type: ignore[no-any-return]
-
-
-_MALLOC_TRIM = _malloc_trim()
-
-
-def release_free_heap() -> None:
-    """Return the C heap's free pages to the OS (glibc ``malloc_trim(0)``; a no-op elsewhere).
-
-    glibc keeps memory that was freed inside its heaps, and the flush worker
-    has an arena of its own: after a burst of tile snapshots the resident size
-    stays up although nothing is in use (seen in the soak as +20 MiB "free"
-    heap in one step).  Trimming after each flush, in the worker thread, costs
-    about a millisecond every ``map.flush_interval_s``.
-    """
-    if _MALLOC_TRIM is not None:
-        _MALLOC_TRIM(0)
 
 
 def layer_values(est: Any) -> dict[str, float]:
