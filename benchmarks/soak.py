@@ -15,8 +15,11 @@ writes in the writer's worker thread, as in the daemon).  Positions follow a
 serpentine over a 200 m x 200 m field at the vehicle's speed, so the map
 stops growing after the first pass of the field (about 45 simulated minutes).
 
-Printed once per simulated hour and at the end: resident memory (VmRSS),
-open file descriptors, asyncio tasks, threads.  Warm-up is the first
+Printed once per simulated hour and at the end: resident memory (VmRSS, and
+its anonymous and file-backed parts), glibc's heap in use / free / mapped
+(``mallinfo2``), Python's allocated blocks, open file descriptors, asyncio
+tasks, threads; with ``--census N`` also the N largest containers the
+garbage collector tracks and what holds them (to find what grows).  Warm-up is the first
 simulated hour (``--warmup-hours``); RSS growth is (last − at warm-up) /
 at warm-up, target ≤ 5 %.  ``--max-minutes`` stops early (wall time) and
 reports the hours reached.
@@ -47,10 +50,6 @@ def status_kb(field: str = "VmRSS") -> int:
         if line.startswith(field + ":"):
             return int(line.split()[1])
     return -1
-
-
-def rss_kb() -> int:
-    return status_kb("VmRSS")
 
 
 class _Mallinfo2(ctypes.Structure):
@@ -152,7 +151,7 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
 
     def sample(h: float) -> dict:
         gc.collect()
-        return {"sim_hours": round(h, 3), "rss_kb": rss_kb(), "rss_anon_kb": status_kb("RssAnon"),
+        return {"sim_hours": round(h, 3), "rss_kb": status_kb("VmRSS"), "rss_anon_kb": status_kb("RssAnon"),
                 "rss_file_kb": status_kb("RssFile"), "fds": fds(), "tasks": len(asyncio.all_tasks()),
                 "threads": threading.active_count(), "wall_s": round(time.monotonic() - wall0, 1),
                 "steps": svc.stats["steps"], "tiles": len(svc.map.store.tile_keys()) if svc.map.store else 0,
