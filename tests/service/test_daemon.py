@@ -284,3 +284,19 @@ async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path) 
         await asyncio.wait_for(rig2.svc.ready.wait(), 10)
         assert rig2.svc.map.stats["resumed_tiles"] == n_tiles
     assert added >= 5
+
+
+def test_unknown_pgn_table_is_bounded_under_random_pgns(tmp_path: Path) -> None:
+    """Hostile traffic with every PGN must not grow the per-PGN table (2^18 possible keys)."""
+    from tractionecu.service.daemon import MAX_TRACKED_UNKNOWN_PGNS
+
+    cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(tmp_path / "state")})
+    svc = Service(cfg, env={}, warm_up_estimator=False)
+    pgns = [p for p in range(0xF000, 0xF000 + 3000) if CODEC.message_for_pgn(p) is None]
+    for k, pgn in enumerate(pgns):
+        svc._on_frame(1.0 + k * 1e-3, can.Message(arbitration_id=(6 << 26) | (pgn << 8) | 0x42, data=bytes(8)))
+    svc._on_frame(9.0, can.Message(arbitration_id=(6 << 26) | (pgns[0] << 8) | 0x42, data=bytes(8)))
+    assert len(svc.unknown_pgns) == MAX_TRACKED_UNKNOWN_PGNS
+    assert svc.unknown_pgns[pgns[0]] == 2                       # a tracked PGN keeps counting
+    assert svc.stats["unknown_pgn_frames"] == len(pgns) + 1
+    assert svc.stats["unknown_pgn_untracked"] == len(pgns) - MAX_TRACKED_UNKNOWN_PGNS

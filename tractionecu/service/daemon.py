@@ -68,6 +68,10 @@ INPUT_MESSAGES = ("TECU_WheelSpeeds", "TECU_DriveTorques", "TECU_AxleLoad", "Rea
 
 EstimatorFactory = Callable[[Any], Any]
 
+MAX_TRACKED_UNKNOWN_PGNS = 256
+"""Unknown PGNs counted one by one (``Service.unknown_pgns``); frames of further ones are
+counted together as ``unknown_pgn_untracked``.  A real bus carries a few dozen."""
+
 
 def default_estimator_factory(vehicle: Any) -> Any:
     """The estimator ``replay`` uses, with its default configuration."""
@@ -242,7 +246,10 @@ class Service:
             return
         info = self.codec.message_for_pgn(pgn)
         if info is None:
-            self.unknown_pgns[pgn] += 1
+            if pgn in self.unknown_pgns or len(self.unknown_pgns) < MAX_TRACKED_UNKNOWN_PGNS:
+                self.unknown_pgns[pgn] += 1
+            else:                               # hostile traffic must not grow the table to 2^18 keys
+                self.stats["unknown_pgn_untracked"] += 1
             self.stats["unknown_pgn_frames"] += 1
             return
         if pgn in OUTPUT_PGNS:
