@@ -246,7 +246,8 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
         estimation={"vehicle": str(rec / "vehicle.toml"), "lag_s": lag},
         service={"state_dir": str(cfg.state_dir())},
     )
-    svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory)
+    svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
+                  warm_up_estimator=False)          # warmed up above
     if before_play is not None:
         before_play(machine)
     if info_stream is not None:
