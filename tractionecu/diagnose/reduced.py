@@ -86,9 +86,8 @@ def _why_unusable(fr: Frame, ok: np.ndarray) -> str:
     if slow:
         parts.append(f"{slow} at a wheel-based speed ≤ {MIN_SPEED:g} m/s")
     reason = f"{int(ok.sum())} of {n} samples usable, 30 needed ({'; '.join(parts) or 'no rows'})"
-    with np.errstate(invalid="ignore"):
-        vmax = float(np.nanmax(vw)) if np.isfinite(vw).any() else math.nan
-    if n and slow >= 0.9 * n:
+    if n and slow >= 0.9 * n:                  # then vw has finite values
+        vmax = float(np.nanmax(vw))
         vg = fr.v_gps
         gmax = float(np.nanmax(vg)) if np.isfinite(vg).any() else math.nan
         reason += (f": the machine does not drive in this recording (wheel-based speed at most {vmax:.2f} m/s"
