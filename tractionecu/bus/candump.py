@@ -34,13 +34,11 @@ The writer formats exactly like can-utils: ``%08X`` for 29-bit IDs,
 from __future__ import annotations
 
 import math
-from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Iterable, Iterator, NamedTuple
 
-MAX_EXAMPLES = 5
-"""Line numbers kept per reject reason."""
+from ..counting import RejectCounter
 
 REJECT_REASONS = (
     "garbage",
@@ -69,45 +67,11 @@ class Frame(NamedTuple):
 
 
 @dataclass
-class ReadStats:
-    """Counts of lines read, frames accepted and lines rejected by reason.
+class ReadStats(RejectCounter):
+    """Counts of lines read, frames accepted and lines rejected by reason
+    (see :class:`~tractionecu.counting.RejectCounter`)."""
 
-    ``examples[reason]`` holds the first :data:`MAX_EXAMPLES` line numbers
-    (1-based) of each reason; ``texts[reason]`` the first offending line
-    (shortened).  ``source`` names the file for messages.
-    """
-
-    source: str = ""
-    lines: int = 0
     frames: int = 0
-    rejected: Counter = field(default_factory=Counter)
-    examples: dict[str, list[int]] = field(default_factory=dict)
-    texts: dict[str, str] = field(default_factory=dict)
-
-    def reject(self, reason: str, lineno: int, text: str) -> None:
-        """Count one rejected line."""
-        self.rejected[reason] += 1
-        ex = self.examples.setdefault(reason, [])
-        if len(ex) < MAX_EXAMPLES:
-            ex.append(lineno)
-        if reason not in self.texts:
-            t = text.rstrip("\r\n")
-            self.texts[reason] = t if len(t) <= 80 else t[:77] + "..."
-
-    @property
-    def total_rejected(self) -> int:
-        """Number of lines rejected for any reason."""
-        return sum(self.rejected.values())
-
-    def describe(self) -> list[str]:
-        """One line per reject reason: ``reason: count (file lines a, b, ...)``."""
-        out = []
-        for reason in sorted(self.rejected):
-            lines = ", ".join(str(n) for n in self.examples.get(reason, []))
-            more = "" if self.rejected[reason] <= len(self.examples.get(reason, [])) else ", ..."
-            src = f"{self.source} " if self.source else ""
-            out.append(f"{reason}: {self.rejected[reason]} ({src}line {lines}{more})")
-        return out
 
 
 def _classify(line: str) -> tuple[str | None, Frame | None]:

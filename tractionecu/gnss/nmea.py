@@ -32,6 +32,7 @@ from typing import Iterable, Iterator
 
 import pynmea2
 
+from ..counting import RejectCounter
 from ..errors import DecodeError
 
 KNOT_MPS = 1852.0 / 3600.0
@@ -46,8 +47,6 @@ QUALITY_FROM_MODE = {"N": 0, "A": 1, "D": 2, "P": 3, "R": 4, "F": 5, "E": 6, "M"
 """Mode indicator -> GGA-style fix quality (P, precise, is reported as 3)."""
 
 REJECT_REASONS = ("garbage", "missing_checksum", "bad_checksum", "bad_field", "time_backwards")
-
-MAX_EXAMPLES = 5
 
 MAX_SENTENCES_PER_EPOCH = 16
 """Sentence names kept per epoch: a stream that repeats one time forever must not grow it without bound."""
@@ -459,42 +458,12 @@ def parse_line(line: str) -> NmeaRecord | None:
 
 # --------------------------------------------------------------------------- streams
 @dataclass
-class NmeaStats:
+class NmeaStats(RejectCounter):
     """Counts for an NMEA stream: lines, accepted records, ignored sentence
-    types and rejected lines by reason (with the first line numbers)."""
+    types and rejected lines by reason (see :class:`~tractionecu.counting.RejectCounter`)."""
 
-    source: str = ""
-    lines: int = 0
     accepted: int = 0
     ignored: Counter = field(default_factory=Counter)
-    rejected: Counter = field(default_factory=Counter)
-    examples: dict[str, list[int]] = field(default_factory=dict)
-    texts: dict[str, str] = field(default_factory=dict)
-
-    def reject(self, reason: str, lineno: int, text: str) -> None:
-        """Count one rejected line."""
-        self.rejected[reason] += 1
-        ex = self.examples.setdefault(reason, [])
-        if len(ex) < MAX_EXAMPLES:
-            ex.append(lineno)
-        if reason not in self.texts:
-            t = text.rstrip("\r\n")
-            self.texts[reason] = t if len(t) <= 80 else t[:77] + "..."
-
-    @property
-    def total_rejected(self) -> int:
-        """Number of lines rejected for any reason."""
-        return sum(self.rejected.values())
-
-    def describe(self) -> list[str]:
-        """One line per reject reason: ``reason: count (file line a, b, ...)``."""
-        out = []
-        for reason in sorted(self.rejected):
-            ex = self.examples.get(reason, [])
-            more = "" if self.rejected[reason] <= len(ex) else ", ..."
-            src = f"{self.source} " if self.source else ""
-            out.append(f"{reason}: {self.rejected[reason]} ({src}line {', '.join(map(str, ex))}{more})")
-        return out
 
 
 def iter_nmea(

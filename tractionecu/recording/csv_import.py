@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import csv
 import math
-from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -67,6 +66,7 @@ from typing import Mapping
 import numpy as np
 
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, default_codec
+from ..counting import RejectCounter
 from ..errors import ConfigError, RecordingError
 from .reader import (
     GPS_FIELDS,
@@ -76,8 +76,6 @@ from .reader import (
     RecordingStats,
     Series,
 )
-
-MAX_EXAMPLES = 5
 
 UNITS: dict[str, float] = {
     "": 1.0,
@@ -167,44 +165,19 @@ J1939_LOGGER_MAPPING = CsvMapping(
 
 
 @dataclass
-class CsvStats:
+class CsvStats(RejectCounter):
     """Lines, data rows, accepted cells and rejects of one CSV file.
 
     ``rejected`` counts by reason (``bad_time``, ``time_backwards``,
     ``bad_value``, ``short_row``, ``bad_row``: a row the csv module cannot
     parse, such as a field beyond its 128 KiB limit) with the first line
-    numbers in ``examples``;
+    numbers in ``examples`` (see :class:`~tractionecu.counting.RejectCounter`);
     ``unmapped`` lists header columns the mapping does not use.
     """
 
-    source: str = ""
-    lines: int = 0
     rows: int = 0
     accepted: int = 0
-    rejected: Counter = field(default_factory=Counter)
-    examples: dict[str, list[int]] = field(default_factory=dict)
     unmapped: list[str] = field(default_factory=list)
-
-    def reject(self, reason: str, lineno: int) -> None:
-        """Count one rejected row or cell."""
-        self.rejected[reason] += 1
-        ex = self.examples.setdefault(reason, [])
-        if len(ex) < MAX_EXAMPLES:
-            ex.append(lineno)
-
-    @property
-    def total_rejected(self) -> int:
-        """Rejected rows and cells."""
-        return sum(self.rejected.values())
-
-    def describe(self) -> list[str]:
-        """One line per reason: ``reason: count (file line a, b, ...)``."""
-        out = []
-        for reason in sorted(self.rejected):
-            ex = self.examples.get(reason, [])
-            more = "" if self.rejected[reason] <= len(ex) else ", ..."
-            out.append(f"{reason}: {self.rejected[reason]} ({self.source} line {', '.join(map(str, ex))}{more})")
-        return out
 
 
 def _rows(fh, delim: str):
