@@ -40,6 +40,7 @@ from typing import Any, Callable
 
 import can
 
+from ..counting import WarnOnce
 from .clock import ServiceClock
 from .config import CanConfig
 
@@ -190,18 +191,10 @@ class CanLink:
         self._queue: collections.deque[tuple[float, can.Message]] = collections.deque()
         self._wake_pending = False
         self._use_kernel_stamps = cfg.kernel_timestamps
-        self._warned: set[str] = set()
+        self._warn_once = WarnOnce(log)
         self._read_one: Callable[[], can.Message | None] = lambda: None
         self._sc_reader: SocketcanReader | None = None
         self._dropped_base = 0
-
-    # ------------------------------------------------------------ logging
-    def _warn_once(self, kind: str, msg: str, *args: Any) -> None:
-        if kind in self._warned:
-            log.debug(msg, *args)
-        else:
-            self._warned.add(kind)
-            log.warning(msg, *args)
 
     # ------------------------------------------------------------ supervisor
     async def run(self) -> None:
@@ -231,7 +224,7 @@ class CanLink:
                 log.warning("CAN %s: open again", desc)
             else:
                 log.info("CAN %s: open", desc)
-            self._warned.discard("open")
+            self._warn_once.forget("open")
             reason = await self._serve(bus)
             if self._closing:
                 break
