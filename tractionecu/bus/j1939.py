@@ -120,17 +120,22 @@ def parse_id(can_id: int) -> CanId:
     """
     if not 0 <= can_id <= 0x1FFFFFFF:
         raise ValueError(f"CAN ID {can_id:#x} is not a 29-bit identifier")
-    priority = (can_id >> 26) & 0x7
-    raw_pgn = (can_id >> 8) & 0x3FFFF
-    sa = can_id & 0xFF
-    if is_pdu1(raw_pgn):
-        return CanId(priority, raw_pgn & 0x3FF00, sa, raw_pgn & 0xFF)
-    return CanId(priority, raw_pgn, sa, None)
+    pgn = pgn_of(can_id)
+    ps = (can_id >> 8) & 0xFF
+    return CanId((can_id >> 26) & 0x7, pgn, can_id & 0xFF, ps if is_pdu1(pgn) else None)
 
 
-def pgn_of(can_id: int) -> int:
-    """The PGN of a 29-bit identifier (destination masked for PDU1)."""
-    return parse_id(can_id).pgn
+def pgn_of(can_id):
+    """The PGN of a 29-bit identifier: bits 8..25, with the PS byte (the
+    destination address) cleared for PDU1 (PF < 240).
+
+    Works alike on a Python int (gives an int) and element-wise on a numpy
+    integer array (gives an array of the same dtype).  It does not check the
+    range; :func:`parse_id` does.
+    """
+    raw = (can_id >> 8) & 0x3FFFF
+    pdu1 = ((raw >> 8) & 0xFF) < 240
+    return raw - (raw & 0xFF) * pdu1
 
 
 # (field name, bit position, bit width), least significant first.

@@ -238,8 +238,7 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int) -> t
     ext = table.ext
     stats.non_extended_frames += int(n - ext.sum())
     cid = table.can_id
-    raw_pgn = (cid >> 8) & 0x3FFFF
-    pgn = np.where(((raw_pgn >> 8) & 0xFF) < 240, raw_pgn & 0x3FF00, raw_pgn)
+    pgn = j1939.pgn_of(cid)
     sa = cid & 0xFF
     known = {p: codec.message_for_pgn(p) for p in np.unique(pgn[ext]).tolist()}
     msg_parts: dict[str, list] = {}                    # name -> [(rows, values dict | None)]
