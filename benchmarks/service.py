@@ -339,7 +339,7 @@ def in_guest() -> bool:
 def run_vcan(seconds: float, options: list[str], work: Path) -> dict:
     from tractionecu.bus import j1939
     from tractionecu.bus.candump import read_candump
-    from tractionecu.cli.replay import GRID_MARGIN_S
+    from tractionecu.pipeline.steps import GRID_MARGIN_S
 
     rec, t_first = make_load(work, seconds)
     with open(work / "bus.log", "w") as fh:

@@ -17,7 +17,7 @@ Grid ``t_k = g0 + k / rate`` on the service clock (monotonic, so it neither
 drifts nor jumps).  ``g0`` is phased to the first wheel-speed frame exactly
 as ``replay`` does (``+ GRID_MARGIN_S``).  Step k runs ``lag_s`` after
 ``t_k``, when every frame stamped up to ``t_k`` has arrived, and feeds the
-estimator through :class:`~tractionecu.service.steps.StepAssembler`, so a
+estimator through :class:`~tractionecu.pipeline.steps.StepAssembler`, so a
 capture of the bus replayed offline gives the same estimates.  The
 estimator predicts only and sets its timeout bits when a signal stops.  A
 loop that falls more than ``max_catch_up_s`` behind skips ahead (counted).
@@ -58,7 +58,8 @@ from .config import ServiceConfig, to_toml
 from .gps import GpsReader, GpsSample
 from .mapwriter import MapWriter
 from .notify import Notifier, watchdog_interval
-from .steps import ANCHOR_SIGNAL, GRID_MARGIN_S, StepAssembler
+from ..pipeline.signals import ANCHOR_SIGNAL
+from ..pipeline.steps import GRID_MARGIN_S, StepAssembler
 
 log = logging.getLogger(__name__)
 
