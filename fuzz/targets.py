@@ -364,7 +364,7 @@ class NmeaTarget(Target):
     def run(self, case: dict[str, Any]) -> int:
         from tractionecu.errors import DecodeError, RecordingError
         from tractionecu.gnss.nmea import EpochAssembler, NmeaStats, parse_line
-        from tractionecu.recording.reader import align_gps
+        from tractionecu.recording.gps import align_gps
         from tractionecu.service.config import GpsConfig
         from tractionecu.service.gps import NmeaStream
 
@@ -523,7 +523,8 @@ class CandumpTarget(Target):
 
     def run(self, case: dict[str, Any]) -> int:
         from tractionecu.errors import RecordingError
-        from tractionecu.recording.reader import read_recording, summarize
+        from tractionecu.recording.reader import read_recording
+        from tractionecu.recording.summary import summarize
 
         (self.dir / "can.log").write_bytes(case["can.log"])
         gps = self.dir / "gps.nmea"
@@ -653,7 +654,7 @@ class CsvTarget(Target):
         from tractionecu.errors import ConfigError, RecordingError
         from tractionecu.recording.csv_import import J1939_LOGGER_MAPPING, import_csv
         from tractionecu.recording.polycan import polycan_to_candump
-        from tractionecu.recording.reader import summarize
+        from tractionecu.recording.summary import summarize
 
         self.path.write_bytes(case["file"])
         o = case["opts"]

@@ -13,7 +13,7 @@ from tractionecu.recording.csv_import import (
     CsvMapping,
     import_csv,
 )
-from tractionecu.recording.reader import summarize
+from tractionecu.recording.summary import summarize
 
 
 def test_contract_mapping_time_in_ms_sparse_cells(tmp_path):

@@ -12,7 +12,8 @@ import pytest
 from tractionecu.bus.candump import format_line
 from tractionecu.bus.dbc import Codec
 from tractionecu.errors import RecordingError
-from tractionecu.recording.reader import RecordingStats, _read_can, read_can_per_frame
+from tractionecu.recording.reader import RecordingStats, _read_can
+from tractionecu.recording.reference import read_can_per_frame
 
 REPO = Path(__file__).resolve().parents[2]
 CANDUMP = REPO / "tests" / "data" / "candump"

@@ -14,7 +14,8 @@ from tractionecu.bus.dbc import Codec
 from tractionecu.errors import RecordingError
 from tractionecu.gnss.nmea import format_gga, format_rmc, format_vtg
 from tractionecu.recording.polycan import DEFAULT_EPOCH0, polycan_to_candump
-from tractionecu.recording.reader import read_recording, summarize
+from tractionecu.recording.reader import read_recording
+from tractionecu.recording.summary import summarize
 
 REPO = Path(__file__).resolve().parents[2]
 CANDUMP = REPO / "tests" / "data" / "candump"

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from ..recording.reader import read_recording, summarize
+from ..recording.reader import read_recording
+from ..recording.summary import summarize
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:

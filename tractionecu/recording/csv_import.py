@@ -68,7 +68,7 @@ import numpy as np
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, default_codec
 from ..counting import RejectCounter
 from ..errors import ConfigError, RecordingError
-from .reader import (
+from .containers import (
     GPS_FIELDS,
     GpsTrack,
     MessageStats,

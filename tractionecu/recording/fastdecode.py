@@ -30,7 +30,7 @@ Frames
     :meth:`Codec.decode` frame by frame.
 
 The result — signals, statistics, counters and the insertion order of every
-dict — equals the per-frame reader's (:func:`.reader.read_can_per_frame`);
+dict — equals the per-frame reader's (:func:`.reference.read_can_per_frame`);
 ``tests/recording`` checks that on recordings with bad lines.
 """
 

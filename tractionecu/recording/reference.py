@@ -1,0 +1,107 @@
+"""The per-frame reference decoder of ``can.log``: candump line reader, one
+:meth:`~tractionecu.bus.dbc.Codec.decode` per frame.
+
+:func:`tractionecu.recording.reader.read_recording` decodes in bulk
+(:mod:`.fastdecode`); this slow, plain form is what the bulk decoder is
+tested against (identical series, statistics and counters).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..bus import j1939
+from ..bus.candump import ReadStats, read_candump
+from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
+from ..counting import MAX_EXAMPLES
+from ..errors import DecodeError, RecordingError, UnknownFrame
+from .containers import AddressClaim, MessageStats, RecordingStats, Series
+from .reader import check_frames, message_times
+
+
+class _SeriesBuilder:
+    __slots__ = ("t", "v", "sa")
+
+    def __init__(self) -> None:
+        self.t: list[float] = []
+        self.v: list[float] = []
+        self.sa: list[int] = []
+
+    def build(self, unit: str) -> Series:
+        return Series(
+            np.asarray(self.t, dtype=float),
+            np.asarray(self.v, dtype=float),
+            np.asarray(self.sa, dtype=np.int16),
+            unit,
+        )
+
+
+def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
+    """Read and decode ``can.log`` frame by frame (candump line reader, :meth:`Codec.decode` per frame).
+
+    The reference for :func:`_read_can`'s vectorised decoding; same results.
+    """
+    rs = ReadStats(source=path.name)
+    stats.files[path.name] = rs
+    builders: dict[str, _SeriesBuilder] = {}
+    times: dict[str, list[float]] = {}
+    claims: dict[tuple[int, int], AddressClaim] = {}
+    try:
+        for frame in read_candump(path, rs):
+            lineno = rs.lines
+            if not math.isfinite(stats.can_t_first):
+                stats.can_t_first = frame.t
+            stats.can_t_last = frame.t
+            if not frame.is_extended:
+                stats.non_extended_frames += 1
+                continue
+            cid = j1939.parse_id(frame.can_id)
+            if cid.pgn == j1939.PGN_ADDRESS_CLAIMED and len(frame.data) == 8:
+                name = j1939.Name.from_bytes(frame.data)
+                key = (cid.sa, name.to_int())
+                if key in claims:
+                    claims[key].count += 1
+                else:
+                    claims[key] = AddressClaim(cid.sa, name, frame.t, 1, lineno)
+            try:
+                msg, values = codec.decode(frame.can_id, frame.data, True)
+            except UnknownFrame:
+                stats.unknown_pgns[cid.pgn] += 1
+                stats.unknown_pgn_sources.setdefault(cid.pgn, set()).add(cid.sa)
+                continue
+            except DecodeError:
+                info = codec.message_for_pgn(cid.pgn)
+                key_name = info.name if info is not None else f"PGN {cid.pgn}"
+                stats.decode_errors[key_name] += 1
+                ex = stats.decode_error_lines.setdefault(key_name, [])
+                if len(ex) < MAX_EXAMPLES:
+                    ex.append(lineno)
+                continue
+            ms = stats.messages.get(msg)
+            if ms is None:
+                info = codec.message(msg)
+                ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s)
+                times[msg] = []
+            ms.count += 1
+            ms.sources[cid.sa] += 1
+            times[msg].append(frame.t)
+            if cid.pgn in NETWORK_MANAGEMENT_PGNS:
+                continue
+            for sig, v in values.items():
+                b = builders.get(sig)
+                if b is None:
+                    b = builders[sig] = _SeriesBuilder()
+                b.t.append(frame.t)
+                b.v.append(v)
+                b.sa.append(cid.sa)
+    except OSError as e:
+        raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
+
+    check_frames(path, rs)
+    for msg, ts in times.items():
+        message_times(stats.messages[msg], np.asarray(ts))
+    stats.address_claims = sorted(claims.values(), key=lambda c: (c.t_first, c.sa))
+    return {name: b.build(codec.signals[name].unit) for name, b in builders.items()}
