@@ -13,7 +13,8 @@ import pytest
 from tractionecu.gnss import nmea
 from tractionecu.service.clock import ServiceClock
 from tractionecu.service.config import GpsConfig
-from tractionecu.service.gps import GpsReader, GpsSample, NmeaStream, utc_epoch
+from tractionecu.gnss.utc import utc_epoch
+from tractionecu.service.gps import GpsReader, GpsSample, NmeaStream
 
 FIXTURE = Path(__file__).resolve().parents[1] / "data" / "nmea" / "mixed.nmea"
 T0 = datetime(2026, 7, 10, 8, 0, 0, tzinfo=timezone.utc)
@@ -125,7 +126,7 @@ def test_epoch_going_back_in_time_is_dropped() -> None:
     s, got = collect()
     feed_lines(s, epoch(T0 + timedelta(seconds=0.3)), T0.timestamp() + 0.3)
     feed_lines(s, epoch(T0 + timedelta(seconds=0.2)), T0.timestamp() + 0.35)
-    assert len(got) == 1 and s.stats["time_backwards"] == 1
+    assert len(got) == 1 and s.stats["gated_repeated"] == 1
 
 
 # ---------------------------------------------------------------- real pyserial on a pty

@@ -19,34 +19,40 @@ has been seen, GGA+RMC+VTG is expected.
 
 Gating and time
 ---------------
-A fix is used only if its fix quality is at least ``gps.min_fix_quality``,
-its HDOP at most ``gps.max_hdop``, its RMC status is not ``V`` and it has a
-position; otherwise it is counted under ``gated_<reason>``.  Its time on
-the service axis is its UTC epoch (RMC/ZDA date, else the service clock's
-date) when that lies within :data:`UTC_TOLERANCE_S` of its arrival time
-(the host clock follows UTC, as ``replay`` assumes), else the arrival time
-minus ``gps.latency_s`` (counted as ``time_from_arrival``).
+A fix goes through the pipeline's GNSS gate
+(:class:`~tractionecu.pipeline.gnss.GnssGate`, the rule replay applies to a
+recorded track): RMC status not ``V``, fix quality at least
+``gps.min_fix_quality``, HDOP at most ``gps.max_hdop``, a position, later
+than the fix accepted before it, and arriving at most ``max_age_s`` after
+its epoch; otherwise it is counted under ``gated_<reason>``.  Its time on
+the service axis is its UTC epoch (:mod:`tractionecu.gnss.utc`: RMC/ZDA
+date, else the date nearest the arrival time) when that lies within
+:data:`UTC_TOLERANCE_S` of its arrival time (the host clock follows UTC, as
+``replay`` assumes), else the arrival time minus ``gps.latency_s`` (counted
+as ``time_from_arrival``).
 
 Counters (:attr:`GpsReader.stats`): ``lines``, ``fixes``, ``accepted``,
 ``rejected_<reason>`` (garbage, missing_checksum, bad_checksum, bad_field,
 overlong), ``ignored`` (valid sentences of other types), ``gated_<reason>``
-(fix_quality, hdop, invalid, no_position), ``time_backwards``, ``opens``,
+(invalid, fix_quality, hdop, no_position, repeated, stale), ``opens``,
 ``open_failures``, ``link_failures``.
 """
 
 from __future__ import annotations
 
 import asyncio
-import calendar
 import logging
 import math
 from collections import Counter
 from dataclasses import dataclass
-from datetime import date, datetime, timezone
+from datetime import date
 from typing import Any, Callable
 
+from ..counting import WarnOnce
 from ..errors import DecodeError
 from ..gnss.nmea import EpochAssembler, GpsFix, parse_line
+from ..gnss.utc import nearest_date, utc_epoch
+from ..pipeline.gnss import GnssGate
 from .clock import ServiceClock
 from .config import GpsConfig
 
@@ -81,24 +87,22 @@ class GpsSample:
     nsat: int | None
 
 
-def utc_epoch(d: date, tod_s: float) -> float:
-    """Epoch seconds of UTC date ``d`` plus ``tod_s`` seconds (as the recording reader computes it)."""
-    return calendar.timegm((d.year, d.month, d.day, 0, 0, 0)) + tod_s
-
-
 class NmeaStream:
     """Bytes in, gated :class:`GpsSample` out (no I/O: the reader and tests feed it).
 
     Parameters
     ----------
     cfg:
-        The ``[gps]`` table (gating thresholds, line limit, latency).
+        The ``[gps]`` table (line limit, latency; gating thresholds when ``gate`` is not given).
     on_sample:
         Called with each accepted sample.
+    gate:
+        The GNSS gate (default: from ``cfg`` and the default fix age).
     """
 
-    def __init__(self, cfg: GpsConfig, on_sample: Callable[[GpsSample], None]) -> None:
+    def __init__(self, cfg: GpsConfig, on_sample: Callable[[GpsSample], None], gate: GnssGate | None = None) -> None:
         self.cfg = cfg
+        self.gate = gate or GnssGate(cfg.min_fix_quality, cfg.max_hdop)
         self.on_sample = on_sample
         self.stats: Counter[str] = Counter()
         self._buf = bytearray()
@@ -111,10 +115,11 @@ class NmeaStream:
         self._emitted_tod: float | None = None
         self._last_date: date | None = None
         self._last_t = -math.inf
+        self._from_utc = False
         self.last_sample: GpsSample | None = None
         self.max_delay_s = 0.0
         """Largest arrival − UTC time of an epoch [s] (receiver output latency plus transport)."""
-        self._warned: set[str] = set()
+        self._warn = WarnOnce(log)
 
     def reset_line(self) -> None:
         """Forget a partial line (after the port was reopened)."""
@@ -141,11 +146,7 @@ class NmeaStream:
     def _reject(self, reason: str, text: str) -> None:
         self.stats["lines"] += 1
         self.stats["rejected_" + reason] += 1
-        if reason not in self._warned:
-            self._warned.add(reason)
-            log.warning("NMEA line rejected (%s): %r", reason, text[:60])
-        else:
-            log.debug("NMEA line rejected (%s): %r", reason, text[:60])
+        self._warn(reason, "NMEA line rejected (%s): %r", reason, text[:60])
 
     def _line(self, text: str, t_arrival: float) -> None:
         self._lineno += 1
@@ -184,22 +185,15 @@ class NmeaStream:
         self.stats["fixes"] += 1
         if fix.date is not None:
             self._last_date = fix.date
-        reason = None
         q = fix.fix_quality
-        if fix.valid is False:
-            reason = "invalid"
-        elif q is None or q < self.cfg.min_fix_quality:
-            reason = "fix_quality"
-        elif fix.hdop is not None and fix.hdop > self.cfg.max_hdop:
-            reason = "hdop"
-        elif fix.lat_deg is None or fix.lon_deg is None:
-            reason = "no_position"
+        reason = self.gate.reason(fix.valid, q, fix.hdop, fix.lat_deg, fix.lon_deg)
+        t = self._fix_time(fix.tod_s, t_arrival) if reason is None else math.nan
+        if reason is None and t <= self._last_t:
+            reason = "repeated"
+        if reason is None and self._from_utc and not self.gate.fresh(t, t_arrival):
+            reason = "stale"  # (an arrival-stamped epoch is exactly gps.latency_s old, as configured)
         if reason is not None:
             self.stats["gated_" + reason] += 1
-            return
-        t = self._fix_time(fix.tod_s, t_arrival)
-        if t <= self._last_t:
-            self.stats["time_backwards"] += 1
             return
         self._last_t = t
         self.stats["accepted"] += 1
@@ -209,16 +203,14 @@ class NmeaStream:
         self.on_sample(s)
 
     def _fix_time(self, tod_s: float, t_arrival: float) -> float:
-        if math.isfinite(t_arrival):
-            if self._last_date is not None:
-                cands = [utc_epoch(self._last_date, tod_s)]
-            else:
-                d0 = datetime.fromtimestamp(t_arrival, tz=timezone.utc).date()
-                cands = [utc_epoch(date.fromordinal(d0.toordinal() + k), tod_s) for k in (-1, 0, 1)]
-            best = min(cands, key=lambda c: abs(c - t_arrival))
+        d = self._last_date if self._last_date is not None else nearest_date(t_arrival, tod_s)
+        if d is not None and math.isfinite(t_arrival):
+            best = utc_epoch(d, tod_s)
             if abs(best - t_arrival) <= UTC_TOLERANCE_S:
                 self.max_delay_s = max(self.max_delay_s, t_arrival - best)
+                self._from_utc = True
                 return best
+        self._from_utc = False
         self.stats["time_from_arrival"] += 1
         return t_arrival - self.cfg.latency_s
 
@@ -237,13 +229,15 @@ class GpsReader:
     serial_factory:
         Opens the port (default ``serial.Serial``); called as
         ``serial_factory(port=..., baudrate=..., timeout=0)``.
+    gate:
+        The GNSS gate (default: from ``cfg``).
     """
 
     def __init__(self, cfg: GpsConfig, on_sample: Callable[[GpsSample], None], clock: ServiceClock, *,
-                 serial_factory: Callable[..., Any] | None = None) -> None:
+                 serial_factory: Callable[..., Any] | None = None, gate: GnssGate | None = None) -> None:
         self.cfg = cfg
         self.clock = clock
-        self.stream = NmeaStream(cfg, on_sample)
+        self.stream = NmeaStream(cfg, on_sample, gate)
         self.stats = self.stream.stats
         self.serial_factory = serial_factory
         self.is_open = asyncio.Event()
@@ -253,7 +247,7 @@ class GpsReader:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._failed: asyncio.Future[str] | None = None
         self._closing = False
-        self._warned: set[str] = set()
+        self._warn = WarnOnce(log)
 
     def _factory(self) -> Callable[..., Any]:
         if self.serial_factory is None:
@@ -282,7 +276,7 @@ class GpsReader:
             except Exception as e:  # SerialException, OSError, ValueError
                 self.stats["open_failures"] += 1
                 self.last_error = f"open: {e}"
-                self._warn_once("open", "GPS %s: cannot open (%s); retrying", self.cfg.port, e)
+                self._warn("open", "GPS %s: cannot open (%s); retrying", self.cfg.port, e)
                 await asyncio.sleep(backoff)
                 backoff = min(2 * backoff, self.cfg.reopen_max_s)
                 continue
@@ -291,23 +285,16 @@ class GpsReader:
                 break
             backoff = self.cfg.reopen_min_s
             self.stats["opens"] += 1
-            self._warned.discard("open")
+            self._warn.forget("open")
             (log.warning if self.stats["opens"] > 1 else log.info)("GPS %s: open", self.cfg.port)
             reason = await self._serve(port)
             if self._closing:
                 break
             self.stats["link_failures"] += 1
             self.last_error = reason
-            self._warn_once("link", "GPS %s: lost (%s); reopening", self.cfg.port, reason)
+            self._warn("link", "GPS %s: lost (%s); reopening", self.cfg.port, reason)
             await asyncio.sleep(backoff)
             backoff = min(2 * backoff, self.cfg.reopen_max_s)
-
-    def _warn_once(self, kind: str, msg: str, *args: Any) -> None:
-        if kind in self._warned:
-            log.debug(msg, *args)
-        else:
-            self._warned.add(kind)
-            log.warning(msg, *args)
 
     async def _serve(self, port: Any) -> str:
         loop = self._loop
