@@ -27,7 +27,7 @@ this module only packs and unpacks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import NamedTuple
 
 PGN_REQUEST = 59904
@@ -207,10 +207,6 @@ class Name:
         if len(data) != 8:
             raise ValueError(f"a NAME is 8 bytes, got {len(data)}")
         return cls.from_int(int.from_bytes(bytes(data), "little"))
-
-    def as_dict(self) -> dict[str, int]:
-        """Field name -> integer value."""
-        return {f.name: int(getattr(self, f.name)) for f in fields(self)}
 
     def describe(self) -> str:
         """One-line human summary, e.g. for ``tractionecu inspect``."""

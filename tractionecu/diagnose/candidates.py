@@ -66,9 +66,6 @@ class Candidate:
             out[fp.name] = float(v)
         return out
 
-    def null_params(self) -> dict[str, float]:
-        return self.params([fp.null for fp in self.fitted])
-
 
 CANDIDATES: dict[str, Candidate] = {
     c.name: c

@@ -184,58 +184,38 @@ class UnscentedFilter:
         self.last_idx: NDArray[np.intp] = np.empty(0, dtype=np.intp)
         """Output components used on the last update."""
         self._lazy: tuple | None = None
-        self._set_last(np.empty(0), np.zeros(n), np.empty((0, 0)), np.empty((n, 0)), np.empty((n, 0)))
+        self._set_last(np.zeros(n), np.empty((n, 0)), np.empty((n, 0)))
 
     # ------------------------------------------------------------------ diagnostics of the last update
-    def _set_last(self, nu, dx, S, K, C, ksk=None) -> None:
+    def _set_last(self, dx, K, C, ksk=None) -> None:
         self._lazy = None
-        self._last = (nu, dx, S, K, C)
+        self._last = (dx, K, C)
         self._ksk = ksk
 
     def _last_parts(self) -> tuple:
         lz = self._lazy
         if lz is not None:                 # compiled update: views into its output arrays
-            work, small, m, P, sl = lz
-            self._set_last(small[2 * m], work[:, m], small[:m], work[:, :m], P[:, sl], work[:, m + 1])
+            work, m, P, sl = lz
+            self._set_last(work[:, m], work[:, :m], P[:, sl], work[:, m + 1])
         return self._last
-
-    @property
-    def last_innov(self) -> NDArray[np.float64]:
-        """Innovation ν = z − ŷ of the accepted components of the last update."""
-        return self._last_parts()[0]
 
     @property
     def last_dx(self) -> NDArray[np.float64]:
         """Correction K ν of the last update (before clamping)."""
-        return self._last_parts()[1]
-
-    @property
-    def last_S(self) -> NDArray[np.float64]:
-        """Innovation covariance S of the last update."""
-        return self._last_parts()[2]
-
-    @property
-    def last_K(self) -> NDArray[np.float64]:
-        """Gain K of the last update."""
-        return self._last_parts()[3]
-
-    @property
-    def last_C(self) -> NDArray[np.float64]:
-        """Cross covariance C_k of the last update; diag(K S Kᵀ) = Σ_j K_ij C_ij."""
-        return self._last_parts()[4]
+        return self._last_parts()[0]
 
     def ksk_diag(self) -> NDArray[np.float64]:
         """diag(K S Kᵀ) = Σ_j K_ij C_ij of the last update (the covariance it removed), (n,)."""
-        parts = self._last_parts()
+        _, K, C = self._last_parts()
         if self._ksk is None:
-            self._ksk = (parts[3] * parts[4]).sum(axis=1)
+            self._ksk = (K * C).sum(axis=1)
         return self._ksk
 
     def correction(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """(last_dx, ksk_diag()) of the last update, for covariance matching."""
         lz = self._lazy
         if lz is not None:
-            work, m = lz[0], lz[2]
+            work, m = lz[0], lz[1]
             return work[:, m], work[:, m + 1]
         return self.last_dx, self.ksk_diag()
 
@@ -401,7 +381,7 @@ class UnscentedFilter:
             self.last_nis = nis
             self.last_dof = m
             self.last_idx = comp
-            self._lazy = (work, small, m, P, sl)
+            self._lazy = (work, m, P, sl)
             return True
         S = P[sl, sl].copy()
         S.ravel()[::m + 1] += R
@@ -437,7 +417,7 @@ class UnscentedFilter:
         self.last_nis = float(nu @ (Si @ nu))
         self.last_dof = m
         self.last_idx = comp
-        self._set_last(nu, dx, S, K, C)
+        self._set_last(dx, K, C)
         return True
 
     def _update_general(self, z: NDArray[np.float64], idx: NDArray[np.intp], R: NDArray[np.float64]) -> None:
@@ -507,10 +487,10 @@ class UnscentedFilter:
         self.last_nis = float(nu @ (Si @ nu))
         self.last_dof = int(st.size)
         self.last_idx = idx
-        self._set_last(nu, dx, S, K, C)
+        self._set_last(dx, K, C)
 
     def _no_update(self) -> None:
         self.last_nis = math.nan
         self.last_dof = 0
         self.last_idx = np.empty(0, dtype=np.intp)
-        self._set_last(np.empty(0), np.zeros(self.n), np.empty((0, 0)), np.empty((self.n, 0)), np.empty((self.n, 0)))
+        self._set_last(np.zeros(self.n), np.empty((self.n, 0)), np.empty((self.n, 0)))

@@ -94,10 +94,6 @@ class TileStats:
         out[ok] = self.m2[ok] / (self.count[ok].astype(np.float64) - 1.0)
         return out
 
-    def occupied(self) -> NDArray[np.bool_]:
-        """Mask [layer, row, col] of cells holding at least one sample."""
-        return self.count > 0
-
     def copy(self) -> TileStats:
         return TileStats(self.layers, self.cells, self.count.copy(), self.mean.copy(), self.m2.copy())
 

@@ -283,10 +283,6 @@ class FieldFrame:
         return self._tm.inverse(np.asarray(x, dtype=float) + self.easting0,  # type: ignore[attr-defined]
                                 np.asarray(y, dtype=float) + self.northing0)
 
-    def to_projected(self, x: ArrayLike, y: ArrayLike):
-        """Local (x, y) [m] → UTM (easting, northing) [m] in :attr:`crs`."""
-        return np.asarray(x, dtype=float) + self.easting0, np.asarray(y, dtype=float) + self.northing0
-
 
 __all__ = [
     "FieldFrame",
