@@ -4,12 +4,12 @@ Run from the repository root::
 
     python benchmarks/diagnose_suite.py --json OUT.json [--fast] [--jobs 2] [--workdir DIR] [--reuse]
 
-Each case of :func:`tractionecu.diagnose.suite.cases` is simulated and written as a
+Each case of :func:`tractionecu.evaluation.suite.cases` is simulated and written as a
 recording directory (``can.log``, ``gps.nmea``, ``vehicle.toml``; the truth files are
 written too but diagnosis never opens them), then diagnosed by
 :func:`tractionecu.diagnose.engine.diagnose` exactly as ``tractionecu diagnose`` would.
 
-Figures (printed and written as JSON keys, see :func:`tractionecu.diagnose.suite.summarize`):
+Figures (printed and written as JSON keys, see :func:`tractionecu.evaluation.suite.summarize`):
 
 ``top1_accuracy``
     share of effect recordings whose verdict is ``effect`` naming the concealed effect.
@@ -42,7 +42,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tractionecu.diagnose.engine import diagnose  # noqa: E402
-from tractionecu.diagnose.suite import all_cases, cases, fast_cases, score_case, summarize, write_case  # noqa: E402
+from tractionecu.evaluation.suite import all_cases, cases, fast_cases, score_case, summarize, write_case  # noqa: E402
 
 
 def run_case(name: str, workdir: str, reuse: bool) -> dict:

@@ -1,6 +1,6 @@
 """Diagnosis end to end on short simulated recordings with a concealed effect (the CI subset).
 
-Each recording is simulated from :mod:`tractionecu.diagnose.suite`, written like a logger
+Each recording is simulated from :mod:`tractionecu.evaluation.suite`, written like a logger
 would (``can.log``, ``gps.nmea``, ``vehicle.toml``) and diagnosed blind; the truth the case
 knows is used only to score.
 """
@@ -14,7 +14,7 @@ import pytest
 
 from tractionecu.cli.main import main
 from tractionecu.diagnose.engine import diagnose
-from tractionecu.diagnose.suite import all_cases, export_engine_csv, score_case, write_case
+from tractionecu.evaluation.suite import all_cases, export_engine_csv, score_case, write_case
 from tractionecu.model.effects import EFFECTS
 
 CASES = {c.name: c for c in all_cases()}

@@ -10,7 +10,7 @@ import pytest
 
 from tractionecu.cli.main import main
 from tractionecu.cli.replay import CSV_COLUMNS, replay
-from tractionecu.estimation.scoring import r_squared
+from tractionecu.evaluation.scoring import r_squared
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording

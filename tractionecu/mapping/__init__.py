@@ -3,8 +3,10 @@
 Modules: :mod:`.projection` (WGS84 → UTM field frame), :mod:`.grid`
 (per-cell running statistics), :mod:`.fill` (the paper's band fill),
 :mod:`.tiles` (on-disk format), :mod:`.store` (:class:`MapStore`, the API
-called at 10 Hz), :mod:`.soil` (classification by ``a``), :mod:`.score`
-(:func:`map_scorecard`), :mod:`.export` (GeoTIFF, ISO-XML, PNG, GeoJSON).
+called at 10 Hz), :mod:`.soil` (classification by ``a``), :mod:`.sampler`
+(window means at the GNSS epochs), :mod:`.from_replay` (a replay's map),
+:mod:`.export` (GeoTIFF, ISO-XML, PNG, GeoJSON).  The map scorecard against
+a simulated field is :mod:`tractionecu.evaluation.map_score`.
 
 The names below are imported lazily so that ``import tractionecu.mapping``
 stays cheap in the cab.
@@ -19,8 +21,6 @@ _LAZY = {
     "LayerGrid": "store",
     "open_store": "store",
     "paper_fill": "fill",
-    "map_scorecard": "score",
-    "write_map_scorecard": "score",
     "FieldFrame": "projection",
     "LAYERS": "grid",
 }

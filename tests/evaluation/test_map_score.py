@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from tractionecu.mapping.score import map_scorecard, track_mask, write_map_scorecard
+from tractionecu.evaluation.map_score import map_scorecard, track_mask, write_map_scorecard
 from tractionecu.mapping.store import MapStore
 
 from map_synth import ORIGIN, SOIL_A, SOIL_RHO, fill_store, passes, soil_xy

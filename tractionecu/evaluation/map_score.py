@@ -31,10 +31,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from .fill import DEFAULT_EPS_M, DEFAULT_WEIGHTS, EPS_LOW_M
-from .soil import classify_by_a, soil_a_table
-from .store import LayerGrid, MapStore, open_store
-from .tiles import atomic_write_bytes
+from ..mapping.fill import DEFAULT_EPS_M, DEFAULT_WEIGHTS, EPS_LOW_M
+from ..mapping.soil import classify_by_a, soil_a_table
+from ..mapping.store import LayerGrid, MapStore, open_store
+from ..mapping.tiles import atomic_write_bytes
 
 SCORECARD_NAME = "map_scorecard.json"
 
