@@ -5,9 +5,7 @@ import json
 import numpy as np
 
 from tractionecu.cli.main import main
-from tractionecu.mapping.from_replay import field_from_truth
 from tractionecu.mapping.store import MapStore
-from tractionecu.sim import scenarios
 
 
 def test_replay_writes_tiles_and_map_scorecard(tmp_path):
@@ -27,13 +25,3 @@ def test_replay_writes_tiles_and_map_scorecard(tmp_path):
     mean2, *_ = MapStore.open(run / "map", read_only=True).mean_grid("a")
     assert int(np.isfinite(mean2).sum()) == n1
     assert np.allclose(mean, mean2, equal_nan=True)
-
-
-def test_field_rebuilt_from_truth_toml(tmp_path):
-    rec = tmp_path / "rec"
-    assert main(["simulate", "--scenario", "paper-three-soils", "--out", str(rec), "--duration", "2"]) == 0
-    fld = field_from_truth(rec / "truth.toml")
-    ref = scenarios.get("paper-three-soils").field
-    x = np.linspace(-10, 300, 200)
-    y = np.linspace(-5, 30, 200)
-    assert np.array_equal(fld.soil_index(x, y), ref.soil_index(x, y))

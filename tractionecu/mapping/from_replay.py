@@ -9,32 +9,32 @@ computation the service does online with a delay); the shape parameters p,
 marked valid with a clean status and a good fix reach the map (the store's
 rules).
 
-With a simulated recording, the truth's soil regions are rebuilt from
-``truth.toml`` and the map is scored (``map_scorecard.json``).
+Scoring the map against a simulated field's truth is not done here: see
+:mod:`tractionecu.evaluation.map_truth`.
 """
 
 from __future__ import annotations
 
 import shutil
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..sim.field import Field, SoilRegion
 from .sampler import DEFAULT_HALF_WINDOW_S, centred_map_values
-from .score import map_scorecard, write_map_scorecard
 from .store import MapStore
 
 
 def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
-                     half_window_s: float = DEFAULT_HALF_WINDOW_S) -> dict[str, Any]:
+                     half_window_s: float = DEFAULT_HALF_WINDOW_S,
+                     gps_mask: np.ndarray | None = None) -> dict[str, Any]:
     """Write ``out/map`` from replay ``arrays`` (keys t, mu, rho_s, a, status, valid, soil_class).
 
     A previous map in ``out/map`` is replaced: a replay's map is a product of
-    that replay alone.  Returns a summary with the sample counts and, with
-    truth, the map scorecard.
+    that replay alone.  ``gps_mask`` (one bool per GNSS epoch of ``rec``) keeps
+    the epochs the replay's GNSS gate accepted; the others are not mapped.
+    Returns a summary: ``map_dir``, ``map_samples`` (estimates stored) and,
+    when tiles were written, ``map_epochs`` (GNSS epochs of the recording).
     """
     gps = rec.gps
     summary: dict[str, Any] = {"map_dir": str(out / "map")}
@@ -58,43 +58,12 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     values = centred_map_values(gps.t, arrays["mu"][idx], arrays["slip"][idx], arrays["P_diag"][idx, 5:9],
                                 arrays["v"][idx], arrays["rho_s"][idx],
                                 np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s)
-    accepted = store.add_many(gps.lat, gps.lon, values, gps.t, valid=arrays["valid"][idx] & inside,
+    offered = arrays["valid"][idx] & inside
+    if gps_mask is not None:
+        offered &= np.asarray(gps_mask, dtype=bool)
+    accepted = store.add_many(gps.lat, gps.lon, values, gps.t, valid=offered,
                               status=arrays["status"][idx], fix_quality=gps.fix_quality, hdop=gps.hdop)
     store.close()
     summary["map_samples"] = int(accepted.sum())
     summary["map_epochs"] = int(len(gps))
-    if rec.truth_toml_path is not None:
-        fld = field_from_truth(rec.truth_toml_path)
-        if fld is not None:
-            card = score_map(map_dir, fld, np.column_stack([gps.lat[ok], gps.lon[ok]]))
-            write_map_scorecard(out, card)
-            summary["map_scorecard"] = card
     return summary
-
-
-def field_from_truth(path: str | Path) -> Field | None:
-    """Rebuild the simulated field's soil regions from ``truth.toml`` (None if it has none)."""
-    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    soils = data.get("soils")
-    fld = data.get("field", {})
-    if not soils or "origin_lat" not in fld:
-        return None
-    regions = [SoilRegion(s["name"], s["soil_class"], float(s["a"]), float(s["rho_s"]),
-                          tuple((float(x), float(y)) for x, y in s.get("polygon", []))) for s in soils]
-    return Field(regions, origin_lat=float(fld["origin_lat"]), origin_lon=float(fld["origin_lon"]))
-
-
-def score_map(map_dir: Path, fld: Field, track_latlon: np.ndarray) -> dict[str, Any]:
-    """Map scorecard against the field's true soils (classification by nearest true a)."""
-    reg_a = np.array([r.a for r in fld.regions])
-    reg_rho = np.array([r.rho_s for r in fld.regions])
-
-    def soil_fn(lat, lon):
-        return fld.soil_index(*fld.to_xy(lat, lon))
-
-    def values_fn(lat, lon):
-        k = soil_fn(lat, lon)
-        return {"a": reg_a[k], "rho_s": reg_rho[k]}
-
-    return map_scorecard(map_dir, soil_fn, values_fn, soil_a={i: float(a) for i, a in enumerate(reg_a)},
-                         track_latlon=track_latlon, truth_frame="latlon")

@@ -1,0 +1,62 @@
+"""Score a finished replay of a simulated recording: what ``tractionecu replay`` adds with truth.
+
+:func:`score_replay` takes the outputs of a replay (its directory, the
+recording, the per-step result arrays and the summary so far) and writes,
+next to ``estimates.csv``:
+
+* ``scorecard.json`` — the estimator scorecard (:mod:`.scoring`) against
+  ``truth.csv``, with the replay's ``realtime_factor``;
+* ``map_scorecard.json`` — when the replay wrote a map, that map against the
+  field of ``truth.toml`` (:mod:`.map_truth`);
+* with ``plot``: ``fig6_mu_rho.png`` and ``fig5_mu_curves.png``
+  (:mod:`.plots`), also for a recording without truth (estimates only).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .map_truth import score_replay_map
+from .plots import plot_run
+from .scoring import read_truth, scorecard
+
+
+def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
+                 summary: dict[str, Any]) -> dict[str, Any]:
+    """Score a replay against the recording's truth; return the additions to its summary.
+
+    ``rec`` is the :class:`~tractionecu.recording.reader.Recording` replayed,
+    ``arrays`` the replay's per-step results (keys t, mu, slip, omega,
+    P_diag, nis_dof, status, valid, soil_class, rho_s, a, v, nis, adapt).
+    ``summary`` is the replay's summary so far and is not changed: its
+    ``realtime_factor`` goes into ``scorecard.json``, and the map is scored
+    only when it says a map was written (``map_epochs``, from
+    :func:`~tractionecu.mapping.from_replay.write_replay_map`).
+
+    Returns a dict with, as they apply, ``scorecard`` and ``scorecard_json``
+    (recording with ``truth.csv``), ``map_scorecard`` (map written and
+    ``truth.toml`` with a field) and ``plots`` (``plot``).
+    """
+    out = Path(out_dir)
+    add: dict[str, Any] = {}
+    if "map_epochs" in summary:
+        card = score_replay_map(out, rec, Path(summary.get("map_dir", out / "map")))
+        if card is not None:
+            add["map_scorecard"] = card
+    truth = sc = None
+    if rec.truth_csv_path is not None:
+        truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
+        sc = scorecard(arrays, truth)
+        add["scorecard"] = sc
+    if plot:
+        add["plots"] = plot_run(out, arrays, truth, sc)
+    if sc is not None:
+        sc_out = dict(sc)
+        if "realtime_factor" in summary:
+            sc_out["realtime_factor"] = summary["realtime_factor"]
+        path = out / "scorecard.json"
+        path.write_text(json.dumps(sc_out, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        add["scorecard_json"] = str(path)
+    return add
