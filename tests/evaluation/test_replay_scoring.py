@@ -104,3 +104,14 @@ def test_field_rebuilt_from_truth_toml(rec_dir):
     x = np.linspace(-10, 300, 200)
     y = np.linspace(-5, 30, 200)
     assert np.array_equal(fld.soil_index(x, y), ref.soil_index(x, y))
+
+
+def test_replay_map_keeps_only_the_gnss_epochs_the_gate_accepted(rec_dir, tmp_path):
+    rec = read_recording(rec_dir)
+    arrays = truth_arrays(rec)
+    n = len(rec.gps)
+    full = write_replay_map(tmp_path / "all", rec, arrays)["map_samples"]
+    assert write_replay_map(tmp_path / "ones", rec, arrays, gps_mask=np.ones(n, bool))["map_samples"] == full
+    assert write_replay_map(tmp_path / "none", rec, arrays, gps_mask=np.zeros(n, bool))["map_samples"] == 0
+    half = write_replay_map(tmp_path / "half", rec, arrays, gps_mask=np.arange(n) % 2 == 0)["map_samples"]
+    assert 0.4 * full < half < 0.6 * full
