@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import socket
+from pathlib import Path
 
 import pytest
 
@@ -38,3 +39,20 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("vcan") is not None:
             item.add_marker(skip)
+
+
+SHORT_S = 12.0
+"""Length of the shared recording [s]: acceleration, then steady work on the first soil."""
+
+
+@pytest.fixture(scope="session")
+def short_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 12 s ``paper-straight`` recording (can.log, gps.nmea, vehicle.toml, truth), shared per session."""
+    from tractionecu.sim import scenarios
+    from tractionecu.sim.simulator import simulate
+    from tractionecu.sim.writer import write_recording
+
+    out = tmp_path_factory.mktemp("rec") / "paper-straight"
+    scn = scenarios.get("paper-straight", seed=3, duration_s=SHORT_S)
+    write_recording(scn, simulate(scn), out)
+    return out

@@ -5,7 +5,7 @@ an absurd grid (hundreds of TiB); the estimator now restarts after a gap instead
 import numpy as np
 import pytest
 
-from tractionecu.cli.replay import build_grid, replay
+from tractionecu.pipeline.replay import recording_grid, replay_to_dir
 from tractionecu.config import VehicleParams
 from tractionecu.errors import RecordingError
 from tractionecu.estimation.estimator import INPUT_REJECTED, NOT_CONVERGED, Estimator, EstimatorConfig
@@ -68,13 +68,13 @@ def jumped(tmp_path_factory):
 
 def test_replay_grid_skips_the_jump(jumped):
     rec = read_recording(jumped)
-    grid = build_grid(rec, 100.0)
+    grid = recording_grid(rec, 100.0)
     assert grid.size < 1300                      # ≈ 12 s of data at 100 Hz, not 23 years
     with pytest.raises(RecordingError, match="time jumps"):
         rec.table(100.0)
 
 
 def test_replay_runs_across_the_jump(jumped, tmp_path):
-    res = replay(jumped, tmp_path / "run", write_map=False)
+    res, _, _ = replay_to_dir(jumped, tmp_path / "run", write_map=False)
     assert res["steps"] < 1300
     assert res["counters"]["gap_resets"] == 1

@@ -28,7 +28,8 @@ from numpy.typing import NDArray
 
 from ..config import VehicleParams, load_vehicle
 from ..errors import RecordingError
-from ..model.vehicle import WHEELS
+from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, GROUND_BASED_SPEED, IN_WORK, WHEEL_BASED_SPEED,
+                                WHEEL_SPEEDS)
 from ..recording.reader import Recording, read_recording
 
 EARTH_R = 6378137.0
@@ -181,46 +182,44 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         return None if s is None or len(s) == 0 else _bin_mean(s.t, s.value, grid, half)
 
     fr = Frame(t=grid - grid[0], t0_epoch=float(grid[0]), rate_hz=rate_hz, vehicle=vehicle, source=str(rec.path))
-    om = [mean(f"WheelSpeed_{w}") for w in WHEELS]
+    om = [mean(n) for n in WHEEL_SPEEDS]
     if all(o is not None for o in om):
         fr.omega = np.stack(om, axis=1)  # type: ignore[arg-type]
-    md = [mean(f"DriveTorque_{w}") for w in WHEELS]
+    md = [mean(n) for n in DRIVE_TORQUES]
     if all(m is not None for m in md):
         fr.md = np.stack(md, axis=1)  # type: ignore[arg-type]
     # Values at the bin edges from the raw samples nearest each edge (about ±1.5 sample periods).
     edges = np.concatenate([grid - half, [grid[-1] + half]])
     if fr.omega is not None and fr.md is not None:
-        s0 = sig["WheelSpeed_FL"]
+        s0 = sig[WHEEL_SPEEDS[0]]
         raw_dt = float(np.median(np.diff(s0.t))) if len(s0) > 2 else period
         if raw_dt < 0.5 * period:
             eh = 1.5 * raw_dt
-            om_e = np.stack([_bin_mean(sig[f"WheelSpeed_{w}"].t, sig[f"WheelSpeed_{w}"].value, edges, eh)
-                             for w in WHEELS], axis=1)
+            om_e = np.stack([_bin_mean(sig[n].t, sig[n].value, edges, eh) for n in WHEEL_SPEEDS], axis=1)
             fr.omega_dot = np.diff(om_e, axis=0) / period
-            fr.md_edge = np.stack([_bin_mean(sig[f"DriveTorque_{w}"].t, sig[f"DriveTorque_{w}"].value, edges, eh)
-                                   for w in WHEELS], axis=1)
+            fr.md_edge = np.stack([_bin_mean(sig[n].t, sig[n].value, edges, eh) for n in DRIVE_TORQUES], axis=1)
             # Raw wheel speeds on a uniform grid of the raw period (bin means), for dynamics
             # faster than the frame rate (tyre relaxation).
             k = int(round(period / raw_dt))
             hf_grid = (grid[:, None] + (np.arange(k) - (k - 1) / 2.0)[None, :] * raw_dt).ravel()
             fr.hf_t = hf_grid - grid[0]
-            fr.hf_omega = np.stack([_bin_mean(sig[f"WheelSpeed_{w}"].t, sig[f"WheelSpeed_{w}"].value, hf_grid,
-                                              raw_dt / 2) for w in WHEELS], axis=1)
-    s0 = sig.get("WheelSpeed_FL")
+            fr.hf_omega = np.stack([_bin_mean(sig[n].t, sig[n].value, hf_grid, raw_dt / 2) for n in WHEEL_SPEEDS],
+                                   axis=1)
+    s0 = sig.get(WHEEL_SPEEDS[0])
     if s0 is not None and len(s0) > 2:
         tb = _bin_mean(s0.t, s0.t - s0.t[0], grid, half) + s0.t[0]
         d = tb - grid
         fr.can_time_offset_s = float(np.nanmedian(d)) if np.isfinite(d).any() else 0.0
-    fr.fzf = mean("FrontAxleLoad")
-    fr.fdx = mean("DraftForce")
-    wk = mean("RearHitchInWorkIndication")
+    fr.fzf = mean(FRONT_AXLE_LOAD)
+    fr.fdx = mean(DRAFT)
+    wk = mean(IN_WORK)
     if wk is not None:
         fr.work = np.nan_to_num(wk, nan=0.0) > 0.999
     elif fr.fdx is not None:
         fr.notes.append("no in-work indication: work inferred from draft > 30 % of its 95th percentile")
         d = np.nan_to_num(fr.fdx)
         fr.work = d > 0.3 * np.percentile(d, 95)
-    fr.v_wheel_bus = mean("WheelBasedMachineSpeed")
+    fr.v_wheel_bus = mean(WHEEL_BASED_SPEED)
     fr.engine_torque = mean("EngineTorque")
     fr.engine_speed = mean("EngineSpeed")
     if len(gps):
@@ -233,10 +232,8 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         course = _at(gps.t, gps.course, grid, tol)
         fr.heading = np.where(np.isfinite(course), np.radians(90.0 - course), np.nan)
         fr.heading = _track_heading(fr)
-    elif "GroundBasedMachineSpeed" in sig:
-        fr.v_gps = mean("GroundBasedMachineSpeed")
-    if fr.v_gps is None and "GroundBasedMachineSpeed" in sig:
-        fr.v_gps = mean("GroundBasedMachineSpeed")
+    if fr.v_gps is None and GROUND_BASED_SPEED in sig:
+        fr.v_gps = mean(GROUND_BASED_SPEED)
     return fr
 
 

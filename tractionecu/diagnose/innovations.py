@@ -14,7 +14,6 @@ recording.  A model that lacks a physical effect shows in it as
 from __future__ import annotations
 
 import math
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,8 @@ def estimator_view(recording_dir: str | Path, feat: Features, rate_hz: float = 5
     """Replay the estimator over ``recording_dir`` and summarise its innovations (module doc)."""
     from scipy.stats import chi2
 
-    from ..cli.replay import replay
+    from ..pipeline.replay import replay
+    from ..recording.reader import read_recording
 
     ts: list[float] = []
     rho: list[float] = []
@@ -46,8 +46,7 @@ def estimator_view(recording_dir: str | Path, feat: Features, rate_hz: float = 5
         mu_fr.append(float(np.mean(e.mu[:2]) - np.mean(e.mu[2:])))
         valid.append(bool(e.valid))
 
-    with tempfile.TemporaryDirectory() as tmp:
-        replay(recording_dir, tmp, rate_hz=rate_hz, plot=False, on_estimate=hook, write_map=False)
+    replay(read_recording(recording_dir), rate_hz=rate_hz, on_estimate=hook)
     t = np.asarray(ts)
     ok = np.asarray(valid)
     nis_a = np.asarray(nis)

@@ -1,4 +1,4 @@
-"""``tractionecu replay`` on a short simulated recording."""
+"""``tractionecu replay`` on a short simulated recording: the pipeline's run directory, scored by the evaluation side."""
 
 from __future__ import annotations
 
@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 
 from tractionecu.cli.main import main
-from tractionecu.cli.replay import CSV_COLUMNS, replay
+from tractionecu.evaluation.replay import score_replay
 from tractionecu.evaluation.scoring import r_squared
+from tractionecu.pipeline.replay import CSV_COLUMNS, replay, replay_to_dir
+from tractionecu.recording.reader import read_recording
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording
@@ -26,8 +28,10 @@ def rec(tmp_path_factory):
 
 def test_replay_writes_estimates_scorecard_and_config(rec, tmp_path):
     seen = []
-    res = replay(rec, tmp_path / "run", on_estimate=seen.append)
+    res, recording, result = replay_to_dir(rec, tmp_path / "run", on_estimate=seen.append)
     run = tmp_path / "run"
+    assert not (run / "scorecard.json").exists()          # the core does not score
+    res.update(score_replay(run, recording, result.arrays, plot=False, summary=res))
     assert len(seen) == res["steps"] > 3500
     with open(run / "estimates.csv", newline="") as fh:
         rows = list(csv.reader(fh))
@@ -45,9 +49,20 @@ def test_replay_writes_estimates_scorecard_and_config(rec, tmp_path):
 
 
 def test_replay_is_deterministic(rec, tmp_path):
-    replay(rec, tmp_path / "a")
-    replay(rec, tmp_path / "b")
+    replay_to_dir(rec, tmp_path / "a")
+    replay_to_dir(rec, tmp_path / "b")
     assert (tmp_path / "a" / "estimates.csv").read_bytes() == (tmp_path / "b" / "estimates.csv").read_bytes()
+
+
+def test_in_memory_replay_equals_the_run_directory(rec, tmp_path):
+    """Diagnosis reads the replay in memory: the same estimates as the written run, no files."""
+    _, _, written = replay_to_dir(rec, tmp_path / "run", write_map=False)
+    before = set(tmp_path.iterdir())
+    mem = replay(read_recording(rec))
+    assert set(tmp_path.iterdir()) == before
+    for key in ("t", "mu", "slip", "rho_s", "a", "P_diag", "status", "valid"):
+        np.testing.assert_array_equal(mem.arrays[key], written.arrays[key])
+    assert mem.arrays["soil_class"] == written.arrays["soil_class"]
 
 
 def test_cli_replay_prints_the_scorecard(rec, tmp_path, capsys):
