@@ -433,6 +433,28 @@ class MapStore:
         """Local (x, y) [m] → (lat, lon) [deg]."""
         return self.frame.to_latlon(x, y)
 
+    # ------------------------------------------------------------ rejection rules
+    # The one statement of the rules of add() and add_many(): (reason, good) pairs,
+    # ``good`` true for a sample that passes, computed alike from Python numbers
+    # (add) and numpy arrays (add_many).  They apply in this order, the GNSS rules
+    # first, then the range of the projected position (samples passing those go on
+    # the track), then the estimate; the first rule a sample fails names its
+    # rejection, counted as ``stats["rejected_" + reason]``.
+    def _gnss_rules(self, lat: Any, lon: Any, t: Any, fix_quality: Any, hdop: Any) -> tuple[tuple[str, Any], ...]:
+        return (("position", (abs(lat) <= 90.0) & (abs(lon) <= 180.0) & (abs(t) < math.inf)),
+                ("fix", fix_quality is None or fix_quality >= self.min_fix_quality),
+                ("hdop", hdop is None or hdop <= self.max_hdop))
+
+    def _range_rule(self, x: Any, y: Any) -> tuple[str, Any]:
+        return "range", (abs(x) <= self.max_range_m) & (abs(y) <= self.max_range_m)
+
+    def _estimate_rules(self, valid: Any, status: Any, layer_values: Sequence[Any]) -> list[tuple[str, Any]]:
+        """``layer_values``: the values of the known layers."""
+        rules = [("invalid", valid), ("status", status is None or (status & self.reject_status_mask) == 0)]
+        rules += [("value", abs(v) < math.inf) for v in layer_values]
+        rules.append(("no_layer", len(layer_values) > 0))
+        return rules
+
     def _reject(self, reason: str) -> bool:
         self.stats["rejected_" + reason] += 1
         return False
@@ -460,37 +482,29 @@ class MapStore:
             tt = float(t)
         except (TypeError, ValueError):
             return self._reject("position")
-        if not (math.isfinite(lat) and math.isfinite(lon) and math.isfinite(tt)
-                and -90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
-            return self._reject("position")
-        if fix_quality is not None and not int(fix_quality) >= self.min_fix_quality:
-            return self._reject("fix")
-        if hdop is not None and not float(hdop) <= self.max_hdop:
-            return self._reject("hdop")
+        fq = None if fix_quality is None else float(fix_quality)
+        hd = None if hdop is None else float(hdop)
+        for reason, good in self._gnss_rules(lat, lon, tt, fq, hd):
+            if not good:
+                return self._reject(reason)
         x, y = self.frame.to_local(lat, lon)
-        if not (abs(x) <= self.max_range_m and abs(y) <= self.max_range_m):
-            return self._reject("range")
+        reason, good = self._range_rule(x, y)
+        if not good:
+            return self._reject(reason)
         pairs: list[tuple[int, float]] = []
-        ok = bool(valid)
-        reason = "invalid"
-        if ok and status is not None and int(status) & self.reject_status_mask:
-            ok, reason = False, "status"
-        if ok:
-            for name, v in values.items():
-                li = self._layer_index.get(name)
-                if li is None:
-                    continue
+        for name, v in values.items():
+            li = self._layer_index.get(name)
+            if li is not None:
                 try:
-                    fv = float(v)
+                    pairs.append((li, float(v)))
                 except (TypeError, ValueError):
-                    fv = math.nan
-                if not math.isfinite(fv):
-                    ok, reason = False, "value"
-                    break
-                pairs.append((li, fv))
-            else:
-                if not pairs:
-                    ok, reason = False, "no_layer"
+                    pairs.append((li, math.nan))
+        ok = True
+        for reason, good in self._estimate_rules(bool(valid), None if status is None else int(status),
+                                                 [v for _, v in pairs]):
+            if not good:
+                ok = False
+                break
         col = math.floor(x / self.resolution_m)
         row = math.floor(y / self.resolution_m)
         n = self.tile_cells
@@ -523,40 +537,28 @@ class MapStore:
         tt = np.broadcast_to(np.asarray(t, dtype=np.float64).ravel(), (n,))
         reason = np.full(n, "", dtype=object)
 
-        def mark(bad: NDArray[np.bool_], why: str) -> None:
-            reason[bad & (reason == "")] = why
+        def apply(rules: Iterable[tuple[str, Any]]) -> None:
+            for why, good in rules:
+                reason[np.logical_not(good) & (reason == "")] = why
 
-        mark(~(np.isfinite(lat) & np.isfinite(lon) & np.isfinite(tt) & (np.abs(lat) <= 90.0)
-               & (np.abs(lon) <= 180.0)), "position")
-        if fix_quality is not None:
-            fq = np.broadcast_to(np.asarray(fix_quality), (n,))
-            mark(~(fq >= self.min_fix_quality), "fix")
-        if hdop is not None:
-            hd = np.broadcast_to(np.asarray(hdop, dtype=np.float64), (n,))
-            mark(~(hd <= self.max_hdop), "hdop")
+        fq = None if fix_quality is None else np.broadcast_to(np.asarray(fix_quality), (n,))
+        hd = None if hdop is None else np.broadcast_to(np.asarray(hdop, dtype=np.float64), (n,))
+        apply(self._gnss_rules(lat, lon, tt, fq, hd))
         pos_ok = reason == ""
         x = np.full(n, np.nan)
         y = np.full(n, np.nan)
         if pos_ok.any():
             x[pos_ok], y[pos_ok] = self.frame.to_local(lat[pos_ok], lon[pos_ok])
-        with np.errstate(invalid="ignore"):
-            mark(~((np.abs(x) <= self.max_range_m) & (np.abs(y) <= self.max_range_m)), "range")
+        apply([self._range_rule(x, y)])
         on_track = reason == ""
-        if valid is not None:
-            mark(~np.broadcast_to(np.asarray(valid, dtype=bool), (n,)), "invalid")
-        if status is not None:
-            stt = np.broadcast_to(np.asarray(status, dtype=np.int64), (n,))
-            mark((stt & self.reject_status_mask) != 0, "status")
         layer_vals: list[tuple[int, NDArray[np.float64]]] = []
         for name, v in values.items():
             li = self._layer_index.get(name)
-            if li is None:
-                continue
-            arr = np.broadcast_to(np.asarray(v, dtype=np.float64).ravel(), (n,))
-            layer_vals.append((li, arr))
-            mark(~np.isfinite(arr), "value")
-        if not layer_vals:
-            mark(np.ones(n, dtype=bool), "no_layer")
+            if li is not None:
+                layer_vals.append((li, np.broadcast_to(np.asarray(v, dtype=np.float64).ravel(), (n,))))
+        apply(self._estimate_rules(True if valid is None else np.broadcast_to(np.asarray(valid, dtype=bool), (n,)),
+                                   None if status is None else np.broadcast_to(np.asarray(status, dtype=np.int64), (n,)),
+                                   [arr for _, arr in layer_vals]))
         ok = reason == ""
         col = np.zeros(n, dtype=np.int64)
         row = np.zeros(n, dtype=np.int64)
