@@ -1,6 +1,12 @@
 """MapStore: 10 Hz accumulation into on-disk tiles, the API the estimator,
 replay and service call.
 
+The module stays whole (over 500 lines) because all of it works on one set of
+resident tiles under one lock: accumulation, the atomic flush, eviction and
+the read-back that merges memory and disk; the track log
+(:mod:`~tractionecu.mapping.track`) and the file formats
+(:mod:`~tractionecu.mapping.tiles`) are apart.
+
 ::
 
     from tractionecu.mapping.store import MapStore
@@ -35,7 +41,6 @@ typically rewrites one or two tiles of 0.49 MB raw (six layers × 4096 cells
 
 from __future__ import annotations
 
-import array
 import collections
 import datetime as _dt
 import logging
@@ -66,17 +71,16 @@ from .tiles import (
     CorruptTileError,
     MapStoreError,
     encode_tile,
-    encode_track_records,
     fsync_dir,
     iter_tile_files,
     read_manifest,
     read_tile,
-    read_track,
     remove_stray_temporaries,
     atomic_write_bytes,
     tile_filename,
     write_manifest,
 )
+from .track import TrackLog
 
 log = logging.getLogger(__name__)
 
@@ -225,15 +229,12 @@ class MapStore:
         self.reject_status_mask = int(reject_status_mask)
         self.min_flush_interval_s = float(min_flush_interval_s)
         self.max_resident_tiles = int(max_resident_tiles)
-        self.max_track_pending = max(1, int(max_track_pending))
         self.read_only = bool(read_only)
 
         self._lock = threading.Lock()
         self._flush_lock = threading.Lock()
         self._tiles: collections.OrderedDict[tuple[int, int], _Tile] = collections.OrderedDict()
         self._on_disk: set[tuple[int, int]] = set()
-        self._track_pending = array.array("d")
-        """Track records not yet written, flat: t [s], x [m], y [m], accepted flag (0/1), ..."""
         self._last_flush = -math.inf
         self._lockf: Any = None
         self._closed = False
@@ -242,6 +243,7 @@ class MapStore:
         self.stats: collections.Counter[str] = collections.Counter()
         """Counters: ``accepted`` and ``rejected_<reason>`` samples, ``tiles_written``, ..."""
         self.removed_temporaries: list[Path] = []
+        self._track = TrackLog(self.directory / TRACK_NAME, max_track_pending, self.stats, self._lock)
 
         self._created_utc = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         manifest = self._manifest_dict()
@@ -267,7 +269,7 @@ class MapStore:
                 fsync_dir(self.directory)
             if not read_only:
                 self.removed_temporaries = remove_stray_temporaries(self.directory)
-                self._repair_track()
+                self._track.repair()
             self._load_existing()
         except BaseException:
             self._release_lock()
@@ -384,19 +386,6 @@ class MapStore:
             if len(self._tiles) < self.max_resident_tiles:
                 self._tiles[key] = _Tile(stats, saved=True)
 
-    def _repair_track(self) -> None:
-        path = self.directory / TRACK_NAME
-        if not path.exists():
-            return
-        _, good = read_track(path)
-        size = path.stat().st_size
-        if good != size:
-            log.warning("track log %s: dropping %d bytes of a torn record", path, size - good)
-            with open(path, "r+b") as f:
-                f.truncate(good)
-                f.flush()
-                os.fsync(f.fileno())
-
     def _tile(self, key: tuple[int, int]) -> _Tile:
         """Resident tile for ``key`` (loaded or created); caller holds the lock."""
         t = self._tiles.get(key)
@@ -509,8 +498,7 @@ class MapStore:
         row = math.floor(y / self.resolution_m)
         n = self.tile_cells
         with self._lock:
-            self._track_pending.extend((tt, x, y, 1.0 if ok else 0.0))
-            self._bound_track()
+            self._track.append(tt, x, y, ok)
             if not ok:
                 self.stats["rejected_" + reason] += 1
                 return False
@@ -571,8 +559,7 @@ class MapStore:
         inv = np.asarray(inv).ravel()
         track = np.column_stack([tt[on_track], x[on_track], y[on_track], ok[on_track]]).astype(np.float64)
         with self._lock:
-            self._track_pending.frombytes(track.tobytes())
-            self._bound_track()
+            self._track.append_rows(track)
             for k, (tx, ty) in enumerate(uniq.tolist()):
                 sel = idx[inv == k]
                 tile = self._tile((int(tx), int(ty)))
@@ -589,16 +576,6 @@ class MapStore:
     def dirty_tiles(self) -> list[tuple[int, int]]:
         with self._lock:
             return [k for k, t in self._tiles.items() if t.dirty]
-
-    def _bound_track(self) -> None:
-        """Hold at most ``max_track_pending`` unwritten track records (caller holds the lock)."""
-        n = len(self._track_pending) // 4
-        if n > self.max_track_pending:
-            drop = n - self.max_track_pending + self.max_track_pending // 10
-            del self._track_pending[:4 * drop]
-            self.stats["track_dropped"] += drop
-            if self.stats["track_dropped"] == drop:
-                log.warning("map %s: track records cannot be written; dropping the oldest (%d)", self.directory, drop)
 
     def flush(self, *, force: bool = False) -> int:
         """Write the dirty tiles (and new track records) atomically.
@@ -618,7 +595,7 @@ class MapStore:
             self._last_flush = now
             with self._lock:
                 todo = [(k, t, t.version, t.stats.copy()) for k, t in self._tiles.items() if t.dirty]
-                track, self._track_pending = self._track_pending, array.array("d")
+                track = self._track.take()
             written = 0
             errors: list[str] = []
             tdir = self.directory / TILES_DIRNAME
@@ -634,17 +611,11 @@ class MapStore:
                     self._on_disk.add(key)
             if track:
                 try:
-                    records = zip(track[0::4], track[1::4], track[2::4], (int(f) for f in track[3::4]))
-                    with open(self.directory / TRACK_NAME, "ab") as f:
-                        f.write(encode_track_records(list(records)))
-                        f.flush()
-                        os.fsync(f.fileno())
+                    self._track.write(track)
                 except OSError as e:
                     errors.append(f"{TRACK_NAME}: {e}")
                     with self._lock:
-                        track.extend(self._track_pending)
-                        self._track_pending = track
-                        self._bound_track()
+                        self._track.put_back(track)
             self.stats["tiles_written"] += written
             self.stats["flushes"] += 1
             if errors:
@@ -766,10 +737,7 @@ class MapStore:
 
     def track(self) -> NDArray[np.float64]:
         """Vehicle track so far: (N, 4) array of t [s], x [m], y [m], accepted flag."""
-        arr, _ = read_track(self.directory / TRACK_NAME)
-        with self._lock:
-            pending = np.frombuffer(self._track_pending, dtype=np.float64).reshape(-1, 4).copy()
-        return np.vstack([arr, pending]) if len(pending) else arr
+        return self._track.read()
 
 
 def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:
