@@ -1,5 +1,9 @@
 """Residual channels: each compares one recorded signal with what the nominal model predicts.
 
+The channels stay in one module (over 500 lines): they are one family on one
+base class, share the wheel-state cache and the per-group nuisance fit, and
+are built together by :func:`build_channels`.
+
 A channel has rows (time samples, windows or wheel samples), a measured
 quantity ``y``, a prediction ``f`` from the model with a set of effects
 switched on (the effect library's own functions), and *nuisance* parameters

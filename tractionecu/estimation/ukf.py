@@ -1,5 +1,9 @@
 """Vectorised unscented Kalman filter (paper section 3.1, eqs. 11–15).
 
+The filter stays in one module (about 500 lines): its fast and general update
+paths must apply the same gating, clamping and bookkeeping to the same state,
+and are kept side by side for that.
+
 The filter follows the paper's description (Wan & van der Merwe 2000; Van der
 Merwe et al. 2004) with the scaled sigma points of filterpy's
 ``MerweScaledSigmaPoints`` — identical points and weights:

@@ -1,5 +1,11 @@
 """NMEA 0183 sentence formatting and strict parsing (GGA, RMC, VTG, GNS, ZDA).
 
+The writer, the parser and the epoch assembler stay in one module (over 500
+lines): they share the sentence table, the field formats and the
+mode/quality maps, and together they are the whole NMEA side of the GNSS
+contract, which the simulator writes and the recording reader and the
+service read.
+
 Formatting follows what a u-blox ZED-F9P writes (NMEA 4.10 output): time
 ``hhmmss.ss``, latitude ``ddmm.mmmmm``, longitude ``dddmm.mmmmm``, two-digit
 satellite count, HDOP with 2 decimals, altitude and geoid separation with 1

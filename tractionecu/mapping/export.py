@@ -1,5 +1,9 @@
 """Map exports: GeoTIFF, ISO 11783-10 grid, PNG (paper Fig. 7 style), GeoJSON.
 
+The four exporters stay in one module (over 500 lines): each is one function
+of a few dozen lines over the same helpers (layer choice, filled grids, soil
+classes) and the one dispatch :func:`export`.
+
 Every exporter takes a :class:`~tractionecu.mapping.store.MapStore` or a map
 directory.  GeoTIFF and GeoJSON need ``rasterio`` and the PNG needs
 ``matplotlib``; they are imported inside the functions, and a missing one
