@@ -192,21 +192,32 @@ def test_unknown_signal_name_rejected(codec):
         codec.encode("TECU_EstSoil", {"SoilRollingResistence": 0.1})
 
 
-def test_package_copy_identical_to_repo_dbc():
-    pkg = REPO / "tractionecu" / "data" / "tractionecu.dbc"
-    assert pkg.read_bytes() == DBC.read_bytes()
+def test_installed_contract_is_the_repo_dbc():
+    # editable install: the very file; normal install: the copy in the wheel
     assert dbcmod.package_dbc_path().read_bytes() == DBC.read_bytes()
+    assert Codec().path == dbcmod.package_dbc_path()
 
 
-def test_codec_falls_back_to_package_data(monkeypatch, tmp_path):
-    monkeypatch.setattr(dbcmod, "repo_dbc_path", lambda: tmp_path / "absent.dbc")
-    path = dbcmod.default_dbc_path()
-    assert path == dbcmod.package_dbc_path()
-    assert Codec().path == path
+def test_codec_falls_back_to_repo_dbc_when_not_installed(monkeypatch):
+    def not_installed():
+        raise ModuleNotFoundError("No module named 'tractionecu.contract'")
+
+    monkeypatch.setattr(dbcmod, "package_dbc_path", not_installed)
+    assert dbcmod.default_dbc_path() == dbcmod.repo_dbc_path()
+    assert Codec().path.resolve() == DBC.resolve()
 
 
 def test_default_codec_uses_repo_dbc_in_a_checkout():
     assert Codec().path.resolve() == DBC.resolve()
+
+
+def test_pyproject_lists_every_package():
+    # pyproject.toml maps tractionecu.contract onto dbc/, so packages are listed, not found
+    tomllib = pytest.importorskip("tomllib")
+    tool = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
+    tree = {".".join(p.parent.relative_to(REPO).parts) for p in (REPO / "tractionecu").rglob("__init__.py")}
+    assert set(tool["packages"]) == tree | {"tractionecu.contract"}
+    assert tool["package-dir"] == {"tractionecu.contract": "dbc"}
 
 
 def test_missing_contract_signal_is_a_config_error():

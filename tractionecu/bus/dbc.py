@@ -13,9 +13,11 @@ a signed proprietary signal) is reported as ``float('nan')``.  Encoding a
 NaN or a missing signal writes the all-ones raw code (0x8000 for signed
 signals) so receivers see "not available".
 
-The DBC is looked up first in the source tree (``<repo>/dbc``) and then in
-the installed package data (``tractionecu/data/tractionecu.dbc``); the two
-files are kept identical.
+The DBC has one place, ``dbc/tractionecu.dbc`` at the top of the
+repository, installed as the package ``tractionecu.contract`` (see
+``pyproject.toml``); it is read from the installed package, normal or
+editable, and from ``<repo>/dbc`` only when the source tree is imported
+without being installed.
 """
 
 from __future__ import annotations
@@ -69,16 +71,16 @@ def repo_dbc_path() -> Path:
 
 
 def package_dbc_path() -> Path:
-    """The DBC shipped as package data, ``tractionecu/data/tractionecu.dbc``."""
-    return Path(str(resources.files("tractionecu").joinpath("data", DBC_FILENAME)))
+    """The DBC of the installed package ``tractionecu.contract`` (``dbc/`` of the repository)."""
+    return Path(str(resources.files("tractionecu.contract").joinpath(DBC_FILENAME)))
 
 
 def default_dbc_path() -> Path:
-    """The repository DBC if present (source checkout), else the package-data copy."""
-    repo = repo_dbc_path()
-    if repo.is_file():
-        return repo
-    return package_dbc_path()
+    """The installed contract DBC; ``<repo>/dbc`` when the package is not installed."""
+    try:
+        return package_dbc_path()
+    except ModuleNotFoundError:
+        return repo_dbc_path()
 
 
 @dataclass(frozen=True)
