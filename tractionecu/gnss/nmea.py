@@ -34,7 +34,7 @@ from collections import Counter
 from dataclasses import dataclass, field, replace
 from datetime import date, datetime, timedelta, timezone
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 import pynmea2
 
@@ -346,6 +346,20 @@ def _quality_from_modes(mode: str) -> int | None:
     return None if best is None else best[1]
 
 
+def _fix_fields(d: list[str], geoid_index: int) -> dict[str, Any]:
+    """Time, position, satellites, HDOP, altitude and geoid separation: the fields
+    GGA and GNS share (at the same places but for the geoid separation)."""
+    return {
+        "tod_s": _tod(_field(d, 0)),
+        "lat_deg": _coord(_field(d, 1), _field(d, 2), 2, "latitude"),
+        "lon_deg": _coord(_field(d, 3), _field(d, 4), 3, "longitude"),
+        "nsat": _i(_field(d, 6), "satellites"),
+        "hdop": _f(_field(d, 7), "hdop"),
+        "alt_m": _f(_field(d, 8), "altitude"),
+        "geoid_sep_m": _f(_field(d, geoid_index), "geoid separation"),
+    }
+
+
 def _exc_text(e: Exception) -> str:
     a = e.args[0] if e.args else e
     if isinstance(a, tuple) and a:
@@ -392,18 +406,7 @@ def parse_line(line: str) -> NmeaRecord | None:
         q = _i(_field(d, 5), "fix quality")
         if q is not None and not 0 <= q <= 8:
             raise _fail("bad_field", f"fix quality {q}")
-        return NmeaRecord(
-            "GGA",
-            talker,
-            tod_s=_tod(_field(d, 0)),
-            lat_deg=_coord(_field(d, 1), _field(d, 2), 2, "latitude"),
-            lon_deg=_coord(_field(d, 3), _field(d, 4), 3, "longitude"),
-            fix_quality=q,
-            nsat=_i(_field(d, 6), "satellites"),
-            hdop=_f(_field(d, 7), "hdop"),
-            alt_m=_f(_field(d, 8), "altitude"),
-            geoid_sep_m=_f(_field(d, 10), "geoid separation"),
-        )
+        return NmeaRecord("GGA", talker, fix_quality=q, **_fix_fields(d, geoid_index=10))
     if stype == "RMC":
         status = _field(d, 1)
         if status not in ("A", "V"):
@@ -438,19 +441,8 @@ def parse_line(line: str) -> NmeaRecord | None:
         )
     if stype == "GNS":
         mode = _field(d, 5) or None
-        return NmeaRecord(
-            "GNS",
-            talker,
-            tod_s=_tod(_field(d, 0)),
-            lat_deg=_coord(_field(d, 1), _field(d, 2), 2, "latitude"),
-            lon_deg=_coord(_field(d, 3), _field(d, 4), 3, "longitude"),
-            mode=mode,
-            fix_quality=None if mode is None else _quality_from_modes(mode),
-            nsat=_i(_field(d, 6), "satellites"),
-            hdop=_f(_field(d, 7), "hdop"),
-            alt_m=_f(_field(d, 8), "altitude"),
-            geoid_sep_m=_f(_field(d, 9), "geoid separation"),
-        )
+        fq = None if mode is None else _quality_from_modes(mode)
+        return NmeaRecord("GNS", talker, mode=mode, fix_quality=fq, **_fix_fields(d, geoid_index=9))
     # ZDA
     day, month, year = _i(_field(d, 1), "day"), _i(_field(d, 2), "month"), _i(_field(d, 3), "year")
     zdate = None
