@@ -1,8 +1,32 @@
 """Typed, frozen configuration with units, loaded from and saved to TOML.
 
-Every field carries its unit in the name or in the doc line.  Values are
-validated on construction; a :class:`~tractionecu.errors.ConfigError` always
-names the offending key.
+Every config table of the package is a frozen dataclass declared with the
+helpers here, and read, checked and written by the same few functions:
+
+- :func:`setting` declares a key: default, doc line with the unit, range
+  [lo, hi] and whether NaN is allowed; :func:`section` declares a nested table
+  of another such dataclass, :func:`table` a free table passed through as is.
+- :func:`validate` (called by each ``__post_init__``) checks types and ranges;
+  a :class:`~tractionecu.errors.ConfigError` always names the key as
+  ``section.key``.
+- :func:`from_mapping` builds a dataclass from a TOML table (unknown keys
+  named, integers taken for floats, nested sections) and remembers which keys
+  the table set (:func:`given_keys`).
+- :func:`to_toml` writes a dataclass back (each key with its doc line);
+  reading the text with :func:`from_mapping` gives an equal object.
+- :func:`load_toml` reads a file, with errors that name the file.
+
+Sensor figures and their precedence
+-----------------------------------
+:class:`SensorSpec` holds the figures of the machine's sensors (rates, noise,
+resolution); the estimator takes its measurement noise R and the input part
+of Q from them, the simulator its noise.  They are configuration:
+
+1. a ``[sensors]`` table in the vehicle file (``vehicle.toml``, beside
+   ``[vehicle]`` or beside top-level vehicle keys; :func:`load_sensors`);
+2. the service config's ``[sensors]`` table: a key set there overrides the
+   same key of the vehicle file (:func:`resolve_sensors`);
+3. a key set in neither takes the documented default of :class:`SensorSpec`.
 
 Vehicle defaults
 ----------------
@@ -38,9 +62,11 @@ defaults are assumptions, each with its source:
 from __future__ import annotations
 
 import dataclasses
+import datetime as _dt
 import math
+import re
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -50,28 +76,258 @@ G = 9.81
 """Gravitational acceleration [m/s²]."""
 
 
+# ----------------------------------------------------------------------------- declaring keys
+def setting(default: Any, doc: str, lo: float | None = None, hi: float | None = None, *,
+            nan_ok: bool = False) -> Any:
+    """A config key: ``default``, ``doc`` (one line with the unit), allowed range [lo, hi].
+
+    The default's type is the key's type (bool, int, float, str, or a tuple of
+    one of them).  ``nan_ok`` lets a float be NaN (e.g. "not set").
+    """
+    md: dict[str, Any] = {"doc": doc}
+    if lo is not None:
+        md["lo"] = lo
+    if hi is not None:
+        md["hi"] = hi
+    if nan_ok:
+        md["nan_ok"] = True
+    return dataclasses.field(default=default, metadata=md)
+
+
+def section(cls: type, doc: str, *, partial: bool = False) -> Any:
+    """A nested table ``[outer.name]`` holding dataclass ``cls`` (its defaults when absent).
+
+    ``partial``: the keys a file did not set are resolved elsewhere (see
+    :func:`given_keys`); :func:`to_toml` writes them as comments.
+    """
+    md: dict[str, Any] = {"doc": doc, "section": cls}
+    if partial:
+        md["partial"] = True
+    return dataclasses.field(default_factory=cls, metadata=md)
+
+
+def table(doc: str) -> Any:
+    """A free table of keys passed through unchecked (e.g. driver options); empty by default."""
+    return dataclasses.field(default_factory=dict, metadata={"doc": doc, "table": True})
+
+
+# ----------------------------------------------------------------------------- checking
+def _key(section_name: str, name: str) -> str:
+    return f"{section_name}.{name}" if section_name else name
+
+
+_LIST_OF = {str: "strings", int: "integers", float: "numbers", bool: "true/false values"}
+
+
+def validate(obj: Any, section_name: str) -> None:
+    """Type and range checks of every key from the field declarations; errors name ``section.key``.
+
+    Normalises in place: a list for a tuple key becomes a tuple, a free table a dict.
+    """
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        key = _key(section_name, f.name)
+        md = f.metadata
+        d = f.default
+        if "section" in md:
+            if not isinstance(v, md["section"]):
+                raise ConfigError(f"{key}: expected a table ({md['section'].__name__}), got {v!r}")
+        elif md.get("table"):
+            if not isinstance(v, Mapping):
+                raise ConfigError(f"{key}: expected a table, got {v!r}")
+            object.__setattr__(obj, f.name, dict(v))
+        elif isinstance(d, bool):
+            if not isinstance(v, bool):
+                raise ConfigError(f"{key}: expected true or false, got {v!r}")
+        elif isinstance(d, (int, float)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ConfigError(f"{key}: expected a number, got {v!r}")
+            if isinstance(d, int) and not isinstance(v, int):
+                raise ConfigError(f"{key}: expected an integer, got {v!r}")
+            if md.get("nan_ok") and isinstance(v, float) and math.isnan(v):
+                continue
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ConfigError(f"{key}: expected a finite number, got {v!r}")
+            lo, hi = md.get("lo"), md.get("hi")
+            if (lo is not None and v < lo) or (hi is not None and v > hi):
+                raise ConfigError(f"{key} = {v!r} is outside [{lo}, {hi}] ({md['doc']})")
+        elif isinstance(d, str):
+            if not isinstance(v, str):
+                raise ConfigError(f"{key}: expected a string, got {v!r}")
+        elif isinstance(d, tuple):
+            item = type(d[0]) if d else object
+            if not isinstance(v, (list, tuple)) or not all(
+                    isinstance(x, item) and (item is bool or not isinstance(x, bool)) for x in v):
+                raise ConfigError(f"{key}: expected a list of {_LIST_OF.get(item, 'values')}, got {v!r}")
+            object.__setattr__(obj, f.name, tuple(v))
+
+
+# ----------------------------------------------------------------------------- reading
+_GIVEN = "_config_given_keys"
+
+
+def from_mapping(cls: type, data: Any, section_name: str) -> Any:
+    """Build dataclass ``cls`` from the TOML table ``data`` named ``section_name`` ("" = the file).
+
+    Unknown keys are named; an integer is taken for a float key; a nested
+    :func:`section` is built from its sub-table.  Values are checked by the
+    dataclass (:func:`validate`).  The keys ``data`` set are remembered
+    (:func:`given_keys`).
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{section_name or 'config'}: expected a table, got {type(data).__name__}")
+    known = {f.name: f for f in fields(cls) if f.init}
+    unknown = sorted((k for k in data if k not in known), key=str)
+    if unknown:
+        what = "key" if section_name else "table"
+        raise ConfigError(f"{_key(section_name, str(unknown[0]))}: unknown {what} (known: {', '.join(sorted(known))})")
+    kw: dict[str, Any] = {}
+    for name, f in known.items():
+        if name not in data:
+            continue
+        v = data[name]
+        key = _key(section_name, name)
+        if "section" in f.metadata:
+            v = from_mapping(f.metadata["section"], v, key)
+        elif isinstance(f.default, float) and isinstance(v, int) and not isinstance(v, bool):
+            try:
+                v = float(v)
+            except OverflowError:
+                raise ConfigError(f"{key}: {v.bit_length()}-bit integer is out of range") from None
+        kw[name] = v
+    try:
+        obj = cls(**kw)
+    except TypeError as exc:  # pragma: no cover - defensive
+        raise ConfigError(f"{section_name or 'config'}: {exc}") from exc
+    object.__setattr__(obj, _GIVEN, frozenset(kw))
+    return obj
+
+
+def _same(a: Any, b: Any) -> bool:
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+
+def given_keys(obj: Any) -> frozenset[str]:
+    """The keys set explicitly: those of the table ``obj`` was read from (:func:`from_mapping`);
+    for an object built in code, the keys whose value differs from the default."""
+    given = obj.__dict__.get(_GIVEN)
+    if given is not None:
+        return given
+    out = set()
+    for f in fields(obj):
+        d = f.default if f.default is not MISSING else f.default_factory()  # type: ignore[misc]
+        if not _same(getattr(obj, f.name), d):
+            out.add(f.name)
+    return frozenset(out)
+
+
+def load_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """Parse a TOML file; errors name the file: '<what> file not found', 'cannot read', 'not valid TOML'."""
+    p = Path(path)
+    try:
+        return tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: {what} file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read: {exc}") from None
+    except ValueError as exc:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+
+
+# ----------------------------------------------------------------------------- writing
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def toml_key(k: str) -> str:
+    """A TOML key: bare when it can be, else a quoted string."""
+    return k if _BARE_KEY.fullmatch(k) else toml_value(k)
+
+
+def toml_value(v: Any) -> str:
+    """A TOML value that reads back as ``v`` (bool, int, float incl. nan/inf, str, list, table, date/time)."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)  # 'nan', 'inf', '-inf' are TOML too
+    if isinstance(v, str):
+        out = v.replace("\\", "\\\\").replace('"', '\\"')
+        out = re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\u{ord(m.group()):04X}", out)
+        return f'"{out}"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, Mapping):
+        return "{" + ", ".join(f"{toml_key(str(k))} = {toml_value(x)}" for k, x in v.items()) + "}"
+    if isinstance(v, (_dt.datetime, _dt.date, _dt.time)):
+        return v.isoformat()
+    raise ConfigError(f"cannot write {type(v).__name__} to TOML")
+
+
+def to_toml(obj: Any, section_name: str | None = None) -> str:
+    """TOML text of dataclass ``obj``, each key after its doc line; nested sections and
+    non-empty free tables follow as ``[section.name]`` tables.  Without ``section_name``
+    the keys are written at the top level."""
+    lines: list[str] = []
+    _write_table(obj, section_name or "", lines, None)
+    return "\n".join(lines) + "\n"
+
+
+def _write_table(obj: Any, name: str, out: list[str], given: frozenset[str] | None) -> None:
+    if name:
+        out.append(f"[{name}]")
+    subs = []
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if "section" in f.metadata or f.metadata.get("table"):
+            subs.append((f, v))
+            continue
+        doc = f.metadata.get("doc")
+        if doc:
+            out.append(f"# {doc}")
+        line = f"{toml_key(f.name)} = {toml_value(v)}"
+        out.append(line if given is None or f.name in given else "# " + line)
+    for f, v in subs:
+        sub = _key(name, f.name)
+        if f.metadata.get("table"):
+            if v:
+                out += ["", f"[{sub}]"] + [f"{toml_key(str(k))} = {toml_value(x)}" for k, x in v.items()]
+            continue
+        if out:
+            out.append("")
+        if f.metadata.get("partial"):
+            out.append(f"# {f.metadata['doc']}")
+        _write_table(v, sub, out, given_keys(v) if f.metadata.get("partial") else None)
+
+
+def replace(obj: Any, **changes: Any) -> Any:
+    """``dataclasses.replace`` that re-validates."""
+    return dataclasses.replace(obj, **changes)
+
+
+# ----------------------------------------------------------------------------- vehicle
 @dataclass(frozen=True)
 class VehicleParams:
     """Nominal vehicle parameters, as a user knows them from the spec sheet."""
 
-    mass_kg: float = field(default=6300.0, metadata={"doc": "total vehicle mass m incl. wheels [kg]", "lo": 100.0, "hi": 100000.0})
-    wheel_mass_kg: float = field(default=160.0, metadata={"doc": "mass of one wheel m_w [kg]", "lo": 1.0, "hi": 5000.0})
-    rated_power_w: float = field(default=80e3, metadata={"doc": "total drive-train power [W]", "lo": 1e3, "hi": 1e6})
-    r0_m: float = field(default=0.80, metadata={"doc": "unloaded wheel radius r0 [m]", "lo": 0.1, "hi": 2.5})
-    tyre_width_m: float = field(default=0.54, metadata={"doc": "tyre section width b_t [m]", "lo": 0.05, "hi": 1.5})
-    tyre_pressure_pa: float = field(default=1.6e5, metadata={"doc": "tyre inflation pressure p_t [Pa]", "lo": 2e4, "hi": 1e6})
-    wheel_inertia_kgm2: float = field(default=60.0, metadata={"doc": "wheel + reflected drive inertia J_w [kg·m²]", "lo": 0.1, "hi": 5000.0})
-    rho_t: float = field(default=0.015, metadata={"doc": "tyre-deformation rolling resistance coefficient ρ_t [-]", "lo": 0.0, "hi": 0.2})
-    wheelbase_m: float = field(default=2.5, metadata={"doc": "wheelbase L [m]", "lo": 0.5, "hi": 6.0})
-    cg_height_m: float = field(default=1.0, metadata={"doc": "centre-of-gravity height h_cg [m]", "lo": 0.1, "hi": 4.0})
-    hitch_height_m: float = field(default=0.5, metadata={"doc": "drawbar / hitch height h_hitch [m]", "lo": 0.0, "hi": 2.0})
-    static_front_fraction: float = field(default=0.40, metadata={"doc": "static share of weight on the front axle [-]", "lo": 0.05, "hi": 0.95})
-    track_width_m: float = field(default=1.8, metadata={"doc": "track width, wheel centre to wheel centre [m]", "lo": 0.5, "hi": 5.0})
-    cd_area_m2: float = field(default=4.5, metadata={"doc": "drag area C_d·A [m²]", "lo": 0.0, "hi": 50.0})
-    max_wheel_torque_nm: float = field(default=9000.0, metadata={"doc": "torque limit of one wheel drive [N·m]", "lo": 10.0, "hi": 1e5})
+    mass_kg: float = setting(6300.0, "total vehicle mass m incl. wheels [kg]", 100.0, 100000.0)
+    wheel_mass_kg: float = setting(160.0, "mass of one wheel m_w [kg]", 1.0, 5000.0)
+    rated_power_w: float = setting(80e3, "total drive-train power [W]", 1e3, 1e6)
+    r0_m: float = setting(0.80, "unloaded wheel radius r0 [m]", 0.1, 2.5)
+    tyre_width_m: float = setting(0.54, "tyre section width b_t [m]", 0.05, 1.5)
+    tyre_pressure_pa: float = setting(1.6e5, "tyre inflation pressure p_t [Pa]", 2e4, 1e6)
+    wheel_inertia_kgm2: float = setting(60.0, "wheel + reflected drive inertia J_w [kg·m²]", 0.1, 5000.0)
+    rho_t: float = setting(0.015, "tyre-deformation rolling resistance coefficient ρ_t [-]", 0.0, 0.2)
+    wheelbase_m: float = setting(2.5, "wheelbase L [m]", 0.5, 6.0)
+    cg_height_m: float = setting(1.0, "centre-of-gravity height h_cg [m]", 0.1, 4.0)
+    hitch_height_m: float = setting(0.5, "drawbar / hitch height h_hitch [m]", 0.0, 2.0)
+    static_front_fraction: float = setting(0.40, "static share of weight on the front axle [-]", 0.05, 0.95)
+    track_width_m: float = setting(1.8, "track width, wheel centre to wheel centre [m]", 0.5, 5.0)
+    cd_area_m2: float = setting(4.5, "drag area C_d·A [m²]", 0.0, 50.0)
+    max_wheel_torque_nm: float = setting(9000.0, "torque limit of one wheel drive [N·m]", 10.0, 1e5)
 
     def __post_init__(self) -> None:
-        _validate(self, "vehicle")
+        validate(self, "vehicle")
 
     # ---- derived quantities -------------------------------------------------
     @property
@@ -84,92 +340,75 @@ class VehicleParams:
         return self.static_front_fraction * self.weight_n
 
 
-def _validate(obj: Any, section: str) -> None:
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
-        if lo is None and hi is None:
-            continue
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or isinstance(v, float) and not math.isfinite(v):
-            raise ConfigError(f"{section}.{f.name}: expected a finite number, got {v!r}")
-        if lo is not None and v < lo or hi is not None and v > hi:
-            raise ConfigError(f"{section}.{f.name} = {v!r} is outside [{lo}, {hi}] ({f.metadata.get('doc', '')})")
+# ----------------------------------------------------------------------------- sensors
+@dataclass(frozen=True)
+class SensorSpec:
+    """Rates [Hz], noise standard deviations and resolution of the machine's sensors.
+
+    The defaults are documented figures of real tractor hardware, each with
+    its source; the estimator's R and input noise come from here, never from
+    the truth, and the simulator adds the same noise.
+    """
+
+    wheel_rate_hz: float = setting(100.0, "wheel speed and drive torque frame rate [Hz]; 10 ms is the usual drive-train PGN period (ISO 11783-7 / J1939-71 engine and transmission speed PGNs are 10–20 ms)", 1.0, 1000.0)
+    wheel_speed_sigma_rel: float = setting(0.002, "wheel-speed noise, relative [-]: period-measured 60-tooth pulse rings / hub-motor resolvers give 0.1–0.5 % speed ripple", 0.0, 0.5)
+    wheel_speed_sigma_abs: float = setting(0.005, "wheel-speed noise floor [rad/s]", 0.0, 10.0)
+    wheel_speed_quant: float = setting(0.001, "wheel-speed resolution [rad/s] (the DBC's 0.001 rad/s/bit)", 1e-6, 1.0)
+    torque_sigma_rel: float = setting(0.01, "drive-torque noise, relative [-]: inverter torque estimates from phase currents, 1 % ripple (current-sensor noise of Hall/shunt sensors ≈ 0.5–1 % FS)", 0.0, 0.5)
+    torque_sigma_abs: float = setting(5.0, "drive-torque noise floor [N·m]", 0.0, 1e4)
+    torque_quant: float = setting(2.0, "drive-torque resolution [N·m] (DBC 2 N·m/bit)", 1e-3, 1e3)
+    loadpin_rate_hz: float = setting(50.0, "load-pin sample rate [Hz]: strain-gauge/magnetoelastic hitch pins with CAN output run at 10–100 Hz; ISO 11783-7 hitch status is sent every 100 ms, 50 Hz here", 1.0, 1000.0)
+    draft_sigma_n: float = setting(300.0, "draft load-pin noise [N]: ±0.3 % of a 100 kN full scale (typical strain-gauge load-pin accuracy 0.25–1 % FS)", 0.0, 1e5)
+    draft_quant_n: float = setting(10.0, "draft resolution [N] (ISO 11783-7 rear draft 10 N/bit)", 1e-3, 1e4)
+    axle_sigma_n: float = setting(300.0, "front-axle load-pin noise [N]: ±0.3 % of 100 kN FS", 0.0, 1e5)
+    axle_quant_n: float = setting(5.0, "front-axle load resolution [N] (DBC 5 N/bit)", 1e-3, 1e4)
+    gps_rate_hz: float = setting(10.0, "GNSS epoch rate [Hz]: agricultural receivers output 10 Hz (u-blox ZED-F9P: up to 20 Hz RTK)", 0.1, 100.0)
+    gps_speed_sigma: float = setting(0.05, "GNSS Doppler speed noise [m/s] (ZED-F9P datasheet: velocity accuracy 0.05 m/s)", 0.0, 10.0)
+    gps_pos_sigma: float = setting(0.30, "GNSS horizontal position noise [m], slowly varying (SBAS/DGPS: 0.3–0.6 m CEP; ZED-F9P with SBAS 1.0 m CEP, RTK 0.01 m)", 0.0, 100.0)
+    gps_pos_tau_s: float = setting(30.0, "correlation time of the position error [s] (multipath/ionosphere residuals vary over tens of seconds)", 0.1, 1e5)
+    gps_alt_sigma: float = setting(0.5, "GNSS altitude noise [m] (vertical error ≈ 1.5–2× horizontal)", 0.0, 100.0)
+    gps_fix_quality: int = setting(2, "GGA fix quality [-]: 2 = DGPS/SBAS (4 = RTK fixed)", 1, 8)
+    gps_hdop: float = setting(0.9, "typical HDOP [-] in open field with 15–20 satellites (GPS+Galileo+GLONASS)", 0.1, 99.0)
+    gps_nsat: int = setting(16, "satellites used [-]", 4, 99)
+    can_jitter_s: float = setting(0.0003, "CAN reception timestamp jitter [s]: arbitration delay of a 250 kbit/s bus at 30–50 % load is up to a few frame times (≈ 0.5 ms per 8-byte frame)", 0.0, 0.1)
+
+    def __post_init__(self) -> None:
+        validate(self, "sensors")
 
 
-def from_mapping(cls: type, data: Mapping[str, Any], section: str) -> Any:
-    """Build dataclass ``cls`` from a TOML table, naming unknown or bad keys."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{section}: expected a table, got {type(data).__name__}")
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise ConfigError(f"{section}.{unknown[0]}: unknown key (known: {', '.join(sorted(known))})")
-    kwargs = {}
-    for k, v in data.items():
-        default = known[k].default
-        numeric = isinstance(default, (int, float)) and not isinstance(default, bool)
-        if numeric and (isinstance(v, bool) or not isinstance(v, (int, float))):
-            raise ConfigError(f"{section}.{k}: expected a number, got {v!r}")
-        if isinstance(default, bool) and not isinstance(v, bool):
-            raise ConfigError(f"{section}.{k}: expected true or false, got {v!r}")
-        if isinstance(default, int) and not isinstance(default, bool) and not isinstance(v, int):
-            raise ConfigError(f"{section}.{k}: expected an integer, got {v!r}")
-        if isinstance(default, float) and isinstance(v, int):
-            try:
-                v = float(v)
-            except OverflowError:
-                raise ConfigError(f"{section}.{k}: {len(str(v))}-digit integer is out of range") from None
-        kwargs[k] = v
-    try:
-        return cls(**kwargs)
-    except TypeError as exc:  # pragma: no cover - defensive
-        raise ConfigError(f"{section}: {exc}") from exc
+# ----------------------------------------------------------------------------- vehicle files
+def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
+    """(vehicle table, sensors table) of a parsed vehicle file: ``[vehicle]`` or top-level keys, optional ``[sensors]``."""
+    sensors = data.get("sensors", {})
+    if "vehicle" in data:
+        return data["vehicle"], sensors
+    return {k: v for k, v in data.items() if k != "sensors"}, sensors
 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
-    """Load ``vehicle.toml`` (keys at top level or under ``[vehicle]``)."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{p}: vehicle file not found") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read: {exc}") from exc
-    except ValueError as exc:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
-    table = data.get("vehicle", data)
-    return from_mapping(VehicleParams, table, "vehicle")
+    """Load ``vehicle.toml`` (keys at top level or under ``[vehicle]``; a ``[sensors]`` table is left to :func:`load_sensors`)."""
+    return from_mapping(VehicleParams, _vehicle_tables(load_toml(path, "vehicle"))[0], "vehicle")
 
 
-def to_toml(obj: Any, section: str | None = None) -> str:
-    """Serialise a flat dataclass to TOML with the doc line of each field as a comment."""
-    lines = [f"[{section}]"] if section else []
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        doc = f.metadata.get("doc")
-        if doc:
-            lines.append(f"# {doc}")
-        lines.append(f"{f.name} = {_toml_value(v)}")
-    return "\n".join(lines) + "\n"
+def load_sensors(path: str | Path) -> SensorSpec:
+    """The ``[sensors]`` table of a vehicle file; the documented defaults for keys (or a table) it lacks."""
+    return from_mapping(SensorSpec, _vehicle_tables(load_toml(path, "vehicle"))[1], "sensors")
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(float(v)) if isinstance(v, float) else str(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+def resolve_sensors(vehicle_path: str | Path | None, overrides: Mapping[str, Any] | None = None) -> SensorSpec:
+    """The sensor figures of a machine (module doc): ``overrides`` (the service's ``[sensors]`` keys)
+    over the vehicle file's ``[sensors]`` (none without ``vehicle_path``) over the defaults."""
+    base = load_sensors(vehicle_path) if vehicle_path else SensorSpec()
+    if not overrides:
+        return base
+    merged = {k: getattr(base, k) for k in given_keys(base)}
+    merged.update(overrides)
+    return from_mapping(SensorSpec, merged, "sensors")
 
 
-def save_vehicle(params: VehicleParams, path: str | Path) -> None:
-    """Write ``vehicle.toml``."""
-    Path(path).write_text("# Nominal vehicle parameters (SI units)\n" + to_toml(params, "vehicle"), encoding="utf-8")
-
-
-def replace(obj: Any, **changes: Any) -> Any:
-    """``dataclasses.replace`` that re-validates."""
-    return dataclasses.replace(obj, **changes)
+def save_vehicle(params: VehicleParams, path: str | Path, sensors: SensorSpec | None = None) -> None:
+    """Write ``vehicle.toml``: ``[vehicle]`` and, when given, ``[sensors]``."""
+    text = "# Nominal vehicle parameters (SI units)\n" + to_toml(params, "vehicle")
+    if sensors is not None:
+        text += "\n# Sensor figures: rates, noise (1σ) and resolution\n" + to_toml(sensors, "sensors")
+    Path(path).write_text(text, encoding="utf-8")

@@ -13,10 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tractionecu.config import G, VehicleParams
+from tractionecu.config import G, SensorSpec, VehicleParams
 from tractionecu.model.mucurve import SOIL_CLASSES, SoilClass
 from tractionecu.model.vehicle import rolling_radius, slip
-from tractionecu.sim.sensors import SensorSpec
 
 
 @dataclass

@@ -1,5 +1,8 @@
 """AUKF-FS estimator with a push API: ``Estimator.step(t, inputs, measurements) -> Estimate``.
 
+Its tuning, :class:`EstimatorConfig` and :func:`load_estimator_config`, lives
+in :mod:`.config` and is re-exported here.
+
 Paper section 3: state x = (ω1..4, v, μ1..4, ρ_s), output y = (ω1..4, v),
 input u = (M_d1..4, F_zf, F_dx).  Sigma points go through
 :meth:`tractionecu.model.vehicle.FilterModel.step` (eqs. 2, 4, 8, 9 with RK4)
@@ -10,8 +13,9 @@ eq. 18); slip is eq. 6 with r_d from eqs. 9–10.
 
 Noise model
 -----------
-Measurement noise R comes from :class:`~tractionecu.sim.sensors.SensorSpec`
-(the documented sensor figures), never from the truth:
+Measurement noise R comes from :class:`~tractionecu.config.SensorSpec`
+(the machine's sensor figures: vehicle file and service ``[sensors]``,
+else the documented defaults), never from the truth:
 
     R_ω,i = (σ_ω,abs + σ_ω,rel |ω_i|)² + q_ω²/12,   R_v = σ_gps,v².
 
@@ -48,22 +52,21 @@ and ``model/mucurve.py`` calls (18) "eq. 14".
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erfcinv
 
-from ..config import G, VehicleParams, _toml_value, _validate, from_mapping, to_toml
-from ..errors import ConfigError, EstimatorError
-from ..model.mucurve import SOIL_CLASSES
+from ..config import G, SensorSpec, VehicleParams
+from ..errors import EstimatorError
 from ..model.vehicle import IX_MU, IX_RHO, IX_V, N_STATE, FilterModel
-from ..sim.sensors import SensorSpec
 from . import _kernels
 from ._kernels import JIT
+from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
 from .curve import CurveEstimator
-from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzyConfig, FuzzySupervisor
+from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
 
 # ----------------------------------------------------------------------------- status bits
@@ -89,129 +92,6 @@ INVALID_MASK = WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRA
 def status_names(status: int) -> list[str]:
     """Names of the bits set in an ``EstimateStatus`` word."""
     return [name for bit, name in STATUS_NAMES.items() if status & bit]
-
-
-# ----------------------------------------------------------------------------- config
-@dataclass(frozen=True)
-class EstimatorConfig:
-    """Tuning of the AUKF-FS.  Measurement noise is not here: it comes from ``SensorSpec``."""
-
-    # UKF
-    alpha: float = field(default=1.0, metadata={"doc": "sigma-point spread α [-] (filterpy MerweScaledSigmaPoints)", "lo": 1e-4, "hi": 10.0})
-    beta: float = field(default=2.0, metadata={"doc": "sigma-point β [-] (2 is optimal for Gaussians)", "lo": 0.0, "hi": 10.0})
-    kappa: float = field(default=0.0, metadata={"doc": "sigma-point κ [-]", "lo": -9.0, "hi": 100.0})
-    max_gap_s: float = field(default=2.0, metadata={"doc": "a gap between steps longer than this restarts the filter [s]", "lo": 0.01, "hi": 3600.0})
-    max_step_s: float = field(default=0.02, metadata={"doc": "longest single prediction step; longer gaps are sub-stepped [s]", "lo": 1e-4, "hi": 1.0})
-    # process noise (tuning)
-    q_omega: float = field(default=1e-4, metadata={"doc": "model-error density on each ω [rad²/s³]", "lo": 0.0, "hi": 1e3})
-    q_v: float = field(default=1e-4, metadata={"doc": "model-error density on v [m²/s³]", "lo": 0.0, "hi": 1e3})
-    q_mu: float = field(default=1e-3, metadata={"doc": "random-walk density of each μ [1/s]", "lo": 0.0, "hi": 10.0})
-    q_rho: float = field(default=2e-5, metadata={"doc": "random-walk density of ρ_s [1/s]", "lo": 0.0, "hi": 10.0})
-    input_noise: bool = field(default=True, metadata={"doc": "add the measured-input noise (SensorSpec) to Q"})
-    # adaptation (paper eqs. 16–17) and fuzzy supervisor
-    adaptation: bool = field(default=True, metadata={"doc": "covariance-matching adaptation A_k of Q"})
-    adapt_window: int = field(default=100, metadata={"doc": "window M of updates for covariance matching [-]", "lo": 2, "hi": 100000})
-    adapt_min: float = field(default=0.5, metadata={"doc": "lower clip of A_k entries [-]", "lo": 1e-3, "hi": 1.0})
-    adapt_max: float = field(default=20.0, metadata={"doc": "upper clip of A_k entries [-]", "lo": 1.0, "hi": 1e4})
-    supervisor: bool = field(default=True, metadata={"doc": "fuzzy-logic supervisor factor f_k on Q"})
-    adapt_period_s: float = field(default=0.1, metadata={"doc": "period at which A_k and f_k are recomputed [s]", "lo": 1e-3, "hi": 10.0})
-    dynamics_tau_s: float = field(default=0.2, metadata={"doc": "low-pass time constant of |dv/dt|, |dM_d/dt| [s]", "lo": 1e-3, "hi": 10.0})
-    # robustness
-    gate_probability: float = field(default=1e-4, metadata={"doc": "false-alarm probability of the per-measurement NIS gate [-] (0 disables)", "lo": 0.0, "hi": 0.5})
-    gate_max_consecutive: int = field(default=5, metadata={"doc": "a measurement gated this many updates in a row is accepted on the next [-]", "lo": 0, "hi": 100000})
-    mu_min: float = field(default=-1.2, metadata={"doc": "lower bound of μ [-]", "lo": -5.0, "hi": 0.0})
-    mu_max: float = field(default=1.2, metadata={"doc": "upper bound of μ [-]", "lo": 0.0, "hi": 5.0})
-    rho_min: float = field(default=0.0, metadata={"doc": "lower bound of ρ_s [-]", "lo": -1.0, "hi": 0.0})
-    rho_max: float = field(default=0.5, metadata={"doc": "upper bound of ρ_s [-]", "lo": 0.0, "hi": 5.0})
-    wheel_timeout_s: float = field(default=0.05, metadata={"doc": "wheel-speed timeout [s]", "lo": 1e-3, "hi": 60.0})
-    gps_timeout_s: float = field(default=0.5, metadata={"doc": "ground-speed timeout [s]", "lo": 1e-3, "hi": 60.0})
-    torque_timeout_s: float = field(default=0.05, metadata={"doc": "drive-torque timeout [s]", "lo": 1e-3, "hi": 60.0})
-    axle_timeout_s: float = field(default=0.1, metadata={"doc": "front-axle-load timeout [s]", "lo": 1e-3, "hi": 60.0})
-    draft_timeout_s: float = field(default=0.1, metadata={"doc": "draft-force timeout [s]", "lo": 1e-3, "hi": 60.0})
-    # initial uncertainty and convergence
-    sigma_v0: float = field(default=0.2, metadata={"doc": "initial standard deviation of v [m/s]", "lo": 1e-6, "hi": 100.0})
-    sigma_mu0: float = field(default=0.1, metadata={"doc": "initial standard deviation of μ [-]", "lo": 1e-6, "hi": 10.0})
-    rho_s0: float = field(default=0.06, metadata={"doc": "initial ρ_s [-]", "lo": 0.0, "hi": 1.0})
-    sigma_rho0: float = field(default=0.05, metadata={"doc": "initial standard deviation of ρ_s [-]", "lo": 1e-6, "hi": 10.0})
-    conv_sigma_mu: float = field(default=0.01, metadata={"doc": "converged when every σ_μ is below this [-]", "lo": 1e-6, "hi": 10.0})
-    conv_sigma_rho: float = field(default=0.01, metadata={"doc": "converged when σ_ρ is below this [-]", "lo": 1e-6, "hi": 10.0})
-    conv_min_s: float = field(default=1.0, metadata={"doc": "never converged earlier than this after start [s]", "lo": 0.0, "hi": 3600.0})
-    # curve parameter a (paper section 3.2)
-    soil_classes: tuple[str, ...] = field(default=("stubble",), metadata={"doc": "surface classes (shapes p, α1, α2) to fit; first = default"})
-    curve_tau_s: float = field(default=3.0, metadata={"doc": "smoothing time constant of a [s]", "lo": 1e-3, "hi": 3600.0})
-    curve_min_mu: float = field(default=0.15, metadata={"doc": "pairs with |μ| below this are skipped as ill-conditioned (low slip) [-]", "lo": 0.0, "hi": 2.0})
-    curve_min_slip: float = field(default=0.005, metadata={"doc": "pairs with |s| below this are skipped [-]", "lo": 0.0, "hi": 0.5})
-    curve_min_speed_mps: float = field(default=0.5, metadata={"doc": "no curve update below this speed [m/s]", "lo": 0.0, "hi": 50.0})
-    curve_period_s: float = field(default=0.1, metadata={"doc": "period of the curve update [s]", "lo": 1e-3, "hi": 10.0})
-    curve_class_tau_s: float = field(default=30.0, metadata={"doc": "forgetting time constant of the class evidence [s]", "lo": 1e-3, "hi": 1e6})
-    curve_switch_min_delta: float = field(default=10.0, metadata={"doc": "class switch needs the new class's log-likelihood this much better [nats]", "lo": 0.0, "hi": 1e9})
-    curve_slip_corr_s: float = field(default=0.5, metadata={"doc": "correlation time of the slip error for the class evidence [s]", "lo": 1e-3, "hi": 1e3})
-    fuzzy: FuzzyConfig = field(default_factory=FuzzyConfig, metadata={"doc": "fuzzy supervisor breakpoints ([estimator.fuzzy])"})
-
-    def __post_init__(self) -> None:
-        _validate(self, "estimator")
-        if isinstance(self.soil_classes, list):
-            object.__setattr__(self, "soil_classes", tuple(self.soil_classes))
-        if not self.soil_classes:
-            raise ConfigError("estimator.soil_classes: at least one class is needed")
-        for c in self.soil_classes:
-            if c not in SOIL_CLASSES:
-                raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
-        for name in ("adapt_window", "gate_max_consecutive"):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool):
-                raise ConfigError(f"estimator.{name}: expected an integer, got {v!r}")
-        if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
-            raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
-        if self.mu_min >= self.mu_max:
-            raise ConfigError(f"estimator.mu_min = {self.mu_min} must be < estimator.mu_max = {self.mu_max}")
-        if self.rho_min >= self.rho_max:
-            raise ConfigError(f"estimator.rho_min = {self.rho_min} must be < estimator.rho_max = {self.rho_max}")
-        if not isinstance(self.fuzzy, FuzzyConfig):
-            raise ConfigError("estimator.fuzzy: expected a FuzzyConfig")
-
-    @classmethod
-    def from_mapping(cls, data: Mapping[str, Any]) -> "EstimatorConfig":
-        """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``)."""
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"estimator: expected a table, got {type(data).__name__}")
-        data = dict(data)
-        fz = data.pop("fuzzy", {})
-        if "soil_classes" in data:
-            sc = data.pop("soil_classes")
-            if not isinstance(sc, (list, tuple)) or not all(isinstance(x, str) for x in sc):
-                raise ConfigError("estimator.soil_classes: expected a list of class names")
-        else:
-            sc = None
-        base = from_mapping(_FlatView, {k: v for k, v in data.items()}, "estimator")
-        kw = {f.name: getattr(base, f.name) for f in fields(_FlatView)}
-        if sc is not None:
-            kw["soil_classes"] = tuple(sc)
-        kw["fuzzy"] = from_mapping(FuzzyConfig, fz, "estimator.fuzzy")
-        return cls(**kw)
-
-    def to_toml(self) -> str:
-        """TOML text with ``[estimator]`` and ``[estimator.fuzzy]`` tables, each key with its doc."""
-        lines = ["[estimator]"]
-        for f in fields(self):
-            if f.name == "fuzzy":
-                continue
-            doc = f.metadata.get("doc")
-            if doc:
-                lines.append(f"# {doc}")
-            lines.append(f"{f.name} = {_toml_value(getattr(self, f.name))}")
-        return "\n".join(lines) + "\n\n" + to_toml(self.fuzzy, "estimator.fuzzy")
-
-
-def _flat_fields() -> type:
-    """A dataclass with the scalar fields of EstimatorConfig (for config.from_mapping)."""
-    import dataclasses
-    spec = [(f.name, f.type, field(default=f.default, metadata=f.metadata))
-            for f in fields(EstimatorConfig) if f.name not in ("fuzzy", "soil_classes")]
-    return dataclasses.make_dataclass("_FlatView", spec, frozen=True)
-
-
-_FlatView = _flat_fields()
 
 
 # ----------------------------------------------------------------------------- estimate

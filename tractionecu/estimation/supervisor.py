@@ -74,10 +74,13 @@ and ``model/mucurve.py`` calls (18) "eq. 14".
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from ..config import setting, validate
+from ..errors import ConfigError
 
 
 # --------------------------------------------------------------------- memberships
@@ -108,20 +111,18 @@ def trapmf(x: ArrayLike, a: float, b: float, c: float, d: float) -> NDArray[np.f
 class FuzzyConfig:
     """Breakpoints and output range of the fuzzy supervisor."""
 
-    accel_low_mps2: float = field(default=0.06, metadata={"doc": "|dv/dt| where LOW starts to fall (a₁) [m/s²]", "lo": 0.0, "hi": 10.0})
-    accel_mid_mps2: float = field(default=0.15, metadata={"doc": "|dv/dt| peak of MEDIUM (a₂) [m/s²]", "lo": 0.0, "hi": 10.0})
-    accel_high_mps2: float = field(default=0.30, metadata={"doc": "|dv/dt| where HIGH is full (a₃) [m/s²]", "lo": 0.0, "hi": 10.0})
-    torque_rate_low_nmps: float = field(default=2000.0, metadata={"doc": "|dΣM_d/dt| where LOW starts to fall (m₁) [N·m/s]", "lo": 0.0, "hi": 1e7})
-    torque_rate_mid_nmps: float = field(default=5000.0, metadata={"doc": "|dΣM_d/dt| peak of MEDIUM (m₂) [N·m/s]", "lo": 0.0, "hi": 1e7})
-    torque_rate_high_nmps: float = field(default=10000.0, metadata={"doc": "|dΣM_d/dt| where HIGH is full (m₃) [N·m/s]", "lo": 0.0, "hi": 1e7})
-    factor_min: float = field(default=0.5, metadata={"doc": "adaptation factor at intensity 0 (steady) [-]", "lo": 1e-3, "hi": 1e3})
-    factor_max: float = field(default=8.0, metadata={"doc": "adaptation factor at intensity 1 (intense) [-]", "lo": 1e-3, "hi": 1e3})
-    grid_points: int = field(default=101, metadata={"doc": "points of the output universe used for the centroid [-]", "lo": 11, "hi": 10001})
+    accel_low_mps2: float = setting(0.06, "|dv/dt| where LOW starts to fall (a₁) [m/s²]", 0.0, 10.0)
+    accel_mid_mps2: float = setting(0.15, "|dv/dt| peak of MEDIUM (a₂) [m/s²]", 0.0, 10.0)
+    accel_high_mps2: float = setting(0.30, "|dv/dt| where HIGH is full (a₃) [m/s²]", 0.0, 10.0)
+    torque_rate_low_nmps: float = setting(2000.0, "|dΣM_d/dt| where LOW starts to fall (m₁) [N·m/s]", 0.0, 1e7)
+    torque_rate_mid_nmps: float = setting(5000.0, "|dΣM_d/dt| peak of MEDIUM (m₂) [N·m/s]", 0.0, 1e7)
+    torque_rate_high_nmps: float = setting(10000.0, "|dΣM_d/dt| where HIGH is full (m₃) [N·m/s]", 0.0, 1e7)
+    factor_min: float = setting(0.5, "adaptation factor at intensity 0 (steady) [-]", 1e-3, 1e3)
+    factor_max: float = setting(8.0, "adaptation factor at intensity 1 (intense) [-]", 1e-3, 1e3)
+    grid_points: int = setting(101, "points of the output universe used for the centroid [-]", 11, 10001)
 
     def __post_init__(self) -> None:
-        from ..config import _validate
-        from ..errors import ConfigError
-        _validate(self, "estimator.fuzzy")
+        validate(self, "estimator.fuzzy")
         if not (self.accel_low_mps2 < self.accel_mid_mps2 < self.accel_high_mps2):
             raise ConfigError("estimator.fuzzy.accel_*_mps2: need low < mid < high")
         if not (self.torque_rate_low_nmps < self.torque_rate_mid_nmps < self.torque_rate_high_nmps):

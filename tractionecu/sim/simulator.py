@@ -28,12 +28,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import G, VehicleParams
+from ..config import G, SensorSpec, VehicleParams
 from ..model import effects as fx
 from ..model.vehicle import rolling_radius, slip as slip_fn
 from .field import Field
 from .plan import DS, Plan
-from .sensors import SensorSpec
 
 
 @dataclass(frozen=True)

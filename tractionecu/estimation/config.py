@@ -1,0 +1,104 @@
+"""Tuning of the AUKF-FS estimator: ``[estimator]`` with ``[estimator.fuzzy]``.
+
+Declared, read and written with the package's config base
+(:mod:`tractionecu.config`).  The measurement noise is not tuning: it comes
+from the sensor figures (:class:`~tractionecu.config.SensorSpec`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping
+
+from ..config import from_mapping, load_toml, section, setting, to_toml, validate
+from ..errors import ConfigError
+from ..model.mucurve import SOIL_CLASSES
+from ..model.vehicle import N_STATE
+from .supervisor import FuzzyConfig
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Tuning of the AUKF-FS.  Measurement noise is not here: it comes from ``SensorSpec``."""
+
+    # UKF
+    alpha: float = setting(1.0, "sigma-point spread α [-] (filterpy MerweScaledSigmaPoints)", 1e-4, 10.0)
+    beta: float = setting(2.0, "sigma-point β [-] (2 is optimal for Gaussians)", 0.0, 10.0)
+    kappa: float = setting(0.0, "sigma-point κ [-]", -9.0, 100.0)
+    max_gap_s: float = setting(2.0, "a gap between steps longer than this restarts the filter [s]", 0.01, 3600.0)
+    max_step_s: float = setting(0.02, "longest single prediction step; longer gaps are sub-stepped [s]", 1e-4, 1.0)
+    # process noise (tuning)
+    q_omega: float = setting(1e-4, "model-error density on each ω [rad²/s³]", 0.0, 1e3)
+    q_v: float = setting(1e-4, "model-error density on v [m²/s³]", 0.0, 1e3)
+    q_mu: float = setting(1e-3, "random-walk density of each μ [1/s]", 0.0, 10.0)
+    q_rho: float = setting(2e-5, "random-walk density of ρ_s [1/s]", 0.0, 10.0)
+    input_noise: bool = setting(True, "add the measured-input noise (SensorSpec) to Q")
+    # adaptation (paper eqs. 16–17) and fuzzy supervisor
+    adaptation: bool = setting(True, "covariance-matching adaptation A_k of Q")
+    adapt_window: int = setting(100, "window M of updates for covariance matching [-]", 2, 100000)
+    adapt_min: float = setting(0.5, "lower clip of A_k entries [-]", 1e-3, 1.0)
+    adapt_max: float = setting(20.0, "upper clip of A_k entries [-]", 1.0, 1e4)
+    supervisor: bool = setting(True, "fuzzy-logic supervisor factor f_k on Q")
+    adapt_period_s: float = setting(0.1, "period at which A_k and f_k are recomputed [s]", 1e-3, 10.0)
+    dynamics_tau_s: float = setting(0.2, "low-pass time constant of |dv/dt|, |dM_d/dt| [s]", 1e-3, 10.0)
+    # robustness
+    gate_probability: float = setting(1e-4, "false-alarm probability of the per-measurement NIS gate [-] (0 disables)", 0.0, 0.5)
+    gate_max_consecutive: int = setting(5, "a measurement gated this many updates in a row is accepted on the next [-]", 0, 100000)
+    mu_min: float = setting(-1.2, "lower bound of μ [-]", -5.0, 0.0)
+    mu_max: float = setting(1.2, "upper bound of μ [-]", 0.0, 5.0)
+    rho_min: float = setting(0.0, "lower bound of ρ_s [-]", -1.0, 0.0)
+    rho_max: float = setting(0.5, "upper bound of ρ_s [-]", 0.0, 5.0)
+    wheel_timeout_s: float = setting(0.05, "wheel-speed timeout [s]", 1e-3, 60.0)
+    gps_timeout_s: float = setting(0.5, "ground-speed timeout [s]", 1e-3, 60.0)
+    torque_timeout_s: float = setting(0.05, "drive-torque timeout [s]", 1e-3, 60.0)
+    axle_timeout_s: float = setting(0.1, "front-axle-load timeout [s]", 1e-3, 60.0)
+    draft_timeout_s: float = setting(0.1, "draft-force timeout [s]", 1e-3, 60.0)
+    # initial uncertainty and convergence
+    sigma_v0: float = setting(0.2, "initial standard deviation of v [m/s]", 1e-6, 100.0)
+    sigma_mu0: float = setting(0.1, "initial standard deviation of μ [-]", 1e-6, 10.0)
+    rho_s0: float = setting(0.06, "initial ρ_s [-]", 0.0, 1.0)
+    sigma_rho0: float = setting(0.05, "initial standard deviation of ρ_s [-]", 1e-6, 10.0)
+    conv_sigma_mu: float = setting(0.01, "converged when every σ_μ is below this [-]", 1e-6, 10.0)
+    conv_sigma_rho: float = setting(0.01, "converged when σ_ρ is below this [-]", 1e-6, 10.0)
+    conv_min_s: float = setting(1.0, "never converged earlier than this after start [s]", 0.0, 3600.0)
+    # curve parameter a (paper section 3.2)
+    soil_classes: tuple[str, ...] = setting(("stubble",), "surface classes (shapes p, α1, α2) to fit; first = default")
+    curve_tau_s: float = setting(3.0, "smoothing time constant of a [s]", 1e-3, 3600.0)
+    curve_min_mu: float = setting(0.15, "pairs with |μ| below this are skipped as ill-conditioned (low slip) [-]", 0.0, 2.0)
+    curve_min_slip: float = setting(0.005, "pairs with |s| below this are skipped [-]", 0.0, 0.5)
+    curve_min_speed_mps: float = setting(0.5, "no curve update below this speed [m/s]", 0.0, 50.0)
+    curve_period_s: float = setting(0.1, "period of the curve update [s]", 1e-3, 10.0)
+    curve_class_tau_s: float = setting(30.0, "forgetting time constant of the class evidence [s]", 1e-3, 1e6)
+    curve_switch_min_delta: float = setting(10.0, "class switch needs the new class's log-likelihood this much better [nats]", 0.0, 1e9)
+    curve_slip_corr_s: float = setting(0.5, "correlation time of the slip error for the class evidence [s]", 1e-3, 1e3)
+    fuzzy: FuzzyConfig = section(FuzzyConfig, "fuzzy supervisor breakpoints ([estimator.fuzzy])")
+
+    def __post_init__(self) -> None:
+        validate(self, "estimator")
+        if not self.soil_classes:
+            raise ConfigError("estimator.soil_classes: at least one class is needed")
+        for c in self.soil_classes:
+            if c not in SOIL_CLASSES:
+                raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
+        if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
+            raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
+        if self.mu_min >= self.mu_max:
+            raise ConfigError(f"estimator.mu_min = {self.mu_min} must be < estimator.mu_max = {self.mu_max}")
+        if self.rho_min >= self.rho_max:
+            raise ConfigError(f"estimator.rho_min = {self.rho_min} must be < estimator.rho_max = {self.rho_max}")
+
+    @classmethod
+    def from_mapping(cls, data: Mapping[str, Any]) -> "EstimatorConfig":
+        """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``)."""
+        return from_mapping(cls, data, "estimator")
+
+    def to_toml(self) -> str:
+        """TOML text with ``[estimator]`` and ``[estimator.fuzzy]`` tables, each key with its doc."""
+        return to_toml(self, "estimator")
+
+
+def load_estimator_config(path: str | Path) -> EstimatorConfig:
+    """Read an estimator TOML file (``[estimator]`` table, or its keys at the top level)."""
+    data = load_toml(path, "configuration")
+    return EstimatorConfig.from_mapping(data.get("estimator", data))
