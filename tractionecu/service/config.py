@@ -15,6 +15,9 @@ the offending key as ``section.key``.  Example (all keys optional)::
     [estimation]
     vehicle = "/etc/tractionecu/vehicle.toml"
 
+    [sensors]
+    gps_speed_sigma = 0.02       # overrides the vehicle file's [sensors]
+
     [broadcast]
     name = "0xA2000000000001"    # 64-bit J1939 NAME (hex string or integer)
     preferred_address = 144
@@ -23,19 +26,27 @@ the offending key as ``section.key``.  Example (all keys optional)::
     origin_lat = 47.88
     origin_lon = -110.55
 
-``systemd/tractionecu.toml`` in the repository is a commented example.
+Sensor figures (:class:`~tractionecu.config.SensorSpec`) resolve key by key:
+a key of this file's ``[sensors]`` overrides the same key of the vehicle
+file's ``[sensors]`` (``estimation.vehicle``), and a key set in neither takes
+its documented default (:meth:`ServiceConfig.resolved_sensors`).
+
+The tables are declared, read and written with the package's config base
+(:mod:`tractionecu.config`).  ``systemd/tractionecu.toml`` in the repository
+is a commented example.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Mapping
 
+from .. import config as base
 from ..bus import j1939
+from ..config import SensorSpec, given_keys, resolve_sensors, section, setting, table, validate
 from ..errors import ConfigError
 
 STATE_DIR_ENV = "STATE_DIRECTORY"
@@ -69,62 +80,26 @@ def default_name() -> j1939.Name:
     )
 
 
-def _f(default: Any, doc: str, lo: float | None = None, hi: float | None = None, **kw: Any) -> Any:
-    md = {"doc": doc}
-    if lo is not None:
-        md["lo"] = lo
-    if hi is not None:
-        md["hi"] = hi
-    md.update(kw)
-    return field(default=default, metadata=md)
-
-
-def _check(obj: Any, section: str) -> None:
-    """Type and range checks from the field metadata; errors name ``section.key``."""
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        key = f"{section}.{f.name}"
-        d = f.default
-        if isinstance(d, bool):
-            if not isinstance(v, bool):
-                raise ConfigError(f"{key}: expected true or false, got {v!r}")
-            continue
-        if isinstance(d, (int, float)) and not isinstance(d, bool):
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ConfigError(f"{key}: expected a number, got {v!r}")
-            if isinstance(d, int) and not isinstance(v, int):
-                raise ConfigError(f"{key}: expected an integer, got {v!r}")
-            if f.metadata.get("nan_ok") and isinstance(v, float) and math.isnan(v):
-                continue
-            if isinstance(v, float) and not math.isfinite(v):
-                raise ConfigError(f"{key}: expected a finite number, got {v!r}")
-            lo, hi = f.metadata.get("lo"), f.metadata.get("hi")
-            if (lo is not None and v < lo) or (hi is not None and v > hi):
-                raise ConfigError(f"{key} = {v!r} is outside [{lo}, {hi}] ({f.metadata['doc']})")
-        elif isinstance(d, str) and not isinstance(v, str):
-            raise ConfigError(f"{key}: expected a string, got {v!r}")
-
-
 @dataclass(frozen=True)
 class CanConfig:
     """The CAN bus, through python-can."""
 
-    interface: str = _f("socketcan", "python-can interface name (socketcan, virtual, pcan, kvaser, slcan, ...)")
-    channel: str = _f("can0", "python-can channel (socketcan: network interface name)")
-    timestamps: str = _f("auto", "frame times: 'kernel' (the driver's receive time), 'receipt' (when read), "
+    interface: str = setting("socketcan", "python-can interface name (socketcan, virtual, pcan, kvaser, slcan, ...)")
+    channel: str = setting("can0", "python-can channel (socketcan: network interface name)")
+    timestamps: str = setting("auto", "frame times: 'kernel' (the driver's receive time), 'receipt' (when read), "
                                  "'auto' (kernel for socketcan, else receipt)")
-    rx_buffer_bytes: int = _f(2 * 1024 * 1024, "socketcan receive buffer (SO_RCVBUF; the kernel caps it at "
+    rx_buffer_bytes: int = setting(2 * 1024 * 1024, "socketcan receive buffer (SO_RCVBUF; the kernel caps it at "
                                                  "net.core.rmem_max) [bytes]", 16384, 256 * 1024 * 1024)
-    rx_queue_frames: int = _f(4096, "bound of the receive queue between a reader thread and the event loop [frames]", 16, 1_000_000)
-    reopen_min_s: float = _f(0.5, "first wait before reopening a failed interface [s]", 0.01, 60.0)
-    reopen_max_s: float = _f(1.0, "longest wait between reopen attempts (doubling backoff) [s]", 0.01, 600.0)
-    silence_reopen_s: float = _f(0.0, "reopen the interface after this long without any frame [s]; 0 = never", 0.0, 3600.0)
-    kernel_filters: bool = _f(True, "receive only the DBC's PGNs (any source address): SocketCAN drops the rest in "
+    rx_queue_frames: int = setting(4096, "bound of the receive queue between a reader thread and the event loop [frames]", 16, 1_000_000)
+    reopen_min_s: float = setting(0.5, "first wait before reopening a failed interface [s]", 0.01, 60.0)
+    reopen_max_s: float = setting(1.0, "longest wait between reopen attempts (doubling backoff) [s]", 0.01, 600.0)
+    silence_reopen_s: float = setting(0.0, "reopen the interface after this long without any frame [s]; 0 = never", 0.0, 3600.0)
+    kernel_filters: bool = setting(True, "receive only the DBC's PGNs (any source address): SocketCAN drops the rest in "
                                     "the kernel; false = receive everything and count what is skipped")
-    options: Mapping[str, Any] = field(default_factory=dict, metadata={"doc": "extra keyword arguments for can.Bus (e.g. bitrate)"})
+    options: Mapping[str, Any] = table("extra keyword arguments for can.Bus (e.g. bitrate)")
 
     def __post_init__(self) -> None:
-        _check(self, "can")
+        validate(self, "can")
         from can.interfaces import VALID_INTERFACES
 
         if self.interface not in VALID_INTERFACES:
@@ -138,12 +113,9 @@ class CanConfig:
             raise ConfigError(f"can.timestamps: {self.timestamps!r} is not one of auto, kernel, receipt")
         if self.reopen_max_s < self.reopen_min_s:
             raise ConfigError(f"can.reopen_max_s = {self.reopen_max_s} is below can.reopen_min_s = {self.reopen_min_s}")
-        if not isinstance(self.options, Mapping):
-            raise ConfigError(f"can.options: expected a table, got {self.options!r}")
         for k in ("interface", "channel", "can_filters"):
             if k in self.options:
                 raise ConfigError(f"can.options.{k}: set can.{k} instead")
-        object.__setattr__(self, "options", dict(self.options))
 
     @property
     def kernel_timestamps(self) -> bool:
@@ -155,18 +127,18 @@ class CanConfig:
 class GpsConfig:
     """The GNSS receiver: NMEA 0183 on a serial port."""
 
-    source: str = _f("serial", "'serial' (NMEA from a serial port) or 'none' (no GNSS: no map, no GPS speed)")
-    port: str = _f("/dev/ttyACM0", "serial device of the receiver")
-    baudrate: int = _f(115200, "serial speed [bit/s]", 300, 4_000_000)
-    min_fix_quality: int = _f(1, "lowest accepted GGA fix quality (1 autonomous, 2 DGNSS, 4 RTK fixed, 5 RTK float)", 1, 8)
-    max_hdop: float = _f(5.0, "highest accepted HDOP [-]", 0.1, 99.0)
-    latency_s: float = _f(0.0, "receiver output latency subtracted from the arrival time of an epoch [s]", 0.0, 1.0)
-    max_line_bytes: int = _f(160, "longer lines are rejected as garbage [bytes] (NMEA allows 82)", 82, 4096)
-    reopen_min_s: float = _f(0.5, "first wait before reopening the port [s]", 0.01, 60.0)
-    reopen_max_s: float = _f(5.0, "longest wait between reopen attempts [s]", 0.01, 600.0)
+    source: str = setting("serial", "'serial' (NMEA from a serial port) or 'none' (no GNSS: no map, no GPS speed)")
+    port: str = setting("/dev/ttyACM0", "serial device of the receiver")
+    baudrate: int = setting(115200, "serial speed [bit/s]", 300, 4_000_000)
+    min_fix_quality: int = setting(1, "lowest accepted GGA fix quality (1 autonomous, 2 DGNSS, 4 RTK fixed, 5 RTK float)", 1, 8)
+    max_hdop: float = setting(5.0, "highest accepted HDOP [-]", 0.1, 99.0)
+    latency_s: float = setting(0.0, "receiver output latency subtracted from the arrival time of an epoch [s]", 0.0, 1.0)
+    max_line_bytes: int = setting(160, "longer lines are rejected as garbage [bytes] (NMEA allows 82)", 82, 4096)
+    reopen_min_s: float = setting(0.5, "first wait before reopening the port [s]", 0.01, 60.0)
+    reopen_max_s: float = setting(5.0, "longest wait between reopen attempts [s]", 0.01, 600.0)
 
     def __post_init__(self) -> None:
-        _check(self, "gps")
+        validate(self, "gps")
         if self.source not in ("serial", "none"):
             raise ConfigError(f"gps.source: {self.source!r} is not one of serial, none")
         if self.source == "serial" and not self.port:
@@ -179,37 +151,37 @@ class GpsConfig:
 class EstimationConfig:
     """The fixed-rate estimation loop."""
 
-    rate_hz: float = _f(100.0, "estimator step rate [Hz]", 1.0, 1000.0)
-    lag_s: float = _f(0.01, "each step runs this long after its grid time, so every frame stamped "
+    rate_hz: float = setting(100.0, "estimator step rate [Hz]", 1.0, 1000.0)
+    lag_s: float = setting(0.01, "each step runs this long after its grid time, so every frame stamped "
                             "before the grid time has arrived [s]", 0.0, 1.0)
-    max_catch_up_s: float = _f(1.0, "when the loop falls further behind than this, it skips ahead [s]", 0.01, 60.0)
-    vehicle: str = _f("", "vehicle.toml with the nominal VehicleParams; empty = built-in defaults")
-    wheel_speed_timeout_s: float = _f(0.05, "wheel speeds older than this are not used (status 0x01) [s]", 0.001, 10.0)
-    ground_speed_timeout_s: float = _f(0.5, "ground speed older than this is not used (status 0x02) [s]", 0.001, 10.0)
-    torque_timeout_s: float = _f(0.05, "drive torques older than this: predict only (status 0x04) [s]", 0.001, 10.0)
-    axle_load_timeout_s: float = _f(0.1, "front-axle load older than this: predict only (status 0x08) [s]", 0.001, 10.0)
-    draft_timeout_s: float = _f(0.1, "draft force older than this: predict only (status 0x10) [s]", 0.001, 10.0)
+    max_catch_up_s: float = setting(1.0, "when the loop falls further behind than this, it skips ahead [s]", 0.01, 60.0)
+    vehicle: str = setting("", "vehicle.toml with the nominal VehicleParams; empty = built-in defaults")
+    wheel_speed_timeout_s: float = setting(0.05, "wheel speeds older than this are not used (status 0x01) [s]", 0.001, 10.0)
+    ground_speed_timeout_s: float = setting(0.5, "ground speed older than this is not used (status 0x02) [s]", 0.001, 10.0)
+    torque_timeout_s: float = setting(0.05, "drive torques older than this: predict only (status 0x04) [s]", 0.001, 10.0)
+    axle_load_timeout_s: float = setting(0.1, "front-axle load older than this: predict only (status 0x08) [s]", 0.001, 10.0)
+    draft_timeout_s: float = setting(0.1, "draft force older than this: predict only (status 0x10) [s]", 0.001, 10.0)
 
     def __post_init__(self) -> None:
-        _check(self, "estimation")
+        validate(self, "estimation")
 
 
 @dataclass(frozen=True)
 class BroadcastConfig:
     """Broadcast of the estimates and the J1939 address claim."""
 
-    rate_hz: float = _f(10.0, "broadcast rate of the three estimate PGNs [Hz]; must divide estimation.rate_hz", 0.1, 100.0)
-    name: str = _f("", "64-bit J1939 NAME as hex string ('0x...') or integer; empty = the built-in default")
-    preferred_address: int = _f(j1939.DEFAULT_SERVICE_ADDRESS, "source address claimed first", 0, 253)
-    address_min: int = _f(SELF_CONFIGURABLE_RANGE[0], "lowest address a self-configurable NAME may move to", 0, 253)
-    address_max: int = _f(SELF_CONFIGURABLE_RANGE[1], "highest address a self-configurable NAME may move to", 0, 253)
-    priority: int = _f(6, "J1939 priority of the estimate frames (0 highest, 7 lowest)", 0, 7)
-    enabled: bool = _f(True, "send estimates on the bus (false: listen only, no address claim)")
+    rate_hz: float = setting(10.0, "broadcast rate of the three estimate PGNs [Hz]; must divide estimation.rate_hz", 0.1, 100.0)
+    name: str = setting("", "64-bit J1939 NAME as hex string ('0x...') or integer; empty = the built-in default")
+    preferred_address: int = setting(j1939.DEFAULT_SERVICE_ADDRESS, "source address claimed first", 0, 253)
+    address_min: int = setting(SELF_CONFIGURABLE_RANGE[0], "lowest address a self-configurable NAME may move to", 0, 253)
+    address_max: int = setting(SELF_CONFIGURABLE_RANGE[1], "highest address a self-configurable NAME may move to", 0, 253)
+    priority: int = setting(6, "J1939 priority of the estimate frames (0 highest, 7 lowest)", 0, 7)
+    enabled: bool = setting(True, "send estimates on the bus (false: listen only, no address claim)")
 
     def __post_init__(self) -> None:
         if isinstance(self.name, int) and not isinstance(self.name, bool):
             object.__setattr__(self, "name", hex(self.name))
-        _check(self, "broadcast")
+        validate(self, "broadcast")
         self.name_value()  # validates
         if self.address_max < self.address_min:
             raise ConfigError(f"broadcast.address_max = {self.address_max} is below broadcast.address_min = {self.address_min}")
@@ -238,18 +210,18 @@ class BroadcastConfig:
 class MapConfig:
     """The map writer."""
 
-    enabled: bool = _f(True, "accumulate the estimates into map tiles")
-    directory: str = _f("", "map directory; empty = <state_dir>/map")
-    rate_hz: float = _f(10.0, "accumulation rate [Hz]; must divide estimation.rate_hz", 0.1, 100.0)
-    flush_interval_s: float = _f(5.0, "tiles are written (off the event loop) this often [s]", 0.1, 3600.0)
-    origin_lat: float = _f(math.nan, "field origin latitude [deg]; NaN = from the existing map, else the first fix", -90.0, 90.0, nan_ok=True)
-    origin_lon: float = _f(math.nan, "field origin longitude [deg]; NaN = from the existing map, else the first fix", -180.0, 180.0, nan_ok=True)
-    resolution_m: float = _f(0.5, "cell size of a new map [m]", 0.05, 100.0)
-    max_fix_age_s: float = _f(0.5, "a position older than this is not mapped [s]", 0.01, 10.0)
-    window_half_s: float = _f(10.0, "half width H of the centred map window; samples are mapped H seconds late [s] (tractionecu.mapping.sampler)", 0.1, 120.0)
+    enabled: bool = setting(True, "accumulate the estimates into map tiles")
+    directory: str = setting("", "map directory; empty = <state_dir>/map")
+    rate_hz: float = setting(10.0, "accumulation rate [Hz]; must divide estimation.rate_hz", 0.1, 100.0)
+    flush_interval_s: float = setting(5.0, "tiles are written (off the event loop) this often [s]", 0.1, 3600.0)
+    origin_lat: float = setting(math.nan, "field origin latitude [deg]; NaN = from the existing map, else the first fix", -90.0, 90.0, nan_ok=True)
+    origin_lon: float = setting(math.nan, "field origin longitude [deg]; NaN = from the existing map, else the first fix", -180.0, 180.0, nan_ok=True)
+    resolution_m: float = setting(0.5, "cell size of a new map [m]", 0.05, 100.0)
+    max_fix_age_s: float = setting(0.5, "a position older than this is not mapped [s]", 0.01, 10.0)
+    window_half_s: float = setting(10.0, "half width H of the centred map window; samples are mapped H seconds late [s] (tractionecu.mapping.sampler)", 0.1, 120.0)
 
     def __post_init__(self) -> None:
-        _check(self, "map")
+        validate(self, "map")
         if math.isnan(self.origin_lat) != math.isnan(self.origin_lon):
             raise ConfigError("map.origin_lat/map.origin_lon: give both or neither")
 
@@ -258,25 +230,29 @@ class MapConfig:
 class ServiceSection:
     """Process-wide settings."""
 
-    state_dir: str = _f("", f"writable state directory; empty = ${STATE_DIR_ENV} (systemd) or ./{DEFAULT_STATE_DIR}")
-    status_interval_s: float = _f(1.0, "STATUS= notification and status line interval [s]", 0.1, 3600.0)
+    state_dir: str = setting("", f"writable state directory; empty = ${STATE_DIR_ENV} (systemd) or ./{DEFAULT_STATE_DIR}")
+    status_interval_s: float = setting(1.0, "STATUS= notification and status line interval [s]", 0.1, 3600.0)
 
     def __post_init__(self) -> None:
-        _check(self, "service")
+        validate(self, "service")
 
 
 @dataclass(frozen=True)
 class ServiceConfig:
     """Everything ``tractionecu run`` needs; one dataclass per TOML table."""
 
-    can: CanConfig = field(default_factory=CanConfig)
-    gps: GpsConfig = field(default_factory=GpsConfig)
-    estimation: EstimationConfig = field(default_factory=EstimationConfig)
-    broadcast: BroadcastConfig = field(default_factory=BroadcastConfig)
-    map: MapConfig = field(default_factory=MapConfig)
-    service: ServiceSection = field(default_factory=ServiceSection)
+    can: CanConfig = section(CanConfig, "the CAN bus")
+    gps: GpsConfig = section(GpsConfig, "the GNSS receiver")
+    estimation: EstimationConfig = section(EstimationConfig, "the estimation loop")
+    sensors: SensorSpec = section(SensorSpec, "Sensor figures (R and input noise of the estimator).  A key set here "
+                                              "overrides the same key of the vehicle file's [sensors]; the keys set "
+                                              "in neither take the defaults shown.", partial=True)
+    broadcast: BroadcastConfig = section(BroadcastConfig, "estimate broadcast and address claim")
+    map: MapConfig = section(MapConfig, "the map writer")
+    service: ServiceSection = section(ServiceSection, "process-wide settings")
 
     def __post_init__(self) -> None:
+        validate(self, "")
         for key, rate in (("broadcast.rate_hz", self.broadcast.rate_hz), ("map.rate_hz", self.map.rate_hz)):
             ratio = self.estimation.rate_hz / rate
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
@@ -300,45 +276,19 @@ class ServiceConfig:
             return Path(self.map.directory)
         return self.state_dir(env) / "map"
 
+    def sensor_overrides(self) -> dict[str, Any]:
+        """The ``[sensors]`` keys this config sets explicitly (:func:`~tractionecu.config.given_keys`)."""
+        return {k: getattr(self.sensors, k) for k in sorted(given_keys(self.sensors))}
 
-_SECTIONS: dict[str, type] = {
-    "can": CanConfig,
-    "gps": GpsConfig,
-    "estimation": EstimationConfig,
-    "broadcast": BroadcastConfig,
-    "map": MapConfig,
-    "service": ServiceSection,
-}
-
-
-def _section(cls: type, data: Any, name: str) -> Any:
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{name}: expected a table, got {type(data).__name__}")
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(data) - set(known))
-    if unknown:
-        raise ConfigError(f"{name}.{unknown[0]}: unknown key (known: {', '.join(sorted(known))})")
-    kw: dict[str, Any] = {}
-    for k, v in data.items():
-        d = known[k].default
-        if isinstance(d, float) and isinstance(v, int) and not isinstance(v, bool):
-            try:
-                v = float(v)
-            except OverflowError:  # too large for a float: left an int, refused by the range check
-                pass
-        kw[k] = v
-    return cls(**kw)
+    def resolved_sensors(self) -> SensorSpec:
+        """The sensor figures the estimator uses: this config's ``[sensors]`` keys over the
+        ``[sensors]`` of ``estimation.vehicle`` over the defaults (reads the vehicle file)."""
+        return resolve_sensors(self.estimation.vehicle or None, self.sensor_overrides())
 
 
 def from_dict(data: Mapping[str, Any]) -> ServiceConfig:
     """Build a :class:`ServiceConfig` from parsed TOML tables."""
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"config: expected a table, got {type(data).__name__}")
-    unknown = sorted(set(data) - set(_SECTIONS))
-    if unknown:
-        raise ConfigError(f"{unknown[0]}: unknown table (known: {', '.join(_SECTIONS)})")
-    kw = {name: _section(cls, data.get(name, {}), name) for name, cls in _SECTIONS.items()}
-    return ServiceConfig(**kw)
+    return base.from_mapping(ServiceConfig, data, "")
 
 
 def load_config(path: str | Path | None) -> ServiceConfig:
@@ -346,14 +296,7 @@ def load_config(path: str | Path | None) -> ServiceConfig:
     if path is None:
         return ServiceConfig()
     p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{p}: cannot read: {e}") from None
-    except ValueError as e:  # TOMLDecodeError, or an integer literal beyond Python's 4300-digit limit
-        raise ConfigError(f"{p}: not valid TOML: {e}") from None
+    data = base.load_toml(p, "config")
     try:
         return from_dict(data)
     except ConfigError as e:
@@ -361,49 +304,25 @@ def load_config(path: str | Path | None) -> ServiceConfig:
 
 
 def with_overrides(cfg: ServiceConfig, **sections: Mapping[str, Any]) -> ServiceConfig:
-    """A copy of ``cfg`` with some keys replaced, e.g. ``with_overrides(cfg, can={"channel": "vcan0"})``."""
+    """A copy of ``cfg`` with some keys replaced, e.g. ``with_overrides(cfg, can={"channel": "vcan0"})``.
+
+    The keys ``cfg`` set explicitly stay explicit (they matter for ``[sensors]``).
+    """
     data: dict[str, dict[str, Any]] = {}
-    for name in _SECTIONS:
-        sec = getattr(cfg, name)
-        data[name] = {f.name: getattr(sec, f.name) for f in fields(sec)}
+    for f in fields(cfg):
+        sec = getattr(cfg, f.name)
+        data[f.name] = {k: getattr(sec, k) for k in given_keys(sec)}
     for name, changes in sections.items():
-        if name not in _SECTIONS:
+        if name not in data:
             raise ConfigError(f"{name}: unknown table")
         data[name].update(changes)
     return from_dict(data)
 
 
 def to_toml(cfg: ServiceConfig) -> str:
-    """The resolved config as TOML (every key, with its doc line), to store next to the outputs."""
-    out: list[str] = ["# tractionecu run: resolved configuration"]
-    for name in _SECTIONS:
-        sec = getattr(cfg, name)
-        out.append("")
-        out.append(f"[{name}]")
-        for f in fields(sec):
-            if f.name == "options":
-                continue
-            out.append(f"# {f.metadata['doc']}")
-            out.append(f"{f.name} = {_toml(getattr(sec, f.name))}")
-        if name == "can" and cfg.can.options:
-            out.append("")
-            out.append("[can.options]")
-            for k, v in cfg.can.options.items():
-                out.append(f"{k} = {_toml(v)}")
-    return "\n".join(out) + "\n"
+    """The config as TOML (every key, with its doc line), to store next to the outputs.
 
-
-def _toml(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        return repr(v)
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    raise ConfigError(f"cannot write {type(v).__name__} to TOML")
+    ``[sensors]`` lists the keys the config sets; the others are written as
+    comments, since the vehicle file's ``[sensors]`` may set them.
+    """
+    return "# tractionecu run: resolved configuration\n\n" + base.to_toml(cfg)

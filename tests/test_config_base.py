@@ -1,0 +1,237 @@
+"""The declarative config base, the sensor figures as configuration, and TOML round trips."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from tractionecu.config import (
+    SensorSpec,
+    VehicleParams,
+    from_mapping,
+    given_keys,
+    load_sensors,
+    load_toml,
+    load_vehicle,
+    resolve_sensors,
+    save_vehicle,
+    to_toml,
+)
+from tractionecu.errors import ConfigError
+from tractionecu.estimation.estimator import Estimator, EstimatorConfig, load_estimator_config
+from tractionecu.estimation.supervisor import FuzzyConfig
+
+FIGURES = {"wheel_speed_sigma_rel": 0.004, "gps_speed_sigma": 0.1, "torque_quant": 1.0, "gps_nsat": 12}
+"""Sensor figures other than the defaults."""
+
+
+def _toml_table(name: str, values: dict) -> str:
+    return f"[{name}]\n" + "".join(f"{k} = {v!r}\n" for k, v in values.items())
+
+
+@pytest.fixture
+def vehicle_file(tmp_path: Path) -> Path:
+    p = tmp_path / "vehicle.toml"
+    p.write_text(_toml_table("vehicle", {"mass_kg": 7000.0}) + "\n" + _toml_table("sensors", FIGURES), encoding="utf-8")
+    return p
+
+
+# ----------------------------------------------------------------------------- [sensors] in the vehicle file
+def test_sensors_of_the_vehicle_file_reach_the_estimator(vehicle_file: Path) -> None:
+    vehicle = load_vehicle(vehicle_file)
+    sensors = load_sensors(vehicle_file)
+    assert vehicle == VehicleParams(mass_kg=7000.0)
+    assert sensors == SensorSpec(**FIGURES)
+    assert given_keys(sensors) == set(FIGURES)
+    est = Estimator(vehicle, sensors=sensors)
+    assert est.sensors == SensorSpec(**FIGURES)
+    assert est._r_v == pytest.approx(0.1 ** 2)
+    assert est._R_list([10.0])[0] == pytest.approx((0.005 + 0.004 * 10.0) ** 2 + 0.001 ** 2 / 12)
+
+
+def test_sensors_beside_top_level_vehicle_keys(tmp_path: Path) -> None:
+    p = tmp_path / "vehicle.toml"
+    p.write_text("mass_kg = 6500\nr0_m = 0.9\n\n" + _toml_table("sensors", {"gps_rate_hz": 5.0}), encoding="utf-8")
+    assert load_vehicle(p) == VehicleParams(mass_kg=6500.0, r0_m=0.9)
+    assert load_sensors(p) == SensorSpec(gps_rate_hz=5.0)
+
+
+def test_no_sensors_table_gives_the_documented_defaults(tmp_path: Path) -> None:
+    p = tmp_path / "vehicle.toml"
+    save_vehicle(VehicleParams(), p)
+    assert "[sensors]" not in p.read_text(encoding="utf-8")
+    assert load_sensors(p) == SensorSpec()
+    assert resolve_sensors(None, {}) == SensorSpec()
+    assert resolve_sensors(p, None) == SensorSpec()
+
+
+def test_save_vehicle_writes_sensors_that_read_back_equal(tmp_path: Path) -> None:
+    p = tmp_path / "vehicle.toml"
+    save_vehicle(VehicleParams(wheelbase_m=2.7), p, SensorSpec(**FIGURES))
+    assert load_vehicle(p) == VehicleParams(wheelbase_m=2.7)
+    assert load_sensors(p) == SensorSpec(**FIGURES)
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"wheel_rate_hz": 0.0}, "sensors.wheel_rate_hz"),
+    ({"gps_speed_sigma": -0.1}, "sensors.gps_speed_sigma"),
+    ({"torque_quant": "2 N m"}, "sensors.torque_quant"),
+    ({"gps_nsat": 12.5}, "sensors.gps_nsat"),
+    ({"axle_sigma_n": math.inf}, "sensors.axle_sigma_n"),
+    ({"wheel_speed_sigma": 0.1}, "sensors.wheel_speed_sigma"),   # unknown key
+])
+def test_bad_sensor_figure_names_the_key(tmp_path: Path, table: dict, key: str) -> None:
+    p = tmp_path / "vehicle.toml"
+    p.write_text(_toml_table("vehicle", {"mass_kg": 7000.0}) + _toml_table("sensors", table),
+                 encoding="utf-8")
+    load_vehicle(p)  # the vehicle part is fine
+    with pytest.raises(ConfigError) as ei:
+        load_sensors(p)
+    assert str(ei.value).startswith(key), str(ei.value)
+    with pytest.raises(ConfigError) as ei:
+        from_mapping(SensorSpec, table, "sensors")
+    assert str(ei.value).startswith(key), str(ei.value)
+
+
+def test_unknown_key_is_named_with_the_known_ones() -> None:
+    with pytest.raises(ConfigError, match=r"^sensors\.gps_rate: unknown key \(known: .*gps_rate_hz"):
+        from_mapping(SensorSpec, {"gps_rate": 10.0}, "sensors")
+    with pytest.raises(ConfigError, match=r"^vehicle\.mass: unknown key"):
+        from_mapping(VehicleParams, {"mass": 1.0}, "vehicle")
+
+
+def test_sensors_not_a_table(tmp_path: Path) -> None:
+    p = tmp_path / "vehicle.toml"
+    p.write_text("mass_kg = 6500\nsensors = 3\n", encoding="utf-8")
+    assert load_vehicle(p) == VehicleParams(mass_kg=6500.0)
+    with pytest.raises(ConfigError, match="^sensors: expected a table"):
+        load_sensors(p)
+
+
+# ----------------------------------------------------------------------------- precedence
+def test_overrides_win_over_the_vehicle_file_which_wins_over_the_defaults(vehicle_file: Path) -> None:
+    s = resolve_sensors(vehicle_file, {"gps_speed_sigma": 0.02, "wheel_rate_hz": 50})
+    assert s.gps_speed_sigma == 0.02                      # service over vehicle file
+    assert s.wheel_speed_sigma_rel == 0.004               # vehicle file over default
+    assert s.wheel_rate_hz == 50.0 and isinstance(s.wheel_rate_hz, float)  # service over default
+    assert s.draft_sigma_n == SensorSpec().draft_sigma_n  # default
+    # an override equal to the default still wins over the vehicle file
+    assert resolve_sensors(vehicle_file, {"gps_speed_sigma": 0.05}).gps_speed_sigma == 0.05
+
+
+def test_bad_override_names_the_key(vehicle_file: Path) -> None:
+    with pytest.raises(ConfigError, match=r"^sensors\.gps_rate_hz = -1\.0 is outside"):
+        resolve_sensors(vehicle_file, {"gps_rate_hz": -1.0})
+
+
+# ----------------------------------------------------------------------------- base
+def test_validate_types_and_ranges() -> None:
+    with pytest.raises(ConfigError, match=r"^vehicle\.mass_kg: expected a number, got True"):
+        VehicleParams(mass_kg=True)
+    with pytest.raises(ConfigError, match=r"^vehicle\.mass_kg = 1\.0 is outside \[100\.0, 100000\.0\] \(total vehicle mass"):
+        VehicleParams(mass_kg=1.0)
+    with pytest.raises(ConfigError, match=r"^estimator\.input_noise: expected true or false"):
+        EstimatorConfig(input_noise=1)
+    with pytest.raises(ConfigError, match=r"^estimator\.fuzzy\.grid_points: expected an integer"):
+        EstimatorConfig.from_mapping({"fuzzy": {"grid_points": 50.5}})
+    with pytest.raises(ConfigError, match=r"^estimator\.soil_classes: expected a list of strings"):
+        EstimatorConfig.from_mapping({"soil_classes": ["stubble", 3]})
+    with pytest.raises(ConfigError, match=r"^estimator\.fuzzy: expected a table"):
+        EstimatorConfig.from_mapping({"fuzzy": 3})
+    with pytest.raises(ConfigError, match=r"^vehicle\.mass_kg: \d+-bit integer is out of range"):
+        from_mapping(VehicleParams, {"mass_kg": 10 ** 400}, "vehicle")
+    assert EstimatorConfig.from_mapping({"soil_classes": ["stubble", "tilled"]}).soil_classes == ("stubble", "tilled")
+
+
+def test_given_keys() -> None:
+    assert given_keys(from_mapping(SensorSpec, {"gps_hdop": 0.9}, "sensors")) == {"gps_hdop"}
+    assert given_keys(SensorSpec(gps_hdop=1.2)) == {"gps_hdop"}   # built in code: what differs from the defaults
+    assert given_keys(SensorSpec()) == set()
+
+
+def test_load_toml_errors_name_the_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"missing\.toml: vehicle file not found"):
+        load_vehicle(tmp_path / "missing.toml")
+    with pytest.raises(ConfigError, match=r"missing\.toml: configuration file not found"):
+        load_estimator_config(tmp_path / "missing.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[sensors\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"bad\.toml: not valid TOML"):
+        load_sensors(bad)
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\xff\xfe[x]")
+    with pytest.raises(ConfigError, match=r"binary\.toml: cannot read"):
+        load_toml(binary, "test")
+    with pytest.raises(ConfigError, match=r": cannot read"):
+        load_toml(tmp_path, "test")
+
+
+def test_estimator_config_file(tmp_path: Path) -> None:
+    p = tmp_path / "est.toml"
+    p.write_text("[estimator]\nq_mu = 2e-3\nadapt_window = 50\n[estimator.fuzzy]\nfactor_max = 6\n", encoding="utf-8")
+    cfg = load_estimator_config(p)
+    assert cfg == EstimatorConfig(q_mu=2e-3, adapt_window=50, fuzzy=FuzzyConfig(factor_max=6.0))
+    p.write_text("q_mu = 2e-3\n", encoding="utf-8")   # keys at the top level
+    assert load_estimator_config(p) == EstimatorConfig(q_mu=2e-3)
+
+
+# ----------------------------------------------------------------------------- round trips
+@pytest.mark.parametrize("obj, section", [
+    (VehicleParams(), "vehicle"),
+    (VehicleParams(mass_kg=7200.0, r0_m=0.85, cd_area_m2=0.0), "vehicle"),
+    (SensorSpec(), "sensors"),
+    (SensorSpec(**FIGURES, can_jitter_s=0.0), "sensors"),
+    (FuzzyConfig(factor_min=0.25, grid_points=51), "estimator.fuzzy"),
+])
+def test_flat_to_toml_reads_back_equal(obj: object, section: str) -> None:
+    text = to_toml(obj, section)
+    data = tomllib.loads(text)
+    for part in section.split("."):
+        data = data[part]
+    assert from_mapping(type(obj), data, section) == obj
+    assert from_mapping(type(obj), tomllib.loads(to_toml(obj)), section) == obj   # keys at the top level
+
+
+def test_estimator_config_to_toml_reads_back_equal() -> None:
+    cfg = EstimatorConfig(q_mu=3e-3, soil_classes=("stubble", "road"), adapt_window=50, input_noise=False,
+                          fuzzy=FuzzyConfig(accel_high_mps2=0.4, grid_points=201))
+    text = cfg.to_toml()
+    assert "[estimator.fuzzy]" in text
+    assert EstimatorConfig.from_mapping(tomllib.loads(text)["estimator"]) == cfg
+
+
+def test_service_config_to_toml_reads_back_equal() -> None:
+    from tractionecu.service.config import ServiceConfig, from_dict, to_toml as service_toml, with_overrides
+
+    cfg = with_overrides(ServiceConfig(), can={"interface": "virtual", "channel": "vcan0", "options": {"bitrate": 250000}},
+                         gps={"source": "none"}, map={"origin_lat": 47.5, "origin_lon": -110.5},
+                         sensors={"gps_speed_sigma": 0.05, "torque_sigma_rel": 0.02},
+                         broadcast={"name": "0xA000FF007D001092"}, service={"state_dir": "/tmp/x"})
+    back = from_dict(tomllib.loads(service_toml(cfg)))
+    assert back == cfg
+    assert back.sensor_overrides() == {"gps_speed_sigma": 0.05, "torque_sigma_rel": 0.02}
+    assert service_toml(back) == service_toml(cfg)
+    defaults = from_dict(tomllib.loads(service_toml(ServiceConfig())))
+    # NaN (map origin not set) is never == NaN: compare the other tables and the text
+    assert dataclasses.replace(defaults, map=ServiceConfig().map) == ServiceConfig()
+    assert math.isnan(defaults.map.origin_lat) and math.isnan(defaults.map.origin_lon)
+    assert service_toml(defaults) == service_toml(ServiceConfig())
+    assert defaults.sensor_overrides() == {}
+
+
+def test_frozen_dataclasses() -> None:
+    for obj in (VehicleParams(), SensorSpec(), EstimatorConfig()):
+        assert dataclasses.is_dataclass(obj) and obj.__dataclass_params__.frozen
+
+
+def test_the_estimator_does_not_import_the_simulator() -> None:
+    code = ("import sys, tractionecu.estimation.estimator, tractionecu.service.config; "
+            "print(sorted(m for m in sys.modules if m.startswith('tractionecu.sim')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
