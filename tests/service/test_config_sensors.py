@@ -78,11 +78,10 @@ def test_example_config_sets_no_sensor_figure() -> None:
         assert f"# {name} = {getattr(SensorSpec(), name)!r}" in text, name
 
 
-def test_the_service_estimator_gets_the_resolved_sensors(vehicle_file: Path) -> None:
-    from tractionecu.service.daemon import default_estimator_factory
+def test_the_resolved_sensors_reach_the_estimator(vehicle_file: Path) -> None:
+    from tractionecu.estimation.estimator import Estimator
 
     cfg = from_dict({"estimation": {"vehicle": str(vehicle_file)}, "sensors": {"gps_speed_sigma": 0.02}})
-    est = default_estimator_factory(VehicleParams(mass_kg=7000.0), cfg.resolved_sensors())
+    est = Estimator(VehicleParams(mass_kg=7000.0), sensors=cfg.resolved_sensors())
     assert est.sensors == SensorSpec(gps_speed_sigma=0.02, wheel_speed_sigma_rel=0.004, loadpin_rate_hz=20.0)
     assert est._r_v == pytest.approx(0.02 ** 2)
-    assert default_estimator_factory(VehicleParams()).sensors == SensorSpec()
