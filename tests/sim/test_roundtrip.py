@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from tractionecu.config import SensorSpec, load_sensors, load_vehicle
 from tractionecu.model.vehicle import WHEELS
 from tractionecu.recording.reader import read_recording
 from tractionecu.sim import scenarios
 from tractionecu.sim.field import EARTH_R
-from tractionecu.sim.sensors import SensorSpec
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording
 
@@ -62,3 +62,9 @@ def test_gps_aligned_to_can_time(rt):
     # Epochs sit on whole 100 ms of UTC, on the same epoch scale as candump.
     frac = np.round((rec.gps.t - scn.start_epoch) * 10, 6)
     assert np.allclose(frac, np.round(frac))
+
+
+def test_vehicle_file_carries_the_vehicle_and_the_sensor_figures(rt):
+    scn, _, rec = rt
+    assert load_vehicle(rec.vehicle_toml_path) == scn.vehicle
+    assert load_sensors(rec.vehicle_toml_path) == EXACT

@@ -1,10 +1,11 @@
 """Turn a truth trace into a recording directory, as a real logger would see it.
 
-Sensors (see :class:`~tractionecu.sim.sensors.SensorSpec` for figures and
+Sensors (see :class:`~tractionecu.config.SensorSpec` for figures and
 sources) sample the truth at their own rates, add noise and quantisation; the
 values go through the DBC onto candump lines (``can.log``) and through the
-NMEA formatter into ``gps.nmea``.  ``vehicle.toml`` holds the nominal
-parameters only; the truth (``truth.csv``, ``truth.toml``) sits beside them for
+NMEA formatter into ``gps.nmea``.  ``vehicle.toml`` holds what a machine's
+owner knows: the nominal parameters (``[vehicle]``) and the sensor figures
+(``[sensors]``); the truth (``truth.csv``, ``truth.toml``) sits beside them for
 scoring and is never read by diagnosis.
 """
 
@@ -126,7 +127,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
         for t, cid, data in frames:
             w.write(t, cid, data, True)
 
-    save_vehicle(scn.vehicle, out / "vehicle.toml")
+    save_vehicle(scn.vehicle, out / "vehicle.toml", scn.sensors)
     _write_truth(scn, tr, out)
     return counts
 
