@@ -760,7 +760,7 @@ def dump_toml(data: dict[str, Any]) -> str:
 class ConfigTarget(Target):
     """TOML configuration files: ``vehicle.toml`` (``config.load_vehicle``),
     the service config (``service.config.load_config``) and the estimator
-    config of ``replay`` (``cli.replay.load_config``).  Errors must be
+    config (``estimation.estimator.load_estimator_config``).  Errors must be
     ``ConfigError`` and, when one key was changed, name it."""
 
     name = "config"
@@ -910,7 +910,7 @@ class ConfigTarget(Target):
 
     # ------------------------------------------------------------ run
     def run(self, case: dict[str, Any]) -> int:
-        from tractionecu.cli.replay import load_config as load_estimator
+        from tractionecu.estimation.estimator import load_estimator_config as load_estimator
         from tractionecu.config import load_vehicle
         from tractionecu.errors import ConfigError
         from tractionecu.service.config import load_config as load_service
