@@ -690,55 +690,10 @@ class CsvTarget(Target):
 
 
 # =========================================================================== config
-def toml_key(k: str) -> str:
-    if k and all(c.isalnum() and c.isascii() or c in "_-" for c in k):
-        return k
-    return toml_str(k)
-
-
-def toml_str(s: str) -> str:
-    out = ['"']
-    for ch in s:
-        o = ord(ch)
-        if ch == '"':
-            out.append('\\"')
-        elif ch == "\\":
-            out.append("\\\\")
-        elif o < 0x20 or o == 0x7F:
-            out.append(f"\\u{o:04X}")
-        elif 0xD800 <= o <= 0xDFFF:
-            out.append("\\uFFFD")
-        else:
-            out.append(ch)
-    out.append('"')
-    return "".join(out)
-
-
-def toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        r = repr(v)
-        return r if any(c in r for c in ".en") else r + ".0"
-    if isinstance(v, str):
-        return toml_str(v)
-    if isinstance(v, datetime):
-        return v.isoformat()
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + "}"
-    raise TypeError(type(v))
-
-
 def dump_toml(data: dict[str, Any]) -> str:
     """A TOML document: top-level scalars first, then one ``[table]`` per dict (nested as ``[a.b]``)."""
+    from tractionecu.config import toml_key, toml_value
+
     lines: list[str] = []
 
     def table(prefix: list[str], d: dict[str, Any]) -> None:

@@ -251,10 +251,10 @@ def toml_value(v: Any) -> str:
         return str(v)
     if isinstance(v, float):
         return repr(v)  # 'nan', 'inf', '-inf' are TOML too
-    if isinstance(v, str):
+    if isinstance(v, str):  # control characters escaped; a lone surrogate (not text TOML can hold) becomes U+FFFD
         out = v.replace("\\", "\\\\").replace('"', '\\"')
         out = re.sub(r"[\x00-\x1f\x7f]", lambda m: f"\\u{ord(m.group()):04X}", out)
-        return f'"{out}"'
+        return '"' + re.sub(r"[\ud800-\udfff]", "\\\\uFFFD", out) + '"'
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(toml_value(x) for x in v) + "]"
     if isinstance(v, Mapping):
