@@ -139,7 +139,7 @@ def all_frames(rec: Path, t_first: float, seconds: float) -> Iterator[tuple[floa
 def feed_nmea(master: int, rec: Path, shift: float, stop: threading.Event) -> None:
     """Write the recording's NMEA at wall time (recorded + shift), re-stamped with that UTC time."""
     from tractionecu.gnss import nmea as nm
-    from tractionecu.service.simulate import nmea_schedule
+    from tractionecu.sim.player import nmea_schedule
 
     for t, line in nmea_schedule(rec / "gps.nmea"):
         d = t + shift - time.time()

@@ -113,7 +113,7 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
     from tractionecu.service.daemon import Service, default_estimator_factory, warm_up
     from tractionecu.service.heap import settle_heap
     from tractionecu.service.gps import GpsSample
-    from tractionecu.service.simulate import simulate_recording
+    from tractionecu.sim.player import simulate_recording
     from tractionecu.config import VehicleParams
 
     rec = simulate_recording("paper-three-soils", 0, work / "rec", 60.0)

@@ -36,7 +36,7 @@ import pytest
 from tractionecu.bus import j1939
 from tractionecu.mapping.store import MapStore
 from tractionecu.mapping.tiles import iter_tile_files, read_tile
-from tractionecu.service.simulate import nmea_schedule
+from tractionecu.sim.player import nmea_schedule
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording

@@ -35,10 +35,10 @@ import pytest
 from tractionecu.bus import j1939
 from tractionecu.bus.candump import read_candump
 from tractionecu.bus.dbc import WHEELS, default_codec
-from tractionecu.cli.replay import replay
+from tractionecu.pipeline.replay import replay_to_dir
 from tractionecu.mapping.store import MapStore
 from tractionecu.service.config import default_name
-from tractionecu.service.simulate import nmea_schedule
+from tractionecu.sim.player import nmea_schedule
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording
@@ -192,7 +192,7 @@ def test_daemon_on_vcan0_matches_offline_replay_of_the_capture(tmp_path: Path) -
     (run / "gps.nmea").write_text("\n".join(written) + "\n")
     shutil.copy(rec / "vehicle.toml", run / "vehicle.toml")
     expected = []
-    replay(run, tmp_path / "replay-out", on_estimate=expected.append)
+    replay_to_dir(run, tmp_path / "replay-out", on_estimate=expected.append)
     g0 = expected[0].t
 
     # Broadcasts after the grid was phased (sent at or after g0 + lag) are steps k = 0, 10, 20, ...

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
 
 async def simulate_main(cfg, args: argparse.Namespace) -> int:
     """Simulate the scenario, then run the service against the played simulation."""
-    from ..service.simulate import run_simulation, simulate_recording
+    from ..sim.player import run_simulation, simulate_recording
 
     out = sys.stdout
     rec_dir = cfg.state_dir() / "simulation"

@@ -12,11 +12,11 @@ import numpy as np
 from tractionecu.bus import j1939
 from tractionecu.bus.dbc import WHEELS, default_codec
 from tractionecu.cli.main import main
-from tractionecu.cli.replay import replay
+from tractionecu.pipeline.replay import replay_to_dir
 from tractionecu.mapping.store import MapStore
 from tractionecu.service.broadcast import MESSAGES
 from tractionecu.service.config import ServiceConfig, with_overrides
-from tractionecu.service.simulate import nmea_schedule, run_simulation
+from tractionecu.sim.player import nmea_schedule, run_simulation
 
 SIGNALS = {
     "TECU_EstAdhesion": [(f"Adhesion_{w}", "mu", i) for i, w in enumerate(WHEELS)],
@@ -67,7 +67,7 @@ def test_simulated_service_broadcasts_replay_estimates(short_recording: Path, tm
     assert all([codec.message_for_id(m.arbitration_id).name for m in t] == list(MESSAGES) for t in triples)
 
     expected = []
-    replay(short_recording, tmp_path / "run", on_estimate=expected.append)
+    replay_to_dir(short_recording, tmp_path / "run", on_estimate=expected.append)
     steps = c["service"]["steps"]
     n_post = (steps - 1) // 10 + 1            # broadcasts at k = 0, 10, 20, ... after the grid was phased
     post = triples[-n_post:]

@@ -1,7 +1,8 @@
 """``run --simulate``: the built-in simulator plays the rest of the tractor.
 
-A simulated recording (``tractionecu.sim``) is played in real time (or
-``speed`` times faster) into the real service code:
+A simulated recording (:mod:`tractionecu.sim`) is played in real time (or
+``speed`` times faster) into the real service code (the simulator drives the
+service; the service never imports the simulator):
 
 * CAN frames go onto a python-can ``virtual`` bus channel from a second bus
   object, stamped with their recorded times (``preserve_timestamps``), as a
@@ -34,8 +35,8 @@ import can
 from ..bus.candump import read_candump
 from ..errors import DecodeError
 from ..gnss.nmea import parse_line
-from .clock import ServiceClock
-from .gps import utc_epoch
+from ..gnss.utc import utc_epoch
+from ..service.clock import ServiceClock
 
 log = logging.getLogger(__name__)
 
@@ -189,9 +190,9 @@ class SimulatedMachine:
 
 def simulate_recording(scenario: str, seed: int, out: str | Path, duration_s: float | None = None) -> Path:
     """Simulate a named scenario (optionally only its first ``duration_s`` s) into a recording directory."""
-    from ..sim import scenarios
-    from ..sim.simulator import simulate
-    from ..sim.writer import write_recording
+    from . import scenarios
+    from .simulator import simulate
+    from .writer import write_recording
 
     kw = {} if duration_s is None else {"duration_s": float(duration_s) + 1.0}
     scn = scenarios.get(scenario, seed=seed, **kw)
@@ -222,11 +223,9 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     listener bus to ``machine.channel`` there).  Stops after ``duration_s``
     simulated seconds, at the end of the recording, or on SIGINT/SIGTERM.
     """
-    from ..bus.candump import read_candump
-    from .clock import ServiceClock
-    from .config import with_overrides
     from ..config import load_vehicle
-    from .daemon import Service, default_estimator_factory, warm_up
+    from ..service.config import with_overrides
+    from ..service.daemon import Service, default_estimator_factory, warm_up
 
     rec = Path(recording)
     first = next(iter(read_candump(rec / "can.log")), None)
