@@ -306,7 +306,7 @@ def run_virtual(seconds: float, options: list[str], work: Path) -> dict:
             "where": "this machine, python-can virtual bus, service in the benchmark process (player and NMEA "
                      "threads excluded from CPU)",
             "service_cpu_fraction_full_bus": (c1 - c0) / (w1 - w0),
-            **timing_figures(ws_times, soil, svc.grid_t0 or math.nan, svc.cfg.estimation.lag_s, w0, w1),
+            **timing_figures(ws_times, soil, svc.estimation.grid_t0 or math.nan, svc.cfg.estimation.lag_s, w0, w1),
             "service_rss_mb": rss,
             "service_peak_rss_mb": peak,
             "bus_frames_per_s": counts["window"] / (w1 - w0),

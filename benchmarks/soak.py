@@ -5,13 +5,15 @@ Run from the repository root::
     python benchmarks/soak.py --hours 24 --json OUT.json [--max-minutes 25]
 
 What runs: a real :class:`tractionecu.service.daemon.Service` (default
-configuration, map on, its real Estimator) without devices.  Each simulated
-10 ms step feeds the step's CAN frames of a simulated ``paper-three-soils``
-recording (looped, re-stamped) to ``Service._on_frame`` (J1939/DBC decoding,
-counters, step assembly), a GNSS sample every 100 ms to ``Service._on_fix``,
-then runs ``Service._step`` (the estimator), the broadcast encoder (no bus:
-counted as skipped), ``MapWriter.add`` and ``MapWriter.maybe_flush`` (tile
-writes in the writer's worker thread, as in the daemon).  Positions follow a
+configuration, map on, its real Estimator) without devices, driven through
+its parts' public methods.  Each simulated 10 ms step feeds the step's CAN
+frames of a simulated ``paper-three-soils`` recording (looped, re-stamped)
+to ``FrameDispatcher.on_frame`` (J1939/DBC decoding, counters, step
+assembly), a GNSS sample every 100 ms to ``FrameDispatcher.on_fix``, then
+runs ``EstimationLoop.step`` (the estimator), ``Network.broadcast`` (the
+encoder; no bus: counted as skipped), ``MapWriter.add`` with
+``FixBuffer.fix_at`` and ``MapWriter.maybe_flush`` (tile writes in the
+writer's worker thread, as in the daemon).  Positions follow a
 serpentine over a 200 m x 200 m field at the vehicle's speed, so the map
 stops growing after the first pass of the field (about 45 simulated minutes).
 
@@ -110,11 +112,11 @@ def serpentine(dist_m: float, side: float = 200.0, swath: float = 6.0) -> tuple[
 async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, census: int = 0) -> dict:
     from tractionecu.bus.candump import read_candump
     from tractionecu.service.config import ServiceConfig, with_overrides
-    from tractionecu.service.daemon import Service, default_estimator_factory, warm_up
-    from tractionecu.service.heap import settle_heap
+    from tractionecu.service.daemon import Service
     from tractionecu.service.gps import GpsSample
+    from tractionecu.service.heap import settle_heap
+    from tractionecu.service.loop import warm_up
     from tractionecu.sim.player import simulate_recording
-    from tractionecu.config import VehicleParams
 
     rec = simulate_recording("paper-three-soils", 0, work / "rec", 60.0)
     frames = [(f.t, f.can_id, bytes(f.data)) for f in read_candump(rec / "can.log")]
@@ -123,21 +125,20 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
     cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(work / "state")},
                          map={"origin_lat": 47.88, "origin_lon": -110.55})
     svc = Service(cfg, env={}, warm_up_estimator=False)
-    warm_up(default_estimator_factory, VehicleParams())
-    svc.estimator = svc.estimator_factory(svc._load_vehicle())
+    estimation, dispatcher, mapw = svc.estimation, svc.dispatcher, svc.map
+    estimation.build_estimator()
+    warm_up(estimation.factory, *estimation.machine)
     settle_heap()                          # as Service.run does before its loop
-    svc._loop = asyncio.get_running_loop()
-    await svc.map.open()
+    await mapw.open()
     # Simulated time runs ~70x faster than the wall clock, so the writer's 5 s flushes come ~70 ms apart;
     # the store's 10-per-second write limit (wall clock) would skip most of them, which the daemon never does.
-    svc.map.store.min_flush_interval_s = 0.0
+    mapw.store.min_flush_interval_s = 0.0
     lat0, lon0 = 47.88, -110.55
     m_per_deg_lat = 111_320.0
     m_per_deg_lon = m_per_deg_lat * math.cos(math.radians(lat0))
     rate = cfg.estimation.rate_hz
     steps_total = int(round(hours * 3600 * rate))
     t0 = 1.7e9
-    svc.anchor = t0
     fi = 0
     n_frames = len(frames)
     loop_k = 0
@@ -154,8 +155,8 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
         return {"sim_hours": round(h, 3), "rss_kb": status_kb("VmRSS"), "rss_anon_kb": status_kb("RssAnon"),
                 "rss_file_kb": status_kb("RssFile"), "fds": fds(), "tasks": len(asyncio.all_tasks()),
                 "threads": threading.active_count(), "wall_s": round(time.monotonic() - wall0, 1),
-                "steps": svc.stats["steps"], "tiles": len(svc.map.store.tile_keys()) if svc.map.store else 0,
-                "flush_errors": svc.map.stats["flush_errors"], "py_blocks": sys.getallocatedblocks(),
+                "steps": svc.stats["steps"], "tiles": len(mapw.store.tile_keys()) if mapw.store else 0,
+                "flush_errors": mapw.stats["flush_errors"], "py_blocks": sys.getallocatedblocks(),
                 **heap_kb()}
 
     for k in range(steps_total):
@@ -166,28 +167,27 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
             ts = t0 + loop_k * loop_s + (ft - t_first)
             if ts > t:
                 break
-            svc._on_frame(ts, can.Message(timestamp=ts, arbitration_id=cid, is_extended_id=True, data=data,
-                                          check=False))
+            dispatcher.on_frame(ts, can.Message(timestamp=ts, arbitration_id=cid, is_extended_id=True, data=data,
+                                                check=False))
             fi += 1
             if fi == n_frames:
                 fi, loop_k = 0, loop_k + 1
         if k % 10 == 0:
             x, y = serpentine(dist)
             fix = GpsSample(t, t, lat0 + y / m_per_deg_lat, lon0 + x / m_per_deg_lon, 850.0, v, 90.0, 4, 0.8, 14)
-            svc._on_fix(fix)
-        est = svc._step(t)
+            dispatcher.on_fix(fix)
+        est = estimation.step(t)
         v = float(est.v) if est is not None and math.isfinite(float(est.v)) else 2.5
         dist += max(0.0, v) / rate
         if k % 10 == 0:
-            svc._broadcast(est)
+            svc.network.broadcast(est)
             if est is not None:
-                svc.map.add(est, svc.fix_at(t))
-            svc.map.maybe_flush(k / rate)          # flush interval on the simulated clock
+                mapw.add(est, svc.fixes.fix_at(t))
+            mapw.maybe_flush(k / rate)             # flush interval on the simulated clock
             await asyncio.sleep(0)
         if k % int(3600 * rate) == 0 or k == steps_total - 1:
             h = k / rate / 3600
-            if svc.map._flushing is not None:
-                await svc.map._flushing
+            await mapw.wait_flushed()
             row = sample(h)
             rows.append(row)
             if census:
@@ -208,7 +208,7 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
             rows.append(row)
             print(f"soak: stopped at the wall-time limit, {h:.2f} h simulated", flush=True)
             break
-    await svc.map.close()
+    await mapw.close()
     last = rows[-1]
     base = base or rows[0]
     growth = 100.0 * (last["rss_kb"] - base["rss_kb"]) / base["rss_kb"]
@@ -224,7 +224,7 @@ async def soak(hours: float, max_minutes: float, warmup_h: float, work: Path, ce
         "tasks_at_start": tasks0,
         "threads_min_max": [min(r["threads"] for r in rows), max(r["threads"] for r in rows)],
         "steps": svc.stats["steps"], "estimator_errors": svc.stats["estimator_errors"],
-        "map": dict(svc.map.stats), "rows": rows,
+        "map": dict(mapw.stats), "rows": rows,
     }
     print(f"soak: {res['hours_simulated']:.2f} h simulated in {res['wall_s']:.0f} s ({res['speed_x_real_time']}x); "
           f"RSS after warm-up {base['rss_kb'] / 1024:.1f} MiB -> {last['rss_kb'] / 1024:.1f} MiB ({growth:+.2f} %, "

@@ -95,7 +95,7 @@ class Target:
 # =========================================================================== CAN
 class CanTarget(Target):
     """CAN frames: ``Codec.decode`` on every frame, then the service's own
-    frame handler (``Service._on_frame``: filters, address claim, decode,
+    frame handler (``FrameDispatcher.on_frame``: filters, address claim, decode,
     step assembler) and estimator steps on the 100 Hz grid."""
 
     name = "can"
@@ -116,7 +116,6 @@ class CanTarget(Target):
 
     # ------------------------------------------------------------ service
     def _new_service(self) -> Any:
-        from tractionecu.config import VehicleParams
         from tractionecu.service.clock import ServiceClock
         from tractionecu.service.config import ServiceConfig, with_overrides
         from tractionecu.service.daemon import Service
@@ -125,9 +124,9 @@ class CanTarget(Target):
                              can={"interface": "virtual", "channel": "fuzz"})
         clock = ServiceClock(epoch0=self.t, monotonic=lambda: self.t)
         svc = Service(cfg, clock=clock, codec=self.codec, env={})
-        svc.estimator = svc.estimator_factory(VehicleParams())
-        if svc.claimer is not None:
-            svc.claimer.start(self.t)
+        svc.estimation.build_estimator()
+        if svc.network.claimer is not None:
+            svc.network.claimer.start(self.t)
         return svc
 
     # ------------------------------------------------------------ cases
@@ -231,14 +230,14 @@ class CanTarget(Target):
             msg = can.Message(timestamp=self.t, arbitration_id=cid, is_extended_id=ext, data=data,
                               is_error_frame="E" in flags, is_remote_frame="R" in flags, is_fd="F" in flags,
                               check=False)
-            svc._on_frame(self.t, msg)
-            if svc.anchor is not None:  # the 100 Hz estimation grid, as the daemon's loop runs it
+            svc.dispatcher.on_frame(self.t, msg)
+            if svc.steps.anchor is not None:  # the 100 Hz estimation grid, as the daemon's loop runs it
                 if self.grid_t is None:
-                    self.grid_t = svc.anchor
+                    self.grid_t = svc.steps.anchor
                 while self.grid_t <= self.t:
                     with warnings.catch_warnings(record=True) as caught:
                         warnings.simplefilter("always")
-                        svc._step(self.grid_t)
+                        svc.estimation.step(self.grid_t)
                     for w in caught:  # counted, not raised: the daemon runs with default warning filters
                         self.extra[f"estimator_warning.{w.category.__name__}: {str(w.message)[:60]}"] += 1
                     self.grid_t += 0.01
@@ -255,8 +254,8 @@ class CanTarget(Target):
         for k, v in svc.stats.items():
             if not k.startswith("rx_"):
                 self.extra["service." + k] += v
-        if svc.claimer is not None:
-            for k, v in svc.claimer.counts.items():
+        if svc.network.claimer is not None:
+            for k, v in svc.network.claimer.counts.items():
                 self.extra["address_claim." + k] += v
 
 

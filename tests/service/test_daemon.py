@@ -74,7 +74,7 @@ class Rig:
         self.cfg = with_overrides(ServiceConfig(), **sections)
         self.estimator = estimator
         env = {"NOTIFY_SOCKET": "@" + name, **(env or {})}
-        self.svc = Service(self.cfg, estimator_factory=(lambda v: estimator) if estimator else None, env=env,
+        self.svc = Service(self.cfg, estimator_factory=(lambda v, s: estimator) if estimator else None, env=env,
                            warm_up_estimator=estimator is None)
         self.peer = can.Bus(interface="virtual", channel=self.channel)
         self.task: asyncio.Task | None = None
@@ -166,7 +166,7 @@ async def test_ready_waits_for_bus_and_gps_then_claims_and_broadcasts(tmp_path: 
         await until(lambda: rig.svc.stats["broadcasts"] >= 3)
         frames = rig.received()
     ids = [m.arbitration_id for m in frames]
-    assert ids[0] == 0x18EEFF90 and bytes(frames[0].data) == rig.svc.claimer.name_bytes
+    assert ids[0] == 0x18EEFF90 and bytes(frames[0].data) == rig.svc.network.claimer.name_bytes
     est = [m for m in frames if j1939.pgn_of(m.arbitration_id) in (65312, 65313, 65314)]
     assert est and all(m.arbitration_id & 0xFF == 0x90 for m in est)
     # before any wheel speed: every value "not available", every timeout bit set
@@ -193,8 +193,8 @@ async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
         await until(lambda: rig.svc.stats["rx_TECU_WheelSpeeds"] == 2)
         st = rig.svc.stats
         assert st["standard_id_frames"] == 1 and st["remote_frames"] == 1 and st["error_frames"] == 1
-        assert rig.svc.unknown_pgns[0xF004] == 1
-        assert rig.svc.bad_frames["TECU_WheelSpeeds"] == 1
+        assert rig.svc.dispatcher.unknown_pgns[0xF004] == 1
+        assert rig.svc.dispatcher.bad_frames["TECU_WheelSpeeds"] == 1
         assert st["foreign_estimate_frames"] == 1 and st["canfd_frames"] == 1
         assert rig.task is not None and not rig.task.done()
 
@@ -227,7 +227,7 @@ async def test_inputs_reach_the_estimator_and_a_timeout_sets_its_bit(tmp_path: P
         await asyncio.wait_for(rig.svc.ready.wait(), 10)
         while rig.svc.stats["steps"] < 100:
             await drive(rig, 0.2)
-        assert rig.svc.grid_t0 is not None
+        assert rig.svc.estimation.grid_t0 is not None
         rig.received()
         status = 0
         for _ in range(100):
@@ -288,15 +288,16 @@ async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path) 
 
 def test_unknown_pgn_table_is_bounded_under_random_pgns(tmp_path: Path) -> None:
     """Hostile traffic with every PGN must not grow the per-PGN table (2^18 possible keys)."""
-    from tractionecu.service.daemon import MAX_TRACKED_UNKNOWN_PGNS
+    from tractionecu.service.dispatch import MAX_TRACKED_UNKNOWN_PGNS
 
     cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(tmp_path / "state")})
     svc = Service(cfg, env={}, warm_up_estimator=False)
     pgns = [p for p in range(0xF000, 0xF000 + 3000) if CODEC.message_for_pgn(p) is None]
     for k, pgn in enumerate(pgns):
-        svc._on_frame(1.0 + k * 1e-3, can.Message(arbitration_id=(6 << 26) | (pgn << 8) | 0x42, data=bytes(8)))
-    svc._on_frame(9.0, can.Message(arbitration_id=(6 << 26) | (pgns[0] << 8) | 0x42, data=bytes(8)))
-    assert len(svc.unknown_pgns) == MAX_TRACKED_UNKNOWN_PGNS
-    assert svc.unknown_pgns[pgns[0]] == 2                       # a tracked PGN keeps counting
+        svc.dispatcher.on_frame(1.0 + k * 1e-3, can.Message(arbitration_id=(6 << 26) | (pgn << 8) | 0x42,
+                                                            data=bytes(8)))
+    svc.dispatcher.on_frame(9.0, can.Message(arbitration_id=(6 << 26) | (pgns[0] << 8) | 0x42, data=bytes(8)))
+    assert len(svc.dispatcher.unknown_pgns) == MAX_TRACKED_UNKNOWN_PGNS
+    assert svc.dispatcher.unknown_pgns[pgns[0]] == 2                       # a tracked PGN keeps counting
     assert svc.stats["unknown_pgn_frames"] == len(pgns) + 1
     assert svc.stats["unknown_pgn_untracked"] == len(pgns) - MAX_TRACKED_UNKNOWN_PGNS

@@ -59,9 +59,9 @@ def test_simulated_service_broadcasts_replay_estimates(short_recording: Path, tm
     assert c["steps"].get("late", 0) == 0, "a frame arrived after its step: equality cannot hold"
     assert c["service"].get("broadcast_errors", 0) == 0
 
-    ours = [m for m in frames if m.arbitration_id & 0xFF == res.service.address]
+    ours = [m for m in frames if m.arbitration_id & 0xFF == res.service.network.address]
     claims = [m for m in ours if j1939.pgn_of(m.arbitration_id) == j1939.PGN_ADDRESS_CLAIMED]
-    assert claims and bytes(claims[0].data) == res.service.claimer.name_bytes
+    assert claims and bytes(claims[0].data) == res.service.network.claimer.name_bytes
     est_frames = [m for m in ours if j1939.pgn_of(m.arbitration_id) in (65312, 65313, 65314)]
     triples = [est_frames[i:i + 3] for i in range(0, len(est_frames) - 2, 3)]
     assert all([codec.message_for_id(m.arbitration_id).name for m in t] == list(MESSAGES) for t in triples)
@@ -112,15 +112,15 @@ def test_slow_first_estimator_build_does_not_leave_the_loop_behind(short_recordi
     simulated machine used to start playing meanwhile, and the loop began 15 s behind (skipping)."""
     import time
 
-    from tractionecu.service.daemon import default_estimator_factory
+    from tractionecu.service.loop import default_estimator_factory
 
     builds: list[float] = []
 
-    def slow_first(vehicle):
+    def slow_first(vehicle, sensors):
         if not builds:
             time.sleep(1.5)                    # > max_catch_up_s (1 s) even at 1x
         builds.append(time.monotonic())
-        return default_estimator_factory(vehicle)
+        return default_estimator_factory(vehicle, sensors)
 
     cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state")})
 

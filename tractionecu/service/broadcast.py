@@ -25,6 +25,11 @@ from ..bus.dbc import WHEELS, Codec
 
 MESSAGES = ("TECU_EstAdhesion", "TECU_EstSlip", "TECU_EstSoil")
 
+
+def output_pgns(codec: Codec) -> frozenset[int]:
+    """The PGNs of the three estimate messages (a frame of these from the bus is another ECU's estimate)."""
+    return frozenset(codec.message(name).pgn for name in MESSAGES)
+
 NO_DATA_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20
 """Status sent before the first estimate: every input timed out, not converged."""
 

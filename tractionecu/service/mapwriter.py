@@ -174,6 +174,14 @@ class MapWriter:
         self._flushing = loop.run_in_executor(self._pool, self._flush_and_trim)
         self._flushing.add_done_callback(self._flushed)
 
+    async def wait_flushed(self) -> None:
+        """Wait for the flush running in the worker thread, if any (its error is counted, not raised)."""
+        if self._flushing is not None:
+            try:
+                await self._flushing
+            except Exception:
+                pass
+
     def _flush_and_trim(self) -> int:
         """Worker thread: write the dirty tiles, then hand the C heap's free pages back to the OS."""
         try:
@@ -202,11 +210,7 @@ class MapWriter:
             except Exception:
                 pass
         self._add_ready(self.sampler.drain())
-        if self._flushing is not None:
-            try:
-                await self._flushing
-            except Exception:
-                pass
+        await self.wait_flushed()
         try:
             if self.store is not None:
                 await loop.run_in_executor(self._pool, self.store.close)

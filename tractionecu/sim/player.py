@@ -213,7 +213,7 @@ class SimulationResult:
 async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0, duration_s: float | None = None,
                          status_stream: IO[str] | None = None, info_stream: IO[str] | None = None,
                          before_play: Callable[[SimulatedMachine], None] | None = None,
-                         estimator_factory: Callable[[Any], Any] | None = None) -> SimulationResult:
+                         estimator_factory: Callable[[Any, Any], Any] | None = None) -> SimulationResult:
     """Run the real service against a recording played onto a virtual bus and a pty.
 
     ``cfg`` is the base :class:`~tractionecu.service.config.ServiceConfig`;
@@ -223,9 +223,9 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     listener bus to ``machine.channel`` there).  Stops after ``duration_s``
     simulated seconds, at the end of the recording, or on SIGINT/SIGTERM.
     """
-    from ..config import load_vehicle
     from ..service.config import with_overrides
-    from ..service.daemon import Service, default_estimator_factory, warm_up
+    from ..service.daemon import Service
+    from ..service.loop import default_estimator_factory, estimator_machine, warm_up
 
     rec = Path(recording)
     first = next(iter(read_candump(rec / "can.log")), None)
@@ -234,7 +234,8 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     # Compile (or load) the estimator's kernels before the simulated clock starts: on a fresh
     # install that takes seconds, and a machine already playing would leave the loop behind.
     factory = estimator_factory or default_estimator_factory
-    await asyncio.get_running_loop().run_in_executor(None, warm_up, factory, load_vehicle(rec / "vehicle.toml"))
+    cfg = with_overrides(cfg, estimation={"vehicle": str(rec / "vehicle.toml")})
+    await asyncio.get_running_loop().run_in_executor(None, warm_up, factory, *estimator_machine(cfg))
     clock = ServiceClock(speed=speed, epoch0=first.t - LEAD_WALL_S * speed)
     machine = SimulatedMachine(rec, clock)
     lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * speed))
@@ -242,7 +243,7 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
         cfg,
         can={"interface": "virtual", "channel": machine.channel, "timestamps": "kernel", "options": {}},
         gps={"source": "serial", "port": machine.port},
-        estimation={"vehicle": str(rec / "vehicle.toml"), "lag_s": lag},
+        estimation={"lag_s": lag},
         service={"state_dir": str(cfg.state_dir())},
     )
     svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
@@ -275,7 +276,7 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
         "played_nmea_lines": machine.counts["lines"],
         "estimator_steps": c["service"].get("steps", 0),
         "broadcasts": c["service"].get("broadcasts", 0),
-        "address": None if svc.address is None else f"0x{svc.address:02X}",
+        "address": None if svc.network.address is None else f"0x{svc.network.address:02X}",
         "map_dir": str(cfg.map_dir()),
         "map_samples": c.get("map", {}).get("added", 0),
         "map_tiles_written": c.get("map_store", {}).get("tiles_written", 0),

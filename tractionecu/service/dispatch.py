@@ -1,0 +1,150 @@
+"""Input dispatch: each received CAN frame and GNSS fix to where it belongs, or counted.
+
+:meth:`FrameDispatcher.on_frame` (the CAN link's frame handler) sorts a frame:
+
+==============================  ==============================================
+frame                           goes to / counted as
+==============================  ==============================================
+error, remote, 11-bit, CAN FD   ``error_frames``, ``remote_frames``,
+                                ``standard_id_frames``, ``canfd_frames``
+Address Claimed, Request        the network (:meth:`.network.Network.on_nm_frame`)
+a PGN not in the DBC            ``unknown_pgn_frames`` and per PGN in
+                                :attr:`FrameDispatcher.unknown_pgns` (at most
+                                :data:`MAX_TRACKED_UNKNOWN_PGNS`, then
+                                ``unknown_pgn_untracked``)
+an estimate PGN (another ECU)   ``foreign_estimate_frames``
+a DBC frame that fails to       ``bad_frames`` and per message in
+decode (wrong DLC ...)          :attr:`FrameDispatcher.bad_frames`; logged once
+a DBC frame                     decoded: ``decoded_frames``, ``rx_<message>``;
+                                its signals to the step assembler (which phases
+                                the grid on the first wheel-speed frame)
+==============================  ==============================================
+
+:meth:`FrameDispatcher.on_fix` (the GNSS reader's sample handler) keeps the
+fix in the :class:`~.fixes.FixBuffer` (for the map), counts ``gps_fixes``
+and gives its speed over ground to the step assembler; a fix that arrives
+after its step was taken is used one step late (counted by the assembler,
+logged once).
+
+Bad input never raises here: the daemon keeps running on any bus traffic.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from typing import Callable
+
+import can
+
+from ..bus import j1939
+from ..bus.dbc import Codec
+from ..counting import WarnOnce
+from ..errors import DecodeError
+from ..pipeline.steps import StepAssembler
+from .broadcast import output_pgns
+from .fixes import FixBuffer
+from .gps import GpsSample
+
+log = logging.getLogger(__name__)
+
+NM_PGNS = frozenset({j1939.PGN_ADDRESS_CLAIMED, j1939.PGN_REQUEST})
+"""Network-management PGNs: handed to the network."""
+
+MAX_TRACKED_UNKNOWN_PGNS = 256
+"""Unknown PGNs counted one by one (:attr:`FrameDispatcher.unknown_pgns`); frames of further ones are
+counted together as ``unknown_pgn_untracked``.  A real bus carries a few dozen."""
+
+
+class FrameDispatcher:
+    """Sort received frames and fixes (module doc).
+
+    Parameters
+    ----------
+    codec:
+        The DBC codec.
+    steps:
+        The step assembler the decoded signals and GNSS speeds go to.
+    fixes:
+        The fix buffer accepted fixes go to.
+    on_network:
+        ``on_network(can_id, data)`` for Address Claimed and Request frames
+        (None: they are only counted as ``network_management``).
+    stats:
+        Counter for the frame and fix counts (default: a new one).
+    lag_s:
+        ``estimation.lag_s`` (named in the warning about late fixes).
+    """
+
+    def __init__(self, codec: Codec, steps: StepAssembler, fixes: FixBuffer, *,
+                 on_network: Callable[[int, bytes], None] | None = None,
+                 stats: Counter[str] | None = None, lag_s: float = 0.0) -> None:
+        self.codec = codec
+        self.steps = steps
+        self.fixes = fixes
+        self.on_network = on_network
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        self.lag_s = lag_s
+        self.unknown_pgns: Counter[int] = Counter()
+        self.bad_frames: Counter[str] = Counter()
+        self._output_pgns = output_pgns(codec)
+        self._warn = WarnOnce(log)
+
+    def on_frame(self, t: float, msg: can.Message) -> None:
+        """One received frame, stamped ``t`` [service s]."""
+        st = self.stats
+        if msg.is_error_frame:
+            st["error_frames"] += 1
+            return
+        if msg.is_remote_frame:
+            st["remote_frames"] += 1
+            return
+        if not msg.is_extended_id:
+            st["standard_id_frames"] += 1
+            return
+        if msg.is_fd:
+            st["canfd_frames"] += 1
+            return
+        cid = msg.arbitration_id
+        pgn = j1939.pgn_of(cid)
+        if pgn in NM_PGNS:
+            if self.on_network is None:
+                st["network_management"] += 1
+            else:
+                self.on_network(cid, bytes(msg.data))
+            return
+        info = self.codec.message_for_pgn(pgn)
+        if info is None:
+            if pgn in self.unknown_pgns or len(self.unknown_pgns) < MAX_TRACKED_UNKNOWN_PGNS:
+                self.unknown_pgns[pgn] += 1
+            else:                               # hostile traffic must not grow the table to 2^18 keys
+                st["unknown_pgn_untracked"] += 1
+            st["unknown_pgn_frames"] += 1
+            return
+        if pgn in self._output_pgns:
+            st["foreign_estimate_frames"] += 1
+            return
+        try:
+            name, values = self.codec.decode(cid, bytes(msg.data), True)
+        except (DecodeError, KeyError, ValueError) as e:
+            self.bad_frames[info.name] += 1
+            st["bad_frames"] += 1
+            self._warn("bad:" + info.name, "skipped frame %08X#%s: %s", cid, bytes(msg.data).hex().upper(), e)
+            return
+        st["decoded_frames"] += 1
+        st["rx_" + name] += 1
+        anchored = self.steps.anchor is not None
+        self.steps.push_signals(t, values)
+        if not anchored and self.steps.anchor is not None:
+            log.info("estimation grid phased to the first wheel-speed frame: t0 = %.6f", self.steps.anchor)
+
+    def on_fix(self, fix: GpsSample) -> None:
+        """One accepted GNSS fix."""
+        self.fixes.add(fix)
+        self.stats["gps_fixes"] += 1
+        if fix.speed_mps is not None:
+            late = self.steps.counts["late"]
+            self.steps.push_speed(fix.t, fix.speed_mps)
+            if self.steps.counts["late"] > late:
+                self._warn("late-gps", "GNSS epoch %.3f arrived %.3f s after it (lag %.3f s): it is used one "
+                           "step late; raise estimation.lag_s", fix.t, fix.t_arrival - fix.t, self.lag_s)

@@ -1,0 +1,253 @@
+"""The estimation loop: the estimator stepped on a fixed grid of the service clock.
+
+Grid ``t_k = g0 + k / rate`` on the service clock (monotonic, so it neither
+drifts nor jumps).  ``g0`` is phased to the first wheel-speed frame exactly
+as ``replay`` does: the step assembler records it
+(:attr:`~tractionecu.pipeline.steps.StepAssembler.anchor`, that frame's time
+``+ GRID_MARGIN_S``).  Step k runs ``lag_s`` after ``t_k``, when every frame
+stamped up to ``t_k`` has arrived, and feeds the estimator through the step
+assembler, so a capture of the bus replayed offline gives the same
+estimates.  Until the first wheel-speed frame the loop idles
+(``idle_ticks``) and broadcasts "no estimate".  The estimator predicts only
+and sets its timeout bits when a signal stops.  A loop that falls more than
+``max_catch_up_s`` behind skips ahead (``skipped_steps``).  Every
+``rate / broadcast.rate_hz`` steps the estimate is broadcast; every
+``rate / map.rate_hz`` steps it goes to the map; ``WATCHDOG=1`` is sent from
+this loop, so a stuck loop gets the service restarted.
+
+The estimator is built in one place, :meth:`EstimationLoop.build_estimator`,
+from the machine of the configuration (:func:`estimator_machine`: the
+vehicle and its sensor figures).  Its compiled kernels are warmed up on a
+throwaway estimator (:func:`warm_up`) before the loop starts.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections import Counter
+from typing import Any, Callable, Protocol
+
+from ..counting import WarnOnce
+from ..pipeline.steps import StepAssembler
+from .clock import ServiceClock
+from .config import ServiceConfig
+from .fixes import FixBuffer
+from .lifecycle import TaskPart
+from .mapwriter import MapWriter
+
+log = logging.getLogger(__name__)
+
+EstimatorFactory = Callable[[Any, Any], Any]
+"""``factory(vehicle, sensors) -> estimator`` with ``step(t, inputs, measurements)`` (and optionally
+``reset()`` and ``counters``)."""
+
+
+def default_estimator_factory(vehicle: Any, sensors: Any = None) -> Any:
+    """The estimator ``replay`` uses, with its default tuning (``sensors`` None: the documented figures)."""
+    from ..estimation.estimator import Estimator
+
+    return Estimator(vehicle, sensors=sensors)
+
+
+def estimator_machine(cfg: ServiceConfig) -> tuple[Any, Any]:
+    """``(vehicle, sensors)`` the estimator is built for.
+
+    The vehicle is ``estimation.vehicle``'s file, else the documented
+    defaults; the sensor figures are :meth:`ServiceConfig.resolved_sensors`
+    (the service's ``[sensors]`` keys over the vehicle file's over the
+    defaults).
+    """
+    from ..config import VehicleParams, load_vehicle
+
+    vehicle = load_vehicle(cfg.estimation.vehicle) if cfg.estimation.vehicle else VehicleParams()
+    return vehicle, cfg.resolved_sensors()
+
+
+def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> float:
+    """Run a throwaway estimator through every kind of step; returns the seconds it took.
+
+    The estimator's compiled (numba) kernels are compiled or loaded from their
+    cache on first use, which takes seconds; done here, before the estimation
+    loop starts, it delays neither the first steps nor the watchdog.
+    """
+    import numpy as np
+
+    t0 = time.perf_counter()
+    est = factory(vehicle, sensors)
+    md = np.full(4, 900.0)
+    om = np.full(4, 3.2)
+    for k in range(60):
+        t = 0.01 * k
+        meas: dict[str, Any] = {"omega": om + 0.001 * k}
+        if k % 10 == 0:
+            meas["v"] = 2.4
+        inputs = {"Md": md, "Fzf": 25000.0, "Fdx": 12000.0} if k % 7 else {}
+        est.step(t, inputs, meas if k % 5 else {})
+    est.step(1.0, {"Md": md, "Fzf": math.nan}, {"v": 2.4})
+    return time.perf_counter() - t0
+
+
+class Reader(Protocol):
+    """A device reader whose received input can be processed now (CAN link, GNSS reader)."""
+
+    def drain(self) -> Any: ...
+
+
+class EstimationLoop(TaskPart):
+    """The estimator and the loop that steps it (module doc).
+
+    Parameters
+    ----------
+    cfg:
+        Resolved configuration (``[estimation]``, ``broadcast.rate_hz``, ``map.rate_hz``).
+    clock:
+        Service clock.
+    steps:
+        The step assembler the dispatcher fills.
+    factory:
+        Builds the estimator (:data:`EstimatorFactory`).
+    broadcast:
+        ``broadcast(estimate or None)`` every ``rate / broadcast.rate_hz`` steps.
+    map_writer, fixes:
+        The map writer (None: no map) and the fix buffer giving each mapped estimate its position.
+    can, gps:
+        Readers to drain before a step that runs late (``can`` also has ``drain_queued``).
+    watchdog:
+        Sends ``WATCHDOG=1``; ``watchdog_s`` is systemd's interval (None: no watchdog).
+    stats:
+        Counter for ``steps``, ``estimator_errors``, ``idle_ticks``, ``skipped_steps`` (default: a new one).
+
+    Attributes
+    ----------
+    estimator, last_estimate:
+        The estimator (built by :meth:`build_estimator`) and its last estimate.
+    grid_t0:
+        ``g0`` once the grid is phased, else None.
+    max_tick_delay_s:
+        Longest a step ran after it was due [wall s] (scheduling latency of the loop).
+    """
+
+    name = "estimation"
+
+    def __init__(self, cfg: ServiceConfig, clock: ServiceClock, steps: StepAssembler, *,
+                 factory: EstimatorFactory = default_estimator_factory,
+                 broadcast: Callable[[Any], Any] | None = None,
+                 map_writer: MapWriter | None = None, fixes: FixBuffer | None = None,
+                 can: Any = None, gps: Reader | None = None,
+                 watchdog: Callable[[], Any] | None = None, watchdog_s: float | None = None,
+                 stats: Counter[str] | None = None) -> None:
+        super().__init__()
+        self.cfg = cfg
+        self.clock = clock
+        self.steps = steps
+        self.factory = factory
+        self.broadcast = broadcast
+        self.map = map_writer
+        self.fixes = fixes
+        self.can = can
+        self.gps = gps
+        self.watchdog = watchdog
+        self.watchdog_s = watchdog_s
+        self.stats: Counter[str] = Counter() if stats is None else stats
+        self.machine: tuple[Any, Any] | None = None
+        self.estimator: Any = None
+        self.last_estimate: Any = None
+        self.grid_t0: float | None = None
+        self.max_tick_delay_s = 0.0
+        self._last_wd = -math.inf
+        self._warn = WarnOnce(log)
+
+    # ------------------------------------------------------------ the estimator
+    def build_estimator(self) -> Any:
+        """Build the estimator for the configured machine (:func:`estimator_machine`); returns it."""
+        self.machine = estimator_machine(self.cfg)
+        self.estimator = self.factory(*self.machine)
+        return self.estimator
+
+    async def warm_up(self) -> float:
+        """:func:`warm_up` a throwaway estimator of the same machine in a worker thread; returns seconds."""
+        machine = self.machine or estimator_machine(self.cfg)
+        return await asyncio.get_running_loop().run_in_executor(None, warm_up, self.factory, *machine)
+
+    def step(self, t: float) -> Any:
+        """Step the estimator at grid time ``t`` [s] with what the assembler holds; the estimate or None.
+
+        An estimator that raises is counted (``estimator_errors``), logged
+        once and reset; the loop goes on.
+        """
+        inputs, meas = self.steps.take(t)
+        try:
+            est = self.estimator.step(t, inputs, meas)
+        except Exception as e:  # the estimator must not take the daemon down
+            self.stats["estimator_errors"] += 1
+            self._warn("estimator", "estimator step failed at t=%.3f: %r; resetting it", t, e)
+            if hasattr(self.estimator, "reset"):
+                self.estimator.reset()
+            return None
+        self.stats["steps"] += 1
+        self.last_estimate = est
+        return est
+
+    # ------------------------------------------------------------ the loop
+    def _drain(self, late: bool) -> None:
+        """Process input that arrived meanwhile: every reader after a late wake-up, else the CAN queue."""
+        if late:
+            # the process was not scheduled for a while: read what arrived meanwhile before
+            # stepping (on time, the readers' callbacks have already run in this loop pass)
+            for r in (self.can, self.gps):
+                if r is not None:
+                    r.drain()
+        elif self.can is not None:
+            self.can.drain_queued()
+
+    async def run(self) -> None:
+        loop = asyncio.get_running_loop()
+        ec = self.cfg.estimation
+        rate = ec.rate_hz
+        lag = ec.lag_s
+        bc_every = max(1, round(rate / self.cfg.broadcast.rate_hz))
+        map_every = max(1, round(rate / self.cfg.map.rate_hz))
+        clock = self.clock
+        g0 = clock.now()
+        anchored = False
+        k = 0
+        est = None
+        while True:
+            if not anchored and self.steps.anchor is not None:
+                g0, k, anchored = self.steps.anchor, 0, True
+                self.grid_t0 = g0
+            t_k = g0 + k / rate
+            delay = clock.mono_at(t_k + lag) - loop.time()
+            if delay > 0:
+                await asyncio.sleep(delay)
+                continue
+            if -delay > self.max_tick_delay_s:
+                self.max_tick_delay_s = -delay
+            if -delay * clock.speed > ec.max_catch_up_s:
+                k_new = math.ceil((clock.now() - lag - g0) * rate)
+                self.stats["skipped_steps"] += k_new - k
+                self._warn("behind", "estimation loop %.2f s behind; skipping %d steps",
+                           -delay * clock.speed, k_new - k)
+                k = k_new
+                continue
+            self._drain(-delay > 1.0 / rate)
+            if anchored:
+                est = self.step(t_k)
+            else:
+                self.stats["idle_ticks"] += 1
+            if k % bc_every == 0 and self.broadcast is not None:
+                self.broadcast(est if anchored else None)
+            if anchored and est is not None and self.map is not None and k % map_every == 0:
+                self.map.add(est, None if self.fixes is None else self.fixes.fix_at(t_k))
+            now_m = loop.time()
+            if self.map is not None:
+                self.map.maybe_flush(now_m)
+            if self.watchdog is not None and self.watchdog_s is not None and now_m - self._last_wd >= self.watchdog_s / 4:
+                self._last_wd = now_m
+                self.watchdog()
+            k += 1
+            if k % 32 == 0:
+                await asyncio.sleep(0)  # let readers in while catching up
