@@ -17,6 +17,11 @@ key, a config value of the wrong type accepted) raises
 
 Cases serialise to JSON (:meth:`Target.dump` / :meth:`Target.load`) so a
 failing one can be stored under ``tests/data/fuzz`` and replayed.
+
+The targets stay in one module (over 500 lines): they share the case
+format, the outcome counting and the contract checks of :class:`Target`,
+and :data:`TARGETS` is the one registry the runner, the minimiser, the
+atheris harness and the CI short form read.
 """
 
 from __future__ import annotations

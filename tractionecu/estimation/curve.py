@@ -47,12 +47,7 @@ summing them as independent would make the evidence overconfident and the
 class flip on noise.  With the narrow slip range of steady work the shapes
 cannot be told apart and the default class stays.
 
-Equation numbers are those of the paper's source (Kobelski et al. 2020), in
-order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
-(12) predicted distribution; (13) a-priori covariance; (14) mean update;
-(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
-innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
-and ``model/mucurve.py`` calls (18) "eq. 14".
+Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 """
 
 from __future__ import annotations

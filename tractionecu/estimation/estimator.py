@@ -1,7 +1,10 @@
 """AUKF-FS estimator with a push API: ``Estimator.step(t, inputs, measurements) -> Estimate``.
 
 Its tuning, :class:`EstimatorConfig` and :func:`load_estimator_config`, lives
-in :mod:`.config` and is re-exported here.
+in :mod:`.config` and is re-exported here.  The rest stays in one module
+(about 500 lines): the noise model, the step with its input holds, timeouts
+and status bits, and the hand-over to the curve fit act on one filter state
+in one order, which the paper's section 3 describes as one algorithm.
 
 Paper section 3: state x = (ω1..4, v, μ1..4, ρ_s), output y = (ω1..4, v),
 input u = (M_d1..4, F_zf, F_dx).  Sigma points go through
@@ -41,12 +44,7 @@ skips its part of the update.  Gaps longer than ``max_step_s`` are
 predicted in sub-steps.  Nothing depends on wall-clock time, so the same
 input sequence always gives the same estimates (offline = online).
 
-Equation numbers are those of the paper's source (Kobelski et al. 2020), in
-order: (11) discrete model x_k = f(x_{k−1}, u_{k−1}) + q, y_k = h(x_k) + r;
-(12) predicted distribution; (13) a-priori covariance; (14) mean update;
-(15) covariance update; (16) adaptation argmin over A_k; (17) windowed
-innovation covariance S̄_k; (18) μ(s).  Issue 3 calls (16)–(17) "eqs. 12–13"
-and ``model/mucurve.py`` calls (18) "eq. 14".
+Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 """
 
 from __future__ import annotations
