@@ -45,6 +45,17 @@ class EstimatorConfig:
     # robustness
     gate_probability: float = setting(1e-4, "false-alarm probability of the per-measurement NIS gate [-] (0 disables)", 0.0, 0.5)
     gate_max_consecutive: int = setting(5, "a measurement gated this many updates in a row is accepted on the next [-]", 0, 100000)
+    lost_after_s: float = setting(1.0, "the filter is declared lost and re-initialised after its updates were gated or "
+                                       "far outside their χ² bound, or ρ_s sat at its bound while moving, this long [s]; "
+                                       "0 disables (estimation/divergence.py)", 0.0, 600.0)
+    lost_nis_alpha: float = setting(1e-6, "tail probability of the χ²(dof) bound a NIS must exceed to count towards "
+                                          "a lost filter [-]", 1e-15, 0.5)
+    direction_min_speed_mps: float = setting(0.2, "wheel-based speed above which the sign of wheel rotation gives the "
+                                                  "direction of travel (signs the unsigned GNSS speed); below it the "
+                                                  "last direction is held [m/s]", 0.0, 10.0)
+    standstill_speed_mps: float = setting(0.2, "below this ground speed ρ_s drops out of eq. 8 and slip is undefined: "
+                                               "the estimate is flagged standstill (0x400) and not valid [m/s]",
+                                          0.0, 10.0)
     mu_min: float = setting(-1.2, "lower bound of μ [-]", -5.0, 0.0)
     mu_max: float = setting(1.2, "upper bound of μ [-]", 0.0, 5.0)
     rho_min: float = setting(0.0, "lower bound of ρ_s [-]", -1.0, 0.0)

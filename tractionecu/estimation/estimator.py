@@ -49,6 +49,7 @@ Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -64,6 +65,7 @@ from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
 from .curve import CurveEstimator
+from .divergence import DivergenceMonitor
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
 
@@ -77,13 +79,18 @@ NOT_CONVERGED = 0x20
 INPUT_REJECTED = 0x40
 MEAS_GATED = 0x80
 COV_REPAIRED = 0x100
+FILTER_LOST = 0x200
+"""The filter lost the vehicle (:mod:`.divergence`) and was re-initialised; set until it re-converges."""
+STANDSTILL = 0x400
+"""Ground speed below ``standstill_speed_mps``: ρ_s and slip are not supported by the data."""
 
 STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed_timeout",
                 TORQUE_TIMEOUT: "torque_timeout", AXLE_TIMEOUT: "axle_load_timeout",
                 DRAFT_TIMEOUT: "draft_timeout", NOT_CONVERGED: "not_converged",
                 INPUT_REJECTED: "input_rejected", MEAS_GATED: "measurement_gated",
-                COV_REPAIRED: "covariance_repaired"}
-INVALID_MASK = WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED | INPUT_REJECTED
+                COV_REPAIRED: "covariance_repaired", FILTER_LOST: "filter_lost", STANDSTILL: "standstill"}
+INVALID_MASK = (WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED
+                | INPUT_REJECTED | FILTER_LOST | STANDSTILL)
 """Bits that make an estimate not ``valid`` (gating and a repaired covariance are notices only)."""
 
 
@@ -127,6 +134,9 @@ class Estimate:
     """Degrees of freedom of ``nis`` (number of accepted output components)."""
     soil_class_index: int = 0
     """Index of ``soil_class`` in the configured classes (DBC SoilClassIndex)."""
+    lost_since: float = math.nan
+    """On the step the filter is declared lost: the time the lost period began [s] (estimates
+    since then were not trustworthy, whatever they said); NaN on every other step."""
 
 
 # ----------------------------------------------------------------------------- estimator
@@ -171,6 +181,8 @@ class Estimator:
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._pin_T = 1.0 / sp.loadpin_rate_hz
         self._weight = vehicle.weight_n
+        self._monitor = DivergenceMonitor(cfg.lost_after_s, cfg.lost_nis_alpha, cfg.rho_max,
+                                          max(cfg.direction_min_speed_mps, cfg.standstill_speed_mps))
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -186,6 +198,8 @@ class Estimator:
         self._t_omega = -math.inf
         self._t_v = -math.inf
         self._last_v_meas: float | None = None
+        self._dir = 1.0
+        self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
         self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
         self._cm = CovarianceMatching(N_STATE, cfg.adapt_window, cfg.adapt_min, cfg.adapt_max)
@@ -205,7 +219,8 @@ class Estimator:
         self._fz = np.zeros(4)
         self._rd = np.full(4, self.vehicle.r0_m)
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
-                         "chol_repairs": 0, "resets": 0, "gap_resets": 0}
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0}
+        self._monitor.reset()
 
     # ------------------------------------------------------------------ noise
     def _loads(self) -> None:
@@ -282,6 +297,7 @@ class Estimator:
                                    kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate,
                                    gate_max_consecutive=cfg.gate_max_consecutive)
         self.t_init = t
+        self._monitor.reset()
 
     # ------------------------------------------------------------------ step
     def step(self, t: float, inputs: Mapping[str, Any] | None = None,
@@ -353,6 +369,7 @@ class Estimator:
                     wl = omega.tolist()
                     if math.isfinite(wl[0] + wl[1] + wl[2] + wl[3]):
                         self._t_omega = t
+                        self._direction(wl)
                     else:
                         fin = np.isfinite(omega)
                         status |= INPUT_REJECTED
@@ -361,7 +378,8 @@ class Estimator:
                             self._t_omega = t
             vm = measurements.get("v")
             if vm is not None:
-                v_meas = float(vm)
+                # GNSS speed over ground is unsigned (RMC/VTG): it takes the direction of travel
+                v_meas = abs(float(vm)) * self._dir
                 if math.isfinite(v_meas):
                     self._t_v = t
                     self._last_v_meas = v_meas
@@ -405,6 +423,7 @@ class Estimator:
             self.t = t
         # ---- update
         updated = False
+        gated: dict[str, bool] = {}
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
                 R = self._R_list(wl)
@@ -415,16 +434,28 @@ class Estimator:
                 ukf.update(omega, _SL_W, np.array(self._R_list(wl)))
             else:
                 ukf.update(np.array([v_meas]), _SL_V, np.array([self._r_v]))
-            if ukf.last_gated:
+            g = ukf.last_gated
+            out = ukf.last_outside          # bit j: output component j (ω1..4, v) outside the gate
+            if omega is not None:
+                gated["wheel"] = bool(out & 0xF)
+            if v_meas is not None:
+                gated["ground"] = bool(out & 0x10)
+            if g:
                 status |= MEAS_GATED
-                counters["gated"] += bin(ukf.last_gated).count("1")
+                counters["gated"] += bin(g).count("1")
             if ukf.last_dof:
                 updated = True
                 counters["updates"] += 1
                 if cfg.adaptation:
                     self._cm.push(*ukf.correction())
-        # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
+        # ---- divergence: a filter that has lost the vehicle starts again from the measurements
         x = ukf.x
+        since = self._monitor.update(t, gated, ukf.last_nis if updated else math.nan,
+                                     ukf.last_dof if updated else 0, float(x[IX_V]), self._v_wheel(wl),
+                                     float(x[IX_RHO]))
+        if since is not None:
+            return self._declare_lost(t, since, status)
+        # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
         self._dyn.update(t, float(x[IX_V]), self._md_sum)
         if t - self._t_adapt >= cfg.adapt_period_s:
             self._t_adapt = t
@@ -436,6 +467,31 @@ class Estimator:
             self._Qbase = None
         counters["chol_repairs"] = ukf.chol_repairs
         return self._estimate(t, status, x, updated)
+
+    def _direction(self, w: list[float]) -> None:
+        """Direction of travel from the sign of wheel rotation (held below ``direction_min_speed_mps``)."""
+        v_wheel = self._v_wheel(w)
+        if v_wheel is not None and abs(v_wheel) >= self.cfg.direction_min_speed_mps:
+            self._dir = 1.0 if v_wheel > 0.0 else -1.0
+
+    def _v_wheel(self, w: list[float]) -> float | None:
+        """Mean wheel circumferential speed r_d·ω [m/s] of this step's wheel speeds, or None."""
+        if not w:
+            return None
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        v = 0.25 * (rdf * (w[0] + w[1]) + rdr * (w[2] + w[3]))
+        return v if math.isfinite(v) else None
+
+    def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
+        """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""
+        self.counters["lost"] += 1
+        self._lost = True
+        self.ukf = None
+        self._cm = CovarianceMatching(N_STATE, self.cfg.adapt_window, self.cfg.adapt_min, self.cfg.adapt_max)
+        self._A = np.ones(N_STATE)
+        self._Qbase = None
+        e = self._estimate(t, status | FILTER_LOST, None)
+        return dataclasses.replace(e, lost_since=since)
 
     def _recover(self, t: float) -> None:
         """Restart the filter from the last finite mean after a numerical failure."""
@@ -466,6 +522,8 @@ class Estimator:
     def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, updated: bool = False) -> Estimate:
         cfg = self.cfg
         ukf = self.ukf
+        if self._lost:
+            status |= FILTER_LOST
         if x is None or ukf is None:
             nan4 = np.full(4, np.nan)
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
@@ -488,8 +546,8 @@ class Estimator:
             mu = x[IX_MU].copy()
             omega = x[:4].copy()
             conv_p = (pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu and pl[IX_RHO] < c_rho)
-        # curve parameter a (paper section 3.2) at the curve rate
-        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
+        # curve parameter a (paper section 3.2) at the curve rate; not fed by a filter that was lost
+        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps and not self._lost:
             self._t_curve = t
             self._loads()
             sig_s = math.sqrt(pd[IX_V]) / np.maximum(self._rd * np.abs(omega), 1e-3)   # ∂s/∂v · σ_v (eq. 6)
@@ -497,6 +555,11 @@ class Estimator:
         conv = self.t_init is not None and t - self.t_init >= cfg.conv_min_s and conv_p
         if not conv:
             status |= NOT_CONVERGED
+        elif self._lost:
+            self._lost = False          # re-converged: the lost period ends with this step
+            status &= ~FILTER_LOST
+        if abs(v) < cfg.standstill_speed_mps:
+            status |= STANDSTILL
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
         return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,

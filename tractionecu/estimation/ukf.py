@@ -180,6 +180,9 @@ class UnscentedFilter:
         self.last_dof = 0
         self.last_gated = 0
         """Bit j set when output component j was gated on the last update."""
+        self.last_outside = 0
+        """Bit j set when output component j fell outside the gate on the last update, whether it was
+        gated or then accepted as persistent (the divergence monitor counts both)."""
         self.last_idx: NDArray[np.intp] = np.empty(0, dtype=np.intp)
         """Output components used on the last update."""
         self._lazy: tuple | None = None
@@ -341,6 +344,7 @@ class UnscentedFilter:
         z = np.asarray(z, dtype=float)
         R = np.asarray(R, dtype=float)
         self.last_gated = 0
+        self.last_outside = 0
         if idx.__class__ is slice:
             ent = self._fast.get(id(idx))
             if ent is None or ent[0] is not idx:
@@ -455,6 +459,7 @@ class UnscentedFilter:
             else:
                 for pos in np.flatnonzero(~keep):
                     j = int(idx[pos])
+                    self.last_outside |= 1 << j
                     if run[j] >= self.gate_max_consecutive:
                         keep[pos] = True          # persistent: accept (see class doc)
                         self.gate_bypassed += 1

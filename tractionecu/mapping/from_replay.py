@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from .sampler import DEFAULT_HALF_WINDOW_S, centred_map_values
-from .store import MapStore
+from .store import STATUS_FILTER_LOST, MapStore
 
 
 def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
@@ -55,8 +55,11 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     idx = np.searchsorted(t, gps.t - 1e-9)
     inside = (idx < t.size) & (gps.t >= t[0])
     idx = np.minimum(idx, t.size - 1)
-    values = centred_map_values(gps.t, arrays["mu"][idx], arrays["slip"][idx], arrays["P_diag"][idx, 5:9],
-                                arrays["v"][idx], arrays["rho_s"][idx],
+    # Estimates of a lost filter (status FILTER_LOST) take no part in any window.
+    lost = (np.asarray(arrays["status"])[idx] & STATUS_FILTER_LOST) != 0
+    values = centred_map_values(gps.t, np.where(lost[:, None], np.nan, arrays["mu"][idx]), arrays["slip"][idx],
+                                arrays["P_diag"][idx, 5:9], arrays["v"][idx],
+                                np.where(lost, np.nan, arrays["rho_s"][idx]),
                                 np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s)
     offered = arrays["valid"][idx] & inside
     if gps_mask is not None:

@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..model.mucurve import SOIL_CLASSES
+from .store import STATUS_FILTER_LOST
 
 DEFAULT_HALF_WINDOW_S = 10.0
 """Half window H [s].  On firm soil (s ≈ 0.035) δa/a ≈ (g'/g)·δs ≈ 19·δs, and δs ≈ δv/v with
@@ -155,6 +156,15 @@ class CentredSampler:
         while len(self._pending) > self.max_pending:
             self._pending.popleft()
         return self._emit(t)
+
+    def invalidate_since(self, t_since: float) -> None:
+        """Samples at or after ``t_since`` [s] came from a lost filter: not mapped, and out of every window."""
+        while self._hist and self._hist[-1][0] >= t_since:
+            self._hist.pop()
+        for s in self._pending:
+            if s.t >= t_since:
+                s.valid = False
+                s.status |= STATUS_FILTER_LOST
 
     def drain(self) -> list[tuple]:
         """Emit every pending sample with the window it has (end of run / shutdown)."""

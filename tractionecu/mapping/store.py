@@ -86,10 +86,15 @@ log = logging.getLogger(__name__)
 
 DEFAULT_RESOLUTION_M = 0.5
 DEFAULT_TILE_CELLS = 64
-DEFAULT_REJECT_STATUS_MASK = 0x17F
+STATUS_FILTER_LOST = 0x200
+"""EstimateStatus bit of a filter that lost the vehicle (DBC ``EstimateStatus``)."""
+STATUS_STANDSTILL = 0x400
+"""EstimateStatus bit of a standstill, where ρ_s and slip are not supported by the data."""
+DEFAULT_REJECT_STATUS_MASK = 0x17F | STATUS_FILTER_LOST | STATUS_STANDSTILL
 """EstimateStatus bits that make :meth:`MapStore.add` reject a sample: sensor
-timeouts (0x01–0x10), not converged (0x20), input rejected (0x40) and
-covariance repaired (0x100); a NIS-gated measurement (0x80) alone does not."""
+timeouts (0x01–0x10), not converged (0x20), input rejected (0x40),
+covariance repaired (0x100), filter lost (0x200) and standstill (0x400); a
+NIS-gated measurement (0x80) alone does not."""
 DEFAULT_MAX_TRACK_PENDING = 360_000
 """Track records kept in memory while they cannot be written (10 h at 10 Hz, 11.5 MB)."""
 DEFAULT_MIN_FLUSH_INTERVAL_S = 0.1

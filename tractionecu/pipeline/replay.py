@@ -22,6 +22,7 @@ Scoring against simulated truth is not here: it is the evaluation side's
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -32,7 +33,7 @@ import numpy as np
 
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_toml
 from ..errors import ConfigError
-from ..estimation.estimator import Estimate, Estimator, EstimatorConfig
+from ..estimation.estimator import FILTER_LOST, Estimate, Estimator, EstimatorConfig
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording
 from .gnss import GnssGate
@@ -59,7 +60,9 @@ class ReplayResult:
     ``P_diag`` (n, 10), ``rho_s``, ``a``, ``v``, ``nis``, ``adapt`` (n,),
     ``nis_dof``, ``status`` (int), ``valid`` (bool) and ``soil_class`` (list
     of str); ``gps_mask`` marks the recording's GNSS epochs that passed the
-    gate; ``counters`` are the estimator's, ``gnss`` the gate's.
+    gate; ``counters`` are the estimator's, ``gnss`` the gate's.  When the
+    estimator declares itself lost, the estimates of the lost period (from
+    its ``lost_since``) are marked not valid with ``FILTER_LOST`` afterwards.
     """
 
     arrays: dict[str, Any]
@@ -154,6 +157,15 @@ class _Sink:
         self.batch.append(e)
         if len(self.batch) == _BATCH:
             self._flush()
+        if not math.isnan(e.lost_since):
+            self._mark_lost(e.lost_since)
+
+    def _mark_lost(self, since: float) -> None:
+        """The estimates since ``since`` [s] came from a lost filter: not valid, FILTER_LOST set."""
+        self._flush()
+        k = int(np.searchsorted(self.t[:self.k0], since, side="left"))
+        self.valid[k:self.k0] = False
+        self.status[k:self.k0] |= FILTER_LOST
 
     def _flush(self) -> None:
         b = self.batch

@@ -189,6 +189,12 @@ class EstimationLoop(TaskPart):
             return None
         self.stats["steps"] += 1
         self.last_estimate = est
+        since = getattr(est, "lost_since", math.nan)
+        if not math.isnan(since):      # the filter had lost the vehicle since then
+            self.stats["filter_lost"] += 1
+            self._warn("lost", "estimator lost the vehicle at t=%.3f (since %.3f); re-initialised", t, since)
+            if self.map is not None:
+                self.map.discard_since(since)
         return est
 
     # ------------------------------------------------------------ the loop

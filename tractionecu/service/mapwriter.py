@@ -133,6 +133,12 @@ class MapWriter:
             return False
         return self._add_ready(ready)
 
+    def discard_since(self, t_since: float) -> None:
+        """The estimator was lost since ``t_since`` [s]: nothing of that period is mapped (samples still
+        waiting for their window are dropped from it and not stored)."""
+        self.sampler.invalidate_since(t_since)
+        self.stats["lost_periods"] += 1
+
     def _add_ready(self, ready: list[tuple]) -> bool:
         all_ok = True
         for (t, lat, lon, values, valid, status, fix_quality, hdop) in ready:
