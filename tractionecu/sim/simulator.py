@@ -18,6 +18,23 @@ static axle load, limited by wheel torque and total power, with a 50 ms
 first-order inverter lag).  The implement's draft is a nominal force with
 Gauss–Markov fluctuation, ramped in and out as the implement is lowered and
 raised.
+
+Travel in both directions.  Speeds, wheel speeds, torques and forces are
+signed along the body's forward axis (v < 0 in reverse).  Eq. 6 is written
+with magnitudes, so the paper's μ(s) is the adhesion in the direction of
+travel; the truth model uses the equivalent signed form
+
+    σ_i = (r_i ω_i − v) / max(r_i |ω_i|, |v|, V_SLIP_MIN),   F_h,i = a g(σ_i) F_z,i   (g odd)
+
+which is eq. 6 (σ = s) when travelling forwards and −s in reverse, so a
+driving torque in reverse (ω, M_d < 0) gives s > 0 and a traction force
+(μ = F_h/F_z) < 0, and stays defined when a wheel turns against the motion
+or the machine stands still (below V_SLIP_MIN the slip is regularised, as
+tyre models do at standstill).  Rolling resistances oppose the motion
+(sgn ω, sgn v, smoothed within V_SIGN_BAND of zero so that the machine can
+stand still).  The plan's direction changes only at standstill: the speed
+reference brakes to a stop at each cusp (``ControllerSpec.stop_decel``),
+holds still for ``shuttle_dwell_s``, then accelerates the other way.
 """
 
 from __future__ import annotations
@@ -33,6 +50,13 @@ from ..model import effects as fx
 from ..model.vehicle import rolling_radius, slip as slip_fn
 from .field import Field
 from .plan import DS, Plan
+
+V_SLIP_MIN = 0.1
+"""Speed below which the slip's denominator is held [m/s] (low-speed regularisation of eq. 6)."""
+V_SIGN_BAND = 0.02
+"""Speed band around zero [m/s] in which sgn(v), sgn(ω) of the rolling resistances are linear."""
+V_STANDSTILL = 0.01
+"""|v| [m/s] below which the machine counts as standing still (shuttling allowed)."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +88,13 @@ class ControllerSpec:
     """Inverter torque response time constant [s]."""
     rho_guess: float = 0.07
     """Rolling resistance used in the feed-forward [-]."""
+    stop_decel: float = 0.25
+    """Deceleration of the speed target approaching a change of direction [m/s²] (below accel_max)."""
+    shuttle_dwell_s: float = 1.0
+    """Time at standstill before the direction of travel changes (power-shuttle reversal) [s]."""
+    hold_tau_s: float = 0.25
+    """At a change of direction, once the speed reference is zero, the integral term (the drive force
+    that kept the machine rolling) decays with this time constant [s]: the machine comes to rest."""
 
 
 @dataclass
@@ -98,13 +129,18 @@ class TruthTrace:
     t: NDArray[np.float64]
     omega: NDArray[np.float64]
     v: NDArray[np.float64]
+    """Ground speed along the body's forward axis [m/s], negative in reverse."""
     md: NDArray[np.float64]
     """Drive torque at the motor (what the inverter reports) [N·m]."""
     fz: NDArray[np.float64]
     fzf: NDArray[np.float64]
     fdx: NDArray[np.float64]
     mu: NDArray[np.float64]
+    """Adhesion coefficient F_h/F_z per wheel [-], signed along the body axis (negative when the wheel
+    pulls backwards, e.g. driving in reverse)."""
     slip: NDArray[np.float64]
+    """Slip per wheel, paper eq. 6 [-]: positive when the wheel drives (turns faster than the ground
+    passes), in either direction of travel."""
     rho_s: NDArray[np.float64]
     """Load-weighted soil rolling resistance Σρ_s,i F_z,i / (m g) [-]."""
     a: NDArray[np.float64]
@@ -118,6 +154,8 @@ class TruthTrace:
     alt: NDArray[np.float64]
     theta: NDArray[np.float64]
     work: NDArray[np.bool_]
+    direction: NDArray[np.int8]
+    """Direction of travel selected (transmission): +1 forwards, −1 reverse; changes only at standstill."""
 
 
 def simulate(scn: Scenario) -> TruthTrace:
@@ -153,6 +191,12 @@ def simulate(scn: Scenario) -> TruthTrace:
 
     # Duration.
     est_time = plan.length / max(float(np.mean(plan.v_target)), 0.1) * 1.15 + 20.0
+    cusps = plan.cusps
+    if len(cusps):
+        # Each change of direction: brake, dwell, accelerate again.
+        ctl = scn.controller
+        vmax = float(np.max(plan.v_target))
+        est_time += len(cusps) * (ctl.shuttle_dwell_s + vmax / ctl.stop_decel + vmax / ctl.accel_max + 5.0)
     t_end = scn.duration_s if scn.duration_s is not None else est_time
     n_max = int(round(t_end / dt)) + 1
 
@@ -160,8 +204,15 @@ def simulate(scn: Scenario) -> TruthTrace:
     phi = math.exp(-dt / scn.implement.draft_tau_s)
     draft_w = rng.standard_normal(n_max) * scn.implement.draft_cv * math.sqrt(1 - phi * phi)
 
+    # Direction of travel and the next change of direction (cusp) ahead.
+    direction = int(plan.direction[0])
+    i_cusp = 0
+    next_cusp = float(cusps[0]) if len(cusps) else math.inf
+    still_s = 0.0
+    hold_decay = math.exp(-dt / scn.controller.hold_tau_s)
+
     # State.
-    v = scn.v0
+    v = direction * scn.v0
     fz = np.array([fzf_static / 2] * 2 + [fzr_static / 2] * 2)
     r = rolling_radius(fz, veh) * r_scale
     omega = np.full(4, v / r[0]) * (r[0] / r)
@@ -175,7 +226,8 @@ def simulate(scn: Scenario) -> TruthTrace:
     accel = 0.0
 
     out = {k: [] for k in ("t", "omega", "v", "md", "fz", "fzf", "fdx", "mu", "slip", "rho_s", "a", "a_wheel",
-                           "soil", "soil_wheel", "x", "y", "heading", "alt", "theta", "work")}
+                           "soil", "soil_wheel", "x", "y", "heading", "alt", "theta", "work",
+                           "direction")}
     half_l = L / 2.0
     half_w = veh.track_width_m / 2.0
     off_fwd = np.array([half_l, half_l, -half_l, -half_l])
@@ -217,12 +269,32 @@ def simulate(scn: Scenario) -> TruthTrace:
             p = eff["draft_speed"]
             fdx *= float(fx.draft_speed_factor(v, p["c_s2pm2"], p["v_ref_mps"]))
 
-        # Speed controller.
+        # Change of direction: only at the cusp, at standstill, after the dwell.
+        at_cusp = next_cusp - d <= DS and v_ref == 0.0
+        if at_cusp:
+            integ *= hold_decay
+        if at_cusp and abs(v) < V_STANDSTILL:
+            still_s += dt
+            if still_s >= scn.controller.shuttle_dwell_s - 1e-9:
+                d = next_cusp
+                i_cusp += 1
+                direction = int(plan.direction[min(int(round(d / DS)), n_path - 1)])
+                next_cusp = float(cusps[i_cusp]) if i_cusp < len(cusps) else math.inf
+                still_s = 0.0
+        else:
+            still_s = 0.0
+        if next_cusp < math.inf:
+            # Brake so as to stand still at the cusp.
+            v_tgt = min(v_tgt, math.sqrt(2.0 * scn.controller.stop_decel * max(next_cusp - d, 0.0)))
+
+        # Speed controller (signed speeds; the rolling-resistance feed-forward opposes the reference motion).
+        v_tgt = direction * v_tgt
         dv_ref = max(-scn.controller.accel_max * dt, min(scn.controller.accel_max * dt, v_tgt - v_ref))
         v_ref += dv_ref
         a_ref = dv_ref / dt
         e = v_ref - v
-        f_cmd = m_nom * (a_ref + scn.controller.kp * e + integ) + fdx + scn.controller.rho_guess * m_nom * G
+        ff_dir = max(-1.0, min(1.0, v_ref / V_SIGN_BAND))
+        f_cmd = m_nom * (a_ref + scn.controller.kp * e + integ) + fdx + ff_dir * scn.controller.rho_guess * m_nom * G
         r_nom = rolling_radius(fz, veh)
         md_cmd = f_cmd * share * r_nom
         md_cmd = np.clip(md_cmd, -veh.max_wheel_torque_nm, veh.max_wheel_torque_nm)
@@ -261,10 +333,10 @@ def simulate(scn: Scenario) -> TruthTrace:
                 f_ext = f_other
             omega, v, s_dyn, accel = _implicit_step(omega, v, s_dyn, h, md_wheel, fz, r, a_w, p_w, a1_w, a2_w,
                                                     rho_w, rho_t, J, m, f_ext, relax)
-            d += v * h
+            d = min(d + abs(v) * h, next_cusp)
 
         s_kin = slip_fn(omega, v, r)
-        s_force = s_dyn if relax is not None else s_kin
+        s_force = s_dyn if relax is not None else _signed_slip(omega, v, r, s_kin)
         mu = a_w * _g(s_force, p_w, a1_w, a2_w)
         out["t"].append(t + dt)
         out["omega"].append(omega.copy())
@@ -286,8 +358,10 @@ def simulate(scn: Scenario) -> TruthTrace:
         out["alt"].append(alt)
         out["theta"].append(theta)
         out["work"].append(work_level >= 1.0)
+        out["direction"].append(direction)
 
     arr = {k: np.asarray(vv) for k, vv in out.items()}
+    arr["direction"] = arr["direction"].astype(np.int8)
     return TruthTrace(**arr)
 
 
@@ -301,54 +375,107 @@ def _dg(s: NDArray[np.float64], p: NDArray[np.float64], a1: NDArray[np.float64],
     return -p * a1 * np.exp(a1 * sa) - (1.0 - p) * a2 * np.exp(a2 * sa)
 
 
+def _regular(omega, v, r) -> bool:
+    """Every wheel turns the way the machine moves and the speeds are above V_SLIP_MIN: plain eq. 6."""
+    return bool(np.all((omega * v > 0.0) & (np.maximum(r * np.abs(omega), abs(v)) >= V_SLIP_MIN)))
+
+
+def _signed_slip(omega, v, r, s_eq6):
+    """Signed slip σ (module doc) per wheel, given the eq. 6 slip ``s_eq6`` of the same ω, v, r."""
+    if _regular(omega, v, r):
+        return s_eq6 if v > 0 else -s_eq6
+    return _slip_and_partials(omega, v, r)[0]
+
+
 def _slip_and_partials(omega, v, r):
-    """Slip (eq. 6) and its partial derivatives ∂s/∂ω, ∂s/∂v for each wheel."""
+    """Signed slip σ (module doc) and its partial derivatives ∂σ/∂ω, ∂σ/∂v for each wheel.
+
+    When every wheel turns the way the machine moves, above V_SLIP_MIN, σ is
+    eq. 6 times the direction of travel; otherwise the general signed form
+    (clipped to [−1, 1], zero derivatives where clipped).
+    """
     vw = r * np.abs(omega)
     va = abs(v)
-    vw = np.maximum(vw, 1e-4)
-    vas = max(va, 1e-4)
-    drive = va <= vw
-    s = np.where(drive, 1.0 - va / vw, -1.0 + vw / vas)
-    sgn_w = np.sign(omega) + (omega == 0)
-    sgn_v = 1.0 if v >= 0 else -1.0
-    ds_dw = np.where(drive, va * r * sgn_w / (vw * vw), r * sgn_w / vas)
-    ds_dv = np.where(drive, -sgn_v / vw, -vw * sgn_v / (vas * vas))
-    return s, ds_dw, ds_dv
+    if _regular(omega, v, r):
+        vw = np.maximum(vw, 1e-4)
+        vas = max(va, 1e-4)
+        drive = va <= vw
+        s = np.where(drive, 1.0 - va / vw, -1.0 + vw / vas)
+        sgn_w = np.sign(omega) + (omega == 0)
+        sgn_v = 1.0 if v >= 0 else -1.0
+        ds_dw = np.where(drive, va * r * sgn_w / (vw * vw), r * sgn_w / vas)
+        ds_dv = np.where(drive, -sgn_v / vw, -vw * sgn_v / (vas * vas))
+        if v > 0:
+            return s, ds_dw, ds_dv
+        return -s, -ds_dw, -ds_dv
+    u = r * omega
+    den = np.maximum(np.maximum(vw, va), V_SLIP_MIN)
+    raw = (u - v) / den
+    by_w = (vw >= va) & (vw >= V_SLIP_MIN)          # den = r|ω|
+    by_v = (va > vw) & (va >= V_SLIP_MIN)           # den = |v|
+    ds_dw = np.where(by_w, r * v * np.sign(u) / (den * den), r / den)
+    ds_dv = np.where(by_v, -u * math.copysign(1.0, v) / (den * den), -1.0 / den)
+    inside = np.abs(raw) <= 1.0
+    return np.clip(raw, -1.0, 1.0), np.where(inside, ds_dw, 0.0), np.where(inside, ds_dv, 0.0)
 
 
 def _implicit_step(omega, v, s_dyn, h, md, fz, r, a, p, a1, a2, rho_s, rho_t, J, m, f_ext, relax):
-    """One linearly implicit Euler step of (ω1..4, v[, s_dyn1..4]) with the analytic Jacobian."""
+    """One linearly implicit Euler step of (ω1..4, v[, s_dyn1..4]) with the analytic Jacobian.
+
+    Signed: ω, v, md and the slip σ are negative in reverse; ``f_ext`` [N] is the external force
+    against the body's forward axis (draft, grade, air).
+    """
     s, ds_dw, ds_dv = _slip_and_partials(omega, v, r)
-    sgn_w = np.sign(omega)
-    sgn_v = math.copysign(1.0, v) if v != 0 else 0.0
+    # Rolling resistances against the motion; linear within V_SIGN_BAND of standstill.
+    u = r * omega
+    sgn_w = np.clip(u / V_SIGN_BAND, -1.0, 1.0)
+    sgn_v = max(-1.0, min(1.0, v / V_SIGN_BAND))
+    band_w = np.abs(u) < V_SIGN_BAND
+    band_v = abs(v) < V_SIGN_BAND
     sf = s if relax is None else s_dyn
     mu = a * _g(sf, p, a1, a2)
     dmu = a * _dg(sf, p, a1, a2)
     f_om = (md - r * fz * (mu + rho_t * sgn_w)) / J
     f_v = ((mu * fz).sum() - f_ext - (rho_s * fz).sum() * sgn_v) / m
+    # ∂ω̇_i/∂ω_i and ∂v̇/∂v of the rolling resistances inside the band (zero outside).
+    rr_w = np.where(band_w, -r * r * fz * rho_t / (J * V_SIGN_BAND), 0.0) if band_w.any() else None
+    rr_v = -(rho_s * fz).sum() / (m * V_SIGN_BAND) if band_v else None
     if relax is None:
         # (I − hJ)Δz = h f with J an arrow matrix (wheels couple only through v):
         # solved in closed form by eliminating Δω.
         k_om = -r * fz * dmu / J
-        d_inv = 1.0 / (1.0 - h * k_om * ds_dw)
+        diag_w = k_om * ds_dw
+        if rr_w is not None:
+            diag_w = diag_w + rr_w
+        d_inv = 1.0 / (1.0 - h * diag_w)
         c = k_om * ds_dv                       # ∂ω̇_i/∂v
         b = fz * dmu * ds_dw / m               # ∂v̇/∂ω_i
         e = (fz * dmu * ds_dv).sum() / m       # ∂v̇/∂v
+        if rr_v is not None:
+            e = e + rr_v
         hf_om = h * f_om
         dv = (h * f_v + h * (b * d_inv * hf_om).sum()) / (1.0 - h * e - h * h * (b * d_inv * c).sum())
         d_om = d_inv * (hf_om + h * c * dv)
         return omega + d_om, v + dv, s_dyn, dv / h
     # With relaxation the force follows the lagged slip state s_dyn: a full 9×9 solve.
+    # The relaxation rate |v|/σ is held at V_SLIP_MIN/σ near standstill.
     sigma = relax["sigma_m"]
     jac = np.zeros((9, 9))
     idx = np.arange(4)
-    rate = abs(v) / sigma
+    rate = max(abs(v), V_SLIP_MIN) / sigma
     f_s = rate * (s - s_dyn)
     jac[idx, 5 + idx] = -r * fz * dmu / J
     jac[4, 5 + idx] = fz * dmu / m
     jac[5 + idx, idx] = rate * ds_dw
-    jac[5 + idx, 4] = rate * ds_dv + sgn_v / sigma * (s - s_dyn)
+    if abs(v) >= V_SLIP_MIN:
+        jac[5 + idx, 4] = rate * ds_dv + math.copysign(1.0, v) / sigma * (s - s_dyn)
+    else:
+        jac[5 + idx, 4] = rate * ds_dv
     jac[5 + idx, 5 + idx] = -rate
+    if rr_w is not None:
+        jac[idx, idx] = rr_w
+    if rr_v is not None:
+        jac[4, 4] = rr_v
     f = np.concatenate([f_om, [f_v], f_s])
     dz = np.linalg.solve(np.eye(9) - h * jac, h * f)
     return omega + dz[:4], v + dz[4], np.clip(s_dyn + dz[5:9], -1.0, 1.0), dz[4] / h
