@@ -7,6 +7,15 @@ NMEA formatter into ``gps.nmea``.  ``vehicle.toml`` holds what a machine's
 owner knows: the nominal parameters (``[vehicle]``) and the sensor figures
 (``[sensors]``); the truth (``truth.csv``, ``truth.toml``) sits beside them for
 scoring and is never read by diagnosis.
+
+In reverse the hub drives report negative wheel speeds and torques (signed
+DBC signals); WBSD and GBSD carry unsigned speeds and distances and the
+direction in SPN 1864 / SPN 1861 (DBC: 0 reverse, 1 forward), taken from the
+direction of travel selected; the GNSS receiver reports an unsigned speed over
+ground (RMC/VTG have no sign) and the course over ground of the motion,
+which is the body heading + 180° in reverse.  Below ``GNSS_COURSE_HOLD_MPS``
+the receiver holds its last course, as receivers do when the velocity
+vector is dominated by noise.
 """
 
 from __future__ import annotations
@@ -34,6 +43,11 @@ NAV_SA = 0x1C
 """Source address of the navigation/GNSS ECU sending GBSD."""
 TRACTOR_SA = 0x00
 """Source address of the tractor ECU sending WBSD."""
+FORWARD, REVERSE = 1, 0
+"""WheelBasedMachineDirection (SPN 1864) / GroundBasedMachineDirection (SPN 1861): ISO 11783-7 values
+(``dbc/tractionecu.dbc`` VAL_: 0 Reverse, 1 Forward, 2 Error, 3 NotAvailable)."""
+GNSS_COURSE_HOLD_MPS = 0.1
+"""Speed over ground below which the receiver holds its last course over ground [m/s]."""
 
 
 def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec | None = None) -> dict[str, int]:
@@ -71,6 +85,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     pin_every = max(1, round(1.0 / (spec.loadpin_rate_hz * dt)))
     gps_every = max(1, round(1.0 / (spec.gps_rate_hz * dt)))
     dist_w = np.cumsum(np.abs(v_wheel)) * dt
+    dir_code = np.where(tr.direction > 0, FORWARD, REVERSE)
 
     for k in range(n):
         t = float(tr.t[k])
@@ -88,7 +103,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
         if k % 10 == 0:
             emit("WBSD", t + 0.0008, {"WheelBasedMachineSpeed": float(abs(v_wheel[k])),
                                       "WheelBasedMachineDistance": float(dist_w[k]),
-                                      "WheelBasedMachineDirection": 1}, TRACTOR_SA)
+                                      "WheelBasedMachineDirection": int(dir_code[k])}, TRACTOR_SA)
 
     # ---- GNSS ------------------------------------------------------------------------
     gi = np.arange(gps_every - 1, n, gps_every)   # epochs on whole 1/rate boundaries (t = (k+1)·dt)
@@ -97,14 +112,14 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     if "gps_latency" in scn.effects:
         from ..model.effects import delayed
         v_true = delayed(tr.t, tr.v, scn.effects["gps_latency"]["tau_s"])
-    v_gps = v_true[gi] + spec.gps_speed_sigma * rng.standard_normal(len(gi))
+    v_gps = np.abs(v_true[gi]) + spec.gps_speed_sigma * rng.standard_normal(len(gi))
     g_dt = gps_every * dt
     ex = ou_noise(len(gi), g_dt, spec.gps_pos_sigma / math.sqrt(2), spec.gps_pos_tau_s, rng)
     ey = ou_noise(len(gi), g_dt, spec.gps_pos_sigma / math.sqrt(2), spec.gps_pos_tau_s, rng)
     ez = ou_noise(len(gi), g_dt, spec.gps_alt_sigma, spec.gps_pos_tau_s, rng)
     lat, lon = scn.field.to_latlon(tr.x[gi] + ex, tr.y[gi] + ey)
     alt = scn.field.origin_alt + tr.alt[gi] + ez
-    course = (90.0 - np.degrees(tr.heading[gi])) % 360.0
+    course = _course_over_ground(tr.heading[gi], v_true[gi])
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []
     for j, k in enumerate(gi):
@@ -117,7 +132,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
         lines.append(nmea.format_vtg(max(float(v_gps[j]), 0.0), float(course[j])))
         emit("GBSD", float(tg[j]) + 0.03, {"GroundBasedMachineSpeed": max(float(v_gps[j]), 0.0),
                                            "GroundBasedMachineDistance": float(gbsd_dist[j]),
-                                           "GroundBasedMachineDirection": 1}, NAV_SA)
+                                           "GroundBasedMachineDirection": int(dir_code[k])}, NAV_SA)
     (out / "gps.nmea").write_text("\n".join(lines) + "\n", encoding="ascii")
     counts["nmea_lines"] = len(lines)
 
@@ -132,11 +147,25 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     return counts
 
 
+def _course_over_ground(heading, v):
+    """Course over ground [deg, clockwise from north] of the motion: the body heading [rad, 0 = east,
+    counter-clockwise], + 180° when v < 0; held at its last value while |v| < GNSS_COURSE_HOLD_MPS."""
+    motion = np.where(v < 0.0, heading + np.pi, heading)
+    course = (90.0 - np.degrees(motion)) % 360.0
+    for j in range(1, len(course)):
+        if abs(v[j]) < GNSS_COURSE_HOLD_MPS:
+            course[j] = course[j - 1]
+    return course
+
+
 def _write_truth(scn: Scenario, tr: TruthTrace, out: Path) -> None:
     lat, lon = scn.field.to_latlon(tr.x, tr.y)
     names = [r.name for r in scn.field.regions]
+    # A plan with reverse segments adds the direction of travel (+1 / −1) as a last column; v is signed.
+    with_dir = bool(np.any(scn.plan.direction < 0))
     cols = (["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_id", "soil_name"]
-            + [f"slip_{w}" for w in WHEELS] + ["v", "x", "y", "lat", "lon", "alt", "fdx", "fzf", "work"])
+            + [f"slip_{w}" for w in WHEELS] + ["v", "x", "y", "lat", "lon", "alt", "fdx", "fzf", "work"]
+            + (["direction"] if with_dir else []))
     with open(out / "truth.csv", "w", newline="", encoding="utf-8") as fh:
         wr = csv.writer(fh)
         wr.writerow(cols)
@@ -147,7 +176,7 @@ def _write_truth(scn: Scenario, tr: TruthTrace, out: Path) -> None:
                         + [f"{x:.5f}" for x in tr.slip[k]]
                         + [f"{tr.v[k]:.4f}", f"{tr.x[k]:.3f}", f"{tr.y[k]:.3f}", f"{lat[k]:.8f}", f"{lon[k]:.8f}",
                            f"{tr.alt[k] + scn.field.origin_alt:.3f}", f"{tr.fdx[k]:.1f}", f"{tr.fzf[k]:.1f}",
-                           int(tr.work[k])])
+                           int(tr.work[k])] + ([int(tr.direction[k])] if with_dir else []))
     lines = ["# Simulation truth: never read by diagnosis.",
              f'scenario = "{scn.name}"', f"seed = {scn.seed}", f"start_epoch = {scn.start_epoch}",
              f"duration_s = {float(tr.t[-1]):.2f}", ""]
