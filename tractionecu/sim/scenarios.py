@@ -8,7 +8,9 @@ accelerates to its working speed and cruises; to give the map (paper Fig. 7)
 an area, it does so on four back-and-forth passes, crossing every soil
 boundary on each pass.
 
-Other scenarios vary soils, speeds and terrain for the diagnosis suite.
+Other scenarios vary soils, speeds and terrain for the diagnosis suite;
+``headland-reverse`` drives the paper's field with a three-point turn at
+every headland that reverses 12 m straight back at 1 m/s.
 """
 
 from __future__ import annotations
@@ -54,6 +56,14 @@ def henrys_slope(seed: int = 0, **kw) -> Scenario:
     return Scenario("henrys-slope", fld, plan, seed=seed, **kw)
 
 
+def headland_reverse(seed: int = 0, **kw) -> Scenario:
+    """The paper's three-soil field and passes, with a three-point turn at every headland:
+    quarter circle forwards, stop, 12 m straight back at 1 m/s, stop, quarter circle onto the next pass."""
+    fld = Field(list(PAPER_SOILS))
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2, reverse_at_headland=12.0, v_reverse=1.0)
+    return Scenario("headland-reverse", fld, plan, seed=seed, **kw)
+
+
 def two_soils_tilled(seed: int = 0, **kw) -> Scenario:
     """A tilled field next to grassland, at 2.0 m/s with a heavier implement."""
     fld = Field([SoilRegion("grassland", "grassland", a=0.70, rho_s=0.05),
@@ -69,6 +79,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-straight": paper_straight,
     "henrys-slope": henrys_slope,
     "two-soils-tilled": two_soils_tilled,
+    "headland-reverse": headland_reverse,
 }
 
 
