@@ -358,9 +358,13 @@ def test_wall_clock_steps_do_not_move_the_schedule(tmp_path: Path, recording: Pa
     gaps = [b - a for x in (before, fwd, back) for a, b in zip(x, x[1:])]
     print(f"\nclock steps: EstSoil broadcasts in 3 s before / after +1 h / after -2 h: {n}; longest gap "
           f"{max(gaps):.3f} s; service {counters['service']}; can {counters['can']}")
-    # the first window may hold a few catch-up steps after start-up; after each step of the clock the
-    # rate is 10 Hz per monotonic second (a wall-clock schedule would stall for 1 h or skip 360 000 steps)
-    assert n[0] >= 27 and 27 <= n[1] <= 33 and 27 <= n[2] <= 33, n
+    # A wall-clock schedule would stall for 1 h after +1 h (no broadcast at all) and skip 360 000 steps
+    # after -2 h.  The monotonic one keeps 10 Hz per monotonic second: every window has broadcasts, none
+    # is skipped, and over the 6 s after the steps the count is 60 up to the steps still to be caught up
+    # at the end (a loaded machine delays a step by up to estimation.max_catch_up_s = 1 s, 10 broadcasts;
+    # the delayed ones then fall into the next window, which is why single windows are not bounded to 30).
+    assert min(n) >= 15, n
+    assert 50 <= n[1] + n[2] <= 70, n
     assert counters["service"].get("skipped_steps", 0) == 0
 
 
