@@ -140,8 +140,8 @@ def test_wrong_dlc_raises_decode_error(codec):
 
 def test_unknown_pgn_and_11_bit_raise_unknown_frame(codec):
     with pytest.raises(UnknownFrame) as e:
-        codec.decode(0x0CF00400, bytes(8))  # EEC1
-    assert e.value.pgn == 61444
+        codec.decode(0x0CF00300, bytes(8))  # EEC2, not in the DBC
+    assert e.value.pgn == 61443
     with pytest.raises(UnknownFrame):
         codec.decode(0x123, bytes(8), is_extended=False)
 

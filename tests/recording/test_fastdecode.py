@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tractionecu.bus import j1939
 from tractionecu.bus.candump import format_line
 from tractionecu.bus.dbc import Codec
 from tractionecu.errors import RecordingError
@@ -86,6 +87,55 @@ def _frames(codec: Codec, n: int = 300) -> list[str]:
     return lines
 
 
+J1939_CODES = (0x00, 0x7D, 0xFA, 0xFB, 0xFC, 0xFD, 0xFE, 0xFF)
+"""Raw byte values through the J1939-71 ranges: valid up to 0xFA, then parameter specific, reserved, error, n/a."""
+
+
+def _standard_lines(n: int = 160) -> list[str]:
+    """Hand-made frames of the standard messages (EEC1, ETC2, CCVS1, EBC2) whose bytes walk through
+    valid, error and not-available codes, and EC1 in transport-protocol sessions (BAM, RTS, broken)."""
+    lines = []
+    ec1 = bytes([0x20, 0x1C, 0xDD]) + b"\xff" * 16 + bytes([0x04, 0x01]) + b"\xff" * 13        # 34 bytes, 260 N.m
+    for k in range(n):
+        t = T0 + 0.02 * k
+        b = J1939_CODES[k % len(J1939_CODES)]
+        hi = J1939_CODES[(k // len(J1939_CODES)) % len(J1939_CODES)]
+        eec1 = bytes([0xF0 | k % 16, 0xFF, b, (37 * k) & 0xFF, hi, 0xFF, 0xFF, b])
+        lines.append(format_line(t, "can0", 0x0CF00400 | (k % 2), True, eec1))
+        if k % 5 == 0:
+            lines.append(format_line(t + 0.001, "can0", 0x18F00503, True, bytes([b, 0x39, hi, b, 0x20, 0x20, 0x20, 0x20])))
+            lines.append(format_line(t + 0.002, "can0", 0x18FEF147, True, bytes([0xF3 | (k % 4) << 2, b, hi, 0xFF,
+                                                                                   0xFF, 0xFF, 0xFF, 0xFF])))
+            lines.append(format_line(t + 0.003, "can0", 0x18FEBF0B, True, bytes([b, hi, b, hi, 0x7D, 0x85, 0xFE, 0xFF])))
+        if k % 40 == 7:                                    # EC1 by BAM from the engine, by RTS to 0x90, one broken
+            sa, da, ctrl = (0x00, 0xFF, 32) if k % 80 == 7 else (0x01, 0x90, 16)
+            lines.append(format_line(t + 0.004, "can0", j1939.make_id(7, 60416, sa, da), True,
+                                     bytes([ctrl, 34, 0, 5, 0xFF, 0xE3, 0xFE, 0x00])))
+            for q in range(5):
+                if k == 87 and q == 3:
+                    continue                                # a packet lost: no message
+                lines.append(format_line(t + 0.005 + 0.001 * q, "can0", j1939.make_id(7, 60160, sa, da), True,
+                                         bytes([q + 1]) + ec1[7 * q:7 * q + 7].ljust(7, b"\xff")))
+    return lines
+
+
+def test_standard_messages_with_error_and_na_codes_decode_identically(tmp_path, codec):
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(_standard_lines()) + "\n")
+    sig, st = assert_same(path, codec)
+    assert {"EEC1", "ETC2", "CCVS1", "EBC2", "EC1"} <= set(st.messages)
+    torque = sig["ActualEnginePercentTorque"].value
+    raw = np.array([J1939_CODES[k % len(J1939_CODES)] for k in range(160)])
+    assert np.array_equal(np.isnan(torque), raw > 0xFA) and np.all(torque[raw <= 0xFA] == raw[raw <= 0xFA] - 125)
+    for name in ("EngineSpeed", "WheelBasedVehicleSpeed", "FrontAxleSpeed", "RelativeSpeedFrontAxleLeftWheel",
+                 "TransmissionActualGearRatio"):
+        v = sig[name].value
+        assert np.isnan(v).any() and np.isfinite(v).any(), name
+    assert np.isnan(sig["RelativeSpeedRearAxle2LeftWheel"].value).all()      # 0xFE error
+    assert st.messages["EC1"].count == 3 and sig["EngineReferenceTorque"].value.tolist() == [260.0] * 3
+    assert dict(st.messages["EC1"].sources) == {0x00: 1, 0x01: 2}          # BAM at k = 7 (87 broken), RTS 47, 127
+
+
 def test_fixture_with_bad_lines_decodes_identically(codec):
     sig, st = assert_same(CANDUMP / "bad_lines.log", codec)
     assert st.files["bad_lines.log"].total_rejected == 10 and st.decode_errors     # the fixture's bad lines
@@ -94,7 +144,14 @@ def test_fixture_with_bad_lines_decodes_identically(codec):
 
 def test_real_capture_with_unknown_pgns_and_claims_decodes_identically(codec):
     sig, st = assert_same(CANDUMP / "jd5055e_excerpt.log", codec)
-    assert len(st.unknown_pgns) == 27 and st.address_claims and "Request" in st.messages
+    assert len(st.unknown_pgns) == 24 and st.address_claims and "Request" in st.messages
+    assert {"EEC1", "ETC2", "CCVS1", "GBSD", "EC1"} <= set(st.messages)
+    # EC1 arrives once, as a 34-byte BAM (TP.CM 1CECFF00#20220005FFE3FE00 and five TP.DT frames): 260 N.m
+    assert st.messages["EC1"].count == 1 and st.messages["EC1"].sources == {0x00: 1}
+    assert sig["EngineReferenceTorque"].value.tolist() == [260.0]
+    assert sig["EngineSpeedAtIdlePoint1"].value[0] == pytest.approx(900 * math.pi / 30)
+    assert sig["WheelBasedVehicleSpeed"].value.tolist() == [0.0] * 4          # CCVS1 from 0x47: standing
+    assert np.isnan(sig["TransmissionActualGearRatio"].value).all()          # ETC2 all 0xFF
 
 
 def test_recording_with_bad_lines_decodes_identically(tmp_path, codec):
@@ -120,7 +177,7 @@ def test_recording_with_bad_lines_decodes_identically(tmp_path, codec):
         190: lines[190][:30] + "G" + lines[190][31:],            # bad hex
         205: lines[205].replace("(17159", "(17158", 1),          # time going backwards
         222: ts(222) + " can0 18EEFF47#4D74300400340220",          # address claim
-        240: ts(240) + " can0 18FEF100#0000000000000000",          # PGN not in the DBC
+        240: ts(240) + " can0 18FEF200#0000000000000000",          # PGN not in the DBC (LFE)
         260: lines[260][:34] + "ff" + lines[260][36:],           # lower-case hex
     }
     text = [bad.get(i, line) for i, line in enumerate(lines)]
@@ -138,7 +195,7 @@ def test_recording_with_bad_lines_decodes_identically(tmp_path, codec):
 def test_mutated_lines_decode_identically(tmp_path, codec, seed):
     rng = random.Random(seed)
     pool = _frames(codec, 120) + (CANDUMP / "bad_lines.log").read_text().split("\n") \
-        + (CANDUMP / "jd5055e_excerpt.log").read_text().split("\n")[:200]
+        + (CANDUMP / "jd5055e_excerpt.log").read_text().split("\n")[:200] + _standard_lines(60)
     out = []
     for line in rng.sample(pool, 250):
         if line and rng.random() < 0.4:

@@ -165,12 +165,12 @@ def test_bad_lines_fixture_through_reader():
     assert st.files["bad_lines.log"].total_rejected == 10
     assert st.decode_errors == {"TECU_WheelSpeeds": 1, "TECU_AxleLoad": 1}
     assert st.decode_error_lines == {"TECU_WheelSpeeds": [4], "TECU_AxleLoad": [17]}
-    assert st.unknown_pgns == {65265: 1}
+    assert st.unknown_pgns == {65266: 1}
     assert st.non_extended_frames == 1
     assert np.allclose(rec.signals["WheelSpeed_FL"].value, [1.0, 1.1, 1.2, 1.4])
     assert rec.signals["FrontAxleLoad"].sa.tolist() == [0x21]
     text = summarize(rec)
-    for needle in ("time_backwards: 1 (bad_lines.log line 13)", "TECU_AxleLoad: 1 (line 17)", "PGN  65265"):
+    for needle in ("time_backwards: 1 (bad_lines.log line 13)", "TECU_AxleLoad: 1 (line 17)", "PGN  65266"):
         assert needle in text
 
 
@@ -220,12 +220,15 @@ def test_jd5055e_excerpt_unknown_pgns_counted_and_claims_listed():
     assert st.files["jd5055e_excerpt.log"].frames == 320
     assert st.files["jd5055e_excerpt.log"].total_rejected == 0
     assert st.decode_errors == {}
-    # skipped and counted per PGN: EEC1, EEC2, TSC1, proprietary A, A2 (data page 1), B ...
-    assert st.unknown_pgns[61444] == 54 and st.unknown_pgns[61443] == 53
+    # skipped and counted per PGN: EEC2, TSC1, proprietary A, A2 (data page 1), B, the transport frames ...
+    assert 61444 not in st.unknown_pgns and st.messages["EEC1"].count == 54 and st.unknown_pgns[61443] == 53
     assert st.unknown_pgns[61184] == 95 and st.unknown_pgn_sources[61184] == {0x00, 0x06}
     assert st.unknown_pgns[126720] == 31 and st.unknown_pgns[0] == 1
-    assert len(st.unknown_pgns) == 27
-    assert st.unknown_frames + sum(m.count for m in st.messages.values()) == 320
+    assert st.unknown_pgns[60416] == 1 and st.unknown_pgns[60160] == 5      # TP.CM (BAM) and TP.DT of EC1
+    assert len(st.unknown_pgns) == 24
+    # every frame once, as a known message or an unknown PGN; EC1 is the message its TP frames carried
+    assert st.messages["EC1"].count == 1
+    assert st.unknown_frames + sum(m.count for n, m in st.messages.items() if n != "EC1") == 320
     # the address claims present, with their source addresses and NAMEs
     assert {c.sa for c in st.address_claims} == JD_CLAIMS
     by_sa = {c.sa: c for c in st.address_claims}
@@ -240,7 +243,7 @@ def test_jd5055e_excerpt_unknown_pgns_counted_and_claims_listed():
     assert np.all(rec.signals["GroundBasedMachineDirection"].value == 3)
     assert j1939.DEFAULT_SERVICE_ADDRESS not in JD_CLAIMS
     text = summarize(rec)
-    assert "SA 0x47 ( 71)" in text and "unknown PGNs skipped: 292 frames, 27 PGNs" in text
+    assert "SA 0x47 ( 71)" in text and "unknown PGNs skipped: 230 frames, 24 PGNs" in text
     assert rec.duration == pytest.approx(1.088)
 
 
@@ -263,7 +266,11 @@ def test_full_jd_captures_through_reader(tmp_path, name):
     rec = read_recording(tmp_path)
     st = rec.stats
     assert st.files["can.log"].frames == rows and st.files["can.log"].total_rejected == 0
-    assert st.unknown_frames + sum(m.count for m in st.messages.values()) == rows
+    assert st.unknown_frames + sum(m.count for n, m in st.messages.items() if n != "EC1") == rows
+    # EC1 (BAM from the engine, 34 bytes): reference torque 260 N.m, idle 900 rpm
+    assert set(rec.signals["EngineReferenceTorque"].value.tolist()) == {260.0}
+    assert rec.signals["EngineSpeedAtIdlePoint1"].value[0] == pytest.approx(900 * math.pi / 30)
+    assert np.all(rec.signals["WheelBasedVehicleSpeed"].value == 0.0)              # stationary
     assert JD_CLAIMS <= {c.sa for c in st.address_claims}
     assert j1939.DEFAULT_SERVICE_ADDRESS not in {c.sa for c in st.address_claims}
     assert rec.gps.t.size == 0 and st.gps_alignment == "no gps.nmea"

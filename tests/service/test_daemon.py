@@ -184,7 +184,7 @@ async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
         p.send(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x01"))
         p.send(can.Message(arbitration_id=0x18FF1080, is_remote_frame=True, dlc=8))
         p.send(can.Message(arbitration_id=0x20000004, is_error_frame=True, data=bytes(8)))
-        p.send(can.Message(arbitration_id=0x0CF00400, data=bytes(8)))            # EEC1: not in the DBC
+        p.send(can.Message(arbitration_id=0x0CF00300, data=bytes(8)))            # EEC2: not in the DBC
         p.send(can.Message(arbitration_id=0x18FF1080, data=b"\x01\x02\x03"))     # wheel speeds, DLC 3
         p.send(can.Message(arbitration_id=0x18FF2033, data=bytes(8)))            # an estimate from another ECU
         p.send(can.Message(arbitration_id=0x18FF10A5, data=bytes(8), is_fd=True))
@@ -193,7 +193,7 @@ async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
         await until(lambda: rig.svc.stats["rx_TECU_WheelSpeeds"] == 2)
         st = rig.svc.stats
         assert st["standard_id_frames"] == 1 and st["remote_frames"] == 1 and st["error_frames"] == 1
-        assert rig.svc.dispatcher.unknown_pgns[0xF004] == 1
+        assert rig.svc.dispatcher.unknown_pgns[0xF003] == 1
         assert rig.svc.dispatcher.bad_frames["TECU_WheelSpeeds"] == 1
         assert st["foreign_estimate_frames"] == 1 and st["canfd_frames"] == 1
         assert rig.task is not None and not rig.task.done()
@@ -204,7 +204,7 @@ async def test_kernel_filters_pass_only_the_dbc_pgns(tmp_path: Path) -> None:
     async with rig:
         await asyncio.wait_for(rig.svc.ready.wait(), 10)
         for _ in range(5):
-            rig.peer.send(can.Message(arbitration_id=0x0CF00400, data=bytes(8)))     # EEC1
+            rig.peer.send(can.Message(arbitration_id=0x0CF00300, data=bytes(8)))     # EEC2
             rig.peer.send(can.Message(arbitration_id=0x123, is_extended_id=False, data=b"\x01"))
         rig.send("TECU_WheelSpeeds", {"WheelSpeed_FL": 1.0}, sa=0x33)
         await until(lambda: rig.svc.stats["rx_TECU_WheelSpeeds"] == 1)

@@ -82,12 +82,12 @@ def test_dispatch_counts_every_kind_of_bad_frame_and_passes_none_on() -> None:
     d.on_frame(1.0, can.Message(arbitration_id=0x20000004, is_error_frame=True, data=bytes(8)))
     d.on_frame(1.0, can.Message(arbitration_id=0x18FF1080, is_remote_frame=True, dlc=8))
     d.on_frame(1.0, can.Message(arbitration_id=0x18FF10A5, data=bytes(8), is_fd=True))
-    d.on_frame(1.0, can.Message(arbitration_id=0x0CF00400, data=bytes(8)))        # EEC1: not in the DBC
+    d.on_frame(1.0, can.Message(arbitration_id=0x0CF00300, data=bytes(8)))        # EEC2: not in the DBC
     d.on_frame(1.0, can.Message(arbitration_id=0x18FF1080, data=b"\x01\x02\x03"))  # wheel speeds, DLC 3
     d.on_frame(1.0, can.Message(arbitration_id=0x18FF2033, data=bytes(8)))         # another ECU's estimate
     st = d.stats
     assert (st["standard_id_frames"], st["error_frames"], st["remote_frames"], st["canfd_frames"]) == (1, 1, 1, 1)
-    assert st["unknown_pgn_frames"] == 1 and d.unknown_pgns == Counter({0xF004: 1})
+    assert st["unknown_pgn_frames"] == 1 and d.unknown_pgns == Counter({0xF003: 1})
     assert st["bad_frames"] == 1 and d.bad_frames == Counter({"TECU_WheelSpeeds": 1})
     assert st["foreign_estimate_frames"] == 1
     assert st["decoded_frames"] == 0

@@ -1,17 +1,59 @@
-"""PGN-based codec over the project DBC (``dbc/tractionecu.dbc``).
+"""PGN-based codec over the project DBC (``dbc/tractionecu.dbc``) and the owner's own DBCs.
 
 J1939 decoding goes by parameter group number, not by CAN identifier: the
 same PGN arrives from whatever source address the sending ECU claimed, and
 PDU1 PGNs also carry a destination address.  :class:`Codec` therefore
 indexes the DBC messages by PGN and ignores SA (and DA) when decoding.
 
-Physical values are SI as stated in the DBC (m/s, m, rad/s, N·m, N,
-dimensionless); percentages are in %.  J1939 "error / not available" raw
-codes decode to NaN: a raw value outside the signal's DBC range
-``[minimum, maximum]`` (e.g. 0xFFFF in a 16-bit unsigned speed, 0x8000 in
-a signed proprietary signal) is reported as ``float('nan')``.  Encoding a
-NaN or a missing signal writes the all-ones raw code (0x8000 for signed
-signals) so receivers see "not available".
+Units
+-----
+Physical values are SI as stated in the DBC: m/s for every speed (J1939's
+km/h divided by 3.6), rad/s for angular speeds (engine speed too: J1939's
+0.125 rpm/bit is π/240 rad/s per bit), m, N·m, N, and dimensionless; percentages
+(percent torque, hitch position) stay in %.
+
+Not available and error
+-----------------------
+A raw value outside the signal's valid raw range decodes as ``float('nan')``,
+never as a number:
+
+* **J1939 / ISO 11783 parameters** (signals with an ``SPN`` attribute) of 8,
+  16, 24 or 32 unsigned bits: the valid range is the one SAE J1939-71 gives
+  for the length, raw 0 to 0xFA, 0xFAFF, 0xFAFFFF, 0xFAFFFFFF; above it lie
+  the parameter-specific, reserved, error (0xFE…) and not-available (0xFF…)
+  codes.  This holds whatever minimum and maximum the DBC writes (DBCs often
+  round the maximum, e.g. 250.996 km/h for raw 0xFAFF), and
+  :attr:`SignalInfo.minimum` / :attr:`SignalInfo.maximum` are the physical
+  ends of that raw range.  2- and 4-bit status fields keep their coded
+  states (2 error, 3 not available).
+* **Other signals**: the raw range from the DBC's ``[minimum|maximum]``
+  (e.g. 0xFFFF in a 16-bit unsigned speed, 0x8000 in a signed proprietary
+  signal lie outside it).  A DBC that writes ``[0|0]`` (no range, common in
+  OEM files) gets the full raw range of the signal's length.  IEEE float
+  signals are taken as they are.
+
+Encoding a NaN or a missing signal writes the all-ones raw code (0x8000 for
+signed signals) so receivers see "not available".
+
+Multi-packet messages
+---------------------
+A message longer than 8 bytes (EC1, 40 bytes) travels with the J1939-21
+transport protocol (:mod:`.transport`).  Its payload may be shorter than the
+DBC's length (an older revision of the standard sends fewer bytes) or
+longer; :meth:`Codec.decode` pads it with 0xFF ("not available") or cuts it
+to the DBC's length.  Messages of up to 8 bytes must have their exact length.
+
+The owner's own DBCs
+--------------------
+``Codec(extra=[...])`` loads further DBC files beside the built-in one: their
+messages are decoded by PGN like the others.  Their signals are named
+``Message.Signal`` (the owner's files may repeat a signal name in several
+messages), so a recording holds them under those names and a ``[signals]``
+table maps them onto the contract names (:meth:`Codec.resolve_mapping`).  A
+PGN or a message name defined twice is a :class:`ConfigError` naming both
+files.  Messages of an extra DBC that cannot be decoded by PGN (11-bit
+identifiers, multiplexed messages) are skipped and listed in
+:attr:`Codec.skipped`.
 
 The DBC has one place, ``dbc/tractionecu.dbc`` at the top of the
 repository, installed as the package ``tractionecu.contract`` (see
@@ -28,7 +70,7 @@ from collections import Counter
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import cantools
 
@@ -87,7 +129,10 @@ def default_dbc_path() -> Path:
 class SignalInfo:
     """Static description of one DBC signal.
 
-    ``raw_min``/``raw_max`` bound the valid raw range (from the DBC
+    ``name`` is the key the codec decodes it under: the DBC name for the
+    built-in DBC, ``Message.Signal`` for an extra DBC (``dbc_name`` is the
+    name in the file).  ``raw_min``/``raw_max`` bound the valid raw range
+    (module doc: the J1939 range for SPN signals, else the DBC
     minimum/maximum); ``raw_na`` is the raw code written for "not available".
     """
 
@@ -105,6 +150,9 @@ class SignalInfo:
     raw_max: int
     raw_na: int
     comment: str | None
+    spn: int | None = None
+    dbc_name: str = ""
+    is_float: bool = False
 
     @property
     def resolution(self) -> float:
@@ -114,7 +162,7 @@ class SignalInfo:
 
 @dataclass(frozen=True)
 class MessageInfo:
-    """Static description of one DBC message (parameter group)."""
+    """Static description of one DBC message (parameter group); ``source`` is the DBC file's name."""
 
     name: str
     pgn: int
@@ -125,64 +173,120 @@ class MessageInfo:
     cycle_time_s: float | None
     signals: tuple[str, ...]
     comment: str | None
+    source: str = ""
+
+    @property
+    def multi_packet(self) -> bool:
+        """Longer than one CAN frame: sent with the J1939-21 transport protocol, any received length accepted."""
+        return self.length > 8
+
+
+J1939_VALID_MAX = {8: 0xFA, 16: 0xFAFF, 24: 0xFAFFFF, 32: 0xFAFFFFFF}
+"""Largest valid raw value of an unsigned J1939 parameter of this many bits (SAE J1939-71 parameter ranges);
+above it: parameter-specific indicators, reserved, error (0xFE..) and not available (0xFF..)."""
 
 
 def _raw_bounds(sig) -> tuple[int, int, int]:
     full_lo = -(1 << (sig.length - 1)) if sig.is_signed else 0
     full_hi = (1 << (sig.length - 1)) - 1 if sig.is_signed else (1 << sig.length) - 1
+    raw_na = -(1 << (sig.length - 1)) if sig.is_signed else (1 << sig.length) - 1
+    if sig.spn and not sig.is_signed and sig.length in J1939_VALID_MAX:
+        return 0, J1939_VALID_MAX[sig.length], raw_na
     scale = float(sig.scale)
     offset = float(sig.offset)
-    lo_phys = sig.minimum if sig.minimum is not None else None
-    hi_phys = sig.maximum if sig.maximum is not None else None
-    if lo_phys is None:
-        raw_min = full_lo
-    else:
-        raw_min = max(full_lo, math.ceil((lo_phys - offset) / scale - 1e-6))
-    if hi_phys is None:
-        raw_max = full_hi
-    else:
-        raw_max = min(full_hi, math.floor((hi_phys - offset) / scale + 1e-6))
-    raw_na = -(1 << (sig.length - 1)) if sig.is_signed else (1 << sig.length) - 1
+    lo_phys, hi_phys = sig.minimum, sig.maximum
+    if (lo_phys is not None and hi_phys is not None and lo_phys == hi_phys) or scale == 0:   # "[0|0]": no range
+        return full_lo, full_hi, raw_na
+    ends = [(x - offset) / scale if x is not None else None for x in (lo_phys, hi_phys)]
+    if scale < 0:
+        ends.reverse()
+    raw_min = full_lo if ends[0] is None else max(full_lo, math.ceil(ends[0] - 1e-6))
+    raw_max = full_hi if ends[1] is None else min(full_hi, math.floor(ends[1] + 1e-6))
     return raw_min, raw_max, raw_na
 
 
+def _signal_info(key: str, message: str, pgn: int, s) -> SignalInfo:
+    """The :class:`SignalInfo` of cantools signal ``s`` decoded under ``key``."""
+    if s.is_float:
+        lo = float(s.minimum) if s.minimum is not None and s.minimum != s.maximum else -math.inf
+        hi = float(s.maximum) if s.maximum is not None and s.minimum != s.maximum else math.inf
+        return SignalInfo(key, message, pgn, float(s.scale), float(s.offset), lo, hi, s.unit or "", s.length,
+                          True, 0, 0, 0, s.comment, s.spn, s.name, True)
+    raw_min, raw_max, raw_na = _raw_bounds(s)
+    ends = sorted((raw_min * s.scale + s.offset, raw_max * s.scale + s.offset))
+    j1939 = bool(s.spn) and not s.is_signed and s.length in J1939_VALID_MAX
+    minimum = float(s.minimum) if s.minimum is not None and s.minimum != s.maximum and not j1939 else ends[0]
+    maximum = float(s.maximum) if s.maximum is not None and s.minimum != s.maximum and not j1939 else ends[1]
+    return SignalInfo(key, message, pgn, float(s.scale), float(s.offset), minimum, maximum, s.unit or "", s.length,
+                      s.is_signed, raw_min, raw_max, raw_na, s.comment, s.spn, s.name, False)
+
+
 class Codec:
-    """Encode and decode J1939 frames of the project DBC by PGN.
+    """Encode and decode J1939 frames of the project DBC (and the owner's DBCs) by PGN.
 
     Parameters
     ----------
     path:
-        DBC file; default :func:`default_dbc_path`.  Loaded with
-        ``cantools.database.load_file(path, strict=True)``.
+        The contract DBC; default :func:`default_dbc_path`.  Loaded with
+        ``cantools.database.load_file(path, strict=True)``; it must hold
+        every contract signal.
+    extra:
+        The owner's DBC files, loaded after it (module doc): their messages
+        are added, their signals named ``Message.Signal``.
 
     Attributes
     ----------
     clip_counts:
         ``Counter`` of signal name -> number of values clipped to the
         signal's range by :meth:`encode` since construction.
+    skipped:
+        ``(file, message, reason)`` of the extra DBCs' messages not decoded.
     """
 
-    def __init__(self, path: str | Path | None = None) -> None:
+    def __init__(self, path: str | Path | None = None, extra: Sequence[str | Path] = ()) -> None:
         self.path = Path(path) if path is not None else default_dbc_path()
-        try:
-            self.db = cantools.database.load_file(str(self.path), strict=True)
-        except FileNotFoundError as exc:
-            raise ConfigError(f"dbc: file not found: {self.path}") from exc
-        except Exception as exc:  # cantools raises several unrelated types
-            raise ConfigError(f"dbc: cannot load {self.path}: {exc}") from exc
-
+        self.extra_paths: tuple[Path, ...] = tuple(Path(x) for x in extra)
         self.messages: dict[str, MessageInfo] = {}
         self.signals: dict[str, SignalInfo] = {}
+        self.skipped: list[tuple[str, str, str]] = []
         self._by_pgn: dict[int, MessageInfo] = {}
         self._cmsg: dict[str, object] = {}
-        for m in self.db.messages:
+        self._keys: dict[str, dict[str, str]] = {}       # message -> {DBC signal name: decoded key}
+        self.db = self._load(self.path, extra=False)
+        missing = [n for n in CONTRACT_SIGNALS if n not in self.signals]
+        if missing:
+            raise ConfigError(f"dbc: contract signal(s) missing from {self.path}: {', '.join(missing)}")
+        self.contract_inputs: tuple[str, ...] = tuple(
+            n for m in self.messages.values() if m.pgn not in NETWORK_MANAGEMENT_PGNS
+            and not any(x in OUTPUT_SIGNALS for x in m.signals) for n in m.signals)
+        """Signals of the contract DBC a ``[signals]`` table may map onto (every data signal but the estimator's outputs)."""
+        for x in self.extra_paths:
+            self._load(x, extra=True)
+        self.clip_counts: Counter[str] = Counter()
+
+    def _load(self, path: Path, extra: bool):
+        try:
+            db = cantools.database.load_file(str(path), strict=not extra)
+        except FileNotFoundError as exc:
+            raise ConfigError(f"dbc: file not found: {path}") from exc
+        except Exception as exc:  # cantools raises several unrelated types
+            raise ConfigError(f"dbc: cannot load {path}: {exc}") from exc
+        for m in db.messages:
+            if extra and (not m.is_extended_frame or m.is_multiplexed()):
+                why = "11-bit identifier (J1939 decodes 29-bit frames by PGN)" if not m.is_extended_frame \
+                    else "multiplexed (not decoded by PGN)"
+                self.skipped.append((path.name, m.name, why))
+                log.warning("dbc: %s: message %s skipped: %s", path.name, m.name, why)
+                continue
             if not m.is_extended_frame:
                 raise ConfigError(f"dbc: message {m.name} is not a 29-bit extended frame")
             cid = j1939.parse_id(m.frame_id)
-            if cid.pgn in self._by_pgn:
-                raise ConfigError(
-                    f"dbc: PGN {cid.pgn} defined twice ({self._by_pgn[cid.pgn].name}, {m.name})"
-                )
+            twice = self._by_pgn.get(cid.pgn) or self.messages.get(m.name)
+            if twice is not None:
+                what = f"PGN {cid.pgn} ({cid.pgn:#06x})" if twice.pgn == cid.pgn else f"message name {m.name}"
+                raise ConfigError(f"dbc: {what} defined twice: {twice.name} in {twice.source}, "
+                                  f"{m.name} in {path.name}")
+            keys = {s.name: (f"{m.name}.{s.name}" if extra else s.name) for s in m.signals}
             info = MessageInfo(
                 name=m.name,
                 pgn=cid.pgn,
@@ -191,36 +295,20 @@ class Codec:
                 default_da=cid.da,
                 length=m.length,
                 cycle_time_s=(m.cycle_time / 1000.0) if m.cycle_time else None,
-                signals=tuple(s.name for s in m.signals),
+                signals=tuple(keys.values()),
                 comment=m.comment,
+                source=path.name,
             )
+            for s in m.signals:
+                if keys[s.name] in self.signals:
+                    raise ConfigError(f"dbc: signal name {s.name} used in two messages")
             self.messages[m.name] = info
             self._by_pgn[cid.pgn] = info
             self._cmsg[m.name] = m
+            self._keys[m.name] = keys
             for s in m.signals:
-                if s.name in self.signals:
-                    raise ConfigError(f"dbc: signal name {s.name} used in two messages")
-                raw_min, raw_max, raw_na = _raw_bounds(s)
-                self.signals[s.name] = SignalInfo(
-                    name=s.name,
-                    message=m.name,
-                    pgn=cid.pgn,
-                    scale=float(s.scale),
-                    offset=float(s.offset),
-                    minimum=float(s.minimum) if s.minimum is not None else raw_min * s.scale + s.offset,
-                    maximum=float(s.maximum) if s.maximum is not None else raw_max * s.scale + s.offset,
-                    unit=s.unit or "",
-                    length=s.length,
-                    is_signed=s.is_signed,
-                    raw_min=raw_min,
-                    raw_max=raw_max,
-                    raw_na=raw_na,
-                    comment=s.comment,
-                )
-        missing = [n for n in CONTRACT_SIGNALS if n not in self.signals]
-        if missing:
-            raise ConfigError(f"dbc: contract signal(s) missing from {self.path}: {', '.join(missing)}")
-        self.clip_counts: Counter[str] = Counter()
+                self.signals[keys[s.name]] = _signal_info(keys[s.name], m.name, cid.pgn, s)
+        return db
 
     # ------------------------------------------------------------------ lookup
     def message(self, name: str) -> MessageInfo:
@@ -292,29 +380,81 @@ class Codec:
             raise exc
         data = bytes(data)
         if len(data) != info.length:
-            raise DecodeError(
-                f"{info.name} (PGN {pgn}): DLC {len(data)}, expected {info.length}"
-            )
+            if not info.multi_packet:
+                raise DecodeError(
+                    f"{info.name} (PGN {pgn}): DLC {len(data)}, expected {info.length}"
+                )
+            data = data[: info.length].ljust(info.length, b"\xff")
         try:
             raw = self._cmsg[info.name].decode(  # type: ignore[attr-defined]
                 data, decode_choices=False, scaling=False
             )
         except Exception as e:  # cantools.DecodeError and bitstruct errors
             raise DecodeError(f"{info.name} (PGN {pgn}): {e}") from None
+        keys = self._keys[info.name]
         out: dict[str, float] = {}
         for name, r in raw.items():
-            s = self.signals[name]
+            key = keys[name]
+            s = self.signals[key]
+            if s.is_float:
+                out[key] = float(r) * s.scale + s.offset
+                continue
             r = int(r)
             if r < s.raw_min or r > s.raw_max:
-                out[name] = math.nan
+                out[key] = math.nan
             else:
-                out[name] = r * s.scale + s.offset
+                out[key] = r * s.scale + s.offset
         return info.name, out
+
+    def resolve(self, ref: str) -> str:
+        """The decoded key of a signal reference ``Message.Signal`` (the DBC names) or a contract signal name.
+
+        Raises :class:`KeyError` with a message naming what is missing.
+        """
+        msg, dot, sig = ref.partition(".")
+        if not dot:
+            if ref in self.signals and "." not in ref:
+                return ref
+            raise KeyError(f"{ref!r} is not a signal of {self.path.name}; write Message.Signal")
+        info = self.messages.get(msg)
+        if info is None:
+            files = ", ".join(p.name for p in (self.path, *self.extra_paths))
+            hint = "" if self.extra_paths else "; give the owner's DBC with --dbc"
+            raise KeyError(f"no message {msg!r} in the loaded DBCs ({files}){hint}")
+        key = self._keys[msg].get(sig)
+        if key is None:
+            raise KeyError(f"message {msg} ({info.source}) has no signal {sig!r} "
+                           f"(it has {', '.join(self._keys[msg])})")
+        return key
+
+    def resolve_mapping(self, mapping: Mapping[str, tuple[str, float]], section: str = "signals"
+                        ) -> list[tuple[str, str, float]]:
+        """Check a ``[signals]`` table against the loaded DBCs.
+
+        ``mapping`` maps a contract name (a data signal of the contract DBC,
+        :attr:`contract_inputs`) to ``(Message.Signal, scale)``.  Returns
+        ``[(contract name, decoded key of the source, scale)]`` in the table's
+        order.  A :class:`ConfigError` names the key ``section.<name>`` of an
+        unknown contract name, message or signal.
+        """
+        out = []
+        for target, (ref, scale) in mapping.items():
+            key = f"{section}.{target}"
+            if target not in self.contract_inputs:
+                raise ConfigError(f"{key}: not a contract signal (known: {', '.join(self.contract_inputs)})")
+            try:
+                src = self.resolve(ref)
+            except KeyError as e:
+                raise ConfigError(f"{key}: {e.args[0]}") from None
+            out.append((target, src, float(scale)))
+        return out
 
     # ------------------------------------------------------------------ encode
     def to_raw(self, signal: str, value: float | None) -> tuple[int, bool]:
         """Physical value -> (raw integer, clipped?).  None/NaN -> not-available code."""
         s = self.signals[signal]
+        if s.is_float:
+            raise ValueError(f"{signal}: encoding IEEE float signals is not supported")
         if value is None or (isinstance(value, float) and math.isnan(value)):
             return s.raw_na, False
         v = float(value)
@@ -361,8 +501,9 @@ class Codec:
                 if clipped is not None:
                     clipped.append(name)
                 log.debug("clipped %s=%r to DBC range", name, values.get(name))
+        names = {v: k for k, v in self._keys[message_name].items()}
         data = self._cmsg[message_name].encode(  # type: ignore[attr-defined]
-            raw, scaling=False, padding=True, strict=False
+            {names[k]: r for k, r in raw.items()}, scaling=False, padding=True, strict=False
         )
         can_id = j1939.make_id(
             info.priority if priority is None else priority,

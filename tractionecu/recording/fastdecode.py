@@ -24,10 +24,19 @@ Frames
     are decoded per message with the DBC's own signal definitions, read
     from the cantools database: raw = (data as little-endian uint64 >> start)
     & (2^length − 1), two's complement when signed, NaN outside the raw
-    range, else raw·scale + offset (:meth:`Codec.decode`'s rule).  Unknown
-    PGNs are counted per PGN and source address as arrays.  Address claims,
-    wrong data lengths and messages of any other layout go through
+    range, else raw·scale + offset (:meth:`Codec.decode`'s rule; the raw
+    range is the codec's, so a J1939 parameter's error and not-available
+    codes, 0xFB.. to 0xFF.., are NaN here as there).  Unknown PGNs are
+    counted per PGN and source address as arrays.  Address claims, wrong
+    data lengths and messages of any other layout go through
     :meth:`Codec.decode` frame by frame.
+
+Multi-packet messages
+    TP.CM / TP.DT frames (J1939-21 transport protocol) stay counted as
+    unknown PGNs; the messages they carry are reassembled
+    (:mod:`tractionecu.bus.transport`) and, when the DBC has their PGN,
+    decoded with :meth:`Codec.decode` as one frame at the line and time of
+    their last packet, from the sender's address.
 
 The result — signals, statistics, counters and the insertion order of every
 dict — equals the per-frame reader's (:func:`.reference.read_can_per_frame`);
@@ -46,6 +55,7 @@ import numpy as np
 from ..bus import j1939
 from ..bus.candump import ReadStats, _classify
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
+from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..errors import DecodeError, UnknownFrame
 
 CHUNK_CHARS = 1 << 22
@@ -207,7 +217,8 @@ def _vector_layout(codec: Codec, name: str) -> list[tuple[str, int, int, bool]] 
     if any(s.byte_order != "little_endian" or s.is_float or s.length > 64 for s in sigs.values()):
         return None
     _, values = codec.decode(codec.messages[name].pgn << 8, bytes(msg.length), True)
-    return [(k, sigs[k].start, sigs[k].length, sigs[k].is_signed) for k in values]
+    dbc = {k: sigs[codec.signals[k].dbc_name] for k in values}
+    return [(k, dbc[k].start, dbc[k].length, dbc[k].is_signed) for k in values]
 
 
 def _signal_values(payload: np.ndarray, start: int, length: int, signed: bool, info) -> np.ndarray:
@@ -280,11 +291,18 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int) -> t
         stats.unknown_pgn_sources.setdefault(p, set()).update(np.unique(sa[rows]).tolist())
     counts = stats.unknown_pgns
     stats.unknown_pgns = Counter({p: counts[p] for p in sorted(counts, key=lambda q: unknown_first.get(q, -1))})
-    # frames that need Codec.decode: wrong length (counted) or a layout not handled above
-    for i in sorted(per_frame):
-        p = int(pgn[i])
+    # frames that need Codec.decode: wrong length (counted) or a layout not handled above, and the
+    # multi-packet messages of known PGNs, each after its last TP.DT frame
+    items = [(i, 0, int(cid[i]), table.data(i)) for i in per_frame]
+    tp = Reassembler()
+    for i in np.flatnonzero(ext & np.isin(pgn, list(TRANSPORT_PGNS)) & (table.dlc == 8)).tolist():
+        done = tp.feed(int(cid[i]), table.data(i))
+        if done is not None and codec.message_for_pgn(done[0]) is not None:
+            items.append((i, 1, message_id(done[0], done[1]), done[2]))
+    for i, _, can_id, data in sorted(items, key=lambda x: x[:2]):
+        p = j1939.pgn_of(can_id)
         try:
-            msg, values = codec.decode(int(cid[i]), table.data(i), True)
+            msg, values = codec.decode(can_id, data, True)
         except UnknownFrame:                            # pragma: no cover - PGN known above
             stats.unknown_pgns[p] += 1
             stats.unknown_pgn_sources.setdefault(p, set()).add(int(sa[i]))

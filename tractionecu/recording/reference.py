@@ -3,7 +3,9 @@
 
 :func:`tractionecu.recording.reader.read_recording` decodes in bulk
 (:mod:`.fastdecode`); this slow, plain form is what the bulk decoder is
-tested against (identical series, statistics and counters).
+tested against (identical series, statistics and counters).  Multi-packet
+messages of DBC PGNs are decoded after their last transport-protocol packet
+(:func:`tractionecu.bus.transport.with_reassembled`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 from ..bus import j1939
 from ..bus.candump import ReadStats, read_candump
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
+from ..bus.transport import with_reassembled
 from ..counting import MAX_EXAMPLES
 from ..errors import DecodeError, RecordingError, UnknownFrame
 from .containers import AddressClaim, MessageStats, RecordingStats, Series
@@ -50,7 +53,7 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
     times: dict[str, list[float]] = {}
     claims: dict[tuple[int, int], AddressClaim] = {}
     try:
-        for frame in read_candump(path, rs):
+        for frame in with_reassembled(read_candump(path, rs), lambda pgn: codec.message_for_pgn(pgn) is not None):
             lineno = rs.lines
             if not math.isfinite(stats.can_t_first):
                 stats.can_t_first = frame.t
