@@ -60,11 +60,17 @@ class EstimatorConfig:
     mu_max: float = setting(1.2, "upper bound of μ [-]", 0.0, 5.0)
     rho_min: float = setting(0.0, "lower bound of ρ_s [-]", -1.0, 0.0)
     rho_max: float = setting(0.5, "upper bound of ρ_s [-]", 0.0, 5.0)
-    wheel_timeout_s: float = setting(0.05, "wheel-speed timeout [s]", 1e-3, 60.0)
-    gps_timeout_s: float = setting(0.5, "ground-speed timeout [s]", 1e-3, 60.0)
-    torque_timeout_s: float = setting(0.05, "drive-torque timeout [s]", 1e-3, 60.0)
-    axle_timeout_s: float = setting(0.1, "front-axle-load timeout [s]", 1e-3, 60.0)
-    draft_timeout_s: float = setting(0.1, "draft-force timeout [s]", 1e-3, 60.0)
+    # timeouts: max(floor, timeout_periods × the period observed on the bus) (estimation/rates.py)
+    wheel_timeout_s: float = setting(0.05, "shortest wheel-speed timeout (floor of the rate-derived one) [s]", 1e-3, 60.0)
+    gps_timeout_s: float = setting(0.5, "shortest ground-speed timeout (floor of the rate-derived one) [s]", 1e-3, 60.0)
+    torque_timeout_s: float = setting(0.05, "shortest drive-torque timeout (floor of the rate-derived one) [s]", 1e-3, 60.0)
+    axle_timeout_s: float = setting(0.1, "shortest front-axle-load timeout (floor of the rate-derived one) [s]", 1e-3, 60.0)
+    draft_timeout_s: float = setting(0.1, "shortest draft-force timeout (floor of the rate-derived one) [s]", 1e-3, 60.0)
+    timeout_periods: float = setting(3.0, "a stream times out after this many of its observed periods without a sample "
+                                          "(one lost sample plus jitter of up to a period never trips it); longer "
+                                          "intervals are gaps, not the rate [-]", 1.5, 100.0)
+    rate_window: int = setting(16, "inter-arrival intervals per median of a stream's observed period; the configured "
+                                   "SensorSpec rate is used until the first median [-]", 3, 10000)
     # initial uncertainty and convergence
     sigma_v0: float = setting(0.2, "initial standard deviation of v [m/s]", 1e-6, 100.0)
     sigma_mu0: float = setting(0.1, "initial standard deviation of μ [-]", 1e-6, 10.0)

@@ -29,7 +29,8 @@ Process noise Q_k = Q_in,k + f_k · A_k · diag(q) · Δt (see :mod:`.supervisor
   1/J; axle-load noise on all wheel torques and on v̇ through F_z = (F_zf/2,
   F_zf/2, (mg−F_zf)/2, (mg−F_zf)/2); draft noise on v̇ with gain −1/m.  A
   held (zero-order-hold) white sample of variance σ² and period T has the
-  spectral density σ² T, hence Q_in = G Σ_u Gᵀ·T·Δt.
+  spectral density σ² T, hence Q_in = G Σ_u Gᵀ·T·Δt, with each input's T
+  as observed on the bus (:mod:`.rates`; the SensorSpec rate until then).
 * q = (q_ω ×4, q_v, q_μ ×4, q_ρ) are the tuning densities: model error for
   ω and v, random walks for μ and ρ_s (paper: "their dynamics are neglected").
 
@@ -38,9 +39,10 @@ Timing and robustness
 Inputs given at t are the inputs over (t_prev, t]; each key is held
 (zero-order hold) until it is refreshed.  An input that is None, NaN or
 Inf is rejected (the held value stays, bit 0x40) and the step is predict
-only.  A sensor not refreshed within its timeout sets its status bit; an
-input timeout makes the step predict only; a missing measurement simply
-skips its part of the update.  Gaps longer than ``max_step_s`` are
+only.  A sensor not refreshed within its timeout (its configured floor or
+``timeout_periods`` of its observed period, the longer: :mod:`.rates`) sets
+its status bit; an input timeout makes the step predict only; a missing
+measurement simply skips its part of the update.  Gaps longer than ``max_step_s`` are
 predicted in sub-steps.  Nothing depends on wall-clock time, so the same
 input sequence always gives the same estimates (offline = online).
 
@@ -66,6 +68,7 @@ from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
 from .curve import CurveEstimator
 from .divergence import DivergenceMonitor
+from .rates import BusRates
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
 
@@ -176,11 +179,17 @@ class Estimator:
         self._r_v = sp.gps_speed_sigma ** 2
         self._tq_abs, self._tq_rel = sp.torque_sigma_abs, sp.torque_sigma_rel
         self._tq_q2 = sp.torque_quant ** 2 / 12.0
-        self._tq_T = 1.0 / sp.wheel_rate_hz
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
-        self._pin_T = 1.0 / sp.loadpin_rate_hz
         self._weight = vehicle.weight_n
+        # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
+        # the SensorSpec rates until enough samples were seen.
+        self._rates = BusRates(
+            {"Md": 1.0 / sp.wheel_rate_hz, "Fzf": 1.0 / sp.loadpin_rate_hz, "Fdx": 1.0 / sp.loadpin_rate_hz,
+             "omega": 1.0 / sp.wheel_rate_hz, "v": 1.0 / sp.gps_rate_hz},
+            {"Md": cfg.torque_timeout_s, "Fzf": cfg.axle_timeout_s, "Fdx": cfg.draft_timeout_s,
+             "omega": cfg.wheel_timeout_s, "v": cfg.gps_timeout_s},
+            cfg.timeout_periods, cfg.rate_window, cfg.max_gap_s)
         self._monitor = DivergenceMonitor(cfg.lost_after_s, cfg.lost_nis_alpha, cfg.rho_max,
                                           max(cfg.direction_min_speed_mps, cfg.standstill_speed_mps))
         self.reset()
@@ -198,6 +207,7 @@ class Estimator:
         self._t_omega = -math.inf
         self._t_v = -math.inf
         self._last_v_meas: float | None = None
+        self._rates.reset()
         self._dir = 1.0
         self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
@@ -266,7 +276,8 @@ class Estimator:
         q *= self._A
         Q = np.diag(q)
         J = self.J
-        self._tq_gain = self._tq_T * dt / (J * J)
+        period = self._rates.period
+        self._tq_gain = period("Md") * dt / (J * J)
         if self.cfg.input_noise and self.ukf is not None:
             self._loads()
             mu = self.ukf.x[IX_MU]
@@ -275,8 +286,8 @@ class Estimator:
             sgn = np.array([-0.5, -0.5, 0.5, 0.5])
             g[:4] = sgn * self._rd * (mu + self.vehicle.rho_t) / J
             g[IX_V] = -float(sgn @ mu) / self.m
-            Q += np.outer(g, g) * (self._fz_var * self._pin_T * dt)
-            Q[IX_V, IX_V] += self._fd_var * self._pin_T * dt / (self.m * self.m)
+            Q += np.outer(g, g) * (self._fz_var * period("Fzf") * dt)
+            Q[IX_V, IX_V] += self._fd_var * period("Fdx") * dt / (self.m * self.m)
         self._Qbase = Q
         self._Qdt = dt
 
@@ -346,13 +357,18 @@ class Estimator:
         if status & INPUT_REJECTED:
             counters["rejected_inputs"] += 1
             predict_only = True
-        if t - t_in["Md"] > cfg.torque_timeout_s:
+        rates = self._rates
+        timeout = rates.timeout_s
+        for key in _INPUT_KEYS:
+            if t_in[key] == t:
+                rates.seen(key, t)
+        if t - t_in["Md"] > timeout["Md"]:
             status |= TORQUE_TIMEOUT
             predict_only = True
-        if t - t_in["Fzf"] > cfg.axle_timeout_s:
+        if t - t_in["Fzf"] > timeout["Fzf"]:
             status |= AXLE_TIMEOUT
             predict_only = True
-        if t - t_in["Fdx"] > cfg.draft_timeout_s:
+        if t - t_in["Fdx"] > timeout["Fdx"]:
             status |= DRAFT_TIMEOUT
             predict_only = True
         # ---- measurements
@@ -387,9 +403,13 @@ class Estimator:
                     status |= INPUT_REJECTED
                     counters["rejected_measurements"] += 1
                     v_meas = None
-        if t - self._t_omega > cfg.wheel_timeout_s:
+        if self._t_omega == t:
+            rates.seen("omega", t)
+        if self._t_v == t:
+            rates.seen("v", t)
+        if t - self._t_omega > timeout["omega"]:
             status |= WHEEL_TIMEOUT
-        if t - self._t_v > cfg.gps_timeout_s:
+        if t - self._t_v > timeout["v"]:
             status |= GPS_TIMEOUT
         # ---- initialisation
         ukf = self.ukf
