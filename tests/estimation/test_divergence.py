@@ -34,50 +34,51 @@ def _monitor() -> DivergenceMonitor:
     return DivergenceMonitor(lost_after_s=1.0, nis_alpha=1e-6, rho_max=0.5, min_speed_mps=0.2)
 
 
-W_OK, W_GATED = {"wheel": False}, {"wheel": True}
-BOTH_OK, GROUND_GATED = {"wheel": False, "ground": False}, {"wheel": False, "ground": True}
+# (wheel speeds outside the gate?, ground speed outside the gate?); None: not in this update
+W_OK, W_GATED, NONE = (False, None), (True, None), (None, None)
+BOTH_OK, GROUND_GATED = (False, False), (False, True)
 
 
 def test_monitor_declares_lost_after_a_channel_refused_for_1s_and_names_its_start():
     m = _monitor()
-    assert m.update(0.00, BOTH_OK, 3.0, 5, 2.5, 2.6, 0.05) is None
+    assert m.update(0.00, *BOTH_OK, 3.0, 5, 2.5, 2.6, 0.05) is None
     for k in range(1, 100):
         # the ground speed refused at 10 Hz, the wheel speeds accepted at 100 Hz in between
         gated = GROUND_GATED if k % 10 == 0 else W_OK
-        assert m.update(0.01 * k, gated, 2.0, 4, 2.5, 2.6, 0.05) is None
-    assert m.update(1.10, GROUND_GATED, 2.0, 4, 2.5, 2.6, 0.05) == pytest.approx(0.10)
+        assert m.update(0.01 * k, *gated, 2.0, 4, 2.5, 2.6, 0.05) is None
+    assert m.update(1.10, *GROUND_GATED, 2.0, 4, 2.5, 2.6, 0.05) == pytest.approx(0.10)
 
 
 def test_monitor_an_accepted_update_ends_the_run_and_steps_without_update_do_not():
     m = _monitor()
     for k in range(50):
-        assert m.update(0.01 * k, W_GATED, np.nan, 0, 2.5, 2.6, 0.05) is None
-    assert m.update(0.5, W_OK, 4.0, 4, 2.5, 2.6, 0.05) is None            # accepted: run over
+        assert m.update(0.01 * k, *W_GATED, np.nan, 0, 2.5, 2.6, 0.05) is None
+    assert m.update(0.5, *W_OK, 4.0, 4, 2.5, 2.6, 0.05) is None            # accepted: run over
     for k in range(51, 149):
-        assert m.update(0.01 * k, {}, np.nan, 0, 2.5, 2.6, 0.05) is None  # predict only
-    assert m.update(1.49, W_GATED, np.nan, 0, 2.5, 2.6, 0.05) is None
+        assert m.update(0.01 * k, *NONE, np.nan, 0, 2.5, 2.6, 0.05) is None  # predict only
+    assert m.update(1.49, *W_GATED, np.nan, 0, 2.5, 2.6, 0.05) is None
 
 
 def test_monitor_nis_far_out_on_every_update():
     m = _monitor()
     for k in range(100):
-        assert m.update(0.01 * k, W_OK, 1e3, 4, 2.5, 2.6, 0.05) is None
-    assert m.update(1.0, W_OK, 1e3, 4, 2.5, 2.6, 0.05) == 0.0
+        assert m.update(0.01 * k, *W_OK, 1e3, 4, 2.5, 2.6, 0.05) is None
+    assert m.update(1.0, *W_OK, 1e3, 4, 2.5, 2.6, 0.05) == 0.0
     m = _monitor()
     for k in range(300):                                              # an ordinary 1-in-20 NIS excursion
-        assert m.update(0.01 * k, W_OK, 12.0 if k % 20 == 0 else 3.0, 4, 2.5, 2.6, 0.05) is None
+        assert m.update(0.01 * k, *W_OK, 12.0 if k % 20 == 0 else 3.0, 4, 2.5, 2.6, 0.05) is None
 
 
 def test_monitor_speed_envelope_and_rho_bound():
     m = _monitor()
-    assert m.update(0.0, BOTH_OK, 3.0, 5, -0.8, 1.0, 0.05) == 0.0          # vehicle backwards, wheels forwards
-    assert m.update(0.0, BOTH_OK, 3.0, 5, 0.1, -1.0, 0.05) is None          # below the speed threshold
+    assert m.update(0.0, *BOTH_OK, 3.0, 5, -0.8, 1.0, 0.05) == 0.0          # vehicle backwards, wheels forwards
+    assert m.update(0.0, *BOTH_OK, 3.0, 5, 0.1, -1.0, 0.05) is None          # below the speed threshold
     for k in range(100):
-        assert m.update(0.01 * k, BOTH_OK, 3.0, 5, 2.0, 2.1, 0.47) is None  # ρ_s near its bound...
-    assert m.update(1.0, BOTH_OK, 3.0, 5, 2.0, 2.1, 0.5) == 0.0             # ...for 1 s while moving
+        assert m.update(0.01 * k, *BOTH_OK, 3.0, 5, 2.0, 2.1, 0.47) is None  # ρ_s near its bound...
+    assert m.update(1.0, *BOTH_OK, 3.0, 5, 2.0, 2.1, 0.5) == 0.0             # ...for 1 s while moving
     m = _monitor()
     for k in range(300):                                                    # standing: ρ_s unobservable
-        assert m.update(0.01 * k, BOTH_OK, 3.0, 5, 0.0, 0.0, 0.5) is None
+        assert m.update(0.01 * k, *BOTH_OK, 3.0, 5, 0.0, 0.0, 0.5) is None
 
 
 # ----------------------------------------------------------------------------- recordings

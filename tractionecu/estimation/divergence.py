@@ -57,40 +57,52 @@ class DivergenceMonitor:
     def reset(self) -> None:
         """Forget the runs (after the filter was re-initialised)."""
         self._nis_since: float | None = None
-        self._gated_since: dict[str, float | None] = {"wheel": None, "ground": None}
+        self._wheel_since: float | None = None
+        self._ground_since: float | None = None
         self._rho_since: float | None = None
 
-    def update(self, t: float, gated: dict[str, bool], nis: float, dof: int, v_hat: float, v_wheel: float | None,
-               rho: float) -> float | None:
+    def update(self, t: float, wheel_out: bool | None, ground_out: bool | None, nis: float, dof: int,
+               v_hat: float, v_wheel: float | None, rho: float) -> float | None:
         """One step at ``t`` [s].
 
-        ``gated`` says, for each channel this step's update carried
-        (``"wheel"``, ``"ground"``), whether the gate refused it; ``nis`` and
-        ``dof`` are the update's (dof 0: no update); ``v_hat`` the estimated
-        speed, ``v_wheel`` the wheel-based speed r·ω [m/s] (None: no wheel
-        speeds this step), ``rho`` the estimated ρ_s.
+        ``wheel_out`` / ``ground_out``: whether this step's update found the
+        wheel speeds / the ground speed outside the gate (None: the update did
+        not carry that channel); ``nis`` and ``dof`` are the update's (dof 0:
+        no update); ``v_hat`` the estimated speed, ``v_wheel`` the wheel-based
+        speed r·ω [m/s] (None: no wheel speeds this step), ``rho`` the
+        estimated ρ_s.
 
         Returns the start of the lost period [s] when the filter is declared lost, else None.
         """
         if self.lost_after_s <= 0.0:
             return None
-        # 1. innovations: a channel refused on every update that carried it, or NIS far out on every update
-        for ch, refused in gated.items():
-            if not refused:
-                self._gated_since[ch] = None
-            elif self._gated_since[ch] is None:
-                self._gated_since[ch] = t
+        # 1. innovations: a channel outside the gate on every update that carried it, or NIS far out
+        if wheel_out is not None:
+            if not wheel_out:
+                self._wheel_since = None
+            elif self._wheel_since is None:
+                self._wheel_since = t
+        if ground_out is not None:
+            if not ground_out:
+                self._ground_since = None
+            elif self._ground_since is None:
+                self._ground_since = t
         if dof > 0:
-            if math.isfinite(nis) and nis <= self._bound[min(dof, MAX_DOF)]:
+            if nis <= self._bound[dof if dof <= MAX_DOF else MAX_DOF]:     # False for NaN
                 self._nis_since = None
             elif self._nis_since is None:
                 self._nis_since = t
-        starts = [s for s in (*self._gated_since.values(), self._nis_since) if s is not None]
-        if starts and t - min(starts) >= self.lost_after_s:
-            return self._lost(min(starts))
+        first = t
+        for since in (self._wheel_since, self._ground_since, self._nis_since):
+            if since is not None and since < first:
+                first = since
+        if t - first >= self.lost_after_s:
+            return self._lost(first)
         # 2. physical envelope: vehicle and wheels travel the same way
-        moving = v_wheel is not None and abs(v_wheel) >= self.min_speed
-        if moving and abs(v_hat) >= self.min_speed and (v_hat > 0.0) != (v_wheel > 0.0):  # type: ignore[operator]
+        if v_wheel is None:
+            return None
+        moving = v_wheel >= self.min_speed or v_wheel <= -self.min_speed
+        if moving and (v_hat >= self.min_speed and v_wheel < 0.0 or v_hat <= -self.min_speed and v_wheel > 0.0):
             return self._lost(t)
         # 3. ρ_s held near its bound while moving
         if moving and rho >= 0.9 * self.rho_max:
@@ -98,7 +110,7 @@ class DivergenceMonitor:
                 self._rho_since = t
             elif t - self._rho_since >= self.lost_after_s:
                 return self._lost(self._rho_since)
-        elif v_wheel is not None:
+        else:
             self._rho_since = None
         return None
 

@@ -372,7 +372,7 @@ class Estimator:
             status |= DRAFT_TIMEOUT
             predict_only = True
         # ---- measurements
-        omega = v_meas = None
+        omega = v_meas = v_wheel = None
         wl: list[float] = []
         if measurements:
             om = measurements.get("omega")
@@ -385,7 +385,15 @@ class Estimator:
                     wl = omega.tolist()
                     if math.isfinite(wl[0] + wl[1] + wl[2] + wl[3]):
                         self._t_omega = t
-                        self._direction(wl)
+                        # direction of travel from the sign of wheel rotation (held when creeping)
+                        _, _, rdf, rdr = self.model.load_floats(float(u[4]))
+                        v_wheel = 0.25 * (rdf * (wl[0] + wl[1]) + rdr * (wl[2] + wl[3]))
+                        if v_wheel >= cfg.direction_min_speed_mps:
+                            self._dir = 1.0
+                        elif v_wheel <= -cfg.direction_min_speed_mps:
+                            self._dir = -1.0
+                        elif v_wheel != v_wheel:
+                            v_wheel = None
                     else:
                         fin = np.isfinite(omega)
                         status |= INPUT_REJECTED
@@ -443,7 +451,7 @@ class Estimator:
             self.t = t
         # ---- update
         updated = False
-        gated: dict[str, bool] = {}
+        wheel_out = ground_out = None
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
                 R = self._R_list(wl)
@@ -457,9 +465,9 @@ class Estimator:
             g = ukf.last_gated
             out = ukf.last_outside          # bit j: output component j (ω1..4, v) outside the gate
             if omega is not None:
-                gated["wheel"] = bool(out & 0xF)
+                wheel_out = (out & 0xF) != 0
             if v_meas is not None:
-                gated["ground"] = bool(out & 0x10)
+                ground_out = (out & 0x10) != 0
             if g:
                 status |= MEAS_GATED
                 counters["gated"] += bin(g).count("1")
@@ -470,9 +478,9 @@ class Estimator:
                     self._cm.push(*ukf.correction())
         # ---- divergence: a filter that has lost the vehicle starts again from the measurements
         x = ukf.x
-        since = self._monitor.update(t, gated, ukf.last_nis if updated else math.nan,
-                                     ukf.last_dof if updated else 0, float(x[IX_V]), self._v_wheel(wl),
-                                     float(x[IX_RHO]))
+        xl = x.tolist()
+        since = self._monitor.update(t, wheel_out, ground_out, ukf.last_nis if updated else math.nan,
+                                     ukf.last_dof if updated else 0, xl[IX_V], v_wheel, xl[IX_RHO])
         if since is not None:
             return self._declare_lost(t, since, status)
         # ---- adaptation and supervisor (paper eqs. 16–17, FLS)
@@ -487,20 +495,6 @@ class Estimator:
             self._Qbase = None
         counters["chol_repairs"] = ukf.chol_repairs
         return self._estimate(t, status, x, updated)
-
-    def _direction(self, w: list[float]) -> None:
-        """Direction of travel from the sign of wheel rotation (held below ``direction_min_speed_mps``)."""
-        v_wheel = self._v_wheel(w)
-        if v_wheel is not None and abs(v_wheel) >= self.cfg.direction_min_speed_mps:
-            self._dir = 1.0 if v_wheel > 0.0 else -1.0
-
-    def _v_wheel(self, w: list[float]) -> float | None:
-        """Mean wheel circumferential speed r_d·ω [m/s] of this step's wheel speeds, or None."""
-        if not w:
-            return None
-        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
-        v = 0.25 * (rdf * (w[0] + w[1]) + rdr * (w[2] + w[3]))
-        return v if math.isfinite(v) else None
 
     def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
         """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""
