@@ -28,6 +28,14 @@ of Q from them, the simulator its noise.  They are configuration:
    same key of the vehicle file (:func:`resolve_sensors`);
 3. a key set in neither takes the documented default of :class:`SensorSpec`.
 
+The machine's own bus messages
+------------------------------
+A ``[signals]`` table in the vehicle file maps the owner's DBC signals onto
+the contract names, with an optional scale (:func:`signal_map`); the DBC
+files themselves are given with ``--dbc`` to ``replay``, ``inspect`` and
+``diagnose``.  The recording reader applies it
+(:func:`tractionecu.recording.reader.read_recording`).
+
 Vehicle defaults
 ----------------
 The paper's case study (Kobelski et al. 2020, section 5) gives: 80 kW total
@@ -378,11 +386,12 @@ class SensorSpec:
 
 # ----------------------------------------------------------------------------- vehicle files
 def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
-    """(vehicle table, sensors table) of a parsed vehicle file: ``[vehicle]`` or top-level keys, optional ``[sensors]``."""
+    """(vehicle table, sensors table) of a parsed vehicle file: ``[vehicle]`` or top-level keys, optional
+    ``[sensors]`` (a ``[signals]`` table is :func:`load_signal_map`'s)."""
     sensors = data.get("sensors", {})
     if "vehicle" in data:
         return data["vehicle"], sensors
-    return {k: v for k, v in data.items() if k != "sensors"}, sensors
+    return {k: v for k, v in data.items() if k not in ("sensors", "signals")}, sensors
 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
@@ -404,6 +413,43 @@ def resolve_sensors(vehicle_path: str | Path | None, overrides: Mapping[str, Any
     merged = {k: getattr(base, k) for k in given_keys(base)}
     merged.update(overrides)
     return from_mapping(SensorSpec, merged, "sensors")
+
+
+def signal_map(data: Any, section_name: str = "signals") -> dict[str, tuple[str, float]]:
+    """A ``[signals]`` table: contract name -> (``"Message.Signal"`` of a loaded DBC, scale).
+
+    Each key is a contract signal name; its value is the source signal as a
+    string, ``WheelSpeed_FL = "DriveCtrl_3.WhlSpdFL"``, or a table with an
+    optional scale (contract value = source value × scale),
+    ``WheelSpeed_FL = { signal = "DriveCtrl_3.WhlSpdFL", scale = 0.10472 }``.
+    Only the form is checked here; whether the names exist is the codec's
+    (:meth:`tractionecu.bus.dbc.Codec.resolve_mapping`).  Errors name the key.
+    """
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{section_name}: expected a table, got {data!r}")
+    out: dict[str, tuple[str, float]] = {}
+    for name, v in data.items():
+        key = _key(section_name, str(name))
+        if isinstance(v, Mapping):
+            unknown = sorted(str(k) for k in v if k not in ("signal", "scale"))
+            if unknown:
+                raise ConfigError(f"{key}.{unknown[0]}: unknown key (known: scale, signal)")
+            if "signal" not in v:
+                raise ConfigError(f"{key}: the table needs signal = \"Message.Signal\"")
+            ref, scale = v["signal"], v.get("scale", 1.0)
+        else:
+            ref, scale = v, 1.0
+        if not isinstance(ref, str) or not ref.strip():
+            raise ConfigError(f"{key}: expected \"Message.Signal\" or {{ signal = ..., scale = ... }}, got {v!r}")
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale == 0:
+            raise ConfigError(f"{key}.scale: expected a finite, non-zero number, got {scale!r}")
+        out[str(name)] = (ref.strip(), float(scale))
+    return out
+
+
+def load_signal_map(path: str | Path) -> dict[str, tuple[str, float]]:
+    """The ``[signals]`` table of a vehicle file (:func:`signal_map`); empty without one."""
+    return signal_map(load_toml(path, "vehicle").get("signals", {}), "signals")
 
 
 def save_vehicle(params: VehicleParams, path: str | Path, sensors: SensorSpec | None = None) -> None:

@@ -67,10 +67,11 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Iterator, Mapping, Sequence
 
 import cantools
 
@@ -259,7 +260,7 @@ class Codec:
         self.contract_inputs: tuple[str, ...] = tuple(
             n for m in self.messages.values() if m.pgn not in NETWORK_MANAGEMENT_PGNS
             and not any(x in OUTPUT_SIGNALS for x in m.signals) for n in m.signals)
-        """Signals of the contract DBC a ``[signals]`` table may map onto (every data signal but the estimator's outputs)."""
+        """Signals of the contract DBC a ``[signals]`` table may map onto: every data signal but the outputs."""
         for x in self.extra_paths:
             self._load(x, extra=True)
         self.clip_counts: Counter[str] = Counter()
@@ -530,9 +531,26 @@ _DEFAULT: Codec | None = None
 
 
 def default_codec() -> Codec:
-    """A shared Codec over the default DBC (loaded once)."""
+    """A shared Codec over the default DBC (loaded once), with the owner's DBCs inside :func:`extra_dbcs`."""
     global _DEFAULT
     if _DEFAULT is None:
         _DEFAULT = Codec()
     return _DEFAULT
+
+
+@contextmanager
+def extra_dbcs(paths: Sequence[str | Path] | None) -> Iterator[Codec]:
+    """Within the block, :func:`default_codec` also decodes the owner's DBC files ``paths`` (none: unchanged).
+
+    What the ``--dbc FILE`` options of ``tractionecu replay``, ``inspect`` and
+    ``diagnose`` do: every recording read in the block gets the owner's messages.
+    """
+    global _DEFAULT
+    before = default_codec()
+    if paths:
+        _DEFAULT = Codec(before.path, extra=[*before.extra_paths, *paths])
+    try:
+        yield default_codec()
+    finally:
+        _DEFAULT = before
 

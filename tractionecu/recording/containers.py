@@ -234,7 +234,9 @@ class Recording:
     """A decoded recording (see module docstring).
 
     ``signals`` maps each signal name (DBC signals for candump recordings)
-    to its :class:`Series`; ``gps`` holds the aligned GPS epochs.
+    to its :class:`Series`; ``gps`` holds the aligned GPS epochs;
+    ``signal_sources`` says where a signal came from (its DBC message, or
+    ``Message.Signal × scale`` for one mapped by a ``[signals]`` table).
     """
 
     path: Path
@@ -245,6 +247,7 @@ class Recording:
     truth_csv_path: Path | None = None
     truth_toml_path: Path | None = None
     units: dict[str, str] = field(default_factory=dict)
+    signal_sources: dict[str, str] = field(default_factory=dict)
 
     @property
     def t_start(self) -> float:

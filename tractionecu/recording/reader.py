@@ -23,6 +23,18 @@ NAME.  Lines the candump reader rejects (garbage, truncated, bad hex,
 DLC > 8, time going backwards, ...) are counted by reason with the first
 line numbers.
 
+The owner's own messages
+------------------------
+``dbc`` adds the owner's DBC files to the built-in one (their signals are
+named ``Message.Signal``, :class:`~tractionecu.bus.dbc.Codec`).  A
+``[signals]`` table (the ``signals`` argument, else the recording's
+``vehicle.toml``) maps them onto contract names: the contract signal is the
+source series times the scale, in the contract unit, and replaces a contract
+signal decoded directly.  ``Recording.signal_sources`` says where each
+signal came from.  Unknown contract names, messages or signals are
+:class:`~tractionecu.errors.ConfigError` naming the key, raised before the
+CAN log is read.
+
 GNSS epochs are placed on the CAN time axis by :mod:`.gps`; the containers are
 in :mod:`.containers`, the per-frame reference decoder in :mod:`.reference`
 and the ``tractionecu inspect`` report in :mod:`.summary`.
@@ -33,13 +45,15 @@ All series times are epoch seconds [s]; values are in the DBC's SI units.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from ..bus.candump import ReadStats
 from ..bus.dbc import Codec, default_codec
+from ..config import load_signal_map
 from ..counting import MAX_EXAMPLES
-from ..errors import RecordingError
+from ..errors import ConfigError, RecordingError
 from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TRUTH_CSV, TRUTH_TOML, VEHICLE_FILE, AddressClaim, GpsTrack,
                          MessageStats, Recording, RecordingStats, Series, Table)
 from .gps import read_gps
@@ -47,13 +61,21 @@ from .gps import read_gps
 __all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", "Table", "read_recording"]
 
 
-def read_recording(path: str | Path, codec: Codec | None = None) -> Recording:
+def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
+                   signals: Mapping[str, tuple[str, float]] | None = None) -> Recording:
     """Read a recording directory (or a lone candump file) into a :class:`Recording`.
+
+    ``dbc``: the owner's DBC files, added to ``codec``'s (default: the
+    built-in DBC).  ``signals``: a ``[signals]`` mapping, contract name ->
+    (``Message.Signal``, scale) (:func:`tractionecu.config.signal_map`);
+    None takes the recording's ``vehicle.toml`` ``[signals]`` table, if any.
 
     Raises :class:`~tractionecu.errors.RecordingError` naming the file (and
     line) when the path is missing, ``can.log`` is missing, unreadable,
     empty or holds no valid frame, or ``gps.nmea`` is present but empty or
-    unreadable.  Bad lines and frames are counted in ``Recording.stats``.
+    unreadable; :class:`~tractionecu.errors.ConfigError` for a DBC that cannot
+    be loaded or a mapping naming an unknown signal.  Bad lines and frames
+    are counted in ``Recording.stats``.
     """
     p = Path(path)
     if not p.exists():
@@ -66,9 +88,27 @@ def read_recording(path: str | Path, codec: Codec | None = None) -> Recording:
     else:
         root = p.parent
         can_path = p
+    if dbc:
+        codec = Codec(codec.path if codec is not None else None,
+                      extra=[*(codec.extra_paths if codec is not None else ()), *dbc])
     codec = codec if codec is not None else default_codec()
+    vehicle_toml = root / VEHICLE_FILE if p.is_dir() else None
+    if signals is None and vehicle_toml is not None and vehicle_toml.is_file():
+        try:
+            mapping = codec.resolve_mapping(load_signal_map(vehicle_toml))
+        except ConfigError as e:
+            raise ConfigError(f"{vehicle_toml}: {e}") from None
+    else:
+        mapping = codec.resolve_mapping(signals or {})
     stats = RecordingStats()
-    signals = _read_can(can_path, codec, stats)
+    decoded = _read_can(can_path, codec, stats)
+    sources = {name: codec.signals[name].message for name in decoded}
+    for target, src, scale in mapping:
+        s = decoded.get(src)
+        if s is None:
+            continue
+        decoded[target] = Series(s.t, s.value * scale, s.sa, codec.signals[target].unit)
+        sources[target] = src if scale == 1.0 else f"{src} x {scale:g}"
     can_t0 = stats.can_t_first
 
     gps = GpsTrack.empty()
@@ -82,16 +122,17 @@ def read_recording(path: str | Path, codec: Codec | None = None) -> Recording:
         q = root / name
         return q if p.is_dir() and q.is_file() else None
 
-    units = {name: codec.signals[name].unit for name in signals}
+    units = {name: s.unit for name, s in decoded.items()}
     return Recording(
         path=p,
-        signals=signals,
+        signals=decoded,
         gps=gps,
         stats=stats,
         vehicle_toml_path=opt(VEHICLE_FILE),
         truth_csv_path=opt(TRUTH_CSV),
         truth_toml_path=opt(TRUTH_TOML),
         units=units,
+        signal_sources=sources,
     )
 
 

@@ -1,0 +1,114 @@
+"""The owner's own DBC beside the built-in one: messages added by PGN, names, clashes, the [signals] mapping."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from tractionecu.bus import dbc as dbcmod
+from tractionecu.bus.dbc import Codec, default_codec, extra_dbcs
+from tractionecu.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+OWNER = REPO / "tests" / "data" / "dbc" / "owner_drivectrl.dbc"
+RPM = 2 * math.pi / 60
+
+
+@pytest.fixture(scope="module")
+def codec():
+    return Codec(extra=[OWNER])
+
+
+def one_message_dbc(path: Path, name: str, frame_id: int, signal: str = "Speed") -> Path:
+    path.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
+                    f'BO_ {frame_id} {name}: 8 X\n SG_ {signal} : 0|16@1+ (1,0) [0|0] "" X\n')
+    return path
+
+
+def test_owner_messages_decode_by_pgn_under_message_dot_signal_names(codec):
+    assert codec.messages["DriveCtrl_3"].source == OWNER.name and codec.messages["DriveCtrl_3"].pgn == 0xFF55
+    assert codec.messages["EEC1"].source == "tractionecu.dbc"
+    data = (1234).to_bytes(2, "little") + (0).to_bytes(2, "little") + b"\xff\xff" + (65534).to_bytes(2, "little")
+    for sa in (0x27, 0x80, 0x03):                                   # any source address
+        name, v = codec.decode(0x18FF5500 | sa, data)
+        assert name == "DriveCtrl_3"
+        assert v["DriveCtrl_3.WhlSpdFL"] == pytest.approx(12.34) and v["DriveCtrl_3.WhlSpdFR"] == 0
+        assert math.isnan(v["DriveCtrl_3.WhlSpdRL"]) and v["DriveCtrl_3.WhlSpdRR"] == pytest.approx(655.34)
+    # the same signal name in two messages; a big-endian signed signal with no range ([0|0]: full raw range)
+    _, v = codec.decode(0x18FF5627, bytes([0x03, 0x80, 0xFF, 0x38, 0, 0, 0, 0]))
+    assert v == {"DriveCtrl_4.Counter": 3, "DriveCtrl_4.GearLever": 3, "DriveCtrl_4.HitchDraft": pytest.approx(-2.0)}
+    assert codec.signals["DriveCtrl_4.HitchDraft"].raw_min == -32768
+
+
+def test_multiplexed_and_11_bit_messages_are_skipped_and_listed(codec):
+    assert {(m, why.split(" ")[0]) for _, m, why in codec.skipped} == {("DriveCtrl_5", "multiplexed"),
+                                                                       ("Dash_Lamps", "11-bit")}
+    assert codec.message_for_pgn(0xFF57) is None and "DriveCtrl_5" not in codec.messages
+
+
+def test_a_pgn_defined_twice_names_both_files(tmp_path):
+    clash = one_message_dbc(tmp_path / "clash.dbc", "MyWheels", 0x80000000 | 0x18FF1027)    # PGN 65296
+    with pytest.raises(ConfigError) as e:
+        Codec(extra=[clash])
+    msg = str(e.value)
+    assert "PGN 65296" in msg and "TECU_WheelSpeeds in tractionecu.dbc" in msg and "MyWheels in clash.dbc" in msg
+    other = one_message_dbc(tmp_path / "other.dbc", "Again", 0x80000000 | 0x18FF5599)        # PGN 0xFF55 again
+    with pytest.raises(ConfigError, match=r"DriveCtrl_3 in owner_drivectrl\.dbc, Again in other\.dbc"):
+        Codec(extra=[OWNER, other])
+
+
+def test_a_message_name_defined_twice_names_both_files(tmp_path):
+    same = one_message_dbc(tmp_path / "same.dbc", "EEC1", 0x80000000 | 0x18FF6001)
+    with pytest.raises(ConfigError, match=r"message name EEC1 defined twice: EEC1 in tractionecu\.dbc, EEC1 in same"):
+        Codec(extra=[same])
+
+
+def test_bad_extra_files_are_config_errors(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        Codec(extra=[tmp_path / "absent.dbc"])
+    (tmp_path / "junk.dbc").write_text("BO_ this is not a DBC\n")
+    with pytest.raises(ConfigError, match="junk.dbc"):
+        Codec(extra=[tmp_path / "junk.dbc"])
+
+
+def test_mapping_resolves_and_names_the_bad_key(codec):
+    ok = codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", RPM),
+                                "DraftForce": ("DriveCtrl_4.HitchDraft", 1000.0),
+                                "WheelBasedVehicleSpeed": ("CCVS1.WheelBasedVehicleSpeed", 1.0)})
+    assert ok == [("WheelSpeed_FL", "DriveCtrl_3.WhlSpdFL", RPM), ("DraftForce", "DriveCtrl_4.HitchDraft", 1000.0),
+                  ("WheelBasedVehicleSpeed", "WheelBasedVehicleSpeed", 1.0)]
+    cases = {
+        "WheelSpeed_XX": ("DriveCtrl_3.WhlSpdFL", "signals.WheelSpeed_XX: not a contract signal"),
+        "Adhesion_FL": ("DriveCtrl_3.WhlSpdFL", "signals.Adhesion_FL: not a contract signal"),       # an output
+        "WheelSpeed_FR": ("DriveCtrl_9.WhlSpdFR", "signals.WheelSpeed_FR: no message 'DriveCtrl_9'"),
+        "WheelSpeed_RL": ("DriveCtrl_3.WhlSpdXL", "signals.WheelSpeed_RL: message DriveCtrl_3 (owner_drivectrl.dbc) "
+                                                  "has no signal 'WhlSpdXL' (it has WhlSpdFL"),
+        "WheelSpeed_RR": ("WhlSpdRR", "signals.WheelSpeed_RR: 'WhlSpdRR' is not a signal of tractionecu.dbc; "
+                                      "write Message.Signal"),
+        "DriveTorque_FL": ("DriveCtrl_5.OilTemp", "signals.DriveTorque_FL: no message 'DriveCtrl_5'"),   # skipped
+    }
+    for target, (ref, text) in cases.items():
+        with pytest.raises(ConfigError) as e:
+            codec.resolve_mapping({target: (ref, 1.0)})
+        assert text in str(e.value), (target, str(e.value))
+
+
+def test_without_the_owner_dbc_the_error_says_to_give_it():
+    with pytest.raises(ConfigError, match=r"signals.WheelSpeed_FL: no message 'DriveCtrl_3' in the loaded DBCs "
+                                          r"\(tractionecu.dbc\); give the owner's DBC with --dbc"):
+        Codec().resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", 1.0)})
+
+
+def test_extra_dbcs_block_extends_the_shared_codec_and_restores_it():
+    before = default_codec()
+    with extra_dbcs([OWNER]) as c:
+        assert default_codec() is c and "DriveCtrl_3" in c.messages and c.extra_paths == (OWNER,)
+    assert dbcmod.default_codec() is before and "DriveCtrl_3" not in before.messages
+    with extra_dbcs([]) as c:
+        assert c is before
+    with pytest.raises(ConfigError):
+        with extra_dbcs([OWNER.with_name("absent.dbc")]):
+            pass
+    assert default_codec() is before
