@@ -55,3 +55,35 @@ def test_ill_conditioned_pairs_give_nan_not_garbage():
     slip[:] = 0.001  # below MIN_SLIP everywhere
     off = centred_map_values(t, mu, slip, var_mu, v, rho, cls, half_window_s=1.0)
     assert np.all(np.isnan(off["a"]))
+
+
+def test_a_lost_period_is_not_mapped_and_leaves_every_window():
+    """After ``invalidate_since`` (the estimator was lost since then) the samples of that period come out
+    not valid with the lost bit, and the windows of the samples before it no longer hold their values."""
+    from tractionecu.mapping.store import STATUS_FILTER_LOST
+
+    t, mu, slip, var_mu, v, rho, cls, _ = _run()
+    t_lost = float(t[150])
+    mu_bad = mu.copy()
+    mu_bad[150:] = 0.05                       # what a lost filter said
+    smp = CentredSampler(half_window_s=2.0)
+    got = []
+    for k in range(t.size):
+        if k == 165:                          # found 1.5 s late, while t[149]'s window (to t[169]) is open
+            smp.invalidate_since(t_lost)
+        P = np.zeros(10)
+        P[5:9] = var_mu[k]
+        m = mu_bad[k] if k < 165 else mu[k]
+        est = SimpleNamespace(mu=m, slip=slip[k], P_diag=P, v=v[k], rho_s=rho[k], valid=True, status=0,
+                              soil_class="stubble")
+        got += smp.push(float(t[k]), 47.0, 8.0, 4, 0.8, est)
+    got += smp.drain()
+    tt = np.array([g[0] for g in got])
+    lost = (tt >= t_lost) & (tt < t[165])
+    assert not any(g[4] for g, bad in zip(got, lost) if bad)
+    assert all(g[5] & STATUS_FILTER_LOST for g, bad in zip(got, lost) if bad)
+    assert all(g[4] for g, bad in zip(got, lost) if not bad)
+    # the last sample before the lost period averages only good values
+    k = int(np.flatnonzero(tt < t_lost)[-1])
+    ref = centred_map_values(t[:150], mu[:150], slip[:150], var_mu[:150], v[:150], rho[:150], cls[:150], 2.0)
+    assert got[k][3]["a"] == pytest.approx(ref["a"][-1], rel=1e-9)
