@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from faults import cut, rewrite_can, shift_gnss_speed
 from tractionecu.estimation.divergence import DivergenceMonitor
 from tractionecu.estimation.estimator import FILTER_LOST, STANDSTILL, Estimator
+from tractionecu.evaluation.faults import cut, rewrite_can, shift_gnss_speed
 from tractionecu.evaluation.scoring import read_truth
 from tractionecu.model.vehicle import IX_RHO, IX_V
 from tractionecu.pipeline.gnss import GnssGate

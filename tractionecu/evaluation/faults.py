@@ -1,4 +1,4 @@
-"""Faults injected into a recording, as they happen on real machines (helpers for the tests).
+"""Faults injected into a recording, as they happen on real machines (tests and benchmarks).
 
 Each function copies a recording directory and changes what a fault would
 change on the wire: frames re-encoded through the DBC (so quantisation and
