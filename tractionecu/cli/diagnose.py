@@ -1,10 +1,17 @@
-"""``tractionecu diagnose``: find why a recording and the model disagree, name the effect, fit it."""
+"""``tractionecu diagnose``: find why a recording and the model disagree, name the effect, fit it.
+
+``--dbc FILE`` (repeatable) adds the owner's DBC files to the built-in one
+for every read of the recording; a ``[signals]`` table in its
+``vehicle.toml`` maps their signals onto contract names.
+"""
 
 from __future__ import annotations
 
 import argparse
 import time
 from pathlib import Path
+
+from .inspect import add_dbc_option
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -18,16 +25,19 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="engine reference torque [N·m] for percent-torque CSV columns (J1939 SPN 544)")
     p.add_argument("--time-offset", type=float, default=0.0, help="added to the CSV time column [s]")
     p.add_argument("--no-estimator", action="store_true", help="skip the estimator-innovation view")
+    add_dbc_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..bus.dbc import extra_dbcs
     from ..diagnose import diagnose_path
 
     t0 = time.perf_counter()
-    rep = diagnose_path(args.recording, args.out, vehicle=args.vehicle, csv_mapping=args.csv_mapping,
-                        reference_torque_nm=args.reference_torque, time_offset_s=args.time_offset,
-                        estimator=not args.no_estimator)
+    with extra_dbcs(args.dbc):
+        rep = diagnose_path(args.recording, args.out, vehicle=args.vehicle, csv_mapping=args.csv_mapping,
+                            reference_torque_nm=args.reference_torque, time_offset_s=args.time_offset,
+                            estimator=not args.no_estimator)
     dt = time.perf_counter() - t0
     head = rep["verdict"] + (f": {rep['effect']}" if rep.get("effect") else "")
     if rep.get("ambiguous_between"):

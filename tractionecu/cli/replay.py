@@ -1,4 +1,4 @@
-"""``tractionecu replay REC --out RUN [--rate 100] [--plot]``: run the estimator over a recording.
+"""``tractionecu replay REC --out RUN [--rate 100] [--plot] [--dbc FILE ...]``: run the estimator over a recording.
 
 The work is the pipeline's (:func:`tractionecu.pipeline.replay.replay_to_dir`:
 the step grid phased to the wheel-speed frames, the step rule and GNSS gate
@@ -8,8 +8,24 @@ simulated recording (``truth.csv``), the evaluation side
 (also printed as a table), ``map_scorecard.json`` and, with ``--plot``, the
 paper's Fig. 6 (``fig6_mu_rho.png``) and Fig. 5 (``fig5_mu_curves.png``).
 
+``--dbc FILE`` (repeatable) adds the owner's DBC files to the built-in one; a
+``[signals]`` table in the recording's ``vehicle.toml`` maps their signals
+onto contract names (:func:`tractionecu.config.signal_map`).
+
+The estimator runs the ``hub`` profile (:data:`tractionecu.pipeline.signals.PROFILES`).
+A recording without its wheel speeds and drive torques (a tractor with a
+mechanical drivetrain, such as the John Deere 5055E capture) is not
+replayed: the command writes nothing and reports on stderr the profile the
+estimator runs, the signals missing, the profile the recording comes
+closest to, and the motion its speed signals show ("no motion" for a
+standing tractor).  A recording that has them but lacks the front-axle
+load, the draft or the GNSS speed is replayed with a note: the estimator
+flags those steps with its time-out bits.
+
 Exit codes: 0 ok, 1 the recording or configuration cannot be read (the
-message names the file or key), 3 ``--plot`` without matplotlib.
+message names the file or key), 3 ``--plot`` without matplotlib, 4 the
+recording lacks the signals of the profile the estimator runs (report on
+stderr).
 """
 
 from __future__ import annotations
@@ -19,6 +35,10 @@ import sys
 from typing import Any
 
 from ..errors import ConfigError
+from .inspect import add_dbc_option
+
+EXIT_MISSING_SIGNALS = 4
+"""Exit code when the recording lacks the signals of the profile the estimator runs."""
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -32,13 +52,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="estimator configuration ([estimator] table, optional [estimator.fuzzy])")
     p.add_argument("--classes", default=None, metavar="A,B,...",
                    help="surface classes to fit (overrides the configuration), e.g. stubble,grassland,tilled,road")
+    add_dbc_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..bus.dbc import extra_dbcs
     from ..config import replace
     from ..estimation.estimator import EstimatorConfig, load_estimator_config
-    from ..pipeline.replay import replay_to_dir
+    from ..pipeline.replay import MissingSignals, replay_to_dir
 
     cfg = load_estimator_config(args.config) if args.config else EstimatorConfig()
     if args.classes:
@@ -51,13 +73,56 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("tractionecu replay: --plot needs matplotlib (pip install 'tractionecu[maps]')", file=sys.stderr)
             return 3
-    summary, rec, res = replay_to_dir(args.recording, args.out, rate_hz=args.rate, cfg=cfg, write_map=not args.no_map)
+    try:
+        with extra_dbcs(args.dbc):
+            summary, rec, res = replay_to_dir(args.recording, args.out, rate_hz=args.rate, cfg=cfg,
+                                              write_map=not args.no_map)
+    except MissingSignals as e:
+        print("\n".join(missing_report(e.recording, e.missing)), file=sys.stderr)
+        return EXIT_MISSING_SIGNALS
     if rec.truth_csv_path is not None or args.plot:
         from ..evaluation.replay import score_replay
 
         summary.update(score_replay(args.out, rec, res.arrays, plot=args.plot, summary=summary))
-    print(format_summary(summary))
+    print("\n".join([*profile_note(rec), format_summary(summary)]))
     return 0
+
+
+def missing_report(rec: Any, missing: list[str]) -> list[str]:
+    """Why a recording is not replayed: the profile the estimator runs, what it lacks, the closest profile,
+    the motion the recording shows."""
+    from ..pipeline.signals import ESTIMATED_PROFILES, motion, profile_status
+
+    status = profile_status(rec)
+    run_as = ESTIMATED_PROFILES[0]
+    lines = [f"tractionecu replay: {rec.path}: not replayed: profile {run_as} (the one the estimator runs) "
+             f"lacks {len(missing)} bus signal(s) it cannot run without",
+             f"  missing: {', '.join(missing)}"]
+    absent = [need.what for need, sig in status[run_as] if sig is None]
+    lines.append(f"  profile {run_as}: {len(status[run_as]) - len(absent)} of {len(status[run_as])} needs found"
+                 + (f"; missing {', '.join(absent)}" if absent else ""))
+    for name, needs in status.items():
+        if name in ESTIMATED_PROFILES:
+            continue
+        got = [need.what for need, sig in needs if sig is not None]
+        lack = [need.what for need, sig in needs if sig is None]
+        lines.append(f"  profile {name} (not estimated yet): {len(got)} of {len(needs)} needs found"
+                     + (f"; found {', '.join(got)}" if got else "") + (f"; missing {', '.join(lack)}" if lack else ""))
+    lines.append(f"  motion: {motion(rec).describe()}")
+    lines.append(f"  'tractionecu inspect {rec.path}' lists every signal found and missing; an owner's own "
+                 "messages: --dbc FILE and a [signals] table in vehicle.toml")
+    return lines
+
+
+def profile_note(rec: Any) -> list[str]:
+    """A line naming the hub needs the recording lacks though replay runs (the estimator flags those steps)."""
+    from ..pipeline.signals import ESTIMATED_PROFILES, profile_status
+
+    run_as = ESTIMATED_PROFILES[0]
+    absent = [need.what for need, sig in profile_status(rec)[run_as] if sig is None]
+    if not absent:
+        return []
+    return [f"profile {run_as}: missing {', '.join(absent)}: the estimator flags those steps (time-out bits)"]
 
 
 def format_summary(res: dict[str, Any]) -> str:

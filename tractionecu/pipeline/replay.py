@@ -16,6 +16,12 @@ replay it and write
 * ``map/`` — tiles of the estimates at the accepted GNSS epochs
   (:func:`tractionecu.mapping.from_replay.write_replay_map`).
 
+A recording without the signals replay needs (:data:`~.signals.REPLAY_REQUIRED`:
+the hub profile's wheel speeds and drive torques, the one profile the
+estimator runs) raises :class:`MissingSignals` before anything is written;
+it carries the recording, so the caller can report the profiles and the
+motion (:mod:`.signals`).
+
 Scoring against simulated truth is not here: it is the evaluation side's
 (:mod:`tractionecu.evaluation`), which the on-board core never imports.
 """
@@ -37,7 +43,7 @@ from ..estimation.estimator import FILTER_LOST, Estimate, Estimator, EstimatorCo
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording
 from .gnss import GnssGate
-from .signals import ANCHOR_SIGNAL
+from .signals import ANCHOR_SIGNAL, missing_signals
 from .steps import GRID_MARGIN_S, build_grid, vector_steps
 
 _BATCH = 2048
@@ -48,8 +54,18 @@ CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_c
                     + ["nis", "nis_dof", "adapt", "status", "valid"])
 """Columns of ``estimates.csv``."""
 
-__all__ = ["CSV_COLUMNS", "ReplayResult", "machine_of", "recording_grid", "replay", "replay_to_dir",
-           "write_estimates_csv"]
+__all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recording_grid", "replay",
+           "replay_to_dir", "write_estimates_csv"]
+
+
+class MissingSignals(ConfigError):
+    """The recording lacks signals replay cannot run without; ``recording`` and ``missing`` (signal names)."""
+
+    def __init__(self, recording: Recording, missing: list[str]) -> None:
+        self.recording = recording
+        self.missing = missing
+        super().__init__(f"{recording.path}: the recording has no {', '.join(missing)}: the estimator's hub "
+                         f"profile needs them (tractionecu inspect lists what the recording holds)")
 
 
 @dataclass
@@ -85,13 +101,16 @@ class ReplayResult:
 
 
 def recording_grid(rec: Recording, rate_hz: float) -> np.ndarray:
-    """The step grid of a recording (:func:`~.steps.build_grid` on its wheel-speed frames)."""
+    """The step grid of a recording (:func:`~.steps.build_grid` on its wheel-speed frames).
+
+    Raises :class:`MissingSignals` when the recording lacks a signal of :data:`~.signals.REPLAY_REQUIRED`.
+    """
     if not rate_hz > 0:
         raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
-    ws = rec.signals.get(ANCHOR_SIGNAL)
-    if ws is None or len(ws) == 0:
-        raise ConfigError(f"recording has no {ANCHOR_SIGNAL} signal (TECU_WheelSpeeds)")
-    return build_grid(ws.t, float(rec.t_end), rate_hz)
+    missing = missing_signals(rec)
+    if missing:
+        raise MissingSignals(rec, missing)
+    return build_grid(rec.signals[ANCHOR_SIGNAL].t, float(rec.t_end), rate_hz)
 
 
 def machine_of(rec: Recording) -> tuple[VehicleParams, SensorSpec]:
@@ -227,8 +246,11 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     """
     wall0 = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     rec = recording if isinstance(recording, Recording) else read_recording(recording)
+    missing = missing_signals(rec)
+    if missing:
+        raise MissingSignals(rec, missing)
+    out.mkdir(parents=True, exist_ok=True)
     read_s = time.perf_counter() - wall0
     vehicle, s0 = machine_of(rec)
     sensors = sensors or s0

@@ -14,9 +14,35 @@ key         signals (message)                            role         unit
 ==========  ===========================================  ===========  ========================
 
 The replay engine, the daemon and diagnosis all read these names from here.
+
+Estimation profiles
+-------------------
+:data:`PROFILES` lists what each kind of machine must put on the bus, as
+:class:`Need` items (any one of a need's signals meets it; ``gps.speed`` is
+the GNSS speed over ground of the recording's track):
+
+* ``hub``, the one the estimator runs (:data:`ESTIMATED_PROFILES`): the four
+  wheel speeds and drive torques, the front-axle load, the draft and the
+  GNSS speed;
+* ``mechanical``, listed for information until the estimator runs it: EEC1
+  percent torque with the EC1 reference torque, the ETC2 gear ratio, one
+  wheel-based speed (CCVS1, WBSD or EBC2's front axle), the draft and a
+  ground speed (GNSS or GBSD).
+
+:func:`profile_status` tells which needs a recording meets and from which
+message; :func:`missing_signals` the signals it lacks, by default those
+:data:`REPLAY_REQUIRED`; :func:`motion` whether its speed signals show the
+machine moving.  A signal counts as found when it has at least one sample
+that is not "not available".
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+import numpy as np
 
 from ..bus.dbc import WHEELS
 
@@ -68,6 +94,170 @@ ANCHOR_SIGNAL = WHEEL_SPEEDS[0]
 INPUT_MESSAGES = ("TECU_WheelSpeeds", "TECU_DriveTorques", "TECU_AxleLoad", "RearHitchStatus")
 """DBC messages that carry the estimator's bus signals (the daemon reports their rate)."""
 
-__all__ = ["ANCHOR_SIGNAL", "DRAFT", "DRIVE_TORQUES", "FRONT_AXLE_LOAD", "GNSS_SPEED", "GROUND_BASED_SPEED",
-           "GROUPS", "INPUT_GROUPS", "INPUT_MESSAGES", "IN_WORK", "MEASUREMENT_GROUPS", "VECTOR_KEYS",
-           "WHEEL_BASED_SPEED", "WHEEL_SPEEDS"]
+# ----------------------------------------------------------------------------- standard J1939 signals
+ENGINE_SPEED = "EngineSpeed"
+"""Engine speed [rad/s] (J1939 EEC1, SPN 190)."""
+
+ENGINE_PERCENT_TORQUE = "ActualEnginePercentTorque"
+"""Actual engine torque [%] of the reference torque (J1939 EEC1, SPN 513)."""
+
+ENGINE_REFERENCE_TORQUE = "EngineReferenceTorque"
+"""The engine's 100 % torque [N·m] (J1939 EC1, SPN 544)."""
+
+ENGINE_IDLE_SPEED = "EngineSpeedAtIdlePoint1"
+"""Engine idle speed [rad/s] (J1939 EC1, SPN 188)."""
+
+GEAR_RATIO = "TransmissionActualGearRatio"
+"""Transmission input / output shaft speed [-] (J1939 ETC2, SPN 526)."""
+
+SELECTED_GEAR = "TransmissionSelectedGear"
+"""Gear the operator selected [-], 0 neutral (J1939 ETC2, SPN 524)."""
+
+VEHICLE_SPEED = "WheelBasedVehicleSpeed"
+"""Wheel-based vehicle speed [m/s] (J1939 CCVS1, SPN 84)."""
+
+FRONT_AXLE_SPEED = "FrontAxleSpeed"
+"""Mean speed of the front wheels [m/s] (J1939 EBC2, SPN 904)."""
+
+PARKING_BRAKE = "ParkingBrakeSwitch"
+"""Parking brake: 0 not set, 1 set (J1939 CCVS1, SPN 70)."""
+
+GNSS_TRACK_SPEED = "gps.speed"
+"""In a :class:`Need`: the GNSS speed over ground of the recording's track."""
+
+
+# ----------------------------------------------------------------------------- estimation profiles
+@dataclass(frozen=True)
+class Need:
+    """One thing an estimation profile needs: any one of ``signals``."""
+
+    what: str
+    signals: tuple[str, ...]
+
+
+PROFILES: dict[str, tuple[Need, ...]] = {
+    "hub": (*(Need(f"wheel speed {w}", (f"WheelSpeed_{w}",)) for w in WHEELS),
+            *(Need(f"drive torque {w}", (f"DriveTorque_{w}",)) for w in WHEELS),
+            Need("front-axle load", (FRONT_AXLE_LOAD,)),
+            Need("draft", (DRAFT,)),
+            Need("GNSS speed", (GNSS_TRACK_SPEED,))),
+    "mechanical": (Need("engine percent torque", (ENGINE_PERCENT_TORQUE,)),
+                   Need("engine reference torque", (ENGINE_REFERENCE_TORQUE,)),
+                   Need("gear ratio", (GEAR_RATIO,)),
+                   Need("wheel-based speed", (VEHICLE_SPEED, WHEEL_BASED_SPEED, FRONT_AXLE_SPEED)),
+                   Need("draft", (DRAFT,)),
+                   Need("ground speed", (GNSS_TRACK_SPEED, GROUND_BASED_SPEED))),
+}
+"""Estimation profile -> its needs (module doc)."""
+
+ESTIMATED_PROFILES = ("hub",)
+"""The profiles the estimator runs; the others are listed for information."""
+
+REPLAY_REQUIRED: tuple[str, ...] = WHEEL_SPEEDS + DRIVE_TORQUES
+"""Signals without which replay does not run: the step grid follows the wheel speeds, and without drive
+torques every step would be a prediction.  Without the front-axle load, the draft or the GNSS speed it runs,
+and the estimator flags its steps with the time-out bits."""
+
+
+def _values(rec: Any, name: str) -> np.ndarray | None:
+    if name == GNSS_TRACK_SPEED:
+        return np.asarray(rec.gps.speed, dtype=float) if len(rec.gps) else None
+    s = rec.signals.get(name)
+    return None if s is None or len(s) == 0 else np.asarray(s.value, dtype=float)
+
+
+def signal_state(rec: Any, name: str) -> str:
+    """``"found"`` (a sample that is a number), ``"not available"`` (sent, every sample NaN) or ``"absent"``."""
+    v = _values(rec, name)
+    if v is None:
+        return "absent"
+    return "found" if np.isfinite(v).any() else "not available"
+
+
+def source_of(rec: Any, name: str) -> str:
+    """Where a signal of ``rec`` came from: its message, ``Message.Signal × scale``, or ``GNSS``."""
+    if name == GNSS_TRACK_SPEED:
+        return "GNSS"
+    return getattr(rec, "signal_sources", {}).get(name, "")
+
+
+def profile_status(rec: Any) -> dict[str, list[tuple[Need, str | None]]]:
+    """For each profile of :data:`PROFILES`, each need with the first of its signals found (None if none is)."""
+    return {name: [(need, next((s for s in need.signals if signal_state(rec, s) == "found"), None))
+                   for need in needs]
+            for name, needs in PROFILES.items()}
+
+
+def missing_signals(rec: Any, required: Iterable[str] = REPLAY_REQUIRED) -> list[str]:
+    """The signals of ``required`` that ``rec`` does not carry as numbers (absent or never available)."""
+    return [n for n in required if signal_state(rec, n) != "found"]
+
+
+# ----------------------------------------------------------------------------- motion
+MOTION_SPEED_MPS = 0.1
+"""Above this speed [m/s] (0.36 km/h) the machine moves."""
+
+MOTION_WHEEL_RAD_S = 0.2
+"""Above this wheel angular speed [rad/s] the machine moves (0.1 m/s on a wheel of 0.5 m)."""
+
+SPEED_SIGNALS: tuple[str, ...] = (VEHICLE_SPEED, WHEEL_BASED_SPEED, FRONT_AXLE_SPEED, GROUND_BASED_SPEED,
+                                  GNSS_TRACK_SPEED)
+"""Ground and wheel-based speeds [m/s] that tell motion."""
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Whether a recording shows the machine moving: ``moving`` None when no speed signal tells; ``evidence``
+    one line per signal used, engine and gear state included."""
+
+    moving: bool | None
+    evidence: tuple[str, ...]
+
+    def describe(self) -> str:
+        head = {True: "moving", False: "no motion", None: "unknown (no speed signal)"}[self.moving]
+        return head + (": " + "; ".join(self.evidence) if self.evidence else "")
+
+
+def motion(rec: Any) -> Motion:
+    """Motion from the speed signals (module doc), with the engine speed, gear and parking brake as context."""
+    moving: bool | None = None
+    evidence = []
+    for names, limit, unit in ((SPEED_SIGNALS, MOTION_SPEED_MPS, "m/s"), (WHEEL_SPEEDS, MOTION_WHEEL_RAD_S, "rad/s")):
+        if moving is not None:                     # wheel angular speeds only when no speed in m/s tells
+            break
+        for name in names:
+            v = _values(rec, name)
+            if v is None or not np.isfinite(v).any():
+                continue
+            top = float(np.nanmax(np.abs(v)))
+            label = "GNSS speed" if name == GNSS_TRACK_SPEED else name
+            evidence.append(f"{label} {top:.2f} {unit} at most ({int(np.isfinite(v).sum())} samples)")
+            moving = bool(moving) or top > limit
+    rpm = _values(rec, ENGINE_SPEED)
+    if rpm is not None and np.isfinite(rpm).any():
+        rpm = rpm[np.isfinite(rpm)] * 30.0 / math.pi
+        line = f"engine {rpm.min():.0f} to {rpm.max():.0f} rpm (median {np.median(rpm):.0f})"
+        idle = _values(rec, ENGINE_IDLE_SPEED)
+        if idle is not None and np.isfinite(idle).any():
+            idle_rpm = float(np.nanmedian(idle)) * 30.0 / math.pi
+            med = float(np.median(rpm)) / idle_rpm
+            line += f", idle {idle_rpm:.0f} rpm: " + ("mostly not running" if med < 0.5 else "at idle"
+                                                      if 0.85 <= med <= 1.15 else f"{med:.1f} x idle")
+        evidence.append(line)
+    gear = _values(rec, SELECTED_GEAR)
+    if gear is not None and np.isfinite(gear).any():
+        g = sorted({int(x) for x in gear[np.isfinite(gear)]})
+        evidence.append("gear selected: " + ", ".join("neutral" if x == 0 else f"{x:+d}" for x in g))
+    brake = _values(rec, PARKING_BRAKE)
+    if brake is not None and np.any(brake == 1):
+        evidence.append("parking brake set")
+    return Motion(moving, tuple(evidence))
+
+
+__all__ = ["ANCHOR_SIGNAL", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
+           "ENGINE_REFERENCE_TORQUE", "ENGINE_SPEED", "ESTIMATED_PROFILES", "FRONT_AXLE_LOAD", "FRONT_AXLE_SPEED",
+           "GEAR_RATIO", "GNSS_SPEED", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
+           "INPUT_MESSAGES", "IN_WORK", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",
+           "Need", "PARKING_BRAKE", "PROFILES", "REPLAY_REQUIRED", "SELECTED_GEAR", "SPEED_SIGNALS", "VECTOR_KEYS",
+           "VEHICLE_SPEED", "WHEEL_BASED_SPEED", "WHEEL_SPEEDS", "missing_signals", "motion", "profile_status",
+           "signal_state", "source_of"]
