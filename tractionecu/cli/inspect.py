@@ -15,7 +15,10 @@ from __future__ import annotations
 
 import argparse
 
+from typing import Any
+
 from ..bus.dbc import Codec, extra_dbcs
+from ..pipeline.signals import ESTIMATED_PROFILES, GNSS_TRACK_SPEED, motion, profile_status, signal_state, source_of
 from ..recording.reader import read_recording
 from ..recording.summary import summarize
 
@@ -37,6 +40,30 @@ def dbc_lines(codec: Codec) -> list[str]:
     return out
 
 
+def profile_lines(rec: Any) -> list[str]:
+    """The estimation profiles (:data:`tractionecu.pipeline.signals.PROFILES`): for each need the signal found
+    and its message, or what is missing; then the motion the speed signals show."""
+    out = ["  estimation profiles (contract signals found, from which message):"]
+    for name, needs in profile_status(rec).items():
+        found = sum(1 for _, sig in needs if sig is not None)
+        role = "estimated" if name in ESTIMATED_PROFILES else "not estimated yet, listed for information"
+        out.append(f"    {name} ({role}): {found} of {len(needs)} found")
+        width = max(len(need.what) for need, _ in needs)
+        for need, sig in needs:
+            if sig is not None:
+                src = source_of(rec, sig)
+                label = "speed over ground" if sig == GNSS_TRACK_SPEED else sig
+                out.append(f"      {need.what:<{width}}  {label}" + (f" from {src}" if src and src != sig else ""))
+                continue
+            sent = [s for s in need.signals if signal_state(rec, s) == "not available"]
+            names = " or ".join("GNSS speed" if s == GNSS_TRACK_SPEED else s for s in need.signals)
+            note = (f" ({', '.join(source_of(rec, x) or x for x in sent)} sent, every value not available)"
+                    if sent else "")
+            out.append(f"      {need.what:<{width}}  missing: {names}{note}")
+    out.append(f"  motion: {motion(rec).describe()}")
+    return out
+
+
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="print duration, frame counts, rates, gaps, rejected lines and the signals "
                                        "each estimation profile finds or misses")
@@ -48,5 +75,5 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     with extra_dbcs(args.dbc) as codec:
         rec = read_recording(args.recording)
-    print("\n".join([summarize(rec), *dbc_lines(codec)]))
+    print("\n".join([summarize(rec), *profile_lines(rec), *dbc_lines(codec)]))
     return 0

@@ -1,7 +1,7 @@
 """``tractionecu inspect``: a recording's duration, frames and rates per message,
-gaps, unknown PGNs, decode errors, address claims, GNSS epochs and rejected lines,
-then the estimation profiles: which contract signals were found, from which
-message, which are missing, and whether the recording shows motion."""
+gaps, unknown PGNs, decode errors, address claims, GNSS epochs and rejected lines.
+The estimation profiles that follow in the command's output are the pipeline's
+(:func:`tractionecu.cli.inspect.profile_lines`)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ from collections import Counter
 from datetime import datetime, timezone
 
 from ..bus.transport import PGN_TP_CM, PGN_TP_DT
-from ..pipeline.signals import ESTIMATED_PROFILES, GNSS_TRACK_SPEED, motion, profile_status, signal_state, source_of
 from .containers import Recording
 
 _PGN_NOTES = {PGN_TP_CM: "  (transport protocol: connection management)",
@@ -95,29 +94,4 @@ def summarize(recording: Recording) -> str:
         out.append(
             f"  {fname} ignored: " + ", ".join(f"{k} x{v}" for k, v in sorted(s.ignored.items()))  # type: ignore[attr-defined]
         )
-    out += profile_lines(r)
     return "\n".join(out)
-
-
-def profile_lines(rec: Recording) -> list[str]:
-    """The estimation profiles (:data:`tractionecu.pipeline.signals.PROFILES`): for each need the signal found
-    and its message, or what is missing; then the motion the speed signals show."""
-    out = ["  estimation profiles (contract signals found, from which message):"]
-    for name, needs in profile_status(rec).items():
-        found = sum(1 for _, sig in needs if sig is not None)
-        role = "estimated" if name in ESTIMATED_PROFILES else "not estimated yet, listed for information"
-        out.append(f"    {name} ({role}): {found} of {len(needs)} found")
-        width = max(len(need.what) for need, _ in needs)
-        for need, sig in needs:
-            if sig is not None:
-                src = source_of(rec, sig)
-                label = "speed over ground" if sig == GNSS_TRACK_SPEED else sig
-                out.append(f"      {need.what:<{width}}  {label}" + (f" from {src}" if src and src != sig else ""))
-                continue
-            sent = [s for s in need.signals if signal_state(rec, s) == "not available"]
-            names = " or ".join("GNSS speed" if s == GNSS_TRACK_SPEED else s for s in need.signals)
-            note = (f" ({', '.join(source_of(rec, x) or x for x in sent)} sent, every value not available)"
-                    if sent else "")
-            out.append(f"      {need.what:<{width}}  missing: {names}{note}")
-    out.append(f"  motion: {motion(rec).describe()}")
-    return out
