@@ -46,13 +46,28 @@ SHORT_S = 12.0
 
 
 @pytest.fixture(scope="session")
-def short_recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 12 s ``paper-straight`` recording (can.log, gps.nmea, vehicle.toml, truth), shared per session."""
+def make_recording(tmp_path_factory: pytest.TempPathFactory):
+    """``make_recording(scenario, seed, duration_s)``: a simulated recording directory (can.log, gps.nmea,
+    vehicle.toml, truth), made once per session for each argument set."""
     from tractionecu.sim import scenarios
     from tractionecu.sim.simulator import simulate
     from tractionecu.sim.writer import write_recording
 
-    out = tmp_path_factory.mktemp("rec") / "paper-straight"
-    scn = scenarios.get("paper-straight", seed=3, duration_s=SHORT_S)
-    write_recording(scn, simulate(scn), out)
-    return out
+    made: dict[tuple, Path] = {}
+
+    def make(scenario: str, seed: int, duration_s: float | None = None) -> Path:
+        key = (scenario, seed, duration_s)
+        if key not in made:
+            out = tmp_path_factory.mktemp("rec") / scenario
+            scn = scenarios.get(scenario, seed=seed, duration_s=duration_s)
+            write_recording(scn, simulate(scn), out)
+            made[key] = out
+        return made[key]
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def short_recording(make_recording) -> Path:
+    """A 12 s ``paper-straight`` recording: acceleration, then steady work on the first soil."""
+    return make_recording("paper-straight", 3, SHORT_S)

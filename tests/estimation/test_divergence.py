@@ -21,9 +21,6 @@ from tractionecu.pipeline.gnss import GnssGate
 from tractionecu.pipeline.replay import machine_of, recording_grid, replay
 from tractionecu.pipeline.steps import vector_steps
 from tractionecu.recording.reader import read_recording
-from tractionecu.sim import scenarios
-from tractionecu.sim.simulator import simulate
-from tractionecu.sim.writer import write_recording
 
 FAULT_AT_S = 50.0
 """Fault start after the first wheel-speed frame [s] (the machine works on the first soil then)."""
@@ -83,11 +80,8 @@ def test_monitor_speed_envelope_and_rho_bound():
 
 # ----------------------------------------------------------------------------- recordings
 @pytest.fixture(scope="module")
-def base(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp("div") / "base"
-    scn = scenarios.get("paper-three-soils", seed=1, duration_s=90.0)
-    write_recording(scn, simulate(scn), out)
-    return out
+def base(make_recording) -> Path:
+    return make_recording("paper-three-soils", 1, 90.0)
 
 
 def _t0(rec_dir: Path) -> float:
@@ -218,12 +212,9 @@ def test_replay_marks_the_lost_period_and_the_map_skips_it(base, tmp_path, monke
 
 
 @pytest.fixture(scope="module")
-def reversing(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def reversing(make_recording) -> Path:
     """The first pass, a three-point turn with 12 m straight back at 1 m/s, and the start of the second pass."""
-    out = tmp_path_factory.mktemp("rev") / "rec"
-    scn = scenarios.get("headland-reverse", seed=3, duration_s=180.0)
-    write_recording(scn, simulate(scn), out)
-    return out
+    return make_recording("headland-reverse", 3, 180.0)
 
 
 def test_reversing_at_a_headland(reversing):
