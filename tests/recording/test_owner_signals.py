@@ -108,6 +108,15 @@ def test_an_explicit_mapping_replaces_the_vehicle_files(rec_dir):
     assert "WheelSpeed_FL" not in rec.signals and rec.signals["WheelSpeed_RR"].value[0] == pytest.approx(28.10)
     rec = read_recording(rec_dir, dbc=[OWNER], signals={})
     assert not any(k.startswith("WheelSpeed") for k in rec.signals)
+    rec = read_recording(rec_dir, dbc=[OWNER], signals={"FrontAxleLoad": ("DriveCtrl_4.Counter", 5.0)})
+    assert "FrontAxleLoad" in rec.signals                                       # mapped onto any contract input
+    (rec_dir / "can.log").write_text("\n".join(x for x in owner_lines() if "18FF5627" not in x) + "\n")
+    rec = read_recording(rec_dir, dbc=[OWNER])                                 # DriveCtrl_4 never sent
+    assert "DraftForce" not in rec.signals
+    assert rec.signal_sources["DraftForce"] == "DriveCtrl_4.HitchDraft x 1000, not in the recording"
+    from tractionecu.cli.inspect import profile_lines
+    assert any("missing: DraftForce (mapped: DriveCtrl_4.HitchDraft x 1000, not in the recording)" in x
+               for x in profile_lines(rec))
 
 
 def test_a_mapping_without_the_owner_dbc_is_a_config_error_naming_file_and_key(rec_dir):

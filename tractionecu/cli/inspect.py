@@ -59,6 +59,8 @@ def profile_lines(rec: Any) -> list[str]:
             names = " or ".join("GNSS speed" if s == GNSS_TRACK_SPEED else s for s in need.signals)
             note = (f" ({', '.join(source_of(rec, x) or x for x in sent)} sent, every value not available)"
                     if sent else "")
+            note += "".join(f" (mapped: {source_of(rec, x)})" for x in need.signals
+                            if signal_state(rec, x) == "absent" and source_of(rec, x))
             out.append(f"      {need.what:<{width}}  missing: {names}{note}")
     out.append(f"  motion: {motion(rec).describe()}")
     return out

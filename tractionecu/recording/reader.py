@@ -31,7 +31,8 @@ named ``Message.Signal``, :class:`~tractionecu.bus.dbc.Codec`).  A
 ``vehicle.toml``) maps them onto contract names: the contract signal is the
 source series times the scale, in the contract unit, and replaces a contract
 signal decoded directly.  ``Recording.signal_sources`` says where each
-signal came from.  Unknown contract names, messages or signals are
+signal came from (for a mapped source without frames: that it is not in the
+recording).  Unknown contract names, messages or signals are
 :class:`~tractionecu.errors.ConfigError` naming the key, raised before the
 CAN log is read.
 
@@ -105,10 +106,13 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     sources = {name: codec.signals[name].message for name in decoded}
     for target, src, scale in mapping:
         s = decoded.get(src)
+        how = src if scale == 1.0 else f"{src} x {scale:g}"
         if s is None:
+            if target not in decoded:
+                sources[target] = f"{how}, not in the recording"
             continue
         decoded[target] = Series(s.t, s.value * scale, s.sa, codec.signals[target].unit)
-        sources[target] = src if scale == 1.0 else f"{src} x {scale:g}"
+        sources[target] = how
     can_t0 = stats.can_t_first
 
     gps = GpsTrack.empty()
