@@ -14,6 +14,10 @@ from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import WHEELS
 from .scoring import S_GRID, Truth
 
+TRUTH_STYLE = dict(color="black", lw=1.8, ls="--", zorder=3, label="true")
+"""Fig. 6's truth: dashed, thicker and drawn over the estimate, so it shows where the two coincide."""
+ESTIMATE_STYLE = dict(color="tab:blue", lw=1.0, alpha=0.85, zorder=2, label="AUKF-FS")
+
 
 def plot_run(out: Path, arrays: dict[str, Any], truth: Truth | None, sc: dict[str, Any] | None) -> list[str]:
     """Write the paper's Fig. 6 (μ per wheel and ρ_s over time) and Fig. 5 (μ(s) per soil) as PNG."""
@@ -30,15 +34,15 @@ def plot_run(out: Path, arrays: dict[str, Any], truth: Truth | None, sc: dict[st
     for i, w in enumerate(WHEELS):
         ax = axes[i]
         if truth is not None:
-            ax.plot(tr, truth.mu[k, i], color="tab:brown", lw=1.0, label="true")
-        ax.plot(tr, arrays["mu"][:, i], color="tab:blue", lw=0.8, label="AUKF-FS")
+            ax.plot(tr, truth.mu[k, i], **TRUTH_STYLE)
+        ax.plot(tr, arrays["mu"][:, i], **ESTIMATE_STYLE)
         ax.set_ylabel(f"μ {w} [-]")
         ax.grid(alpha=0.3)
     axes[0].legend(loc="upper right")
     ax = axes[4]
     if truth is not None:
-        ax.plot(tr, truth.rho_s[k], color="tab:brown", lw=1.0, label="true")
-    ax.plot(tr, arrays["rho_s"], color="tab:blue", lw=0.8, label="AUKF-FS")
+        ax.plot(tr, truth.rho_s[k], **TRUTH_STYLE)
+    ax.plot(tr, arrays["rho_s"], **ESTIMATE_STYLE)
     ax.set_ylabel("ρ_s [-]")
     ax.set_xlabel("t [s]")
     ax.grid(alpha=0.3)

@@ -464,6 +464,17 @@ class NmeaStats(RejectCounter):
     ignored: Counter = field(default_factory=Counter)
 
 
+def sentence_label(line: str) -> str:
+    """How an ignored sentence is counted: the formatter (``GSV`` of ``$GPGSV``), or the whole
+    address of a proprietary sentence (``PUBX`` of ``$PUBX,00``, ``PGRME``); ``?`` for a non-sentence."""
+    if not line.startswith("$") or len(line) <= 6:
+        return "?"
+    addr = line[1:].split(",", 1)[0].split("*", 1)[0]
+    if addr.startswith("P"):
+        return addr or "?"
+    return addr[2:] if len(addr) > 2 else "?"
+
+
 def iter_nmea(
     lines: Iterable[str], stats: NmeaStats | None = None, first_lineno: int = 1
 ) -> Iterator[tuple[int, NmeaRecord]]:
@@ -479,7 +490,7 @@ def iter_nmea(
         if rec is None:
             s = line.strip()
             if s:
-                st.ignored[s[3:6] if s.startswith("$") and len(s) > 6 else "?"] += 1
+                st.ignored[sentence_label(s)] += 1
             continue
         st.accepted += 1
         yield lineno, rec
