@@ -21,12 +21,29 @@ SUBCOMMANDS = ("simulate", "inspect", "replay", "map", "run", "diagnose")
 
 log = logging.getLogger("tractionecu")
 
+DESCRIPTION = """\
+Estimate, while a tractor drives, how well the ground carries traction: the
+adhesion coefficient of each wheel and the soil rolling resistance, from the
+drive torques, axle load, draft force and wheel speeds on the CAN bus and the
+GNSS speed, and map them."""
+
+EPILOG = """\
+examples:
+  tractionecu inspect capture.blf            what a capture holds (any common CAN log format)
+  tractionecu replay --out run/ REC          the estimator over a recording (directory or capture file)
+  tractionecu map export --help              the ground-condition map as GeoTIFF, ISO-XML, PNG, GeoJSON
+  tractionecu run --simulate                 the in-cab service without hardware
+  tractionecu COMMAND --help                 the options of one command
+
+Python:  from tractionecu import Estimator, VehicleParams, read_recording, replay"""
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="tractionecu", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="tractionecu", description=DESCRIPTION, epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"tractionecu {__version__}")
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for name in SUBCOMMANDS:
         try:
             mod = importlib.import_module(f"tractionecu.cli.{name}")
