@@ -244,3 +244,32 @@ def test_reversing_at_a_headland(reversing):
     late = (a["t"] >= t_resume + 10.0) & valid & work
     assert late.sum() > 1000
     assert float(np.mean(_mu_rel_error(rec, a)[late])) <= 0.01
+
+
+def test_reversing_without_the_direction_bit_takes_the_wheels_rotation(reversing, tmp_path):
+    """Without WBSD (SPN 1864) the sign of wheel rotation gives the direction: still no wrong-sign estimate."""
+    rec = read_recording(rewrite_can(reversing, tmp_path / "no-wbsd", lambda t, n, v: None if n == "WBSD" else v))
+    assert "WheelBasedMachineDirection" not in rec.signals
+    a = replay(rec).arrays
+    tr = read_truth(rec.truth_csv_path, rec.truth_toml_path)
+    k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    v_true = tr.v[k]
+    assert not np.any(a["valid"] & (np.sign(a["v"]) != np.sign(v_true)) & (np.abs(v_true) > 0.05))
+    assert np.all(a["v"][(v_true < -0.5) & a["valid"]] < 0)
+
+
+def test_standstill_is_flagged_and_holds_rho_and_slip(reversing):
+    """The machine stops for 1 s before each change of direction: there ρ_s and slip are the last
+    values from moving, flagged 0x400 and not valid."""
+    a = replay(read_recording(reversing)).arrays
+    still = (a["status"] & STANDSTILL) != 0
+    assert still.sum() > 100 and not np.any(a["valid"][still])
+    starts = np.flatnonzero(np.diff(still.astype(int)) == 1) + 1
+    held = 0
+    for i in starts:
+        if a["valid"][i - 1]:                 # entered from a valid moving estimate
+            run = np.arange(i, i + int(np.argmin(still[i:])))
+            assert np.all(a["rho_s"][run] == a["rho_s"][i - 1])
+            assert np.all(a["slip"][run] == a["slip"][i - 1])
+            held += 1
+    assert held >= 1

@@ -108,7 +108,7 @@ def test_vector_and_incremental_forms_give_equal_arguments(short_recording: Path
     ev += [(float(t), len(ev) + k, "v", float(v)) for k, (t, v) in enumerate(zip(rec.gps.t[mask], rec.gps.speed[mask]))]
     ev.sort(key=lambda e: (e[0], e[1]))
     j = 0
-    passed = {"Md": 0, "Fzf": 0, "Fdx": 0, "omega": 0, "v": 0}
+    passed = {"Md": 0, "Fzf": 0, "Fdx": 0, "omega": 0, "dir": 0, "v": 0}
     for k, t in enumerate(grid.tolist()):
         while j < len(ev) and ev[j][0] <= t + LAG_S:
             if ev[j][2] == "bus":

@@ -209,6 +209,9 @@ class Estimator:
         self._last_v_meas: float | None = None
         self._rates.reset()
         self._dir = 1.0
+        self._dir_bus = 0.0
+        self._t_dir_bus = -math.inf
+        self._held: tuple[float, NDArray[np.float64]] | None = None
         self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
         self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
@@ -388,18 +391,24 @@ class Estimator:
                         # direction of travel from the sign of wheel rotation (held when creeping)
                         _, _, rdf, rdr = self.model.load_floats(float(u[4]))
                         v_wheel = 0.25 * (rdf * (wl[0] + wl[1]) + rdr * (wl[2] + wl[3]))
-                        if v_wheel >= cfg.direction_min_speed_mps:
+                        if v_wheel != v_wheel:
+                            v_wheel = None
+                        elif t - self._t_dir_bus <= cfg.gps_timeout_s:
+                            self._dir = self._dir_bus          # the machine's own direction bit first
+                        elif v_wheel >= cfg.direction_min_speed_mps:
                             self._dir = 1.0
                         elif v_wheel <= -cfg.direction_min_speed_mps:
                             self._dir = -1.0
-                        elif v_wheel != v_wheel:
-                            v_wheel = None
                     else:
                         fin = np.isfinite(omega)
                         status |= INPUT_REJECTED
                         counters["rejected_measurements"] += int((~fin).sum())
                         if fin.any():
                             self._t_omega = t
+            d = measurements.get("dir")
+            if d is not None and (d == 0 or d == 1):          # WBSD SPN 1864: 0 reverse, 1 forward
+                self._dir_bus = self._dir = 1.0 if d == 1 else -1.0
+                self._t_dir_bus = t
             vm = measurements.get("v")
             if vm is not None:
                 # GNSS speed over ground is unsigned (RMC/VTG): it takes the direction of travel
@@ -572,9 +581,16 @@ class Estimator:
         elif self._lost:
             self._lost = False          # re-converged: the lost period ends with this step
             status &= ~FILTER_LOST
+        rho = float(x[IX_RHO])
         if abs(v) < cfg.standstill_speed_mps:
+            # ρ_s drops out of eq. 8 and slip is 0/0: report the last moving values, flagged (the
+            # filter's own covariance of ρ_s keeps growing meanwhile)
             status |= STANDSTILL
+            if self._held is not None:
+                rho, s = self._held
+        elif conv:
+            self._held = (rho, s)
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        return Estimate(t, mu, float(x[IX_RHO]), cs.a, cs.class_name, s, v, omega, pd, nis,
+        return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index)

@@ -10,6 +10,7 @@ key         signals (message)                            role         unit
 ``Fzf``     ``FrontAxleLoad`` (TECU_AxleLoad)            input        N
 ``Fdx``     ``DraftForce`` (RearHitchStatus)             input        N
 ``omega``   ``WheelSpeed_FL..RR`` (TECU_WheelSpeeds)     measurement  rad/s, one per wheel
+``dir``     ``WheelBasedMachineDirection`` (WBSD)        measurement  0 reverse, 1 forward (SPN 1864)
 ``v``       GNSS speed over ground of an accepted epoch  measurement  m/s
 ==========  ===========================================  ===========  ========================
 
@@ -67,6 +68,10 @@ WHEEL_BASED_SPEED = "WheelBasedMachineSpeed"
 GROUND_BASED_SPEED = "GroundBasedMachineSpeed"
 """Radar / ground-based speed [m/s] (ISO 11783-7 GBSD), used by diagnosis when there is no GNSS."""
 
+WHEEL_BASED_DIRECTION = "WheelBasedMachineDirection"
+"""The machine's own direction of travel (ISO 11783-7 WBSD, SPN 1864): 0 reverse, 1 forward, 2 error,
+3 not available.  The estimator signs the unsigned GNSS speed with it."""
+
 INPUT_GROUPS: dict[str, tuple[str, ...]] = {
     "Md": DRIVE_TORQUES,
     "Fzf": (FRONT_AXLE_LOAD,),
@@ -76,6 +81,7 @@ INPUT_GROUPS: dict[str, tuple[str, ...]] = {
 
 MEASUREMENT_GROUPS: dict[str, tuple[str, ...]] = {
     "omega": WHEEL_SPEEDS,
+    "dir": (WHEEL_BASED_DIRECTION,),
 }
 """Estimator measurement key -> DBC signals; ``v`` comes from the GNSS (:data:`GNSS_SPEED`)."""
 
