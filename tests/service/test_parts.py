@@ -234,14 +234,16 @@ async def test_network_answers_a_request_and_its_delayed_frame_is_cancelled_by_s
                j1939.request_data(j1939.PGN_ADDRESS_CLAIMED))
     for stop_first in (False, True):
         link = FakeLink()
-        net, _ = network(link)
+        net, mono = network(link)
         await net.start()
-        net.on_nm_frame(*request)                        # claimed: answered at once
+        net.on_nm_frame(*request)                        # queued for after the next estimation step
+        assert len(link.sent) == 1 and net.serve_requests() == 1
         assert link.sent[-1] == (0x18EEFF90, net.claimer.name_bytes) and len(link.sent) == 2
         net.claimer.state, net.claimer.address = ClaimState.CANNOT_CLAIM, None
         net.claimer.rng = random.Random(4)
+        mono.t += 0.2                                    # past broadcast.request_answer_interval_s
         net.on_nm_frame(*request)                        # Cannot Claim, after a random delay of ≤ 153 ms
-        assert len(link.sent) == 2
+        assert net.serve_requests() == 1 and len(link.sent) == 2
         if stop_first:
             await net.stop()
         await asyncio.sleep(0.3)

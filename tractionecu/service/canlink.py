@@ -445,6 +445,23 @@ class CanLink:
             self._deliver(self._stamp(msg, t), msg)
         return n
 
+    # ------------------------------------------------------------ filters
+    def set_filters(self, filters: list[dict[str, Any]] | None) -> None:
+        """Replace the receive filters: on the open bus now (python-can ``set_filters``; socketcan
+        sets them in the kernel) and at every later open.  Counted as ``filter_updates``; a bus
+        that refuses them keeps its old ones (``filter_errors``, logged once)."""
+        self.extra_bus_kwargs["can_filters"] = filters
+        bus = self.bus
+        if bus is None:
+            return
+        try:
+            bus.set_filters(filters)
+        except Exception as e:  # a driver without filter support
+            self.stats["filter_errors"] += 1
+            self._warn_once("filters", "CAN %s: cannot set receive filters: %r", self.cfg.channel, e)
+            return
+        self.stats["filter_updates"] += 1
+
     # ------------------------------------------------------------ transmit
     def send(self, can_id: int, data: bytes) -> bool:
         """Send one 29-bit frame without blocking; False (and counted) if it cannot go out."""

@@ -177,6 +177,11 @@ class BroadcastConfig:
     address_max: int = setting(SELF_CONFIGURABLE_RANGE[1], "highest address a self-configurable NAME may move to", 0, 253)
     priority: int = setting(6, "J1939 priority of the estimate frames (0 highest, 7 lowest)", 0, 7)
     enabled: bool = setting(True, "send estimates on the bus (false: listen only, no address claim)")
+    requests_per_tick: int = setting(8, "J1939 Requests served after each estimation step; more wait, and beyond "
+                                     "64 waiting they are shed (counted) [requests/step]", 1, 1000)
+    request_answer_interval_s: float = setting(0.1, "the same PGN is answered to the same requester at most once "
+                                               "per interval; keep it under the 0.2 s J1939 response time [s]",
+                                               0.0, 0.2)
 
     def __post_init__(self) -> None:
         if isinstance(self.name, int) and not isinstance(self.name, bool):
@@ -232,6 +237,9 @@ class ServiceSection:
 
     state_dir: str = setting("", f"writable state directory; empty = ${STATE_DIR_ENV} (systemd) or ./{DEFAULT_STATE_DIR}")
     status_interval_s: float = setting(1.0, "STATUS= notification and status line interval [s]", 0.1, 3600.0)
+    watchdog_behind_s: float = setting(2.0, "WATCHDOG=1 stops once the estimation loop has been behind its "
+                                       "schedule (steps more than a broadcast period late, or skipped) this "
+                                       "long; STATUS= says why [s]", 0.1, 600.0)
 
     def __post_init__(self) -> None:
         validate(self, "service")

@@ -53,10 +53,11 @@ import sys
 import threading
 import time
 from collections import Counter
-from typing import IO, Any, Callable
+from typing import IO, Any, Callable, Iterable
 
 import can
 
+from ..bus import j1939
 from ..bus.dbc import Codec, default_codec
 from ..errors import ConfigError
 from ..pipeline.gnss import gate_from_config
@@ -79,13 +80,35 @@ from .status import StatusReporter
 log = logging.getLogger(__name__)
 
 
-def pgn_filters(pgns: list[int]) -> list[dict[str, Any]]:
-    """python-can ``can_filters`` passing these PGNs from any source (and, PDU1, to any destination)."""
+PGN_ACKNOWLEDGEMENT = 59392
+"""Acknowledgement, 0xE800 (PDU1)."""
+PGN_TP_CM, PGN_TP_DT = 60416, 60160
+"""Transport protocol connection management and data transfer, 0xEC00 / 0xEB00 (PDU1)."""
+PGN_ETP_CM, PGN_ETP_DT = 51200, 50944
+"""ISO 11783-3 extended transport protocol, 0xC800 / 0xC700 (PDU1)."""
+ADDRESSED_PGNS = frozenset({j1939.PGN_REQUEST, PGN_ACKNOWLEDGEMENT, PGN_TP_CM, PGN_TP_DT, PGN_ETP_CM, PGN_ETP_DT})
+"""PDU1 PGNs admitted only when sent to our address or to the global address: a Request, a transport
+session or an acknowledgement between two other nodes is not ours to read (a flood of them would
+otherwise be parsed in Python).  Address Claimed passes to any destination (every claim updates the
+address table)."""
+
+
+def pgn_filters(pgns: Iterable[int], address: int | None = None) -> list[dict[str, Any]]:
+    """python-can ``can_filters`` passing these PGNs from any source.
+
+    A PDU2 PGN passes whole; a PDU1 PGN passes to any destination, except the
+    :data:`ADDRESSED_PGNS`, which pass only to the global address (0xFF) and to
+    ``address`` (our claimed address; None: global only).
+    """
     out = []
-    for pgn in pgns:
-        pdu1 = ((pgn >> 8) & 0xFF) < 240
-        out.append({"can_id": (pgn & (0x3FF00 if pdu1 else 0x3FFFF)) << 8,
-                    "can_mask": (0x3FF00 if pdu1 else 0x3FFFF) << 8, "extended": True})
+    for pgn in sorted(set(pgns)):
+        if not j1939.is_pdu1(pgn):
+            out.append({"can_id": (pgn & 0x3FFFF) << 8, "can_mask": 0x3FFFF << 8, "extended": True})
+        elif pgn in ADDRESSED_PGNS:
+            for da in sorted({j1939.ADDRESS_GLOBAL} | ({address} if address is not None else set())):
+                out.append({"can_id": ((pgn & 0x3FF00) | da) << 8, "can_mask": 0x3FFFF << 8, "extended": True})
+        else:
+            out.append({"can_id": (pgn & 0x3FF00) << 8, "can_mask": 0x3FF00 << 8, "extended": True})
     return out
 
 
@@ -187,10 +210,13 @@ class Service:
                                           stats=self.stats, lag_s=cfg.estimation.lag_s)
         bus_kwargs = dict(extra_bus_kwargs or {})
         if cfg.can.kernel_filters:
-            bus_kwargs.setdefault("can_filters", pgn_filters(self.codec.pgns()))
+            addr = cfg.broadcast.preferred_address if cfg.broadcast.enabled else None
+            bus_kwargs.setdefault("can_filters", pgn_filters(self.codec.pgns(), addr))
         self.can = CanLink(cfg.can, self.dispatcher.on_frame, self.clock, bus_factory=bus_factory,
                            extra_bus_kwargs=bus_kwargs, on_open=self.network.on_bus_open)
         self.network.link = self.can
+        if cfg.can.kernel_filters and "can_filters" not in (extra_bus_kwargs or {}):
+            self.network.on_address = self._follow_address
         self.gps: GpsReader | None = None
         if cfg.gps.source == "serial":
             self.gps = GpsReader(cfg.gps, self.dispatcher.on_fix, self.clock, serial_factory=serial_factory,
@@ -199,7 +225,8 @@ class Service:
         self.estimation = EstimationLoop(
             cfg, self.clock, self.steps, factory=estimator_factory or default_estimator_factory,
             broadcast=self.network.broadcast, map_writer=self.map, fixes=self.fixes, can=self.can, gps=self.gps,
-            watchdog=self.notifier.watchdog, watchdog_s=watchdog_interval(env), stats=self.stats)
+            watchdog=self.notifier.watchdog, watchdog_s=watchdog_interval(env), status=self.notifier.status,
+            after_step=self.network.serve_requests, stats=self.stats)
         self.status = StatusReporter(cfg.service.status_interval_s, self.clock.speed, self._totals,
                                      self.status_line, self.notifier, status_stream)
         self.ready = asyncio.Event()
@@ -232,6 +259,11 @@ class Service:
         """Ask the service to shut down (SIGTERM/SIGINT do this)."""
         if self._stop is not None:
             self._stop.set()
+
+    def _follow_address(self, address: int | None) -> None:
+        """Our address changed: the kernel passes Requests, TP, ETP and acknowledgements to it."""
+        self.can.set_filters(pgn_filters(self.codec.pgns(), address))
+        log.info("CAN filters follow address %s", "none" if address is None else f"0x{address:02X}")
 
     # ------------------------------------------------------------ start-up steps
     def _write_state(self) -> None:
@@ -283,7 +315,8 @@ class Service:
         gps_s = "off" if self.gps is None else ("open" if self.gps.is_open.is_set() else "DOWN")
         g0 = self.estimation.grid_t0
         t = "" if g0 is None else f"t {self.clock.now() - g0:6.1f} s  "
-        return (f"{t}{est} | CAN {can_s} {r.get('can', 0):.0f} fr/s (inputs {r.get('inputs', 0):.0f}/s)"
+        behind = self.estimation.behind_text(time.monotonic())
+        return (f"{behind + ' | ' if behind else ''}{t}{est} | CAN {can_s} {r.get('can', 0):.0f} fr/s (inputs {r.get('inputs', 0):.0f}/s)"
                 f"  GPS {gps_s} {r.get('gps', 0):.1f} Hz  est {r.get('est', 0):.0f} Hz"
                 f"  tx {r.get('tx', 0):.0f} fr/s  addr {self.network.describe_address()}")
 

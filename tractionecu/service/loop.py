@@ -12,8 +12,17 @@ estimates.  Until the first wheel-speed frame the loop idles
 and sets its timeout bits when a signal stops.  A loop that falls more than
 ``max_catch_up_s`` behind skips ahead (``skipped_steps``).  Every
 ``rate / broadcast.rate_hz`` steps the estimate is broadcast; every
-``rate / map.rate_hz`` steps it goes to the map; ``WATCHDOG=1`` is sent from
-this loop, so a stuck loop gets the service restarted.
+``rate / map.rate_hz`` steps it goes to the map; then the network serves
+its queued requests (``after_step``, bounded per step), so that work comes
+after the estimate, never before it.
+
+``WATCHDOG=1`` is sent from this loop and means "estimating": it is sent
+only while steps complete on schedule.  A step that runs more than one
+broadcast period late, or skipped steps, put the loop *behind*; once it has
+been behind for ``service.watchdog_behind_s`` the loop stops sending
+``WATCHDOG=1`` (``watchdog_withheld`` counts such episodes), says why in
+``STATUS=`` and the log, and systemd restarts the service after its
+``WatchdogSec=``.  The first step on schedule again resumes it.
 
 The estimator is built in one place, :meth:`EstimationLoop.build_estimator`,
 from the machine of the configuration (:func:`estimator_machine`: the
@@ -117,6 +126,10 @@ class EstimationLoop(TaskPart):
         Readers to drain before a step that runs late (``can`` also has ``drain_queued``).
     watchdog:
         Sends ``WATCHDOG=1``; ``watchdog_s`` is systemd's interval (None: no watchdog).
+    status:
+        ``status(text)`` sends ``STATUS=`` (when the loop stops or resumes feeding the watchdog).
+    after_step:
+        Called after each tick's step, broadcast and map work (the network's request serving).
     stats:
         Counter for ``steps``, ``estimator_errors``, ``idle_ticks``, ``skipped_steps`` (default: a new one).
 
@@ -128,6 +141,8 @@ class EstimationLoop(TaskPart):
         ``g0`` once the grid is phased, else None.
     max_tick_delay_s:
         Longest a step ran after it was due [wall s] (scheduling latency of the loop).
+    behind_since:
+        ``loop.time()`` since which the loop is behind its schedule, or None.
     """
 
     name = "estimation"
@@ -138,6 +153,7 @@ class EstimationLoop(TaskPart):
                  map_writer: MapWriter | None = None, fixes: FixBuffer | None = None,
                  can: Any = None, gps: Reader | None = None,
                  watchdog: Callable[[], Any] | None = None, watchdog_s: float | None = None,
+                 status: Callable[[str], Any] | None = None, after_step: Callable[[], Any] | None = None,
                  stats: Counter[str] | None = None) -> None:
         super().__init__()
         self.cfg = cfg
@@ -151,6 +167,10 @@ class EstimationLoop(TaskPart):
         self.gps = gps
         self.watchdog = watchdog
         self.watchdog_s = watchdog_s
+        self.status = status
+        self.after_step = after_step
+        self.behind_since: float | None = None
+        self.withheld = False
         self.stats: Counter[str] = Counter() if stats is None else stats
         self.machine: tuple[Any, Any] | None = None
         self.estimator: Any = None
@@ -198,6 +218,37 @@ class EstimationLoop(TaskPart):
         return est
 
     # ------------------------------------------------------------ the loop
+    def behind_text(self, now_m: float) -> str:
+        """Why ``WATCHDOG=1`` is withheld ("" while it is sent)."""
+        if not self.withheld or self.behind_since is None:
+            return ""
+        return (f"estimation behind schedule for {now_m - self.behind_since:.1f} s "
+                f"(budget service.watchdog_behind_s = {self.cfg.service.watchdog_behind_s:g} s): watchdog not fed")
+
+    def _schedule(self, behind: bool, now_m: float) -> bool:
+        """Track whether the loop is behind; True while ``WATCHDOG=1`` may be sent."""
+        if not behind:
+            if self.withheld:
+                self.withheld = False
+                log.warning("estimation back on schedule after %.1f s behind: watchdog fed again",
+                            now_m - (self.behind_since or now_m))
+                if self.status is not None:
+                    self.status("estimation back on schedule")
+            self.behind_since = None
+            return True
+        if self.behind_since is None:
+            self.behind_since = now_m
+        if now_m - self.behind_since < self.cfg.service.watchdog_behind_s:
+            return True
+        if not self.withheld:
+            self.withheld = True
+            self.stats["watchdog_withheld"] += 1
+            text = self.behind_text(now_m)
+            log.error("%s", text)
+            if self.status is not None:
+                self.status(text)
+        return False
+
     def _drain(self, late: bool) -> None:
         """Process input that arrived meanwhile: every reader after a late wake-up, else the CAN queue."""
         if late:
@@ -215,6 +266,7 @@ class EstimationLoop(TaskPart):
         rate = ec.rate_hz
         lag = ec.lag_s
         bc_every = max(1, round(rate / self.cfg.broadcast.rate_hz))
+        late_s = 1.0 / self.cfg.broadcast.rate_hz       # later than this [service s]: behind schedule
         map_every = max(1, round(rate / self.cfg.map.rate_hz))
         clock = self.clock
         g0 = clock.now()
@@ -237,6 +289,7 @@ class EstimationLoop(TaskPart):
                 self.stats["skipped_steps"] += k_new - k
                 self._warn("behind", "estimation loop %.2f s behind; skipping %d steps",
                            -delay * clock.speed, k_new - k)
+                self._schedule(True, loop.time())
                 k = k_new
                 continue
             self._drain(-delay > 1.0 / rate)
@@ -248,10 +301,14 @@ class EstimationLoop(TaskPart):
                 self.broadcast(est if anchored else None)
             if anchored and est is not None and self.map is not None and k % map_every == 0:
                 self.map.add(est, None if self.fixes is None else self.fixes.fix_at(t_k))
+            if self.after_step is not None:
+                self.after_step()
             now_m = loop.time()
             if self.map is not None:
                 self.map.maybe_flush(now_m)
-            if self.watchdog is not None and self.watchdog_s is not None and now_m - self._last_wd >= self.watchdog_s / 4:
+            on_schedule = self._schedule(-delay * clock.speed > late_s, now_m)
+            if (on_schedule and self.watchdog is not None and self.watchdog_s is not None
+                    and now_m - self._last_wd >= self.watchdog_s / 4):
                 self._last_wd = now_m
                 self.watchdog()
             k += 1

@@ -5,9 +5,25 @@
 
 * once started (:meth:`Network.start`), it claims its address each time the
   bus is (re)opened (:meth:`Network.on_bus_open`, the link's ``on_open``);
-* Address Claimed and Request frames from the bus go to the claimer
+* Address Claimed frames from the bus go to the claimer at once
   (:meth:`Network.on_nm_frame`); the frames it answers with go out at once or,
   for a Cannot Claim, after the claimer's random delay (on the event loop);
+  every change of our address is reported to :attr:`Network.on_address`
+  (the service moves its kernel filters with it);
+* Requests wait in a bounded queue (``requests_shed`` when full) and are
+  served after the estimation step, at most ``broadcast.requests_per_tick``
+  per step (:meth:`Network.serve_requests`), so a request flood never delays
+  the estimate.  A Request to another destination is not ours
+  (``requests_not_for_us``; the kernel filter normally drops it first).
+  Answers: a Request for Address Claimed gets our claim (or Cannot Claim);
+  a destination-specific Request for any other PGN gets a NACK
+  (Acknowledgement, PGN 59392, J1939-21).  The same PGN is answered to the
+  same requester at most once per ``broadcast.request_answer_interval_s``
+  (``requests_rate_limited``); a Request for Address Claimed that falls
+  inside that interval is answered once at its end instead
+  (``answers_deferred``), so it is still answered within the J1939 response
+  time (200 ms).  Global Requests for other PGNs are not answered
+  (``requests_unsupported``).
 * :meth:`Network.broadcast` sends the three estimate frames once the claim
   allows it (250 ms after an uncontested claim); otherwise it counts
   ``broadcast_skipped``.  ``broadcasts`` and ``broadcast_errors`` count the
@@ -19,10 +35,12 @@ Stopping cancels the delayed frames not yet sent.
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
 from collections import Counter
-from typing import Any, Protocol
+from typing import Any, Callable, Protocol
 
+from ..bus import j1939
 from ..bus.dbc import Codec
 from . import broadcast
 from .address_claim import AddressClaimer, ClaimState, Tx
@@ -30,6 +48,19 @@ from .clock import ServiceClock
 from .config import BroadcastConfig
 
 log = logging.getLogger(__name__)
+
+PGN_ACKNOWLEDGEMENT = 59392
+"""Acknowledgement, 0xE800 (PDU1): byte 0 is the control byte (1 = NACK)."""
+ACK_NACK = 1
+REQUEST_QUEUE_FRAMES = 64
+"""Requests waiting for :meth:`Network.serve_requests`; further ones are shed (``requests_shed``)."""
+
+
+def nack(requester: int, pgn: int, sa: int, priority: int = 6) -> tuple[int, bytes]:
+    """``(can_id, data)`` of a NACK from ``sa`` for a Request of ``pgn`` by ``requester`` (J1939-21:
+    sent to the global address, the requester's address in byte 4)."""
+    data = bytes([ACK_NACK, 0xFF, 0xFF, 0xFF, requester & 0xFF]) + (pgn & 0x3FFFF).to_bytes(3, "little")
+    return j1939.make_id(priority, PGN_ACKNOWLEDGEMENT, sa, j1939.ADDRESS_GLOBAL), data
 
 
 class Link(Protocol):
@@ -56,7 +87,13 @@ class Network:
         bus opens.
     stats:
         Counter for ``network_management``, ``broadcasts``,
-        ``broadcast_errors``, ``broadcast_skipped`` (default: a new one).
+        ``broadcast_errors``, ``broadcast_skipped`` and the request counts of
+        the module doc (default: a new one).
+
+    Attributes
+    ----------
+    on_address:
+        Called with our new address (None: none) each time it changes.
     """
 
     name = "network"
@@ -73,7 +110,12 @@ class Network:
             self.claimer = AddressClaimer(cfg.name_value(), cfg.preferred_address,
                                           (cfg.address_min, cfg.address_max))
         self.active = False
+        self.on_address: Callable[[int | None], None] | None = None
         self._pending: set[asyncio.TimerHandle] = set()
+        self._requests: collections.deque[tuple[int, bytes]] = collections.deque()
+        self._answered: dict[tuple[int, int], float] = {}     # (pgn, requester) -> service time of the last answer
+        self._deferred: set[int] = set()                      # requested PGNs with an answer scheduled
+        self._reported: int | None = None
 
     @property
     def address(self) -> int | None:
@@ -102,6 +144,8 @@ class Network:
         for h in self._pending:
             h.cancel()
         self._pending.clear()
+        self._deferred.clear()
+        self._requests.clear()
 
     # ------------------------------------------------------------ address claim
     def on_bus_open(self) -> None:
@@ -111,13 +155,35 @@ class Network:
             return
         self.transmit(cl.start(self.clock.now()))
         log.info("J1939: claiming address 0x%02X with NAME 0x%016X", cl.address or 0, cl.name_int)
+        self._report_address()
+
+    def _report_address(self) -> None:
+        addr = self.address
+        if addr != self._reported:
+            self._reported = addr
+            if self.on_address is not None:
+                self.on_address(addr)
 
     def on_nm_frame(self, can_id: int, data: bytes) -> None:
-        """An Address Claimed or Request frame from the bus."""
+        """An Address Claimed (handled now) or Request (queued) frame from the bus."""
         self.stats["network_management"] += 1
         cl = self.claimer
         if cl is None:
             return
+        if (can_id >> 16) & 0xFF == j1939.PGN_REQUEST >> 8:
+            da = (can_id >> 8) & 0xFF
+            if da != j1939.ADDRESS_GLOBAL and da != cl.address:
+                self.stats["requests_not_for_us"] += 1
+            elif len(self._requests) >= REQUEST_QUEUE_FRAMES:
+                self.stats["requests_shed"] += 1
+            else:
+                self._requests.append((can_id, data))
+            return
+        self._handle(can_id, data)
+
+    def _handle(self, can_id: int, data: bytes) -> None:
+        cl = self.claimer
+        assert cl is not None
         before = cl.state, cl.address
         self.transmit(cl.handle(self.clock.now(), can_id, data))
         after = cl.state, cl.address
@@ -127,6 +193,85 @@ class Network:
                 log.error("J1939: cannot claim an address (NAME 0x%016X); staying silent", cl.name_int)
             elif addr is not None:
                 log.warning("J1939: claiming address 0x%02X (%d)", addr, addr)
+            self._report_address()
+
+    def serve_requests(self) -> int:
+        """Serve at most ``broadcast.requests_per_tick`` queued Requests (after an estimation step);
+        returns how many."""
+        n = 0
+        q = self._requests
+        while q and n < self.cfg.requests_per_tick:
+            can_id, data = q.popleft()
+            n += 1
+            self._request(can_id, data)
+        return n
+
+    def _request(self, can_id: int, data: bytes) -> None:
+        st = self.stats
+        st["requests"] += 1
+        cl = self.claimer
+        if cl is None or len(data) < 3:
+            if cl is not None:
+                cl.counts["malformed"] += 1
+            return
+        pgn = j1939.requested_pgn(data)
+        sa, da = can_id & 0xFF, (can_id >> 8) & 0xFF
+        now = self.clock.now()
+        if pgn == j1939.PGN_ADDRESS_CLAIMED:
+            key = (pgn, j1939.ADDRESS_GLOBAL)            # the answer goes to everyone
+        elif da != j1939.ADDRESS_GLOBAL:
+            key = (pgn, sa)
+        else:
+            st["requests_unsupported"] += 1              # a global Request for a PGN we do not send
+            return
+        wait = self._answered.get(key, -1e18) + self.cfg.request_answer_interval_s - now
+        if wait > 0:
+            if pgn != j1939.PGN_ADDRESS_CLAIMED:
+                st["requests_rate_limited"] += 1
+            elif pgn in self._deferred:
+                st["requests_rate_limited"] += 1
+            else:                                        # answer once at the end of the interval
+                self._deferred.add(pgn)
+                st["answers_deferred"] += 1
+                self._defer(self.clock.wall(wait), key, can_id, data)
+            return
+        if len(self._answered) > 1024:                  # many requesters: forget the old ones
+            self._answered.clear()
+        self._answered[key] = now
+        self._answer(key, can_id, data)
+
+    def _defer(self, delay: float, key: tuple[int, int], can_id: int, data: bytes) -> None:
+        handle: asyncio.TimerHandle
+
+        def fire() -> None:
+            self._pending.discard(handle)
+            self._deferred.discard(key[0])
+            self._answered[key] = self.clock.now()
+            self._answer(key, can_id, data)
+
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:                           # not on the event loop: answer now
+            self._deferred.discard(key[0])
+            self._answer(key, can_id, data)
+            return
+        handle = loop.call_later(delay, fire)
+        self._pending.add(handle)
+
+    def _answer(self, key: tuple[int, int], can_id: int, data: bytes) -> None:
+        pgn = key[0]
+        cl = self.claimer
+        assert cl is not None
+        if pgn == j1939.PGN_ADDRESS_CLAIMED:
+            before = cl.counts["requests_answered"]
+            self._handle(can_id, data)
+            self.stats["requests_answered"] += cl.counts["requests_answered"] - before
+            return
+        if cl.address is None or not cl.can_transmit(self.clock.now()):
+            self.stats["requests_unanswered"] += 1     # no address to answer from
+            return
+        if self._send(*nack(can_id & 0xFF, pgn, cl.address, self.cfg.priority)):
+            self.stats["requests_nacked"] += 1
 
     # ------------------------------------------------------------ transmit
     def transmit(self, txs: list[Tx]) -> None:
