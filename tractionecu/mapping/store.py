@@ -248,7 +248,8 @@ class MapStore:
         self.stats: collections.Counter[str] = collections.Counter()
         """Counters: ``accepted`` and ``rejected_<reason>`` samples, ``tiles_written``, ..."""
         self.removed_temporaries: list[Path] = []
-        self._track = TrackLog(self.directory / TRACK_NAME, max_track_pending, self.stats, self._lock)
+        self._track = TrackLog(self.directory / TRACK_NAME, max_track_pending, self.stats, self._lock,
+                               n_layers=len(layers))
 
         self._created_utc = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         manifest = self._manifest_dict()
@@ -502,8 +503,11 @@ class MapStore:
         col = math.floor(x / self.resolution_m)
         row = math.floor(y / self.resolution_m)
         n = self.tile_cells
+        row_values = [math.nan] * len(self.layers)
+        for li, v in pairs:
+            row_values[li] = v
         with self._lock:
-            self._track.append(tt, x, y, ok)
+            self._track.append(tt, x, y, ok, row_values)
             if not ok:
                 self.stats["rejected_" + reason] += 1
                 return False
@@ -563,8 +567,12 @@ class MapStore:
         uniq, inv = np.unique(keys, axis=0, return_inverse=True) if idx.size else (keys, np.zeros(0, np.int64))
         inv = np.asarray(inv).ravel()
         track = np.column_stack([tt[on_track], x[on_track], y[on_track], ok[on_track]]).astype(np.float64)
+        sample_values = np.full((idx.size, 1 + len(self.layers)), np.nan)
+        sample_values[:, 0] = tt[idx]
+        for li, arr in layer_vals:
+            sample_values[:, 1 + li] = arr[idx]
         with self._lock:
-            self._track.append_rows(track)
+            self._track.append_rows(track, sample_values)
             for k, (tx, ty) in enumerate(uniq.tolist()):
                 sel = idx[inv == k]
                 tile = self._tile((int(tx), int(ty)))
@@ -601,6 +609,7 @@ class MapStore:
             with self._lock:
                 todo = [(k, t, t.version, t.stats.copy()) for k, t in self._tiles.items() if t.dirty]
                 track = self._track.take()
+                track_values = self._track.take_values()
             written = 0
             errors: list[str] = []
             tdir = self.directory / TILES_DIRNAME
@@ -621,6 +630,13 @@ class MapStore:
                     errors.append(f"{TRACK_NAME}: {e}")
                     with self._lock:
                         self._track.put_back(track)
+            if track_values:
+                try:
+                    self._track.write_values(track_values)
+                except OSError as e:
+                    errors.append(f"{self._track.values_path.name}: {e}")
+                    with self._lock:
+                        self._track.put_back_values(track_values)
             self.stats["tiles_written"] += written
             self.stats["flushes"] += 1
             if errors:
@@ -743,6 +759,12 @@ class MapStore:
     def track(self) -> NDArray[np.float64]:
         """Vehicle track so far: (N, 4) array of t [s], x [m], y [m], accepted flag."""
         return self._track.read()
+
+    def track_values(self) -> NDArray[np.float64]:
+        """Layer values of every sample accepted into the map: (N, 1 + layers) array
+        of t [s] and one column per layer (manifest order, NaN where the sample had
+        none).  Empty for maps written before the values were logged."""
+        return self._track.read_values()
 
 
 def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:

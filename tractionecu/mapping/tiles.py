@@ -7,6 +7,7 @@ Directory layout
     DIR/manifest.json          map metadata (below), written atomically
     DIR/tiles/t<TX>_<TY>.tile  one file per tile, TX/TY signed integers
     DIR/track.log              vehicle track, append-only records (below)
+    DIR/track_values.log       layer values of the accepted samples (mapping/track.py)
     DIR/.lock                  advisory lock held by the single writer
 
 ``manifest.json`` keys: ``format`` ("tractionecu-map"), ``version`` (1),

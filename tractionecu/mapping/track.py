@@ -6,6 +6,14 @@ flush appends them to ``track.log`` (record format in
 in memory, in order, up to ``max_pending`` records; beyond that the oldest
 tenth is dropped and counted as ``stats["track_dropped"]``.
 
+The layer values of every sample accepted into the map go beside it, to
+``track_values.log`` (:data:`VALUES_NAME`), so that the ISO 11783-10 time log
+can carry the values the map stored.  Record: t [s] (``<d``), one ``<d`` per
+map layer in manifest order (NaN where the sample had no value for a layer),
+CRC-32 (``<I``) of those bytes.  A value record's t equals the t of its
+accepted track record.  Maps written before this file existed have none; the
+track itself is unchanged, so older readers are not affected.
+
 :class:`~tractionecu.mapping.store.MapStore` owns one :class:`TrackLog`,
 shares its lock with it and holds that lock around every call except
 :meth:`TrackLog.write` (the disk write, which runs outside it) and
@@ -17,7 +25,9 @@ from __future__ import annotations
 import array
 import logging
 import os
+import struct
 import threading
+import zlib
 from collections import Counter
 from pathlib import Path
 
@@ -28,12 +38,52 @@ from .tiles import encode_track_records, read_track
 
 log = logging.getLogger(__name__)
 
+VALUES_NAME = "track_values.log"
+_CRC = struct.Struct("<I")
+
+
+def read_values(path: Path, n_layers: int) -> tuple[NDArray[np.float64], int]:
+    """Read ``track_values.log``: (N, 1 + n_layers) array of t and layer values;
+    byte length of the valid prefix.  Reading stops at the first bad record."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        return np.zeros((0, 1 + n_layers)), 0
+    size = 8 * (1 + n_layers)
+    n = len(data) // (size + 4)
+    if n == 0:
+        return np.zeros((0, 1 + n_layers)), 0
+    rec = np.frombuffer(data, dtype=np.uint8, count=n * (size + 4)).reshape(n, size + 4)
+    good = n
+    for k in range(n):
+        if zlib.crc32(rec[k, :size].tobytes()) & 0xFFFFFFFF != _CRC.unpack(rec[k, size:].tobytes())[0]:
+            good = k
+            break
+    arr = np.frombuffer(rec[:good, :size].tobytes(), dtype="<f8").reshape(good, 1 + n_layers)
+    return arr.astype(np.float64), good * (size + 4)
+
+
+def _encode_values(records: array.array, width: int) -> bytes:
+    out = bytearray()
+    raw = memoryview(records.tobytes())
+    size = 8 * width
+    for off in range(0, len(raw), size):
+        rec = raw[off:off + size]
+        out += rec
+        out += _CRC.pack(zlib.crc32(rec) & 0xFFFFFFFF)
+    return bytes(out)
+
 
 class TrackLog:
     """Pending track records of one map and its ``track.log`` file."""
 
-    def __init__(self, path: Path, max_pending: int, stats: Counter, lock: threading.Lock) -> None:
+    def __init__(self, path: Path, max_pending: int, stats: Counter, lock: threading.Lock,
+                 n_layers: int = 0) -> None:
         self.path = path
+        self.values_path = path.with_name(VALUES_NAME)
+        self.n_layers = int(n_layers)
+        self._pending_values = array.array("d")
+        """Values of accepted samples not yet written, flat: t, one value per layer, ..."""
         self.max_pending = max(1, int(max_pending))
         self.stats = stats
         self._lock = lock
@@ -41,27 +91,61 @@ class TrackLog:
         """Records not yet written, flat: t [s], x [m], y [m], accepted flag (0/1), ..."""
 
     def repair(self) -> None:
-        """Cut a torn last record off the file (a crash during an append)."""
-        if not self.path.exists():
-            return
-        _, good = read_track(self.path)
-        size = self.path.stat().st_size
-        if good != size:
-            log.warning("track log %s: dropping %d bytes of a torn record", self.path, size - good)
-            with open(self.path, "r+b") as f:
-                f.truncate(good)
-                f.flush()
-                os.fsync(f.fileno())
+        """Cut a torn last record off the files (a crash during an append)."""
+        for path, good in ((self.path, lambda: read_track(self.path)[1]),
+                           (self.values_path, lambda: read_values(self.values_path, self.n_layers)[1])):
+            if not path.exists():
+                continue
+            size = path.stat().st_size
+            keep = good()
+            if keep != size:
+                log.warning("track log %s: dropping %d bytes of a torn record", path, size - keep)
+                with open(path, "r+b") as f:
+                    f.truncate(keep)
+                    f.flush()
+                    os.fsync(f.fileno())
 
-    def append(self, t: float, x: float, y: float, accepted: bool) -> None:
-        """Queue one record."""
+    def append(self, t: float, x: float, y: float, accepted: bool,
+               values: list[float] | None = None) -> None:
+        """Queue one record; ``values`` (one per layer) of an accepted sample go to the values log."""
         self._pending.extend((t, x, y, 1.0 if accepted else 0.0))
+        if accepted and values is not None and self.n_layers:
+            self._pending_values.append(t)
+            self._pending_values.extend(values)
         self._bound()
 
-    def append_rows(self, rows: NDArray[np.float64]) -> None:
-        """Queue an (N, 4) float64 array of records, in row order."""
+    def append_rows(self, rows: NDArray[np.float64], values: NDArray[np.float64] | None = None) -> None:
+        """Queue an (N, 4) float64 array of records, in row order; ``values``: an
+        (M, 1 + layers) array of t and layer values of the accepted ones."""
         self._pending.frombytes(np.ascontiguousarray(rows, dtype=np.float64).tobytes())
+        if values is not None and self.n_layers and len(values):
+            self._pending_values.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
         self._bound()
+
+    def take_values(self) -> array.array:
+        """The pending value records, leaving none pending (for :meth:`write_values`)."""
+        out, self._pending_values = self._pending_values, array.array("d")
+        return out
+
+    def put_back_values(self, records: array.array) -> None:
+        """Return value records :meth:`write_values` could not write."""
+        records.extend(self._pending_values)
+        self._pending_values = records
+        self._bound()
+
+    def write_values(self, records: array.array) -> None:
+        """Append value ``records`` (from :meth:`take_values`) and fsync; raises OSError."""
+        with open(self.values_path, "ab") as f:
+            f.write(_encode_values(records, 1 + self.n_layers))
+            f.flush()
+            os.fsync(f.fileno())
+
+    def read_values(self) -> NDArray[np.float64]:
+        """Written and pending value records: (N, 1 + layers) array of t and layer values."""
+        arr, _ = read_values(self.values_path, self.n_layers)
+        with self._lock:
+            pending = np.frombuffer(self._pending_values, dtype=np.float64).reshape(-1, 1 + self.n_layers).copy()
+        return np.vstack([arr, pending]) if len(pending) else arr
 
     def take(self) -> array.array:
         """The pending records, leaving none pending (for :meth:`write`)."""
@@ -97,6 +181,12 @@ class TrackLog:
             self.stats["track_dropped"] += drop
             if self.stats["track_dropped"] == drop:
                 log.warning("map %s: track records cannot be written; dropping the oldest (%d)", self.path.parent, drop)
+        width = 1 + self.n_layers
+        nv = len(self._pending_values) // width
+        if nv > self.max_pending:
+            drop = nv - self.max_pending + self.max_pending // 10
+            del self._pending_values[:width * drop]
+            self.stats["track_values_dropped"] += drop
 
 
-__all__ = ["TrackLog"]
+__all__ = ["VALUES_NAME", "TrackLog", "read_values"]
