@@ -30,6 +30,7 @@ def replay_dir(tmp_path_factory):
 
 
 @pytest.mark.parametrize("fmt,name", [("geotiff", "map.tif"), ("isoxml", "TASKDATA/TASKDATA.XML"),
+                                      ("isoxml-grid", "TASKDATA_GRID/TASKDATA.XML"),
                                       ("png", "map.png"), ("geojson", "map.geojson")])
 def test_export_each_format(replay_dir, fmt, name, capsys):
     if fmt in ("geotiff", "geojson"):

@@ -11,8 +11,10 @@ from tractionecu.mapping.export import (
     export_geojson,
     export_geotiff,
     export_isoxml,
+    export_isoxml_grid,
     export_png,
 )
+from tractionecu.mapping.iso11783 import GRID_NO_DATA
 from tractionecu.mapping.store import MapStore
 
 from map_synth import ORIGIN, SOIL_A, SOIL_NAMES, SOIL_RHO, passes, soil_xy
@@ -58,6 +60,8 @@ def test_geotiff_reads_back_with_crs_and_values(noise_free_map, tmp_path):
     with rasterio.open(raw) as ds:
         assert ds.crs.to_epsg() == 32633
         assert ds.count == 2 and ds.descriptions == ("a", "rho_s")
+        assert ds.units == ("1", "1")
+        assert ds.tags(1)["units"] == "1" and ds.tags(2)["long_name"] == "soil rolling resistance"
         assert ds.res == (0.5, 0.5)
         a = ds.read(1)
         rho = ds.read(2)
@@ -78,17 +82,18 @@ def test_geotiff_reads_back_with_crs_and_values(noise_free_map, tmp_path):
         assert north == pytest.approx(store.frame.northing0 + g.y0 + g.shape[0] * 0.5, abs=1e-6)
 
 
-def test_isoxml_reads_back_with_the_isoxml_package(noise_free_map, tmp_path):
+def test_isoxml_grid_reads_back_with_the_isoxml_package(noise_free_map, tmp_path):
     isoxml_io = pytest.importorskip("isoxml.util.isoxml_io")
     from isoxml.converter.np_grid import to_numpy_array
     from isoxml.models.ddi_entities import DDEntity
 
     d, x, y, lat, lon = noise_free_map
-    out = export_isoxml(d, tmp_path / "TASKDATA")
+    out = export_isoxml_grid(d, tmp_path / "TASKDATA")
     assert out.name == "TASKDATA.XML" and (out.parent / "GRD00001.BIN").exists()
     task_data, refs = isoxml_io.isoxml_from_path(out.parent)
     assert task_data.version_major.value == "4" and task_data.data_transfer_origin.value == "2"
     task = task_data.tasks[0]
+    assert task.status.value == "1"
     grid = task.grids[0]
     assert grid.type.value == "2" and grid.treatment_zone_code == 1 and grid.filename == "GRD00001"
     tzn = [z for z in task.treatment_zones if z.code == 1][0]
@@ -119,7 +124,16 @@ def test_isoxml_reads_back_with_the_isoxml_package(noise_free_map, tmp_path):
     assert set(np.unique(raw[r, c, 2])) <= {1, 2}
     cov = raw[:, :, 2]
     assert set(np.unique(cov)) == {0, 1, 2}
-    assert np.all(raw[cov == 0][:, :2] == 0)
+    # no-data cells are marked, never 0
+    assert np.all(raw[cov == 0][:, :2] == GRID_NO_DATA)
+    assert np.all(raw[cov != 0][:, 0] != GRID_NO_DATA)
+    # every DDI of the grid is declared by the device description, with its scale
+    dvc = task_data.devices[0]
+    dvp = {v.object_id: v for v in dvc.value_presentations}
+    declared = {int.from_bytes(p.ddi, "big"): dvp[p.device_value_presentation_object_id]
+                for p in dvc.process_data}
+    assert set(ddis) <= set(declared)
+    assert [float(declared[k].scale) for k in ddis] == scales
     # cell size ≈ 0.5 m on the ground
     store = MapStore.open(d, read_only=True)
     x0, y0 = store.to_local(float(grid.minimum_north_position), float(grid.minimum_east_position))

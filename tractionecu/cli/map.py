@@ -2,13 +2,15 @@
 
 ::
 
-    tractionecu map export DIR --format geotiff|isoxml|png|geojson [--out PATH]
+    tractionecu map export DIR --format geotiff|isoxml|isoxml-grid|png|geojson [--out PATH]
                                [--layers a,rho_s] [--raw] [--soil-classes NAME=A,...]
     tractionecu map info DIR
 
 ``DIR`` is a map directory (holding ``manifest.json``) or a replay output
 directory holding ``map/``.  Default ``--out``: ``DIR/export/map.tif``,
-``DIR/export/TASKDATA/`` (ISO-XML), ``DIR/export/map.png``,
+``DIR/export/TASKDATA/`` (ISO 11783-10 logged data: task, device
+description, binary time log), ``DIR/export/TASKDATA_GRID/`` (ISO 11783-10
+grid), ``DIR/export/map.png``,
 ``DIR/export/map.geojson``.
 
 Exit codes: 0 ok, 1 the map cannot be read or holds no data, 2 bad
@@ -29,7 +31,7 @@ EXIT_MAP = 1
 EXIT_USAGE = 2
 EXIT_MISSING_EXTRA = 3
 
-FORMATS = ("geotiff", "isoxml", "png", "geojson")
+FORMATS = ("geotiff", "isoxml", "isoxml-grid", "png", "geojson")
 
 
 def add_subparser(subparsers: Any) -> argparse.ArgumentParser:
@@ -39,14 +41,16 @@ def add_subparser(subparsers: Any) -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="map_command", metavar="{export,info}")
     sub.required = True
     e = sub.add_parser("export", help="write the map as GeoTIFF, ISO-XML, PNG or GeoJSON",
-                       description="Write the map as GeoTIFF, ISO 11783-10 TASKDATA, PNG or GeoJSON.")
+                       description="Write the map as GeoTIFF, ISO 11783-10 TASKDATA (isoxml: logged "
+                                   "data with a time log; isoxml-grid: the map as a grid), PNG or GeoJSON.")
     e.add_argument("dir", type=Path, help="map directory or replay output directory")
     e.add_argument("--format", required=True, choices=FORMATS, dest="fmt", help="output format")
     e.add_argument("--out", type=Path, default=None,
-                   help="output file (directory for isoxml); default DIR/export/...")
+                   help="output file (directory for isoxml, isoxml-grid); default DIR/export/...")
     e.add_argument("--layers", default=None,
-                   help="comma-separated layers (geotiff, isoxml; png: the first one); default all / a")
-    e.add_argument("--raw", action="store_true", help="export the cell means without the fill (geotiff, isoxml)")
+                   help="comma-separated layers (geotiff, isoxml, isoxml-grid; png: the first one); "
+                        "default all with data / a")
+    e.add_argument("--raw", action="store_true", help="export the cell means without the fill (geotiff, isoxml-grid)")
     e.add_argument("--soil-classes", default=None,
                    help="NAME=A,... typical a per soil for classification (png, geojson); "
                         "default: from the manifest, else 3 natural classes")
@@ -110,9 +114,11 @@ def run(args: argparse.Namespace) -> int:
     kwargs: dict[str, Any] = {}
     layers = [s.strip() for s in args.layers.split(",") if s.strip()] if args.layers else None
     try:
-        if args.fmt in ("geotiff", "isoxml"):
+        if args.fmt in ("geotiff", "isoxml-grid"):
             kwargs["layers"] = layers
             kwargs["filled"] = not args.raw
+        elif args.fmt == "isoxml":
+            kwargs["layers"] = layers
         elif args.fmt == "png":
             if layers:
                 kwargs["layer"] = layers[0]

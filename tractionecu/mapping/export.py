@@ -1,8 +1,9 @@
-"""Map exports: GeoTIFF, ISO 11783-10 grid, PNG (paper Fig. 7 style), GeoJSON.
+"""Map exports: GeoTIFF, ISO 11783-10 logged data and grid, PNG (paper Fig. 7 style), GeoJSON.
 
-The four exporters stay in one module (over 500 lines): each is one function
-of a few dozen lines over the same helpers (layer choice, filled grids, soil
-classes) and the one dispatch :func:`export`.
+The exporters stay in one module: each is one function of a few dozen lines
+over the same helpers (layer choice, filled grids, soil classes) and the one
+dispatch :func:`export`; the ISO 11783-10 writers are in
+:mod:`~tractionecu.mapping.iso11783`.
 
 Every exporter takes a :class:`~tractionecu.mapping.store.MapStore` or a map
 directory.  GeoTIFF and GeoJSON need ``rasterio`` and the PNG needs
@@ -14,35 +15,15 @@ What is exported (unless ``filled=False``): the paper's fill of the cell
 means over the data extent grown by ε_low, i.e. the map a consumer would use.
 
 GeoTIFF
-    One float32 band per layer (band description = layer name), NaN = no data,
+    One float32 band per layer (band description = layer name, band unit
+    "1" and tags ``units``/``long_name``: all layers are dimensionless), NaN = no data,
     north-up, CRS = the map's UTM zone (EPSG:326zz/327zz), pixel size = map
     resolution, deflate-compressed.
-ISO 11783-10
-    ``TASKDATA.XML`` (version 4.3) with one task (TSK) holding a treatment zone
-    (TZN code 1) whose process data variables (PDV) are the layers plus a
-    coverage flag, and a grid (GRD) of type 2 referring to it, and
-    ``GRD00001.BIN``.  By default only layers holding data are written (also
-    for GeoTIFF).  ISO grids are in WGS84 degrees, so the metric map is
-    resampled (nearest cell) to a lat/lon grid of about the map resolution.
-    Each cell holds one little-endian int32 per PDV in TZN order, rows from
-    south to north, columns west to east.  Layers carry manufacturer-
-    proprietary DDIs with a value presentation (VPN) giving the scale:
-
-    ========  =====  ======
-    layer     DDI    scale
-    ========  =====  ======
-    a         E100   1e-4
-    p         E101   1e-4
-    alpha1    E102   1e-3
-    alpha2    E103   1e-3
-    rho_s     E104   1e-5
-    mu        E105   1e-4
-    other     E110+  1e-4
-    coverage  E1FF   1      (0 no data, 1 filled, 2 measured)
-    ========  =====  ======
-
-    Grid type 2 has no "no data" value: cells without data carry 0 in every
-    layer and coverage 0.  All layers are dimensionless (unit designator "-").
+ISO 11783-10 (:mod:`~tractionecu.mapping.iso11783`)
+    ``isoxml``: the measured samples as logged data, a completed task with a
+    device description declaring every DDI (units, scale) and a binary time
+    log of the 10 Hz track with each sample's stored layer values.
+    ``isoxml-grid``: the (filled) map as a type-2 grid, no-data cells marked.
 PNG
     Like the paper's Fig. 7: the filled map of one layer semi-transparent in
     the background, measured cells opaque on top, estimated soil boundaries
@@ -58,9 +39,7 @@ GeoJSON (RFC 7946, WGS84 lon/lat)
 from __future__ import annotations
 
 import json
-import math
 import os
-import xml.etree.ElementTree as ET
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -71,18 +50,17 @@ from numpy.typing import NDArray
 from tractionecu.errors import TractionEcuError
 
 from .fill import DEFAULT_EPS_M
-from .projection import meridian_radius, normal_radius
+from .iso11783 import ISO_DDI, ISO_DDI_COVERAGE, ISO_DESIGNATOR, ISO_SCALE, export_isoxml_log, latlon_grid_spec
+from .iso11783 import export_isoxml_grid as _iso_grid
 from .soil import classify_by_a, natural_classes
 from .store import LayerGrid, MapStore, open_store
 from .tiles import atomic_write_bytes
 
-FORMATS = ("geotiff", "isoxml", "png", "geojson")
+GEOTIFF_UNIT = "1"
+"""Unit of every GeoTIFF band (all layers are dimensionless; "1" as in UDUNITS/CF)."""
 
-ISO_DDI = {"a": 0xE100, "p": 0xE101, "alpha1": 0xE102, "alpha2": 0xE103, "rho_s": 0xE104, "mu": 0xE105}
-ISO_SCALE = {"a": 1e-4, "p": 1e-4, "alpha1": 1e-3, "alpha2": 1e-3, "rho_s": 1e-5, "mu": 1e-4}
-ISO_DDI_OTHER_START = 0xE110
-ISO_DDI_COVERAGE = 0xE1FF
-ISO_GRID_FILENAME = "GRD00001"
+FORMATS = ("geotiff", "isoxml", "isoxml-grid", "png", "geojson")
+
 
 
 class MissingExtraError(TractionEcuError, ImportError):
@@ -137,18 +115,6 @@ def _soil_classes(store: MapStore, soil_classes: Mapping[str, float] | None,
     return {f"a≈{c:.2f}": float(c) for c in centres}
 
 
-def _iso_table(layers: Sequence[str]) -> list[tuple[str, int, float]]:
-    table = []
-    other = ISO_DDI_OTHER_START
-    for n in layers:
-        if n in ISO_DDI:
-            table.append((n, ISO_DDI[n], ISO_SCALE[n]))
-        else:
-            table.append((n, other, 1e-4))
-            other += 1
-    return table
-
-
 # ------------------------------------------------------------------ GeoTIFF
 def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os.PathLike[str] | str, *,
                    layers: Sequence[str] | None = None, filled: bool = True,
@@ -176,6 +142,8 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
             for b, n in enumerate(names, start=1):
                 dst.write(grids[n].mean[::-1].astype(np.float32), b)
                 dst.set_band_description(b, n)
+                dst.set_band_unit(b, GEOTIFF_UNIT)
+                dst.update_tags(b, units=GEOTIFF_UNIT, long_name=ISO_DESIGNATOR.get(n, n))
             dst.update_tags(source="tractionecu", content="paper fill of cell means" if filled else "cell means",
                             units="dimensionless", origin_lat=str(store.frame.origin_lat),
                             origin_lon=str(store.frame.origin_lon))
@@ -187,113 +155,28 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
 
 
 # ------------------------------------------------------------------ ISO-XML
-def latlon_grid_spec(store: MapStore, grid: LayerGrid, finite: NDArray[np.bool_]) -> dict[str, Any]:
-    """WGS84 grid covering the finite cells of ``grid``: min north/east [deg],
-    cell north/east size [deg] (≈ the map resolution), rows, columns."""
-    rows_any = np.flatnonzero(finite.any(axis=1))
-    cols_any = np.flatnonzero(finite.any(axis=0))
-    res = grid.res
-    xa, xb = grid.x0 + cols_any[0] * res, grid.x0 + (cols_any[-1] + 1) * res
-    ya, yb = grid.y0 + rows_any[0] * res, grid.y0 + (rows_any[-1] + 1) * res
-    # boundary of the metric box, densely sampled, in lat/lon
-    t = np.linspace(0.0, 1.0, 65)
-    bx = np.concatenate([xa + (xb - xa) * t, np.full_like(t, xb), xb - (xb - xa) * t, np.full_like(t, xa)])
-    by = np.concatenate([np.full_like(t, ya), ya + (yb - ya) * t, np.full_like(t, yb), yb - (yb - ya) * t])
-    lat, lon = store.to_latlon(bx, by)
-    lat_c = float(np.mean(lat))
-    dlat = math.degrees(res / meridian_radius(lat_c))
-    dlon = math.degrees(res / (normal_radius(lat_c) * math.cos(math.radians(lat_c))))
-    lat0 = math.floor(float(lat.min()) * 1e9) / 1e9
-    lon0 = math.floor(float(lon.min()) * 1e9) / 1e9
-    nrows = int(math.ceil((float(lat.max()) - lat0) / dlat))
-    ncols = int(math.ceil((float(lon.max()) - lon0) / dlon))
-    return {"min_north": lat0, "min_east": lon0, "cell_north": dlat, "cell_east": dlon,
-            "rows": max(nrows, 1), "cols": max(ncols, 1)}
-
-
-def _sample_nearest(store: MapStore, grid: LayerGrid, spec: Mapping[str, Any]) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.bool_]]:
-    """Indices into ``grid`` of the cell nearest each lat/lon grid cell centre."""
-    lat = spec["min_north"] + (np.arange(spec["rows"]) + 0.5) * spec["cell_north"]
-    lon = spec["min_east"] + (np.arange(spec["cols"]) + 0.5) * spec["cell_east"]
-    la, lo = np.meshgrid(lat, lon, indexing="ij")
-    x, y = store.to_local(la, lo)
-    col = np.floor((x - grid.x0) / grid.res).astype(np.intp)
-    row = np.floor((y - grid.y0) / grid.res).astype(np.intp)
-    h, w = grid.shape
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    return np.clip(row, 0, h - 1), np.clip(col, 0, w - 1), inside
-
-
 def export_isoxml(store_or_dir: MapStore | os.PathLike[str] | str, out_dir: os.PathLike[str] | str, *,
-                  layers: Sequence[str] | None = None, filled: bool = True,
-                  fill_kwargs: Mapping[str, Any] | None = None, task_name: str = "Ground condition map") -> Path:
-    """Write ``TASKDATA.XML`` + ``GRD00001.BIN`` (grid type 2) into ``out_dir``;
+                  layers: Sequence[str] | None = None, task_name: str = "Ground condition log",
+                  **_unused: Any) -> Path:
+    """Write the map's logged data as ISO 11783-10 (``TASKDATA.XML``, ``TLG00001.XML``,
+    ``TLG00001.BIN``; :func:`~tractionecu.mapping.iso11783.export_isoxml_log`) into
+    ``out_dir``; returns the path of ``TASKDATA.XML``.  ``filled``/``fill_kwargs``
+    are accepted and ignored: a time log holds samples, not cells."""
+    store = open_store(store_or_dir)
+    return export_isoxml_log(store, out_dir, _layers(store, layers), task_name=task_name)
+
+
+def export_isoxml_grid(store_or_dir: MapStore | os.PathLike[str] | str, out_dir: os.PathLike[str] | str, *,
+                       layers: Sequence[str] | None = None, filled: bool = True,
+                       fill_kwargs: Mapping[str, Any] | None = None,
+                       task_name: str = "Ground condition map") -> Path:
+    """Write ``TASKDATA.XML`` + ``GRD00001.BIN`` (grid type 2, no-data cells marked;
+    :func:`~tractionecu.mapping.iso11783.export_isoxml_grid`) into ``out_dir``;
     returns the path of ``TASKDATA.XML``."""
     store = open_store(store_or_dir)
     names = _layers(store, layers)
     grids, _ = _grids(store, names, filled, fill_kwargs)
-    ref = grids[names[0]]
-    finite = np.zeros(ref.shape, dtype=bool)
-    for g in grids.values():
-        finite |= np.isfinite(g.mean)
-    if not finite.any():
-        raise ValueError(f"{store.directory}: the map holds no data")
-    spec = latlon_grid_spec(store, ref, finite)
-    row, col, inside = _sample_nearest(store, ref, spec)
-    table = _iso_table(names)
-    cells = np.zeros((spec["rows"], spec["cols"], len(table) + 1), dtype="<i4")
-    has_any = np.zeros((spec["rows"], spec["cols"]), dtype=bool)
-    measured = np.zeros_like(has_any)
-    for k, (n, _, scale) in enumerate(table):
-        g = grids[n]
-        v = np.where(inside, g.mean[row, col], np.nan)
-        ok = np.isfinite(v)
-        q = np.zeros(v.shape)
-        q[ok] = np.rint(v[ok] / scale)
-        cells[:, :, k] = np.clip(q, -2**31, 2**31 - 1).astype("<i4")
-        has_any |= ok
-        measured |= inside & (g.count[row, col] > 0)
-    cells[:, :, -1] = np.where(measured, 2, np.where(has_any, 1, 0))
-    payload = cells.tobytes(order="C")
-
-    root = ET.Element("ISO11783_TaskData", {
-        "VersionMajor": "4", "VersionMinor": "3",
-        "ManagementSoftwareManufacturer": "tractionecu", "ManagementSoftwareVersion": _version(),
-        "DataTransferOrigin": "2",
-    })
-    tsk = ET.SubElement(root, "TSK", {"A": "TSK1", "B": task_name, "G": "1"})
-    tzn = ET.SubElement(tsk, "TZN", {"A": "1", "B": "ground condition"})
-    for k, (n, ddi, _) in enumerate(table, start=1):
-        ET.SubElement(tzn, "PDV", {"A": f"{ddi:04X}", "B": "0", "E": f"VPN{k}"})
-    ET.SubElement(tzn, "PDV", {"A": f"{ISO_DDI_COVERAGE:04X}", "B": "0", "E": f"VPN{len(table) + 1}"})
-    ET.SubElement(tsk, "GRD", {
-        "A": f"{spec['min_north']:.9f}", "B": f"{spec['min_east']:.9f}",
-        "C": repr(float(spec["cell_north"])), "D": repr(float(spec["cell_east"])),
-        "E": str(spec["cols"]), "F": str(spec["rows"]), "G": ISO_GRID_FILENAME,
-        "H": str(len(payload)), "I": "2", "J": "1",
-    })
-    for k, (n, _, scale) in enumerate(table, start=1):
-        decimals = max(0, int(round(-math.log10(scale))))
-        ET.SubElement(root, "VPN", {"A": f"VPN{k}", "B": "0", "C": repr(float(scale)), "D": str(decimals),
-                                    "E": "-"})
-    ET.SubElement(root, "VPN", {"A": f"VPN{len(table) + 1}", "B": "0", "C": "1.0", "D": "0", "E": "-"})
-    ET.indent(root)
-    xml = b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(root, encoding="utf-8") + b"\n"
-
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / f"{ISO_GRID_FILENAME}.BIN", payload)
-    atomic_write_bytes(out / "TASKDATA.XML", xml)
-    return out / "TASKDATA.XML"
-
-
-def _version() -> str:
-    try:
-        from importlib.metadata import version
-
-        return version("tractionecu")
-    except Exception:
-        return "0.1.0"
+    return _iso_grid(store, grids, out_dir, names, task_name=task_name)
 
 
 # ------------------------------------------------------------------ PNG
@@ -513,11 +396,12 @@ def export_geojson(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
 EXPORTERS: dict[str, Callable[..., Path]] = {
     "geotiff": export_geotiff,
     "isoxml": export_isoxml,
+    "isoxml-grid": export_isoxml_grid,
     "png": export_png,
     "geojson": export_geojson,
 }
 
-DEFAULT_OUT = {"geotiff": "map.tif", "isoxml": "TASKDATA", "png": "map.png", "geojson": "map.geojson"}
+DEFAULT_OUT = {"geotiff": "map.tif", "isoxml": "TASKDATA", "isoxml-grid": "TASKDATA_GRID", "png": "map.png", "geojson": "map.geojson"}
 
 
 def export(store_or_dir: MapStore | os.PathLike[str] | str, fmt: str, out: os.PathLike[str] | str,
@@ -534,11 +418,15 @@ __all__ = [
     "DEFAULT_OUT",
     "EXPORTERS",
     "FORMATS",
+    "ISO_DDI",
+    "ISO_DDI_COVERAGE",
+    "ISO_SCALE",
     "MissingExtraError",
     "export",
     "export_geojson",
     "export_geotiff",
     "export_isoxml",
+    "export_isoxml_grid",
     "export_png",
     "latlon_grid_spec",
 ]
