@@ -609,7 +609,6 @@ class MapStore:
             with self._lock:
                 todo = [(k, t, t.version, t.stats.copy()) for k, t in self._tiles.items() if t.dirty]
                 track = self._track.take()
-                track_values = self._track.take_values()
             written = 0
             errors: list[str] = []
             tdir = self.directory / TILES_DIRNAME
@@ -623,20 +622,11 @@ class MapStore:
                 with self._lock:
                     tile.saved_version = max(tile.saved_version, version)
                     self._on_disk.add(key)
-            if track:
-                try:
-                    self._track.write(track)
-                except OSError as e:
-                    errors.append(f"{TRACK_NAME}: {e}")
-                    with self._lock:
-                        self._track.put_back(track)
-            if track_values:
-                try:
-                    self._track.write_values(track_values)
-                except OSError as e:
-                    errors.append(f"{self._track.values_path.name}: {e}")
-                    with self._lock:
-                        self._track.put_back_values(track_values)
+            failed, unwritten = self._track.write(track)
+            if failed:
+                errors += failed
+                with self._lock:
+                    self._track.put_back(unwritten)
             self.stats["tiles_written"] += written
             self.stats["flushes"] += 1
             if errors:

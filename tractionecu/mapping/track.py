@@ -122,24 +122,6 @@ class TrackLog:
             self._pending_values.frombytes(np.ascontiguousarray(values, dtype=np.float64).tobytes())
         self._bound()
 
-    def take_values(self) -> array.array:
-        """The pending value records, leaving none pending (for :meth:`write_values`)."""
-        out, self._pending_values = self._pending_values, array.array("d")
-        return out
-
-    def put_back_values(self, records: array.array) -> None:
-        """Return value records :meth:`write_values` could not write."""
-        records.extend(self._pending_values)
-        self._pending_values = records
-        self._bound()
-
-    def write_values(self, records: array.array) -> None:
-        """Append value ``records`` (from :meth:`take_values`) and fsync; raises OSError."""
-        with open(self.values_path, "ab") as f:
-            f.write(_encode_values(records, 1 + self.n_layers))
-            f.flush()
-            os.fsync(f.fileno())
-
     def read_values(self) -> NDArray[np.float64]:
         """Written and pending value records: (N, 1 + layers) array of t and layer values."""
         arr, _ = read_values(self.values_path, self.n_layers)
@@ -147,24 +129,44 @@ class TrackLog:
             pending = np.frombuffer(self._pending_values, dtype=np.float64).reshape(-1, 1 + self.n_layers).copy()
         return np.vstack([arr, pending]) if len(pending) else arr
 
-    def take(self) -> array.array:
-        """The pending records, leaving none pending (for :meth:`write`)."""
-        out, self._pending = self._pending, array.array("d")
+    def take(self) -> tuple[array.array, array.array]:
+        """The pending track and value records, leaving none pending (for :meth:`write`)."""
+        out = (self._pending, self._pending_values)
+        self._pending, self._pending_values = array.array("d"), array.array("d")
         return out
 
-    def put_back(self, records: array.array) -> None:
+    def put_back(self, records: tuple[array.array, array.array]) -> None:
         """Return records :meth:`write` could not write, ahead of those queued since."""
-        records.extend(self._pending)
-        self._pending = records
+        track, values = records
+        track.extend(self._pending)
+        values.extend(self._pending_values)
+        self._pending, self._pending_values = track, values
         self._bound()
 
-    def write(self, records: array.array) -> None:
-        """Append ``records`` (from :meth:`take`) to the file and fsync it; raises OSError."""
-        rows = zip(records[0::4], records[1::4], records[2::4], (int(f) for f in records[3::4]))
-        with open(self.path, "ab") as f:
-            f.write(encode_track_records(list(rows)))
-            f.flush()
-            os.fsync(f.fileno())
+    def write(self, records: tuple[array.array, array.array]) -> tuple[list[str], tuple[array.array, array.array]]:
+        """Append ``records`` (from :meth:`take`) to the two files, fsync'ed.
+
+        Returns the errors (one per file that refused its records) and the
+        records not written, for :meth:`put_back`."""
+        track, values = records
+        errors: list[str] = []
+        left = (array.array("d"), array.array("d"))
+        width = 1 + self.n_layers
+        jobs = ((self.path, track, lambda r: encode_track_records(
+                    list(zip(r[0::4], r[1::4], r[2::4], (int(f) for f in r[3::4]))))),
+                (self.values_path, values, lambda r: _encode_values(r, width)))
+        for k, (path, recs, encode) in enumerate(jobs):
+            if not recs:
+                continue
+            try:
+                with open(path, "ab") as f:
+                    f.write(encode(recs))
+                    f.flush()
+                    os.fsync(f.fileno())
+            except OSError as e:
+                errors.append(f"{path.name}: {e}")
+                left[k].extend(recs)
+        return errors, left
 
     def read(self) -> NDArray[np.float64]:
         """Written and pending records: (N, 4) array of t [s], x [m], y [m], accepted flag."""
