@@ -101,8 +101,12 @@ def test_gps_aligned_by_rmc_date_and_time(tmp_path, codec):
 def test_rmc_date_wins_over_a_wrong_host_clock(tmp_path, codec):
     # host clock one day late: the CAN epoch says 18 May, the receiver 17 May
     write_rec(tmp_path / "rec", codec, t0=T0 + 86400, gps_t0=T0)
-    rec = read_recording(tmp_path / "rec")
+    rec = read_recording(tmp_path / "rec", clock="report")
     assert rec.gps.t[0] == pytest.approx(T0, abs=1e-6)
+    # the clocks a day apart and nothing to correlate (constant speeds): reported, and refused by default
+    assert "offset not found" in rec.stats.clock_note and rec.stats.clock_offset_s == 0.0
+    with pytest.raises(RecordingError, match=r"CAN and GNSS clocks disagree: .* overlap over 0% .*constant"):
+        read_recording(tmp_path / "rec")
 
 
 @pytest.mark.parametrize("can_offset", [-0.55, +0.35])

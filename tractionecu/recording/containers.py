@@ -26,6 +26,9 @@ TRUTH_TOML = "truth.toml"
 GAP_FACTOR = 3.0
 """A gap is an interval between two frames of a message longer than this × its nominal period."""
 
+TIME_JUMP_S = 60.0
+"""A silence between two consecutive CAN frames longer than this [s] is reported as a time jump."""
+
 MAX_TABLE_ROWS = 50_000_000
 """Largest zero-order-hold table (rows) :meth:`Recording.table` builds: 5.8 days at 100 Hz."""
 
@@ -184,6 +187,17 @@ class RecordingStats:
     """Time of the first accepted CAN frame [s] (any PGN)."""
     can_t_last: float = math.nan
     """Time of the last accepted CAN frame [s] (any PGN)."""
+    can_format: str = ""
+    """Capture format of the CAN file (:data:`.formats.FORMATS`, with the candump screen time mode)."""
+    clock_offset_s: float = 0.0
+    """Offset [s] added to every CAN time to put it on GNSS time (0 when the clocks were left alone)."""
+    clock_sigma_s: float = math.nan
+    """Standard deviation [s] of ``clock_offset_s`` when it was estimated."""
+    clock_note: str = ""
+    """How the CAN and GNSS clocks were reconciled, or why they could not be (:mod:`.clock`)."""
+    time_jumps: list[tuple[float, float]] = field(default_factory=list)
+    """(time [s], length [s]) of the first jumps forward between consecutive CAN frames over TIME_JUMP_S."""
+    n_time_jumps: int = 0
 
     @property
     def unknown_frames(self) -> int:

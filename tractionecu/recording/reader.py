@@ -8,7 +8,22 @@ A recording is a directory (see ``docs/architecture.md``)::
     truth.csv    simulated truth                      (path kept)
     truth.toml   scenario, seed, effects              (path kept)
 
-``read_recording`` also accepts the path of a candump file alone.
+``read_recording`` also accepts a single capture file, with the GNSS log
+beside it (``<name>.nmea``, else ``gps.nmea``) when there is one.  The CAN
+file may be in any format of :mod:`.formats` (candump ``-L`` and screen
+output, Vector ASC/BLF, PEAK TRC, python-can CSV/SQLite, MF4), recognised by
+its content; a directory without ``can.log`` may hold one ``can.<ext>``.
+
+Clocks
+------
+When the CAN capture's clock cannot be trusted (:data:`.formats.TRUSTED_CLOCK`)
+or its frames overlap the GNSS epochs badly, the offset between the two clocks
+is estimated from the speeds both see (:mod:`.clock`) and added to every CAN
+time; ``RecordingStats.clock_note`` reports it with its uncertainty.  When the
+frames and the epochs do not overlap and no offset is found, ``clock="auto"``
+raises :class:`~tractionecu.errors.RecordingError` saying why;
+``clock="report"`` (``inspect``) keeps the times and reports the problem;
+``clock="keep"`` never estimates.
 
 CAN decoding
 ------------
@@ -45,6 +60,7 @@ All series times are epoch seconds [s]; values are in the DBC's SI units.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -55,21 +71,25 @@ from ..bus.dbc import Codec, default_codec
 from ..config import load_signal_map
 from ..counting import MAX_EXAMPLES
 from ..errors import ConfigError, RecordingError
-from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TRUTH_CSV, TRUTH_TOML, VEHICLE_FILE, AddressClaim, GpsTrack,
-                         MessageStats, Recording, RecordingStats, Series, Table)
+from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TIME_JUMP_S, TRUTH_CSV, TRUTH_TOML, VEHICLE_FILE,
+                         AddressClaim, GpsTrack, MessageStats, Recording, RecordingStats, Series, Table)
 from .gps import read_gps
 
 __all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", "Table", "read_recording"]
 
 
 def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
-                   signals: Mapping[str, tuple[str, float]] | None = None) -> Recording:
+                   signals: Mapping[str, tuple[str, float]] | None = None, gps: str | Path | None = None,
+                   clock: str = "auto") -> Recording:
     """Read a recording directory (or a lone candump file) into a :class:`Recording`.
 
     ``dbc``: the owner's DBC files, added to ``codec``'s (default: the
     built-in DBC).  ``signals``: a ``[signals]`` mapping, contract name ->
     (``Message.Signal``, scale) (:func:`tractionecu.config.signal_map`);
     None takes the recording's ``vehicle.toml`` ``[signals]`` table, if any.
+    ``gps``: the NMEA file (default: the directory's ``gps.nmea``, or for a
+    single capture file ``<name>.nmea`` or ``gps.nmea`` beside it).
+    ``clock``: ``auto``, ``report`` or ``keep`` (module doc, "Clocks").
 
     Raises :class:`~tractionecu.errors.RecordingError` naming the file (and
     line) when the path is missing, ``can.log`` is missing, unreadable,
@@ -78,14 +98,20 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     be loaded or a mapping naming an unknown signal.  Bad lines and frames
     are counted in ``Recording.stats``.
     """
+    if clock not in CLOCK_MODES:
+        raise ConfigError(f"clock: one of {', '.join(CLOCK_MODES)}, got {clock!r}")
     p = Path(path)
     if not p.exists():
         raise RecordingError(f"{p}: no such recording")
     if p.is_dir():
         root = p
         can_path = p / CAN_FILE
-        if not can_path.is_file():
-            raise RecordingError(f"{can_path}: missing (a recording needs {CAN_FILE})")
+        if not can_path.exists():
+            others = sorted(q for q in p.glob("can.*") if q.is_file())
+            if len(others) != 1:
+                raise RecordingError(f"{can_path}: missing (a recording needs {CAN_FILE}, or one can.<ext> "
+                                     "capture in any format read)")
+            can_path = others[0]
     else:
         root = p.parent
         can_path = p
@@ -115,12 +141,15 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
         sources[target] = how
     can_t0 = stats.can_t_first
 
-    gps = GpsTrack.empty()
-    gps_path = root / GPS_FILE if p.is_dir() else None
-    if gps_path is not None and gps_path.exists():
-        gps = read_gps(gps_path, can_t0, stats)
-    elif p.is_dir():
+    track = GpsTrack.empty()
+    gps_path = Path(gps) if gps is not None else _gps_beside(p)
+    if gps_path is not None and (gps is not None or gps_path.exists()):
+        if not gps_path.is_file():
+            raise RecordingError(f"{gps_path}: no such GNSS file")
+        track = read_gps(gps_path, can_t0, stats)
+    else:
         stats.gps_alignment = f"no {GPS_FILE}"
+    _reconcile_clocks(can_path, decoded, track, stats, clock)
 
     def opt(name: str) -> Path | None:
         q = root / name
@@ -130,7 +159,7 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     return Recording(
         path=p,
         signals=decoded,
-        gps=gps,
+        gps=track,
         stats=stats,
         vehicle_toml_path=opt(VEHICLE_FILE),
         truth_csv_path=opt(TRUTH_CSV),
@@ -140,22 +169,77 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     )
 
 
+def _gps_beside(p: Path) -> Path | None:
+    if p.is_dir():
+        return p / GPS_FILE
+    own = p.with_suffix(".nmea")
+    return own if own.is_file() else p.parent / GPS_FILE
+
+
+# --------------------------------------------------------------------------- clocks
+CLOCK_MODES = ("auto", "report", "keep")
+
+
+def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrack, stats: RecordingStats,
+                      mode: str) -> None:
+    """Estimate and apply the CAN-to-GNSS clock offset when needed (module doc, "Clocks")."""
+    from .clock import estimate_offset, overlap_fraction, shift_can, GOOD_OVERLAP
+    from .formats import TRUSTED_CLOCK
+
+    if mode == "keep" or len(track) < 2 or not math.isfinite(stats.can_t_first):
+        return
+    c0, c1, g0, g1 = stats.can_t_first, stats.can_t_last, float(track.t[0]), float(track.t[-1])
+    frac = max(overlap_fraction(c0, c1, g0, g1), overlap_fraction(g0, g1, c0, c1))   # of the shorter span
+    trusted = stats.can_format in TRUSTED_CLOCK
+    if trusted and frac >= GOOD_OVERLAP:
+        return
+    why = (f"the CAN frames ({_span(c0, c1)}) and the GNSS epochs ({_span(g0, g1)}) overlap over {frac:.0%} "
+           "of the shorter"
+           if frac < GOOD_OVERLAP else f"the {stats.can_format} capture has no absolute clock of its own")
+    off = estimate_offset(decoded, track.t, track.speed)
+    if off.found:
+        shift_can(decoded, stats, off.offset_s)
+        stats.clock_offset_s, stats.clock_sigma_s = off.offset_s, off.sigma_s
+        stats.clock_note = f"{why}: {off.describe()}, applied"
+        return
+    stats.clock_note = f"{why}; {off.describe()}; CAN times kept"
+    if mode == "auto" and frac <= 0.0:
+        raise RecordingError(
+            f"{can_path}: CAN and GNSS clocks disagree: {why}, and the offset between them could not be "
+            f"found: {off.reason}. Check the logger's clock, or pass the GNSS log that belongs to this capture")
+
+
+def _span(a: float, b: float) -> str:
+    return f"{_when(a)} .. {_when(b)}"
+
+
+def _when(t: float) -> str:
+    import time
+    if 0 <= t < 4e9:
+        return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(t))
+    return f"{t:.3f} s"
+
+
 # --------------------------------------------------------------------------- CAN
 def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
-    """Read and decode ``can.log`` with the vectorised decoder (:mod:`.fastdecode`).
+    """Read and decode the CAN capture with the vectorised decoder (:mod:`.fastdecode`), whatever its format
+    (:mod:`.formats`).
 
-    Same signals, statistics and counters as :func:`read_can_per_frame`.
+    For candump ``-L``: the same signals, statistics and counters as :func:`read_can_per_frame`.
     """
     from . import fastdecode
+    from .formats import read_frames
 
     rs = ReadStats(source=path.name)
     stats.files[path.name] = rs
-    try:
-        table = fastdecode.scan_candump(path, rs)
-    except OSError as e:
-        raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
+    table, stats.can_format = read_frames(path, rs)
     messages, signals, claims = fastdecode.decode_table(table, codec, stats, MAX_EXAMPLES)
-    check_frames(path, rs)
+    check_frames(path, rs, stats.can_format)
+    if len(table) >= 2:
+        dt = np.diff(table.t)
+        big = np.flatnonzero(dt > TIME_JUMP_S)
+        stats.n_time_jumps = int(big.size)
+        stats.time_jumps = [(float(table.t[i]), float(dt[i])) for i in big[:MAX_EXAMPLES]]
     for msg, (_lines, arr, sa) in messages.items():
         info = codec.message(msg)
         ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s)
@@ -171,9 +255,12 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Seri
             for name, (_lines, t, v, sa) in signals.items()}
 
 
-def check_frames(path: Path, rs: ReadStats) -> None:
+def check_frames(path: Path, rs: ReadStats, fmt: str = "candump") -> None:
     if rs.frames == 0 and rs.total_rejected == 0:
-        raise RecordingError(f"{path}: empty file (no candump line)")
+        raise RecordingError(f"{path}: empty file (no candump line)" if fmt == "candump"
+                             else f"{path}: no CAN frame in this {fmt} capture")
+    if rs.frames == 0 and fmt != "candump":
+        raise RecordingError(f"{path}: no valid CAN frame in this {fmt} capture of {rs.lines} frames")
     if rs.frames == 0:
         first = min(
             ((lines[0], reason) for reason, lines in rs.examples.items() if lines),

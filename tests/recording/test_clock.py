@@ -1,0 +1,89 @@
+"""CAN and GNSS clocks that disagree: the offset found from the speeds, applied, reported, or refused."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tractionecu import read_recording, replay
+from tractionecu.errors import RecordingError
+from tractionecu.recording.clock import estimate_offset
+
+TOL_S = 0.05
+"""The offset must be found within this [s] (issue 16)."""
+
+
+def shifted(src: Path, dst: Path, new_t0: float) -> float:
+    """Copy the recording with its CAN times moved to start at ``new_t0``; returns the true offset
+    (GNSS time − shifted CAN time)."""
+    shutil.copytree(src, dst)
+    lines = (src / "can.log").read_text().splitlines()
+    t0 = float(lines[0][1:lines[0].index(")")])
+    out = [f"({float(ln[1:ln.index(')')]) - t0 + new_t0:017.6f}){ln[ln.index(')') + 1:]}" for ln in lines]
+    (dst / "can.log").write_text("\n".join(out) + "\n")
+    return t0 - new_t0
+
+
+@pytest.fixture(scope="module")
+def unshifted(short_recording):
+    rec = read_recording(short_recording)
+    return rec, replay(rec)
+
+
+@pytest.mark.parametrize("new_t0", [0.0, 5.0], ids=["at-0", "1970+5s"])
+def test_shifted_can_clock_is_found_and_replay_gives_the_same_estimates(short_recording, tmp_path, unshifted,
+                                                                        new_t0):
+    rec0, res0 = unshifted
+    assert rec0.stats.clock_note == "" and rec0.stats.clock_offset_s == 0.0   # a good clock is left alone
+    true = shifted(short_recording, tmp_path / "rec", new_t0)
+    rec = read_recording(tmp_path / "rec")
+    st = rec.stats
+    assert abs(st.clock_offset_s - true) < TOL_S
+    assert 0 < st.clock_sigma_s < TOL_S
+    assert "CAN clock offset" in st.clock_note and "applied" in st.clock_note and "1970-01-01" in st.clock_note
+    assert rec.t_end - rec.t_start < 13.0                      # on the GNSS axis, no span of decades
+    res = replay(rec)
+    a, b = res0.arrays, res.arrays
+    assert a["t"].size == b["t"].size
+    # the grid moves with the offset's error; the estimates do not (beyond what 30 ms of GNSS timing moves)
+    assert np.max(np.abs(a["t"] - b["t"])) < TOL_S
+    half = slice(a["t"].size // 2, None)
+    assert np.max(np.abs(a["mu"][half] - b["mu"][half])) < 0.002
+    assert np.max(np.abs(a["rho_s"][half] - b["rho_s"][half])) < 0.01
+    assert b["valid"][half].all()
+
+
+def test_the_wheel_speeds_alone_also_find_the_offset(unshifted):
+    rec, _ = unshifted
+    wheels = {k: v for k, v in rec.signals.items() if k.startswith("WheelSpeed_")}
+    off = estimate_offset(wheels, rec.gps.t - 1e9, rec.gps.speed)
+    assert off.found and off.signal == "mean wheel speed"
+    # wheel speed runs ahead of ground speed while slip builds up: ~0.11 s on this acceleration
+    assert abs(off.offset_s + 1e9) < 0.15
+
+
+def test_no_overlap_and_no_offset_is_a_clear_error(short_recording, tmp_path):
+    shifted(short_recording, tmp_path / "rec", 0.0)
+    # a GNSS log of another drive: constant speed, nothing to time it by
+    lines = (tmp_path / "rec" / "gps.nmea").read_text().splitlines()
+    keep = [ln for ln in lines if not ln.startswith(("$GPVTG", "$GNVTG"))]
+    fixed = []
+    for ln in keep:
+        f = ln.split(",")
+        if f[0].endswith("RMC"):
+            f[7] = "5.0"
+            body = ",".join(f).split("*")[0]
+            cs = 0
+            for c in body[1:]:
+                cs ^= ord(c)
+            ln = f"{body}*{cs:02X}"
+        fixed.append(ln)
+    (tmp_path / "rec" / "gps.nmea").write_text("\n".join(fixed) + "\n")
+    with pytest.raises(RecordingError, match=r"CAN and GNSS clocks disagree: .* overlap over 0% .*"
+                                             r"offset between them could not be found: .*constant"):
+        read_recording(tmp_path / "rec")
+    rec = read_recording(tmp_path / "rec", clock="report")
+    assert "offset not found" in rec.stats.clock_note and rec.stats.clock_offset_s == 0.0

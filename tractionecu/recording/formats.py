@@ -1,0 +1,355 @@
+"""CAN capture formats: detected by content, read into one :class:`~.fastdecode.FrameTable`.
+
+================  ==========================================  ===========================================
+format            recognised by                               read with
+================  ==========================================  ===========================================
+``candump``       ``(1700000000.123456) can0 18FEE000#..``    :func:`.fastdecode.scan_candump` (bulk)
+``candump-screen``  ``(...)  can0  18FEE000   [8]  0F 00 ..``  :func:`scan_screen` (``-ta``, ``-tz``,
+                  (candump without ``-L``)                    ``-td``, ``-tA``, ``-x``)
+``asc``           ``date ...`` / ``base hex`` / ``Begin        python-can ``ASCReader``
+                  Triggerblock`` header lines
+``blf``           magic ``LOGG``                              python-can ``BLFReader``
+``trc``           ``;$FILEVERSION`` or ``;   Start time``     python-can ``TRCReader``
+``csv``           header ``timestamp,arbitration_id,...``     python-can ``CSVReader``
+``sqlite``        magic ``SQLite format 3``                   python-can ``SqliteReader``
+``mf4``           magic ``MDF     ``                          asammdf (the ``mf4`` extra), imported only here
+================  ==========================================  ===========================================
+
+The file name is never consulted.  Anything else raises
+:class:`~tractionecu.errors.RecordingError` naming what the first bytes look
+like and how to convert it.
+
+Every reader counts frames and rejects in the same
+:class:`~tractionecu.bus.candump.ReadStats` with the candump reasons
+(``error_frame``, ``rtr``, ``canfd``, ``dlc_gt_8``, ``time_backwards``, ...);
+for the binary and python-can formats the "line" of a reject is the frame's
+position in the file (1-based).
+
+Clocks
+------
+:data:`TRUSTED_CLOCK` says which formats carry the logger's absolute epoch time
+as it was.  The others are relative (``-tz``, ``-td``: the first frame at 0),
+local time of an unknown zone (``-tA``), or an absolute start written to the
+millisecond beside relative times (ASC, TRC): their time axis is placed against
+the GNSS epochs by :mod:`.clock`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from calendar import timegm
+from datetime import datetime
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+
+from ..bus.candump import ReadStats
+from ..errors import RecordingError
+from .fastdecode import FrameTable
+
+FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4")
+"""Formats :func:`read_frames` reads."""
+
+TRUSTED_CLOCK = frozenset({"candump", "blf", "csv", "sqlite", "mf4", "candump-screen -ta"})
+"""Formats (and candump screen time modes) whose times are the logger's absolute epoch time."""
+
+CONVERT_HINT = (
+    "record with `candump -L`, or convert with python-can "
+    "(`python -m can.logconvert IN OUT.log`) or can-utils (`log2asc`/`asc2log`); "
+    "formats read: candump -L and screen output, Vector ASC/BLF, PEAK TRC, python-can CSV and SQLite, MF4")
+
+_SCREEN = re.compile(
+    r"^\s*(?:\((?P<ts>[^)]*)\)\s+)?(?P<iface>\S+)\s+(?:(?P<dir>TX|RX)\s+\S\s+\S\s+)?"
+    r"(?P<id>[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})\s+\[(?P<dlc>\d{1,2})\]\s*(?P<rest>.*)$")
+_BYTES = re.compile(r"^((?:[0-9A-Fa-f]{2}(?:\s+|$))*)(.*)$")
+_DATETIME = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})(?:\.(\d{1,9}))?$")
+
+
+# --------------------------------------------------------------------------- detection
+def detect(path: str | Path) -> str:
+    """The capture format of ``path`` (one of :data:`FORMATS`), judged by content.
+
+    Raises :class:`RecordingError` for an empty file or an unknown format, naming what was seen.
+    """
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(4096)
+    except OSError as e:
+        raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
+    if not head.strip():
+        return "candump"                        # blank: the candump reader names it an empty file
+    if head.startswith(b"LOGG"):
+        return "blf"
+    if head.startswith(b"MDF "):
+        return "mf4"
+    if head.startswith(b"SQLite format 3\x00"):
+        return "sqlite"
+    if head.startswith(b"\x1f\x8b"):
+        raise RecordingError(f"{p}: a gzip-compressed file; decompress it first (gunzip), then read it")
+    if _binary(head):
+        raise RecordingError(f"{p}: binary data starting {head[:8]!r}, not a CAN capture format read here; "
+                             + CONVERT_HINT)
+    text = head.decode("utf-8", errors="replace")
+    lines = [ln for ln in text.splitlines()[:40] if ln.strip()]
+    if len(head) == 4096 and len(lines) > 1:
+        lines = lines[:-1]                      # the last line may be cut
+    first = lines[0].strip()
+    low = first.lower()
+    if low.startswith(("date ", "base hex", "base dec")) or any(
+            ln.lower().startswith(("begin triggerblock", "base hex", "base dec")) for ln in lines[:6]):
+        return "asc"
+    if first.startswith(";$FILEVERSION") or low.startswith(";   start time") or low.startswith(";##########"):
+        return "trc"
+    if low.replace(" ", "").startswith("timestamp,arbitration_id,"):
+        return "csv"
+    frames = [ln for ln in lines if not ln.lstrip().startswith(("#", ";"))]
+    if frames and all(_is_candump_l(ln) for ln in frames[:5]):
+        return "candump"
+    if frames and sum(bool(_SCREEN.match(ln)) for ln in frames[:10]) >= max(1, min(len(frames), 10) // 2):
+        return "candump-screen"
+    if any(ln.lstrip().startswith("(") for ln in frames[:10]):
+        return "candump"                        # candump -L with bad lines: its reader counts them
+    raise RecordingError(f"{p}: unknown CAN capture format; the first line reads {first[:80]!r}; " + CONVERT_HINT)
+
+
+def _binary(head: bytes) -> bool:
+    sample = head[:1024]
+    return b"\x00" in sample or sum(b < 9 or 13 < b < 32 for b in sample) > len(sample) // 20
+
+
+def _is_candump_l(line: str) -> bool:
+    s = line.strip()
+    if not s.startswith("(") or ")" not in s:
+        return False
+    rest = s[s.index(")") + 1:].split()
+    return len(rest) >= 2 and "#" in rest[1]
+
+
+# --------------------------------------------------------------------------- reading
+def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tuple[FrameTable, str]:
+    """All accepted frames of the capture ``path`` and its format (with the screen time mode:
+    ``candump-screen -ta``, ``-tz``, ``-td``, ``-tA``).  Lines/frames and rejects are counted in ``rs``.
+
+    Raises :class:`RecordingError` for an unknown format, an unreadable file, a screen capture without
+    time stamps, or an MF4 without asammdf installed.
+    """
+    p = Path(path)
+    fmt = fmt or detect(p)
+    try:
+        if fmt == "candump":
+            from .fastdecode import scan_candump
+            return scan_candump(p, rs), fmt
+        if fmt == "candump-screen":
+            return scan_screen(p, rs)
+        if fmt == "mf4":
+            return _table(_mf4_messages(p), rs), fmt
+        return _table(_python_can_messages(p, fmt), rs), fmt
+    except RecordingError:
+        raise
+    except OSError as e:
+        raise RecordingError(f"{p}: cannot read: {e.strerror or e}") from e
+    except Exception as e:  # a third-party reader failing on a damaged file
+        raise RecordingError(f"{p}: cannot read as {fmt}: {type(e).__name__}: {e}") from e
+
+
+def _python_can_messages(p: Path, fmt: str) -> Iterator[tuple]:
+    import can
+
+    if fmt == "asc":
+        reader = can.ASCReader(str(p), relative_timestamp=False)
+    elif fmt == "blf":
+        reader = can.BLFReader(str(p))
+    elif fmt == "trc":
+        reader = can.TRCReader(str(p))
+    elif fmt == "csv":
+        reader = can.CSVReader(str(p))
+    elif fmt == "sqlite":
+        reader = can.SqliteReader(str(p))
+    else:  # pragma: no cover - FORMATS and detect() agree
+        raise RecordingError(f"{p}: no reader for format {fmt!r}")
+    try:
+        for m in reader:
+            yield (m.timestamp, m.arbitration_id, m.is_extended_id, bytes(m.data), m.dlc,
+                   m.is_error_frame, m.is_remote_frame, m.is_fd)
+    finally:
+        stop = getattr(reader, "stop", None)
+        if stop is not None:
+            stop()
+
+
+def _mf4_messages(p: Path) -> Iterator[tuple]:
+    """Frames of the bus-logging channel groups (``CAN_DataFrame``) of an ASAM MDF 4 file."""
+    try:
+        from asammdf import MDF
+    except ImportError:
+        raise RecordingError(f"{p}: an MF4 (ASAM MDF 4) file; reading it needs asammdf: "
+                             "pip install 'tractionecu[mf4]'") from None
+    mdf = MDF(str(p))
+    try:
+        start = mdf.header.start_time.timestamp()
+        rows = []
+        for gi, group in enumerate(mdf.groups):
+            names = {ch.name for ch in group.channels}
+            if "CAN_DataFrame.ID" not in names or "CAN_DataFrame.DataBytes" not in names:
+                continue
+
+            def get(name: str, gi: int = gi):
+                return mdf.get(name, group=gi, raw=True)
+
+            ids = get("CAN_DataFrame.ID")
+            data = get("CAN_DataFrame.DataBytes").samples
+            t = start + ids.timestamps
+            ide = get("CAN_DataFrame.IDE").samples if "CAN_DataFrame.IDE" in names else None
+            dlc = get("CAN_DataFrame.DataLength").samples if "CAN_DataFrame.DataLength" in names else None
+            if dlc is None and "CAN_DataFrame.DLC" in names:
+                dlc = get("CAN_DataFrame.DLC").samples
+            for k in range(ids.samples.size):
+                cid = int(ids.samples[k])
+                ext = bool(ide[k]) if ide is not None else cid > 0x7FF
+                row = bytes(np.asarray(data[k], dtype=np.uint8).tobytes())
+                n = int(dlc[k]) if dlc is not None else len(row)
+                rows.append((float(t[k]), cid & 0x1FFFFFFF, ext, row[:n], n, False, False, n > 8))
+        rows.sort(key=lambda r: r[0])
+    finally:
+        mdf.close()
+    if not rows:
+        raise RecordingError(f"{p}: an MF4 file without a CAN bus-logging channel group (CAN_DataFrame)")
+    return iter(rows)
+
+
+def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
+    """A :class:`FrameTable` of decoded messages ``(t, id, ext, data, dlc, error, remote, fd)``;
+    rejects counted like the candump reader's, the frame's position standing for its line."""
+    cols: tuple[list, ...] = ([], [], [], [], [], [])
+    last = -math.inf
+    for k, (t, cid, ext, data, _dlc, err, rtr, fd) in enumerate(messages, start=1):
+        rs.lines += 1
+        t = float(t)
+        reason = None
+        if err:
+            reason = "error_frame"
+        elif fd:
+            reason = "canfd"
+        elif rtr:
+            reason = "rtr"
+        elif len(data) > 8:
+            reason = "dlc_gt_8"
+        elif not math.isfinite(t) or t < 0:
+            reason = "bad_timestamp"
+        elif cid > (0x1FFFFFFF if ext else 0x7FF):
+            reason = "bad_hex"
+        elif t < last:
+            reason = "time_backwards"
+        if reason is not None:
+            rs.reject(reason, k, f"t={t} id={cid:X} data={bytes(data).hex().upper()}")
+            continue
+        last = t
+        rs.frames += 1
+        for col, v in zip(cols, (k, t, cid, ext, len(data), int.from_bytes(bytes(data), "little"))):
+            col.append(v)
+    return FrameTable(np.asarray(cols[0], dtype=np.int64), np.asarray(cols[1], dtype=np.float64),
+                      np.asarray(cols[2], dtype=np.int64), np.asarray(cols[3], dtype=bool),
+                      np.asarray(cols[4], dtype=np.int64), np.asarray(cols[5], dtype=np.uint64))
+
+
+# --------------------------------------------------------------------------- candump screen output
+def _screen_time(ts: str) -> tuple[str, float] | None:
+    """(mode, seconds) of a screen time stamp: ``-tA`` date-time (read as UTC) or a number."""
+    m = _DATETIME.match(ts.strip())
+    if m:
+        y, mo, d, hh, mi, ss, frac = m.groups()
+        try:
+            whole = timegm(datetime(int(y), int(mo), int(d), int(hh), int(mi), int(ss)).timetuple())
+        except ValueError:
+            return None
+        return "-tA", whole + (int(frac) / 10 ** len(frac) if frac else 0.0)
+    try:
+        v = float(ts)
+    except ValueError:
+        return None
+    return ("num", v) if math.isfinite(v) and v >= 0 else None
+
+
+def scan_screen(path: str | Path, rs: ReadStats) -> tuple[FrameTable, str]:
+    """Frames of candump's screen output (no ``-L``): ``(time)  iface  ID   [n]  bytes``.
+
+    The time mode is judged over the file: a date-time is ``-tA`` (local time of the logging host, read
+    as UTC); numbers that never decrease are absolute (``-ta``) when the first is a plausible epoch
+    time, else relative to the start (``-tz``); numbers that go up and down are deltas (``-td``) and
+    are summed.  ``-x`` direction fields and ``-a`` ASCII columns are ignored.  A capture without
+    time stamps raises :class:`RecordingError` (nothing to align it with).
+    """
+    p = Path(path)
+    rows: list[tuple] = []
+    times: list[float] = []
+    modes: set[str] = set()
+    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+        for lineno, line in enumerate(fh, start=1):
+            rs.lines += 1
+            if not line.strip():
+                continue
+            m = _SCREEN.match(line.rstrip("\n"))
+            if m is None:
+                rs.reject("garbage", lineno, line)
+                continue
+            ts = m.group("ts")
+            if ts is None:
+                raise RecordingError(
+                    f"{p}: candump screen output without time stamps (line {lineno}); record with "
+                    "`candump -L` (or at least `candump -ta`)")
+            tm = _screen_time(ts)
+            if tm is None:
+                rs.reject("bad_timestamp", lineno, line)
+                continue
+            ident, rest = m.group("id"), m.group("rest")
+            dlc = int(m.group("dlc"))
+            if rest.lower().startswith("remote request"):
+                rs.reject("rtr", lineno, line)
+                continue
+            hexpart = _BYTES.match(rest).group(1).split()  # type: ignore[union-attr]
+            cid = int(ident, 16)
+            ext = len(ident) == 8
+            if ext and cid & 0x20000000:
+                rs.reject("error_frame", lineno, line)
+                continue
+            if dlc > 8:
+                rs.reject("canfd" if len(m.group("dlc")) == 2 else "dlc_gt_8", lineno, line)
+                continue
+            if len(hexpart) != dlc:
+                rs.reject("truncated", lineno, line)
+                continue
+            if cid > (0x1FFFFFFF if ext else 0x7FF):
+                rs.reject("bad_hex", lineno, line)
+                continue
+            modes.add(tm[0])
+            times.append(tm[1])
+            rows.append((lineno, cid, ext, dlc, int.from_bytes(bytes.fromhex("".join(hexpart)), "little"), line))
+    t = np.asarray(times, dtype=np.float64)
+    if "-tA" in modes:
+        mode = "-tA"
+    elif t.size >= 2 and np.any(np.diff(t) < 0) and t.max() < 1e6:
+        mode, t = "-td", np.cumsum(t)
+    elif t.size and t[0] >= 3.15e8:            # after 1980: an epoch time
+        mode = "-ta"
+    else:
+        mode = "-tz"
+    if len(modes) > 1:
+        raise RecordingError(f"{p}: candump screen output mixes date-time and numeric time stamps")
+    keep = np.ones(t.size, dtype=bool)
+    last = -math.inf
+    for i in range(t.size):
+        if t[i] < last:
+            keep[i] = False
+            rs.reject("time_backwards", rows[i][0], rows[i][5])
+        else:
+            last = t[i]
+    rs.frames += int(keep.sum())
+    sel = [r for r, k in zip(rows, keep) if k]
+    table = FrameTable(np.asarray([r[0] for r in sel], dtype=np.int64), t[keep],
+                       np.asarray([r[1] for r in sel], dtype=np.int64), np.asarray([r[2] for r in sel], dtype=bool),
+                       np.asarray([r[3] for r in sel], dtype=np.int64),
+                       np.asarray([r[4] for r in sel], dtype=np.uint64))
+    return table, f"candump-screen {mode}"
