@@ -1,6 +1,7 @@
 """CSV import of already-decoded signals."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,7 @@ from tractionecu.recording.csv_import import (
     Column,
     CsvMapping,
     import_csv,
+    mapping_named,
 )
 from tractionecu.recording.summary import summarize
 
@@ -123,3 +125,75 @@ def test_bad_mapping_unit_is_config_error():
         Column("DraftForce", "furlongs")
     with pytest.raises(ConfigError, match="target"):
         Column("gps.heading", "deg")
+
+
+# ---------------------------------------------------------------- --csv-mapping auto
+DATA = Path(__file__).resolve().parents[1] / "data" / "csv"
+
+
+@pytest.mark.parametrize("header", [
+    "t_ms,CAN1.EEC1.ActualEnginePercentTorque,CAN1.EEC1.EngineSpeed,CAN2.gnss_speed.Speed,CAN1.EEC2.Pedal",
+    "time,can0_EEC1_ActualEnginePercentTorque,can0_EEC1_EngineSpeed,can1_gnss_speed_Speed,can0_EEC2_Pedal",
+    "Timestamp,EEC1.ActualEnginePercentTorque,eec1_enginespeed,CAN2_gnss_speed.Speed,EEC2.Pedal",
+])
+def test_auto_mapping_matches_bus_prefixes_and_separators(tmp_path, header, caplog):
+    p = tmp_path / "export.csv"
+    p.write_text(header + "\n1700000000000,50,1500,3.0,12\n1700000000100,125,2000,,13\n")
+    rec = import_csv(p, mapping_named("auto"), reference_torque_nm=400.0)
+    assert np.allclose(rec.signals["EngineTorque"].value, [200.0, 500.0])
+    assert np.allclose(rec.signals["EngineTorque"].t, [1.7e9, 1.7e9 + 0.1])
+    assert rec.gps.speed.tolist() == [3.0]
+    unmapped = rec.stats.files["export.csv"].unmapped
+    assert len(unmapped) == 1 and unmapped[0].endswith("Pedal")
+    assert "columns the mapping ignores" in caplog.text and unmapped[0] in caplog.text
+
+
+@pytest.mark.parametrize("cells,tz,want", [
+    (("1700000000", "1700000000.5"), None, [1.7e9, 1.7e9 + 0.5]),                    # epoch s
+    (("1700000000000", "1700000000500"), None, [1.7e9, 1.7e9 + 0.5]),                # epoch ms
+    (("12.0", "12.5"), None, [12.0, 12.5]),                                          # relative s
+    (("2023-11-14T22:13:20Z", "2023-11-14T22:13:20.500Z"), None, [1.7e9, 1.7e9 + 0.5]),  # ISO 8601
+    (("2023-11-14T23:13:20+01:00", "2023-11-14T23:13:20.5+01:00"), "+05:00", [1.7e9, 1.7e9 + 0.5]),
+    (("2023-11-14 22:13:20", "2023-11-14 22:13:20.500"), None, [1.7e9, 1.7e9 + 0.5]),  # naive: UTC
+    (("2023-11-15 00:13:20", "2023-11-15 00:13:20.500"), "+02:00", [1.7e9, 1.7e9 + 0.5]),
+    (("2023-11-14 23:13:20", "2023-11-14 23:13:20.500"), "Europe/Berlin", [1.7e9, 1.7e9 + 0.5]),
+])
+def test_auto_time_formats(tmp_path, cells, tz, want):
+    p = tmp_path / "export.csv"
+    p.write_text("timestamps,EEC1_EngineSpeed\n" + "".join(f"{c},600\n" for c in cells))
+    rec = import_csv(p, mapping_named("auto", timezone=tz))
+    assert np.allclose(rec.signals["EngineSpeed"].t, want, rtol=0, atol=1e-6)
+
+
+def test_bad_timezone_is_a_config_error():
+    with pytest.raises(ConfigError, match="timezone"):
+        mapping_named("auto", timezone="Mars/Olympus")
+    with pytest.raises(ConfigError, match="csv_mapping"):
+        mapping_named("nope")
+
+
+def test_prefixed_real_export_reads_like_the_plain_one():
+    """The CSS-Electronics export with bus-prefixed names and local date-times
+    (tests/data/csv/README.md) gives the signals of the plain export, on epoch time."""
+    plain = import_csv(DATA / "css_engine_gnss_1hz.csv", J1939_LOGGER_MAPPING, reference_torque_nm=1500.0,
+                       time_offset_s=1635188454.0)
+    pref = import_csv(DATA / "css_engine_gnss_prefixed_datetime.csv", mapping_named("auto", timezone="+06:00"),
+                      reference_torque_nm=1500.0)
+    assert pref.stats.files["css_engine_gnss_prefixed_datetime.csv"].unmapped == []
+    assert set(pref.signals) == set(plain.signals) == {"EngineTorque", "EngineSpeed", "WheelBasedMachineSpeed"}
+    for k in plain.signals:
+        assert np.array_equal(pref.signals[k].t, plain.signals[k].t)
+        assert np.array_equal(pref.signals[k].value, plain.signals[k].value)
+    assert np.array_equal(pref.gps.t, plain.gps.t) and np.array_equal(pref.gps.lat, plain.gps.lat)
+
+
+def test_diagnose_runs_on_the_prefixed_real_export(tmp_path):
+    import json
+
+    from tractionecu.cli.main import main
+
+    out = tmp_path / "rep"
+    assert main(["diagnose", str(DATA / "css_engine_gnss_prefixed_datetime.csv"), "--out", str(out),
+                 "--csv-mapping", "auto", "--csv-timezone", "+06:00", "--reference-torque", "1500"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert "0 of 128 samples usable" in rep["statement"]

@@ -19,8 +19,12 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("recording", help="recording directory (can.log, gps.nmea, vehicle.toml) or a decoded CSV export")
     p.add_argument("--out", required=True, help="directory for report.json, report.md and the figures")
     p.add_argument("--vehicle", default=None, help="vehicle.toml (default: the recording's own)")
-    p.add_argument("--csv-mapping", choices=("contract", "j1939"), default=None,
-                   help="the recording is a decoded CSV export with these column names")
+    p.add_argument("--csv-mapping", choices=("contract", "j1939", "auto"), default=None,
+                   help="the recording is a decoded CSV export with these column names; auto: J1939 "
+                        "message.signal names with or without a bus prefix (CAN1., can0_), time in epoch "
+                        "s or ms or as a date-time")
+    p.add_argument("--csv-timezone", default=None,
+                   help="zone of CSV date-times that name none: UTC (default), +02:00 or Europe/Berlin")
     p.add_argument("--reference-torque", type=float, default=None,
                    help="engine reference torque [N·m] for percent-torque CSV columns (J1939 SPN 544)")
     p.add_argument("--time-offset", type=float, default=0.0, help="added to the CSV time column [s]")
@@ -33,9 +37,14 @@ def run(args: argparse.Namespace) -> int:
     from ..bus.dbc import extra_dbcs
     from ..diagnose import diagnose_path
 
+    csv_mapping = args.csv_mapping
+    if args.csv_timezone is not None:
+        from ..recording.csv_import import mapping_named
+
+        csv_mapping = mapping_named(csv_mapping or "auto", timezone=args.csv_timezone)
     t0 = time.perf_counter()
     with extra_dbcs(args.dbc):
-        rep = diagnose_path(args.recording, args.out, vehicle=args.vehicle, csv_mapping=args.csv_mapping,
+        rep = diagnose_path(args.recording, args.out, vehicle=args.vehicle, csv_mapping=csv_mapping,
                             reference_torque_nm=args.reference_torque, time_offset_s=args.time_offset,
                             estimator=not args.no_estimator)
     dt = time.perf_counter() - t0

@@ -16,13 +16,13 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
                   time_offset_s: float = 0.0, estimator: bool = True) -> dict:
     """Diagnose a recording directory (or a decoded CSV export) and write the report into ``out``.
 
-    A CSV export (``csv_mapping`` ``"contract"`` or ``"j1939"``, or a path ending in ``.csv``) goes
+    A CSV export (``csv_mapping`` a :class:`~tractionecu.recording.csv_import.CsvMapping` or the
+    name of one, ``"contract"``, ``"j1939"`` or ``"auto"``, or a path ending in ``.csv``) goes
     through :func:`tractionecu.recording.csv_import.import_csv`; engine-level exports without
     per-wheel data get the reduced analysis of :mod:`.reduced`.  Returns the ``report.json`` dict.
     """
     import json
 
-    from ..errors import ConfigError
     from . import data as _data
     from . import report as _report
 
@@ -30,11 +30,9 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     out = Path(out)
     is_csv = csv_mapping is not None or (p.is_file() and p.suffix.lower() == ".csv")
     if is_csv:
-        from ..recording.csv_import import CONTRACT_MAPPING, J1939_LOGGER_MAPPING, import_csv
+        from ..recording.csv_import import CsvMapping, import_csv, mapping_named
 
-        mapping = {"contract": CONTRACT_MAPPING, "j1939": J1939_LOGGER_MAPPING}.get(csv_mapping or "j1939")
-        if mapping is None:
-            raise ConfigError(f"csv_mapping: {csv_mapping!r} is not 'contract' or 'j1939'")
+        mapping = csv_mapping if isinstance(csv_mapping, CsvMapping) else mapping_named(csv_mapping or "j1939")
         rec = import_csv(p, mapping, time_offset_s=time_offset_s, reference_torque_nm=reference_torque_nm,
                          vehicle_toml=vehicle)
         fr = _data.load(rec, vehicle)

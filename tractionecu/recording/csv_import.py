@@ -19,7 +19,12 @@ column from ``unit`` to SI and stores it under ``target``:
   the caller gives as ``reference_torque_nm`` [N·m] (J1939 SPN 544 value).
 
 A header matches a mapping key exactly, or after replacing ``.`` by
-``_`` (asammdf writes ``EEC1.EngineSpeed``).
+``_`` (asammdf writes ``EEC1.EngineSpeed``).  A mapping with ``loose`` set
+(:data:`J1939_AUTO_MAPPING`, ``--csv-mapping auto``) also drops a bus prefix
+(``CAN1.``, ``CAN2_``, ``can0_``, ``can0.``) and ignores case, so
+``CAN1.EEC1.ActualEnginePercentTorque`` and ``can0_eec1_actualenginepercenttorque``
+both match ``EEC1_ActualEnginePercentTorque``.  Header columns the mapping
+does not use are listed in ``CsvStats.unmapped`` and logged as a warning.
 
 Presets
 -------
@@ -50,15 +55,26 @@ CSV column                         target                      CSV unit
 
 Time
 ----
-``time_unit`` is ``"s"`` or ``"ms"``; ``time_offset_s`` [s] is added after
-conversion (use it to turn a relative logger time into epoch seconds).
-Rows whose time is not a number or goes backwards are rejected and counted.
+``time_unit`` is ``"s"`` or ``"ms"`` (numbers), ``"datetime"`` (ISO 8601
+such as ``2023-10-23T06:50:50.250Z`` or ``2023-10-23 06:50:50[.fff]``,
+read in ``timezone`` when it names no offset: ``UTC`` by default, an offset
+``+02:00`` or an IANA name ``Europe/Berlin``) or ``"auto"``: a date-time if
+the first time cell is not a number, else milliseconds if it is ≥ 10¹¹
+(epoch ms), else seconds.  Date-times become Unix seconds.
+``time_offset_s`` [s] is added after conversion (use it to turn a relative
+logger time into epoch seconds).  Rows whose time cannot be read or goes
+backwards are rejected and counted.  With ``loose`` mappings the time column
+may also be any of :data:`TIME_COLUMN_NAMES` (after prefix and case
+normalisation).
 """
 
 from __future__ import annotations
 
 import csv
+import datetime as _dt
+import logging
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -76,6 +92,8 @@ from .containers import (
     RecordingStats,
     Series,
 )
+
+log = logging.getLogger(__name__)
 
 UNITS: dict[str, float] = {
     "": 1.0,
@@ -123,6 +141,10 @@ class CsvMapping:
     columns: Mapping[str, Column]
     time_column: str = "t"
     time_unit: str = "s"
+    loose: bool = False
+    """Also match headers with a bus prefix and in any case (see module docstring)."""
+    timezone: str | None = None
+    """Zone of date-times without an offset (default UTC)."""
 
 
 def _contract_mapping() -> CsvMapping:
@@ -163,6 +185,79 @@ J1939_LOGGER_MAPPING = CsvMapping(
 )
 """Typical J1939 logger export names (see module docstring)."""
 
+J1939_AUTO_MAPPING = CsvMapping(J1939_LOGGER_MAPPING.columns, time_column="timestamps", time_unit="auto",
+                                loose=True)
+"""The J1939 names with or without bus prefixes, either separator, any case;
+time in epoch s or ms, relative s or date-time (``--csv-mapping auto``)."""
+
+MAPPINGS = {"contract": CONTRACT_MAPPING, "j1939": J1939_LOGGER_MAPPING, "auto": J1939_AUTO_MAPPING}
+"""The presets by their ``--csv-mapping`` name."""
+
+TIME_COLUMN_NAMES = ("timestamps", "timestamp", "time", "t", "datetime", "date_time", "time_s", "time_ms",
+                     "t_s", "t_ms", "utc", "time_utc")
+"""Time column names a loose mapping accepts (normalised)."""
+
+TIME_UNITS = ("s", "ms", "datetime", "auto")
+
+
+def mapping_named(name: str, *, timezone: str | None = None) -> CsvMapping:
+    """The preset ``name`` (a key of :data:`MAPPINGS`), reading naive date-times in ``timezone``."""
+    try:
+        mp = MAPPINGS[name]
+    except KeyError:
+        raise ConfigError(f"csv_mapping: {name!r} is not one of {', '.join(MAPPINGS)}") from None
+    if timezone is None:
+        return mp
+    _tzinfo(timezone)
+    return CsvMapping(mp.columns, mp.time_column, mp.time_unit, mp.loose, timezone)
+
+
+def _tzinfo(name: str | None) -> _dt.tzinfo:
+    """``UTC``, an offset (``+02:00``, ``-0530``) or an IANA zone name."""
+    if name is None or name.strip().upper() in ("UTC", "Z", "GMT"):
+        return _dt.timezone.utc
+    m = re.fullmatch(r"(?:UTC)?([+-])(\d{1,2}):?(\d{2})?", name.strip(), re.IGNORECASE)
+    if m:
+        off = _dt.timedelta(hours=int(m.group(2)), minutes=int(m.group(3) or 0))
+        return _dt.timezone(off if m.group(1) == "+" else -off)
+    try:
+        from zoneinfo import ZoneInfo
+
+        return ZoneInfo(name.strip())
+    except Exception:
+        raise ConfigError(f"timezone: {name!r} is not UTC, an offset such as +02:00 or a zone name") from None
+
+
+class _TimeParser:
+    """One CSV time cell -> seconds, per ``unit`` (see module docstring)."""
+
+    def __init__(self, unit: str, tz: _dt.tzinfo) -> None:
+        self.unit = unit
+        self.tz = tz
+
+    def __call__(self, cell: str) -> float:
+        """Seconds; raises ValueError.  ``auto`` settles on the first cell it can read."""
+        if self.unit == "auto":
+            try:
+                v = float(cell)
+            except ValueError:
+                t = self._datetime(cell)
+                self.unit = "datetime"
+                return t
+            self.unit = "ms" if abs(v) >= 1e11 else "s"
+        if self.unit == "datetime":
+            return self._datetime(cell)
+        return float(cell) * (1e-3 if self.unit == "ms" else 1.0)
+
+    def _datetime(self, cell: str) -> float:
+        text = cell.strip()
+        if text.endswith(("Z", "z")):
+            text = text[:-1] + "+00:00"
+        d = _dt.datetime.fromisoformat(text)
+        if d.tzinfo is None:
+            d = d.replace(tzinfo=self.tz)
+        return d.timestamp()
+
 
 @dataclass
 class CsvStats(RejectCounter):
@@ -197,6 +292,13 @@ def _norm(h: str) -> str:
     return h.strip().replace(".", "_")
 
 
+_BUS_PREFIX = re.compile(r"^can\d+[._]", re.IGNORECASE)
+
+
+def _norm_loose(h: str) -> str:
+    return _BUS_PREFIX.sub("", h.strip()).replace(".", "_").lower()
+
+
 def import_csv(
     path: str | Path,
     mapping: CsvMapping | None = None,
@@ -206,11 +308,12 @@ def import_csv(
     time_offset_s: float = 0.0,
     reference_torque_nm: float | None = None,
     vehicle_toml: str | Path | None = None,
+    timezone: str | None = None,
 ) -> Recording:
     """Read a decoded-signal CSV into a :class:`Recording`.
 
-    ``mapping`` defaults to :data:`CONTRACT_MAPPING`; ``time_column`` and
-    ``time_unit`` override the mapping's.  ``reference_torque_nm`` [N·m] is
+    ``mapping`` defaults to :data:`CONTRACT_MAPPING`; ``time_column``,
+    ``time_unit`` (one of :data:`TIME_UNITS`) and ``timezone`` override the mapping's.  ``reference_torque_nm`` [N·m] is
     required when a mapped column present in the file uses ``%ref_torque``.
     The delimiter (``,``, ``;`` or tab) is detected from the header.
 
@@ -222,9 +325,10 @@ def import_csv(
     mp = mapping if mapping is not None else CONTRACT_MAPPING
     tcol = time_column if time_column is not None else mp.time_column
     tunit = time_unit if time_unit is not None else mp.time_unit
-    if tunit not in ("s", "ms"):
-        raise ConfigError(f"time_unit: {tunit!r} is not 's' or 'ms'")
-    tscale = 1e-3 if tunit == "ms" else 1.0
+    if tunit not in TIME_UNITS:
+        raise ConfigError(f"time_unit: {tunit!r} is not one of {', '.join(TIME_UNITS)}")
+    parse_time = _TimeParser(tunit, _tzinfo(timezone if timezone is not None else mp.timezone))
+    norm = _norm_loose if mp.loose else _norm
 
     try:
         fh = open(p, "r", encoding="utf-8-sig", errors="replace", newline="")
@@ -241,15 +345,16 @@ def import_csv(
         except csv.Error as e:  # e.g. a field beyond csv.field_size_limit()
             raise RecordingError(f"{p}: line 1: {e}") from None
         stats.lines = 1
-        norm_keys = {_norm(k): k for k in mp.columns}
+        norm_keys = {norm(k): k for k in mp.columns}
         col_idx: dict[int, Column] = {}
         t_idx = None
+        time_names = {norm(tcol)} | ({norm(n) for n in TIME_COLUMN_NAMES} if mp.loose else set())
         for i, h in enumerate(header):
             hn = h.strip()
-            if hn == tcol or _norm(hn) == _norm(tcol):
+            if t_idx is None and (hn == tcol or norm(hn) in time_names):
                 t_idx = i
                 continue
-            key = hn if hn in mp.columns else norm_keys.get(_norm(hn))
+            key = hn if hn in mp.columns else norm_keys.get(norm(hn))
             if key is None:
                 stats.unmapped.append(hn)
             else:
@@ -257,7 +362,11 @@ def import_csv(
         if t_idx is None:
             raise RecordingError(f"{p}: line 1: no time column {tcol!r} in header")
         if not col_idx:
-            raise RecordingError(f"{p}: line 1: none of the mapped columns is in the header")
+            raise RecordingError(f"{p}: line 1: none of the mapped columns is in the header "
+                                 f"(header: {', '.join(h.strip() for h in header[:12])}"
+                                 f"{', ...' if len(header) > 12 else ''})")
+        if stats.unmapped:
+            log.warning("%s: columns the mapping ignores: %s", p.name, ", ".join(stats.unmapped))
         if any(c.unit == REF_TORQUE_UNIT for c in col_idx.values()):
             if reference_torque_nm is None or not reference_torque_nm > 0:
                 raise ConfigError(
@@ -282,8 +391,8 @@ def import_csv(
                 stats.reject("short_row", lineno)
                 continue
             try:
-                t = float(row[t_idx]) * tscale + time_offset_s
-            except ValueError:
+                t = parse_time(row[t_idx]) + time_offset_s
+            except (ValueError, OverflowError):
                 stats.reject("bad_time", lineno)
                 continue
             if not math.isfinite(t):
