@@ -12,7 +12,7 @@ format            recognised by                               read with
 ``trc``           ``;$FILEVERSION`` or ``;   Start time``     python-can ``TRCReader``
 ``csv``           header ``timestamp,arbitration_id,...``     python-can ``CSVReader``
 ``sqlite``        magic ``SQLite format 3``                   python-can ``SqliteReader``
-``mf4``           magic ``MDF     ``                          asammdf (the ``mf4`` extra), imported only here
+``mf4``           magic ``MDF`` or ``UnFinMF`` (unfinalised)    asammdf (the ``mf4`` extra), imported only here
 ================  ==========================================  ===========================================
 
 The file name is never consulted.  Anything else raises
@@ -52,7 +52,7 @@ from .fastdecode import FrameTable
 FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4")
 """Formats :func:`read_frames` reads."""
 
-TRUSTED_CLOCK = frozenset({"candump", "blf", "csv", "sqlite", "mf4", "candump-screen -ta"})
+TRUSTED_CLOCK = frozenset({"candump", "asc", "blf", "trc", "csv", "sqlite", "mf4", "candump-screen -ta"})
 """Formats (and candump screen time modes) whose times are the logger's absolute epoch time."""
 
 CONVERT_HINT = (
@@ -83,7 +83,7 @@ def detect(path: str | Path) -> str:
         return "candump"                        # blank: the candump reader names it an empty file
     if head.startswith(b"LOGG"):
         return "blf"
-    if head.startswith(b"MDF "):
+    if head.startswith((b"MDF ", b"UnFinMF ")):      # an MDF file, finalised or not (CANedge)
         return "mf4"
     if head.startswith(b"SQLite format 3\x00"):
         return "sqlite"
