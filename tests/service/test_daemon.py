@@ -219,6 +219,39 @@ def test_pgn_filters() -> None:
     assert f[65296 << 8] == 0x3FFFF00                # PDU2: PGN incl. group extension, any SA
     assert f[60928 << 8] == 0x3FF0000                # PDU1: destination and SA are free
     assert all(x["extended"] for x in pgn_filters([65296]))
+    # Requests (and TP, ETP, acknowledgements) pass only to our address and to the global one
+    f = {x["can_id"]: x["can_mask"] for x in pgn_filters([59904, 60416, 59392], 0x90)}
+    assert f == {(pgn | da) << 8: 0x3FFFF00 for pgn in (59904, 60416, 59392) for da in (0x90, 0xFF)}
+    assert {x["can_id"] for x in pgn_filters([59904], None)} == {(59904 | 0xFF) << 8}
+
+
+async def test_filters_follow_our_address_after_a_lost_contention(tmp_path: Path) -> None:
+    rig = Rig(tmp_path, StandIn())          # can.kernel_filters = true (default)
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        await until(lambda: rig.svc.network.claimer.can_transmit(rig.svc.clock.now()))
+
+        def request(da: int, pgn: int = 0xFEEB) -> None:
+            rig.peer.send(can.Message(arbitration_id=j1939.make_id(6, j1939.PGN_REQUEST, 0x33, da),
+                                      data=j1939.request_data(pgn)))
+
+        for da in (0x00, 0x91, 0x90, 0xFF):
+            request(da)
+        await until(lambda: rig.svc.stats["requests"] == 2)
+        await asyncio.sleep(0.1)
+        assert rig.svc.stats["network_management"] == 2 and rig.svc.stats["requests_not_for_us"] == 0
+        # a NAME of higher priority claims 0x90: we move to 0x91, the filters with us
+        rig.peer.send(can.Message(arbitration_id=0x18EEFF90, data=(1).to_bytes(8, "little")))
+        await until(lambda: rig.svc.network.address == 0x91)
+        assert rig.svc.can.stats["filter_updates"] >= 1
+        await until(lambda: rig.svc.network.claimer.can_transmit(rig.svc.clock.now()))   # 250 ms after the claim
+        for da in (0x00, 0x90, 0x91, 0xFF):
+            request(da)
+        await until(lambda: rig.svc.stats["requests"] == 4)
+        await asyncio.sleep(0.1)
+        assert rig.svc.stats["network_management"] == 5      # 4 Requests and the contending claim
+        nacks = [m for m in rig.received() if j1939.pgn_of(m.arbitration_id) == 59392]
+        assert [(m.arbitration_id & 0xFF, m.data[0], m.data[4]) for m in nacks] == [(0x90, 1, 0x33), (0x91, 1, 0x33)]
 
 
 async def test_inputs_reach_the_estimator_and_a_timeout_sets_its_bit(tmp_path: Path) -> None:
@@ -258,6 +291,44 @@ async def test_watchdog_and_status_notifications(tmp_path: Path) -> None:
         await until(lambda: (seen.extend(rig.notifications()) or True)
                     and "WATCHDOG=1" in seen and any(s.startswith("STATUS=") and "CAN open" in s for s in seen))
     assert any(s.startswith("READY=1") for s in seen)
+
+
+class Slow(StandIn):
+    """A stand-in whose steps take ``delay_s`` (a loaded CPU) while ``slow`` is set."""
+
+    slow = False
+    delay_s = 0.03
+
+    def step(self, t, inputs, meas):
+        if self.slow:
+            import time
+            time.sleep(self.delay_s)
+        return super().step(t, inputs, meas)
+
+
+async def test_watchdog_stops_while_the_loop_is_behind_and_resumes(tmp_path: Path) -> None:
+    est = Slow()
+    rig = Rig(tmp_path, est, env={"WATCHDOG_USEC": "400000"}, service={"watchdog_behind_s": 0.5})
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        rig.inputs()                                     # phase the grid: the loop steps the estimator
+        await until(lambda: rig.svc.stats["steps"] > 0)
+        seen: list[str] = []
+        await until(lambda: (seen.extend(rig.notifications()) or True) and "WATCHDOG=1" in seen)
+        est.slow = True                                  # 30 ms per 10 ms step: behind, more each step
+        await until(lambda: rig.svc.stats["watchdog_withheld"] == 1, 10)
+        withheld_at = asyncio.get_running_loop().time()
+        rig.notifications()
+        await asyncio.sleep(1.0)
+        during = rig.notifications()
+        assert "WATCHDOG=1" not in during, during
+        assert any(n.startswith("STATUS=estimation behind schedule") for n in during), during
+        est.slow = False
+        after: list[str] = []
+        await until(lambda: (after.extend(rig.notifications()) or True) and "WATCHDOG=1" in after, 10)
+        assert "STATUS=estimation back on schedule" in after, after
+        assert rig.svc.estimation.behind_since is None
+        assert asyncio.get_running_loop().time() - withheld_at >= 1.0
 
 
 async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path) -> None:

@@ -322,7 +322,8 @@ class Service:
 
     def counters(self) -> dict[str, Any]:
         """Every counter, for logs and tests."""
-        out: dict[str, Any] = {"service": {**self.stats, "max_tick_delay_s": self.estimation.max_tick_delay_s},
+        out: dict[str, Any] = {"service": {**self.stats, "max_tick_delay_s": self.estimation.max_tick_delay_s,
+                                           "requests_waiting": self.network.waiting()},
                                "can": dict(self.can.stats), "unknown_pgns": dict(self.dispatcher.unknown_pgns),
                                "bad_frames": dict(self.dispatcher.bad_frames),
                                "steps": {**self.steps.counts, "max_late_s": self.steps.max_late_s}}

@@ -99,6 +99,11 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
     return time.perf_counter() - t0
 
 
+RECOVER_S = 1.0
+"""A loop that was behind is back on schedule once its steps have run on time this long [wall s]
+(or ``service.watchdog_behind_s`` if shorter): one that skips ahead and falls behind again is not."""
+
+
 class Reader(Protocol):
     """A device reader whose received input can be processed now (CAN link, GNSS reader)."""
 
@@ -170,6 +175,7 @@ class EstimationLoop(TaskPart):
         self.status = status
         self.after_step = after_step
         self.behind_since: float | None = None
+        self._on_time_since: float | None = None
         self.withheld = False
         self.stats: Counter[str] = Counter() if stats is None else stats
         self.machine: tuple[Any, Any] | None = None
@@ -225,21 +231,30 @@ class EstimationLoop(TaskPart):
         return (f"estimation behind schedule for {now_m - self.behind_since:.1f} s "
                 f"(budget service.watchdog_behind_s = {self.cfg.service.watchdog_behind_s:g} s): watchdog not fed")
 
-    def _schedule(self, behind: bool, now_m: float) -> bool:
-        """Track whether the loop is behind; True while ``WATCHDOG=1`` may be sent."""
-        if not behind:
-            if self.withheld:
-                self.withheld = False
-                log.warning("estimation back on schedule after %.1f s behind: watchdog fed again",
-                            now_m - (self.behind_since or now_m))
-                if self.status is not None:
-                    self.status("estimation back on schedule")
-            self.behind_since = None
-            return True
-        if self.behind_since is None:
-            self.behind_since = now_m
-        if now_m - self.behind_since < self.cfg.service.watchdog_behind_s:
-            return True
+    def _schedule(self, behind: bool, now_m: float, recover_s: float = 0.0) -> bool:
+        """Track whether the loop is behind; True while ``WATCHDOG=1`` may be sent.
+
+        A late step or a skip makes it behind; it is back on schedule once its
+        steps have run on time for ``recover_s`` (a loop that skips ahead and
+        falls behind again never is).
+        """
+        if behind:
+            self._on_time_since = None
+            if self.behind_since is None:
+                self.behind_since = now_m
+        elif self.behind_since is not None:
+            if self._on_time_since is None:
+                self._on_time_since = now_m
+            if now_m - self._on_time_since >= recover_s:
+                if self.withheld:
+                    self.withheld = False
+                    log.warning("estimation back on schedule after %.1f s behind: watchdog fed again",
+                                now_m - self.behind_since)
+                    if self.status is not None:
+                        self.status("estimation back on schedule")
+                self.behind_since = None
+        if self.behind_since is None or now_m - self.behind_since < self.cfg.service.watchdog_behind_s:
+            return not self.withheld
         if not self.withheld:
             self.withheld = True
             self.stats["watchdog_withheld"] += 1
@@ -267,6 +282,7 @@ class EstimationLoop(TaskPart):
         lag = ec.lag_s
         bc_every = max(1, round(rate / self.cfg.broadcast.rate_hz))
         late_s = 1.0 / self.cfg.broadcast.rate_hz       # later than this [service s]: behind schedule
+        recover_s = min(self.cfg.service.watchdog_behind_s, RECOVER_S)
         map_every = max(1, round(rate / self.cfg.map.rate_hz))
         clock = self.clock
         g0 = clock.now()
@@ -306,7 +322,7 @@ class EstimationLoop(TaskPart):
             now_m = loop.time()
             if self.map is not None:
                 self.map.maybe_flush(now_m)
-            on_schedule = self._schedule(-delay * clock.speed > late_s, now_m)
+            on_schedule = self._schedule(-delay * clock.speed > late_s, now_m, recover_s)
             if (on_schedule and self.watchdog is not None and self.watchdog_s is not None
                     and now_m - self._last_wd >= self.watchdog_s / 4):
                 self._last_wd = now_m

@@ -195,6 +195,10 @@ class Network:
                 log.warning("J1939: claiming address 0x%02X (%d)", addr, addr)
             self._report_address()
 
+    def waiting(self) -> int:
+        """Requests queued, not served yet."""
+        return len(self._requests)
+
     def serve_requests(self) -> int:
         """Serve at most ``broadcast.requests_per_tick`` queued Requests (after an estimation step);
         returns how many."""
