@@ -87,3 +87,37 @@ def test_no_overlap_and_no_offset_is_a_clear_error(short_recording, tmp_path):
         read_recording(tmp_path / "rec")
     rec = read_recording(tmp_path / "rec", clock="report")
     assert "offset not found" in rec.stats.clock_note and rec.stats.clock_offset_s == 0.0
+
+
+def test_inspect_reports_the_offset_and_the_unset_clock(short_recording, tmp_path, capsys):
+    from tractionecu.cli.main import main
+
+    shifted(short_recording, tmp_path / "rec", 0.0)
+    assert main(["inspect", str(tmp_path / "rec")]) == 0
+    out = capsys.readouterr().out
+    assert "CAN capture format: candump" in out
+    assert "clock: " in out and "CAN clock offset +1" in out and "applied" in out
+    assert "WARNING: the CAN capture's own clock starts at 0.000 s (1970-01-01)" in out
+
+
+def test_a_time_jump_is_warned_about_and_sizes_no_array(short_recording, tmp_path, capsys):
+    from tractionecu.cli.main import main
+    from tractionecu.diagnose.data import frame_from_recording
+    from tractionecu.config import VehicleParams
+
+    jump = 1e8                                         # three years forward in the middle of the capture
+    shutil.copytree(short_recording, tmp_path / "rec")
+    lines = (short_recording / "can.log").read_text().splitlines()
+    tail = [f"({float(ln[1:ln.index(')')]) + jump:017.6f}){ln[ln.index(')') + 1:]}" for ln in lines[-400:]]
+    (tmp_path / "rec" / "can.log").write_text("\n".join(lines + tail) + "\n")
+    assert main(["inspect", str(tmp_path / "rec")]) == 0
+    out = capsys.readouterr().out
+    assert "WARNING: implausible duration 1e+08 s" in out
+    assert "WARNING: 1 time jump(s) between consecutive CAN frames over 60 s: 1e+08 s at 2026-" in out
+    rec = read_recording(tmp_path / "rec")
+    res = replay(rec)                                  # the grid covers the spans with wheel speeds only
+    assert res.arrays["t"].size < 1400                # 12 s + the 1 s after the jump at 100 Hz
+    with pytest.raises(RecordingError, match="time jumps"):
+        rec.table(100.0)
+    with pytest.raises(RecordingError, match="time jumps"):
+        frame_from_recording(rec, VehicleParams())

@@ -2,7 +2,10 @@
 
 The report (:func:`tractionecu.recording.summary.summarize`): duration,
 frames, rates and gaps per message, unknown PGNs, decode errors, address
-claims, GNSS epochs, rejected lines, then for each estimation profile the
+claims, GNSS epochs, rejected lines; the capture format, the CAN-to-GNSS clock
+offset when one was estimated (or why none was found: inspect reports it where
+replay refuses), warnings about implausible durations, an unset logger clock
+and time jumps; then for each estimation profile the
 contract signals found (with the message they came from) and missing, and
 whether the speed signals show motion.
 
@@ -14,11 +17,13 @@ signals onto contract names (:func:`tractionecu.config.signal_map`).
 from __future__ import annotations
 
 import argparse
-
+import math
+import time
 from typing import Any
 
 from ..bus.dbc import Codec, extra_dbcs
 from ..pipeline.signals import ESTIMATED_PROFILES, GNSS_TRACK_SPEED, motion, profile_status, signal_state, source_of
+from ..recording.containers import TIME_JUMP_S
 from ..recording.reader import read_recording
 from ..recording.summary import summarize
 
@@ -66,16 +71,52 @@ def profile_lines(rec: Any) -> list[str]:
     return out
 
 
+PLAUSIBLE_DURATION_S = 7 * 86400.0
+"""A recording longer than this (a week) is reported as implausible: a clock jump, not a drive."""
+EARLIEST_PLAUSIBLE_T = 946684800.0
+"""2000-01-01 UTC: a CAN time before it comes from a logger whose clock was never set."""
+
+
+def time_lines(rec: Any) -> list[str]:
+    """The capture format, how CAN and GNSS clocks were reconciled, and warnings about implausible
+    durations, unset clocks and time jumps."""
+    st = rec.stats
+    out = [f"  CAN capture format: {st.can_format or 'candump'}"]
+    if st.clock_note:
+        out.append(f"  clock: {st.clock_note}")
+    dur = rec.duration
+    if math.isfinite(dur) and dur > PLAUSIBLE_DURATION_S:
+        out.append(f"  WARNING: implausible duration {dur:.3g} s ({dur / 86400:.0f} days): the times jump "
+                   "(a logger clock set while logging, or CAN and GNSS on different clocks)")
+    first = st.can_t_first if math.isfinite(st.can_t_first) else math.nan
+    if math.isfinite(first) and first - st.clock_offset_s < EARLIEST_PLAUSIBLE_T:
+        raw = first - st.clock_offset_s
+        out.append(f"  WARNING: the CAN capture's own clock starts at {raw:.3f} s ("
+                   f"{time.strftime('%Y-%m-%d', time.gmtime(max(raw, 0.0)))}): a logger without a set clock"
+                   + ("; placed on GNSS time (see clock)" if st.clock_offset_s else ""))
+    if st.n_time_jumps:
+        shown = ", ".join(f"{dt:.3g} s at {_when(t)}" for t, dt in st.time_jumps)
+        more = ", ..." if st.n_time_jumps > len(st.time_jumps) else ""
+        out.append(f"  WARNING: {st.n_time_jumps} time jump(s) between consecutive CAN frames over "
+                   f"{TIME_JUMP_S:.0f} s: {shown}{more}")
+    return out
+
+
+def _when(t: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(t)) if 0 <= t < 4e9 else f"{t:.3f} s"
+
+
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("inspect", help="print duration, frame counts, rates, gaps, rejected lines and the signals "
                                        "each estimation profile finds or misses")
-    p.add_argument("recording", help="recording directory (or a candump file)")
+    p.add_argument("recording", help="recording directory, or one CAN capture file (candump, ASC, BLF, TRC, "
+                                     "python-can CSV/SQLite, MF4) with its NMEA log beside it")
     add_dbc_option(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     with extra_dbcs(args.dbc) as codec:
-        rec = read_recording(args.recording)
-    print("\n".join([summarize(rec), *profile_lines(rec), *dbc_lines(codec)]))
+        rec = read_recording(args.recording, clock="report")
+    print("\n".join([summarize(rec), *time_lines(rec), *profile_lines(rec), *dbc_lines(codec)]))
     return 0

@@ -30,6 +30,7 @@ from ..config import VehicleParams, load_vehicle
 from ..errors import RecordingError
 from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, GROUND_BASED_SPEED, IN_WORK, WHEEL_BASED_SPEED,
                                 WHEEL_SPEEDS)
+from ..recording.containers import MAX_TABLE_ROWS
 from ..recording.reader import Recording, read_recording
 
 EARTH_R = 6378137.0
@@ -167,6 +168,9 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         rate_hz = min(rate_hz, 10.0)
     period = 1.0 / rate_hz
     t_start, t_end = rec.t_start, rec.t_end
+    if not (t_end - t_start) * rate_hz < MAX_TABLE_ROWS:
+        raise RecordingError(f"{rec.path}: {t_end - t_start:.3g} s at {rate_hz:g} Hz is more than {MAX_TABLE_ROWS} "
+                             "rows; the recording's time jumps (see `tractionecu inspect`)")
     if len(gps) > 2:
         # Grid on the GNSS epochs (extended by whole periods where CAN data run longer).
         g0 = float(gps.t[0])

@@ -81,7 +81,7 @@ class ClockOffset:
 
     def describe(self) -> str:
         if self.found:
-            return (f"CAN clock offset {self.offset_s:+.3f} s ± {self.sigma_s * 1e3:.0f} ms "
+            return (f"CAN clock offset {self.offset_s:+.3f} s ± {self.sigma_s * 1e3:.1f} ms "
                     f"(correlation {self.correlation:.3f} of {self.signal} with GNSS speed)")
         return f"CAN clock offset not found: {self.reason}"
 
