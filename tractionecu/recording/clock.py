@@ -7,7 +7,8 @@ GNSS epochs, or overlap them wrongly.
 
 Method
 ------
-The CAN speed is the ground-based speed (``GroundBasedMachineSpeed``: the
+Each speed is cut to its longest stretch without a silence over
+:data:`MAX_GAP_S` (at most :data:`MAX_SPAN_S`).  The CAN speed is the ground-based speed (``GroundBasedMachineSpeed``: the
 same quantity the receiver measures), else the wheel-based speed
 (``WheelBasedMachineSpeed``, ``WheelBasedVehicleSpeed``), else the mean of
 ``WheelSpeed_*`` (a wheel speed in rad/s is the ground speed over a radius, and
@@ -56,6 +57,10 @@ MIN_CORRELATION = 0.9
 """Smallest peak correlation accepted."""
 MIN_SPEED_STD = 0.1
 """Smallest standard deviation [m/s] of the GNSS speed in the overlap: a constant speed has no timing."""
+MAX_GAP_S = 5.0
+"""A silence longer than this [s] splits a speed series; the longest stretch is correlated."""
+MAX_SPAN_S = 6 * 3600.0
+"""At most this much [s] of each series is correlated (a 0.05 s grid of 432 000 points)."""
 GOOD_OVERLAP = 0.5
 """A trusted CAN clock whose frames and the GNSS epochs overlap over at least this fraction of the shorter
 of the two spans is left alone."""
@@ -109,6 +114,17 @@ def can_speed(signals: Mapping) -> tuple[str, np.ndarray, np.ndarray] | None:
     return "mean wheel speed", t[ok], v[ok]
 
 
+def _longest_run(t: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The longest stretch of samples without a silence over :data:`MAX_GAP_S`, cut to :data:`MAX_SPAN_S`:
+    no grid is sized from a span that jumps."""
+    cuts = np.flatnonzero(np.diff(t) > MAX_GAP_S) + 1
+    bounds = np.concatenate([[0], cuts, [t.size]])
+    k = int(np.argmax(np.diff(bounds)))
+    t, v = t[bounds[k]:bounds[k + 1]], v[bounds[k]:bounds[k + 1]]
+    keep = t <= t[0] + MAX_SPAN_S
+    return t[keep], v[keep]
+
+
 def _resample(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     n = int(math.floor((t[-1] - t[0]) / STEP_S)) + 1
     return np.interp(t[0] + np.arange(n) * STEP_S, t, v)
@@ -157,7 +173,10 @@ def estimate_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray) 
         return ClockOffset(math.nan, math.nan, math.nan, "", "no wheel-based speed or wheel speeds on the bus")
     name, ct, cv = src
     ok = np.isfinite(gps_speed) & np.isfinite(gps_t)
-    gt, gv = gps_t[ok], gps_speed[ok]
+    if ok.sum() < 10:
+        return ClockOffset(math.nan, math.nan, math.nan, name, "fewer than 10 GNSS epochs with a speed")
+    ct, cv = _longest_run(ct, cv)
+    gt, gv = _longest_run(gps_t[ok], gps_speed[ok])
     if gt.size < 10:
         return ClockOffset(math.nan, math.nan, math.nan, name, "fewer than 10 GNSS epochs with a speed")
     if ct[-1] - ct[0] < 10 * STEP_S or gt[-1] - gt[0] < 10 * STEP_S:
