@@ -29,9 +29,10 @@ Clocks
 ------
 :data:`TRUSTED_CLOCK` says which formats carry the logger's absolute epoch time
 as it was.  The others are relative (``-tz``, ``-td``: the first frame at 0),
-local time of an unknown zone (``-tA``), or an absolute start written to the
-millisecond beside relative times (ASC, TRC): their time axis is placed against
-the GNSS epochs by :mod:`.clock`.
+local time of an unknown zone (``-tA``), or relative times beside a start
+written to the second (can-utils' ``log2asc``) or, by python-can, to a
+millisecond field it misprints (ASC): their time axis is placed against the
+GNSS epochs by :mod:`.clock`.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ from .fastdecode import FrameTable
 FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4")
 """Formats :func:`read_frames` reads."""
 
-TRUSTED_CLOCK = frozenset({"candump", "asc", "blf", "trc", "csv", "sqlite", "mf4", "candump-screen -ta"})
+TRUSTED_CLOCK = frozenset({"candump", "blf", "trc", "csv", "sqlite", "mf4", "candump-screen -ta"})
 """Formats (and candump screen time modes) whose times are the logger's absolute epoch time."""
 
 CONVERT_HINT = (
