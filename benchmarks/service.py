@@ -46,6 +46,17 @@ Figures (printed and written as JSON keys):
     the benchmark process, i.e. the service plus the player, whose frames
     are generated lazily); ``service_peak_rss_mb``: its peak.
 
+``broadcast_longest_gap_ms``
+    longest interval between consecutive ``TECU_EstSoil`` frames in the
+    window.  Target <= 500.
+
+``--flood-requests N`` adds N J1939 Requests per second (for PGN 0xFEEB,
+from 0x33 to destination 0x00, the captured attack of issue 17) on top of
+the full bus; the figures above are then the ones under that flood
+(``flood_requests_per_s`` says which).  With SocketCAN the kernel filter
+drops them (they are not for us); on the ``virtual`` bus python-can filters
+them in Python, in the service's process.
+
 Also: ``bus``, ``where``, ``bus_frames_per_s`` (sent in the window),
 ``input_to_broadcast_latency_median_ms``, ``broadcasts_measured``, the
 service's counters (``service_counters``).
@@ -80,7 +91,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 CHANNEL = "vcan0"
-TARGETS = {"service_cpu_fraction_full_bus": 0.25, "broadcast_jitter_p99_ms": 5.0}
+TARGETS = {"service_cpu_fraction_full_bus": 0.25, "broadcast_jitter_p99_ms": 5.0, "broadcast_longest_gap_ms": 500.0}
 STARTUP_TIMEOUT_S = 120.0
 """Longest wait for the daemon's READY (imports, estimator compilation on a cold cache)."""
 SETTLE_S = 3.0
@@ -128,12 +139,23 @@ def make_load(work: Path, seconds: float) -> tuple[Path, float]:
     return rec, first.t
 
 
-def all_frames(rec: Path, t_first: float, seconds: float) -> Iterator[tuple[float, int, bytes]]:
-    """Relevant and other frames merged in time order (lazily)."""
+def request_flood(t0: float, seconds: float, rate: float) -> Iterator[tuple[float, int, bytes]]:
+    """``rate`` Requests per second for PGN 0xFEEB from 0x33 to destination 0x00 (not us)."""
+    can_id = (6 << 26) | (0xEA00 << 8) | (0x00 << 8) | 0x33
+    data = (0xFEEB).to_bytes(3, "little")
+    for k in range(int(seconds * rate)):
+        yield t0 + k / rate, can_id, data
+
+
+def all_frames(rec: Path, t_first: float, seconds: float, flood: float = 0.0) -> Iterator[tuple[float, int, bytes]]:
+    """Relevant and other frames (and the request flood) merged in time order (lazily)."""
     from tractionecu.bus.candump import read_candump
 
     relevant = ((f.t, f.can_id, f.data) for f in read_candump(rec / "can.log"))
-    return heapq.merge(relevant, other_traffic(t_first, seconds + SETTLE_S + 2.0))
+    streams = [relevant, other_traffic(t_first, seconds + SETTLE_S + 2.0)]
+    if flood > 0:
+        streams.append(request_flood(t_first, seconds + SETTLE_S + 2.0, flood))
+    return heapq.merge(*streams)
 
 
 def feed_nmea(master: int, rec: Path, shift: float, stop: threading.Event) -> None:
@@ -171,7 +193,8 @@ def timing_figures(ws: list[float], soil: list[float], g0: float, lag: float,
                    win0: float, win1: float) -> dict:
     """Jitter and input-to-broadcast latency from wheel-speed and TECU_EstSoil times [s]."""
     soil = [t for t in soil if win0 <= t < win1]
-    jitter = [abs((b - a) - 0.1) * 1e3 for a, b in zip(soil, soil[1:])]
+    intervals = [(b - a) * 1e3 for a, b in zip(soil, soil[1:])]
+    jitter = [abs(x - 100.0) for x in intervals]
     lat = []
     for tb in soil:
         k = math.floor((tb - lag - g0) * 100 + 1e-6)       # the step this broadcast came from
@@ -180,6 +203,7 @@ def timing_figures(ws: list[float], soil: list[float], g0: float, lag: float,
             lat.append((tb - ws[i]) * 1e3)
     return {
         "broadcast_jitter_p99_ms": p99(jitter),
+        "broadcast_longest_gap_ms": max(intervals) if intervals else math.nan,
         "input_to_broadcast_latency_p99_ms": p99(lat),
         "input_to_broadcast_latency_median_ms": float(sorted(lat)[len(lat) // 2]) if lat else math.nan,
         "broadcasts_measured": len(soil),
@@ -228,7 +252,7 @@ def config_text(channel: str, port: str, vehicle: Path, state: Path, options: li
 
 
 # ----------------------------------------------------------------------------- virtual bus (host)
-def run_virtual(seconds: float, options: list[str], work: Path) -> dict:
+def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0.0) -> dict:
     import can
 
     from tractionecu.service.config import load_config
@@ -259,7 +283,7 @@ def run_virtual(seconds: float, options: list[str], work: Path) -> dict:
 
     def play(shift: float) -> None:
         exclude.add(threading.get_native_id())
-        for t_rec, can_id, data in all_frames(rec, t_first, seconds):
+        for t_rec, can_id, data in all_frames(rec, t_first, seconds, flood):
             t = t_rec + shift
             d = t - time.time()
             if d > 0.0005 and stop.wait(d):
@@ -336,14 +360,14 @@ def in_guest() -> bool:
     return os.path.exists(f"/sys/class/net/{CHANNEL}")
 
 
-def run_vcan(seconds: float, options: list[str], work: Path) -> dict:
+def run_vcan(seconds: float, options: list[str], work: Path, flood: float = 0.0) -> dict:
     from tractionecu.bus import j1939
     from tractionecu.bus.candump import read_candump
     from tractionecu.pipeline.steps import GRID_MARGIN_S
 
     rec, t_first = make_load(work, seconds)
     with open(work / "bus.log", "w") as fh:
-        for t, can_id, data in all_frames(rec, t_first, seconds):
+        for t, can_id, data in all_frames(rec, t_first, seconds, flood):
             fh.write(f"({t:017.6f}) can0 {can_id:08X}#{data.hex().upper()}\n")
     master, slave = os.openpty()
     tty.setraw(slave)
@@ -421,6 +445,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bus", choices=("virtual", "vcan"), default="virtual",
                     help="virtual: python-can virtual bus on this machine (default); vcan: SocketCAN vcan0 in the "
                          "UML guest")
+    ap.add_argument("--flood-requests", type=float, default=0.0, metavar="N",
+                    help="add N Requests/s to another destination (0x00) to the full bus, e.g. 2500")
     ap.add_argument("--keep", metavar="DIR", default=None, help="copy the recording, logs and captures here")
     ap.add_argument("--option", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a daemon config key (TOML value), e.g. map.enabled=false; repeatable")
@@ -431,7 +457,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.bus == "vcan" and not in_guest():
         script = REPO / "tests" / "vcan" / "run-in-vcan.sh"
         cmd = ["bash", str(script), sys.executable, str(Path(__file__).resolve()), "--bus", "vcan",
-               "--json", str(out), "--seconds", str(args.seconds)]
+               "--json", str(out), "--seconds", str(args.seconds), "--flood-requests", str(args.flood_requests)]
         if args.keep:
             cmd += ["--keep", str(Path(args.keep).resolve())]
         for o in args.option:
@@ -440,12 +466,13 @@ def main(argv: list[str] | None = None) -> int:
         return subprocess.call(cmd, cwd=REPO)
     work = Path(tempfile.mkdtemp(prefix="tecu-bench-"))
     try:
-        res = (run_vcan if args.bus == "vcan" else run_virtual)(args.seconds, args.option, work)
+        res = (run_vcan if args.bus == "vcan" else run_virtual)(args.seconds, args.option, work, args.flood_requests)
     finally:
         if args.keep:
             shutil.copytree(work, args.keep, dirs_exist_ok=True)
         shutil.rmtree(work, ignore_errors=True)
     res["options"] = args.option
+    res["flood_requests_per_s"] = args.flood_requests
     for k, v in res.items():
         if k == "service_counters":
             continue
