@@ -81,3 +81,18 @@ def test_r_squared():
     y = np.linspace(0, 1, 11)
     assert r_squared(y, y) == 1.0
     assert r_squared(np.full(11, y.mean()), y) == pytest.approx(0.0)
+
+
+def test_grid_ends_with_the_wheel_speeds_whatever_runs_on(rec):
+    """A signal that runs on long after the drive-train (or a stray late time stamp) asks for no steps."""
+    from tractionecu.pipeline.replay import recording_grid
+    from tractionecu.pipeline.steps import GRID_MAX_GAP_S
+
+    r = read_recording(rec)
+    ws_end = float(r.signals["WheelSpeed_FL"].t[-1])
+    late = r.signals["DraftForce"]
+    late.t = np.append(late.t, ws_end + 3600.0 * 24 * 365)   # one draft sample a year later
+    late.value = np.append(late.value, late.value[-1])
+    late.sa = np.append(late.sa, late.sa[-1])
+    grid = recording_grid(r, 100.0)
+    assert grid[-1] <= ws_end + GRID_MAX_GAP_S

@@ -44,7 +44,7 @@ from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording
 from .gnss import GnssGate
 from .signals import ANCHOR_SIGNAL, missing_signals
-from .steps import GRID_MARGIN_S, build_grid, vector_steps
+from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid, vector_steps
 
 _BATCH = 2048
 """Estimates kept before they are copied into the result arrays (bounded memory, bulk copies)."""
@@ -110,7 +110,10 @@ def recording_grid(rec: Recording, rate_hz: float) -> np.ndarray:
     missing = missing_signals(rec)
     if missing:
         raise MissingSignals(rec, missing)
-    return build_grid(rec.signals[ANCHOR_SIGNAL].t, float(rec.t_end), rate_hz)
+    ws = rec.signals[ANCHOR_SIGNAL].t
+    # The grid ends with the data that drives the estimator: never more than a wheel-speed gap past the
+    # last wheel-speed frame, whatever other signal runs on (or whatever time an odd clock put there).
+    return build_grid(ws, min(float(rec.t_end), float(ws[-1]) + GRID_MAX_GAP_S), rate_hz)
 
 
 def machine_of(rec: Recording) -> tuple[VehicleParams, SensorSpec]:
