@@ -103,3 +103,25 @@ def test_importing_the_core_loads_no_simulation_scoring_diagnosis_or_cli():
     assert res.returncode == 0, res.stderr
     loaded = [m for m in json.loads(res.stdout.splitlines()[-1]) if _forbidden(m)]
     assert not loaded, f"importing {mods} loaded: {loaded}"
+
+
+def test_the_daemon_itself_does_not_load_asammdf():
+    """asammdf (the ``mf4`` extra: pandas, polars, lxml…) is for reading MF4 files off-board; the on-board
+    daemon imports it nowhere.  python-can (>= 4.4) loads it on ``import can`` when it is installed, for its
+    own MF4 reader and writer: that importer is the only one allowed."""
+    code = ("import json, sys\n"
+            "importers = []\n"
+            "class Watch:\n"
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name == 'asammdf':\n"
+            "            f = sys._getframe(1)\n"
+            "            while f is not None and f.f_globals.get('__name__', '').startswith('importlib'):\n"
+            "                f = f.f_back\n"
+            "            importers.append(f.f_globals.get('__name__') if f is not None else None)\n"
+            "sys.meta_path.insert(0, Watch())\n"
+            "import tractionecu.service.daemon\n"
+            "print(json.dumps(importers))\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    importers = json.loads(res.stdout.splitlines()[-1])
+    assert set(importers) <= {"can.io.mf4"}, f"asammdf imported by {importers}"

@@ -200,6 +200,123 @@ def test_mf4_excerpt_decodes_like_the_same_frames_as_candump(tmp_path):
     assert 600 < rpm < 700                                # the engine idles at about 650 rpm
 
 
+CAN_DATA_FRAME = [("BusChannel", "u1"), ("ID", "<u4"), ("IDE", "u1"), ("DLC", "u1"), ("DataLength", "u1"),
+                  ("DataBytes", "u1", (8,)), ("Dir", "u1"), ("EDL", "u1"), ("ESI", "u1"), ("BRS", "u1")]
+
+
+def write_mf4(frames, path: Path) -> None:
+    """The frames as ASAM MDF 4 bus logging, laid out like a CANedge file: one ``CAN_DataFrame`` channel group
+    (a bus event of a CAN source) whose structure channel holds ``CAN_DataFrame.ID``, ``.IDE``, ``.DataBytes``…,
+    the time in float64 seconds after the header's start time."""
+    import datetime as dt
+
+    from asammdf import MDF, Signal, Source
+    from asammdf.blocks import v4_constants as v4c
+
+    start = float(np.floor(frames[0].t))     # whole seconds: t - start and start + (t - start) are then exact
+    rec = np.zeros(len(frames), dtype=[(f"CAN_DataFrame.{f[0]}", *f[1:]) for f in CAN_DATA_FRAME])
+    rec["CAN_DataFrame.BusChannel"] = 1
+    rec["CAN_DataFrame.ID"] = [f.can_id for f in frames]
+    rec["CAN_DataFrame.IDE"] = [f.is_extended for f in frames]
+    rec["CAN_DataFrame.DLC"] = rec["CAN_DataFrame.DataLength"] = [len(f.data) for f in frames]
+    for k, f in enumerate(frames):
+        rec["CAN_DataFrame.DataBytes"][k, :len(f.data)] = np.frombuffer(f.data, np.uint8)
+    src = Source("CAN", "CAN", "", v4c.SOURCE_BUS, v4c.BUS_TYPE_CAN)
+    mdf = MDF(version="4.11")
+    mdf.header.start_time = dt.datetime.fromtimestamp(start, tz=dt.timezone.utc)
+    mdf.append(Signal(rec, np.array([f.t for f in frames]) - start, name="CAN_DataFrame", source=src),
+               acq_name="CAN_DataFrame", acq_source=src)
+    cg = mdf.groups[0]
+    cg.channel_group.path_separator = ord(".")
+    cg.channels[0].name = "Timestamp"
+    mdf.save(str(path), overwrite=True)
+    mdf.close()
+
+
+@pytest.fixture(scope="module")
+def mf4_capture(short_recording, tmp_path_factory):
+    """The simulated recording with its CAN frames in ``can.mf4`` instead of ``can.log``."""
+    pytest.importorskip("asammdf")
+    d = tmp_path_factory.mktemp("mf4") / "rec"
+    d.mkdir()
+    for name in ("gps.nmea", "vehicle.toml"):
+        shutil.copy(short_recording / name, d / name)
+    write_mf4(frames_of(short_recording), d / "can.mf4")
+    return d
+
+
+def test_a_simulated_mf4_has_the_canedge_layout(mf4_capture):
+    from asammdf import MDF
+
+    def layout(path):
+        mdf = MDF(str(path))
+        try:
+            g = next(g for g in mdf.groups if g.channel_group.acq_name == "CAN_DataFrame")
+            cg = g.channel_group
+            return (cg.flags, cg.path_separator, cg.acq_source.bus_type,
+                    [(c.name, c.channel_type, c.data_type, c.bit_count, c.byte_offset) for c in g.channels])
+        finally:
+            mdf.close()
+
+    assert layout(mf4_capture / "can.mf4") == layout(MF4)
+
+
+def test_a_simulated_mf4_decodes_like_candump(mf4_capture, short_recording):
+    ref = read_recording(short_recording)
+    rec = read_recording(mf4_capture)
+    assert detect(mf4_capture / "can.mf4") == "mf4" and rec.stats.can_format == "mf4"
+    rs = rec.stats.files["can.mf4"]
+    assert rs.frames == ref.stats.files["can.log"].frames and not rs.rejected
+    assert list(rec.signals) == list(ref.signals) and list(rec.stats.messages) == list(ref.stats.messages)
+    # float64 seconds after a start time in whole seconds: the candump time stamps come back bit for bit
+    assert rec.stats.can_t_first == ref.stats.can_t_first and rec.stats.clock_note == ref.stats.clock_note
+    for name, s in ref.signals.items():
+        o = rec.signals[name]
+        np.testing.assert_array_equal(o.value, s.value, err_msg=name)
+        np.testing.assert_array_equal(o.sa, s.sa)
+        np.testing.assert_array_equal(o.t, s.t, err_msg=name)
+
+
+def test_inspect_and_replay_of_a_simulated_mf4_match_candump(mf4_capture, short_recording, capsys):
+    from tractionecu.cli.main import main
+
+    assert main(["inspect", str(short_recording)]) == 0
+    ref = capsys.readouterr().out
+    assert main(["inspect", str(mf4_capture)]) == 0
+    out = capsys.readouterr().out
+    assert "CAN capture format: mf4" in out and "can.mf4: " in out
+    same = (out.replace(str(mf4_capture), str(short_recording)).replace("can.mf4: ", "can.log: ")
+            .replace("CAN capture format: mf4", "CAN capture format: candump"))
+    assert same == ref
+    a = replay(read_recording(short_recording)).arrays
+    b = replay(read_recording(mf4_capture)).arrays
+    assert list(a) == list(b) and a["t"].size > 1000 and b["valid"][a["t"].size // 2:].all()
+    for k in a:
+        np.testing.assert_array_equal(np.asarray(b[k]), np.asarray(a[k]), err_msg=k)
+
+
+def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_path):
+    pytest.importorskip("asammdf")
+    import can
+
+    if not hasattr(can, "MF4Writer"):
+        pytest.skip("this python-can has no MF4 writer")
+    shutil.copytree(short_recording, tmp_path / "rec")
+    (tmp_path / "rec" / "can.log").unlink()
+    w = can.MF4Writer(str(tmp_path / "rec" / "can.mf4"))
+    for f in frames_of(short_recording):
+        w.on_message_received(can.Message(timestamp=f.t, arbitration_id=f.can_id, is_extended_id=f.is_extended,
+                                          data=f.data, channel=0))
+    w.stop()
+    ref = read_recording(short_recording)
+    rec = read_recording(tmp_path / "rec")
+    assert rec.stats.can_format == "mf4" and rec.stats.can_t_first == ref.stats.can_t_first
+    assert list(rec.signals) == list(ref.signals)
+    for name, s in ref.signals.items():
+        np.testing.assert_array_equal(rec.signals[name].value, s.value, err_msg=name)
+        np.testing.assert_array_equal(rec.signals[name].t, s.t, err_msg=name)
+
+
 def test_the_real_unfinalised_mf4_is_recognised():
     real = DATA.parents[2] / "shared" / "data" / "css-electronics-j1939" / "engine-bus-with-gnss.MF4"
     if not real.is_file():
