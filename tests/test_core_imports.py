@@ -125,3 +125,15 @@ def test_the_daemon_itself_does_not_load_asammdf():
     assert res.returncode == 0, res.stderr
     importers = json.loads(res.stdout.splitlines()[-1])
     assert set(importers) <= {"can.io.mf4"}, f"asammdf imported by {importers}"
+
+
+def test_the_daemon_process_keeps_asammdf_out():
+    """``tractionecu run`` (the daemon) does not carry asammdf, which python-can would import when installed."""
+    code = ("import sys\n"
+            "from tractionecu.cli.run import keep_mf4_reader_out\n"
+            "keep_mf4_reader_out()\n"
+            "import tractionecu.service.daemon\n"
+            "import can\n"
+            "print(sys.modules.get('asammdf') is None and 'pandas' not in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "True", out.stderr

@@ -63,9 +63,18 @@ def _config(args: argparse.Namespace):
     return with_overrides(cfg, **over) if over else cfg
 
 
+def keep_mf4_reader_out() -> None:
+    """Keep asammdf out of the daemon: python-can imports it at ``import can`` whenever it is installed
+    (the ``mf4`` extra, for its MF4 reader), and with pandas, polars and lxml it doubles the daemon's
+    memory after its imports (47 → 94 MB peak RSS measured); the daemon reads no MF4."""
+    if "can" not in sys.modules:
+        sys.modules.setdefault("asammdf", None)   # ``import asammdf`` then raises ImportError, which python-can expects
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if not args.simulate:
+        keep_mf4_reader_out()
         from ..service.daemon import run_service
 
         return run_service(cfg, status_stream=None if args.quiet or not sys.stdout.isatty() else sys.stdout)
