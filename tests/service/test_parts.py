@@ -251,6 +251,44 @@ async def test_network_answers_a_request_and_its_delayed_frame_is_cancelled_by_s
         assert len(cannot) == (0 if stop_first else 1)
 
 
+async def test_network_serves_requests_bounded_per_step_rate_limited_and_counts_the_rest() -> None:
+    from tractionecu.service.network import REQUEST_QUEUE_FRAMES
+
+    link = FakeLink()
+    net, mono = network(link, requests_per_tick=4)
+    await net.start()
+    mono.t += 0.3                                        # claimed: may answer
+    link.sent.clear()
+
+    def request(sa: int, da: int, pgn: int) -> None:
+        net.on_nm_frame(j1939.make_id(6, j1939.PGN_REQUEST, sa, da), j1939.request_data(pgn))
+
+    request(0x33, 0x00, 0xFEEB)                          # not for us (no kernel filter here)
+    for _ in range(50):
+        request(0x33, 0x90, 0xFEEB)                      # one waits, 49 join it
+    for pgn in range(0xFE00, 0xFE00 + REQUEST_QUEUE_FRAMES + 5):
+        request(0x34, 0x90, pgn)                         # distinct: the queue fills, the rest is shed
+    request(0x35, 0xFF, 0xFEEB)                          # the queue is full: shed as well
+    st = net.stats
+    assert st["requests_not_for_us"] == 1 and st["requests_coalesced"] == 49 and st["requests_shed"] == 7
+    assert net.waiting() == REQUEST_QUEUE_FRAMES
+    assert net.serve_requests() == 4 and net.waiting() == REQUEST_QUEUE_FRAMES - 4   # bounded per step
+    while net.serve_requests():
+        pass
+    assert st["requests"] == REQUEST_QUEUE_FRAMES and st["requests_nacked"] == REQUEST_QUEUE_FRAMES
+    nack = link.sent[0]
+    assert nack[0] == 0x18E8FF90 and nack[1] == bytes([1, 0xFF, 0xFF, 0xFF, 0x33, 0xEB, 0xFE, 0x00])
+    request(0x33, 0x90, 0xFEEB)                          # the same again within 0.1 s: not answered
+    net.serve_requests()
+    assert st["requests_rate_limited"] == 1 and len(link.sent) == REQUEST_QUEUE_FRAMES
+    mono.t += 0.11
+    request(0x33, 0x90, 0xFEEB)
+    net.serve_requests()
+    assert st["requests_nacked"] == REQUEST_QUEUE_FRAMES + 1
+    assert (st["network_management"] == 1 + 50 + REQUEST_QUEUE_FRAMES + 5 + 1 + 2
+            == st["requests_not_for_us"] + st["requests_coalesced"] + st["requests_shed"] + st["requests"])
+
+
 # ----------------------------------------------------------------------------- estimation loop
 def loop_part(estimator, **kw) -> tuple[EstimationLoop, StepAssembler]:
     steps = StepAssembler()

@@ -162,7 +162,8 @@ class CanLink:
         ``rx_frames``, ``tx_frames``, ``tx_errors``, ``tx_not_open``,
         ``opens``, ``open_failures``, ``link_failures``, ``rx_overflow``,
         ``rx_kernel_dropped`` (socketcan: frames the kernel dropped, buffer full),
-        ``stamp_fallback``, ``handler_errors``, ``silence_reopens``.
+        ``stamp_fallback``, ``handler_errors``, ``silence_reopens``,
+        ``filter_updates`` and ``filter_errors`` (:meth:`set_filters`).
     is_open:
         An :class:`asyncio.Event` set while the bus is open.
     """

@@ -10,8 +10,9 @@
   for a Cannot Claim, after the claimer's random delay (on the event loop);
   every change of our address is reported to :attr:`Network.on_address`
   (the service moves its kernel filters with it);
-* Requests wait in a bounded queue (``requests_shed`` when full) and are
-  served after the estimation step, at most ``broadcast.requests_per_tick``
+* Requests wait in a bounded queue (``requests_shed`` when full; a Request
+  identical to one already waiting, same ID and data, joins it and gets its
+  answer: ``requests_coalesced``) and are served after the estimation step, at most ``broadcast.requests_per_tick``
   per step (:meth:`Network.serve_requests`), so a request flood never delays
   the estimate.  A Request to another destination is not ours
   (``requests_not_for_us``; the kernel filter normally drops it first).
@@ -112,7 +113,7 @@ class Network:
         self.active = False
         self.on_address: Callable[[int | None], None] | None = None
         self._pending: set[asyncio.TimerHandle] = set()
-        self._requests: collections.deque[tuple[int, bytes]] = collections.deque()
+        self._requests: collections.OrderedDict[tuple[int, bytes], None] = collections.OrderedDict()
         self._answered: dict[tuple[int, int], float] = {}     # (pgn, requester) -> service time of the last answer
         self._deferred: set[int] = set()                      # requested PGNs with an answer scheduled
         self._reported: int | None = None
@@ -174,10 +175,12 @@ class Network:
             da = (can_id >> 8) & 0xFF
             if da != j1939.ADDRESS_GLOBAL and da != cl.address:
                 self.stats["requests_not_for_us"] += 1
+            elif (can_id, data) in self._requests:
+                self.stats["requests_coalesced"] += 1
             elif len(self._requests) >= REQUEST_QUEUE_FRAMES:
                 self.stats["requests_shed"] += 1
             else:
-                self._requests.append((can_id, data))
+                self._requests[(can_id, data)] = None
             return
         self._handle(can_id, data)
 
@@ -205,7 +208,7 @@ class Network:
         n = 0
         q = self._requests
         while q and n < self.cfg.requests_per_tick:
-            can_id, data = q.popleft()
+            (can_id, data), _ = q.popitem(last=False)
             n += 1
             self._request(can_id, data)
         return n
