@@ -429,6 +429,7 @@ def test_disk_full_keeps_estimating_reports_and_resumes(tmp_path: Path, recordin
                     f.write(b"\0" * 65536)
             except OSError:
                 pass
+        drain(bus)                                            # what queued while the disk was filled
         full = broadcasts(bus, 4.0)
         d.alive()
         log_full = d.text()
