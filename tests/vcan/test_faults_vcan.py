@@ -503,7 +503,8 @@ to_other = request(0x00, 0x33, 0xFEEB)       # the captured attack: Requests for
 to_us = request(us, 0x33, 0xFEEB)
 n = {"other": 0, "us": 0, "probe": 0, "errors": 0}
 probes = []                                  # (requested PGN, wall time sent): each must get its NACK
-print("go", flush=True)
+print("ready", flush=True)
+sys.stdin.readline()                         # go
 end = time.monotonic() + seconds
 nxt = time.monotonic()
 tick = 0
@@ -559,9 +560,11 @@ def test_request_flood_with_a_cpu_hog_keeps_broadcasting_and_answering(tmp_path:
         hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         time.sleep(1.0)
         flood = subprocess.Popen([sys.executable, "-c", REQUEST_FLOOD, "2500", "500", "15", str(SA)],
-                                 stdout=subprocess.PIPE, text=True)
-        assert flood.stdout is not None and flood.stdout.readline() == "go\n"   # the flood starts now
-        drain(bus)
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        assert flood.stdin is not None and flood.stdout is not None and flood.stdout.readline() == "ready\n"
+        drain(bus)                                   # then the flood starts: its first answer is not discarded
+        flood.stdin.write("go\n")
+        flood.stdin.flush()
         cpu0 = cpu_s(d.proc.pid), cpu_s(hog.pid)
         seen: list[float] = []
         nacks: dict[int, float] = {}
