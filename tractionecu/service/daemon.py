@@ -10,7 +10,9 @@ dispatcher          :class:`~.dispatch.FrameDispatcher`: each CAN frame and
                     network, or counted
 fixes               :class:`~.fixes.FixBuffer`: recent fixes for the map
 network             :class:`~.network.Network`: J1939 address claim,
-                    transmit, the estimate broadcast
+                    transmit, the estimate broadcast, Requests (served
+                    after each estimation step); our address moves the
+                    kernel filters (:func:`pgn_filters`)
 estimation          :class:`~.loop.EstimationLoop`: the estimator on its grid
 map, can, gps       :class:`~.mapwriter.MapWriter`, :class:`~.canlink.CanLink`,
                     :class:`~.gps.GpsReader`
