@@ -22,7 +22,8 @@ broadcast period late, or skipped steps, put the loop *behind*; once it has
 been behind for ``service.watchdog_behind_s`` the loop stops sending
 ``WATCHDOG=1`` (``watchdog_withheld`` counts such episodes), says why in
 ``STATUS=`` and the log, and systemd restarts the service after its
-``WatchdogSec=``.  The first step on schedule again resumes it.
+``WatchdogSec=``.  Steps on schedule again for :data:`RECOVER_S` resume it
+(a loop that skips ahead and at once falls behind again does not).
 
 The estimator is built in one place, :meth:`EstimationLoop.build_estimator`,
 from the machine of the configuration (:func:`estimator_machine`: the
