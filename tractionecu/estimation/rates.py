@@ -40,6 +40,10 @@ from typing import Mapping
 
 __all__ = ["BusRates", "PeriodTracker"]
 
+PERIOD_TOLERANCE = 1e-3
+"""A median within this relative distance of the period in use leaves it unchanged [-]: the same
+rate is not a new one (and the process noise is not rebuilt for it)."""
+
 
 class PeriodTracker:
     """Observed period of one stream from its arrival times (module doc).
@@ -92,6 +96,14 @@ class PeriodTracker:
         if not d > 0.0:                 # a repeated or backward time stamp
             return False
         self._last = t
+        if d <= self._gap_s and d <= self.max_interval_s:     # the usual case: one more interval
+            buf = self._buf
+            buf.append(d)
+            if self._long:
+                self._long.clear()
+            if len(buf) < self.window:
+                return False
+            return self._median()
         if d > self.max_interval_s or d == math.inf:    # a gap, or the first sample (d = inf)
             return False
         if d > self._gap_s:
@@ -101,20 +113,19 @@ class PeriodTracker:
                 return False
             self._buf = lng
             self._long = []
-        else:
-            self._long.clear()
-            self._buf.append(d)
-            if len(self._buf) < self.window:
-                return False
+        return self._median()
+
+    def _median(self) -> bool:
         b = sorted(self._buf)
         n = len(b)
         p = b[n // 2] if n % 2 else 0.5 * (b[n // 2 - 1] + b[n // 2])
         self._buf = []
         self.observed = True
-        changed = p != self.period
+        if abs(p - self.period) <= PERIOD_TOLERANCE * self.period:
+            return False            # the same rate: epoch-second time stamps differ in the last bits
         self.period = p
         self._gap_s = self.gap_periods * p
-        return changed
+        return True
 
 
 class BusRates:
@@ -154,6 +165,11 @@ class BusRates:
         """A new sample of ``key`` reached the estimator at step time ``t`` [s]."""
         if self.trackers[key].push(t):
             self.timeout_s[key] = self._timeout(key)
+
+    def refresh(self, key: str) -> None:
+        """Recompute the timeout of ``key`` after its tracker's ``push`` returned True (the
+        estimator calls the trackers' ``push`` directly on its 100 Hz path)."""
+        self.timeout_s[key] = self._timeout(key)
 
     def period(self, key: str) -> float:
         """Period of ``key`` in use [s] (observed, else configured)."""
