@@ -4,6 +4,9 @@ J1939 decoding goes by parameter group number, not by CAN identifier: the
 same PGN arrives from whatever source address the sending ECU claimed, and
 PDU1 PGNs also carry a destination address.  :class:`Codec` therefore
 indexes the DBC messages by PGN and ignores SA (and DA) when decoding.
+The module stays whole (over 500 lines): loading, the not-available rule,
+decoding, encoding and the owner's signal mapping all work on the one
+table of messages and raw ranges that :class:`Codec` builds from the DBCs.
 
 Units
 -----

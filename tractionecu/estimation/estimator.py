@@ -1,8 +1,9 @@
 """AUKF-FS estimator with a push API: ``Estimator.step(t, inputs, measurements) -> Estimate``.
 
 Its tuning, :class:`EstimatorConfig` and :func:`load_estimator_config`, lives
-in :mod:`.config` and is re-exported here.  The rest stays in one module
-(about 500 lines): the noise model, the step with its input holds, timeouts
+in :mod:`.config` and is re-exported here; the divergence monitor and the
+bus-rate trackers have their own modules.  The rest stays in one module
+(about 600 lines): the noise model, the step with its input holds, timeouts
 and status bits, and the hand-over to the curve fit act on one filter state
 in one order, which the paper's section 3 describes as one algorithm.
 
