@@ -42,7 +42,12 @@ def test_simulated_service_broadcasts_replay_estimates(short_recording: Path, tm
     def attach(machine) -> None:
         listener.append(can.Bus(interface="virtual", channel=machine.channel))
 
-    cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state")})
+    # Played 4x faster than real time, the default lag (10 ms of service time) is 2.5 ms of wall time:
+    # beside a CPU hog (CI_STRESS=1) frames arrived later than that and the step they belonged to had
+    # been taken.  Equality with replay needs every frame within the lag, which is what lag_s is for:
+    # 0.25 s of service time (62 ms wall), and catch-up before skipping 5 s (1.25 s wall).
+    cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state")},
+                         estimation={"lag_s": 0.25, "max_catch_up_s": 5.0})
 
     async def go():
         return await run_simulation(cfg, short_recording, speed=4.0, duration_s=8.0, before_play=attach)
