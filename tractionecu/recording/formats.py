@@ -299,8 +299,9 @@ def scan_screen(path: str | Path, rs: ReadStats) -> tuple[FrameTable, str]:
             ts = m.group("ts")
             if ts is None:
                 raise RecordingError(
-                    f"{p}: candump screen output without time stamps (line {lineno}); record with "
-                    "`candump -L` (or at least `candump -ta`)")
+                    f"{p}: candump screen output without time stamps (line {lineno}: what `candump can0` "
+                    "and `candump -x can0` print): the frames cannot be placed in time, nor aligned with "
+                    "the GNSS log; record with `candump -L can0` (or at least `candump -ta can0`)")
             tm = _screen_time(ts)
             if tm is None:
                 rs.reject("bad_timestamp", lineno, line)
