@@ -36,6 +36,16 @@ files themselves are given with ``--dbc`` to ``replay``, ``inspect`` and
 ``diagnose``.  The recording reader applies it
 (:func:`tractionecu.recording.reader.read_recording`).
 
+The drivetrain
+--------------
+A ``[drivetrain]`` table (top level, or ``[vehicle.drivetrain]``) says what
+drives the wheels (:class:`DrivetrainSpec`): ``kind = "hub"`` (per-wheel
+drive torques, the paper's tractor and the default), ``"mechanical"`` or
+``"power-split"`` (one engine: EEC1 torque, the gear ratio, final drive,
+front-axle lead, efficiency), how the wheel speeds come and whether the
+front-axle load is measured.  The pipeline picks the estimator from it and
+from the signals a recording carries (:mod:`tractionecu.pipeline.signals`).
+
 Vehicle defaults
 ----------------
 The paper's case study (Kobelski et al. 2020, section 5) gives: 80 kW total
@@ -313,6 +323,88 @@ def replace(obj: Any, **changes: Any) -> Any:
     return dataclasses.replace(obj, **changes)
 
 
+# ----------------------------------------------------------------------------- drivetrain
+DRIVETRAIN_KINDS = ("hub", "mechanical", "power-split")
+"""``[drivetrain] kind``: per-wheel drives; engine, gearbox and axles; a power-split (CVT) transmission."""
+
+WHEEL_SPEED_SOURCES = ("auto", "per-wheel", "per-axle", "machine")
+"""``[drivetrain] wheel_speeds``: how the bus gives the wheel speeds (``auto``: the best the recording has)."""
+
+LOAD_SENSING = ("front-axle", "none")
+"""``[drivetrain] load_sensing``: front-axle load pins, or none (rear load from the mass and the draft)."""
+
+GEAR_RATIO_SOURCES = ("bus", "learnt")
+"""``[drivetrain] gear_ratio``: ETC2's actual gear ratio (SPN 526), or learnt from engine speed over wheel speed."""
+
+FRONT_DRIVE = ("engaged", "disengaged")
+"""``[drivetrain] front_drive``: the mechanical front-wheel drive (MFWD) clutch."""
+
+
+@dataclass(frozen=True)
+class DrivetrainSpec:
+    """What drives the wheels and what the bus says about it (``[drivetrain]`` of ``vehicle.toml``).
+
+    ``hub`` is the paper's tractor: one drive torque per wheel.  ``mechanical``
+    and ``power-split`` have one engine: the drive torque at the wheels is
+    T_e·i·η, T_e the engine torque (J1939 EEC1 actual percent torque, SPN 513,
+    less the nominal friction percent torque, times the EC1 reference torque,
+    SPN 544), i = i_g·i_f the total ratio (ETC2 actual gear ratio, SPN 526,
+    or the ratio a CVT reports, times the final drive) and η the drivetrain
+    efficiency.  The estimator that runs on such a machine is
+    :mod:`tractionecu.estimation.machine`.
+
+    Defaults where a machine's figures are not given: the efficiency 0.88 is
+    the middle of the 0.85-0.90 transmission efficiency of tractor gearboxes
+    (ASABE D497.7 section 4.1.1 for gear transmissions); a front-axle lead of
+    1-5 % is what MFWD tractors are built with (ASABE D497 / manufacturers);
+    an engine flywheel with crankshaft of a 4-cylinder 3-4.5 l tractor diesel
+    has 1.5-3 kg·m² (2.0 here, an assumption).
+    """
+
+    kind: str = setting("hub", "hub | mechanical | power-split (see DRIVETRAIN_KINDS)")
+    final_drive_ratio: float = setting(0.0, "transmission output to rear wheel speed ratio i_f [-]; "
+                                       "0: not known (needed with gear_ratio = 'bus')", 0.0, 200.0)
+    gear_ratio: str = setting("bus", "bus (ETC2 actual gear ratio, SPN 526) | learnt (engine speed over wheel speed)")
+    efficiency: float = setting(0.88, "drivetrain efficiency engine to wheels η [-]", 0.3, 1.0)
+    efficiency_tolerance: float = setting(0.03, "relative uncertainty of η [-] (1σ): it bounds how well the "
+                                          "machine-level μ is known", 0.0, 0.5)
+    front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls)")
+    front_lead: float = setting(0.02, "front-axle lead: front over rear wheel circumferential speed, minus 1 [-] "
+                                "(1-5 % on MFWD tractors)", -0.1, 0.2)
+    front_torque_share: float = setting(-1.0, "share of the wheel torque to the front axle when a "
+                                        "centre differential or clutch sets it [-]; -1: rigid MFWD coupling "
+                                        "(the tyres share it)", -1.0, 1.0)
+    engine_friction_percent: float = setting(0.0, "nominal friction percent torque (J1939 EEC3 SPN 514) taken "
+                                             "off EEC1's indicated percent torque [%]", 0.0, 50.0)
+    engine_inertia_kgm2: float = setting(2.0, "engine flywheel and crankshaft inertia J_e [kg·m²] "
+                                         "(reflected to the wheels by the total ratio squared)", 0.0, 100.0)
+    wheel_speeds: str = setting("auto", "auto | per-wheel | per-axle (EBC2 relative speeds) | machine "
+                                "(one wheel-based speed)")
+    wheel_speed_radius_m: float = setting(0.0, "radius the tractor converts wheel speed to its wheel-based "
+                                          "speed with (CCVS1 / WBSD) [m]; 0: r0_m", 0.0, 2.5)
+    load_sensing: str = setting("none", "front-axle (load pins) | none (loads from the mass, the static front "
+                                "share and the draft)")
+
+    def __post_init__(self) -> None:
+        validate(self, "drivetrain")
+        for key, allowed in (("kind", DRIVETRAIN_KINDS), ("wheel_speeds", WHEEL_SPEED_SOURCES),
+                             ("load_sensing", LOAD_SENSING), ("gear_ratio", GEAR_RATIO_SOURCES),
+                             ("front_drive", FRONT_DRIVE)):
+            if getattr(self, key) not in allowed:
+                raise ConfigError(f"drivetrain.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
+        if not (self.front_torque_share == -1.0 or 0.0 <= self.front_torque_share <= 1.0):
+            raise ConfigError(f"drivetrain.front_torque_share = {self.front_torque_share!r}: a share in [0, 1], "
+                              "or -1 for a rigid coupling")
+        if self.kind != "hub" and self.gear_ratio == "bus" and not self.final_drive_ratio >= 1.0:
+            raise ConfigError(f"drivetrain.final_drive_ratio: needed for kind = {self.kind!r} with gear_ratio = "
+                              "'bus' (the wheel torque is the engine torque times gear and final drive ratios)")
+
+    @property
+    def engine_driven(self) -> bool:
+        """True for one engine through a transmission (mechanical, power-split)."""
+        return self.kind != "hub"
+
+
 # ----------------------------------------------------------------------------- vehicle
 @dataclass(frozen=True)
 class VehicleParams:
@@ -333,6 +425,8 @@ class VehicleParams:
     track_width_m: float = setting(1.8, "track width, wheel centre to wheel centre [m]", 0.5, 5.0)
     cd_area_m2: float = setting(4.5, "drag area C_d·A [m²]", 0.0, 50.0)
     max_wheel_torque_nm: float = setting(9000.0, "torque limit of one wheel drive [N·m]", 10.0, 1e5)
+    drivetrain: DrivetrainSpec = section(DrivetrainSpec, "what drives the wheels and what the bus says about it "
+                                                         "(also a top-level [drivetrain] table)")
 
     def __post_init__(self) -> None:
         validate(self, "vehicle")
@@ -387,10 +481,16 @@ class SensorSpec:
 # ----------------------------------------------------------------------------- vehicle files
 def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
     """(vehicle table, sensors table) of a parsed vehicle file: ``[vehicle]`` or top-level keys, optional
-    ``[sensors]`` (a ``[signals]`` table is :func:`load_signal_map`'s)."""
+    ``[sensors]`` (a ``[signals]`` table is :func:`load_signal_map`'s); a top-level ``[drivetrain]``
+    is the vehicle's."""
     sensors = data.get("sensors", {})
     if "vehicle" in data:
-        return data["vehicle"], sensors
+        veh = data["vehicle"]
+        if "drivetrain" in data and isinstance(veh, Mapping):     # a top-level [drivetrain] beside [vehicle]
+            if "drivetrain" in veh:
+                raise ConfigError("drivetrain: given twice ([drivetrain] and [vehicle.drivetrain])")
+            veh = {**veh, "drivetrain": data["drivetrain"]}
+        return veh, sensors
     return {k: v for k, v in data.items() if k not in ("sensors", "signals")}, sensors
 
 
