@@ -473,6 +473,18 @@ class SensorSpec:
     gps_hdop: float = setting(0.9, "typical HDOP [-] in open field with 15–20 satellites (GPS+Galileo+GLONASS)", 0.1, 99.0)
     gps_nsat: int = setting(16, "satellites used [-]", 4, 99)
     can_jitter_s: float = setting(0.0003, "CAN reception timestamp jitter [s]: arbitration delay of a 250 kbit/s bus at 30–50 % load is up to a few frame times (≈ 0.5 ms per 8-byte frame)", 0.0, 0.1)
+    # Tolerances: bounds of the systematic errors (gain, zero offset, latency) that noise figures do not
+    # describe.  A calibration leaves them inside these bounds; the data cannot identify them, so the
+    # estimator adds them to the uncertainty it reports (estimation/uncertainty.py), treating each bound
+    # ±b as a rectangular distribution of standard uncertainty b/√3 (GUM, JCGM 100:2008, 4.3.7).
+    torque_gain_tol_rel: float = setting(0.02, "drive-torque gain tolerance, ± relative [-]: inverter torque estimates from phase currents and a motor model (flux linkage and inductances drift with temperature) differ from a torque transducer by a few per cent of reading (Aarniovuori et al., 'Induction motor torque estimation accuracy using motor terminal variables', Lappeenranta University of Technology); 2 % for a calibrated drive", 0.0, 0.5)
+    torque_offset_tol_nm: float = setting(20.0, "drive-torque zero offset tolerance, ± [N·m]: phase-current sensor offsets of 0.1–0.3 % of full scale (closed-loop Hall sensors) at a 9 kN·m wheel-drive range", 0.0, 1e4)
+    axle_offset_tol_n: float = setting(300.0, "front-axle load-pin zero offset tolerance, ± [N]: temperature effect on zero ≈ 0.01 % FS/K of strain-gauge load pins (HBM: < 0.05 %/10 K) over a 30 K range on a 100 kN pin", 0.0, 1e5)
+    axle_gain_tol_rel: float = setting(0.005, "front-axle load-pin gain tolerance, ± relative [-]: sensitivity tolerance and temperature effect on span of calibrated load pins (0.2–0.5 % of reading)", 0.0, 0.5)
+    draft_offset_tol_n: float = setting(300.0, "draft load-pin zero offset tolerance, ± [N] (as axle_offset_tol_n: 0.3 % FS of a 100 kN pin over 30 K)", 0.0, 1e5)
+    draft_gain_tol_rel: float = setting(0.005, "draft load-pin gain tolerance, ± relative [-] (as axle_gain_tol_rel)", 0.0, 0.5)
+    gps_latency_tol_s: float = setting(0.1, "GNSS speed latency bound [s]: the solution of an epoch leaves the receiver 20–100 ms later (computation, then a GGA+RMC+VTG set takes ≈ 20 ms at 115 200 baud) and loggers stamp it on arrival", 0.0, 2.0)
+    rolling_radius_tol_rel: float = setting(0.03, "rolling-radius tolerance of the tyre, ± relative [-]: ETRTO / TRA dimension tolerance of ±3 % on an agricultural tyre's overall diameter, before wear and pressure; narrowed by self-calibration (estimation/calibration.py)", 0.0, 0.3)
 
     def __post_init__(self) -> None:
         validate(self, "sensors")
