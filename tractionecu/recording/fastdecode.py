@@ -45,10 +45,12 @@ dict — equals the per-frame reader's (:func:`.reference.read_can_per_frame`);
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
@@ -181,29 +183,42 @@ def _scan_lines(lines: list[str], lineno0: int, state: dict, rs: ReadStats, part
     parts.append((idx + (lineno0 + 1), t, cid, ext, dlc, pl))
 
 
-def scan_candump(path: str | Path, rs: ReadStats) -> FrameTable:
-    """All accepted frames of a candump file; lines, frames and rejects counted in ``rs`` exactly as
-    :func:`~tractionecu.bus.candump.read_candump` counts them.  OSError propagates."""
-    parts: list = []
+def empty_table() -> FrameTable:
+    """A :class:`FrameTable` without frames."""
+    e = np.empty(0, dtype=np.int64)
+    return FrameTable(e, np.empty(0), e.copy(), np.empty(0, dtype=bool), e.copy(), np.empty(0, dtype=np.uint64))
+
+
+def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUNK_CHARS) -> Iterator[FrameTable]:
+    """The accepted frames of a candump file, one :class:`FrameTable` per block of about ``chunk_chars``
+    characters (whole lines), in file order; counted in ``rs`` as by :func:`scan_candump`.  Memory is that
+    of one block, whatever the file's length.  OSError propagates."""
     state = {"t_max": -math.inf}
     lineno0 = 0
     carry = ""
+    parts: list = []
     with open(path, "r", encoding="utf-8", errors="replace", newline=None) as fh:
         while True:
-            block = fh.read(CHUNK_CHARS)
+            block = fh.read(chunk_chars)
             if not block:
                 break
             lines = (carry + block).split("\n")
             carry = lines.pop()
             _scan_lines(lines, lineno0, state, rs, parts)
             lineno0 += len(lines)
+            yield FrameTable(*parts.pop())
     if carry:
         _scan_lines([carry], lineno0, state, rs, parts)
+        yield FrameTable(*parts.pop())
+
+
+def scan_candump(path: str | Path, rs: ReadStats) -> FrameTable:
+    """All accepted frames of a candump file; lines, frames and rejects counted in ``rs`` exactly as
+    :func:`~tractionecu.bus.candump.read_candump` counts them.  OSError propagates."""
+    parts = list(iter_candump_tables(path, rs))
     if not parts:
-        e = np.empty(0, dtype=np.int64)
-        return FrameTable(e, np.empty(0), e.copy(), np.empty(0, dtype=bool), e.copy(), np.empty(0, dtype=np.uint64))
-    cols = [np.concatenate(c) for c in zip(*parts)]
-    return FrameTable(*cols)
+        return empty_table()
+    return FrameTable(*[np.concatenate(c) for c in zip(*(dataclasses.astuple(p) for p in parts))])
 
 
 # --------------------------------------------------------------------------- decoding
@@ -235,12 +250,17 @@ def _signal_values(payload: np.ndarray, start: int, length: int, signed: bool, i
     return v
 
 
-def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int) -> tuple[dict, dict, dict]:
+def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, tp: Reassembler | None = None,
+                 claims: dict | None = None) -> tuple[dict, dict, dict]:
     """Decode the frames of ``table`` as the per-frame reader does; fills ``stats``.
 
     Returns (messages, signals, claims): ``messages[name] = (lineno, t, sa)`` of
     the decoded frames of each message, ``signals[name] = (lineno, t, value,
     sa)``, ``claims[(sa, NAME)] = [first t, count, first line, Name]``.
+
+    A table read in blocks is decoded block after block with the same ``tp``
+    (multi-packet messages that span two blocks) and ``claims`` (added to);
+    ``stats.can_t_first``/``can_t_last`` are those of this table.
     """
     n = len(table)
     if n:
@@ -255,7 +275,7 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int) -> t
     msg_parts: dict[str, list] = {}                    # name -> [(rows, values dict | None)]
     sig_out: dict[str, list] = {}
     unknown_first: dict[int, int] = {}
-    claims: dict[tuple[int, int], list] = {}
+    claims = {} if claims is None else claims
     per_frame: list[int] = []
     # address claims (listed whatever their decode gives)
     for i in np.flatnonzero(ext & (pgn == j1939.PGN_ADDRESS_CLAIMED) & (table.dlc == 8)).tolist():
@@ -294,7 +314,7 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int) -> t
     # frames that need Codec.decode: wrong length (counted) or a layout not handled above, and the
     # multi-packet messages of known PGNs, each after its last TP.DT frame
     items = [(i, 0, int(cid[i]), table.data(i)) for i in per_frame]
-    tp = Reassembler()
+    tp = Reassembler() if tp is None else tp
     for i in np.flatnonzero(ext & np.isin(pgn, list(TRANSPORT_PGNS)) & (table.dlc == 8)).tolist():
         done = tp.feed(int(cid[i]), table.data(i))
         if done is not None and codec.message_for_pgn(done[0]) is not None:

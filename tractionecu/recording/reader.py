@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -80,7 +80,7 @@ __all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", 
 
 def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
                    signals: Mapping[str, tuple[str, float]] | None = None, gps: str | Path | None = None,
-                   clock: str = "auto") -> Recording:
+                   clock: str = "auto", keep: Callable[[str, set[str]], bool] | None = None) -> Recording:
     """Read a recording directory (or a lone candump file) into a :class:`Recording`.
 
     ``dbc``: the owner's DBC files, added to ``codec``'s (default: the
@@ -90,6 +90,8 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     ``gps``: the NMEA file (default: the directory's ``gps.nmea``, or for a
     single capture file ``<name>.nmea`` or ``gps.nmea`` beside it).
     ``clock``: ``auto``, ``report`` or ``keep`` (module doc, "Clocks").
+    ``keep(name, names seen)``: False keeps only a stub of that signal (its first and last time and
+    first number): a survey of a long recording that the replay then streams (:mod:`.chunks`).
 
     Raises :class:`~tractionecu.errors.RecordingError` naming the file (and
     line) when the path is missing, ``can.log`` is missing, unreadable,
@@ -128,7 +130,7 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     else:
         mapping = codec.resolve_mapping(signals or {})
     stats = RecordingStats()
-    decoded = _read_can(can_path, codec, stats)
+    decoded = _read_can(can_path, codec, stats, keep)
     sources = {name: codec.signals[name].message for name in decoded}
     for target, src, scale in mapping:
         s = decoded.get(src)
@@ -221,38 +223,65 @@ def _when(t: float) -> str:
 
 
 # --------------------------------------------------------------------------- CAN
-def _read_can(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
-    """Read and decode the CAN capture with the vectorised decoder (:mod:`.fastdecode`), whatever its format
-    (:mod:`.formats`).
+def _read_can(path: Path, codec: Codec, stats: RecordingStats,
+              keep: Callable[[str, set[str]], bool] | None = None) -> dict[str, Series]:
+    """Read and decode the CAN capture block by block (:mod:`.chunks`, :mod:`.fastdecode`), whatever its
+    format (:mod:`.formats`).
 
     For candump ``-L``: the same signals, statistics and counters as :func:`read_can_per_frame`.
+    ``keep(name, names seen so far)`` False makes a signal a stub (:func:`_stub`): its first and last time
+    and its first number, enough to tell it present, for a survey that must not hold a long recording.
     """
-    from . import fastdecode
-    from .formats import read_frames
+    from .chunks import ChunkDecoder, open_tables
 
     rs = ReadStats(source=path.name)
     stats.files[path.name] = rs
-    table, stats.can_format = read_frames(path, rs)
-    messages, signals, claims = fastdecode.decode_table(table, codec, stats, MAX_EXAMPLES)
+    stats.can_format, blocks = open_tables(path, rs)
+    dec = ChunkDecoder(codec, stats)
+    parts: dict[str, list] = {}
+    stubs: dict[str, list] = {}
+    for table in blocks:
+        for name, (t, v, sa) in dec.decode(table).items():
+            if keep is not None and not keep(name, parts.keys() | stubs.keys()):
+                st = stubs.get(name)
+                if st is None:
+                    st = stubs[name] = _stub_of(parts.pop(name, []))
+                _stub_add(st, t, v)
+                parts.setdefault(name, [])       # keeps the order of first appearance
+                continue
+            parts.setdefault(name, []).append((t, v, sa))
+    dec.finish()
     check_frames(path, rs, stats.can_format)
-    if len(table) >= 2:
-        dt = np.diff(table.t)
-        big = np.flatnonzero(dt > TIME_JUMP_S)
-        stats.n_time_jumps = int(big.size)
-        stats.time_jumps = [(float(table.t[i]), float(dt[i])) for i in big[:MAX_EXAMPLES]]
-    for msg, (_lines, arr, sa) in messages.items():
-        info = codec.message(msg)
-        ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s)
-        ms.count = int(arr.size)
-        vals, first, counts = np.unique(sa, return_index=True, return_counts=True)
-        for k in np.argsort(first, kind="stable").tolist():
-            ms.sources[int(vals[k])] = int(counts[k])
-        message_times(ms, arr)
-    stats.address_claims = sorted((AddressClaim(sa, name, t, n, line) for (sa, _), (t, n, line, name) in claims.items()),
-                                  key=lambda c: (c.t_first, c.sa))
-    return {name: Series(np.asarray(t, dtype=float), np.asarray(v, dtype=float), sa.astype(np.int16),
-                         codec.signals[name].unit)
-            for name, (_lines, t, v, sa) in signals.items()}
+    out = {}
+    for name, ps in parts.items():
+        if name in stubs:
+            t0, t1, v0 = stubs[name]
+            out[name] = Series(np.array([t0, t1]), np.array([v0, math.nan]), np.full(2, -1, dtype=np.int16),
+                               codec.signals[name].unit)
+            continue
+        out[name] = Series(np.concatenate([p[0] for p in ps]).astype(float, copy=False),
+                           np.concatenate([p[1] for p in ps]).astype(float, copy=False),
+                           np.concatenate([p[2] for p in ps]).astype(np.int16), codec.signals[name].unit)
+    return out
+
+
+def _stub_of(parts: list) -> list:
+    st = [math.nan, math.nan, math.nan]
+    for t, v, _ in parts:
+        _stub_add(st, t, v)
+    return st
+
+
+def _stub_add(st: list, t: np.ndarray, v: np.ndarray) -> None:
+    if not t.size:
+        return
+    if math.isnan(st[0]):
+        st[0] = float(t[0])
+    st[1] = float(t[-1])
+    if math.isnan(st[2]):
+        ok = np.flatnonzero(np.isfinite(v))
+        if ok.size:
+            st[2] = float(v[ok[0]])
 
 
 def check_frames(path: Path, rs: ReadStats, fmt: str = "candump") -> None:
