@@ -382,6 +382,7 @@ def test_wall_clock_steps_do_not_move_the_schedule(tmp_path: Path, recording: Pa
         fwd = broadcasts(bus, 3.0)
         subprocess.run(["date", "-s", "@%.3f" % (time.time() - 7200)], check=True, capture_output=True)
         back = broadcasts(bus, 3.0)
+        settle = broadcasts(bus, 3.0)
         d.alive()
         counters = d.stop()
     finally:
@@ -389,17 +390,20 @@ def test_wall_clock_steps_do_not_move_the_schedule(tmp_path: Path, recording: Pa
         pl.close()
         bus.shutdown()
         d.kill()
-    n = [len(x) for x in (before, fwd, back)]
-    gaps = [b - a for x in (before, fwd, back) for a, b in zip(x, x[1:])]
-    print(f"\nclock steps: EstSoil broadcasts in 3 s before / after +1 h / after -2 h: {n}; longest gap "
+    n = [len(x) for x in (before, fwd, back, settle)]
+    gaps = [b - a for x in (before, fwd, back, settle) for a, b in zip(x, x[1:])]
+    print(f"\nclock steps: EstSoil broadcasts in 3 s before / after +1 h / after -2 h / settling: {n}; longest gap "
           f"{max(gaps):.3f} s; service {counters['service']}; can {counters['can']}")
-    # A wall-clock schedule would stall for 1 h after +1 h (no broadcast at all) and skip 360 000 steps
-    # after -2 h.  The monotonic one keeps 10 Hz per monotonic second: every window has broadcasts, none
-    # is skipped, and over the 6 s after the steps the count is 60 up to the steps still to be caught up
-    # at the end (a loaded machine delays a step by up to estimation.max_catch_up_s = 1 s, 10 broadcasts;
-    # the delayed ones then fall into the next window, which is why single windows are not bounded to 30).
-    assert min(n) >= 15, n
-    assert 50 <= n[1] + n[2] <= 70, n
+    # A wall-clock schedule would stall for 1 h after +1 h (no broadcast at all) and skip 72 000 steps
+    # after -2 h (or send them in a burst).  The monotonic one keeps 10 Hz per monotonic second: every
+    # window has broadcasts and no step is skipped.  The counts are load-dependent in one way only: a
+    # starved guest delays steps (up to estimation.max_catch_up_s = 1 s, 10 broadcasts, before it would
+    # skip), and the delayed ones arrive in a later window (a loaded run gave [30, 20, 29]: the +1 h
+    # window lost 10 to the next).  So single windows are bounded loosely, and the 9 s after the first
+    # step, which includes a settling window to work off the backlog, carry 90 broadcasts up to one
+    # catch-up budget at either end.
+    assert min(n) >= 10, n
+    assert 80 <= n[1] + n[2] + n[3] <= 100, n
     assert counters["service"].get("skipped_steps", 0) == 0
 
 
