@@ -15,6 +15,7 @@ from ..config import from_mapping, load_toml, section, setting, to_toml, validat
 from ..errors import ConfigError
 from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import N_STATE
+from .calibration import CalibrationConfig
 from .supervisor import FuzzyConfig
 
 
@@ -89,7 +90,12 @@ class EstimatorConfig:
     curve_class_tau_s: float = setting(30.0, "forgetting time constant of the class evidence [s]", 1e-3, 1e6)
     curve_switch_min_delta: float = setting(10.0, "class switch needs the new class's log-likelihood this much better [nats]", 0.0, 1e9)
     curve_slip_corr_s: float = setting(0.5, "correlation time of the slip error for the class evidence [s]", 1e-3, 1e3)
+    # reported uncertainty (estimation/uncertainty.py)
+    systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
+                                                 "μ and ρ_s and the GNSS latency bound to the GNSS speed noise")
     fuzzy: FuzzyConfig = section(FuzzyConfig, "fuzzy supervisor breakpoints ([estimator.fuzzy])")
+    calibration: CalibrationConfig = section(CalibrationConfig, "rolling-radius self-calibration "
+                                                                "([estimator.calibration], estimation/calibration.py)")
 
     def __post_init__(self) -> None:
         validate(self, "estimator")
@@ -107,11 +113,12 @@ class EstimatorConfig:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "EstimatorConfig":
-        """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``)."""
+        """Build from a TOML table (``[estimator]`` with optional ``[estimator.fuzzy]``, ``[estimator.calibration]``)."""
         return from_mapping(cls, data, "estimator")
 
     def to_toml(self) -> str:
-        """TOML text with ``[estimator]`` and ``[estimator.fuzzy]`` tables, each key with its doc."""
+        """TOML text with ``[estimator]``, ``[estimator.fuzzy]`` and ``[estimator.calibration]`` tables, each key
+        with its doc."""
         return to_toml(self, "estimator")
 
 

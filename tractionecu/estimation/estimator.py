@@ -67,11 +67,13 @@ from ..model.vehicle import IX_MU, IX_RHO, IX_V, N_STATE, FilterModel
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
+from .calibration import RadiusCalibration
 from .curve import CurveEstimator
 from .divergence import DivergenceMonitor
 from .rates import BusRates
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
+from .uncertainty import SystematicUncertainty
 
 # ----------------------------------------------------------------------------- status bits
 WHEEL_TIMEOUT = 0x01
@@ -87,12 +89,17 @@ FILTER_LOST = 0x200
 """The filter lost the vehicle (:mod:`.divergence`) and was re-initialised; set until it re-converges."""
 STANDSTILL = 0x400
 """Ground speed below ``standstill_speed_mps``: ρ_s and slip are not supported by the data."""
+UNVERIFIED = 0x800
+"""The reported σ of μ or ρ_s is mostly the systematic part from the sensor tolerances (:mod:`.uncertainty`):
+it rests on bounds (sensor calibration, tyre radius, draft zero) the data cannot check.  A notice, not invalid."""
+
 
 STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed_timeout",
                 TORQUE_TIMEOUT: "torque_timeout", AXLE_TIMEOUT: "axle_load_timeout",
                 DRAFT_TIMEOUT: "draft_timeout", NOT_CONVERGED: "not_converged",
                 INPUT_REJECTED: "input_rejected", MEAS_GATED: "measurement_gated",
-                COV_REPAIRED: "covariance_repaired", FILTER_LOST: "filter_lost", STANDSTILL: "standstill"}
+                COV_REPAIRED: "covariance_repaired", FILTER_LOST: "filter_lost", STANDSTILL: "standstill",
+                UNVERIFIED: "unverified_assumptions"}
 INVALID_MASK = (WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED
                 | INPUT_REJECTED | FILTER_LOST | STANDSTILL)
 """Bits that make an estimate not ``valid`` (gating and a repaired covariance are notices only)."""
@@ -147,6 +154,19 @@ class Estimate:
     lost_since: float = math.nan
     """On the step the filter is declared lost: the time the lost period began [s] (estimates
     since then were not trustworthy, whatever they said); NaN on every other step."""
+    sigma_mu: Any = None
+    """Reported standard uncertainty of μ per wheel (4,) [-]: the filter's √P combined with the
+    systematic part from the sensor tolerances (:mod:`.uncertainty`); the band μ ± 2σ is meant to hold
+    the truth 95 % of the time.  ``P_diag`` stays the filter's own covariance."""
+    sigma_rho_s: float = math.nan
+    """Reported standard uncertainty of ρ_s [-] (as ``sigma_mu``)."""
+    radius_scale: Any = None
+    """Rolling-radius scale r_true / r_d per axle (front, rear) (2,) [-] from the self-calibration
+    (:mod:`.calibration`); NaN until estimated."""
+    radius_halfwidth: Any = None
+    """95 % half-width of ``radius_scale`` (2,) [-]; NaN until estimated."""
+    radius_applied: Any = None
+    """Scale the filter uses per axle (2,) [-]: 1 until the calibration's interval is tight enough."""
 
 
 # ----------------------------------------------------------------------------- estimator
@@ -189,6 +209,7 @@ class Estimator:
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._weight = vehicle.weight_n
+        self._unc = SystematicUncertainty(sp, vehicle) if cfg.systematic_uncertainty else None
         # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
         # the SensorSpec rates until enough samples were seen.
         self._rates = BusRates(
@@ -239,6 +260,16 @@ class Estimator:
         self._t_curve = -math.inf
         self._fz = np.zeros(4)
         self._rd = np.full(4, self.vehicle.r0_m)
+        # reported uncertainty (.uncertainty) and rolling-radius calibration (.calibration)
+        self._sys_var = np.zeros(5)
+        self._sys_flag = False
+        self._r_lat = 0.0
+        self._cal = RadiusCalibration(cfg.calibration) if cfg.calibration.enabled else None
+        self._kf = self._kr = 1.0
+        self._md_inv: NDArray[np.float64] | None = None
+        self._cal_blocks = 0
+        nan2 = np.full(2, np.nan)
+        self._rad = (nan2, nan2.copy(), np.ones(2))
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0}
         self._monitor.reset()
@@ -348,7 +379,7 @@ class Estimator:
                     a0, a1, a2, a3 = arr.tolist()
                     sm = a0 + a1 + a2 + a3           # = arr.sum(): also catches an overflowing sum
                     if math.isfinite(sm):
-                        u[:4] = arr
+                        u[:4] = arr if self._md_inv is None else arr * self._md_inv
                         self._md_sum = sm
                         t_in["Md"] = t
                     else:
@@ -473,13 +504,13 @@ class Estimator:
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
                 R = self._R_list(wl)
-                R.append(self._r_v)
+                R.append(self._r_v + self._r_lat)
                 wl.append(v_meas)
                 ukf.update(np.array(wl), _SL_WV, np.array(R))
             elif omega is not None:
                 ukf.update(omega, _SL_W, np.array(self._R_list(wl)))
             else:
-                ukf.update(np.array([v_meas]), _SL_V, np.array([self._r_v]))
+                ukf.update(np.array([v_meas]), _SL_V, np.array([self._r_v + self._r_lat]))
             g = ukf.last_gated
             out = ukf.last_outside          # bit j: output component j (ω1..4, v) outside the gate
             if omega is not None:
@@ -511,8 +542,54 @@ class Estimator:
                 self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
             self._adapt_mu = self._f * float(self._A[IX_MU].mean())
             self._Qbase = None
+            if self._unc is not None:
+                self._systematic(ukf)
         counters["chol_repairs"] = ukf.chol_repairs
-        return self._estimate(t, status, x, updated)
+        e = self._estimate(t, status, x, updated)
+        if self._cal is not None and v_meas is not None and omega is not None:
+            self._calibrate(t, v_meas, wl, e)
+        return e
+
+    # ------------------------------------------------------------------ uncertainty, radius calibration
+    def _systematic(self, ukf: UnscentedFilter) -> None:
+        """Systematic variances of μ and ρ_s, the GNSS latency term of R_v and the UNVERIFIED test
+        (:mod:`.uncertainty`), at the adaptation period."""
+        unc = self._unc
+        u = self._u
+        _, _, rdf, rdr = self.model.load_floats(float(u[4]))
+        ur = self._cal.radius_sigma(unc.u_r) if self._cal is not None else (unc.u_r, unc.u_r)
+        vm, vr = unc.variances(u[:4].tolist(), float(u[4]), float(u[5]), rdf * self._kf, rdr * self._kr, *ur)
+        sv = self._sys_var
+        sv[:4] = vm
+        sv[4] = vr
+        if not np.isfinite(sv).all():
+            sv[:] = 0.0
+        self._sys_flag = bool((sv > ukf.P.diagonal()[5:10]).any())
+        self._r_lat = unc.gnss_latency_var(self._dyn.accel)
+
+    def _calibrate(self, t: float, v_meas: float, wl: list[float], e: Estimate) -> None:
+        """Feed the radius calibration one GNSS epoch; apply a new scale (torques ÷ k, slip with k·r_d)."""
+        cal = self._cal
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        cs = self._curve_state
+        cal.push(t, v_meas, wl, rdf, rdr, e.mu.tolist(), self._dyn.accel, e.valid, cs.a, cs.class_name)
+        n = cal._axles[0].n
+        if n != self._cal_blocks:
+            self._cal_blocks = n
+            f, r = cal.state()
+            kf, kr = cal.applied
+            self._rad = (np.array([f.scale, r.scale]), np.array([f.halfwidth, r.halfwidth]), np.array([kf, kr]))
+            if kf != self._kf or kr != self._kr:
+                new_inv = np.array([1.0 / kf, 1.0 / kf, 1.0 / kr, 1.0 / kr])
+                old_inv = self._md_inv if self._md_inv is not None else np.ones(4)
+                self._u[:4] *= new_inv / old_inv          # the held torques in the new scale
+                self._md_inv = new_inv
+                self._kf, self._kr = kf, kr
+
+    def calibration_summary(self) -> dict[str, Any]:
+        """The rolling-radius calibration per axle (:meth:`.calibration.RadiusCalibration.summary`); empty
+        when it is disabled."""
+        return self._cal.summary() if self._cal is not None else {}
 
     def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
         """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""
@@ -539,6 +616,8 @@ class Estimator:
     def _slip(self, w: list[float], v: float) -> list[float]:
         """Slip per wheel (eq. 6, :func:`~tractionecu.model.vehicle.slip`) from floats, same operations."""
         _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        rdf *= self._kf
+        rdr *= self._kr
         va = abs(v)
         out = []
         for x, rd in zip(w, (rdf, rdf, rdr, rdr)):
@@ -558,15 +637,17 @@ class Estimator:
             status |= FILTER_LOST
         if x is None or ukf is None:
             nan4 = np.full(4, np.nan)
+            rad = self._rad
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
                             nan4.copy(), np.full(N_STATE, np.nan), math.nan, self._f, status | NOT_CONVERGED, False,
-                            0, self._curve_state.class_index)
+                            0, self._curve_state.class_index, math.nan, nan4.copy(), math.nan,
+                            rad[0], rad[1], rad[2])
         c_mu = cfg.conv_sigma_mu ** 2
         c_rho = cfg.conv_sigma_rho ** 2
         if JIT:
             _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
             buf = np.empty(22)
-            conv_p = _kernels.estimate_outputs(x, ukf.P, rdf, rdr, c_mu, c_rho, buf)
+            conv_p = _kernels.estimate_outputs(x, ukf.P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, buf)
             mu, s, omega, pd = buf[0:4], buf[4:8], buf[8:12], buf[12:22]
             v = float(x[IX_V])
         else:
@@ -601,5 +682,10 @@ class Estimator:
             self._held = (rho, s)
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
+        sig = np.sqrt(pd[5:10] + self._sys_var)
+        if self._sys_flag:
+            status |= UNVERIFIED
+        rad = self._rad
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
-                        self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index)
+                        self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index, math.nan,
+                        sig[:4], float(sig[4]), rad[0], rad[1], rad[2])
