@@ -103,6 +103,13 @@ STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed
 INVALID_MASK = (WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED
                 | INPUT_REJECTED | FILTER_LOST | STANDSTILL)
 """Bits that make an estimate not ``valid`` (gating and a repaired covariance are notices only)."""
+MACHINE_LEVEL = 0x4000
+"""One μ for the whole machine (:mod:`.machine`: an engine-driven tractor's bus supports no more): the same μ
+on every wheel.  A notice, not invalid."""
+DRAFT_NOT_SEPARATED = 0x8000
+"""No draft sensor: ρ_s and the implement's draft are one term of eq. 8; their sum is estimated and ρ_s is
+reported as NaN (:mod:`.machine`).  A notice, not invalid."""
+STATUS_NAMES.update({MACHINE_LEVEL: "machine_level", DRAFT_NOT_SEPARATED: "rho_s_and_draft_not_separated"})
 
 
 def status_names(status: int) -> list[str]:
