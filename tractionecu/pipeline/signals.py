@@ -25,10 +25,16 @@ the GNSS speed over ground of the recording's track):
 * ``hub``, the one the estimator runs (:data:`ESTIMATED_PROFILES`): the four
   wheel speeds and drive torques, the front-axle load, the draft and the
   GNSS speed;
-* ``mechanical``, listed for information until the estimator runs it: EEC1
-  percent torque with the EC1 reference torque, the ETC2 gear ratio, one
-  wheel-based speed (CCVS1, WBSD or EBC2's front axle), the draft and a
-  ground speed (GNSS or GBSD).
+* ``mechanical`` (also a power-split / CVT machine), run by the machine-level
+  estimator (:mod:`tractionecu.estimation.machine`) when ``vehicle.toml``
+  says ``[drivetrain] kind = "mechanical"`` or ``"power-split"``: EEC1
+  percent torque and engine speed with the EC1 reference torque, the ETC2
+  gear ratio, one wheel-based speed (CCVS1, WBSD or EBC2's front axle), the
+  draft and a ground speed (GNSS or GBSD).  Its signal table is
+  :data:`MACHINE_GROUPS`; without a draft it runs and says so (ρ_s and the
+  draft are not separable), without GBSD it takes the GNSS speed only.
+
+:func:`estimator_profile` names the profile a machine and a recording run.
 
 :func:`profile_status` tells which needs a recording meets and from which
 message; :func:`missing_signals` the signals it lacks, by default those
@@ -157,7 +163,96 @@ PROFILES: dict[str, tuple[Need, ...]] = {
 """Estimation profile -> its needs (module doc)."""
 
 ESTIMATED_PROFILES = ("hub",)
-"""The profiles the estimator runs; the others are listed for information."""
+"""The profile replay runs when ``vehicle.toml`` names no engine-driven drivetrain (the default); with
+``[drivetrain] kind = "mechanical"`` or ``"power-split"`` it runs ``mechanical``
+(:class:`~tractionecu.estimation.machine.MachineEstimator`, :func:`estimator_profile`)."""
+
+ENGINE_CURRENT_GEAR = "TransmissionCurrentGear"
+"""Gear engaged [-], negative in reverse, 0 neutral (J1939 ETC2, SPN 523)."""
+
+REAR_RELATIVE_SPEEDS = ("RelativeSpeedRearAxle1LeftWheel", "RelativeSpeedRearAxle1RightWheel")
+"""Rear wheel speeds relative to the front-axle speed [m/s] (J1939 EBC2, SPN 907, 908)."""
+
+FRONT_RELATIVE_SPEEDS = ("RelativeSpeedFrontAxleLeftWheel", "RelativeSpeedFrontAxleRightWheel")
+"""Front wheel speeds relative to the front-axle speed [m/s] (J1939 EBC2, SPN 905, 906)."""
+
+
+@dataclass(frozen=True)
+class SignalGroups:
+    """One estimator's signal table: key -> DBC signals, which keys are inputs, which are per-wheel vectors,
+    and the signal whose frames phase the step grid (:mod:`.steps`)."""
+
+    groups: dict[str, tuple[str, ...]]
+    inputs: frozenset[str]
+    vectors: frozenset[str]
+    anchor: str
+
+
+HUB_GROUPS = SignalGroups(GROUPS, frozenset(INPUT_GROUPS), VECTOR_KEYS, ANCHOR_SIGNAL)
+"""The hub estimator's table (:data:`GROUPS`)."""
+
+MACHINE_GROUPS = SignalGroups(
+    {"Te": (ENGINE_PERCENT_TORQUE,), "Tref": (ENGINE_REFERENCE_TORQUE,), "gear": (GEAR_RATIO,),
+     "Fzf": (FRONT_AXLE_LOAD,), "Fdx": (DRAFT,),
+     "we": (ENGINE_SPEED,), "vwb": (VEHICLE_SPEED,), "vwbsd": (WHEEL_BASED_SPEED,), "vfa": (FRONT_AXLE_SPEED,),
+     "rel_r": REAR_RELATIVE_SPEEDS, "vr": (GROUND_BASED_SPEED,), "dir": (WHEEL_BASED_DIRECTION,),
+     "cgear": (ENGINE_CURRENT_GEAR,)},
+    frozenset({"Te", "Tref", "gear", "Fzf", "Fdx"}), frozenset({"rel_r"}), ENGINE_SPEED)
+"""The machine-level estimator's table (:mod:`tractionecu.estimation.machine`):
+
+==========  =========================================  ===========  ==========================
+key         signal (message)                           role         unit
+==========  =========================================  ===========  ==========================
+``Te``      ``ActualEnginePercentTorque`` (EEC1)       input        % of the reference torque
+``Tref``    ``EngineReferenceTorque`` (EC1, TP)        input        N·m
+``gear``    ``TransmissionActualGearRatio`` (ETC2)     input        -
+``Fzf``     ``FrontAxleLoad``                          input        N (where load pins are fitted)
+``Fdx``     ``DraftForce`` (rear hitch status)         input        N (where the hitch has load pins)
+``we``      ``EngineSpeed`` (EEC1)                     measurement  rad/s; the grid anchor
+``vwb``     ``WheelBasedVehicleSpeed`` (CCVS1)         measurement  m/s
+``vwbsd``   ``WheelBasedMachineSpeed`` (WBSD)          measurement  m/s
+``vfa``     ``FrontAxleSpeed`` (EBC2)                  measurement  m/s
+``rel_r``   rear relative speeds (EBC2)                measurement  m/s, left and right
+``vr``      ``GroundBasedMachineSpeed`` (GBSD radar)   measurement  m/s
+``dir``     ``WheelBasedMachineDirection`` (WBSD)      measurement  0 reverse, 1 forward
+``cgear``   ``TransmissionCurrentGear`` (ETC2)         measurement  gear, < 0 in reverse
+==========  =========================================  ===========  ==========================
+"""
+
+MACHINE_REQUIRED: tuple[str, ...] = (ENGINE_SPEED, ENGINE_PERCENT_TORQUE, ENGINE_REFERENCE_TORQUE)
+"""Signals without which the machine-level estimator does not run: the grid follows the engine speed,
+and the wheel torque is the engine's.  It also needs one drive speed (the gear ratio, or a wheel-based
+speed to learn it from): :func:`machine_missing`."""
+
+DRIVE_SPEEDS: tuple[str, ...] = (GEAR_RATIO, VEHICLE_SPEED, WHEEL_BASED_SPEED, FRONT_AXLE_SPEED)
+"""Any one of these gives the machine-level estimator the speed of the driven wheels."""
+
+
+def estimator_profile(vehicle: Any) -> str:
+    """``"hub"`` or ``"mechanical"`` (engine-driven: mechanical and power-split) from ``[drivetrain] kind``."""
+    dt = getattr(vehicle, "drivetrain", None)
+    return "mechanical" if dt is not None and dt.engine_driven else "hub"
+
+
+def machine_missing(rec: Any, vehicle: Any = None) -> list[str]:
+    """The signals the machine-level estimator cannot run without that ``rec`` lacks (:data:`MACHINE_REQUIRED`,
+    one of :data:`DRIVE_SPEEDS`; with ``gear_ratio = "learnt"`` a wheel-based speed)."""
+    out = missing_signals(rec, MACHINE_REQUIRED)
+    speeds = DRIVE_SPEEDS
+    dt = getattr(vehicle, "drivetrain", None)
+    if dt is not None and dt.gear_ratio == "learnt":
+        speeds = DRIVE_SPEEDS[1:]
+    if all(signal_state(rec, n) != "found" for n in speeds):
+        out.append(" or ".join(speeds))
+    return out
+
+
+def required_missing(rec: Any, vehicle: Any) -> list[str]:
+    """The signals replay of ``rec`` lacks for the estimator ``vehicle`` runs (:func:`estimator_profile`)."""
+    if estimator_profile(vehicle) == "mechanical":
+        return machine_missing(rec, vehicle)
+    return missing_signals(rec)
+
 
 REPLAY_REQUIRED: tuple[str, ...] = WHEEL_SPEEDS + DRIVE_TORQUES
 """Signals without which replay does not run: the step grid follows the wheel speeds, and without drive
@@ -262,7 +357,9 @@ def motion(rec: Any) -> Motion:
 
 __all__ = ["ANCHOR_SIGNAL", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
            "ENGINE_REFERENCE_TORQUE", "ENGINE_SPEED", "ESTIMATED_PROFILES", "FRONT_AXLE_LOAD", "FRONT_AXLE_SPEED",
-           "GEAR_RATIO", "GNSS_SPEED", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
+           "GEAR_RATIO", "GNSS_SPEED", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
+           "SignalGroups", "estimator_profile", "machine_missing", "required_missing", "ENGINE_CURRENT_GEAR",
+           "REAR_RELATIVE_SPEEDS", "FRONT_RELATIVE_SPEEDS", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
            "INPUT_MESSAGES", "IN_WORK", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",
            "Need", "PARKING_BRAKE", "PROFILES", "REPLAY_REQUIRED", "SELECTED_GEAR", "SPEED_SIGNALS", "VECTOR_KEYS",
            "VEHICLE_SPEED", "WHEEL_BASED_SPEED", "WHEEL_SPEEDS", "missing_signals", "motion", "profile_status",

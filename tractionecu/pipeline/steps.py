@@ -76,27 +76,30 @@ def arrivals(src_t: NDArray[np.float64], grid: NDArray[np.float64]) -> tuple[NDA
 
 
 def vector_steps(signals: Mapping[str, Any], speed_t: NDArray[np.float64], speed: NDArray[np.float64],
-                 grid: NDArray[np.float64]) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
+                 grid: NDArray[np.float64], groups: Any = None) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
     """``(inputs, measurements)`` for every grid step of a whole recording (replay's form).
 
     ``signals`` maps DBC signal names to series with ``t`` and ``value``
     arrays (:class:`~tractionecu.recording.reader.Series`); ``speed_t`` and
     ``speed`` are the accepted GNSS epochs [s] and their speeds [m/s].  A
-    group with a missing or empty signal is never passed.
+    group with a missing or empty signal is never passed.  ``groups``: another estimator's signal table
+    (:class:`~.signals.SignalGroups`), default the hub estimator's.
     """
+    all_groups, input_keys, vector_keys = (GROUPS, INPUT_GROUPS, VECTOR_KEYS) if groups is None else \
+        (groups.groups, groups.inputs, groups.vectors)
     n = grid.size
     streams: list[tuple[str, bool, Any, list[bool]]] = []
-    for key, names in GROUPS.items():
+    for key, names in all_groups.items():
         series = [signals.get(nm) for nm in names]
         if any(s is None or len(s) == 0 for s in series):
             continue
         idx, new = arrivals(series[0].t, grid)  # type: ignore[union-attr]
         safe = np.maximum(idx, 0)
-        if key in VECTOR_KEYS:
+        if key in vector_keys:
             vals: Any = np.column_stack([s.value[safe] for s in series])  # type: ignore[union-attr]
         else:
             vals = series[0].value[safe].tolist()  # type: ignore[union-attr]
-        streams.append((key, key in INPUT_GROUPS, vals, new.tolist()))
+        streams.append((key, key in input_keys, vals, new.tolist()))
     if len(speed_t):
         gi, new_v = arrivals(np.asarray(speed_t, dtype=float), grid)
         streams.append((GNSS_SPEED, False, np.asarray(speed, dtype=float)[np.maximum(gi, 0)].tolist(), new_v.tolist()))
@@ -127,6 +130,9 @@ class StepAssembler:
     depth:
         Samples kept per group; must cover ``lag × rate`` of the fastest
         message plus a margin (default 256: 2.5 s of 100 Hz frames).
+    groups:
+        Another estimator's signal table (:class:`~.signals.SignalGroups`, with
+        its grid anchor); default the hub estimator's.
 
     Attributes
     ----------
@@ -138,9 +144,13 @@ class StepAssembler:
         Time of the first grid step [s] (first anchor frame + :data:`GRID_MARGIN_S`), or None.
     """
 
-    def __init__(self, depth: int = 256) -> None:
-        self._rings = {k: _Ring(depth) for k in (*GROUPS, GNSS_SPEED)}
-        self._signal_group = {names[0]: key for key, names in GROUPS.items()}
+    def __init__(self, depth: int = 256, groups: Any = None) -> None:
+        g = groups
+        self._groups, self._inputs, self._vectors, self._anchor_signal = (
+            (GROUPS, INPUT_GROUPS, VECTOR_KEYS, ANCHOR_SIGNAL) if g is None else
+            (g.groups, g.inputs, g.vectors, g.anchor))
+        self._rings = {k: _Ring(depth) for k in (*self._groups, GNSS_SPEED)}
+        self._signal_group = {names[0]: key for key, names in self._groups.items()}
         self.t_taken = -math.inf
         self.max_late_s = 0.0
         """Largest (last step time − sample time) of a late sample [s]: how much more lag was needed."""
@@ -163,12 +173,12 @@ class StepAssembler:
         """Add the decoded signals of one frame received at ``t`` [s]."""
         for first, key in self._signal_group.items():
             if first in values:
-                names = GROUPS[key]
-                if key in VECTOR_KEYS:
+                names = self._groups[key]
+                if key in self._vectors:
                     self._push(key, t, np.array([values[n] for n in names], dtype=float))
                 else:
                     self._push(key, t, values[first])
-        if self.anchor is None and ANCHOR_SIGNAL in values:
+        if self.anchor is None and self._anchor_signal in values:
             self.anchor = t + GRID_MARGIN_S
 
     def push_speed(self, t: float, speed_mps: float) -> None:
@@ -188,7 +198,7 @@ class StepAssembler:
             if hit is None or hit[1] == r.taken:
                 continue
             r.taken = hit[1]
-            (inputs if key in INPUT_GROUPS else meas)[key] = hit[2]
+            (inputs if key in self._inputs else meas)[key] = hit[2]
         if t > self.t_taken:
             self.t_taken = t
         return inputs, meas

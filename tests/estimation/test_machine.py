@@ -1,0 +1,183 @@
+"""Machine-level estimator (tractionecu.estimation.machine) on synthetic engine-driven runs.
+
+The plant here is a small two-axle model written for these tests (rigid MFWD with a front lead, per-wheel
+μ_i = a·g(s_i), a droop-governed engine, draft), sampled at J1939 periods with noise: it checks the
+estimator's bookkeeping and its machine-level claims, not the project's truth model (tractionecu.sim).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tractionecu.config import G, DrivetrainSpec, VehicleParams
+from tractionecu.estimation.estimator import STATUS_NAMES, status_names
+from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MachineEstimate,
+                                            MachineEstimator)
+from tractionecu.errors import EstimatorError
+from tractionecu.model.mucurve import SOIL_CLASSES
+from tractionecu.model.vehicle import rolling_radius
+
+STUBBLE = SOIL_CLASSES["stubble"]
+
+
+def mech_vehicle(**dt) -> VehicleParams:
+    spec = dict(kind="mechanical", final_drive_ratio=20.0, efficiency=0.88, front_lead=0.03)
+    spec.update(dt)
+    return VehicleParams(mass_kg=6300.0, drivetrain=DrivetrainSpec(**spec))
+
+
+def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n: float = 15000.0,
+          eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1):
+    """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value)."""
+    rng = np.random.default_rng(seed)
+    veh = mech_vehicle()
+    W = veh.weight_n
+    i_f = veh.drivetrain.final_drive_ratio
+    tref = 400.0
+    fzf = 0.4 * W - draft_n * veh.hitch_height_m / veh.wheelbase_m
+    fzr = W - fzf
+    rdf, rdr = rolling_radius(np.array([fzf / 2, fzr / 2]), veh).tolist()
+    k = (1 + lead) * rdr / rdf
+    jw = veh.wheel_inertia_kgm2
+    dt = 1e-3
+    n = int(seconds / dt)
+    w_set = 220.0                          # engine speed set point [rad/s] (2100 rpm)
+    v, w = 0.5, 0.5 / rdr                  # start rolling
+    truth = {"t": [], "mu": [], "rho_s": [], "v": [], "s_r": [], "s_f": []}
+    bus = []
+    i_tot = gear * i_f
+    J = veh.drivetrain.engine_inertia_kgm2 * i_tot ** 2 + 2 * jw * (1 + k * k)
+    t_next = {"eec1": 0.0, "etc2": 0.0, "ec1": 0.0, "ccvs": 0.0, "gbsd": 0.0, "hitch": 0.0, "gnss": 0.0}
+    period = {"eec1": 0.02, "etc2": 0.1, "ec1": 1.0, "ccvs": 0.1, "gbsd": 0.1, "hitch": 0.1, "gnss": 0.1}
+    for j in range(n):
+        t = j * dt
+        dn = draft_n * (1.0 + 0.1 * math.sin(0.5 * t))
+        we = w * i_tot
+        pct = float(np.clip(100.0 * 0.08 * (w_set - we) + 40.0, 0.0, 100.0))   # droop governor
+        M = pct / 100.0 * tref * i_tot * eta_true
+        s_r = 1 - v / (rdr * w)
+        s_f = 1 - v / (rdf * k * w)
+        mu_r = a * float(STUBBLE.g(s_r))
+        mu_f = a * float(STUBBLE.g(s_f))
+        fh = mu_r * fzr + mu_f * fzf
+        dw = (M - rdr * (mu_r + veh.rho_t) * fzr - k * rdf * (mu_f + veh.rho_t) * fzf) / J
+        dv = (fh - dn - rho_s * W) / veh.mass_kg
+        w += dt * dw
+        v += dt * dv
+        if j % 10 == 0:
+            truth["t"].append(t)
+            truth["mu"].append(fh / W)
+            truth["rho_s"].append(rho_s)
+            truth["v"].append(v)
+            truth["s_r"].append(s_r)
+            truth["s_f"].append(s_f)
+        for key in t_next:
+            if t + 1e-9 < t_next[key]:
+                continue
+            t_next[key] += period[key]
+            if key == "eec1":
+                bus.append((t, "Te", round(pct + rng.normal(0, 1.0))))
+                bus.append((t, "we", round(we * (1 + rng.normal(0, 0.001)) / (math.pi / 240)) * math.pi / 240))
+            elif key == "etc2":
+                bus.append((t, "gear", gear))
+                bus.append((t, "cgear", 4.0))
+            elif key == "ec1":
+                bus.append((t, "Tref", tref))
+            elif key == "ccvs":
+                bus.append((t, "vwb", w * veh.r0_m * (1 + rng.normal(0, 0.003))))
+            elif key == "gbsd":
+                bus.append((t, "vr", v * (1 + rng.normal(0, 0.01))))
+            elif key == "hitch":
+                bus.append((t, "Fdx", round((dn + rng.normal(0, 300)) / 10) * 10))
+            elif key == "gnss":
+                bus.append((t, "v", v + rng.normal(0, 0.05)))
+    return {k: np.array(x) for k, x in truth.items()}, bus
+
+
+INPUTS = {"Te", "Tref", "gear", "Fzf", "Fdx"}
+
+
+def run(est, bus, rate=100.0, drop=()):
+    """Step ``est`` on a 100 Hz grid with the latest new sample of each key (the pipeline's rule)."""
+    out = []
+    bus = [b for b in bus if b[1] not in drop]
+    j = 0
+    t_end = bus[-1][0]
+    for k in range(int(t_end * rate)):
+        t = (k + 1) / rate
+        inputs, meas = {}, {}
+        while j < len(bus) and bus[j][0] <= t:
+            _, key, val = bus[j]
+            (inputs if key in INPUTS else meas)[key] = val
+            j += 1
+        out.append(est.step(t, inputs, meas))
+    return out
+
+
+def _truth_at(truth, t):
+    i = np.clip(np.searchsorted(truth["t"], t, side="right") - 1, 0, len(truth["t"]) - 1)
+    return i
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    return plant()
+
+
+def test_machine_level_mu_and_rho_s_on_a_synthetic_run(synthetic) -> None:
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle())
+    out = run(est, bus)
+    assert all(isinstance(e, MachineEstimate) for e in out)
+    late = [e for e in out if e.t > 20.0]
+    assert np.mean([e.valid for e in late]) > 0.99, {n for e in late for n in status_names(e.status)}
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    rel = np.abs(mu - truth["mu"][i]) / truth["mu"][i]
+    assert rel.mean() < 0.03
+    rho = np.array([e.rho_s for e in late])
+    assert np.abs(rho - truth["rho_s"][i]).mean() < 0.015
+    for e in late[::100]:
+        assert e.status & MACHINE_LEVEL and not e.status & DRAFT_NOT_SEPARATED
+        assert np.all(e.mu == e.mu[0])                           # one μ for the machine, on every wheel
+        assert e.slip[0] == e.slip[1] and e.slip[2] == e.slip[3]  # slip per axle
+    a = late[-1].a
+    assert abs(a - 0.7) / 0.7 < 0.05
+
+
+def test_without_draft_the_sum_is_estimated_and_no_rho_s_is_reported(synthetic) -> None:
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle(), draft=False)
+    out = run(est, bus, drop={"Fdx"})
+    late = [e for e in out if e.t > 20.0]
+    assert late and all(e.status & DRAFT_NOT_SEPARATED for e in late)
+    assert all(math.isnan(e.rho_s) and math.isnan(e.P_diag[9]) for e in out)
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    total = np.array([e.resistance for e in late])
+    veh = mech_vehicle()
+    dn = 15000.0 * (1 + 0.1 * np.sin(0.5 * truth["t"][i]))
+    assert np.abs(total - (truth["rho_s"][i] + dn / veh.weight_n)).mean() < 0.02
+    assert "rho_s_and_draft_not_separated" in status_names(late[-1].status)
+    assert STATUS_NAMES[MACHINE_LEVEL] == "machine_level"
+
+
+def test_learnt_gear_ratio_without_etc2(synthetic) -> None:
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle(gear_ratio="learnt"))
+    out = run(est, bus, drop={"gear"})
+    late = [e for e in out if e.t > 20.0]
+    assert abs(late[-1].total_ratio - 80.0) / 80.0 < 0.02
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.04
+
+
+def test_hub_vehicle_is_refused_and_bad_input_is_counted() -> None:
+    with pytest.raises(EstimatorError, match="hub"):
+        MachineEstimator(VehicleParams())
+    est = MachineEstimator(mech_vehicle())
+    e = est.step(0.0, {"Te": float("nan"), "Tref": -3.0, "gear": None}, {"we": -1.0, "v": float("inf")})
+    assert not e.valid and est.counters["rejected_inputs"] == 1 and est.counters["rejected_measurements"] == 2

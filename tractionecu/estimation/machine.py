@@ -1,0 +1,645 @@
+"""Machine-level traction estimation for engine-driven tractors (mechanical and power-split drivetrains).
+
+The hub estimator (:mod:`.estimator`, paper section 3) needs a drive torque
+and a speed per wheel.  A tractor with one engine, a gearbox and a
+mechanical front-wheel drive (MFWD) puts one engine torque, one gear ratio
+and one or two wheel-based speeds on the bus (J1939 EEC1, ETC2, CCVS1 /
+WBSD, EBC2).  That supports one adhesion for the whole machine, not one
+per wheel: this module estimates what the signals support and says so.
+
+Level and what is claimed
+-------------------------
+The estimate is **machine level** (status bit :data:`MACHINE_LEVEL`):
+
+* one adhesion μ for all driven wheels, μ = ΣF_h / ΣF_z (the load-weighted
+  mean of the wheels' adhesions), written to all four wheels of the
+  :class:`~.estimator.Estimate` (the broadcast and the map carry it so,
+  flagged);
+* ρ_s, from eq. 8 with the measured draft; **without a draft sensor**
+  ρ_s and the implement's draft are one term of eq. 8 and cannot be
+  separated: the filter estimates their sum ρ_Σ = ρ_s + F_dx/(m g)
+  (:attr:`MachineEstimate.resistance`), sets :data:`DRAFT_NOT_SEPARATED`
+  and reports ρ_s as NaN, never as a number;
+* slip per axle, from the kinematics of the drivetrain (rear wheels at the
+  drive speed, front wheels ``front_lead`` faster when the MFWD is
+  engaged);
+* a of μ(s) from the machine-level (μ, s) pair (:mod:`.curve`), with the
+  effective slip s_e of the machine: g(s_e) = Σ_axles w_a g(s_a), w_a the
+  axle's share of the driven load, so that μ = a·g(s_e) holds exactly when
+  every wheel follows μ_i = a·g(s_i);
+* a variance of μ that includes the efficiency tolerance:
+  P_μ + (σ_η/η · μ)², σ_η/η = ``efficiency_tolerance`` (a bias the data
+  cannot reveal: η and a scale the force alike).
+
+Model
+-----
+State x = (ω, v, μ, ρ), ω the rear wheel angular speed [rad/s] (the
+drive speed; the drivetrain couples every wheel to it), v the ground speed,
+ρ = ρ_s (ρ_Σ without a draft sensor).  Inputs: the wheel torque
+
+    M = d · (p − p_f)/100 · T_ref · i · η,    i = i_g · i_f,
+
+p the EEC1 actual percent torque (SPN 513), p_f the nominal friction percent
+torque (``engine_friction_percent``), T_ref the EC1 reference torque
+(SPN 544), i_g the ETC2 actual gear ratio (SPN 526) or the ratio learnt from
+engine speed over wheel speed, i_f the final drive, η the efficiency, d = ±1
+the direction of travel.  With the MFWD engaged the front wheels turn at
+k = (1 + λ) r_r / r_f times ω (λ the front-axle lead); the power balance of
+the rigid drivetrain, summed eq. 2 over the wheels, and eq. 8 give
+
+    J_eq ω̇ = M − (μ + ρ_t sgn ω) · r_r (F_zr + (1+λ) F_zf)
+    m v̇   = μ (F_zr + F_zf) − F_dx − ρ m g sgn v,
+    J_eq  = J_e i² + 2 J_w (1 + k²)
+
+(front disengaged: the front wheels roll, F_h,f = −ρ_t F_zf, and only the
+rear load carries μ).  The axle loads are the measured front-axle load, or
+the static share less the draft's load transfer F_dx h_hitch / L; r_d per
+axle from eq. 9.  The right-hand side is constant between sign changes of ω
+and v, so one Euler step is its exact solution (the RK4 of the hub model
+reduces to it likewise).  Sigma points go through it in one vectorised call
+of the same :class:`~.ukf.UnscentedFilter`; Q is adapted by the same
+covariance matching and fuzzy supervisor (:mod:`.supervisor`).
+
+Measurements, in state units: the drive speed ω from the engine speed over
+the total ratio (EEC1 at 10-20 ms), else from the wheel-based speed (CCVS1
+or WBSD, over ``wheel_speed_radius_m``), else from EBC2's front-axle speed
+over (1 + λ) r_r; the ground speed from GBSD (radar) and the GNSS, each
+when it arrives.
+
+Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.special import erfcinv
+
+from ..config import G, SensorSpec, VehicleParams, setting, validate
+from ..errors import EstimatorError
+from ..model.vehicle import compiled, rolling_radius
+from .config import EstimatorConfig
+from .curve import CurveEstimator
+from .estimator import (COV_REPAIRED, DRAFT_TIMEOUT, GPS_TIMEOUT, INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED,
+                        STANDSTILL, TORQUE_TIMEOUT, WHEEL_TIMEOUT, AXLE_TIMEOUT, DRAFT_NOT_SEPARATED, INVALID_MASK,
+                        MACHINE_LEVEL, Estimate)
+from .rates import BusRates
+from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
+from .ukf import UnscentedFilter
+
+__all__ = ["DRAFT_NOT_SEPARATED", "MACHINE_LEVEL", "MachineEstimate", "MachineEstimator", "MachineSensors"]
+
+N_MACHINE = 4
+IX_W, IX_V, IX_MU, IX_RHO = 0, 1, 2, 3
+_OUT_W, _OUT_V, _OUT_VR = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class MachineSensors:
+    """Noise figures of the standard messages the machine-level estimator reads (R and input noise).
+
+    Sources: SAE J1939-71 resolutions (EEC1 engine speed 0.125 rpm/bit,
+    percent torque 1 %/bit; CCVS1 1/256 km/h/bit); the ripple of speeds
+    measured from tooth periods as for :class:`~tractionecu.config.SensorSpec`;
+    the engine ECU's torque is computed from the injected fuel quantity,
+    which makes its percent torque repeat within about ±2 % of the reference
+    in steady running (its bias is the efficiency tolerance's part);
+    Doppler radar ground-speed sensors are specified to 1-3 % of the speed on
+    field surfaces (e.g. the dickey-john RADAR III and Raven data sheets).
+    """
+
+    engine_speed_sigma_rel: float = setting(0.002, "engine-speed ripple, relative [-] (crank-wheel tooth periods)", 0.0, 0.5)
+    engine_speed_quant: float = setting(math.pi / 240.0, "engine-speed resolution [rad/s] (0.125 rpm/bit)", 1e-6, 10.0)
+    torque_sigma_pct: float = setting(2.0, "engine percent torque noise [%] of the reference torque", 0.0, 50.0)
+    torque_quant_pct: float = setting(1.0, "percent torque resolution [%] (1 %/bit)", 1e-3, 10.0)
+    wheel_speed_sigma_rel: float = setting(0.005, "wheel-based speed noise, relative [-]", 0.0, 0.5)
+    wheel_speed_sigma_abs: float = setting(0.005, "wheel-based speed noise floor [m/s]", 0.0, 1.0)
+    wheel_speed_quant: float = setting(1.0 / 256.0 / 3.6, "wheel-based speed resolution [m/s] (CCVS1 1/256 km/h)", 1e-6, 1.0)
+    radar_sigma_rel: float = setting(0.02, "radar ground-speed noise, relative [-] (1-3 % of speed)", 0.0, 0.5)
+    radar_sigma_abs: float = setting(0.01, "radar ground-speed noise floor [m/s]", 0.0, 1.0)
+
+    def __post_init__(self) -> None:
+        validate(self, "machine_sensors")
+
+
+@dataclass(slots=True)
+class MachineEstimate(Estimate):
+    """An :class:`~.estimator.Estimate` of the machine-level estimator (module doc): the same μ on every
+    wheel, slip per axle, ρ_s NaN without a draft sensor; plus its level and the resistance sum."""
+
+    level: str = "machine"
+    """``"machine"``: one μ for the machine (status :data:`MACHINE_LEVEL`)."""
+    resistance: float = math.nan
+    """ρ_s + F_dx/(m g) [-]: the sum eq. 8 resists with; the filter's state without a draft sensor."""
+    total_ratio: float = math.nan
+    """Engine to rear wheel speed ratio i in use [-] (bus or learnt)."""
+
+
+def _slip1(w: float, v: float, r_d: float) -> float:
+    """Eq. 6 of one wheel, as :func:`~tractionecu.model.vehicle.slip` computes it, with floats."""
+    vw = abs(r_d * w)
+    va = abs(v)
+    if max(vw, va) < 1e-6:
+        return 0.0
+    return 1.0 - va / vw if va <= vw else -1.0 + vw / va
+
+
+_ABSENT = object()
+_INPUT_KEYS = ("Te", "Tref", "gear", "Fzf", "Fdx")
+
+
+class MachineEstimator:
+    """Machine-level AUKF-FS for an engine-driven tractor (module doc).
+
+    Parameters
+    ----------
+    vehicle : the machine, with its ``[drivetrain]``.
+    cfg : tuning (the hub estimator's :class:`~.config.EstimatorConfig`).
+    sensors : the GNSS figures (``gps_speed_sigma``, ``gps_rate_hz``) and load-pin figures.
+    draft : whether the hitch measures the draft; False: ρ_s and draft are estimated as their sum.
+    front_load : whether the front-axle load is measured (default: ``[drivetrain] load_sensing``).
+    machine_sensors : noise of the standard messages (:class:`MachineSensors`).
+
+    ``step(t, inputs, measurements)`` takes the keys of
+    :data:`tractionecu.pipeline.signals.MACHINE_GROUPS` and the GNSS speed ``v``.
+    """
+
+    level = "machine"
+
+    def __init__(self, vehicle: VehicleParams, cfg: EstimatorConfig | None = None,
+                 sensors: SensorSpec | None = None, *, draft: bool = True, front_load: bool | None = None,
+                 machine_sensors: MachineSensors | None = None) -> None:
+        dt = vehicle.drivetrain
+        if not dt.engine_driven:
+            raise EstimatorError("MachineEstimator: the vehicle's [drivetrain] kind is 'hub' (per-wheel torques: "
+                                 "use Estimator)")
+        self.vehicle = vehicle
+        self.dt = dt
+        self.cfg = cfg = cfg or EstimatorConfig()
+        self.sensors = sp = sensors or SensorSpec()
+        self.ms = machine_sensors or MachineSensors()
+        self.draft = bool(draft)
+        self.front_load = (dt.load_sensing == "front-axle") if front_load is None else bool(front_load)
+        self.m = vehicle.mass_kg
+        self.W = vehicle.weight_n
+        self.engaged = dt.front_drive == "engaged"
+        self.lead = dt.front_lead if self.engaged else 0.0
+        self.r_ws = dt.wheel_speed_radius_m or vehicle.r0_m
+        self._gate = math.inf if cfg.gate_probability <= 0 else float(2.0 * erfcinv(cfg.gate_probability) ** 2)
+        self._q_tune = np.array([cfg.q_omega, cfg.q_v, cfg.q_mu, cfg.q_rho])
+        self._lo = np.array([-np.inf, -np.inf, cfg.mu_min, cfg.rho_min if draft else -1.0])
+        self._hi = np.array([np.inf, np.inf, cfg.mu_max, cfg.rho_max if draft else 5.0])
+        self._r_v = sp.gps_speed_sigma ** 2
+        self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
+        self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
+        bus = 0.01
+        self._rates = BusRates(
+            {"Te": bus, "gear": 0.1, "Fzf": 1.0 / sp.loadpin_rate_hz, "Fdx": 1.0 / sp.loadpin_rate_hz,
+             "omega": bus, "v": 1.0 / sp.gps_rate_hz},
+            {"Te": cfg.torque_timeout_s, "gear": cfg.torque_timeout_s, "Fzf": cfg.axle_timeout_s,
+             "Fdx": cfg.draft_timeout_s, "omega": cfg.wheel_timeout_s, "v": cfg.gps_timeout_s},
+            cfg.timeout_periods, cfg.rate_window, cfg.max_gap_s)
+        self._consts = np.array([vehicle.rho_t, self.W, self.m])
+        self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
+        grid = np.linspace(0.0, 1.0, 4001)
+        self._g_table = (self._cls0.g(grid), grid)
+        self.reset()
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self) -> None:
+        """Forget everything (as after power-up)."""
+        cfg = self.cfg
+        self.ukf: UnscentedFilter | None = None
+        self.t: float | None = None
+        self.t_init: float | None = None
+        self._in = {"Te": math.nan, "Tref": math.nan, "gear": math.nan, "Fzf": math.nan, "Fdx": math.nan}
+        self._t_in = {k: -math.inf for k in _INPUT_KEYS}
+        self._t_omega = -math.inf
+        self._t_v = -math.inf
+        self._last_v: float | None = None
+        self._dir = 1.0
+        self._t_dir_bus = -math.inf
+        self._ratio_learnt = math.nan
+        self._ratio_jump = 0
+        self._vwb: float | None = None
+        self._rates.reset()
+        self._fuzzy = FuzzySupervisor(cfg.fuzzy)
+        self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
+        self._cm = CovarianceMatching(N_MACHINE, cfg.adapt_window, cfg.adapt_min, cfg.adapt_max)
+        self._A = np.ones(N_MACHINE)
+        self._f = 1.0
+        self._adapt_mu = 1.0
+        self._t_adapt = -math.inf
+        self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu,
+                                     min_slip=cfg.curve_min_slip, class_tau_s=cfg.curve_class_tau_s,
+                                     slip_corr_s=cfg.curve_slip_corr_s,
+                                     switch_min_delta=cfg.curve_switch_min_delta)
+        self._curve_state = self._curve.state()
+        self._t_curve = -math.inf
+        self._held: tuple[float, list[float]] | None = None
+        self._Q_key: tuple | None = None
+        self._Q_val = np.zeros((N_MACHINE, N_MACHINE))
+        self._adapt_version = 0
+        self._loads_key: tuple[float, float] | None = None
+        self._loads = (math.nan,) * 4
+        self._terms_key: float | None = None
+        self._terms_val = (math.nan,) * 5
+        self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0}
+
+    # ------------------------------------------------------------------ drivetrain terms
+    def ratio(self) -> float:
+        """Engine to rear wheel speed ratio i = i_g·i_f [-] in use: ETC2's gear ratio times the final drive,
+        or the ratio learnt from engine speed over wheel speed; NaN while unknown."""
+        if self.dt.gear_ratio == "bus":
+            g = self._in["gear"]
+            if math.isfinite(g) and g > 0.0:
+                return g * self.dt.final_drive_ratio
+            if not self.dt.final_drive_ratio >= 1.0:
+                return self._ratio_learnt
+            return self._ratio_learnt if not math.isfinite(self._in["gear"]) else math.nan
+        return self._ratio_learnt
+
+    def loads(self) -> tuple[float, float, float, float]:
+        """(F_zf, F_zr [N], r_d front, r_d rear [m]): measured front-axle load, else the static share less
+        the draft's load transfer F_dx h_hitch / L; r_d per axle from eq. 9."""
+        key = (self._in["Fzf"], self._in["Fdx"])
+        if key == self._loads_key:
+            return self._loads
+        veh = self.vehicle
+        fzf = key[0] if self.front_load and math.isfinite(key[0]) else math.nan
+        if not math.isfinite(fzf):
+            fdx = key[1] if self.draft and math.isfinite(key[1]) else 0.0
+            fzf = veh.static_front_fraction * self.W - fdx * veh.hitch_height_m / veh.wheelbase_m
+            fzf = min(max(fzf, 0.05 * self.W), 0.95 * self.W)
+        fzr = self.W - fzf
+        rdf, rdr = rolling_radius(np.array([0.5 * fzf, 0.5 * fzr]), veh).tolist()
+        self._loads_key, self._loads = key, (fzf, fzr, rdf, rdr)
+        self._terms_key = None
+        return self._loads
+
+    def _terms(self, i_tot: float) -> tuple[float, float, float, float, float]:
+        """(A_w [N·m per unit μ], F_zd [N], c_free [N], J_eq [kg·m²], k front/rear angular speed [-])."""
+        fzf, fzr, rdf, rdr = self.loads()
+        if self._terms_key == i_tot:
+            return self._terms_val
+        self._terms_key = i_tot
+        self._terms_val = self._terms_of(i_tot, fzf, fzr, rdf, rdr)
+        return self._terms_val
+
+    def _terms_of(self, i_tot: float, fzf: float, fzr: float, rdf: float, rdr: float
+                  ) -> tuple[float, float, float, float, float]:
+        jw = self.vehicle.wheel_inertia_kgm2
+        if self.engaged:
+            k = (1.0 + self.lead) * rdr / rdf
+            a_w = rdr * (fzr + (1.0 + self.lead) * fzf)
+            return a_w, fzf + fzr, 0.0, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw * (1.0 + k * k), k
+        return rdr * fzr, fzr, self.vehicle.rho_t * fzf, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw, math.nan
+
+    # ------------------------------------------------------------------ process model
+    def fx(self, sig: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+        """One step of dt [s] for all sigma points (module doc); u = (M, A_w, F_zd, c_free, F_dx, J_eq)."""
+        return _machine_step(np.ascontiguousarray(sig), u, self._consts, float(dt))
+
+    def _Q(self, dt: float, u: NDArray[np.float64], t_te: float) -> NDArray[np.float64]:
+        key = (dt, self._i_last, self._in["Tref"], t_te, self._rates.period("Fdx"), float(u[5]), self._adapt_version)
+        if key == self._Q_key:
+            return self._Q_val
+        self._Q_key = key
+        self._Q_val = self._build_Q(dt, u, t_te)
+        return self._Q_val
+
+    def _build_Q(self, dt: float, u: NDArray[np.float64], t_te: float) -> NDArray[np.float64]:
+        q = self._q_tune * (self._f * dt) * self._A
+        Q = np.diag(q)
+        if self.cfg.input_noise:
+            J = float(u[5])
+            ms = self.ms
+            per_pct = self._in["Tref"] / 100.0 * self._i_last * self.dt.efficiency     # N·m at the wheels per %
+            s_m = per_pct * math.hypot(ms.torque_sigma_pct, ms.torque_quant_pct / math.sqrt(12.0))
+            Q[IX_W, IX_W] += (s_m / J) ** 2 * t_te * dt
+            if self.draft:
+                Q[IX_V, IX_V] += self._fd_var * self._rates.period("Fdx") * dt / (self.m * self.m)
+        return Q
+
+    def _pct_net(self) -> float:
+        return self._in["Te"] - self.dt.engine_friction_percent
+
+    def _torque(self, i_tot: float) -> float:
+        """Wheel torque M [N·m] of the held inputs (module doc), NaN while an input is unknown."""
+        return self._dir * self._pct_net() / 100.0 * self._in["Tref"] * i_tot * self.dt.efficiency
+
+    # ------------------------------------------------------------------ step
+    def step(self, t: float, inputs: Mapping[str, Any] | None = None,
+             measurements: Mapping[str, Any] | None = None) -> MachineEstimate:
+        """Advance to time t [s] with new inputs and measurements (any subset; see module doc)."""
+        cfg = self.cfg
+        t = float(t)
+        status = MACHINE_LEVEL | (0 if self.draft else DRAFT_NOT_SEPARATED)
+        predict_only = False
+        counters = self.counters
+        counters["steps"] += 1
+        rates = self._rates
+        # ---- inputs (zero-order hold, rejection)
+        if inputs:
+            for key in _INPUT_KEYS:
+                val = inputs.get(key, _ABSENT)
+                if val is _ABSENT:
+                    continue
+                fv = math.nan if val is None else float(val)
+                ok = math.isfinite(fv)
+                if key == "Te":
+                    ok = ok and -125.0 <= fv <= 125.0
+                elif key in ("Tref", "gear"):
+                    ok = ok and fv > 0.0
+                elif key == "Fzf":
+                    ok = ok and 0.0 < fv < self.W
+                if ok:
+                    self._in[key] = fv
+                    self._t_in[key] = t
+                    if key in rates.trackers and rates.trackers[key].push(t):
+                        rates.refresh(key)
+                elif key == "gear" and val is not None and fv == 0.0:
+                    self._in["gear"] = math.nan        # neutral: no drive through the gearbox
+                    self._t_in["gear"] = t
+                else:
+                    status |= INPUT_REJECTED
+        if status & INPUT_REJECTED:
+            counters["rejected_inputs"] += 1
+            predict_only = True
+        timeout = rates.timeout_s
+        if t - self._t_in["Te"] > timeout["Te"] or not math.isfinite(self._in["Tref"]):
+            status |= TORQUE_TIMEOUT
+            predict_only = True
+        if self.dt.gear_ratio == "bus" and t - self._t_in["gear"] > timeout["gear"] and not math.isfinite(
+                self._ratio_learnt):
+            status |= TORQUE_TIMEOUT
+            predict_only = True
+        if self.front_load and t - self._t_in["Fzf"] > timeout["Fzf"]:
+            status |= AXLE_TIMEOUT
+        if self.draft and t - self._t_in["Fdx"] > timeout["Fdx"]:
+            status |= DRAFT_TIMEOUT
+            predict_only = True
+        # ---- measurements
+        meas = measurements or {}
+        d = meas.get("dir")
+        if d is not None and (d == 0 or d == 1):               # WBSD SPN 1864: 0 reverse, 1 forward
+            self._dir = 1.0 if d == 1 else -1.0
+            self._t_dir_bus = t
+        cg = meas.get("cgear")
+        if cg is not None and math.isfinite(cg) and cg != 0 and t - self._t_dir_bus > cfg.gps_timeout_s:
+            self._dir = 1.0 if cg > 0 else -1.0                # ETC2 current gear: negative in reverse
+        vwb = None
+        for key in ("vwb", "vwbsd"):
+            x = meas.get(key)
+            if x is not None:
+                if math.isfinite(x) and x >= 0.0:
+                    vwb = float(x)
+                else:
+                    counters["rejected_measurements"] += 1
+        we = meas.get("we")
+        if we is not None and not (math.isfinite(we) and we >= 0.0):
+            counters["rejected_measurements"] += 1
+            we = None
+        vfa = meas.get("vfa")
+        if vfa is not None and not (math.isfinite(vfa) and vfa >= 0.0):
+            vfa = None
+        if vwb is not None:
+            self._vwb = vwb
+            if we is not None:
+                self._learn_ratio(float(we), vwb)
+        i_tot = self.ratio()
+        fzf, fzr, rdf, rdr = self.loads()
+        z_w = r_w = None
+        if we is not None and self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"]) and i_tot > 0:
+            s_e = self.ms.engine_speed_sigma_rel * we + self.ms.engine_speed_quant / math.sqrt(12.0)
+            z_w, r_w = self._dir * we / i_tot, (s_e / i_tot) ** 2
+        elif vwb is not None:
+            s_w = self.ms.wheel_speed_sigma_abs + self.ms.wheel_speed_sigma_rel * vwb
+            z_w, r_w = self._dir * vwb / self.r_ws, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / self.r_ws ** 2
+        elif vfa is not None and self.engaged:
+            s_w = self.ms.wheel_speed_sigma_abs + self.ms.wheel_speed_sigma_rel * vfa
+            den = (1.0 + self.lead) * rdr
+            z_w, r_w = self._dir * vfa / den, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / den ** 2
+        if z_w is not None:
+            self._t_omega = t
+            if rates.trackers["omega"].push(t):
+                rates.refresh("omega")
+        zv: list[tuple[int, float, float]] = []
+        vm = meas.get("v")
+        if vm is not None:
+            v_g = abs(float(vm)) * self._dir
+            if math.isfinite(v_g):
+                zv.append((_OUT_V, v_g, self._r_v))
+            else:
+                counters["rejected_measurements"] += 1
+        vr = meas.get("vr")
+        if vr is not None:
+            if math.isfinite(vr) and vr >= 0.0:
+                s_r = self.ms.radar_sigma_abs + self.ms.radar_sigma_rel * vr
+                zv.append((_OUT_VR, self._dir * float(vr), s_r * s_r))
+            else:
+                counters["rejected_measurements"] += 1
+        if zv:
+            self._t_v = t
+            self._last_v = zv[0][1]
+            if rates.trackers["v"].push(t):
+                rates.refresh("v")
+        if t - self._t_omega > timeout["omega"]:
+            status |= WHEEL_TIMEOUT
+        if t - self._t_v > timeout["v"]:
+            status |= GPS_TIMEOUT
+        M = self._torque(i_tot)
+        # ---- initialisation
+        ukf = self.ukf
+        if ukf is None:
+            if z_w is not None and math.isfinite(M) and not predict_only:
+                self._init_filter(t, z_w, r_w, M, i_tot)
+                self.t = t
+            return self._estimate(t, status | NOT_CONVERGED, None, i_tot)
+        # ---- predict
+        dt_s = t - self.t if self.t is not None else 0.0
+        if dt_s > cfg.max_gap_s:
+            counters["gap_resets"] += 1
+            self.ukf = None
+            self.t = t
+            return self._estimate(t, status | NOT_CONVERGED, None, i_tot)
+        if not math.isfinite(M):
+            M, i_tot = self._u_last[0], self._i_last
+        a_w, fzd, c_free, J, _ = self._terms(i_tot)
+        fdx = self._in["Fdx"] if self.draft and math.isfinite(self._in["Fdx"]) else 0.0
+        u = np.array([M, a_w, fzd, c_free, fdx, J])
+        self._u_last, self._i_last = u, i_tot
+        if dt_s > 0.0:
+            n_sub = max(1, int(math.ceil(dt_s / cfg.max_step_s - 1e-9)))
+            h = dt_s / n_sub
+            Q = self._Q(h, u, rates.period("Te"))
+            try:
+                for _ in range(n_sub):
+                    ukf.predict(u, h, Q)
+            except EstimatorError:
+                counters["resets"] += 1
+                self.ukf = None
+                return self._estimate(t, status | COV_REPAIRED | NOT_CONVERGED, None, i_tot)
+            if ukf.repaired_last:
+                status |= COV_REPAIRED
+            self.t = t
+        # ---- update
+        updated = False
+        if not predict_only and (z_w is not None or zv):
+            idx = ([_OUT_W] if z_w is not None else []) + [k for k, _, _ in zv]
+            z = ([z_w] if z_w is not None else []) + [x for _, x, _ in zv]
+            R = ([r_w] if z_w is not None else []) + [r for _, _, r in zv]
+            contiguous = idx[-1] - idx[0] == len(idx) - 1          # a slice: the filter's fast path
+            ukf.update(np.array(z), slice(idx[0], idx[-1] + 1) if contiguous else np.array(idx, dtype=np.intp),
+                       np.array(R))
+            if ukf.last_gated:
+                status |= MEAS_GATED
+                counters["gated"] += bin(ukf.last_gated).count("1")
+            if ukf.last_dof:
+                updated = True
+                counters["updates"] += 1
+                if cfg.adaptation:
+                    self._cm.push(*ukf.correction())
+        x = ukf.x
+        # ---- adaptation and supervisor (paper eqs. 16-17, FLS)
+        self._dyn.update(t, float(x[IX_V]), M)
+        if t - self._t_adapt >= cfg.adapt_period_s:
+            self._t_adapt = t
+            if cfg.adaptation:
+                self._A = self._cm.compute()
+            if cfg.supervisor:
+                self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
+            self._adapt_mu = self._f * float(self._A[IX_MU])
+            self._adapt_version += 1
+        counters["chol_repairs"] = ukf.chol_repairs
+        return self._estimate(t, status, x, i_tot, updated)
+
+    def _learn_ratio(self, we: float, vwb: float) -> None:
+        """Engine speed over wheel speed [-], smoothed; a change of more than 5 % held for three samples is a
+        gear change and is taken at once."""
+        if vwb < 0.3:                       # below 1 km/h the ratio of two quantised speeds means little
+            return
+        raw = we * self.r_ws / vwb
+        cur = self._ratio_learnt
+        if not math.isfinite(cur):
+            self._ratio_learnt = raw
+            return
+        if abs(raw / cur - 1.0) > 0.05:
+            self._ratio_jump += 1
+            if self._ratio_jump >= 3:
+                self._ratio_learnt = raw
+                self._ratio_jump = 0
+                self.counters["gear_changes"] += 1
+            return
+        self._ratio_jump = 0
+        self._ratio_learnt = cur + 0.05 * (raw - cur)
+
+    def _init_filter(self, t: float, w0: float, r_w: float, M: float, i_tot: float) -> None:
+        cfg = self.cfg
+        a_w, fzd, c_free, J, _ = self._terms(i_tot)
+        mu0 = float(np.clip(M / a_w - self.vehicle.rho_t * np.sign(w0), cfg.mu_min, cfg.mu_max))   # ω̇ = 0
+        if self._last_v is not None and t - self._t_v <= cfg.gps_timeout_s:
+            v0 = self._last_v
+        else:
+            _, _, _, rdr = self.loads()
+            v0 = rdr * w0 * (1.0 - 0.05)
+        fdx = self._in["Fdx"] if self.draft and math.isfinite(self._in["Fdx"]) else 0.0
+        rho0 = float(np.clip((mu0 * fzd - c_free - fdx) / self.W, self._lo[IX_RHO], self._hi[IX_RHO]))   # v̇ = 0
+        x0 = np.array([w0, v0, mu0, rho0])
+        sd = np.array([math.sqrt(r_w), cfg.sigma_v0, cfg.sigma_mu0, cfg.sigma_rho0])
+        self.ukf = UnscentedFilter(self.fx, x0, np.diag(sd * sd), (IX_W, IX_V, IX_V), alpha=cfg.alpha,
+                                   beta=cfg.beta, kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi,
+                                   gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+        self._u_last = np.array([M, a_w, fzd, c_free, fdx, J])
+        self._i_last = i_tot
+        self.t_init = t
+
+    # ------------------------------------------------------------------ output
+    def _effective_slip(self, s_f: float, s_r: float, fzf: float, fzr: float) -> float:
+        """s_e with g(s_e) = Σ w_a g(s_a) (module doc), the first configured class's g."""
+        if not self.engaged:
+            return s_r
+        if not (math.isfinite(s_f) and math.isfinite(s_r)):
+            return math.nan
+        sign = 1.0 if s_r >= 0 else -1.0
+        g = self._cls0.g(np.array([abs(s_f), abs(s_r)]))
+        ge = (fzf * float(g[0]) + fzr * float(g[1])) / (fzf + fzr)
+        gs, sg = self._g_table
+        return sign * float(np.interp(ge, gs, sg))
+
+    def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, i_tot: float,
+                  updated: bool = False) -> MachineEstimate:
+        cfg = self.cfg
+        ukf = self.ukf
+        cs = self._curve_state
+        if x is None or ukf is None:
+            nan4 = np.full(4, np.nan)
+            return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
+                                   np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
+                                   cs.class_index, level=self.level, total_ratio=i_tot)
+        w, v, mu, rho = x.tolist()
+        P = ukf.P
+        pw, pv, pmu, prho = P[0, 0], P[1, 1], P[2, 2], P[3, 3]
+        fzf, fzr, rdf, rdr = self.loads()
+        k = (1.0 + self.lead) * rdr / rdf if self.engaged else math.nan
+        s_r = _slip1(w, v, rdr)
+        if self.engaged:
+            w_f = k * w
+            s_f = _slip1(w_f, v, rdf)
+        else:                                  # a rolling front axle: its speed is not modelled
+            w_f, s_f = math.nan, math.nan
+        s = [s_f, s_f, s_r, s_r]
+        # curve parameter a from the machine-level pair
+        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
+            self._t_curve = t
+            s_e = self._effective_slip(s_f, s_r, fzf, fzr)
+            sig_s = math.sqrt(pv) / max(rdr * abs(w), 1e-3)
+            self._curve_state = cs = self._curve.update(t, np.array([mu]), np.array([s_e]),
+                                                        np.array([math.sqrt(pmu)]), np.array([sig_s]))
+        conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
+                and pmu < cfg.conv_sigma_mu ** 2 and prho < cfg.conv_sigma_rho ** 2)
+        if not conv:
+            status |= NOT_CONVERGED
+        fdx = self._in["Fdx"] if self.draft and math.isfinite(self._in["Fdx"]) else math.nan
+        if self.draft:
+            rho_s, resistance = rho, rho + fdx / self.W
+        else:
+            rho_s, resistance = math.nan, rho
+        if abs(v) < cfg.standstill_speed_mps:
+            status |= STANDSTILL
+            if self._held is not None:
+                rho_s, s = self._held
+        elif conv:
+            self._held = (rho_s, s)
+        var_mu = pmu + (self.dt.efficiency_tolerance * mu) ** 2
+        var_w_f = k * k * pw if self.engaged else math.nan
+        pd = np.array([var_w_f, var_w_f, pw, pw, pv, var_mu, var_mu, var_mu, var_mu,
+                       prho if self.draft else math.nan])
+        nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
+        return MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
+                               np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
+                               (status & INVALID_MASK) == 0, dof, cs.class_index, level=self.level,
+                               resistance=resistance, total_ratio=i_tot)
+
+
+def _machine_step(sig, u, c, dt):                             # pragma: no cover - compiled
+    """:meth:`MachineEstimator.fx` for every row of sig (N, 4): the exact step of the piecewise-constant
+    right-hand side (module doc); u = (M, A_w, F_zd, c_free, F_dx, J_eq), c = (ρ_t, m g, m)."""
+    M, a_w, fzd, c_free, fdx, J = u[0], u[1], u[2], u[3], u[4], u[5]
+    rho_t, W, m = c[0], c[1], c[2]
+    out = sig.copy()
+    for p in range(sig.shape[0]):
+        w, v, mu, rho = sig[p, 0], sig[p, 1], sig[p, 2], sig[p, 3]
+        sw = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
+        sv = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else 0.0)
+        out[p, 0] = w + dt * (M - (mu + rho_t * sw) * a_w) / J
+        out[p, 1] = v + dt * (mu * fzd - c_free * sv - fdx - rho * W * sv) / m
+    return out
+
+
+_machine_step = compiled(_machine_step)
