@@ -33,7 +33,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -41,10 +41,13 @@ from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_t
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, Estimator, EstimatorConfig
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
-from ..recording.reader import Recording, read_recording
+from ..recording.clock import SPEED_SIGNALS as CLOCK_SPEEDS
+from ..recording.clock import WHEEL_SIGNALS as CLOCK_WHEELS
+from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
-from .signals import ANCHOR_SIGNAL, missing_signals
-from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid, vector_steps
+from .signals import (ANCHOR_SIGNAL, ENGINE_IDLE_SPEED, GNSS_SPEED, GROUPS, INPUT_GROUPS, PARKING_BRAKE,
+                      SELECTED_GEAR, SPEED_SIGNALS, VECTOR_KEYS, missing_signals)
+from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
 
 _BATCH = 2048
 """Estimates kept before they are copied into the result arrays (bounded memory, bulk copies)."""
@@ -87,15 +90,21 @@ class ReplayResult:
     counters: dict[str, int] = field(default_factory=dict)
     gnss: Counter[str] = field(default_factory=Counter)
     loop_seconds: float = 0.0
+    n_steps: int = -1
+    """Estimator steps run (-1: every one is in ``arrays``)."""
+    span_s: float = math.nan
+    """Span of the step grid [s] (NaN: from ``arrays``)."""
 
     @property
     def steps(self) -> int:
         """Number of estimator steps."""
-        return int(self.arrays["t"].size)
+        return int(self.arrays["t"].size) if self.n_steps < 0 else self.n_steps
 
     @property
     def sim_seconds(self) -> float:
         """Span of the step grid [s]."""
+        if not math.isnan(self.span_s):
+            return self.span_s
         t = self.arrays["t"]
         return float(t[-1] - t[0]) if t.size > 1 else 0.0
 
@@ -131,49 +140,204 @@ def replay(rec: Recording, *, rate_hz: float = 100.0, vehicle: VehicleParams | N
     ``vehicle`` and ``sensors`` default to the recording's ``vehicle.toml``
     (:func:`machine_of`); ``on_estimate`` is called with every
     :class:`~tractionecu.estimation.estimator.Estimate` in time order.
+    The recording is fed to the same step function as a streamed one, as one block.
     """
     if vehicle is None or sensors is None:
         v0, s0 = machine_of(rec)
         vehicle = vehicle or v0
         sensors = sensors or s0
-    gate = gate or GnssGate()
-    est = Estimator(vehicle, cfg or EstimatorConfig(), sensors)
-    gnss: Counter[str] = Counter()
-    gps_mask = gate.track_mask(rec.gps, gnss)
-    grid = recording_grid(rec, rate_hz)
-    steps = vector_steps(rec.signals, rec.gps.t[gps_mask], rec.gps.speed[gps_mask], grid)
-    sink = _Sink(grid)
-    step = est.step
-    keep = sink.keep
-    t_l = grid.tolist()
-    wall = time.perf_counter()
-    for t, (inputs, meas) in zip(t_l, steps):
-        e = step(t, inputs, meas)
-        keep(e)
-        if on_estimate is not None:
-            on_estimate(e)
-    sink.close()
-    return ReplayResult(sink.arrays(), float(rate_hz), gps_mask, dict(est.counters), gnss,
-                        time.perf_counter() - wall)
+    recording_grid(rec, rate_hz)                      # the checks (rate, required signals)
+    sink = _Sink(keep_all=True)
+    run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), sink, on_estimate)
+    run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
+    run.close()
+    return ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss,
+                        run.loop_seconds)
+
+
+# ----------------------------------------------------------------------------- streaming
+class _GridStream:
+    """:func:`~.steps.build_grid`'s grid, handed out as the anchor (wheel-speed) frames arrive.
+
+    A segment starts at an anchor frame + :data:`GRID_MARGIN_S` and ends at the last anchor frame before a
+    gap over :data:`GRID_MAX_GAP_S` (the last segment at the recording's end); step k of a segment that
+    starts at a and ends at b exists when ``k <= floor((b - a)·rate + 1e-9)``, the same arithmetic as
+    ``build_grid``, so the times are the same floats.
+    """
+
+    def __init__(self, rate_hz: float) -> None:
+        self.rate = float(rate_hz)
+        self.a = math.nan                 # start of the open segment [s]
+        self.k = 0                        # next step index in it
+        self.last = math.nan              # latest anchor time [s]
+        self.closed: list[tuple[float, int, int]] = []   # (start, next k, steps) of segments ended by a gap
+
+    def _n(self, b: float) -> int:
+        return int(math.floor((float(b) - self.a) * self.rate + 1e-9)) + 1
+
+    def anchors(self, t: np.ndarray) -> None:
+        """Take the next anchor frame times [s] (in order)."""
+        if t.size == 0:
+            return
+        if math.isnan(self.a):
+            self.a, self.k, self.last = float(t[0]) + GRID_MARGIN_S, 0, float(t[0])
+        prev = np.concatenate([[self.last], t[:-1]])
+        for i in np.flatnonzero(t - prev > GRID_MAX_GAP_S).tolist():
+            self.closed.append((self.a, self.k, self._n(prev[i])))
+            self.a, self.k = float(t[i]) + GRID_MARGIN_S, 0
+        self.last = float(t[-1])
+
+    def take(self, before: float, t_end: float | None = None) -> np.ndarray:
+        """The next steps earlier than ``before`` [s] that are certain; with ``t_end`` (the recording's end,
+        no anchor to come) all the rest."""
+        out = []
+        for a, k, n in self.closed:
+            out.append(a + np.arange(k, n) / self.rate)
+        self.closed.clear()
+        if math.isnan(self.a):
+            return np.concatenate(out) if out else np.empty(0)
+        n = self._n(t_end if t_end is not None else self.last)
+        if n > self.k:
+            g = self.a + np.arange(self.k, n) / self.rate
+            if t_end is None:
+                g = g[g < before]
+            self.k += g.size
+            out.append(g)
+        return np.concatenate(out) if out else np.empty(0)
+
+
+class _Group:
+    """One group of :data:`~.signals.GROUPS` (or the GNSS speed): the samples not yet passed, and which
+    was passed last (by its index in the whole recording): :func:`~.steps.vector_steps`' rule, block by
+    block."""
+
+    def __init__(self, key: str, names: tuple[str, ...], vector: bool) -> None:
+        self.key, self.names, self.vector = key, names, vector
+        self.t = np.empty(0)
+        self.v: list[np.ndarray] = [np.empty(0) for _ in names]
+        self.base = 0                     # index in the recording of self.t[0]
+        self.prev = -1                    # index passed at the last step
+
+    def push(self, t: np.ndarray, values: list[np.ndarray]) -> None:
+        self.t = np.concatenate([self.t, t]) if self.t.size else t
+        self.v = [np.concatenate([a, b]) if a.size else b for a, b in zip(self.v, values)]
+
+    def at(self, grid: np.ndarray) -> tuple[Any, list[bool]]:
+        """(values, new) at the steps ``grid`` [s]; keeps only the samples still needed."""
+        idx = np.searchsorted(self.t, grid, side="right") - 1
+        g = idx + self.base
+        g[idx < 0] = np.where(self.base > 0, self.base - 1, -1)
+        prev = np.concatenate([[self.prev], g[:-1]])
+        new = (g >= 0) & (g != prev)
+        safe = np.maximum(idx, 0)
+        if self.vector:
+            vals: Any = np.column_stack([v[safe] for v in self.v]) if self.t.size else None
+        else:
+            vals = self.v[0][safe].tolist() if self.t.size else None
+        if grid.size:
+            self.prev = int(g[-1])
+            cut = max(int(idx[-1]), 0)
+            if cut:
+                self.t = self.t[cut:]
+                self.v = [v[cut:] for v in self.v]
+                self.base += cut
+        return vals, new.tolist()
+
+
+class _Run:
+    """The estimator fed block by block: signals in, steps out (the step function every replay uses)."""
+
+    def __init__(self, rec: Recording, rate_hz: float, vehicle: VehicleParams, sensors: SensorSpec,
+                 cfg: EstimatorConfig, gate: GnssGate, sink: "_Sink",
+                 on_estimate: Callable[[Estimate], None] | None) -> None:
+        self.est = Estimator(vehicle, cfg, sensors)
+        self.gnss: Counter[str] = Counter()
+        self.gps_mask = gate.track_mask(rec.gps, self.gnss)
+        self.sink = sink
+        self.on_estimate = on_estimate
+        self.grid = _GridStream(rate_hz)
+        # groups the recording carries (as vector_steps: every signal present with samples)
+        self.groups = [_Group(key, names, key in VECTOR_KEYS) for key, names in GROUPS.items()
+                       if all(nm in rec.signals and len(rec.signals[nm]) for nm in names)]
+        self.speed = _Group(GNSS_SPEED, (GNSS_SPEED,), False)
+        if self.gps_mask.any():
+            self.speed.push(np.asarray(rec.gps.t[self.gps_mask], dtype=float),
+                            [np.asarray(rec.gps.speed[self.gps_mask], dtype=float)])
+        ws = rec.signals.get(ANCHOR_SIGNAL)
+        self.ws_last = float(ws.t[-1]) if ws is not None and len(ws) else math.nan
+        self.t_end = float(rec.t_end)
+        self.loop_seconds = 0.0
+
+    def feed(self, signals: Mapping[str, tuple[np.ndarray, np.ndarray]], before: float) -> None:
+        """One block of signals (name -> (t, value), in time order); step every grid time before ``before``
+        [s] (the last frame time of the block: a later block may still hold a sample at that time)."""
+        for grp in self.groups:
+            cols = [signals.get(nm) for nm in grp.names]
+            if cols[0] is not None and cols[0][0].size:
+                grp.push(cols[0][0], [c[1] if c is not None else np.empty(0) for c in cols])
+        ws = signals.get(ANCHOR_SIGNAL)
+        if ws is not None:
+            self.grid.anchors(np.asarray(ws[0], dtype=float))
+        if math.isinf(before):
+            return
+        self._step(self.grid.take(before))
+
+    def close(self) -> None:
+        """No block to come: the steps up to the grid's end (:func:`recording_grid`)."""
+        if not math.isnan(self.ws_last):
+            self._step(self.grid.take(math.inf, min(self.t_end, self.ws_last + GRID_MAX_GAP_S)))
+        self.sink.close()
+
+    def _step(self, grid: np.ndarray) -> None:
+        if grid.size == 0:
+            return
+        streams = [(grp.key, grp.key in INPUT_GROUPS, *grp.at(grid)) for grp in self.groups]
+        if self.speed.t.size:
+            streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
+        step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
+        wall = time.perf_counter()
+        for k, t in enumerate(grid.tolist()):
+            inputs: dict[str, Any] = {}
+            meas: dict[str, Any] = {}
+            for key, is_input, vals, new in streams:
+                if new[k]:
+                    (inputs if is_input else meas)[key] = vals[k]
+            e = step(t, inputs, meas)
+            keep(e)
+            if cb is not None:
+                cb(e)
+        self.loop_seconds += time.perf_counter() - wall
+
+
+_MAP_FIELDS = ("t", "mu", "slip", "P_diag", "v", "rho_s", "soil_class", "valid", "status")
 
 
 class _Sink:
-    """Estimates into preallocated arrays, copied in batches of :data:`_BATCH` (bounded memory, bulk copies)."""
+    """Estimates in batches of :data:`_BATCH`: kept whole (``keep_all``), written to ``estimates.csv`` as
+    they age past ``hold_s`` (a lost filter marks the estimates since ``lost_since`` not valid, at most
+    ``lost_after_s`` + ``max_gap_s`` back), and those the map needs (the step at or just after each GNSS
+    epoch ``map_times``, and the first and last step) kept for the map."""
 
     _SCALARS = ("rho_s", "a", "v", "nis", "adapt")
     _VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", N_STATE))
 
-    def __init__(self, grid: np.ndarray) -> None:
-        n = grid.size
-        self.t = grid
-        self.scalars = {k: np.empty(n) for k in self._SCALARS}
-        self.vectors = {k: np.empty((n, m)) for k, m in self._VECTORS}
-        self.dof = np.empty(n, dtype=np.int64)
-        self.status = np.empty(n, dtype=np.int64)
-        self.valid = np.empty(n, dtype=bool)
-        self.cls: list[str] = []
+    def __init__(self, keep_all: bool, csv_fh: Any = None, hold_s: float = math.inf,
+                 map_times: np.ndarray | None = None) -> None:
+        self.keep_all = keep_all
+        self.fh = csv_fh
+        self.hold_s = hold_s
+        self.map_times = None if map_times is None else np.asarray(map_times, dtype=float) - 1e-9
+        self.map_k = 0                        # next GNSS epoch to find a step for
         self.batch: list[Estimate] = []
-        self.k0 = 0
+        self.pending: list[dict[str, Any]] = []     # batches not yet written
+        self.done: list[dict[str, Any]] = []        # batches kept whole
+        self.map_rows: list[dict[str, Any]] = []    # the steps the map needs
+        self.t_prev = -math.inf
+        self.last: dict[str, Any] | None = None
+        self.rows = 0
+        self.t_first = self.t_last = math.nan
+        self.written = 0
+        self.late_lost = 0
 
     def keep(self, e: Estimate) -> None:
         self.batch.append(e)
@@ -185,45 +349,120 @@ class _Sink:
     def _mark_lost(self, since: float) -> None:
         """The estimates since ``since`` [s] came from a lost filter: not valid, FILTER_LOST set."""
         self._flush()
-        k = int(np.searchsorted(self.t[:self.k0], since, side="left"))
-        self.valid[k:self.k0] = False
-        self.status[k:self.k0] |= FILTER_LOST
+        if self.written and (not self.pending or float(self.pending[0]["t"][0]) > since):
+            self.late_lost += 1                  # rows already written: cannot happen with replay_to_dir's hold_s
+        for group in (self.done, self.pending, self.map_rows):   # done and pending share their batches
+            for b in reversed(group):
+                k = int(np.searchsorted(b["t"], since, side="left"))
+                b["valid"][k:] = False
+                b["status"][k:] |= FILTER_LOST
+                if k > 0:
+                    break
 
     def _flush(self) -> None:
         b = self.batch
-        k0, k1 = self.k0, self.k0 + len(b)
-        for name, arr in self.scalars.items():
-            arr[k0:k1] = [getattr(e, name) for e in b]
-        for name, arr in self.vectors.items():
-            arr[k0:k1] = [getattr(e, name) for e in b]
-        self.dof[k0:k1] = [e.nis_dof for e in b]
-        self.status[k0:k1] = [e.status for e in b]
-        self.valid[k0:k1] = [e.valid for e in b]
-        self.cls.extend(e.soil_class for e in b)
-        self.k0 = k1
+        if not b:
+            return
+        arr: dict[str, Any] = {"t": np.array([e.t for e in b], dtype=float)}
+        for name in self._SCALARS:
+            arr[name] = np.array([getattr(e, name) for e in b], dtype=float)
+        for name, _m in self._VECTORS:
+            arr[name] = np.array([getattr(e, name) for e in b], dtype=float)
+        arr["nis_dof"] = np.array([e.nis_dof for e in b], dtype=np.int64)
+        arr["status"] = np.array([e.status for e in b], dtype=np.int64)
+        arr["valid"] = np.array([e.valid for e in b], dtype=bool)
+        arr["soil_class"] = [e.soil_class for e in b]
         b.clear()
+        if self.keep_all:
+            self.done.append(arr)
+        if self.fh is not None:
+            self.pending.append(arr)
+        if self.map_times is not None:
+            self._map_pick(arr)
+        self.last = arr
+        if not self.rows:
+            self.t_first = float(arr["t"][0])
+        self.t_last = float(arr["t"][-1])
+        self.rows += arr["t"].size
+        self._write(float(arr["t"][-1]) - self.hold_s)
+
+    def _map_pick(self, arr: dict[str, Any]) -> None:
+        t = arr["t"]
+        mt = self.map_times
+        hi = int(np.searchsorted(mt, t[-1], side="right"))        # epochs whose step is in this batch
+        pick = np.searchsorted(t, mt[self.map_k:hi], side="left")
+        self.map_k = hi
+        if self.rows == 0:
+            pick = np.concatenate([[0], pick])
+        pick = np.unique(pick)
+        if pick.size:
+            self.map_rows.append(_rows(arr, pick))
+
+    def _write(self, upto: float) -> None:
+        while self.pending and (float(self.pending[0]["t"][-1]) < upto):
+            b = self.pending.pop(0)
+            _write_rows(self.fh, b)
+            self.written += b["t"].size
 
     def close(self) -> None:
         self._flush()
+        if self.map_times is not None and self.last is not None:
+            last = _rows(self.last, np.array([self.last["t"].size - 1]))
+            if not self.map_rows or self.map_rows[-1]["t"][-1] != last["t"][0]:
+                self.map_rows.append(last)
+        if self.fh is not None:
+            self._write(math.inf)
+            if self.rows == 0:
+                self.fh.write("\n")
 
     def arrays(self) -> dict[str, Any]:
-        return {"t": self.t, **self.vectors, "nis_dof": self.dof, "status": self.status, "valid": self.valid,
-                "soil_class": self.cls, **self.scalars}
+        return _concat(self.done)
+
+    def map_arrays(self) -> dict[str, Any]:
+        return _concat(self.map_rows)
+
+
+def _rows(arr: dict[str, Any], k: np.ndarray) -> dict[str, Any]:
+    out = {name: (v[k] if isinstance(v, np.ndarray) else [v[i] for i in k.tolist()]) for name, v in arr.items()}
+    return out
+
+
+def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    if not parts:
+        out: dict[str, Any] = {"t": np.empty(0)}
+        for name in _Sink._SCALARS:
+            out[name] = np.empty(0)
+        for name, m in _Sink._VECTORS:
+            out[name] = np.empty((0, m))
+        out.update(nis_dof=np.empty(0, dtype=np.int64), status=np.empty(0, dtype=np.int64),
+                   valid=np.empty(0, dtype=bool), soil_class=[])
+        return out
+    out = {name: (np.concatenate([p[name] for p in parts]) if isinstance(parts[0][name], np.ndarray)
+                  else [x for p in parts for x in p[name]]) for name in parts[0]}
+    return out
 
 
 # ----------------------------------------------------------------------------- run directory
 def write_estimates_csv(path: Path, arrays: dict[str, Any]) -> None:
     """Write ``estimates.csv`` (columns :data:`CSV_COLUMNS`)."""
+    with open(path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(CSV_COLUMNS) + "\n")
+        if len(arrays["t"]):
+            _write_rows(fh, arrays)
+        else:
+            fh.write("\n")
+
+
+def _write_rows(fh: Any, arrays: dict[str, Any]) -> None:
+    """Rows of ``estimates.csv`` for the steps of ``arrays``, each ending in a newline."""
     left = np.column_stack([arrays["t"], arrays["mu"], arrays["rho_s"], arrays["a"]]).tolist()
     right = np.column_stack([arrays["slip"], arrays["v"], arrays["omega"], arrays["P_diag"], arrays["nis"],
                              arrays["nis_dof"], arrays["adapt"], arrays["status"], arrays["valid"]]).tolist()
     fl = "%.3f" + ",%.6g" * 6 + ",%s,"
     fr = ",".join(["%.6g"] * 20) + ",%d,%.4g,%d,%d"
     cls = arrays["soil_class"]
-    with open(path, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(",".join(CSV_COLUMNS) + "\n")
-        fh.write("\n".join([fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]))
-        fh.write("\n")
+    fh.write("\n".join([fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]))
+    fh.write("\n")
 
 
 def resolved_config(vehicle: VehicleParams, sensors: SensorSpec, cfg: EstimatorConfig, rate_hz: float,
@@ -235,48 +474,90 @@ def resolved_config(vehicle: VehicleParams, sensors: SensorSpec, cfg: EstimatorC
             + f"gnss_min_fix_quality = {gate.min_fix_quality}\ngnss_max_hdop = {float(gate.max_hdop)!r}\n")
 
 
+SURVEY_FULL = frozenset({*CLOCK_SPEEDS, *SPEED_SIGNALS, ENGINE_IDLE_SPEED, SELECTED_GEAR, PARKING_BRAKE})
+"""Signals a streamed replay's survey keeps whole (few samples; the clock offset and the motion report use them).
+The wheel speeds are kept too while no ground- or wheel-based speed has been seen (the clock offset falls
+back to them); every other signal is a stub."""
+
+
+def _survey_keep(name: str, seen: set[str]) -> bool:
+    if name in SURVEY_FULL:
+        return True
+    return name in CLOCK_WHEELS and not any(s in seen for s in CLOCK_SPEEDS)
+
+
 def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
                   cfg: EstimatorConfig | None = None, sensors: SensorSpec | None = None,
                   gate: GnssGate | None = None, write_map: bool = True,
-                  on_estimate: Callable[[Estimate], None] | None = None,
+                  on_estimate: Callable[[Estimate], None] | None = None, keep_arrays: bool | None = None,
                   ) -> tuple[dict[str, Any], Recording, ReplayResult]:
     """Read, replay and write ``estimates.csv``, ``config.toml`` and the map (module doc).
+
+    A recording given by its path is streamed: a survey (:func:`read_recording` keeping whole only the
+    few signals of :data:`SURVEY_FULL`) finds the signals, statistics and clock offset, then the capture is
+    read again block by block (:func:`~tractionecu.recording.reader.stream_signals`) into the estimator,
+    and ``estimates.csv`` is written as the steps age past the lost-filter window.  Memory does not grow
+    with the recording's length but for the GNSS track and the map's samples (one step per GNSS epoch).
+    The result's ``arrays`` hold every step only with ``keep_arrays`` (default: when the recording has
+    ``truth.csv`` to score, or was given in memory); otherwise the map's steps.
 
     Returns the run summary (``steps``, ``sim_seconds``, ``read_seconds``,
     ``loop_seconds``, ``write_seconds``, ``wall_seconds``,
     ``realtime_factor``, ``counters``, ``gnss_gated``, output paths and map
-    counts), the recording and the in-memory result.
+    counts), the recording (for a streamed one, its survey: signals not in
+    :data:`SURVEY_FULL` are stubs of two samples) and the result.
     """
     wall0 = time.perf_counter()
     out = Path(out_dir)
-    rec = recording if isinstance(recording, Recording) else read_recording(recording)
+    streamed = not isinstance(recording, Recording)
+    rec = read_recording(recording, keep=_survey_keep) if streamed else recording
     missing = missing_signals(rec)
     if missing:
-        raise MissingSignals(rec, missing)
+        raise MissingSignals(read_recording(recording) if streamed else rec, missing)
+    if not rate_hz > 0:
+        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
     out.mkdir(parents=True, exist_ok=True)
     read_s = time.perf_counter() - wall0
     vehicle, s0 = machine_of(rec)
     sensors = sensors or s0
     cfg = cfg or EstimatorConfig()
     gate = gate or GnssGate()
-    res = replay(rec, rate_hz=rate_hz, vehicle=vehicle, sensors=sensors, cfg=cfg, gate=gate,
-                 on_estimate=on_estimate)
-    t_w = time.perf_counter()
+    if keep_arrays is None:
+        keep_arrays = not streamed or rec.truth_csv_path is not None
     csv_path = out / "estimates.csv"
-    write_estimates_csv(csv_path, res.arrays)
+    with open(csv_path, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write(",".join(CSV_COLUMNS) + "\n")
+        sink = _Sink(keep_all=keep_arrays, csv_fh=fh, hold_s=cfg.lost_after_s + cfg.max_gap_s + 1.0,
+                     map_times=rec.gps.t if write_map and len(rec.gps) else None)
+        run = _Run(rec, rate_hz, vehicle, sensors, cfg, gate, sink, on_estimate)
+        if streamed:
+            names = {nm for grp in run.groups for nm in grp.names}
+            for block, before in stream_signals(rec, names=sorted(names)):
+                run.feed(block, before)
+        else:
+            run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
+        run.close()
+    if sink.late_lost:                                    # pragma: no cover - hold_s covers the lost window
+        raise RuntimeError(f"{sink.late_lost} lost periods reached estimates already written")
+    arrays = sink.arrays() if keep_arrays else sink.map_arrays()
+    res = ReplayResult(arrays, float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss, run.loop_seconds,
+                       sink.rows, sink.t_last - sink.t_first if sink.rows > 1 else 0.0)
+    t_w = time.perf_counter()
     cfg_path = out / "config.toml"
     cfg_path.write_text(resolved_config(vehicle, sensors, cfg, rate_hz, gate), encoding="utf-8")
     summary_map: dict[str, Any] = {}
     if write_map:
         from ..mapping.from_replay import write_replay_map
 
-        summary_map = write_replay_map(out, rec, res.arrays, gps_mask=res.gps_mask)
+        summary_map = write_replay_map(out, rec, sink.map_arrays() if keep_arrays else arrays,
+                                       gps_mask=res.gps_mask)
     wall = time.perf_counter() - wall0
+    sim_s = res.sim_seconds
     summary: dict[str, Any] = {
-        "recording": str(rec.path), "steps": res.steps, "rate_hz": float(rate_hz), "sim_seconds": res.sim_seconds,
+        "recording": str(rec.path), "steps": res.steps, "rate_hz": float(rate_hz), "sim_seconds": sim_s,
         "read_seconds": read_s, "loop_seconds": res.loop_seconds, "write_seconds": time.perf_counter() - t_w,
         "counters": res.counters, "gnss_gated": dict(res.gnss), "estimates_csv": str(csv_path),
         "config": str(cfg_path), **summary_map, "wall_seconds": wall,
-        "realtime_factor": res.sim_seconds / wall if wall > 0 else float("inf"),
+        "realtime_factor": sim_s / wall if wall > 0 else float("inf"),
     }
     return summary, rec, res

@@ -62,7 +62,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -71,8 +71,8 @@ from ..bus.dbc import Codec, default_codec
 from ..config import load_signal_map
 from ..counting import MAX_EXAMPLES
 from ..errors import ConfigError, RecordingError
-from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TIME_JUMP_S, TRUTH_CSV, TRUTH_TOML, VEHICLE_FILE,
-                         AddressClaim, GpsTrack, MessageStats, Recording, RecordingStats, Series, Table)
+from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TRUTH_CSV, TRUTH_TOML, VEHICLE_FILE,
+                         GpsTrack, MessageStats, Recording, RecordingStats, Series, Table)
 from .gps import read_gps
 
 __all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", "Table", "read_recording"]
@@ -105,30 +105,7 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     p = Path(path)
     if not p.exists():
         raise RecordingError(f"{p}: no such recording")
-    if p.is_dir():
-        root = p
-        can_path = p / CAN_FILE
-        if not can_path.exists():
-            others = sorted(q for q in p.glob("can.*") if q.is_file())
-            if len(others) != 1:
-                raise RecordingError(f"{can_path}: missing (a recording needs {CAN_FILE}, or one can.<ext> "
-                                     "capture in any format read)")
-            can_path = others[0]
-    else:
-        root = p.parent
-        can_path = p
-    if dbc:
-        codec = Codec(codec.path if codec is not None else None,
-                      extra=[*(codec.extra_paths if codec is not None else ()), *dbc])
-    codec = codec if codec is not None else default_codec()
-    vehicle_toml = root / VEHICLE_FILE if p.is_dir() else None
-    if signals is None and vehicle_toml is not None and vehicle_toml.is_file():
-        try:
-            mapping = codec.resolve_mapping(load_signal_map(vehicle_toml))
-        except ConfigError as e:
-            raise ConfigError(f"{vehicle_toml}: {e}") from None
-    else:
-        mapping = codec.resolve_mapping(signals or {})
+    root, can_path, codec, mapping = _resolve(p, codec, dbc, signals)
     stats = RecordingStats()
     decoded = _read_can(can_path, codec, stats, keep)
     sources = {name: codec.signals[name].message for name in decoded}
@@ -169,6 +146,65 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
         units=units,
         signal_sources=sources,
     )
+
+
+def stream_signals(rec: Recording, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
+                   signals: Mapping[str, tuple[str, float]] | None = None, names: Sequence[str] | None = None,
+                   ) -> Iterator[tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]]:
+    """The CAN signals of ``rec`` read again block by block: ``(block, before)`` pairs, ``block`` mapping
+    each signal (of ``names``, default all) to ``(t, value)`` with the clock offset ``rec`` found applied
+    and owner mappings resolved as :func:`read_recording` does, ``before`` the block's last frame time
+    (later blocks hold nothing earlier).  ``codec``, ``dbc`` and ``signals`` must be those ``rec`` was read
+    with.  Memory is that of one block (:mod:`.chunks`)."""
+    from .chunks import ChunkDecoder, open_tables
+
+    root, can_path, codec, mapping = _resolve(rec.path, codec, dbc, signals)
+    rs = ReadStats(source=can_path.name)
+    _fmt, blocks = open_tables(can_path, rs)
+    dec = ChunkDecoder(codec, RecordingStats())
+    off = rec.stats.clock_offset_s
+    want = None if names is None else set(names)
+    for table in blocks:
+        if not len(table):
+            continue
+        got = dec.decode(table)
+        for target, src, scale in mapping:
+            if src in got:
+                t, v, sa = got[src]
+                got[target] = (t, v * scale, sa)
+        yield ({name: (t + off, v) for name, (t, v, _sa) in got.items() if want is None or name in want},
+               float(table.t[-1]) + off)
+
+
+def _resolve(p: Path, codec: Codec | None, dbc: Sequence[str | Path],
+             signals: Mapping[str, tuple[str, float]] | None) -> tuple[Path, Path, Codec, list]:
+    """(root directory, CAN capture, codec with the owner's DBCs, resolved ``[signals]`` mapping) of a
+    recording path (:func:`read_recording`'s rules)."""
+    if p.is_dir():
+        root = p
+        can_path = p / CAN_FILE
+        if not can_path.exists():
+            others = sorted(q for q in p.glob("can.*") if q.is_file())
+            if len(others) != 1:
+                raise RecordingError(f"{can_path}: missing (a recording needs {CAN_FILE}, or one can.<ext> "
+                                     "capture in any format read)")
+            can_path = others[0]
+    else:
+        root = p.parent
+        can_path = p
+    if dbc:
+        codec = Codec(codec.path if codec is not None else None,
+                      extra=[*(codec.extra_paths if codec is not None else ()), *dbc])
+    codec = codec if codec is not None else default_codec()
+    vehicle_toml = root / VEHICLE_FILE if p.is_dir() else None
+    if signals is None and vehicle_toml is not None and vehicle_toml.is_file():
+        try:
+            mapping = codec.resolve_mapping(load_signal_map(vehicle_toml))
+        except ConfigError as e:
+            raise ConfigError(f"{vehicle_toml}: {e}") from None
+    else:
+        mapping = codec.resolve_mapping(signals or {})
+    return root, can_path, codec, mapping
 
 
 def _gps_beside(p: Path) -> Path | None:
@@ -245,9 +281,9 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats,
             if keep is not None and not keep(name, parts.keys() | stubs.keys()):
                 st = stubs.get(name)
                 if st is None:
-                    st = stubs[name] = _stub_of(parts.pop(name, []))
+                    st = stubs[name] = _stub_of(parts.get(name, []))
+                    parts[name] = []             # keeps the order of first appearance
                 _stub_add(st, t, v)
-                parts.setdefault(name, [])       # keeps the order of first appearance
                 continue
             parts.setdefault(name, []).append((t, v, sa))
     dec.finish()
