@@ -384,6 +384,8 @@ class DrivetrainSpec:
                                           "speed with (CCVS1 / WBSD) [m]; 0: r0_m", 0.0, 2.5)
     load_sensing: str = setting("none", "front-axle (load pins) | none (loads from the mass, the static front "
                                 "share and the draft)")
+    draft_sensing: bool = setting(True, "the hitch measures the draft (ISO 11783-7 rear hitch status); false: "
+                                  "ρ_s and the draft are estimated as their sum, ρ_s is not reported")
 
     def __post_init__(self) -> None:
         validate(self, "drivetrain")

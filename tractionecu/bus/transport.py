@@ -14,13 +14,18 @@ in byte 1 and 7 data bytes.
 destination), and returns the message when its last packet arrives.  It only
 listens: it never answers an RTS.  A packet out of sequence, a new
 announcement or an abort drops the session's partial message; a repeated
-packet (a retransmission after CTS) is ignored.  Session time-outs are not
-enforced: a recording's frames are in order, and a message whose packets
-stop is simply never completed.
+packet (a retransmission after CTS) is ignored.  Without time stamps session
+time-outs are not enforced: a recording's frames are in order, and a message
+whose packets stop is simply never completed.  Given the frame times
+(``feed(..., t=)``, the live service), a session idle longer than
+:data:`T1_S` is dropped (J1939-21 T1, 750 ms between packets), and at most
+``max_sessions`` are followed at once (the oldest is dropped first), so
+traffic that opens sessions and never ends them holds bounded memory.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Iterable, Iterator
 
 from . import j1939
@@ -37,29 +42,41 @@ CM_BAM = 32
 CM_ABORT = 255
 MAX_SIZE = 1785
 """Largest message of the transport protocol: 255 packets of 7 bytes."""
+T1_S = 0.75
+"""J1939-21 T1: a receiver drops a session after this long without its next packet [s]."""
 
 
 class _Session:
-    __slots__ = ("pgn", "size", "packets", "data", "next_seq")
+    __slots__ = ("pgn", "size", "packets", "data", "next_seq", "t")
 
-    def __init__(self, pgn: int, size: int, packets: int) -> None:
+    def __init__(self, pgn: int, size: int, packets: int, t: float) -> None:
         self.pgn = pgn
         self.size = size
         self.packets = packets
         self.data = bytearray()
         self.next_seq = 1
+        self.t = t
 
 
 class Reassembler:
     """Multi-packet messages from TP.CM / TP.DT frames (module doc)."""
 
-    def __init__(self) -> None:
+    def __init__(self, max_sessions: int = 64) -> None:
         self._sessions: dict[tuple[int, int], _Session] = {}
+        self.max_sessions = max_sessions
+        self.dropped = 0
+        """Sessions dropped incomplete: timed out (T1) or pushed out by ``max_sessions``."""
 
-    def feed(self, can_id: int, data: bytes) -> tuple[int, int, bytes] | None:
+    @property
+    def open_sessions(self) -> int:
+        """Sessions being followed."""
+        return len(self._sessions)
+
+    def feed(self, can_id: int, data: bytes, t: float | None = None) -> tuple[int, int, bytes] | None:
         """Take one frame; returns ``(pgn, sender SA, payload)`` when it completes a message, else None.
 
-        Frames that are not 8-byte TP.CM / TP.DT frames are ignored.
+        Frames that are not 8-byte TP.CM / TP.DT frames are ignored.  ``t`` [s]: the frame's time, which
+        enables the T1 time-out (module doc).
         """
         if len(data) != 8:
             return None
@@ -68,6 +85,11 @@ class Reassembler:
             return None
         sa = can_id & 0xFF
         da = (can_id >> 8) & 0xFF
+        if t is not None and self._sessions:
+            stale = [k for k, v in self._sessions.items() if t - v.t > T1_S]
+            for k in stale:
+                del self._sessions[k]
+            self.dropped += len(stale)
         if pgn == PGN_TP_CM:
             ctrl = data[0]
             if ctrl in (CM_BAM, CM_RTS):
@@ -75,7 +97,11 @@ class Reassembler:
                 packets = data[3]
                 announced = data[5] | (data[6] << 8) | (data[7] << 16)
                 if 9 <= size <= MAX_SIZE and packets == (size + 6) // 7 and announced <= 0x3FFFF:
-                    self._sessions[(sa, da)] = _Session(j1939.pgn_of(announced << 8), size, packets)
+                    if (sa, da) not in self._sessions and len(self._sessions) >= self.max_sessions:
+                        del self._sessions[min(self._sessions, key=lambda k: self._sessions[k].t)]
+                        self.dropped += 1
+                    self._sessions[(sa, da)] = _Session(j1939.pgn_of(announced << 8), size, packets,
+                                                        -math.inf if t is None else t)
                 else:
                     self._sessions.pop((sa, da), None)
             elif ctrl == CM_ABORT:                      # from either end of the connection
@@ -93,6 +119,8 @@ class Reassembler:
             return None
         s.data += data[1:]
         s.next_seq += 1
+        if t is not None:
+            s.t = t
         if seq < s.packets:
             return None
         del self._sessions[(sa, da)]

@@ -26,6 +26,9 @@ the offending key as ``section.key``.  Example (all keys optional)::
     origin_lat = 47.88
     origin_lon = -110.55
 
+    [signals]                    # the owner's messages (can.dbc = ["owner.dbc"]) onto contract names
+    WheelSpeed_FL = "DriveCtrl_3.WhlSpdFL"
+
 Sensor figures (:class:`~tractionecu.config.SensorSpec`) resolve key by key:
 a key of this file's ``[sensors]`` overrides the same key of the vehicle
 file's ``[sensors]`` (``estimation.vehicle``), and a key set in neither takes
@@ -96,6 +99,8 @@ class CanConfig:
     silence_reopen_s: float = setting(0.0, "reopen the interface after this long without any frame [s]; 0 = never", 0.0, 3600.0)
     kernel_filters: bool = setting(True, "receive only the DBC's PGNs (any source address): SocketCAN drops the rest in "
                                     "the kernel; false = receive everything and count what is skipped")
+    dbc: tuple[str, ...] = setting(("",), "the owner's DBC files, decoded by PGN beside the built-in DBC (their "
+                                   "signals are named Message.Signal; [signals] maps them onto contract names)")
     options: Mapping[str, Any] = table("extra keyword arguments for can.Bus (e.g. bitrate)")
 
     def __post_init__(self) -> None:
@@ -258,9 +263,13 @@ class ServiceConfig:
     broadcast: BroadcastConfig = section(BroadcastConfig, "estimate broadcast and address claim")
     map: MapConfig = section(MapConfig, "the map writer")
     service: ServiceSection = section(ServiceSection, "process-wide settings")
+    signals: Mapping[str, Any] = table("the owner's messages onto the contract names: WheelSpeed_FL = "
+                                       "\"DriveCtrl_3.WhlSpdFL\" or { signal = \"...\", scale = ... } "
+                                       "(over the vehicle file's [signals])")
 
     def __post_init__(self) -> None:
         validate(self, "")
+        base.signal_map(self.signals, "signals")          # the form; the names are checked against the DBCs
         for key, rate in (("broadcast.rate_hz", self.broadcast.rate_hz), ("map.rate_hz", self.map.rate_hz)):
             ratio = self.estimation.rate_hz / rate
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
@@ -283,6 +292,17 @@ class ServiceConfig:
         if self.map.directory:
             return Path(self.map.directory)
         return self.state_dir(env) / "map"
+
+    def dbc_files(self) -> list[str]:
+        """The owner's DBC files of ``can.dbc`` (empty entries dropped)."""
+        return [p for p in self.can.dbc if p]
+
+    def signal_mapping(self) -> dict[str, tuple[str, float]]:
+        """The ``[signals]`` mapping in force: the vehicle file's ``[signals]`` (``estimation.vehicle``), the
+        keys of this config's ``[signals]`` over it (:func:`~tractionecu.config.signal_map`)."""
+        out = dict(base.load_signal_map(self.estimation.vehicle)) if self.estimation.vehicle else {}
+        out.update(base.signal_map(self.signals, "signals"))
+        return out
 
     def sensor_overrides(self) -> dict[str, Any]:
         """The ``[sensors]`` keys this config sets explicitly (:func:`~tractionecu.config.given_keys`)."""
@@ -319,7 +339,7 @@ def with_overrides(cfg: ServiceConfig, **sections: Mapping[str, Any]) -> Service
     data: dict[str, dict[str, Any]] = {}
     for f in fields(cfg):
         sec = getattr(cfg, f.name)
-        data[f.name] = {k: getattr(sec, k) for k in given_keys(sec)}
+        data[f.name] = dict(sec) if isinstance(sec, Mapping) else {k: getattr(sec, k) for k in given_keys(sec)}
     for name, changes in sections.items():
         if name not in data:
             raise ConfigError(f"{name}: unknown table")

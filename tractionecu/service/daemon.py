@@ -60,7 +60,8 @@ from typing import IO, Any, Callable, Iterable
 import can
 
 from ..bus import j1939
-from ..bus.dbc import Codec, default_codec
+from ..bus.dbc import Codec
+from ..bus.transport import TRANSPORT_PGNS
 from ..errors import ConfigError
 from ..pipeline.gnss import gate_from_config
 from ..pipeline.signals import INPUT_MESSAGES
@@ -68,12 +69,12 @@ from ..pipeline.steps import StepAssembler
 from .canlink import CanLink
 from .clock import ServiceClock
 from .config import ServiceConfig, to_toml
-from .dispatch import FrameDispatcher
+from .dispatch import FrameDispatcher, codec_for
 from .fixes import FixBuffer
 from .gps import GpsReader
 from .heap import settle_heap
 from .lifecycle import DeviceTask, Hook, Lifecycle, Part
-from .loop import EstimationLoop, EstimatorFactory, default_estimator_factory
+from .loop import EstimationLoop, EstimatorFactory, default_estimator_factory, estimator_groups
 from .mapwriter import MapWriter
 from .network import Network
 from .notify import Notifier, watchdog_interval
@@ -199,21 +200,21 @@ class Service:
                  warm_up_estimator: bool = True) -> None:
         self.cfg = cfg
         self.clock = clock or ServiceClock()
-        self.codec = codec or default_codec()
+        self.codec, mapping = codec_for(cfg, codec)          # can.dbc and [signals]
         self.notifier = notifier or Notifier(env)
         self.env = env
         self.warm_up_estimator = warm_up_estimator
         self.stats: Counter[str] = Counter()
-        self.steps = StepAssembler(depth=max(256, int(cfg.estimation.lag_s * 200) + 64))
+        self.steps = StepAssembler(depth=max(256, int(cfg.estimation.lag_s * 200) + 64), groups=estimator_groups(cfg))
         gate = gate_from_config(cfg.gps, cfg.map.max_fix_age_s)
         self.fixes = FixBuffer(gate)
         self.network = Network(cfg.broadcast, self.codec, self.clock, stats=self.stats)
         self.dispatcher = FrameDispatcher(self.codec, self.steps, self.fixes, on_network=self.network.on_nm_frame,
-                                          stats=self.stats, lag_s=cfg.estimation.lag_s)
+                                          stats=self.stats, lag_s=cfg.estimation.lag_s, mapping=mapping)
         bus_kwargs = dict(extra_bus_kwargs or {})
         if cfg.can.kernel_filters:
             addr = cfg.broadcast.preferred_address if cfg.broadcast.enabled else None
-            bus_kwargs.setdefault("can_filters", pgn_filters(self.codec.pgns(), addr))
+            bus_kwargs.setdefault("can_filters", pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], addr))
         self.can = CanLink(cfg.can, self.dispatcher.on_frame, self.clock, bus_factory=bus_factory,
                            extra_bus_kwargs=bus_kwargs, on_open=self.network.on_bus_open)
         self.network.link = self.can
@@ -264,7 +265,7 @@ class Service:
 
     def _follow_address(self, address: int | None) -> None:
         """Our address changed: the kernel passes Requests, TP, ETP and acknowledgements to it."""
-        self.can.set_filters(pgn_filters(self.codec.pgns(), address))
+        self.can.set_filters(pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], address))
         log.info("CAN filters follow address %s", "none" if address is None else f"0x{address:02X}")
 
     # ------------------------------------------------------------ start-up steps

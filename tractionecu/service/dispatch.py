@@ -18,7 +18,15 @@ decode (wrong DLC ...)          :attr:`FrameDispatcher.bad_frames`; logged once
 a DBC frame                     decoded: ``decoded_frames``, ``rx_<message>``;
                                 its signals to the step assembler (which phases
                                 the grid on the first wheel-speed frame)
+TP.CM / TP.DT (J1939-21)        ``tp_frames``; a multi-packet message they
+                                complete (EC1, an owner's long message) is
+                                decoded like a frame (``tp_messages``)
 ==============================  ==============================================
+
+The owner's own messages: a ``[signals]`` mapping (resolved against the
+codec, :meth:`~tractionecu.bus.dbc.Codec.resolve_mapping`) adds, to the
+values of a frame carrying a mapped source signal, the contract name with
+the source value times its scale, as the recording reader does.
 
 :meth:`FrameDispatcher.on_fix` (the GNSS reader's sample handler) keeps the
 fix in the :class:`~.fixes.FixBuffer` (for the map), counts ``gps_fixes``
@@ -33,12 +41,13 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from typing import Callable
+from typing import Any, Callable, Sequence
 
 import can
 
 from ..bus import j1939
 from ..bus.dbc import Codec
+from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..counting import WarnOnce
 from ..errors import DecodeError
 from ..pipeline.steps import StepAssembler
@@ -74,11 +83,15 @@ class FrameDispatcher:
         Counter for the frame and fix counts (default: a new one).
     lag_s:
         ``estimation.lag_s`` (named in the warning about late fixes).
+    mapping:
+        ``[(contract name, source key, scale)]`` of the ``[signals]`` table
+        (:meth:`~tractionecu.bus.dbc.Codec.resolve_mapping`); empty: none.
     """
 
     def __init__(self, codec: Codec, steps: StepAssembler, fixes: FixBuffer, *,
                  on_network: Callable[[int, bytes], None] | None = None,
-                 stats: Counter[str] | None = None, lag_s: float = 0.0) -> None:
+                 stats: Counter[str] | None = None, lag_s: float = 0.0,
+                 mapping: Sequence[tuple[str, str, float]] = ()) -> None:
         self.codec = codec
         self.steps = steps
         self.fixes = fixes
@@ -89,6 +102,10 @@ class FrameDispatcher:
         self.bad_frames: Counter[str] = Counter()
         self._output_pgns = output_pgns(codec)
         self._warn = WarnOnce(log)
+        self.tp = Reassembler()
+        self._mapped: dict[str, list[tuple[str, float]]] = {}
+        for target, src, scale in mapping:
+            self._mapped.setdefault(src, []).append((target, scale))
 
     def on_frame(self, t: float, msg: can.Message) -> None:
         """One received frame, stamped ``t`` [service s]."""
@@ -113,6 +130,19 @@ class FrameDispatcher:
             else:
                 self.on_network(cid, bytes(msg.data))
             return
+        if pgn in TRANSPORT_PGNS:
+            st["tp_frames"] += 1
+            done = self.tp.feed(cid, bytes(msg.data), t)
+            if done is None:
+                return
+            pgn, sa, payload = done
+            info = self.codec.message_for_pgn(pgn)
+            if info is None or pgn in self._output_pgns:
+                st["tp_unused_messages"] += 1
+                return
+            st["tp_messages"] += 1
+            self._decoded(t, message_id(pgn, sa), payload, info.name)
+            return
         info = self.codec.message_for_pgn(pgn)
         if info is None:
             if pgn in self.unknown_pgns or len(self.unknown_pgns) < MAX_TRACKED_UNKNOWN_PGNS:
@@ -124,19 +154,34 @@ class FrameDispatcher:
         if pgn in self._output_pgns:
             st["foreign_estimate_frames"] += 1
             return
+        self._decoded(t, cid, bytes(msg.data), info.name)
+
+    def _decoded(self, t: float, cid: int, data: bytes, message: str) -> None:
+        """Decode a frame (or a reassembled message) of a DBC message and give its signals to the steps."""
+        st = self.stats
         try:
-            name, values = self.codec.decode(cid, bytes(msg.data), True)
+            name, values = self.codec.decode(cid, data, True)
         except (DecodeError, KeyError, ValueError) as e:
-            self.bad_frames[info.name] += 1
+            self.bad_frames[message] += 1
             st["bad_frames"] += 1
-            self._warn("bad:" + info.name, "skipped frame %08X#%s: %s", cid, bytes(msg.data).hex().upper(), e)
+            self._warn("bad:" + message, "skipped frame %08X#%s: %s", cid, data.hex().upper(), e)
             return
         st["decoded_frames"] += 1
         st["rx_" + name] += 1
+        if self._mapped:
+            for src in [k for k in values if k in self._mapped]:
+                for target, scale in self._mapped[src]:
+                    values[target] = values[src] * scale
         anchored = self.steps.anchor is not None
-        self.steps.push_signals(t, values)
+        try:
+            self.steps.push_signals(t, values)
+        except KeyError as e:                   # a per-wheel group mapped from several messages
+            st["incomplete_group_frames"] += 1
+            self._warn("group:" + name, "%s: signal %s of its per-wheel group is not in this message; map the "
+                       "group's signals from one message", name, e)
+            return
         if not anchored and self.steps.anchor is not None:
-            log.info("estimation grid phased to the first wheel-speed frame: t0 = %.6f", self.steps.anchor)
+            log.info("estimation grid phased to the first anchor frame: t0 = %.6f", self.steps.anchor)
 
     def on_fix(self, fix: GpsSample) -> None:
         """One accepted GNSS fix."""
@@ -144,7 +189,21 @@ class FrameDispatcher:
         self.stats["gps_fixes"] += 1
         if fix.speed_mps is not None:
             late = self.steps.counts["late"]
-            self.steps.push_speed(fix.t, fix.speed_mps)
+            self.steps.push_speed(fix.t, fix.speed_mps, fix.course_deg)
             if self.steps.counts["late"] > late:
                 self._warn("late-gps", "GNSS epoch %.3f arrived %.3f s after it (lag %.3f s): it is used one "
                            "step late; raise estimation.lag_s", fix.t, fix.t_arrival - fix.t, self.lag_s)
+
+
+def codec_for(cfg: Any, codec: Codec | None = None) -> tuple[Codec, list[tuple[str, str, float]]]:
+    """The codec of a service config (the built-in DBC and ``can.dbc``) and its resolved ``[signals]``
+    mapping (:meth:`~tractionecu.config.ServiceConfig.signal_mapping`).  A given ``codec`` is extended by
+    ``can.dbc``.  Raises :class:`~tractionecu.errors.ConfigError` naming ``signals.<name>`` or the DBC file."""
+    from ..bus.dbc import default_codec
+
+    files = cfg.dbc_files()
+    if files:
+        codec = Codec(codec.path if codec is not None else None,
+                      extra=[*(codec.extra_paths if codec is not None else ()), *files])
+    codec = codec or default_codec()
+    return codec, codec.resolve_mapping(cfg.signal_mapping())

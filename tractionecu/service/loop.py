@@ -56,10 +56,27 @@ EstimatorFactory = Callable[[Any, Any], Any]
 
 
 def default_estimator_factory(vehicle: Any, sensors: Any = None) -> Any:
-    """The estimator ``replay`` uses, with its default tuning (``sensors`` None: the documented figures)."""
+    """The estimator ``replay`` uses, with its default tuning (``sensors`` None: the documented figures):
+    the hub estimator, or for an engine-driven ``[drivetrain]`` the machine-level one
+    (:class:`~tractionecu.estimation.machine.MachineEstimator`, draft as ``draft_sensing`` says)."""
+    dt = getattr(vehicle, "drivetrain", None)
+    if dt is not None and dt.engine_driven:
+        from ..estimation.machine import MachineEstimator
+
+        return MachineEstimator(vehicle, sensors=sensors, draft=dt.draft_sensing)
     from ..estimation.estimator import Estimator
 
     return Estimator(vehicle, sensors=sensors)
+
+
+def estimator_groups(cfg: ServiceConfig) -> Any:
+    """The signal table the step assembler collects for the configured machine
+    (:data:`~tractionecu.pipeline.signals.MACHINE_GROUPS` for an engine-driven ``[drivetrain]``, else
+    None: the hub estimator's)."""
+    from ..pipeline.signals import MACHINE_GROUPS, estimator_profile
+
+    vehicle, _ = estimator_machine(cfg)
+    return MACHINE_GROUPS if estimator_profile(vehicle) == "mechanical" else None
 
 
 def estimator_machine(cfg: ServiceConfig) -> tuple[Any, Any]:
@@ -87,6 +104,14 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
 
     t0 = time.perf_counter()
     est = factory(vehicle, sensors)
+    if getattr(est, "level", None) == "machine":          # the machine-level estimator's keys
+        for k in range(60):
+            t = 0.01 * k
+            meas = {"we": 200.0 + 0.1 * k, "vwb": 2.5, **({"v": 2.4, "vr": 2.4} if k % 10 == 0 else {})}
+            inputs = {"Te": 60.0, "Tref": 400.0, "gear": 4.0, "Fzf": 25000.0, "Fdx": 12000.0} if k % 7 else {}
+            est.step(t, inputs, meas if k % 5 else {})
+        est.step(1.0, {"Te": math.nan}, {"v": 2.4})
+        return time.perf_counter() - t0
     md = np.full(4, 900.0)
     om = np.full(4, 3.2)
     for k in range(60):
