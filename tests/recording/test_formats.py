@@ -297,7 +297,10 @@ def test_inspect_and_replay_of_a_simulated_mf4_match_candump(mf4_capture, short_
     b = replay(read_recording(mf4_capture)).arrays
     assert list(a) == list(b) and a["t"].size > 1000 and b["valid"][a["t"].size // 2:].all()
     for k in a:
-        np.testing.assert_array_equal(np.asarray(b[k]), np.asarray(a[k]), err_msg=k)
+        if isinstance(a[k], np.ndarray):
+            np.testing.assert_array_equal(b[k], a[k], err_msg=k)
+        else:                                   # per-step objects (class names, curves): equal as written
+            assert [repr(x) for x in b[k]] == [repr(x) for x in a[k]], k
 
 
 def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_path):
