@@ -316,9 +316,15 @@ class RadiusCalibration:
         return out[0], out[1]
 
     def summary(self) -> dict[str, dict[str, float | int | bool]]:
-        """Per axle: scale, 95 % half-width, accepted blocks, applied scale and whether it is applied."""
+        """Per axle: scale, 95 % half-width (None until estimated), accepted blocks, applied scale and whether it
+        is applied."""
         out: dict[str, dict[str, float | int | bool]] = {}
         for name, st, ax in zip(AXLES, self.state(), self._axles):
-            out[name] = {"scale": st.scale, "halfwidth95": st.halfwidth, "blocks": st.blocks,
+            out[name] = {"scale": _num(st.scale), "halfwidth95": _num(st.halfwidth), "blocks": st.blocks,
                          "applied_scale": st.applied, "applied": ax.is_applied}
         return out
+
+
+def _num(x: float) -> float | None:
+    """x, or None for NaN (a summary written as JSON)."""
+    return None if math.isnan(x) else x

@@ -161,18 +161,18 @@ class Estimate:
     lost_since: float = math.nan
     """On the step the filter is declared lost: the time the lost period began [s] (estimates
     since then were not trustworthy, whatever they said); NaN on every other step."""
-    sigma_mu: Any = None
+    sigma_mu: Any = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
     """Reported standard uncertainty of μ per wheel (4,) [-]: the filter's √P combined with the
     systematic part from the sensor tolerances (:mod:`.uncertainty`); the band μ ± 2σ is meant to hold
     the truth 95 % of the time.  ``P_diag`` stays the filter's own covariance."""
     sigma_rho_s: float = math.nan
     """Reported standard uncertainty of ρ_s [-] (as ``sigma_mu``)."""
-    radius_scale: Any = None
+    radius_scale: Any = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     """Rolling-radius scale r_true / r_d per axle (front, rear) (2,) [-] from the self-calibration
     (:mod:`.calibration`); NaN until estimated."""
-    radius_halfwidth: Any = None
+    radius_halfwidth: Any = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     """95 % half-width of ``radius_scale`` (2,) [-]; NaN until estimated."""
-    radius_applied: Any = None
+    radius_applied: Any = dataclasses.field(default_factory=lambda: np.ones(2))
     """Scale the filter uses per axle (2,) [-]: 1 until the calibration's interval is tight enough."""
 
 

@@ -39,14 +39,14 @@ import numpy as np
 
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_toml
 from ..errors import ConfigError
-from ..estimation.estimator import FILTER_LOST, Estimate, Estimator, EstimatorConfig
+from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.clock import SPEED_SIGNALS as CLOCK_SPEEDS
 from ..recording.clock import WHEEL_SIGNALS as CLOCK_WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
-from .signals import (ANCHOR_SIGNAL, ENGINE_IDLE_SPEED, GNSS_SPEED, GROUPS, INPUT_GROUPS, PARKING_BRAKE,
-                      SELECTED_GEAR, SPEED_SIGNALS, VECTOR_KEYS, missing_signals)
+from .select import estimator_for, groups_for
+from .signals import ENGINE_IDLE_SPEED, GNSS_SPEED, PARKING_BRAKE, SELECTED_GEAR, SPEED_SIGNALS, required_missing
 from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
 
 _BATCH = 2048
@@ -109,17 +109,19 @@ class ReplayResult:
         return float(t[-1] - t[0]) if t.size > 1 else 0.0
 
 
-def recording_grid(rec: Recording, rate_hz: float) -> np.ndarray:
-    """The step grid of a recording (:func:`~.steps.build_grid` on its wheel-speed frames).
+def recording_grid(rec: Recording, rate_hz: float, vehicle: VehicleParams | None = None) -> np.ndarray:
+    """The step grid of a recording (:func:`~.steps.build_grid` on its wheel-speed frames; on the engine
+    speed frames for an engine-driven ``vehicle``, :func:`~.select.groups_for`).
 
-    Raises :class:`MissingSignals` when the recording lacks a signal of :data:`~.signals.REPLAY_REQUIRED`.
+    Raises :class:`MissingSignals` when the recording lacks a signal of :data:`~.signals.REPLAY_REQUIRED`
+    (:func:`~.signals.required_missing` for ``vehicle``).
     """
     if not rate_hz > 0:
         raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
-    missing = missing_signals(rec)
+    missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(rec, missing)
-    ws = rec.signals[ANCHOR_SIGNAL].t
+    ws = rec.signals[groups_for(vehicle).anchor].t
     # The grid ends with the data that drives the estimator: never more than a wheel-speed gap past the
     # last wheel-speed frame, whatever other signal runs on (or whatever time an odd clock put there).
     return build_grid(ws, min(float(rec.t_end), float(ws[-1]) + GRID_MAX_GAP_S), rate_hz)
@@ -146,7 +148,7 @@ def replay(rec: Recording, *, rate_hz: float = 100.0, vehicle: VehicleParams | N
         v0, s0 = machine_of(rec)
         vehicle = vehicle or v0
         sensors = sensors or s0
-    recording_grid(rec, rate_hz)                      # the checks (rate, required signals)
+    recording_grid(rec, rate_hz, vehicle)             # the checks (rate, required signals)
     sink = _Sink(keep_all=True)
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), sink, on_estimate)
     run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
@@ -250,20 +252,21 @@ class _Run:
     def __init__(self, rec: Recording, rate_hz: float, vehicle: VehicleParams, sensors: SensorSpec,
                  cfg: EstimatorConfig, gate: GnssGate, sink: "_Sink",
                  on_estimate: Callable[[Estimate], None] | None) -> None:
-        self.est = Estimator(vehicle, cfg, sensors)
+        self.est, g = estimator_for(rec, vehicle, cfg, sensors)      # hub or machine level (.select)
+        self.anchor, self.inputs = g.anchor, g.inputs
         self.gnss: Counter[str] = Counter()
         self.gps_mask = gate.track_mask(rec.gps, self.gnss)
         self.sink = sink
         self.on_estimate = on_estimate
         self.grid = _GridStream(rate_hz)
         # groups the recording carries (as vector_steps: every signal present with samples)
-        self.groups = [_Group(key, names, key in VECTOR_KEYS) for key, names in GROUPS.items()
+        self.groups = [_Group(key, names, key in g.vectors) for key, names in g.groups.items()
                        if all(nm in rec.signals and len(rec.signals[nm]) for nm in names)]
         self.speed = _Group(GNSS_SPEED, (GNSS_SPEED,), False)
         if self.gps_mask.any():
             self.speed.push(np.asarray(rec.gps.t[self.gps_mask], dtype=float),
                             [np.asarray(rec.gps.speed[self.gps_mask], dtype=float)])
-        ws = rec.signals.get(ANCHOR_SIGNAL)
+        ws = rec.signals.get(self.anchor)
         self.ws_last = float(ws.t[-1]) if ws is not None and len(ws) else math.nan
         self.t_end = float(rec.t_end)
         self.loop_seconds = 0.0
@@ -275,7 +278,7 @@ class _Run:
             cols = [signals.get(nm) for nm in grp.names]
             if cols[0] is not None and cols[0][0].size:
                 grp.push(cols[0][0], [c[1] if c is not None else np.empty(0) for c in cols])
-        ws = signals.get(ANCHOR_SIGNAL)
+        ws = signals.get(self.anchor)
         if ws is not None:
             self.grid.anchors(np.asarray(ws[0], dtype=float))
         if math.isinf(before):
@@ -291,7 +294,7 @@ class _Run:
     def _step(self, grid: np.ndarray) -> None:
         if grid.size == 0:
             return
-        streams = [(grp.key, grp.key in INPUT_GROUPS, *grp.at(grid)) for grp in self.groups]
+        streams = [(grp.key, grp.key in self.inputs, *grp.at(grid)) for grp in self.groups]
         if self.speed.t.size:
             streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
         step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
@@ -511,7 +514,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     out = Path(out_dir)
     streamed = not isinstance(recording, Recording)
     rec = read_recording(recording, keep=_survey_keep) if streamed else recording
-    missing = missing_signals(rec)
+    missing = required_missing(rec, machine_of(rec)[0])
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
     if not rate_hz > 0:
