@@ -52,9 +52,15 @@ from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
 _BATCH = 2048
 """Estimates kept before they are copied into the result arrays (bounded memory, bulk copies)."""
 
+UNCERTAINTY_COLUMNS = tuple([f"sigma_mu_{w}" for w in WHEELS] + ["sigma_rho_s"]
+                            + [f"radius_{k}_{a}" for k in ("scale", "hw95", "applied") for a in ("front", "rear")])
+"""Last columns of ``estimates.csv``: the reported uncertainty and the rolling-radius calibration
+(``Estimate.sigma_mu``, ``sigma_rho_s``, ``radius_scale``, ``radius_halfwidth``, ``radius_applied``)."""
+
 CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_class"] + [f"slip_{w}" for w in WHEELS]
                     + ["v"] + [f"omega_{w}" for w in WHEELS] + [f"var_{n}" for n in STATE_NAMES]
-                    + ["nis", "nis_dof", "adapt", "status", "valid"])
+                    + ["nis", "nis_dof", "adapt", "status", "valid"]
+                    + list(UNCERTAINTY_COLUMNS))
 """Columns of ``estimates.csv``."""
 
 __all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recording_grid", "replay",
@@ -321,8 +327,9 @@ class _Sink:
     ``lost_after_s`` + ``max_gap_s`` back), and those the map needs (the step at or just after each GNSS
     epoch ``map_times``, and the first and last step) kept for the map."""
 
-    _SCALARS = ("rho_s", "a", "v", "nis", "adapt")
-    _VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", N_STATE))
+    _SCALARS = ("rho_s", "a", "v", "nis", "adapt", "sigma_rho_s")
+    _VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", N_STATE), ("sigma_mu", 4), ("radius_scale", 2),
+                ("radius_halfwidth", 2), ("radius_applied", 2))
 
     def __init__(self, keep_all: bool, csv_fh: Any = None, hold_s: float = math.inf,
                  map_times: np.ndarray | None = None) -> None:
@@ -464,8 +471,17 @@ def _write_rows(fh: Any, arrays: dict[str, Any]) -> None:
     fl = "%.3f" + ",%.6g" * 6 + ",%s,"
     fr = ",".join(["%.6g"] * 20) + ",%d,%.4g,%d,%d"
     cls = arrays["soil_class"]
-    fh.write("\n".join([fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]))
+    rows = [fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]
+    fh.write("\n".join([r + x for r, x in zip(rows, _uncertainty_cells(arrays))]))
     fh.write("\n")
+
+
+def _uncertainty_cells(arrays: dict[str, Any]) -> list[str]:
+    """The :data:`UNCERTAINTY_COLUMNS` cells of each row, each starting with a comma."""
+    cells = np.column_stack([arrays["sigma_mu"], arrays["sigma_rho_s"], arrays["radius_scale"],
+                             arrays["radius_halfwidth"], arrays["radius_applied"]]).tolist()
+    f = ",%.4g" * 5 + ",%.6g" * 6
+    return [f % tuple(c) for c in cells]
 
 
 def resolved_config(vehicle: VehicleParams, sensors: SensorSpec, cfg: EstimatorConfig, rate_hz: float,
@@ -561,6 +577,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
         "read_seconds": read_s, "loop_seconds": res.loop_seconds, "write_seconds": time.perf_counter() - t_w,
         "counters": res.counters, "gnss_gated": dict(res.gnss), "estimates_csv": str(csv_path),
         "config": str(cfg_path), **summary_map, "wall_seconds": wall,
+        "radius_calibration": run.est.calibration_summary() if hasattr(run.est, "calibration_summary") else {},
         "realtime_factor": sim_s / wall if wall > 0 else float("inf"),
     }
     return summary, rec, res
