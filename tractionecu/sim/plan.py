@@ -182,3 +182,69 @@ def straight(x0: float, y0: float, heading: float, length: float, v_work: float,
     px, py, ph = _line(x0, y0, heading, length)
     dist = np.arange(len(px)) * DS
     return Plan(dist, px, py, ph, np.full(len(px), v_work), (dist > lead_in) & (dist < length - 3.0))
+
+
+def s_curves(x0: float, y0: float, pass_length: float, n_passes: int, spacing: float, radius: float,
+             v_work: float, v_turn: float, wave_angle: float = 0.4, lead_in: float = 8.0) -> Plan:
+    """Work passes that are S-shaped: arcs of ``radius`` [m] turning alternately right and left by
+    ``wave_angle`` [rad] about the pass direction (±x), spaced ``spacing`` [m] in +y, joined by
+    semicircular headland turns of radius ``spacing``/2.  Each pass starts and ends on its mean direction
+    (half arcs at both ends); the implement is in work after ``lead_in`` metres, up in the turns."""
+    xs, ys, hs, vs, ws = [], [], [], [], []
+    x, y = x0, y0
+    for k in range(n_passes):
+        heading = 0.0 if k % 2 == 0 else np.pi
+        sign = 1.0 if k % 2 == 0 else -1.0
+        arcs = [wave_angle / 2.0]
+        adv = radius * np.sin(wave_angle / 2.0)
+        side = -1.0
+        while adv + 2.0 * radius * np.sin(wave_angle / 2.0) * 1.0 < pass_length:
+            arcs.append(side * wave_angle)
+            adv += 2.0 * radius * np.sin(wave_angle / 2.0)
+            side = -side
+        arcs.append(side * wave_angle / 2.0 if len(arcs) % 2 == 0 else -side * wave_angle / 2.0)
+        # Heading must return to the pass direction: fix the last half arc by the running sum.
+        arcs[-1] = -sum(arcs[:-1])
+        h = heading
+        seg_x, seg_y, seg_h = [], [], []
+        for turn in arcs:
+            ax, ay, ah = _arc(x, y, h, radius, turn)
+            seg_x.append(ax); seg_y.append(ay); seg_h.append(ah)
+            x, y, h = _arc_end(x, y, h, radius, turn)
+        px, py, ph = np.concatenate(seg_x), np.concatenate(seg_y), np.concatenate(seg_h)
+        dist = np.arange(len(px)) * DS
+        total = len(px) * DS
+        xs.append(px); ys.append(py); hs.append(ph)
+        vs.append(np.where(dist > total - 6.0, v_turn, v_work))
+        ws.append((dist > lead_in) & (dist < total - 3.0))
+        if k < n_passes - 1:
+            turn = np.pi if k % 2 == 0 else -np.pi
+            ax, ay, ah = _arc(x, y, heading, spacing / 2.0, turn)
+            xs.append(ax); ys.append(ay); hs.append(ah)
+            vs.append(np.full(len(ax), v_turn)); ws.append(np.zeros(len(ax), bool))
+            x, y, _ = _arc_end(x, y, heading, spacing / 2.0, turn)
+        del sign
+    X = np.concatenate(xs); Y = np.concatenate(ys); H = np.concatenate(hs)
+    return Plan(np.arange(len(X)) * DS, X, Y, H, np.concatenate(vs), np.concatenate(ws))
+
+
+def circles(x0: float, y0: float, radius: float, n_circles: int, v_work: float, straight_m: float = 20.0,
+            lead_in: float = 8.0) -> Plan:
+    """Circular work passes: ``straight_m`` [m] along +x, then a full circle of ``radius`` [m], left first,
+    then alternately right, each circle preceded by the straight; implement in work after ``lead_in``
+    metres until 3 m before the end."""
+    xs, ys, hs = [], [], []
+    x, y, h = x0, y0, 0.0
+    for k in range(n_circles):
+        lx, ly, lh = _line(x, y, h, straight_m)
+        xs.append(lx); ys.append(ly); hs.append(lh)
+        x, y = x + straight_m * np.cos(h), y + straight_m * np.sin(h)
+        turn = 2.0 * np.pi if k % 2 == 0 else -2.0 * np.pi
+        ax, ay, ah = _arc(x, y, h, radius, turn)
+        xs.append(ax); ys.append(ay); hs.append(ah)
+        x, y, h = _arc_end(x, y, h, radius, turn)
+    lx, ly, lh = _line(x, y, h, straight_m)
+    xs.append(lx); ys.append(ly); hs.append(lh)
+    X = np.concatenate(xs); Y = np.concatenate(ys); H = np.concatenate(hs)
+    dist = np.arange(len(X)) * DS
+    return Plan(dist, X, Y, H, np.full(len(X), v_work), (dist > lead_in) & (dist < dist[-1] - 3.0))

@@ -19,10 +19,14 @@ from dataclasses import replace
 from typing import Callable
 
 from ..errors import ConfigError
+from ..config import VehicleParams
+from .drivetrain import DriveLineSpec, MechDriveSpec
 from .field import Field, SoilRegion
-from .plan import back_and_forth, straight
+from .physical import PhysicalSpec, physical_field
+from .plan import back_and_forth, circles, s_curves, straight
 from .simulator import ImplementSpec, Scenario
 from .terrain import Terrain
+from .tyre import PhysSoil
 
 PAPER_SOILS = (
     SoilRegion("stubble-firm", "stubble", a=0.82, rho_s=0.05),
@@ -74,12 +78,159 @@ def two_soils_tilled(seed: int = 0, **kw) -> Scenario:
     return Scenario("two-soils-tilled", fld, plan, seed=seed, **kw)
 
 
+# ----------------------------------------------------------------------------- physical truth
+PHYSICAL_THREE_SOILS = (
+    PhysSoil("firm-stubble", cone_index_pa=1.6e6),
+    PhysSoil("stubble", cone_index_pa=1.0e6, polygon=PAPER_SOILS[1].polygon),
+    PhysSoil("soft-stubble", cone_index_pa=0.55e6, polygon=PAPER_SOILS[2].polygon),
+)
+"""The paper's three soils as a soil survey gives them: cone indices of firm, medium and soft stubble
+(ASABE D497.7 Table 3: firm 1.2–2 MPa, tilled/medium ≈ 1 MPa, soft ≈ 0.5 MPa)."""
+
+
+def _physical(name: str, soils, plan, seed: int, kw: dict, *, drivetrain: DriveLineSpec | None = None,
+              **phys) -> Scenario:
+    """A physical-truth scenario on ``soils`` driving ``plan`` (``kw``: Scenario fields; ``truth`` may
+    override the physical default)."""
+    veh = kw.pop("vehicle", None) or VehicleParams()
+    spec = kw.pop("physical", None) or PhysicalSpec(tuple(soils), drivetrain=drivetrain or DriveLineSpec(), **phys)
+    kw.setdefault("truth", "physical")
+    fld = physical_field(spec.soils, veh, spec.tyre)
+    return Scenario(name, fld, plan, vehicle=veh, physical=spec, seed=seed, **kw)
+
+
+def physical_three_soils(seed: int = 0, **kw) -> Scenario:
+    """The paper's field and passes on the physical truth model: Brixius soils from cone indices,
+    geometric load transfer, turning kinematics in the headland turns, hub drive with compliance and
+    losses, toothed wheel-speed pickups; sensors at their datasheet noise, no biases, no GNSS latency."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    return _physical("physical-three-soils", PHYSICAL_THREE_SOILS, plan, seed, kw)
+
+
+def biased_sensors(seed: int = 0, **kw) -> Scenario:
+    """``physical-three-soils`` with sensor errors inside their datasheet tolerances, drawn once per run
+    from the seed (torque gain ±2 % per wheel, load-pin offsets of a few hundred N, a GNSS latency of
+    50–100 ms); the draws are written to ``truth.toml`` [biases]."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    return _physical("biased-sensors", PHYSICAL_THREE_SOILS, plan, seed, kw, sensor_biases=True)
+
+
+def s_curves_30m(seed: int = 0, **kw) -> Scenario:
+    """Work passes that are S-shaped, arcs of 30 m radius alternating left and right, across the three
+    soils: each wheel's ground speed differs by ±3 % (outer/inner) and the front wheels run on the larger
+    radius; exercises per-wheel kinematics in work."""
+    plan = s_curves(0.0, 0.0, 240.0, 3, 12.0, radius=30.0, v_work=2.5, v_turn=1.2)
+    return _physical("s-curves-30m", PHYSICAL_THREE_SOILS, plan, seed, kw)
+
+
+def circles_30m(seed: int = 0, **kw) -> Scenario:
+    """Circular work passes of 30 m radius (left, then right) on firm and medium stubble: steady
+    turning, the outer wheels (1 + κ w/2) faster than the inner ones throughout."""
+    soils = (PhysSoil("firm-stubble", cone_index_pa=1.6e6),
+             PhysSoil("stubble", cone_index_pa=1.0e6, polygon=((0.0, 30.0), (100.0, 30.0), (100.0, 100.0), (0.0, 100.0))))
+    plan = circles(0.0, 0.0, 30.0, 2, v_work=2.5)
+    return _physical("circles-30m", soils, plan, seed, kw)
+
+
+OFF_CLASS_SOILS = (
+    PhysSoil("wet-clay", cone_index_pa=0.9e6, law="peaked", s_shape=0.18),
+    PhysSoil("loose-sand", cone_index_pa=0.7e6, law="sigmoid", s_shape=0.14,
+             polygon=((120.0, -20.0), (400.0, -20.0), (400.0, 60.0), (120.0, 60.0))),
+)
+"""Soils whose μ(s) is none of the filter's classes: a peaked curve (wet clay) and an S-shaped rise
+with zero slope at s = 0 (loose sand)."""
+
+
+def soils_off_class(seed: int = 0, **kw) -> Scenario:
+    """Two soils whose μ(s) shape is outside the filter's classes (peaked wet clay, sigmoid loose sand),
+    with an implement whose working depth changes along each pass (draft 60–140 % of nominal), so that
+    the slips on each soil span well over 0.04."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    return _physical("soils-off-class", OFF_CLASS_SOILS, plan, seed, kw, draft_cycle=(0.6, 1.4, 60.0))
+
+
+def physical_headland_reverse(seed: int = 0, **kw) -> Scenario:
+    """``physical-three-soils`` with a three-point turn at every headland (quarter circle, stop, 12 m
+    straight back at 1 m/s, stop, quarter circle): reversing and standstill on the physical model."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2, reverse_at_headland=12.0, v_reverse=1.0)
+    return _physical("physical-headland-reverse", PHYSICAL_THREE_SOILS, plan, seed, kw)
+
+
+MECH_TRACTOR = VehicleParams(mass_kg=7200.0, wheel_mass_kg=180.0, rated_power_w=100e3, r0_m=0.80, tyre_width_m=0.54,
+                             tyre_pressure_pa=1.6e5, wheel_inertia_kgm2=37.0, wheelbase_m=2.6, cg_height_m=1.0,
+                             hitch_height_m=0.5, static_front_fraction=0.40, track_width_m=1.9,
+                             max_wheel_torque_nm=30000.0)
+"""A ≈ 100 kW MFWD tractor (6R / Maxxum class: 2.6 m wheelbase, 7.2 t with front ballast, 40/60)."""
+
+
+def _mechanical(name: str, seed: int, kw: dict, **phys) -> Scenario:
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    kw.setdefault("vehicle", MECH_TRACTOR)
+    kw.setdefault("implement", ImplementSpec(draft_n=21000.0))
+    phys.setdefault("axle_load_sensor", False)
+    return _physical(name, PHYSICAL_THREE_SOILS, plan, seed, kw, drivetrain=DriveLineSpec("mechanical"), **phys)
+
+
+def mechanical_three_soils(seed: int = 0, **kw) -> Scenario:
+    """The paper's field with a mechanical ≈ 100 kW MFWD tractor: engine with governor and torque curve,
+    12-speed powershift with gear changes, 3 % front-axle lead, drive-line losses; the bus carries the
+    standard J1939 messages (EEC1, EC1, ETC2, CCVS1, EBC2, WBSD, GBSD radar, rear hitch with draft)."""
+    return _mechanical("mechanical-three-soils", seed, kw)
+
+
+def mechanical_no_gbsd(seed: int = 0, **kw) -> Scenario:
+    """``mechanical-three-soils`` without a ground-speed radar: no GBSD, ground speed from GNSS only."""
+    return _mechanical("mechanical-no-gbsd", seed, kw, gbsd=False)
+
+
+def mechanical_no_draft(seed: int = 0, **kw) -> Scenario:
+    """``mechanical-three-soils`` without draft load pins: rear hitch status carries position and in-work
+    state, the draft is "not available"."""
+    return _mechanical("mechanical-no-draft", seed, kw, draft_sensor=False)
+
+
+LIGHT_MFWD = VehicleParams(mass_kg=4300.0, wheel_mass_kg=120.0, rated_power_w=75e3, r0_m=0.72, tyre_width_m=0.42,
+                           tyre_pressure_pa=1.4e5, wheel_inertia_kgm2=22.0, wheelbase_m=2.3, cg_height_m=0.95,
+                           hitch_height_m=0.45, static_front_fraction=0.42, track_width_m=1.7,
+                           max_wheel_torque_nm=20000.0)
+"""A light 75 kW MFWD tractor without ballast (4.3 t: 57 kg/kW, where ballast guides ask 60–70 kg/kW
+for heavy draft work)."""
+
+
+def ballast_needed(seed: int = 0, **kw) -> Scenario:
+    """A light, unballasted 75 kW MFWD tractor pulling a heavy implement (draft ≈ 0.5 of its weight) on
+    the three soils: slip stays above ≈ 15 %, the case where an advisor should recommend ballast."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.0, v_turn=1.2)
+    kw.setdefault("vehicle", LIGHT_MFWD)
+    kw.setdefault("implement", ImplementSpec(draft_n=21000.0))
+    return _physical("ballast-needed", PHYSICAL_THREE_SOILS, plan, seed, kw, axle_load_sensor=False,
+                     drivetrain=DriveLineSpec("mechanical", mech=MechDriveSpec(
+                         engine=_scaled_engine(0.75), final_drive=28.0)))
+
+
+def _scaled_engine(f: float):
+    from .drivetrain import EngineSpec
+    e = EngineSpec()
+    return replace(e, torque_nm=tuple(t * f for t in e.torque_nm), reference_torque_nm=round(e.reference_torque_nm * f),
+                   inertia_kgm2=e.inertia_kgm2 * f)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-three-soils": paper_three_soils,
     "paper-straight": paper_straight,
     "henrys-slope": henrys_slope,
     "two-soils-tilled": two_soils_tilled,
     "headland-reverse": headland_reverse,
+    "physical-three-soils": physical_three_soils,
+    "biased-sensors": biased_sensors,
+    "s-curves-30m": s_curves_30m,
+    "circles-30m": circles_30m,
+    "soils-off-class": soils_off_class,
+    "physical-headland-reverse": physical_headland_reverse,
+    "mechanical-three-soils": mechanical_three_soils,
+    "mechanical-no-gbsd": mechanical_no_gbsd,
+    "mechanical-no-draft": mechanical_no_draft,
+    "ballast-needed": ballast_needed,
 }
 
 

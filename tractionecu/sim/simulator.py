@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,12 +52,17 @@ from ..model.vehicle import rolling_radius, slip as slip_fn
 from .field import Field
 from .plan import DS, Plan
 
+if TYPE_CHECKING:
+    from .physical import PhysicalSpec
+
 V_SLIP_MIN = 0.1
 """Speed below which the slip's denominator is held [m/s] (low-speed regularisation of eq. 6)."""
 V_SIGN_BAND = 0.02
 """Speed band around zero [m/s] in which sgn(v), sgn(ω) of the rolling resistances are linear."""
 V_STANDSTILL = 0.01
 """|v| [m/s] below which the machine counts as standing still (shuttling allowed)."""
+TRUTH_MODELS = ("paper", "physical")
+"""Truth models a scenario can select (``Scenario.truth``)."""
 
 
 @dataclass(frozen=True)
@@ -120,6 +126,16 @@ class Scenario:
     """Control and recording period [s]."""
     substeps: int = 2
     """Integration substeps per control period."""
+    truth: str = "paper"
+    """Truth model: ``paper`` (this module: the paper's equations and curve family) or ``physical``
+    (:mod:`.physical`: Brixius tyre–soil forces, geometric load transfer, turning kinematics, drive-line
+    compliance and losses; never the filter's equations)."""
+    physical: "PhysicalSpec | None" = None
+    """Soils, tyre, drive-line, hitch and sensor fittings of the physical truth model."""
+
+    def __post_init__(self) -> None:
+        if self.truth not in TRUTH_MODELS:
+            raise ValueError(f"scenario {self.name}: truth {self.truth!r} (known: {', '.join(TRUTH_MODELS)})")
 
 
 @dataclass
@@ -156,10 +172,32 @@ class TruthTrace:
     work: NDArray[np.bool_]
     direction: NDArray[np.int8]
     """Direction of travel selected (transmission): +1 forwards, −1 reverse; changes only at standstill."""
+    # Physical truth only (None from the paper model):
+    v_wheel: NDArray[np.float64] | None = None
+    """Ground speed of each wheel along its own heading [m/s] (signed like v); slip is against it."""
+    curvature: NDArray[np.float64] | None = None
+    """Path curvature of the rear-axle midpoint [1/m], positive turning left."""
+    omega_sensor: NDArray[np.float64] | None = None
+    """Speed at each wheel's speed pickup, reflected to the wheel [rad/s] (hub: the motor shaft)."""
+    engine_torque: NDArray[np.float64] | None = None
+    """Mechanical: engine net brake torque [N·m]."""
+    engine_speed: NDArray[np.float64] | None = None
+    """Mechanical: engine speed [rad/s]."""
+    gear: NDArray[np.int64] | None = None
+    """Mechanical: gear engaged (negative in reverse)."""
+    gear_ratio: NDArray[np.float64] | None = None
+    """Mechanical: gearbox ratio, input/output [-]."""
+    front_lead: NDArray[np.float64] | None = None
+    """Mechanical: front-axle lead [-]."""
+    mfwd: NDArray[np.bool_] | None = None
+    """Mechanical: MFWD engaged."""
 
 
 def simulate(scn: Scenario) -> TruthTrace:
-    """Run the truth model; deterministic for a given ``scn.seed``."""
+    """Run the scenario's truth model (``scn.truth``); deterministic for a given ``scn.seed``."""
+    if scn.truth == "physical":
+        from .physical import simulate_physical
+        return simulate_physical(scn)
     rng = np.random.default_rng(scn.seed)
     veh = scn.vehicle
     eff = scn.effects

@@ -53,8 +53,13 @@ GNSS_COURSE_HOLD_MPS = 0.1
 def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec | None = None) -> dict[str, int]:
     """Write ``can.log``, ``gps.nmea``, ``vehicle.toml``, ``truth.csv``, ``truth.toml`` to ``out``.
 
-    Returns counts of frames per message and NMEA lines.
+    Returns counts of frames per message and NMEA lines.  A physical-truth scenario is written by
+    :func:`tractionecu.sim.physwriter.write_physical_recording` (its own sensors and, for a mechanical
+    tractor, the standard J1939 messages).
     """
+    if getattr(scn, "truth", "paper") == "physical":
+        from .physwriter import write_physical_recording
+        return write_physical_recording(scn, tr, out, codec)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     codec = codec or default_codec()
