@@ -41,13 +41,12 @@ from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_t
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
-from ..recording.clock import SPEED_SIGNALS as CLOCK_SPEEDS
-from ..recording.clock import WHEEL_SIGNALS as CLOCK_WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
 from .select import estimator_for, groups_for
-from .signals import ENGINE_IDLE_SPEED, GNSS_SPEED, PARKING_BRAKE, SELECTED_GEAR, SPEED_SIGNALS, required_missing
+from .signals import GNSS_SPEED, required_missing
 from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
+from .survey import survey_keep
 
 _BATCH = 2048
 """Estimates kept before they are copied into the result arrays (bounded memory, bulk copies)."""
@@ -493,18 +492,6 @@ def resolved_config(vehicle: VehicleParams, sensors: SensorSpec, cfg: EstimatorC
             + f"gnss_min_fix_quality = {gate.min_fix_quality}\ngnss_max_hdop = {float(gate.max_hdop)!r}\n")
 
 
-SURVEY_FULL = frozenset({*CLOCK_SPEEDS, *SPEED_SIGNALS, ENGINE_IDLE_SPEED, SELECTED_GEAR, PARKING_BRAKE})
-"""Signals a streamed replay's survey keeps whole (few samples; the clock offset and the motion report use them).
-The wheel speeds are kept too while no ground- or wheel-based speed has been seen (the clock offset falls
-back to them); every other signal is a stub."""
-
-
-def _survey_keep(name: str, seen: set[str]) -> bool:
-    if name in SURVEY_FULL:
-        return True
-    return name in CLOCK_WHEELS and not any(s in seen for s in CLOCK_SPEEDS)
-
-
 def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
                   cfg: EstimatorConfig | None = None, sensors: SensorSpec | None = None,
                   gate: GnssGate | None = None, write_map: bool = True,
@@ -513,7 +500,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     """Read, replay and write ``estimates.csv``, ``config.toml`` and the map (module doc).
 
     A recording given by its path is streamed: a survey (:func:`read_recording` keeping whole only the
-    few signals of :data:`SURVEY_FULL`) finds the signals, statistics and clock offset, then the capture is
+    few signals of :data:`~.survey.SURVEY_FULL`) finds the signals, statistics and clock offset, then the capture is
     read again block by block (:func:`~tractionecu.recording.reader.stream_signals`) into the estimator,
     and ``estimates.csv`` is written as the steps age past the lost-filter window.  Memory does not grow
     with the recording's length but for the GNSS track and the map's samples (one step per GNSS epoch).
@@ -524,12 +511,12 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     ``loop_seconds``, ``write_seconds``, ``wall_seconds``,
     ``realtime_factor``, ``counters``, ``gnss_gated``, output paths and map
     counts), the recording (for a streamed one, its survey: signals not in
-    :data:`SURVEY_FULL` are stubs of two samples) and the result.
+    :data:`~.survey.SURVEY_FULL` are stubs of two samples) and the result.
     """
     wall0 = time.perf_counter()
     out = Path(out_dir)
     streamed = not isinstance(recording, Recording)
-    rec = read_recording(recording, keep=_survey_keep) if streamed else recording
+    rec = read_recording(recording, keep=survey_keep) if streamed else recording
     missing = required_missing(rec, machine_of(rec)[0])
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
