@@ -15,6 +15,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("simulate", help="simulate a field run and write a recording directory")
     p.add_argument("--scenario", default="paper-three-soils", choices=sorted(scenarios.SCENARIOS),
                    help="named scenario (default: %(default)s)")
+    p.add_argument("--truth", choices=("paper", "physical"), default=None,
+                   help="truth model: paper (the filter's own equations) or physical (independent tyre-soil, "
+                        "load-transfer, kinematics and drive-line physics); default: the scenario's")
     p.add_argument("--out", required=True, help="recording directory to write")
     p.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds [s]")
@@ -27,6 +30,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     effects = dict(parse_effect_arg(e) for e in args.effect)
     scn = scenarios.get(args.scenario, seed=args.seed, effects=effects, duration_s=args.duration)
+    if args.truth is not None:
+        scn = scenarios.with_truth(scn, args.truth)
     if "grade" in effects and not scn.field.terrain.source.startswith("OFPEDATA2"):
         from ..sim.terrain import Terrain
         scn.field.terrain = Terrain.henrys_field()
@@ -38,6 +43,6 @@ def run(args: argparse.Namespace) -> int:
     counts = write_recording(scn, tr, args.out)
     wall = time.perf_counter() - t0
     frames = sum(v for k, v in counts.items() if k != "nmea_lines")
-    print(f"{scn.name}: {tr.t[-1]:.1f} s simulated in {wall:.1f} s; {frames} CAN frames, "
+    print(f"{scn.name} ({scn.truth} truth): {tr.t[-1]:.1f} s simulated in {wall:.1f} s; {frames} CAN frames, "
           f"{counts['nmea_lines']} NMEA lines -> {args.out}")
     return 0

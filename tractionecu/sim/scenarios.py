@@ -234,9 +234,40 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
 }
 
 
-def get(name: str, seed: int = 0, **kw) -> Scenario:
-    """Build a named scenario."""
+def get(name: str, seed: int = 0, truth: str | None = None, **kw) -> Scenario:
+    """Build a named scenario; ``truth`` (``paper`` or ``physical``) overrides the scenario's own truth model
+    (:func:`with_truth`)."""
     try:
-        return SCENARIOS[name](seed=seed, **kw)
+        make = SCENARIOS[name]
     except KeyError:
         raise ConfigError(f"scenario {name!r}: unknown (known: {', '.join(SCENARIOS)})") from None
+    scn = make(seed=seed, **kw)
+    return scn if truth is None else with_truth(scn, truth)
+
+
+def soil_from_region(region: SoilRegion, veh: VehicleParams) -> PhysSoil:
+    """A Brixius soil for a paper soil region: the cone index whose B_n under the static mean wheel load
+    gives the region's ρ_s at zero slip (ρ_s = 1/B_n + ρ_t,tyre − ρ_t,declared; B_n held in 8..80)."""
+    from .tyre import TyreSpec, mobility_number
+    tyre = TyreSpec()
+    bn = 1.0 / max(region.rho_s - (tyre.rho_t - veh.rho_t), 1.0 / 80.0)
+    bn = min(max(bn, 8.0), 80.0)
+    fz = veh.mass_kg * 9.81 / 4.0
+    ci = bn / float(mobility_number(1.0, fz, veh.tyre_width_m, veh.r0_m, tyre, veh.tyre_pressure_pa))
+    return PhysSoil(region.name, cone_index_pa=round(ci, -3), polygon=region.polygon)
+
+
+def with_truth(scn: Scenario, truth: str) -> Scenario:
+    """The scenario on another truth model.  ``physical`` for a paper scenario: Brixius soils from the
+    regions' ρ_s (:func:`soil_from_region`), hub drive; ``paper`` for a physical one: the paper model on
+    the regions' class-equivalents (the drive-line is then the paper's hub drive)."""
+    if truth not in ("paper", "physical"):
+        raise ConfigError(f"truth {truth!r}: 'paper' or 'physical'")
+    if truth == scn.truth:
+        return scn
+    if truth == "paper":
+        return replace(scn, truth="paper")
+    if scn.effects:
+        raise ConfigError(f"scenario {scn.name}: effects ({', '.join(scn.effects)}) belong to the paper truth model")
+    soils = tuple(soil_from_region(r, scn.vehicle) for r in scn.field.regions)
+    return replace(scn, truth="physical", physical=PhysicalSpec(soils))
