@@ -237,8 +237,8 @@ class RadiusCalibration:
     def _end_block(self) -> None:
         b = self._blk
         n = b[4]
-        span = self._t_last - self._t0 if n > 1 else 0.0
-        expect = (span / self._period + 1.0) if self._period > 0.0 else n
+        span = (self._t_last - self._t0) * n / (n - 1) if n > 1 else 0.0      # n samples cover n periods
+        expect = span / self._period if self._period > 0.0 else n
         if n >= 2 and span >= 0.5 * self.cfg.block_s and n >= 0.5 * expect:
             self._axles[0].add(b[0] / n, b[1] / n)
             self._axles[1].add(b[2] / n, b[3] / n)
@@ -285,7 +285,8 @@ class RadiusCalibration:
         b[4] += 1
         self.samples += 1
         self._t_last = t
-        if t - self._t0 >= cfg.block_s - 1e-9:
+        n = self._blk[4]
+        if n >= 2 and (t - self._t0) * n / (n - 1) >= cfg.block_s - 1e-9:     # n samples cover n periods
             self._end_block()
 
     def _sample_ok(self, v: float, omega: list[float], mu: list[float], accel: float) -> bool:
