@@ -26,9 +26,13 @@ from ..bus.dbc import WHEELS, Codec
 MESSAGES = ("TECU_EstAdhesion", "TECU_EstSlip", "TECU_EstSoil")
 
 
+EFFICIENCY_MESSAGE = "TECU_EstEfficiency"
+"""The efficiency and optimal-slip message (:mod:`tractionecu.advice.bus`), sent beside the three."""
+
+
 def output_pgns(codec: Codec) -> frozenset[int]:
-    """The PGNs of the three estimate messages (a frame of these from the bus is another ECU's estimate)."""
-    return frozenset(codec.message(name).pgn for name in MESSAGES)
+    """The PGNs of the estimate messages (a frame of these from the bus is another ECU's estimate)."""
+    return frozenset(codec.message(name).pgn for name in (*MESSAGES, EFFICIENCY_MESSAGE))
 
 NO_DATA_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x10 | 0x20
 """Status sent before the first estimate: every input timed out, not converged."""

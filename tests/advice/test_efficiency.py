@@ -1,0 +1,146 @@
+"""Traction efficiency (paper eq. 7), the optimal slip and its interval, and the bus message."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tractionecu.advice import efficiency as eff
+from tractionecu.advice.bus import MESSAGE, efficiency_frame
+from tractionecu.bus.dbc import default_codec
+from tractionecu.config import VehicleParams
+from tractionecu.model.mucurve import SOIL_CLASSES
+from tractionecu.model.vehicle import traction_efficiency
+
+STUBBLE = SOIL_CLASSES["stubble"]
+
+
+def curve(a: float, sigma_a: float = 0.0) -> eff.CurveParams:
+    return eff.CurveParams(a, STUBBLE.p, STUBBLE.alpha1, STUBBLE.alpha2, sigma_a=sigma_a, class_name="stubble")
+
+
+def test_eta_is_paper_eq7() -> None:
+    # η = κ/(κ + ρ)(1 − s), κ = μ − ρ_s, ρ = ρ_s + ρ_t: the per-wheel form and the model's function agree
+    mu, s, rho_s, rho_t = 0.45, 0.08, 0.07, 0.015
+    want = float(traction_efficiency(mu - rho_s, rho_s + rho_t, s))
+    assert float(eff.eta_wheels([mu], [s], rho_s, rho_t)[0]) == pytest.approx(want)
+    # the machine's η of four equal wheels is the wheel's η
+    assert eff.eta_machine([mu] * 4, [s] * 4, [1e4] * 4, rho_s, rho_t) == pytest.approx(want)
+
+
+def test_machine_eta_is_power_ratio() -> None:
+    # Σ pull·v / Σ wheel power, with wheel power (μ + ρ_t) F_z · v/(1 − s)
+    mu = np.array([0.40, 0.42, 0.50, 0.52])
+    s = np.array([0.06, 0.07, 0.09, 0.10])
+    fz = np.array([12e3, 12e3, 19e3, 19e3])
+    rho_s, rho_t, v = 0.06, 0.015, 2.5
+    p_out = float(np.sum((mu - rho_s) * fz)) * v
+    p_in = float(np.sum((mu + rho_t) * fz * v / (1 - s)))
+    assert eff.eta_machine(mu, s, fz, rho_s, rho_t) == pytest.approx(p_out / p_in)
+
+
+@pytest.mark.parametrize("a,rho_s", [(0.82, 0.05), (0.70, 0.07), (0.58, 0.10), (0.45, 0.12)])
+def test_optimum_matches_a_dense_search(a: float, rho_s: float) -> None:
+    s = np.linspace(0, 0.6, 600001)
+    e = eff.eta_curve(s, curve(a), rho_s, 0.015)
+    k = int(np.nanargmax(e))
+    s_star, e_star = eff.optimum(curve(a), rho_s, 0.015)
+    assert s_star == pytest.approx(s[k], abs=2e-4)
+    assert e_star == pytest.approx(e[k], abs=1e-6)
+
+
+def test_softer_soil_moves_the_optimum_up() -> None:
+    # more soil resistance and less adhesion: the best slip is higher, the best efficiency lower
+    s1, e1 = eff.optimum(curve(0.82), 0.05, 0.015)
+    s2, e2 = eff.optimum(curve(0.58), 0.10, 0.015)
+    assert s2 > s1 + 0.02 and e2 < e1 - 0.1
+
+
+def test_interval_grows_with_the_parameter_uncertainty() -> None:
+    _, _, ss0, _ = eff.optimum_with_interval(curve(0.7, 0.0), 0.07, 0.015, 0.0)
+    _, _, ss1, se1 = eff.optimum_with_interval(curve(0.7, 0.02), 0.07, 0.015, 0.0)
+    _, _, ss2, _ = eff.optimum_with_interval(curve(0.7, 0.02), 0.07, 0.015, 0.005 ** 2)
+    assert ss0 == 0.0 and 0 < ss1 < ss2 and se1 > 0
+    # the delta method against the spread of s* over sampled a
+    rng = np.random.default_rng(1)
+    samples = [eff.optimum(curve(a), 0.07, 0.015)[0] for a in rng.normal(0.7, 0.02, 400)]
+    assert float(np.std(samples)) == pytest.approx(ss1, rel=0.15)
+
+
+def test_a_covariance_of_the_full_shape_is_used() -> None:
+    # a covariance over (a, p, α1, α2), as a curve fit beyond a provides it, widens the interval
+    cov = np.diag([0.02 ** 2, 0.05 ** 2, 3.0 ** 2, 0.5 ** 2])
+    c = eff.CurveParams(0.7, STUBBLE.p, STUBBLE.alpha1, STUBBLE.alpha2, cov=cov, names=("a", "p", "alpha1", "alpha2"))
+    _, _, ss_full, _ = eff.optimum_with_interval(c, 0.07, 0.015, 0.0)
+    _, _, ss_a, _ = eff.optimum_with_interval(curve(0.7, 0.02), 0.07, 0.015, 0.0)
+    assert ss_full > ss_a
+    est = SimpleNamespace(curve=SimpleNamespace(a=0.7, p=STUBBLE.p, alpha1=STUBBLE.alpha1, alpha2=STUBBLE.alpha2,
+                                                cov=cov, names=("a", "p", "alpha1", "alpha2")), soil_class="stubble")
+    got = eff.curve_of(est)
+    assert got is not None and got.covariance()[1].shape == (4, 4)
+
+
+def estimate(t: float, slip: float, a: float = 0.7, rho_s: float = 0.07, status: int = 0, v: float = 2.5,
+             sv: float = 0.02) -> SimpleNamespace:
+    mu = float(STUBBLE.mu(slip, a))
+    P = np.full(10, 1e-5)
+    P[4] = sv ** 2
+    P[9] = 0.004 ** 2
+    return SimpleNamespace(t=t, mu=np.full(4, mu), slip=np.full(4, slip), rho_s=rho_s, v=v, P_diag=P, a=a,
+                           soil_class="stubble", status=status, valid=status == 0)
+
+
+def test_tracker_reports_the_optimum_with_an_interval() -> None:
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    rep = trk.update(estimate(0.0, 0.08))
+    s_true, e_true = eff.optimum(curve(0.7), 0.07, 0.015)
+    assert rep.flags == 0 and rep.s_star_valid and rep.eta_valid
+    assert rep.s_star == pytest.approx(s_true, abs=1e-6)
+    assert rep.s_star_lo < rep.s_star < rep.s_star_hi
+    assert rep.eta == pytest.approx(float(eff.eta_curve(0.08, curve(0.7), 0.07, 0.015)), abs=1e-9)
+    assert rep.eta_lost >= 0 and rep.eta_star == pytest.approx(e_true)
+    assert rep.pull_at_s_star_n == pytest.approx((float(STUBBLE.mu(s_true, 0.7)) - 0.07) * VehicleParams().weight_n)
+
+
+def test_low_slip_says_so_instead_of_a_number() -> None:
+    # at 0.5 % slip g(s) → 0: a is undetermined, s* is not given, and the flags say why
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    for k in range(20):
+        rep = trk.update(estimate(0.1 * k, 0.005))
+    assert not rep.s_star_valid and math.isnan(rep.s_star)
+    assert rep.flags & eff.LOW_EXCITATION
+    assert "slip too low to identify the curve" in rep.reasons()
+
+
+def test_invalid_estimate_and_unknown_curve() -> None:
+    trk = eff.EfficiencyTracker()
+    rep = trk.update(estimate(0.0, 0.08, status=0x20))
+    assert rep.flags & eff.ESTIMATE_INVALID and math.isnan(rep.eta) and math.isnan(rep.s_star)
+    rep = trk.update(estimate(0.1, 0.08, a=math.nan))
+    assert rep.flags & eff.CURVE_NOT_IDENTIFIED
+    rep = trk.update(estimate(0.2, 0.08, v=0.0))
+    assert rep.flags & eff.NOT_PULLING and not rep.slip_ok
+
+
+def test_the_message_decodes_back() -> None:
+    codec = default_codec()
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    rep = trk.update(estimate(0.0, 0.08))
+    cid, data = efficiency_frame(codec, rep, sa=0x90, priority=6)
+    name, vals = codec.decode(cid, data)
+    assert name == MESSAGE and codec.message(MESSAGE).pgn == 0xFF23 and cid & 0xFF == 0x90
+    assert vals["OptimalSlip"] == pytest.approx(rep.s_star, abs=0.5e-4)
+    assert vals["TractionEfficiency"] == pytest.approx(rep.eta, abs=0.5e-4)
+    assert vals["TractionEfficiencyAtOptimum"] == pytest.approx(rep.eta_star, abs=0.5e-4)
+    assert vals["EfficiencyValidity"] == 0
+    assert vals["OptimalSlipHalfWidth"] == pytest.approx((rep.s_star_hi - rep.s_star_lo) / 2, abs=0.5e-3)
+    # invalid values go out as "not available", the flags say why
+    rep = trk.update(estimate(0.1, 0.08, status=0x20))
+    _, vals = codec.decode(*efficiency_frame(codec, rep, sa=0x90, priority=6))
+    assert vals["EfficiencyValidity"] == eff.ESTIMATE_INVALID
+    assert all(math.isnan(vals[k]) for k in ("OptimalSlip", "TractionEfficiency", "TractionEfficiencyAtOptimum"))
+    _, vals = codec.decode(*efficiency_frame(codec, None, sa=0x90, priority=6))
+    assert int(vals["EfficiencyValidity"]) & eff.CURVE_NOT_IDENTIFIED

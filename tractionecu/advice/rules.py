@@ -1,0 +1,257 @@
+"""Recommendations for the driver, each with the numbers it rests on.  The service never acts on the machine.
+
+Two triggers (issue: "what farmers act on today"):
+
+1. **Slip outside the band** of the axle type over a distance: the
+   distance-weighted mean of the machine's operating slip over the last
+   ``distance_m`` metres of pulling lies outside the band.  Operator-manual
+   bands: MFWD 8–12 %, two-wheel drive 10–15 %, tracks 2–5 % (ASABE EP496
+   gives the same ranges by soil: 8–10 % firm, 11–13 % tilled, 13–15 % soft).
+   Slip *above* the band fires (too little weight on the wheels: wear,
+   soil smearing, lost pull), unless the identified curve puts the optimum
+   s* above it (its interval's lower end above the slip): the measured curve
+   outranks the rule of thumb.  Slip *below* it fires only when the
+   identified curve says that running nearer s* would gain at least
+   ``eta_loss`` of efficiency over that distance: a tractor at a light load
+   runs below the band with nothing to gain from less ballast, and advice
+   the driver learns to ignore is worse than none.
+2. **η far below η(s*)** for minutes: the mean of η* − η over the last
+   ``eta_minutes`` minutes (while s* and η are valid) exceeds ``eta_loss``.
+
+Each trigger gives recommendations by the side of the optimum it is on:
+
+* slip too high (s > s*): **add ballast**.  The pull P = Σ (μ_i − ρ_s) F_z,i
+  stays; at the target slip s_t (s*, else the band's middle) each newton of
+  weight gives μ(s_t) − ρ_s of pull, so W' = P/(μ(s_t) − ρ_s) and the
+  ballast is (W' − W)/g.  Where: the drawbar pull moves P·h_hitch/L off the
+  front axle onto the rear (physics.md, load transfer); the axle that slips
+  more gets it.  Then **lower the tyre pressure** if the tyre profile allows
+  (``tyre_pressure_min_pa`` > 0: the lowest pressure the tyre's load table
+  allows for this load): a longer contact patch raises the pull at a given
+  slip.  Or a **shallower working depth**: the draft to shed is
+  P − (μ(s_t) − ρ_s)·W.
+* slip too low (s < s*): **remove ballast**, (W − W')/g by the same
+  formula, or a **higher gear** (more speed for the same pull uses the
+  traction that the weight provides).
+
+The amounts are first estimates from the identified curve: they say what
+the curve implies, not what the next field will do.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from .efficiency import G, CurveParams, EfficiencyReport
+
+SLIP_BANDS: dict[str, tuple[float, float]] = {
+    "mfwd": (0.08, 0.12),
+    "4wd": (0.08, 0.12),
+    "2wd": (0.10, 0.15),
+    "tracks": (0.02, 0.05),
+}
+"""Slip bands for ballasting by axle type [-] (operator manuals; ASABE EP496)."""
+
+
+@dataclass(frozen=True)
+class AdviceSettings:
+    """Thresholds of the advice (the service's ``[advice]``)."""
+
+    axle_type: str = "mfwd"
+    slip_min: float = math.nan
+    """Lower end of the band [-]; NaN: the axle type's."""
+    slip_max: float = math.nan
+    """Upper end of the band [-]; NaN: the axle type's."""
+    distance_m: float = 100.0
+    """Slip must stay outside the band over this distance of pulling [m]."""
+    eta_loss: float = 0.05
+    """η* − η above this is "far below the optimum" [-]."""
+    eta_minutes: float = 2.0
+    """... for this long [min]."""
+    tyre_pressure_pa: float = math.nan
+    """Tyre pressure now [Pa] (the vehicle's)."""
+    tyre_pressure_min_pa: float = 0.0
+    """Lowest tyre pressure the tyre's load table allows [Pa]; 0: lowering is not advised."""
+    tyre_pressure_step_pa: float = 20e3
+    """Pressure step of a recommendation [Pa]."""
+
+    def band(self) -> tuple[float, float]:
+        lo, hi = SLIP_BANDS[self.axle_type]
+        return (lo if math.isnan(self.slip_min) else self.slip_min, hi if math.isnan(self.slip_max) else self.slip_max)
+
+
+@dataclass
+class Recommendation:
+    """One piece of advice: ``kind`` (``add_ballast``, ``remove_ballast``, ``lower_tyre_pressure``,
+    ``shallower_depth``, ``higher_gear``), a sentence, and the numbers it rests on."""
+
+    kind: str
+    text: str
+    trigger: str
+    evidence: dict[str, float | str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        ev = {k: (round(v, 5) if isinstance(v, float) and math.isfinite(v) else (None if isinstance(v, float) else v))
+              for k, v in self.evidence.items()}
+        return {"kind": self.kind, "text": self.text, "trigger": self.trigger, "evidence": ev}
+
+
+class Advisor:
+    """Turns a stream of :class:`EfficiencyReport` (about 10 Hz) into recommendations (module doc)."""
+
+    def __init__(self, settings: AdviceSettings | None = None, *, weight_n: float = 6300 * G,
+                 front_fraction: float = 0.4, wheelbase_m: float = 2.5, hitch_height_m: float = 0.5) -> None:
+        self.s = settings or AdviceSettings()
+        if self.s.axle_type not in SLIP_BANDS:
+            raise ValueError(f"axle type {self.s.axle_type!r}: not one of {', '.join(SLIP_BANDS)}")
+        self.weight_n = weight_n
+        self.front_fraction = front_fraction
+        self.L = wheelbase_m
+        self.h = hitch_height_m
+        self._dist: deque[tuple[float, float, float, float, float]] = deque()  # (d, slip, loss or nan, s-s*, t)
+        self._sums = [0.0] * 5      # Σd, Σd·slip, Σd (loss known), Σd·loss, Σd·(s − s*) over the window
+        self._n_added = 0
+        self._eta: deque[tuple[float, float]] = deque()
+        self._eta_sum = 0.0
+        self._t: float | None = None
+        self.active: list[Recommendation] = []
+        self.last_report: EfficiencyReport | None = None
+
+    def update(self, rep: EfficiencyReport, v: float, curve: CurveParams | None,
+               slip_axles: tuple[float, float] = (math.nan, math.nan)) -> list[Recommendation]:
+        """Add one report (ground speed ``v`` [m/s], the identified ``curve``, front and rear slip); the advice now."""
+        t = rep.t
+        dt = 0.0 if self._t is None or not math.isfinite(t) else min(max(t - self._t, 0.0), 1.0)
+        self._t = t
+        self.last_report = rep
+        if rep.slip_ok and math.isfinite(v):
+            dd = abs(v) * dt
+            loss = rep.eta_lost if rep.s_star_valid else math.nan
+            side = rep.slip - rep.s_star if rep.s_star_valid else math.nan
+            item = (dd, rep.slip, loss, side, t)
+            self._dist.append(item)
+            self._add(item, 1.0)
+            while self._dist and self._sums[0] - self._dist[0][0] >= self.s.distance_m:
+                self._add(self._dist.popleft(), -1.0)
+            self._n_added += 1
+            if self._n_added % 4096 == 0:        # running sums: recompute now and then (rounding)
+                self._sums = [0.0] * 5
+                for x in self._dist:
+                    self._add(x, 1.0)
+        if rep.s_star_valid and rep.eta_valid:
+            self._eta.append((t, rep.eta_lost))
+            self._eta_sum += rep.eta_lost
+        horizon = self.s.eta_minutes * 60.0
+        while self._eta and t - self._eta[0][0] > horizon:
+            self._eta_sum -= self._eta.popleft()[1]
+        self.active = self._decide(rep, curve, slip_axles)
+        return self.active
+
+    # ------------------------------------------------------------ triggers
+    def _add(self, x: tuple[float, float, float, float, float], sign: float) -> None:
+        d, slip, loss, side, _ = x
+        s = self._sums
+        s[0] += sign * d
+        s[1] += sign * d * slip
+        if math.isfinite(loss):
+            s[2] += sign * d
+            s[3] += sign * d * loss
+            s[4] += sign * d * side
+
+    def _window_means(self) -> tuple[float, float, float, float]:
+        """Distance-weighted mean slip, η loss and (s − s*) over the window, and the window's length [m]."""
+        d, dslip, dl, dloss, dside = self._sums
+        if d <= 1e-9:
+            return math.nan, math.nan, math.nan, 0.0
+        slip = dslip / d
+        loss = dloss / dl if dl > 0.5 * d else math.nan
+        side = dside / dl if dl > 0.5 * d else math.nan
+        return slip, loss, side, d
+
+    def _decide(self, rep: EfficiencyReport, curve: CurveParams | None,
+                slip_axles: tuple[float, float]) -> list[Recommendation]:
+        lo, hi = self.s.band()
+        slip, loss, side, d = self._window_means()
+        out: list[Recommendation] = []
+        ev_base: dict[str, float | str] = {"band_lo": lo, "band_hi": hi, "axle_type": self.s.axle_type}
+        if d >= self.s.distance_m * 0.999 and math.isfinite(slip):
+            ev = {**ev_base, "mean_slip": slip, "distance_m": d, "eta_loss_mean": loss}
+            if slip > hi and not (rep.s_star_valid and slip < rep.s_star_lo):
+                # (above the band but below the identified optimum: the curve says more slip pays here)
+                out += self._too_high(rep, curve, f"slip {slip:.1%} above the {lo:.0%}–{hi:.0%} band over {d:.0f} m",
+                                      ev, slip_axles, (lo + hi) / 2)
+            elif slip < lo and math.isfinite(loss) and loss >= self.s.eta_loss:
+                out += self._too_low(rep, curve, f"slip {slip:.1%} below the {lo:.0%}–{hi:.0%} band over {d:.0f} m, "
+                                                 f"{loss:.3f} of efficiency lost", ev)
+        if not out and self._eta:
+            span = self._eta[-1][0] - self._eta[0][0]
+            mean_loss = self._eta_sum / len(self._eta)
+            if span >= 0.95 * self.s.eta_minutes * 60.0 and mean_loss >= self.s.eta_loss and math.isfinite(side):
+                ev = {**ev_base, "eta_loss_mean": mean_loss, "minutes": span / 60.0, "mean_slip": slip,
+                      "mean_slip_minus_s_star": side}
+                why = f"η {mean_loss:.3f} below η(s*) for {span / 60:.1f} min"
+                if side > 0:
+                    out += self._too_high(rep, curve, why, ev, slip_axles, (lo + hi) / 2)
+                else:
+                    out += self._too_low(rep, curve, why, ev)
+        return out
+
+    # ------------------------------------------------------------ recommendations
+    def _target(self, rep: EfficiencyReport, band_mid: float) -> tuple[float, str]:
+        if rep.s_star_valid:
+            return rep.s_star, "s*"
+        return band_mid, "band middle"
+
+    def _weight_for(self, rep: EfficiencyReport, curve: CurveParams | None, s_t: float) -> float:
+        """W' = P/(μ(s_t) − ρ_s) [N] (module doc); NaN without a curve."""
+        if curve is None or not (math.isfinite(rep.pull_n) and math.isfinite(rep.rho_s)):
+            return math.nan
+        k = float(curve.mu(s_t)) - rep.rho_s
+        return rep.pull_n / k if k > 0.02 else math.nan
+
+    def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
+                  slip_axles: tuple[float, float], band_mid: float) -> list[Recommendation]:
+        s_t, target = self._target(rep, band_mid)
+        w_new = self._weight_for(rep, curve, s_t)
+        ballast_kg = (w_new - self.weight_n) / G if math.isfinite(w_new) else math.nan
+        transfer = rep.pull_n * self.h / self.L if math.isfinite(rep.pull_n) else math.nan
+        sf, sr = slip_axles
+        where = "front" if (math.isfinite(sf) and math.isfinite(sr) and sf > sr + 0.005) else (
+            "rear" if (math.isfinite(sf) and math.isfinite(sr) and sr > sf + 0.005) else "front and rear")
+        e = {**ev, "target_slip": s_t, "target": target, "pull_n": rep.pull_n, "rho_s": rep.rho_s, "a": rep.a,
+             "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
+             "weight_n": self.weight_n, "weight_needed_n": w_new, "load_transfer_n": transfer,
+             "slip_front": sf, "slip_rear": sr}
+        amount = (f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0
+                  else "amount not estimated" + (" (curve not identified)" if curve is None else ""))
+        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, on the {where} axle: {why}.", why,
+                               {**e, "ballast_kg": ballast_kg, "where": where})]
+        p, pmin = self.s.tyre_pressure_pa, self.s.tyre_pressure_min_pa
+        if pmin > 0 and math.isfinite(p) and p - self.s.tyre_pressure_step_pa >= pmin:
+            p_new = max(pmin, p - self.s.tyre_pressure_step_pa)
+            recs.append(Recommendation("lower_tyre_pressure",
+                                       f"Lower the tyre pressure from {p / 1e5:.2f} to {p_new / 1e5:.2f} bar "
+                                       f"(tyre minimum {pmin / 1e5:.2f} bar): {why}.", why,
+                                       {**e, "tyre_pressure_pa": p, "tyre_pressure_new_pa": p_new,
+                                        "tyre_pressure_min_pa": pmin}))
+        shed = (rep.pull_n - (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n) if curve is not None else math.nan
+        txt = (f"or work shallower or in a lower gear: shed about {shed / 1e3:.1f} kN of draft"
+               if math.isfinite(shed) and shed > 0 else "or work shallower or in a lower gear")
+        recs.append(Recommendation("shallower_depth", txt[0].upper() + txt[1:] + f": {why}.", why,
+                                   {**e, "draft_to_shed_n": shed}))
+        return recs
+
+    def _too_low(self, rep: EfficiencyReport, curve: CurveParams | None, why: str,
+                 ev: dict[str, float | str]) -> list[Recommendation]:
+        s_t = rep.s_star
+        w_new = self._weight_for(rep, curve, s_t)
+        ballast_kg = (self.weight_n - w_new) / G if math.isfinite(w_new) else math.nan
+        e = {**ev, "target_slip": s_t, "target": "s*", "pull_n": rep.pull_n, "rho_s": rep.rho_s, "a": rep.a,
+             "eta": rep.eta, "eta_star": rep.eta_star, "weight_n": self.weight_n, "weight_needed_n": w_new}
+        amount = f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0 else "some"
+        return [Recommendation("remove_ballast", f"Remove {amount} of ballast (at most what is carried): {why}.", why,
+                               {**e, "ballast_kg": ballast_kg}),
+                Recommendation("higher_gear", f"Or shift to a higher gear at the same pull: {why}.", why, e)]
