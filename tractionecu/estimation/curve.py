@@ -53,13 +53,15 @@ Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.mucurve import SOIL_CLASSES, SoilClass, solve_a_array
+from ..model.mucurve import CURVE_FORMS, SOIL_CLASSES, MuCurve, SoilClass, solve_a_array
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,27 @@ class CurveState:
     """Forgetting negative log-likelihood of every class's predictions [nats] (lower fits better)."""
     n_used: int
     """Number of (μ, s) pairs accepted on the last update."""
+    shape_curve: MuCurve | None = None
+    """The fitted shape on the shape path (None on the class path); see :attr:`curve`."""
+    var_a: float = math.nan
+    """Variance of a on the class path [-²] from the segment's binned pairs (NaN until fitted)."""
+    curve_path: str = ""
+    """``"class:<name>"`` (one parameter a, eq. 18) or ``"shape:<form>"`` (shape identified)."""
+    segment: int = 0
+    """Number of the current soil segment of the shape identification."""
+    slip_span: float = math.nan
+    """Slip span of the current segment's binned pairs [-] (the shape path needs ``min_span``)."""
+
+    @cached_property
+    def curve(self) -> MuCurve | None:
+        """The identified curve μ(s) (callable, parameters, covariance): the fitted shape on the
+        shape path, a·g_class(s) with var(a) on the class path; None until a is identified."""
+        if self.shape_curve is not None:
+            return self.shape_curve
+        if not self.a == self.a:
+            return None
+        cls = SOIL_CLASSES.get(self.class_name)
+        return None if cls is None else MuCurve.from_class(cls, self.a, self.var_a)
 
 
 class CurveEstimator:
@@ -94,11 +117,17 @@ class CurveEstimator:
         log-likelihood this much below the current one's [nats].
     slip_corr_s : correlation time of the slip error [s]; evidence from
         samples closer than this is discounted.
+    shape : identify the curve's shape per soil segment when its slips span
+        enough of it (:class:`ShapeIdentifier`); False keeps the paper's
+        one-parameter path only.
+    shape_kw : keyword arguments of :class:`ShapeIdentifier` (min_span,
+        min_bins, fit_period_s, ...).
     """
 
     def __init__(self, classes: Sequence[SoilClass | str] = ("stubble",), *, tau_s: float = 5.0,
                  min_mu: float = 0.15, min_slip: float = 0.005, class_tau_s: float = 30.0,
-                 switch_min_delta: float = 10.0, slip_corr_s: float = 0.5):
+                 switch_min_delta: float = 10.0, slip_corr_s: float = 0.5, shape: bool = True,
+                 shape_kw: dict | None = None):
         cls = [SOIL_CLASSES[c] if isinstance(c, str) else c for c in classes]
         if not cls:
             raise ValueError("at least one surface class is needed")
@@ -118,6 +147,7 @@ class CurveEstimator:
         self._best = 0
         self._t: float | None = None
         self.n_used = 0
+        self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **(shape_kw or {})) if shape else None)
 
     def update(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64],
                sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None = None) -> CurveState:
@@ -128,6 +158,8 @@ class CurveEstimator:
         self._num *= lam
         self._den *= lam
         self._nll *= math.exp(-dt / self.class_tau)
+        if self.shape is not None:
+            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s)
         if len(self.classes) == 1:
             self._update_single(np.asarray(mu, dtype=float), np.asarray(s, dtype=float),
                                 np.asarray(sigma_mu, dtype=float))
@@ -160,6 +192,23 @@ class CurveEstimator:
                 used = max(used, int(good.sum()))
             self.n_used = used
         return self.state()
+
+    def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
+                    sigma_s: NDArray[np.float64] | None) -> None:
+        """The pairs the a fit accepts (same rules) go to the shape identification."""
+        ml = mu.tolist()
+        sl = s.tolist()
+        n = len(sl)
+        ssl = sigma_s.tolist() if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,) else [0.0] * n
+        m_ok, s_ok, ss_ok = [], [], []
+        min_mu, min_slip = self.min_mu, self.min_slip
+        for m, x, ss in zip(ml, sl, ssl):
+            if m * x > 0 and abs(m) >= min_mu and abs(x) >= min_slip and abs(m) < math.inf and abs(x) < math.inf:
+                m_ok.append(m)
+                s_ok.append(x)
+                ss_ok.append(ss)
+        if m_ok:
+            self.shape.update(t, dt, m_ok, s_ok, ss_ok)  # type: ignore[union-attr]
 
     def _update_single(self, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64]) -> None:
         """The one-class update of :meth:`update` (no class evidence), with floats where the
@@ -203,4 +252,567 @@ class CurveEstimator:
             if cand != self._best and self._nll[self._best] - self._nll[cand] > self.switch_min_delta:
                 self._best = cand
         b = self._best
-        return CurveState(float(a[b]), b, self.classes[b].name, a, self._nll.copy(), self.n_used)
+        a_b = float(a[b])
+        name = self.classes[b].name
+        if self.shape is None:
+            return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, curve_path="class:" + name)
+        sh = self.shape
+        lo, hi, nb = sh._span
+        fit = sh.fit
+        if fit is not None and fit.shape_selected:
+            c = fit.curve
+            return CurveState(c.a, b, name, a, self._nll.copy(), self.n_used, c, math.nan, c.path, sh.segment,
+                              hi - lo if nb else math.nan)
+        var_a = math.nan
+        if fit is not None and fit.best_class.soil_class is self.classes[b]:   # the bins' interval, scaled to a
+            var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
+        return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, None, var_a, "class:" + name,
+                          sh.segment, hi - lo if nb else math.nan)
+
+
+# ============================================================================= shape beyond one parameter
+# Paper section 3.2 fixes p, α1, α2 per class and solves only a (eq. 18).  When the slips seen on
+# one soil span enough of the curve, the shape itself is identifiable; :class:`ShapeIdentifier`
+# then fits it, online and with bounded memory, as follows.
+#
+# Sufficient statistics.  Pairs are binned by |μ̂| (bins of MU_BIN_WIDTH), the accurate variable
+# (μ̂ comes from the torques; ŝ from the estimated speed and carries its error): each bin holds
+# the weighted count W and sums of s, s², μ, μ².  The mean slip of a μ-bin is then unbiased by the
+# slip error (binning by the noisy ŝ would flatten the curve: errors in variables); μ̄ of the bin
+# sits within the bin.  Weights follow the class evidence above: the pairs of one instant share
+# the speed error, so one instant counts as one sample, discounted by Δt/τ_s.
+#
+# Soil segments.  A soil change moves the slip at a given μ (same draft, other curve).  For each
+# instant the slip residual r = ŝ − s̄_bin(μ̂) against the current segment's bins (the nearest bin
+# with enough weight within ±3 bins, its mean slip moved to μ̂ along the first class's slope
+# ds/dμ = 1/(a g'(s)): a new soil's μ often lands in a bin next to the old soil's), standardised
+# by the bin's own scatter, feeds a two-sided CUSUM (allowance k, threshold h, increments
+# discounted by Δt/τ_s); an alarm closes the segment and opens a new one, which takes over the
+# pairs since the CUSUM last left zero (they were the new soil's).  Bins are compared with no
+# curve shape assumed, so off-class soils are segmented as well as class soils.  The segment
+# statistics are additive, so the take-over is exact; their total weight is capped
+# (``max_weight``) by rescaling, a slow forgetting.
+#
+# Fit (:func:`fit_curve`).  Over the bins with W ≥ ``min_bin_weight``: residuals in μ at the bin
+# means, with the effective variance var(μ̄) + μ'(s̄)² var(s̄) (first-order errors in
+# variables; the slope from the previous pass), candidates
+#   the configured classes a·g_c(s)      (1 parameter, the paper's path),
+#   exp1          a(1 − e^{−ks})          (2),
+#   exp1_offset   c + (a−c)(1 − e^{−ks})   (3),
+#   eq14          a(1 − p e^{α1 s} − (1−p) e^{α2 s})   (4),
+# each linear in its amplitudes once k (α) is fixed, so every form is solved exactly on a grid
+# of k (variable projection: weighted normal equations of one or two basis functions) and the
+# best grid point refined by damped Gauss–Newton within the bounds (0 ≤ p ≤ 1, α1 < α2 < 0,
+# 0.5 ≤ k ≤ 200).  Forms are compared by BIC, n ln(SSE/n) + m ln n (n bins, m parameters); the
+# best free form replaces the class only when its BIC is lower by ``bic_margin``, and only if it
+# is well posed: covariance finite, σ_a/a ≤ ``max_rel_sigma_a`` (the asymptote is not an
+# extrapolation the data cannot support), eq. 14 exponents distinct by a factor ≥ 1.3 and
+# 0.02 < p < 0.98 (else it is exp1).  The covariance is (JᵀWJ)⁻¹ · max(1, χ²/(n − m)).
+
+MU_BIN_WIDTH = 0.02
+"""Width of the |μ̂| bins [-]."""
+_NEAR = (0, -1, 1, -2, 2, -3, 3)
+"""Bin offsets searched, in order, for the change test's reference."""
+MU_BIN_MAX = 1.5
+"""Upper end of the |μ̂| bins [-] (pairs above it go to the last bin)."""
+K_MIN, K_MAX = 2.0, 200.0
+"""Bounds of the decay rates k = −α [-] of the free forms.  k ≥ 2: μ reaches at least 55 % of a by
+s = 0.4, as every published field curve does (the classes here have k ≥ 3.5; Brixius 1987: k = 7.5);
+a smaller k would be a near-linear curve whose asymptote no slip range can show."""
+K_GRID = np.geomspace(K_MIN, K_MAX, 28)
+"""Grid of k of the variable-projection start."""
+
+
+class PairBins:
+    """Binned sufficient statistics of (|ŝ|, |μ̂|) pairs by |μ̂| (see the section comment).
+
+    Per bin: weight W and the weighted sums of s, s², μ, μ², kept as Python lists (one pair
+    updates five numbers on the step path; numpy's scalar indexing would cost more than the sums).
+    """
+
+    __slots__ = ("W", "S1", "S2", "M1", "M2")
+    N_BINS = int(round(MU_BIN_MAX / MU_BIN_WIDTH))
+
+    def __init__(self) -> None:
+        n = self.N_BINS
+        self.W = [0.0] * n
+        self.S1 = [0.0] * n
+        self.S2 = [0.0] * n
+        self.M1 = [0.0] * n
+        self.M2 = [0.0] * n
+
+    @classmethod
+    def index(cls, mu: float) -> int:
+        """Bin of |μ| [-]."""
+        return min(int(abs(mu) / MU_BIN_WIDTH), cls.N_BINS - 1)
+
+    def add(self, k: int, w: float, s: float, mu: float) -> None:
+        """Add (w < 0: remove) one pair of weight w in bin k."""
+        self.W[k] += w
+        ws = w * s
+        self.S1[k] += ws
+        self.S2[k] += ws * s
+        wm = w * mu
+        self.M1[k] += wm
+        self.M2[k] += wm * mu
+
+    def copy(self) -> "PairBins":
+        c = PairBins()
+        c.W, c.S1, c.S2, c.M1, c.M2 = self.W[:], self.S1[:], self.S2[:], self.M1[:], self.M2[:]
+        return c
+
+    def scale(self, f: float) -> None:
+        for arr in (self.W, self.S1, self.S2, self.M1, self.M2):
+            arr[:] = [x * f for x in arr]
+
+    @property
+    def total(self) -> float:
+        return sum(self.W)
+
+    def bin_mean_s(self, k: int) -> tuple[float, float, float]:
+        """(W, mean s, variance of s) of bin k."""
+        w = self.W[k]
+        if w <= 1e-12:
+            return 0.0, math.nan, math.nan
+        m = self.S1[k] / w
+        return w, m, max(self.S2[k] / w - m * m, 0.0)
+
+    def arrays(self) -> NDArray[np.float64]:
+        """(5, n_bins) array of W, Σws, Σws², Σwμ, Σwμ²."""
+        return np.array([self.W, self.S1, self.S2, self.M1, self.M2])
+
+    def means(self, min_w: float) -> tuple[NDArray[np.float64], ...]:
+        """(s̄, μ̄, var s, var μ, W) of the bins with W ≥ min_w (within-bin variances)."""
+        A = self.arrays()
+        sel = A[0] >= min_w
+        W = A[0, sel]
+        s = A[1, sel] / W
+        m = A[3, sel] / W
+        vs = np.maximum(A[2, sel] / W - s * s, 0.0)
+        vm = np.maximum(A[4, sel] / W - m * m, 0.0)
+        return s, m, vs, vm, W
+
+    def span(self, min_w: float) -> tuple[float, float, int]:
+        """(lowest, highest mean slip, number of bins) over the bins with W ≥ min_w."""
+        s = [s1 / w for w, s1 in zip(self.W, self.S1) if w >= min_w]
+        if not s:
+            return math.nan, math.nan, 0
+        return min(s), max(s), len(s)
+
+
+@dataclass(frozen=True)
+class CurveFit:
+    """Result of :func:`fit_curve` on one soil segment's bins."""
+
+    curve: MuCurve
+    """The selected curve (a class or a free shape)."""
+    best_class: MuCurve
+    """The best of the configured classes on the same bins (a fitted to the bins)."""
+    bic: dict[str, float]
+    """BIC of every candidate that was well posed (``class:<name>`` and forms)."""
+    n_bins: int
+    s_range: tuple[float, float]
+
+    @property
+    def shape_selected(self) -> bool:
+        return self.curve.form != "class"
+
+
+def _solve_amplitudes(B: NDArray[np.float64], mu: NDArray[np.float64], w: NDArray[np.float64]
+                      ) -> tuple[NDArray[np.float64], float] | None:
+    """Weighted least squares μ ≈ bᵀB (B: m × n basis values); (b, SSE) or None if singular."""
+    Bw = B * w
+    G = Bw @ B.T
+    h = Bw @ mu
+    try:
+        b = np.linalg.solve(G, h)
+    except np.linalg.LinAlgError:
+        return None
+    r = mu - b @ B
+    return b, float((w * r * r).sum())
+
+
+def _grid_start(form: str, s: NDArray[np.float64], mu: NDArray[np.float64], w: NDArray[np.float64]
+                ) -> tuple[tuple[float, ...], float] | None:
+    """Best grid point of a free form (variable projection over K_GRID): (theta, SSE)."""
+    E = -np.expm1(-K_GRID[:, None] * s[None, :])                 # (nk, n): 1 − e^{−k s}
+    Ew = E * w
+    G = Ew @ E.T                                                 # Σ w E_i E_j
+    h = Ew @ mu                                                  # Σ w E_i μ
+    mm = float((w * mu * mu).sum())
+    gd = np.diag(G).copy()
+    if form == "exp1":
+        b = h / gd
+        sse = mm - h * b
+        sse[b <= 0] = np.inf
+        j = int(np.argmin(sse))
+        return ((float(b[j]), float(K_GRID[j])), float(sse[j])) if np.isfinite(sse[j]) else None
+    if form == "exp1_offset":
+        w1 = float(w.sum())
+        g1 = Ew.sum(axis=1)                                      # Σ w E_j
+        h1 = float((w * mu).sum())
+        det = w1 * gd - g1 * g1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = (gd * h1 - g1 * h) / det
+            b = (w1 * h - g1 * h1) / det
+            sse = mm - (c * h1 + b * h)
+        bad = ~(np.abs(det) > 1e-9 * w1 * gd) | (c < 0) | (b <= 0)
+        sse[bad] = np.inf
+        j = int(np.argmin(sse))
+        return ((float(c[j]), float(c[j] + b[j]), float(K_GRID[j])), float(sse[j])) if np.isfinite(sse[j]) else None
+    # eq14: pairs (i, j) with k_i > 1.3 k_j: α1 = −k_i < α2 = −k_j; b1 = a p, b2 = a(1−p) ≥ 0
+    i, j = np.triu_indices(K_GRID.size, 1)
+    keep = K_GRID[j] >= 1.3 * K_GRID[i]
+    i, j = j[keep], i[keep]                                      # i: the faster rate (α1)
+    gii, gjj, gij = gd[i], gd[j], G[i, j]
+    det = gii * gjj - gij * gij
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (gjj * h[i] - gij * h[j]) / det
+        b2 = (gii * h[j] - gij * h[i]) / det
+        sse = mm - (b1 * h[i] + b2 * h[j])
+    bad = ~(det > 1e-9 * gii * gjj) | (b1 < 0) | (b2 < 0)
+    sse[bad] = np.inf
+    q = int(np.argmin(sse))
+    if not np.isfinite(sse[q]):
+        return None
+    a = float(b1[q] + b2[q])
+    return (a, float(b1[q]) / a, -float(K_GRID[i[q]]), -float(K_GRID[j[q]])), float(sse[q])
+
+
+_BOUNDS = {
+    "exp1": (np.array([1e-3, K_MIN]), np.array([3.0, K_MAX])),
+    "exp1_offset": (np.array([0.0, 1e-3, K_MIN]), np.array([1.0, 3.0, K_MAX])),
+    "eq14": (np.array([1e-3, 0.0, -K_MAX, -K_MAX]), np.array([3.0, 1.0, -K_MIN, -K_MIN])),
+}
+
+
+def _model(form: str, th: NDArray[np.float64], s: NDArray[np.float64]
+           ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """μ(s) of a free form for s > 0 and its Jacobian ∂μ/∂θ (n × m), analytic."""
+    if form == "exp1":
+        a, k = th
+        e = np.exp(-k * s)
+        return a * (1.0 - e), np.column_stack([1.0 - e, a * s * e])
+    if form == "exp1_offset":
+        c, a, k = th
+        e = np.exp(-k * s)
+        return c + (a - c) * (1.0 - e), np.column_stack([e, 1.0 - e, (a - c) * s * e])
+    a, p, a1, a2 = th
+    e1, e2 = np.exp(a1 * s), np.exp(a2 * s)
+    g = 1.0 - p * e1 - (1.0 - p) * e2
+    return a * g, np.column_stack([g, a * (e2 - e1), -a * p * s * e1, -a * (1.0 - p) * s * e2])
+
+
+def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: NDArray[np.float64],
+            w: NDArray[np.float64], iters: int = 8) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """Levenberg–Marquardt from theta0 within the form's bounds: (theta, SSE, Jacobian at theta)."""
+    lo, hi = _BOUNDS[form]
+    th = np.clip(np.asarray(theta0, dtype=float), lo, hi)
+    f, J = _model(form, th, s)
+    r = mu - f
+    cur = float((w * r * r).sum())
+    lam = 1e-3
+    for _ in range(iters):
+        Jw = J * w[:, None]
+        A = J.T @ Jw
+        g = Jw.T @ r
+        D = np.diag(np.diag(A) + 1e-12)
+        improved = False
+        for _ in range(8):
+            try:
+                step = np.linalg.solve(A + lam * D, g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            cand = np.clip(th + step, lo, hi)
+            if form == "eq14" and cand[2] > 1.3 * cand[3]:          # α1 ≤ 1.3 α2: distinct exponents
+                cand[2] = 1.3 * cand[3]
+            fc, Jc = _model(form, cand, s)
+            rc = mu - fc
+            val = float((w * rc * rc).sum())
+            if val < cur:
+                small = cur - val <= 1e-6 * cur
+                th, cur, J, r, lam = cand, val, Jc, rc, max(lam * 0.1, 1e-9)
+                improved = not small
+                break
+            lam *= 10.0
+        if not improved:
+            break
+    return th, cur, J
+
+
+def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: float = 2.0,
+              sigma_s_floor: float = 0.002, sigma_mu_floor: float = 0.002, bic_margin: float = 6.0,
+              max_rel_sigma_a: float = 0.3, forms: Sequence[str] = ("exp1", "exp1_offset", "eq14")
+              ) -> CurveFit | None:
+    """Fit the candidates to one segment's bins and select (see the section comment above).
+
+    Returns None with fewer than 3 usable bins.  ``sigma_s_floor``, ``sigma_mu_floor``: floors of
+    the within-bin standard deviations of ŝ and μ̂ [-] (a bin of identical samples is not exact).
+    """
+    s, mu, vs, vm, W = bins.means(min_bin_weight)
+    n = s.size
+    if n < 3:
+        return None
+    var_s = np.maximum(vs, sigma_s_floor ** 2) / W              # variance of the bin means
+    var_m = np.maximum(vm, sigma_mu_floor ** 2) / W
+    s_range = (float(s.min()), float(s.max()))
+
+    def bic(sse: float, m: int) -> float:
+        return n * math.log(max(sse, 1e-300) / n) + m * math.log(n)
+
+    slope = np.array([c.dg(s) for c in classes]).mean(axis=0) * float((mu / np.maximum(classes[0].g(s), 1e-9)).mean())
+    result: dict[str, tuple[MuCurve, float]] = {}
+    for final in (False, True):
+        # first pass: grid solutions only, for the slope of the effective variance; second: refined
+        w = 1.0 / (var_m + slope * slope * var_s)
+        result = {}
+        for c in classes:
+            g = c.g(s)
+            den = float((w * g * g).sum())
+            a = float((w * g * mu).sum()) / den
+            r = mu - a * g
+            sse = float((w * r * r).sum())
+            chi = max(1.0, sse / max(n - 1, 1))
+            result[f"class:{c.name}"] = (MuCurve.from_class(c, a, chi / den), bic(sse, 1))
+        for form in forms:
+            m = len(CURVE_FORMS[form])
+            if n <= m + 1:
+                continue
+            start = _grid_start(form, s, mu, w)
+            if start is None:
+                continue
+            if not final:
+                result[form] = (MuCurve(form, start[0], np.full((m, m), np.nan), f"shape:{form}"), bic(start[1], m))
+                continue
+            th, sse, J = _refine(form, start[0], s, mu, w)
+            try:
+                C = np.linalg.inv(J.T @ (J * w[:, None])) * max(1.0, sse / (n - m))
+            except np.linalg.LinAlgError:
+                continue
+            cv = MuCurve(form, tuple(float(x) for x in th), C, f"shape:{form}", s_range=s_range)
+            if not _well_posed(cv, max_rel_sigma_a):
+                continue
+            result[form] = (cv, bic(sse, m))
+        best = min(result.values(), key=lambda x: x[1])[0]
+        slope = best.dmu_ds(s)
+    cls_best = min((v for k, v in result.items() if k.startswith("class:")), key=lambda x: x[1])
+    free = [v for k, v in result.items() if not k.startswith("class:")]
+    chosen = cls_best[0]
+    if free:
+        f_best = min(free, key=lambda x: x[1])
+        if f_best[1] + bic_margin < cls_best[1]:
+            chosen = f_best[0]
+    return CurveFit(chosen, cls_best[0], {k: v[1] for k, v in result.items()}, n, s_range)
+
+
+def _well_posed(c: MuCurve, max_rel_sigma_a: float) -> bool:
+    """The checks of a free-shape fit (section comment): finite covariance, a identified, eq. 14 not degenerate."""
+    C = np.asarray(c.cov)
+    if not (np.all(np.isfinite(C)) and np.all(np.diag(C) >= 0)):
+        return False
+    a = c.a
+    if not (a > 0 and math.sqrt(c.sigma["a"] ** 2) <= max_rel_sigma_a * a):
+        return False
+    if c.form == "eq14":
+        _, p, a1, a2 = c.theta
+        if not (0.02 < p < 0.98 and a1 < 1.3 * a2 < 0):
+            return False
+    if c.form == "exp1_offset" and not (0.0 <= c.theta[0] < c.theta[1]):
+        return False
+    return True
+
+
+@dataclass(frozen=True)
+class ShapeState:
+    """State of :class:`ShapeIdentifier`."""
+
+    segment: int
+    """Number of the current soil segment (0, 1, ...)."""
+    fit: CurveFit | None
+    """Last fit of the current segment (None until its slips span enough of the curve)."""
+    s_range: tuple[float, float]
+    """Range of the bin mean slips of the current segment [-] (bins with enough weight)."""
+    n_bins: int
+    """Bins of the current segment with enough weight."""
+    n_fits: int
+    """Fits done so far (all segments)."""
+
+
+class ShapeIdentifier:
+    """Online shape identification per soil segment (section comment above).
+
+    Parameters
+    ----------
+    classes : the configured surface classes (the one-parameter candidates).
+    min_span : slip span of the segment's bin means needed to fit a shape [-].
+    min_bins : bins with ``min_bin_weight`` needed to fit a shape.
+    min_bin_weight : effective samples a bin needs to be used (fit and change test).
+    fit_period_s : least time between two fits of one segment [s].
+    slip_corr_s : correlation time of the slip error [s] (one sample per τ_s).
+    cusum_k, cusum_h : CUSUM allowance and threshold of the change test [standardised units].
+    max_weight : total effective weight of a segment beyond which its bins are rescaled.
+    history_s : the pairs of this long are kept for the take-over by a new segment [s].
+    confirm_s : the fit uses the pairs older than this [s] (see :meth:`_maybe_fit`).
+    bic_margin : a free shape replaces the class when its BIC is this much lower.
+    max_rel_sigma_a : a free shape whose σ_a/a exceeds this is not well posed.
+    """
+
+    def __init__(self, classes: Sequence[SoilClass], *, min_span: float = 0.04, min_bins: int = 6,
+                 min_bin_weight: float = 2.0, fit_period_s: float = 10.0, slip_corr_s: float = 0.5,
+                 cusum_k: float = 0.75, cusum_h: float = 4.0, max_weight: float = 2000.0,
+                 history_s: float = 10.0, confirm_s: float = 5.0, bic_margin: float = 6.0,
+                 max_rel_sigma_a: float = 0.3):
+        self.classes = list(classes)
+        self.min_span = float(min_span)
+        self.min_bins = int(min_bins)
+        self.min_bin_weight = float(min_bin_weight)
+        self.fit_period = float(fit_period_s)
+        self.slip_corr = float(slip_corr_s)
+        self.k = float(cusum_k)
+        self.h = float(cusum_h)
+        self.max_weight = float(max_weight)
+        self.history_s = float(history_s)
+        self.bic_margin = float(bic_margin)
+        self.max_rel_sigma_a = float(max_rel_sigma_a)
+        self.confirm_s = min(float(confirm_s), float(history_s))
+        self.reset()
+
+    def reset(self) -> None:
+        self.bins = PairBins()
+        self.segment = 0
+        self.fit: CurveFit | None = None
+        self.n_fits = 0
+        self._t_fit = -math.inf
+        self._t_check = -math.inf
+        self._w_fit = 0.0
+        self._span: tuple[float, float, int] = (math.nan, math.nan, 0)
+        self._cp = self._cn = 0.0
+        self._t_cp = self._t_cn = -math.inf          # time each CUSUM side last left zero
+        self._hist: deque[tuple[float, list[tuple[int, float, float, float]]]] = deque()
+
+    def _new_segment(self, t_from: float) -> None:
+        """Close the segment; the pairs at or after t_from move to the new one."""
+        moved = [e for e in self._hist if e[0] >= t_from]
+        old = self.bins
+        for _, pairs in moved:
+            for k, w, s, m in pairs:
+                old.add(k, -w, s, m)
+        self.bins = PairBins()
+        for _, pairs in moved:
+            for k, w, s, m in pairs:
+                self.bins.add(k, w, s, m)
+        self._hist = deque(moved)
+        self.segment += 1
+        self.fit = None
+        self._t_fit = -math.inf
+        self._t_check = -math.inf
+        self._w_fit = 0.0
+        self._span = (math.nan, math.nan, 0)
+        self._cp = self._cn = 0.0
+        self._t_cp = self._t_cn = -math.inf
+
+    def update(self, t: float, dt: float, mu: Sequence[float], s: Sequence[float], sigma_s: Sequence[float]) -> None:
+        """Add the accepted pairs (|μ̂|, |ŝ| of one instant t [s], Δt [s] since the last instant)."""
+        n = len(mu)
+        if n == 0:
+            return
+        discount = min(1.0, dt / self.slip_corr) if dt > 0 else 1.0
+        bins = self.bins
+        W, S1, S2 = bins.W, bins.S1, bins.S2
+        wmin = self.min_bin_weight
+        last = PairBins.N_BINS - 1
+        w_pair = discount / n
+        z_sum = 0.0
+        nz = 0
+        pairs = []
+        M1 = bins.M1
+        g_ref = self.classes[0]
+        for m, x, ss in zip(mu, s, sigma_s):
+            m, x = abs(m), abs(x)
+            k = min(int(m / MU_BIN_WIDTH), last)
+            j = -1
+            for d in _NEAR:                                   # the nearest bin with enough weight
+                if 0 <= k + d <= last and W[k + d] >= wmin:
+                    j = k + d
+                    break
+            if j >= 0:                                        # residual against that bin's mean slip,
+                wj = W[j]                                     # moved to μ̂ along the class slope
+                sj = S1[j] / wj
+                mj = M1[j] / wj
+                if j != k:
+                    dg = float(g_ref.dg(sj))
+                    gj = float(g_ref.g(sj))
+                    if dg > 0 and gj > 0:
+                        sj += (m - mj) * gj / (mj * dg)      # ds/dμ = 1/(a g'(s)), a = μ̄/g(s̄)
+                var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
+                z_sum += (x - sj) / math.sqrt(var)
+                nz += 1
+            pairs.append((k, w_pair, x, m))
+        if nz:
+            z = z_sum / nz                                   # the wheels of one instant: one sample
+            cp = max(0.0, self._cp + discount * (z - self.k))
+            cn = max(0.0, self._cn + discount * (-z - self.k))
+            if cp > 0 and self._cp == 0:
+                self._t_cp = t
+            if cn > 0 and self._cn == 0:
+                self._t_cn = t
+            self._cp, self._cn = cp, cn
+            if cp > self.h or cn > self.h:
+                self._new_segment(self._t_cp if cp > self.h else self._t_cn)
+                bins = self.bins
+        for k, w, x, m in pairs:
+            bins.add(k, w, x, m)
+        hist = self._hist
+        hist.append((t, pairs))
+        while hist[0][0] < t - self.history_s:
+            hist.popleft()
+        if t - self._t_check >= 1.0:
+            self._t_check = t
+            self._cap_weight()
+            self._maybe_fit(t)
+
+    def _cap_weight(self) -> None:
+        """Rescale the segment's bins (and the history with them) beyond ``max_weight``."""
+        total = self.bins.total
+        if total > self.max_weight:
+            f = self.max_weight / total
+            self.bins.scale(f)
+            for _, ps in self._hist:
+                for i, (k, w, x, m) in enumerate(ps):
+                    ps[i] = (k, w * f, x, m)
+            self._w_fit *= f
+
+    def _maybe_fit(self, t: float) -> None:
+        """Once a second: the span; a fit when it suffices, the change test is quiet (both CUSUM
+        sides under h/2) and the segment has new weight (≥ 50 % more than at its last fit, at most
+        every ``fit_period_s``; the first fit of a segment at once).  The fit and its span use the
+        pairs older than ``confirm_s``: a soil change is found within a few seconds, and the new
+        soil's first pairs must not reach the old soil's fit (they would widen its span with
+        another curve)."""
+        bins = self.bins
+        if self.confirm_s > 0:
+            bins = bins.copy()
+            for tk, pairs in reversed(self._hist):
+                if tk <= t - self.confirm_s:
+                    break
+                for k, w, x, m in pairs:
+                    bins.add(k, -w, x, m)
+        lo, hi, nb = bins.span(self.min_bin_weight)
+        self._span = (lo, hi, nb)
+        if nb < self.min_bins or not (hi - lo >= self.min_span):
+            return
+        if max(self._cp, self._cn) > 0.5 * self.h:          # a change may be under way
+            return
+        total = bins.total
+        if self.fit is not None and (t - self._t_fit < self.fit_period or total < 1.5 * self._w_fit):
+            return
+        self._t_fit = t
+        self._w_fit = total
+        self.fit = fit_curve(bins, self.classes, min_bin_weight=self.min_bin_weight,
+                             bic_margin=self.bic_margin, max_rel_sigma_a=self.max_rel_sigma_a)
+        self.n_fits += 1
+
+    def state(self) -> ShapeState:
+        lo, hi, nb = self._span
+        return ShapeState(self.segment, self.fit, (lo, hi), nb, self.n_fits)

@@ -174,6 +174,19 @@ class Estimate:
     """95 % half-width of ``radius_scale`` (2,) [-]; NaN until estimated."""
     radius_applied: Any = dataclasses.field(default_factory=lambda: np.ones(2))
     """Scale the filter uses per axle (2,) [-]: 1 until the calibration's interval is tight enough."""
+    curve_state: Any = None
+    """The curve identification (:class:`~.curve.CurveState`) this estimate reports ``a`` from."""
+
+    @property
+    def curve(self) -> Any:
+        """The identified μ(s) (:class:`~tractionecu.model.mucurve.MuCurve`: callable, parameters,
+        covariance), None until identified."""
+        return None if self.curve_state is None else self.curve_state.curve
+
+    @property
+    def curve_path(self) -> str:
+        """``"class:<name>"`` (one parameter a, eq. 18) or ``"shape:<form>"`` (shape identified)."""
+        return "" if self.curve_state is None else self.curve_state.curve_path
 
 
 # ----------------------------------------------------------------------------- estimator
@@ -695,4 +708,4 @@ class Estimator:
         rad = self._rad
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index, math.nan,
-                        sig[:4], float(sig[4]), rad[0], rad[1], rad[2])
+                        sig[:4], float(sig[4]), rad[0], rad[1], rad[2], cs)

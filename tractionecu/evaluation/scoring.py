@@ -17,7 +17,9 @@ used for an estimate at time t is the latest truth sample at or before t):
     representative μ(s) characteristic" a̅·g_class(s), a̅ the mean identified
     a while on that soil (after the first convergence) and the class the most
     frequently reported one, against the true a·g_true(s); R² = 1 − SS_res/SS_tot
-    over s ∈ [0, 0.4] (401 points).
+    over s ∈ [0, 0.4] (401 points).  Where most of the soil's samples report a
+    fitted shape (curve path ``shape:<form>``), the mean of those curves, and a
+    tabulated true curve where the truth has one (:mod:`.curve_score`).
 ``reconvergence_s``
     worst over soil changes (after the first convergence) of the time from
     the change until every wheel's |μ̂ − μ|/|μ| < 5 % and stays so for
@@ -42,8 +44,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import WHEELS
+from .curve_score import identified_curve, true_curve
 
 S_GRID = np.linspace(0.0, 0.4, 401)
 """Slip grid of the R² comparison [-] (issue 3: 0–0.4)."""
@@ -62,7 +64,8 @@ class Truth:
     slip: NDArray[np.float64]
     v: NDArray[np.float64]
     soils: dict[str, dict[str, Any]]
-    """name -> {"soil_class": str, "a": float, "rho_s": float}."""
+    """name -> {"soil_class": str, "a": float, "rho_s": float} (and ``curve_s``, ``curve_mu``: a
+    tabulated true μ(s) for a truth model whose curve is none of the classes)."""
 
 
 def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Truth:
@@ -84,7 +87,8 @@ def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Tru
     if toml_path is not None and Path(toml_path).is_file():
         data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
         for s in data.get("soils", []):
-            soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"])}
+            soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"]),
+                                **{k: s[k] for k in ("curve_s", "curve_mu") if k in s}}   # tabulated true μ(s)
     return Truth(
         t=c["t"], mu=np.column_stack([c[f"mu_{w}"] for w in WHEELS]), rho_s=c["rho_s"], a=c["a"],
         soil_id=c["soil_id"].astype(np.int64), soil_name=names,
@@ -147,18 +151,14 @@ def scorecard(est: dict[str, NDArray[Any]], truth: Truth, *, mu_rel_floor: float
         m = (soil == sid) & valid & np.isfinite(a_e)
         m[:i0] = False
         info = truth.soils.get(name, {"soil_class": "stubble", "a": float(np.median(truth.a[truth.soil_id == sid]))})
-        true_cls = SOIL_CLASSES[info["soil_class"]]
-        mu_true_curve = true_cls.mu(S_GRID, info["a"])
+        mu_true_curve = true_curve(info, S_GRID)
         if not m.any():
             r2[name] = math.nan
             continue
-        a_bar = float(np.mean(a_e[m]))
-        sel = [cls_e[j] for j in np.flatnonzero(m)]
-        cls_name = max(set(sel), key=sel.count)
-        mu_id_curve = SOIL_CLASSES[cls_name].mu(S_GRID, a_bar)
+        # the class path's a̅·g_class(s), or the mean fitted shape on the shape path (.curve_score)
+        mu_id_curve, ident = identified_curve(np.flatnonzero(m), a_e, cls_e, est.get("curve"), S_GRID)
         r2[name] = r_squared(mu_id_curve, mu_true_curve)
-        curves[name] = {"a_identified": a_bar, "class_identified": cls_name, "a_true": info["a"],
-                        "class_true": info["soil_class"]}
+        curves[name] = {**ident, "a_true": info["a"], "class_true": info["soil_class"]}
     out["r2_mu_curve"] = r2
     out["curves"] = curves
 

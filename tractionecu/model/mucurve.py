@@ -35,6 +35,7 @@ coefficient ranges; the typical ``a`` is the asymptotic gross traction ratio.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,3 +159,165 @@ def solve_a_array(mu: ArrayLike, s: ArrayLike, cls: SoilClass, *, sigma_mu: floa
         rel = np.hypot(sigma_mu / np.abs(mu), cls.dg(s) * sigma_s / np.abs(g))
     ok = np.isfinite(mu) & np.isfinite(s) & (np.abs(s) >= min_slip) & (np.abs(g) > 1e-9) & (a > 0) & (rel <= max_rel_err)
     return np.where(ok, a, np.nan), rel, ok
+
+
+# ----------------------------------------------------------------------------- identified curves
+CURVE_FORMS: dict[str, tuple[str, ...]] = {
+    "class": ("a",),
+    "exp1": ("a", "k"),
+    "exp1_offset": ("c", "a", "k"),
+    "eq14": ("a", "p", "alpha1", "alpha2"),
+}
+"""Curve forms an identified μ(s) can take and the names of their parameters, in ``theta`` order:
+
+- ``class``: a·g_class(s), the paper's path (eq. 18): p, α1, α2 fixed by the class;
+- ``exp1``: a(1 − e^{−k s}), k > 0 [-]: eq. 14 with p = 1 (one time constant; the slip term of
+  Brixius 1987 and of Wismer & Luth 1974 has this shape);
+- ``exp1_offset``: c + (a − c)(1 − e^{−k s}) for s > 0: the same with an offset μ(0⁺) = c
+  (Brixius' gross traction ratio with its 0.04 term), a the asymptote;
+- ``eq14``: a(1 − p e^{α1 s} − (1−p) e^{α2 s}), α1 < α2 < 0, 0 ≤ p ≤ 1: paper eq. 14 with its
+  shape free.
+"""
+
+
+@dataclass(frozen=True)
+class MuCurve:
+    """An identified adhesion–slip curve μ(s): callable, with its parameters and their covariance.
+
+    ``curve(s)`` (or :meth:`mu`) gives μ [-] for slip s [-] (arrays broadcast), odd in s like
+    :func:`mu_curve`.  ``theta`` holds the parameters named by ``names`` (see
+    :data:`CURVE_FORMS`); ``cov`` is their covariance (k × k, NaN when unknown), from the fit's
+    Jacobian and its residual scatter.  :meth:`jac` is ∂μ/∂θ and :meth:`mu_sigma` the standard
+    error of μ(s) by the delta method, so that a quantity derived from the curve (traction
+    efficiency, the optimal slip s*) can carry an interval: var f = ∇f C ∇fᵀ.
+
+    The eq. 14 parameters of any form are :attr:`a`, :attr:`p`, :attr:`alpha1`, :attr:`alpha2`
+    (``exp1`` is eq. 14 with p = 1 and α1 = α2 = −k; ``exp1_offset`` has no eq. 14 form: p, α1,
+    α2 are NaN).
+    """
+
+    form: str
+    """One of :data:`CURVE_FORMS`."""
+    theta: tuple[float, ...]
+    """Parameters in the order of :attr:`names`."""
+    cov: NDArray[np.float64]
+    """Covariance of ``theta`` (k × k) in squared parameter units; NaN when unknown."""
+    path: str
+    """How it was identified: ``"class:<name>"`` (one parameter a, paper eq. 18) or ``"shape:<form>"``."""
+    soil_class: SoilClass | None = None
+    """The class supplying p, α1, α2 (form ``class`` only)."""
+    s_range: tuple[float, float] = (math.nan, math.nan)
+    """Slip range [-] of the data the curve was fitted to (NaN for the class path)."""
+
+    def __post_init__(self) -> None:
+        if self.form not in CURVE_FORMS:
+            raise ValueError(f"unknown curve form {self.form!r} (known: {', '.join(CURVE_FORMS)})")
+        if len(self.theta) != len(CURVE_FORMS[self.form]):
+            raise ValueError(f"form {self.form}: {len(CURVE_FORMS[self.form])} parameters, got {len(self.theta)}")
+        if self.form == "class" and self.soil_class is None:
+            raise ValueError("form 'class' needs its soil_class")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_class(cls, soil_class: SoilClass, a: float, var_a: float = math.nan) -> "MuCurve":
+        """The paper's one-parameter curve a·g_class(s) with var(a) [-²]."""
+        return cls("class", (float(a),), np.array([[float(var_a)]]), f"class:{soil_class.name}", soil_class)
+
+    # ------------------------------------------------------------------ parameters
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Names of ``theta``."""
+        return CURVE_FORMS[self.form]
+
+    @property
+    def params(self) -> dict[str, float]:
+        """{name: value} of ``theta``."""
+        return dict(zip(self.names, self.theta))
+
+    @property
+    def a(self) -> float:
+        """Asymptotic adhesion a = μ(s → ∞) [-]."""
+        return self.theta[1] if self.form == "exp1_offset" else self.theta[0]
+
+    @property
+    def p(self) -> float:
+        """Eq. 14 weight p [-] (NaN where the form has none)."""
+        return {"class": lambda: self.soil_class.p, "exp1": lambda: 1.0,  # type: ignore[union-attr]
+                "eq14": lambda: self.theta[1]}.get(self.form, lambda: math.nan)()
+
+    @property
+    def alpha1(self) -> float:
+        """Eq. 14 exponent α1 [-] (NaN where the form has none)."""
+        return {"class": lambda: self.soil_class.alpha1, "exp1": lambda: -self.theta[1],  # type: ignore[union-attr]
+                "eq14": lambda: self.theta[2]}.get(self.form, lambda: math.nan)()
+
+    @property
+    def alpha2(self) -> float:
+        """Eq. 14 exponent α2 [-] (NaN where the form has none)."""
+        return {"class": lambda: self.soil_class.alpha2, "exp1": lambda: -self.theta[1],  # type: ignore[union-attr]
+                "eq14": lambda: self.theta[3]}.get(self.form, lambda: math.nan)()
+
+    @property
+    def sigma(self) -> dict[str, float]:
+        """{name: standard error} of ``theta`` (NaN when unknown)."""
+        d = np.diag(np.asarray(self.cov, dtype=float)) if np.size(self.cov) else np.full(len(self.theta), np.nan)
+        return {n: float(math.sqrt(v)) if v >= 0 else math.nan for n, v in zip(self.names, d)}
+
+    # ------------------------------------------------------------------ evaluation
+    def eval_theta(self, theta: ArrayLike, s: ArrayLike) -> NDArray[np.float64]:
+        """μ(s) [-] of this form for parameters ``theta`` (odd in s)."""
+        th = np.asarray(theta, dtype=float)
+        s = np.asarray(s, dtype=float)
+        sa = np.abs(s)
+        if self.form == "class":
+            return th[0] * self.soil_class.g(s)  # type: ignore[union-attr]
+        if self.form == "exp1":
+            val = th[0] * -np.expm1(-th[1] * sa)
+        elif self.form == "exp1_offset":
+            val = np.where(sa > 0, th[0] + (th[1] - th[0]) * -np.expm1(-th[2] * sa), 0.0)
+        else:
+            a, p, a1, a2 = th
+            val = a * (1.0 - p * np.exp(a1 * sa) - (1.0 - p) * np.exp(a2 * sa))
+        return np.sign(s) * val
+
+    def mu(self, s: ArrayLike) -> NDArray[np.float64]:
+        """μ(s) [-]."""
+        return self.eval_theta(self.theta, s)
+
+    __call__ = mu
+
+    def g(self, s: ArrayLike) -> NDArray[np.float64]:
+        """Normalised curve μ(s)/a [-]."""
+        return self.mu(s) / self.a
+
+    def dmu_ds(self, s: ArrayLike) -> NDArray[np.float64]:
+        """dμ/ds [-] (even in s; at s = 0 the right derivative)."""
+        sa = np.abs(np.asarray(s, dtype=float))
+        th = self.theta
+        if self.form == "class":
+            return th[0] * self.soil_class.dg(sa)  # type: ignore[union-attr]
+        if self.form == "exp1":
+            return th[0] * th[1] * np.exp(-th[1] * sa)
+        if self.form == "exp1_offset":
+            return (th[1] - th[0]) * th[2] * np.exp(-th[2] * sa)
+        a, p, a1, a2 = th
+        return -a * (p * a1 * np.exp(a1 * sa) + (1.0 - p) * a2 * np.exp(a2 * sa))
+
+    def jac(self, s: ArrayLike) -> NDArray[np.float64]:
+        """∂μ(s)/∂θ, shape s.shape + (k,) (central differences)."""
+        s = np.asarray(s, dtype=float)
+        th = np.asarray(self.theta, dtype=float)
+        out = np.empty(s.shape + (th.size,))
+        for j in range(th.size):
+            h = 1e-6 * max(abs(th[j]), 1e-3)
+            tp, tm = th.copy(), th.copy()
+            tp[j] += h
+            tm[j] -= h
+            out[..., j] = (self.eval_theta(tp, s) - self.eval_theta(tm, s)) / (2 * h)
+        return out
+
+    def mu_sigma(self, s: ArrayLike) -> NDArray[np.float64]:
+        """Standard error of μ(s) [-] from ``cov`` (delta method; NaN when ``cov`` is unknown)."""
+        J = self.jac(s)
+        C = np.asarray(self.cov, dtype=float)
+        return np.sqrt(np.maximum(np.einsum("...i,ij,...j->...", J, C, J), 0.0))

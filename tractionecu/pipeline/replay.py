@@ -58,7 +58,7 @@ UNCERTAINTY_COLUMNS = tuple([f"sigma_mu_{w}" for w in WHEELS] + ["sigma_rho_s"]
 
 CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_class"] + [f"slip_{w}" for w in WHEELS]
                     + ["v"] + [f"omega_{w}" for w in WHEELS] + [f"var_{n}" for n in STATE_NAMES]
-                    + ["nis", "nis_dof", "adapt", "status", "valid"]
+                    + ["nis", "nis_dof", "adapt", "status", "valid", "curve_path"]
                     + list(UNCERTAINTY_COLUMNS))
 """Columns of ``estimates.csv``."""
 
@@ -381,6 +381,7 @@ class _Sink:
         arr["status"] = np.array([e.status for e in b], dtype=np.int64)
         arr["valid"] = np.array([e.valid for e in b], dtype=bool)
         arr["soil_class"] = [e.soil_class for e in b]
+        arr["curve"] = [e.curve for e in b]                  # identified μ(s) per step (estimation.curve)
         b.clear()
         if self.keep_all:
             self.done.append(arr)
@@ -470,7 +471,8 @@ def _write_rows(fh: Any, arrays: dict[str, Any]) -> None:
     fl = "%.3f" + ",%.6g" * 6 + ",%s,"
     fr = ",".join(["%.6g"] * 20) + ",%d,%.4g,%d,%d"
     cls = arrays["soil_class"]
-    rows = [fl % (*a, c) + fr % tuple(b) for a, c, b in zip(left, cls, right)]
+    paths = [c.path if c is not None else "" for c in arrays.get("curve", [None] * len(cls))]
+    rows = [fl % (*a, c) + fr % tuple(b) + "," + p for a, c, b, p in zip(left, cls, right, paths)]
     fh.write("\n".join([r + x for r, x in zip(rows, _uncertainty_cells(arrays))]))
     fh.write("\n")
 

@@ -1,0 +1,169 @@
+"""μ(s) beyond one parameter: the curve object, the binned fit and its selection, the online
+identification per soil segment, and the R² of the identified curve (paper section 3.2, eq. 14)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tractionecu.estimation.curve import CurveEstimator, PairBins, fit_curve
+from tractionecu.evaluation.curve_score import identified_curve, true_curve
+from tractionecu.evaluation.scoring import S_GRID, r_squared
+from tractionecu.model.mucurve import SOIL_CLASSES, MuCurve, mu_curve
+
+STUBBLE = SOIL_CLASSES["stubble"]
+
+
+def brixius(s, bn=40.0):
+    """Brixius (1987) gross traction ratio without its 0.04 offset: μ(0) = 0 [-]."""
+    s = np.asarray(s, dtype=float)
+    return np.sign(s) * 0.88 * (1 - math.exp(-0.1 * bn)) * -np.expm1(-7.5 * np.abs(s))
+
+
+def binned(f, lo, hi, n, rng, sigma_s=0.009):
+    """Pairs of slips uniform in [lo, hi], four wheels ±10 % apart, sharing one slip error per instant."""
+    b = PairBins()
+    for _ in range(n):
+        s4 = rng.uniform(lo, hi) * np.array([1.1, 1.1, 0.9, 0.9])
+        mu = f(s4) + 0.003 * rng.standard_normal(4)
+        sh = s4 + sigma_s * rng.standard_normal()
+        for m, x in zip(mu, sh):
+            b.add(PairBins.index(m), 0.2 / 4, abs(x), abs(m))
+    return b
+
+
+def test_curve_object_forms_agree_with_eq14():
+    s = np.linspace(-0.3, 0.4, 71)
+    cls = MuCurve.from_class(STUBBLE, 0.7, 1e-4)
+    assert np.allclose(cls(s), STUBBLE.mu(s, 0.7)) and cls.path == "class:stubble"
+    assert (cls.p, cls.alpha1, cls.alpha2) == (STUBBLE.p, STUBBLE.alpha1, STUBBLE.alpha2)
+    e14 = MuCurve("eq14", (0.8, 0.4, -30.0, -6.0), np.eye(4) * 1e-4, "shape:eq14")
+    assert np.allclose(e14(s), mu_curve(s, 0.8, 0.4, -30.0, -6.0))
+    e1 = MuCurve("exp1", (0.8, 7.5), np.eye(2) * 1e-4, "shape:exp1")
+    assert np.allclose(e1(s), mu_curve(s, 0.8, 1.0, -7.5, -7.5)) and (e1.p, e1.alpha1) == (1.0, -7.5)
+    off = MuCurve("exp1_offset", (0.05, 0.8, 7.5), np.eye(3) * 1e-4, "shape:exp1_offset")
+    assert off(0.0) == 0.0 and off(1e-9) == pytest.approx(0.05) and off(5.0) == pytest.approx(0.8)
+    # derivatives: dμ/ds and ∂μ/∂θ against central differences; σ_μ by the delta method
+    for c in (cls, e14, e1, off):
+        x = np.array([0.03, 0.1, 0.25])
+        h = 1e-6
+        assert np.allclose(c.dmu_ds(x), (c(x + h) - c(x - h)) / (2 * h), rtol=1e-5)
+        J = c.jac(x)
+        assert J.shape == (3, len(c.theta))
+        assert np.allclose(c.mu_sigma(x), np.sqrt(np.einsum("ij,jk,ik->i", J, c.cov, J)))
+    with pytest.raises(ValueError):
+        MuCurve("eq14", (0.8, 0.5), np.eye(2), "shape:eq14")
+
+
+@pytest.mark.parametrize("bn,lo,hi", [(40.0, 0.05, 0.2), (80.0, 0.04, 0.12), (25.0, 0.06, 0.18)])
+def test_fit_identifies_a_shape_none_of_the_classes(bn, lo, hi):
+    rng = np.random.default_rng(int(bn))
+    f = lambda s: brixius(s, bn)  # noqa: E731
+    fit = fit_curve(binned(f, lo, hi, 3000, rng), [STUBBLE])
+    c = fit.curve
+    a_true = float(f(np.array([10.0]))[0])
+    assert fit.shape_selected and c.path.startswith("shape:")
+    assert r_squared(c(S_GRID), f(S_GRID)) >= 0.98
+    assert r_squared(fit.best_class(S_GRID), f(S_GRID)) < 0.9          # the class alone cannot
+    assert abs(c.a - a_true) <= max(0.03 * a_true, 3 * c.sigma["a"])
+    assert 0 < c.sigma["a"] < 0.3 * c.a
+
+
+@pytest.mark.parametrize("name,a", [("stubble", 0.7), ("stubble", 0.58)])
+def test_fit_keeps_the_class_when_the_class_fits(name, a):
+    rng = np.random.default_rng(3)
+    cls = SOIL_CLASSES[name]
+    fit = fit_curve(binned(lambda s: cls.mu(s, a), 0.04, 0.14, 2000, rng), [STUBBLE])
+    assert not fit.shape_selected and fit.curve.path == "class:stubble"
+    assert fit.curve.a == pytest.approx(a, rel=0.01)
+    assert fit.bic["class:stubble"] <= min(fit.bic.values()) + 6.0
+
+
+def test_fit_bounds_and_well_posedness():
+    rng = np.random.default_rng(5)
+    tilled = SOIL_CLASSES["tilled"]
+    fit = fit_curve(binned(lambda s: tilled.mu(s, 0.6), 0.04, 0.25, 3000, rng), [STUBBLE])
+    for form, bic in fit.bic.items():
+        assert math.isfinite(bic), form
+    c = fit.curve
+    if c.form == "eq14":
+        _, p, a1, a2 = c.theta
+        assert 0 <= p <= 1 and a1 < a2 < 0
+    if c.form in ("exp1", "exp1_offset"):
+        assert 2.0 <= c.theta[-1] <= 200.0
+    assert np.all(np.isfinite(c.cov))
+    assert fit_curve(PairBins(), [STUBBLE]) is None                     # no data: no fit
+
+
+def _drive(ce, f, t0, seconds, rng, state):
+    """Steady work with a drawbar demand sweeping μ over 0.1–0.4, AR(1) slip error (0.009, 0.5 s)."""
+    ss = np.linspace(1e-4, 0.8, 8001)
+    fs = f(ss)
+    out = []
+    for k in range(int(seconds * 10)):
+        t = t0 + 0.1 * k
+        mu_t = 0.25 + 0.13 * math.sin(2 * math.pi * t / 17.0) + 0.03 * math.sin(2 * math.pi * t / 3.7)
+        s4 = np.interp(mu_t, fs, ss) * np.array([1.1, 1.1, 0.9, 0.9])
+        state[0] = state[0] * math.exp(-0.2) + math.sqrt(1 - math.exp(-0.4)) * 0.009 * rng.standard_normal()
+        st = ce.update(t, f(s4) + 0.003 * rng.standard_normal(4), s4 + state[0], np.full(4, 0.005),
+                       np.full(4, 0.009))
+        out.append(st)
+    return out
+
+
+def test_online_segments_and_paths():
+    rng = np.random.default_rng(11)
+    ce = CurveEstimator(["stubble"], tau_s=3.0)
+    err = [0.0]
+    brix = lambda s: brixius(s, 60.0)  # noqa: E731
+    first = _drive(ce, brix, 0.0, 150.0, rng, err)
+    second = _drive(ce, lambda s: STUBBLE.mu(s, 0.62), 150.0, 100.0, rng, err)
+    # the off-class soil: shape identified once its slips span enough, R² ≥ 0.98
+    last = first[-1]
+    assert last.curve_path.startswith("shape:") and last.slip_span >= 0.04
+    assert r_squared(last.curve(S_GRID), brix(S_GRID)) >= 0.98
+    a_true = float(brix(np.array([10.0]))[0])
+    sig_a = last.curve.sigma["a"]
+    assert abs(last.a - a_true) <= 2.5 * sig_a and sig_a < 0.3 * last.a        # inside its interval
+    # the soil change opens a new segment, and the class soil is on the class path
+    assert second[-1].segment > last.segment
+    assert second[-1].curve_path == "class:stubble"
+    assert r_squared(second[-1].curve(S_GRID), STUBBLE.mu(S_GRID, 0.62)) >= 0.995
+    assert ce.shape.n_fits < 60                                          # bounded work
+
+
+def test_narrow_slip_span_keeps_the_paper_path():
+    rng = np.random.default_rng(2)
+    ce = CurveEstimator(["stubble"], tau_s=3.0)
+    for k in range(1500):
+        s4 = rng.uniform(0.03, 0.05) * np.ones(4)
+        st = ce.update(0.1 * k, brixius(s4) + 0.003 * rng.standard_normal(4), s4, np.full(4, 0.005),
+                       np.full(4, 0.005))
+    assert st.curve_path == "class:stubble" and st.slip_span < 0.04 and st.shape_curve is None
+    assert st.curve is not None and st.curve.form == "class" and st.curve.a == st.a
+    assert CurveEstimator(["stubble"], shape=False).update(0.0, np.full(4, 0.4), np.full(4, 0.1),
+                                                           np.full(4, 0.01)).curve_path == "class:stubble"
+
+
+def test_scoring_uses_the_identified_shape():
+    shape = MuCurve("exp1", (0.85, 7.5), np.eye(2) * 1e-6, "shape:exp1")
+    n = 10
+    idx = np.arange(n)
+    a_e = np.full(n, 0.85)
+    cls_e = ["stubble"] * n
+    curve, info = identified_curve(idx, a_e, cls_e, [shape] * 8 + [None] * 2, S_GRID)
+    assert info["curve_path"] == "shape:exp1" and np.allclose(curve, shape(S_GRID))
+    # class path: the paper's a̅·g_class(s), a̅ over the class-path samples only
+    a_e2 = np.array([0.7] * 6 + [0.9] * 4)
+    curves2 = [None] * 6 + [shape] * 4
+    curve2, info2 = identified_curve(idx, a_e2, cls_e, curves2, S_GRID)
+    assert info2["curve_path"] == "class:stubble" and info2["a_identified"] == pytest.approx(0.7)
+    assert np.allclose(curve2, STUBBLE.mu(S_GRID, 0.7))
+    # without curves (older output) it is the former computation
+    curve3, _ = identified_curve(idx, a_e2, cls_e, None, S_GRID)
+    assert np.allclose(curve3, STUBBLE.mu(S_GRID, float(a_e2.mean())))
+    # a tabulated true curve
+    tab = {"soil_class": "stubble", "a": 0.8, "curve_s": [0.0, 0.2, 0.4], "curve_mu": [0.0, 0.6, 0.8]}
+    assert true_curve(tab, np.array([0.1, 0.3])) == pytest.approx([0.3, 0.7])

@@ -1,0 +1,76 @@
+"""The identified and the true μ(s) of one soil for the R² of :mod:`.scoring` (paper section 5, Fig. 5).
+
+The paper compares, per soil, "an average representative μ(s) characteristic calculated from the UKF
+estimates" with the true one by R² (its figures 0.857 / 0.996 / 0.983).  The estimator reports its
+curve per step on one of two paths (:mod:`tractionecu.estimation.curve`):
+
+* ``class:<name>``: a·g_class(s).  The representative curve is the paper's: a̅·g(s), a̅ the mean
+  identified a over the soil's class-path samples and g the most frequently reported class (as before the shape
+  path existed, so class-path figures do not move);
+* ``shape:<form>``: a fitted shape.  The representative curve is the mean of the identified curves
+  μ̂_j(s) over the samples on that path, which for one class reduces to a̅·g(s) again.
+
+The path is the one most of the soil's samples report.  The true curve is the soil's class curve
+from ``truth.toml`` (``soil_class``, ``a``), or, for a truth model whose μ(s) is none of the classes,
+its tabulated curve ``curve_s`` / ``curve_mu`` (same file), interpolated; both are compared on the
+same slip grid.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any, Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..model.mucurve import SOIL_CLASSES
+
+
+def true_curve(info: dict[str, Any], s_grid: NDArray[np.float64]) -> NDArray[np.float64]:
+    """True μ(s) [-] of one soil of ``truth.toml`` on ``s_grid`` (tabulated curve if given, else its class)."""
+    if "curve_s" in info and "curve_mu" in info:
+        s = np.asarray(info["curve_s"], dtype=float)
+        mu = np.asarray(info["curve_mu"], dtype=float)
+        order = np.argsort(s)
+        return np.interp(s_grid, s[order], mu[order])
+    return SOIL_CLASSES[info["soil_class"]].mu(s_grid, info["a"])
+
+
+def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Sequence[str],
+                     curves: Sequence[Any] | None, s_grid: NDArray[np.float64]
+                     ) -> tuple[NDArray[np.float64], dict[str, Any]]:
+    """Representative identified μ(s) on ``s_grid`` over the samples ``idx`` of one soil (module doc).
+
+    ``a_e`` (n,), ``cls_e`` (n,) and ``curves`` (n,) are the estimator's per-step a, class name and
+    curve (:class:`~tractionecu.model.mucurve.MuCurve` or None; None for output without curves).
+    Returns (curve, info) with info keys ``a_identified``, ``class_identified``, ``curve_path``
+    and, on the shape path, ``shape_params`` (mean of each parameter).
+    """
+    il = idx.tolist()
+    paths = (Counter(curves[j].path if curves[j] is not None else f"class:{cls_e[j]}" for j in il)
+             if curves is not None else Counter())
+    path = paths.most_common(1)[0][0] if paths else ""
+    sel = [cls_e[j] for j in il]
+    cls_name = max(set(sel), key=sel.count)
+    if not path.startswith("shape:"):
+        # a̅ over the class-path samples (all of them when the estimator reports no curves)
+        cl = idx if curves is None else np.array([j for j in il if curves[j] is None or
+                                                  not curves[j].path.startswith("shape:")], dtype=np.int64)
+        a_bar = float(np.mean(a_e[cl if cl.size else idx]))
+        return SOIL_CLASSES[cls_name].mu(s_grid, a_bar), {
+            "a_identified": a_bar, "class_identified": cls_name, "curve_path": path or f"class:{cls_name}"}
+    assert curves is not None
+    use = [j for j in il if curves[j] is not None and curves[j].path == path]
+    count = Counter(id(curves[j]) for j in use)           # many steps share one fitted curve
+    first = {id(curves[j]): curves[j] for j in use}
+    tot = float(len(use))
+    mean = np.zeros_like(s_grid, dtype=float)
+    theta = np.zeros(len(first[next(iter(first))].theta))
+    for key, n in count.items():
+        mean += n / tot * first[key].mu(s_grid)
+        theta += n / tot * np.asarray(first[key].theta, dtype=float)
+    names = first[next(iter(first))].names
+    return mean, {"a_identified": float(np.mean([curves[j].a for j in use])), "class_identified": cls_name,
+                  "curve_path": path, "shape_params": dict(zip(names, theta.tolist())),
+                  "shape_share": len(use) / len(il)}
