@@ -41,9 +41,9 @@ def test_curve_object_forms_agree_with_eq14():
     assert (cls.p, cls.alpha1, cls.alpha2) == (STUBBLE.p, STUBBLE.alpha1, STUBBLE.alpha2)
     e14 = MuCurve("eq14", (0.8, 0.4, -30.0, -6.0), np.eye(4) * 1e-4, "shape:eq14")
     assert np.allclose(e14(s), mu_curve(s, 0.8, 0.4, -30.0, -6.0))
-    e1 = MuCurve("exp1", (0.8, 7.5), np.eye(2) * 1e-4, "shape:exp1")
+    e1 = MuCurve("exp1", (0.8, -7.5), np.eye(2) * 1e-4, "shape:exp1")
     assert np.allclose(e1(s), mu_curve(s, 0.8, 1.0, -7.5, -7.5)) and (e1.p, e1.alpha1) == (1.0, -7.5)
-    off = MuCurve("exp1_offset", (0.05, 0.8, 7.5), np.eye(3) * 1e-4, "shape:exp1_offset")
+    off = MuCurve("exp1_offset", (0.05, 0.8, -7.5), np.eye(3) * 1e-4, "shape:exp1_offset")
     assert off(0.0) == 0.0 and off(1e-9) == pytest.approx(0.05) and off(5.0) == pytest.approx(0.8)
     # derivatives: dμ/ds and ∂μ/∂θ against central differences; σ_μ by the delta method
     for c in (cls, e14, e1, off):
@@ -92,7 +92,7 @@ def test_fit_bounds_and_well_posedness():
         _, p, a1, a2 = c.theta
         assert 0 <= p <= 1 and a1 < a2 < 0
     if c.form in ("exp1", "exp1_offset"):
-        assert 2.0 <= c.theta[-1] <= 200.0
+        assert -200.0 <= c.theta[-1] <= -2.0
     assert np.all(np.isfinite(c.cov))
     assert fit_curve(PairBins(), [STUBBLE]) is None                     # no data: no fit
 
@@ -148,7 +148,7 @@ def test_narrow_slip_span_keeps_the_paper_path():
 
 
 def test_scoring_uses_the_identified_shape():
-    shape = MuCurve("exp1", (0.85, 7.5), np.eye(2) * 1e-6, "shape:exp1")
+    shape = MuCurve("exp1", (0.85, -7.5), np.eye(2) * 1e-6, "shape:exp1")
     n = 10
     idx = np.arange(n)
     a_e = np.full(n, 0.85)

@@ -164,17 +164,20 @@ def solve_a_array(mu: ArrayLike, s: ArrayLike, cls: SoilClass, *, sigma_mu: floa
 # ----------------------------------------------------------------------------- identified curves
 CURVE_FORMS: dict[str, tuple[str, ...]] = {
     "class": ("a",),
-    "exp1": ("a", "k"),
-    "exp1_offset": ("c", "a", "k"),
+    "exp1": ("a", "alpha1"),
+    "exp1_offset": ("c", "a", "alpha1"),
     "eq14": ("a", "p", "alpha1", "alpha2"),
 }
 """Curve forms an identified μ(s) can take and the names of their parameters, in ``theta`` order:
 
 - ``class``: a·g_class(s), the paper's path (eq. 18): p, α1, α2 fixed by the class;
-- ``exp1``: a(1 − e^{−k s}), k > 0 [-]: eq. 14 with p = 1 (one time constant; the slip term of
-  Brixius 1987 and of Wismer & Luth 1974 has this shape);
-- ``exp1_offset``: c + (a − c)(1 − e^{−k s}) for s > 0: the same with an offset μ(0⁺) = c
+- ``exp1``: a(1 − e^{α1 s}), α1 < 0 [-]: eq. 14 with p = 1 (one time constant; the slip term of
+  Brixius 1987 and of Wismer & Luth 1974 has this shape, α1 = −7.5 in Brixius');
+- ``exp1_offset``: c + (a − c)(1 − e^{α1 s}) for s > 0: the same with an offset μ(0⁺) = c
   (Brixius' gross traction ratio with its 0.04 term), a the asymptote;
+
+Parameters that are eq. 14's carry its names (a, p, alpha1, alpha2), so that a consumer that
+knows eq. 14 reads every form but ``exp1_offset`` (whose ``c`` it does not know).
 - ``eq14``: a(1 − p e^{α1 s} − (1−p) e^{α2 s}), α1 < α2 < 0, 0 ≤ p ≤ 1: paper eq. 14 with its
   shape free.
 """
@@ -192,8 +195,8 @@ class MuCurve:
     efficiency, the optimal slip s*) can carry an interval: var f = ∇f C ∇fᵀ.
 
     The eq. 14 parameters of any form are :attr:`a`, :attr:`p`, :attr:`alpha1`, :attr:`alpha2`
-    (``exp1`` is eq. 14 with p = 1 and α1 = α2 = −k; ``exp1_offset`` has no eq. 14 form: p, α1,
-    α2 are NaN).
+    (``exp1`` is eq. 14 with p = 1 and α2 = α1; ``exp1_offset`` has no eq. 14 form: p and α2 are
+    NaN).
     """
 
     form: str
@@ -248,14 +251,19 @@ class MuCurve:
     @property
     def alpha1(self) -> float:
         """Eq. 14 exponent α1 [-] (NaN where the form has none)."""
-        return {"class": lambda: self.soil_class.alpha1, "exp1": lambda: -self.theta[1],  # type: ignore[union-attr]
-                "eq14": lambda: self.theta[2]}.get(self.form, lambda: math.nan)()
+        return {"class": lambda: self.soil_class.alpha1, "exp1": lambda: self.theta[1],  # type: ignore[union-attr]
+                "exp1_offset": lambda: self.theta[2], "eq14": lambda: self.theta[2]}[self.form]()
 
     @property
     def alpha2(self) -> float:
         """Eq. 14 exponent α2 [-] (NaN where the form has none)."""
-        return {"class": lambda: self.soil_class.alpha2, "exp1": lambda: -self.theta[1],  # type: ignore[union-attr]
+        return {"class": lambda: self.soil_class.alpha2, "exp1": lambda: self.theta[1],  # type: ignore[union-attr]
                 "eq14": lambda: self.theta[3]}.get(self.form, lambda: math.nan)()
+
+    @property
+    def sigma_a(self) -> float:
+        """Standard error of :attr:`a` [-] (NaN when unknown)."""
+        return self.sigma["a"]
 
     @property
     def sigma(self) -> dict[str, float]:
@@ -272,9 +280,9 @@ class MuCurve:
         if self.form == "class":
             return th[0] * self.soil_class.g(s)  # type: ignore[union-attr]
         if self.form == "exp1":
-            val = th[0] * -np.expm1(-th[1] * sa)
+            val = th[0] * -np.expm1(th[1] * sa)
         elif self.form == "exp1_offset":
-            val = np.where(sa > 0, th[0] + (th[1] - th[0]) * -np.expm1(-th[2] * sa), 0.0)
+            val = np.where(sa > 0, th[0] + (th[1] - th[0]) * -np.expm1(th[2] * sa), 0.0)
         else:
             a, p, a1, a2 = th
             val = a * (1.0 - p * np.exp(a1 * sa) - (1.0 - p) * np.exp(a2 * sa))
@@ -297,9 +305,9 @@ class MuCurve:
         if self.form == "class":
             return th[0] * self.soil_class.dg(sa)  # type: ignore[union-attr]
         if self.form == "exp1":
-            return th[0] * th[1] * np.exp(-th[1] * sa)
+            return -th[0] * th[1] * np.exp(th[1] * sa)
         if self.form == "exp1_offset":
-            return (th[1] - th[0]) * th[2] * np.exp(-th[2] * sa)
+            return -(th[1] - th[0]) * th[2] * np.exp(th[2] * sa)
         a, p, a1, a2 = th
         return -a * (p * a1 * np.exp(a1 * sa) + (1.0 - p) * a2 * np.exp(a2 * sa))
 
