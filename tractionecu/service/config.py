@@ -26,6 +26,13 @@ the offending key as ``section.key``.  Example (all keys optional)::
     origin_lat = 47.88
     origin_lon = -110.55
 
+    [advice]
+    axle_type = "mfwd"           # slip band 8-12 %
+
+    [web]
+    host = "127.0.0.1"           # the in-cab page: http://127.0.0.1:8080/
+    port = 8080
+
     [signals]                    # the owner's messages (can.dbc = ["owner.dbc"]) onto contract names
     WheelSpeed_FL = "DriveCtrl_3.WhlSpdFL"
 
@@ -236,6 +243,53 @@ class MapConfig:
             raise ConfigError("map.origin_lat/map.origin_lon: give both or neither")
 
 
+AXLE_TYPES = ("mfwd", "4wd", "2wd", "tracks")
+"""Axle types with a slip band for ballasting (:data:`tractionecu.advice.rules.SLIP_BANDS`)."""
+
+
+@dataclass(frozen=True)
+class AdviceConfig:
+    """Traction efficiency, the optimal slip and advice (:mod:`tractionecu.advice`); advice only, never acts."""
+
+    enabled: bool = setting(True, "compute η, s* and the advice; send TECU_EstEfficiency (PGN 65315) at broadcast.rate_hz")
+    axle_type: str = setting("mfwd", "axle type for the ballasting slip band: mfwd (8-12 %), 4wd (8-12 %), "
+                                     "2wd (10-15 %), tracks (2-5 %)")
+    slip_min: float = setting(math.nan, "lower end of the slip band [-]; NaN = the axle type's", 0.0, 1.0, nan_ok=True)
+    slip_max: float = setting(math.nan, "upper end of the slip band [-]; NaN = the axle type's", 0.0, 1.0, nan_ok=True)
+    distance_m: float = setting(100.0, "slip outside the band over this distance of pulling gives advice [m]", 1.0, 100000.0)
+    eta_loss: float = setting(0.05, "efficiency below eta(s*) by more than this is far below the optimum [-]", 0.001, 1.0)
+    eta_minutes: float = setting(2.0, "... for this long gives advice [min]", 0.1, 600.0)
+    tyre_pressure_min_pa: float = setting(0.0, "lowest tyre pressure the tyre's load table allows for this "
+                                               "machine [Pa]; 0 = no tyre pressure advice", 0.0, 1e6)
+    max_sigma_s_star: float = setting(0.01, "s* is sent only with a standard error up to this [-]", 0.0001, 1.0)
+
+    def __post_init__(self) -> None:
+        validate(self, "advice")
+        if self.axle_type not in AXLE_TYPES:
+            raise ConfigError(f"advice.axle_type: {self.axle_type!r} is not one of {', '.join(AXLE_TYPES)}")
+        if not (math.isnan(self.slip_min) or math.isnan(self.slip_max)) and self.slip_max <= self.slip_min:
+            raise ConfigError(f"advice.slip_max = {self.slip_max} is not above advice.slip_min = {self.slip_min}")
+
+
+@dataclass(frozen=True)
+class WebConfig:
+    """The read-only in-cab page (:mod:`tractionecu.web`)."""
+
+    enabled: bool = setting(True, "serve the in-cab page (read-only: no write endpoints)")
+    host: str = setting("127.0.0.1", "address to listen on: 127.0.0.1 (this computer only) or the cab "
+                                     "display's network address (the systemd unit's IPAddressAllow= must allow it)")
+    port: int = setting(8080, "TCP port (the systemd unit's SocketBindAllow= must allow it); 0 = any free port", 0, 65535)
+    update_hz: float = setting(2.0, "updates pushed to each viewer [Hz]", 0.2, 5.0)
+    max_viewers: int = setting(8, "viewers at once; more are refused", 1, 64)
+    queue_updates: int = setting(4, "updates waiting for one viewer; a viewer that falls further behind is "
+                                    "dropped [updates]", 1, 64)
+
+    def __post_init__(self) -> None:
+        validate(self, "web")
+        if not self.host:
+            raise ConfigError("web.host: must not be empty")
+
+
 @dataclass(frozen=True)
 class ServiceSection:
     """Process-wide settings."""
@@ -262,6 +316,8 @@ class ServiceConfig:
                                               "in neither take the defaults shown.", partial=True)
     broadcast: BroadcastConfig = section(BroadcastConfig, "estimate broadcast and address claim")
     map: MapConfig = section(MapConfig, "the map writer")
+    advice: AdviceConfig = section(AdviceConfig, "traction efficiency, optimal slip and advice")
+    web: WebConfig = section(WebConfig, "the read-only in-cab page")
     service: ServiceSection = section(ServiceSection, "process-wide settings")
     signals: Mapping[str, Any] = table("the owner's messages onto the contract names: WheelSpeed_FL = "
                                        "\"DriveCtrl_3.WhlSpdFL\" or { signal = \"...\", scale = ... } "
