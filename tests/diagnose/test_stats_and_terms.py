@@ -5,17 +5,19 @@ import math
 import numpy as np
 import pytest
 
-from tractionecu.diagnose.candidates import CANDIDATES
+from tractionecu.diagnose.candidates import CANDIDATES, DETECTORS
 from tractionecu.diagnose.channels import _CurveInverse, _onehot_scaled_fit, relaxed, relaxed_by_distance
 from tractionecu.diagnose.fit import andrews_bandwidth, hac_meat, n_effective
-from tractionecu.model.effects import EFFECTS
+from tractionecu.model.effects import EFFECTS, LIBRARY, SENSOR_FAULTS
 from tractionecu.model.mucurve import SOIL_CLASSES
 
 
 def test_every_library_effect_is_a_candidate_with_library_bounds():
-    assert set(CANDIDATES) == set(EFFECTS)
+    # Physical effects and sensor faults: each a fitted candidate or a data check.
+    assert set(EFFECTS) <= set(CANDIDATES)
+    assert set(CANDIDATES) | DETECTORS == set(LIBRARY) == set(EFFECTS) | set(SENSOR_FAULTS)
     for name, cand in CANDIDATES.items():
-        specs = {p.name: p for p in EFFECTS[name].params}
+        specs = {p.name: p for p in LIBRARY[name].params}
         for fp in cand.fitted:
             assert (fp.lo, fp.hi, fp.unit) == (specs[fp.name].lo, specs[fp.name].hi, specs[fp.name].unit)
             assert fp.lo <= fp.null <= fp.hi

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ..model.effects import EFFECTS
+from ..model.effects import EFFECTS, LIBRARY
 
 
 @dataclass(frozen=True)
@@ -41,7 +41,7 @@ class FitParam:
 
 
 def _fp(effect: str, name: str, null: float, starts: tuple[float, ...], negligible: float = 0.0) -> FitParam:
-    spec = {p.name: p for p in EFFECTS[effect].params}[name]
+    spec = {p.name: p for p in LIBRARY[effect].params}[name]
     return FitParam(name, null, starts, spec.lo, spec.hi, spec.unit, negligible)
 
 
@@ -56,11 +56,19 @@ class Candidate:
 
     @property
     def formula(self) -> str:
-        return EFFECTS[self.name].formula
+        return LIBRARY[self.name].formula
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return (self.name,)
+
+    def effects(self, x) -> dict[str, dict[str, float]]:
+        """``{effect: parameters}`` for fitted values ``x``."""
+        return {self.name: self.params(x)}
 
     def params(self, x) -> dict[str, float]:
         """Full parameter dict of the effect for fitted values ``x``."""
-        out = dict(EFFECTS[self.name].defaults())
+        out = dict(LIBRARY[self.name].defaults())
         out.update(self.fixed)
         for fp, v in zip(self.fitted, x):
             out[fp.name] = float(v)
@@ -92,7 +100,33 @@ CANDIDATES: dict[str, Candidate] = {
                   plain="the vehicle mass differs from nominal (ballast)"),
         Candidate("aero", (_fp("aero", "cd_area_m2", 0.0, (0.0, 2.0, 5.0, 15.0, 50.0), 10.0),),
                   plain="aerodynamic drag"),
+        # Sensor faults (model.effects.SENSOR_FAULTS).  Negligible bands: torque gain 1 % (the
+        # class of a calibrated strain-gauge shaft sensor), torque offset 20 N·m (≈ 13 N of force at
+        # 1.6 m radius... per wheel), draft offset 200 N and drift 50 N/min, axle-load offset 300 N
+        # and drift 100 N/min (≈ 0.5 % of a 60 kN axle), clock 0.02 s and 50 ppm, pressure ratio 0.05.
+        Candidate("torque_gain", (_fp("torque_gain", "k_front", 0.0, (-0.1, 0.0, 0.1), 0.01),
+                                  _fp("torque_gain", "k_rear", 0.0, (-0.1, 0.0, 0.1), 0.01)),
+                  plain="drive-torque sensor gain error (per axle)"),
+        Candidate("torque_offset", (_fp("torque_offset", "b_front_nm", 0.0, (-300.0, 0.0, 300.0), 20.0),
+                                    _fp("torque_offset", "b_rear_nm", 0.0, (-300.0, 0.0, 300.0), 20.0)),
+                  plain="drive-torque sensor offset (per axle)"),
+        Candidate("draft_offset", (_fp("draft_offset", "b0_n", 0.0, (-2000.0, 0.0, 2000.0), 200.0),
+                                   _fp("draft_offset", "b1_npm", 0.0, (-300.0, 0.0, 300.0), 50.0)),
+                  plain="draft sensor offset and drift"),
+        Candidate("axle_load_offset", (_fp("axle_load_offset", "b0_n", 0.0, (-3000.0, 0.0, 3000.0), 300.0),
+                                       _fp("axle_load_offset", "b1_npm", 0.0, (-500.0, 0.0, 500.0), 100.0)),
+                  plain="front-axle load sensor offset and drift"),
+        Candidate("clock_skew", (_fp("clock_skew", "offset_s", 0.0, (-0.3, -0.1, 0.0, 0.1, 0.3), 0.02),
+                                 _fp("clock_skew", "rate_ppm", 0.0, (-500.0, 0.0, 500.0), 50.0)),
+                  plain="CAN logger clock apart from GNSS time (offset and rate)"),
+        Candidate("tyre_pressure", (_fp("tyre_pressure", "p_ratio", 1.0, (0.5, 0.7, 0.85, 1.0, 1.2, 1.5), 0.05),),
+                  plain="tyre inflation pressure off the rated one (radius and rolling resistance together)"),
     )
 }
 
-assert set(CANDIDATES) == set(EFFECTS), "every library effect is a candidate"
+NOMINAL = frozenset({"load_transfer"})
+"""Library effects every tractor has: part of the nominal model (fitted as a nuisance, reported, never a fault)."""
+DETECTORS = frozenset({"wheel_speed_hold"})
+"""Sensor faults found by a data check (:func:`~.features.wheel_speed_faults`), not by a fit."""
+
+assert set(CANDIDATES) | DETECTORS == set(LIBRARY), "every library effect is a candidate or a detector"

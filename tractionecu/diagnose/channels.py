@@ -99,16 +99,53 @@ class _WheelCache:
         self._cache[key] = val
 
     def get(self, eff: Effects, with_slip: bool = False) -> WheelState:
-        key = (_p(eff, "mass", "delta_kg", 0.0), _p(eff, "wheel_radius", "epsilon", 0.0),
-               _p(eff, "drivetrain", "eta", 1.0), _p(eff, "drivetrain", "loss_nm", 0.0),
+        kw = wheel_kwargs(eff, self.feat.frame)
+        key = (tuple((k, v if not isinstance(v, np.ndarray) else v.tobytes()) for k, v in sorted(kw.items())),
                _p(eff, "gps_latency", "tau_s", 0.0) if with_slip else None, with_slip)
         ws = self._cache.get(key)
         if ws is None:
             f = self.feat
             v = self.v_ref(eff) if with_slip else None
-            ws = wheel_state(f.frame, f.omega_dot, v, delta_m=key[0], eps_r=key[1], eta=key[2], loss_nm=key[3])
+            ws = wheel_state(f.frame, f.omega_dot, v, **kw)
             self._put(key, ws)
         return ws
+
+
+def wheel_kwargs(eff: Effects, fr) -> dict:
+    """Arguments of :func:`~.features.wheel_state` for the effects and sensor faults in ``eff``."""
+    kw: dict = {}
+    dm = _p(eff, "mass", "delta_kg", 0.0)
+    if dm:
+        kw["delta_m"] = dm
+    eps = _p(eff, "wheel_radius", "epsilon", 0.0)
+    rho_f = 1.0
+    if "tyre_pressure" in eff:
+        e2, rho_f = fx.tyre_pressure_terms(eff["tyre_pressure"]["p_ratio"])
+        eps = (1.0 + eps) * (1.0 + e2) - 1.0
+    if eps:
+        kw["eps_r"] = eps
+    if rho_f != 1.0:
+        kw["rho_t_factor"] = rho_f
+    if "drivetrain" in eff:
+        kw["eta"] = _p(eff, "drivetrain", "eta", 1.0)
+        kw["loss_nm"] = _p(eff, "drivetrain", "loss_nm", 0.0)
+    if "torque_gain" in eff:
+        kw["gain"] = (_p(eff, "torque_gain", "k_front", 0.0), _p(eff, "torque_gain", "k_rear", 0.0))
+    if "torque_offset" in eff:
+        kw["offset_nm"] = (_p(eff, "torque_offset", "b_front_nm", 0.0), _p(eff, "torque_offset", "b_rear_nm", 0.0))
+    if "axle_load_offset" in eff:
+        p = eff["axle_load_offset"]
+        kw["fzf_offset"] = fx.offset_drift(fr.t, p["b0_n"], p["b1_npm"])
+    return kw
+
+
+def draft_of(eff: Effects, fr) -> NDArray:
+    """The draft [N] with a fitted draft-sensor offset and drift removed (NaN → 0)."""
+    d = np.nan_to_num(fr.fdx) if fr.fdx is not None else np.zeros(fr.n)
+    if "draft_offset" in eff:
+        p = eff["draft_offset"]
+        d = d - fx.offset_drift(fr.t, p["b0_n"], p["b1_npm"])
+    return d
 
 
 @dataclass
@@ -164,7 +201,8 @@ class SpeedChannel(Channel):
         self.starts = starts[ok]
         mid = self.starts + W // 2
         super().__init__("speed", "N", "speed equation (eq. 8): unexplained resistive force",
-                         frozenset({"grade", "mass", "drivetrain", "aero", "wheel_radius"}),
+                         frozenset({"grade", "mass", "drivetrain", "aero", "wheel_radius", "torque_gain",
+                                    "torque_offset", "draft_offset", "axle_load_offset", "tyre_pressure"}),
                          fr.t[mid], mid.astype(np.int64), feat.fold[mid], "ρ_s per field cell")
         self.cell = feat.cell[mid]
         self.ncell = feat.n_cells
@@ -197,7 +235,7 @@ class SpeedChannel(Channel):
         ws = self.wc.get(eff)
         dm = _p(eff, "mass", "delta_kg", 0.0)
         m = fr.vehicle.mass_kg + dm
-        force = np.nansum(ws.fh, axis=1) - np.nan_to_num(fr.fdx)
+        force = np.nansum(ws.fh, axis=1) - draft_of(eff, fr)
         y = self._win_mean(force) - fr.vehicle.mass_kg * self.dv / self.dt_win
         f = dm * self.dv_ref / self.dt_win
         if "grade" in eff:
@@ -220,7 +258,8 @@ class GpsSpeedChannel(Channel):
         self.feat, self.wc = feat, wc
         rows = np.nonzero(feat.valid & np.isfinite(feat.v_gps))[0]
         super().__init__("gps_speed", "m/s", "GNSS speed against the force-integrated speed",
-                         frozenset({"gps_latency", "mass", "drivetrain", "wheel_radius"}),
+                         frozenset({"gps_latency", "mass", "drivetrain", "wheel_radius", "torque_gain",
+                                    "torque_offset", "draft_offset", "axle_load_offset", "clock_skew"}),
                          fr.t[rows], rows.astype(np.int64), feat.fold[rows], "slow speed correction b(t), cubic spline")
         self.rows_idx = rows
         self.B = spline_basis(fr.t, SPLINE_KNOT_S)[rows]
@@ -251,7 +290,7 @@ class GpsSpeedChannel(Channel):
         fr = self.feat.frame
         ws = self.wc.get(eff)
         m = fr.vehicle.mass_kg + _p(eff, "mass", "delta_kg", 0.0)
-        force = np.nansum(ws.fh, axis=1) - np.nan_to_num(fr.fdx)
+        force = np.nansum(ws.fh, axis=1) - draft_of(eff, fr)
         if "grade" in eff:
             force = force - eff["grade"]["scale"] * fx.grade_force(m, self.theta)
         if "aero" in eff and self.feat.v_ref is not None:
@@ -263,6 +302,10 @@ class GpsSpeedChannel(Channel):
             v = np.interp(fr.t, fr.t + fr.can_time_offset_s, v)
         if "gps_latency" in eff:
             v = fx.delayed(fr.t, v, eff["gps_latency"]["tau_s"])
+        if "clock_skew" in eff:
+            # The force samples of CAN time t stand for GNSS time t − δ(t).
+            p = eff["clock_skew"]
+            v = np.interp(fr.t, fr.t - fx.clock_shift_s(fr.t, p["offset_s"], p["rate_ppm"]), v)
         return v[self.rows_idx]
 
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
@@ -277,41 +320,94 @@ class GpsSpeedChannel(Channel):
 
 # --------------------------------------------------------------------------- front axle load
 class FrontLoadChannel(Channel):
+    """Measured front-axle load against the static split and the load transfer (nominal model).
+
+        y = F_zf − f_front m g,   f = −ΔF_z,rear(F_dx, a, θ; h_hitch, h_cg) + Δm f_Δm g + b_0 + b_1 t,
+
+    with the heights h_hitch, h_cg a *nuisance*: every tractor pulling from a hitch transfers load
+    (library ``load_transfer``), so the nominal model fits the heights (linear least squares on the
+    rows in use) instead of treating the transfer as a fault.  :meth:`nominal_heights` reports them.
+    """
+
     def __init__(self, feat: Features):
         fr = feat.frame
         self.feat = feat
         rows = np.nonzero(feat.valid & np.isfinite(fr.fzf))[0]
-        super().__init__("front_load", "N", "front-axle load against the static split",
-                         frozenset({"load_transfer", "mass"}), fr.t[rows], rows.astype(np.int64), feat.fold[rows],
-                         "none (static split from vehicle.toml)")
+        super().__init__("front_load", "N", "front-axle load against the static split and the load transfer",
+                         frozenset({"mass", "axle_load_offset", "draft_offset"}), fr.t[rows], rows.astype(np.int64),
+                         feat.fold[rows], "load-transfer heights h_hitch, h_cg (nominal model)")
         self.rows_idx = rows
         veh = fr.vehicle
         # The measured load and the regressors pass through the same moving average: the relation is
         # linear, so it is kept, while the sensors' white noise in the regressors (which would
         # attenuate the fitted heights) drops.
         k = max(1, int(round(FRONT_LOAD_SMOOTH_S * fr.rate_hz)))
+        self.k = k
 
         def sm(x: NDArray | None) -> NDArray:
             if x is None:
                 return np.zeros(rows.size)
             return np.convolve(np.nan_to_num(x), np.ones(k) / k, mode="same")[rows]
 
+        self.sm = sm
         self.y = sm(fr.fzf) - veh.static_front_load_n()
         self.fdx = sm(fr.fdx)
         self.acc = sm(feat.accel)
         self.theta = sm(feat.theta)
+        self.t_rows = fr.t[rows]
+        self.last_heights: tuple[float, float] = (math.nan, math.nan)
+
+    def _design(self, eff: Effects) -> NDArray:
+        """Regressors of the heights (h_hitch, h_cg): −ΔF_z,rear = −(F_dx h_hitch + m (a + g sin θ) h_cg)/L."""
+        veh = self.feat.frame.vehicle
+        m = veh.mass_kg + _p(eff, "mass", "delta_kg", 0.0)
+        fdx = self.fdx
+        if "draft_offset" in eff:
+            p = eff["draft_offset"]
+            fdx = fdx - fx.offset_drift(self.t_rows, p["b0_n"], p["b1_npm"])
+        x1 = -fx.load_transfer_rear(fdx, 0.0, 0.0, m, veh.wheelbase_m, 1.0, 0.0)
+        x2 = -fx.load_transfer_rear(0.0, self.acc, self.theta, m, veh.wheelbase_m, 0.0, 1.0)
+        return np.stack([x1, x2], axis=1)
+
+    def _effects_part(self, eff: Effects) -> NDArray:
+        f = np.zeros(self.y.size)
+        if "mass" in eff:
+            f = f + _p(eff, "mass", "delta_kg", 0.0) * eff["mass"]["front_share"] * G
+        if "axle_load_offset" in eff:
+            p = eff["axle_load_offset"]
+            f = f + fx.offset_drift(self.t_rows, p["b0_n"], p["b1_npm"])
+        return f
 
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
-        veh = self.feat.frame.vehicle
-        f = np.zeros(self.y.size)
-        dm = _p(eff, "mass", "delta_kg", 0.0)
-        if "load_transfer" in eff:
-            lt = eff["load_transfer"]
-            f = f - fx.load_transfer_rear(self.fdx, self.acc, self.theta, veh.mass_kg + dm, veh.wheelbase_m,
-                                          lt["h_hitch_m"], lt["h_cg_m"])
-        if "mass" in eff:
-            f = f + dm * eff["mass"]["front_share"] * G
-        return self.y[rows], f[rows]
+        f = self._effects_part(eff)[rows]
+        y = self.y[rows]
+        X = self._design(eff)[rows]
+        if X.shape[0] > 2:
+            h, *_ = np.linalg.lstsq(X, y - f, rcond=None)
+            self.last_heights = (float(h[0]), float(h[1]))
+            f = f + X @ h
+        return y, f
+
+    def nominal_heights(self, eff: Effects) -> dict:
+        """Load-transfer heights of the nominal model on all rows with HAC 95 % intervals."""
+        from .fit import hac_meat
+
+        y = self.y - self._effects_part(eff)
+        X = self._design(eff)
+        h, *_ = np.linalg.lstsq(X, y, rcond=None)
+        e = y - X @ h
+        A = X.T @ X
+        try:
+            Ai = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            return {}
+        cov = Ai @ hac_meat(X * e[:, None]) @ Ai
+        se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+        out = {}
+        for j, name in enumerate(("h_hitch_m", "h_cg_m")):
+            out[name] = {"value": float(h[j]), "ci95": [float(h[j] - 1.96 * se[j]), float(h[j] + 1.96 * se[j])],
+                         "unit": "m"}
+        return out
 
     def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
         y, p = self.parts(eff, rows)
@@ -542,7 +638,8 @@ class SlipChannel(Channel):
               & np.isfinite(ws.mu) & (np.abs(ws.slip) < 0.5))
         ti, wi = np.nonzero(ok)
         super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
-                         frozenset({"wheel_radius", "gps_latency"}),
+                         frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
+                                    "axle_load_offset"}),
                          fr.t[ti], ti.astype(np.int64), feat.fold[ti], "soil class shape and curve parameter a per field cell")
         self.ti, self.wi = ti, wi
         self.cell = feat.cell[ti]
@@ -649,8 +746,17 @@ class SlipChannel(Channel):
                              for name, inv in self.inv.items()}
         best, best_sse = None, math.inf
         invs = {self.soil.name: self.inv[self.soil.name]} if self._frozen else self.inv
+        if not hasattr(self, "_a_warm"):
+            self._a_warm: dict[str, NDArray] = {}
         for name, inv in invs.items():
-            a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
+            # Warm start from the last solution of this class (successive calls of a fit differ a
+            # little): three Gauss–Newton steps then reach what six reach from the grid start.
+            warm = self._a_warm.get(name)
+            if warm is not None:
+                a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, warm, iters=3)
+            else:
+                a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
+            self._a_warm[name] = a
             p = self._predict(inv, mu, k, lead, a[cell])
             total = float(np.sum(((y - p) * wv) ** 2))
             if total < best_sse:
@@ -679,7 +785,7 @@ def build_channels(feat: Features) -> list[Channel]:
             slip_ch.residual({}, np.ones(slip_ch.m, dtype=bool))
             wf.use_class(slip_ch.soil)
             out.append(wf)
-    if fr.has("fzf"):
+    if fr.has("fzf") and not fr.fzf_modelled:
         out.append(FrontLoadChannel(feat))
     if fr.has("fdx") and fr.work is not None and (feat.segment >= 0).any():
         ch = DraftChannel(feat)

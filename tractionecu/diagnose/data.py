@@ -79,6 +79,9 @@ class Frame:
     """Engine torque [N·m] (CSV exports)."""
     engine_speed: NDArray[np.float64] | None = None
     """Engine speed [rad/s] (CSV exports)."""
+    fzf_modelled: bool = False
+    """The front-axle load is modelled (static split minus load transfer from the vehicle file's
+    hitch and centre-of-gravity heights), not measured."""
     can_time_offset_s: float = 0.0
     """Mean time of the CAN samples in a bin minus the bin's grid time [s] (an even number of
     samples per bin cannot be centred exactly); GNSS values are at the grid times."""

@@ -29,13 +29,13 @@ from pathlib import Path
 import numpy as np
 
 from ..config import G, VehicleParams
-from ..model.effects import EFFECTS
+from ..model.effects import EFFECTS, LIBRARY, SENSOR_FAULTS
 from ..recording.reader import Recording
 from . import data as _data
-from .candidates import CANDIDATES
+from .candidates import CANDIDATES, NOMINAL
 from .channels import Channel, build_channels
 from .features import Features, compute
-from .fit import FitResult, HeldOut, Problem, fit, held_out, score
+from .fit import FitResult, HeldOut, Problem, fit, held_out, restrict, score
 from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, nis_coverage, noise_sigma, regimes
 
 DETECT_LLR = 10.0
@@ -48,6 +48,20 @@ GRADE_SEPARABLE_Z = 4.0
 """A grade counts as separable when scale 1 and scale 0 differ by this many standard errors."""
 ALT_ERROR_M = 1.0
 """Assumed GNSS vertical error [m] when no second pass can calibrate it (DGPS class)."""
+MAX_EFFECTS = 4
+"""Most effects the forward stepwise augmentation adds to the nominal model."""
+TRADE_OFF_CORR = 0.8
+"""Two fitted parameters of different effects whose estimates correlate beyond this trade off (ambiguous pair)."""
+GENERALISES = {"tyre_pressure": "wheel_radius"}
+"""Effect → the simpler effect whose term it contains (and explains as one of its causes)."""
+POOL = 6
+"""Candidates tried at each step of the augmentation (the best by their single-step score)."""
+POOL_MIN_SCORE = 1.0
+"""... among those whose single-step held-out score exceeds this."""
+WHITE_P = 0.05
+"""A channel's residual counts as noise when its Ljung–Box p-value exceeds this ..."""
+WHITE_NIS = 0.9
+"""... and its NIS coverage of the χ²(1) 95 % bound reaches this."""
 
 
 @dataclass
@@ -80,6 +94,13 @@ class Diagnosis:
     evidence: dict[str, float]
     grade_check: dict
     notes: list[str]
+    effects: list[dict] = field(default_factory=list)
+    """Every named effect (stepwise, then fitted jointly), nominal terms and detected sensor faults."""
+    joint: FitResult | None = None
+    joint_heldout: HeldOut | None = None
+    steps: list[dict] = field(default_factory=list)
+    """The stepwise augmentation: per step the best addition, its score and why it stopped."""
+    open_world: dict = field(default_factory=dict)
 
     @property
     def features(self) -> Features:
@@ -118,14 +139,28 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low for a lag of a few tenths of a second"
         elif name == "gps_latency" and fr.rate_hz < 5.0:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a GNSS latency"
+        elif name in NOMINAL:
+            reason = ("part of the nominal model: every tractor pulling from a hitch transfers load; "
+                      + ("the heights are fitted from the front-axle load" if "front_load" in problem.channels
+                         else "modelled from the vehicle file's hitch and centre-of-gravity heights"))
+        elif name == "draft_offset" and fr.fdx is None:
+            reason = "no draft signal"
+        elif name == "axle_load_offset" and "front_load" not in problem.channels:
+            reason = "no measured front-axle load"
+        elif name == "clock_skew" and fr.rate_hz < 5.0:
+            reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a clock offset"
         out[name] = reason
     return out
 
 
-def _excludes_null(fr: FitResult) -> bool:
-    cand = CANDIDATES[fr.candidate]
+def _excludes_null(fr: FitResult, name: str | None = None) -> bool:
+    """True when some parameter's 95 % interval of effect ``name`` (default: the fit's only one)
+    lies outside its negligible band around the null value."""
+    name = name or fr.candidate
+    cand = CANDIDATES[name]
+    ci = fr.ci95_by.get(name, fr.ci95)
     for p in cand.fitted:
-        lo, hi = fr.ci95.get(p.name, (math.nan, math.nan))
+        lo, hi = ci.get(p.name, (math.nan, math.nan))
         if not (math.isfinite(lo) and math.isfinite(hi)):
             continue
         if p.name == "front_share":
@@ -188,9 +223,9 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         if testable[name]:
             results.append(CandidateResult(name, False, testable[name]))
             continue
-        ho = held_out(problem, name)
-        sc, per = score(problem, null, ho)
         f = fit(problem, name)
+        ho = held_out(problem, name, x_start=f.x)
+        sc, per = score(problem, null, ho)
         cr = CandidateResult(name, True, "", sc, per, f, ho)
         cr.detected = bool(sc >= DETECT_LLR and f.ok is not None and _excludes_null(f))
         results.append(cr)
@@ -200,6 +235,11 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     grade_res = next((r for r in results if r.name == "grade"), None)
     gcheck = _grade_check(problem, feat, grade_res)
     ambiguous: list[str] = []
+    chosen: list[str] = []
+    causes: list[str] = []
+    steps: list[dict] = []
+    joint = None
+    joint_ho = None
     if not detected:
         if gcheck.get("material") and not gcheck.get("separable"):
             verdict, effect = "ambiguous", None
@@ -210,12 +250,27 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         best = detected[0]
         margin = max(DETECT_LLR, AMBIGUOUS_FRACTION * best.score)
         close = [r for r in detected[1:] if best.score - r.score < margin]
-        if close:
+        chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null)
+        # A close competitor that the augmentation did not add as a separate effect explains the same
+        # mismatch: the recording cannot tell the two apart.
+        rivals = [r.name for r in close if r.name not in chosen]
+        # A cause the library models through another effect's term (low tyre pressure through a
+        # radius error): when the two tie, the data show the term, not its cause; the simpler one is
+        # named and the cause is mentioned.
+        for r_name in list(rivals):
+            if GENERALISES.get(r_name) == best.name:
+                rivals.remove(r_name)
+                causes.append(r_name)
+        if best.name in GENERALISES and rivals == [GENERALISES[best.name]]:
+            causes.append(best.name)
+            best = next(r for r in detected if r.name == GENERALISES[best.name])
+            chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null)
+            rivals = []
+        if rivals:
             verdict, effect = "ambiguous", None
-            ambiguous = [best.name] + [r.name for r in close]
+            ambiguous = [best.name] + rivals
         else:
             verdict, effect = "effect", best.name
-
     # Locate: the channel that disagrees most (the winner's strongest channel, else the worst by LB).
     lead = None
     focus = detected[0] if detected else None
@@ -235,8 +290,174 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         regs = regimes(feat, ch, rb, ra)
         ev = evidence(feat, ch, rb)
     statement = _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck)
-    return Diagnosis(fr.source, verdict, effect, ambiguous, statement, results, problem, null, stats_before,
-                     stats_after, cps, lead, regs, ev, gcheck, notes)
+    d = Diagnosis(fr.source, verdict, effect, ambiguous, statement, results, problem, null, stats_before,
+                  stats_after, cps, lead, regs, ev, gcheck, notes)
+    d.joint, d.joint_heldout, d.steps = joint, joint_ho, steps
+    d.effects = _effect_list(d, chosen, ambiguous)
+    for c in causes:
+        cr = d.candidate(c)
+        ps = ", ".join(f"{k} = {_fmt(v)}" for k, v in (cr.fit.params.items() if cr and cr.fit else []))
+        d.statement += (f"  A possible cause: {CANDIDATES[c].plain} ({ps}) explains it as well (held-out score "
+                        f"{cr.score:.1f}); the recording cannot tell the cause from the term.")
+        d.notes.append(f"{c} fits as well as {GENERALISES[c]} (its term); named: {GENERALISES[c]}")
+    if len([e for e in d.effects if e["kind"] in ("effect", "sensor_fault") and e.get("named")]) > 1:
+        d.statement += "  Several effects at once: " + "; ".join(
+            _effect_words(e) for e in d.effects if e.get("named")) + "."
+    from .openworld import open_world
+
+    d.open_world = open_world(d)
+    if d.open_world.get("statement"):
+        d.statement += "  " + d.open_world["statement"]
+    return d
+
+
+def _white(problem: Problem, ho: HeldOut) -> bool:
+    """Every channel's held-out residual is consistent with noise (whiteness and NIS coverage)."""
+    for c, ch in problem.channels.items():
+        r = ho.resid[c]
+        ok = np.isfinite(r)
+        if ok.sum() < 20:
+            continue
+        sigma = noise_sigma(ch, r)
+        if not (ljung_box_p(r[ok]) > WHITE_P and nis_coverage(ch, r, sigma) >= WHITE_NIS):
+            return False
+    return True
+
+
+def _stepwise(problem: Problem, results: list[CandidateResult], first: CandidateResult,
+              null: HeldOut) -> tuple[list[str], FitResult, HeldOut, list[dict]]:
+    """Forward stepwise augmentation of the nominal model (issue: several effects at once).
+
+    Start from the best detected single effect; at each step add the candidate that most improves
+    the held-out log-likelihood of the current model (its effects re-fitted jointly with the new
+    one on each fold), refit all chosen effects jointly on all data, and keep the addition only when
+    its held-out score reaches :data:`DETECT_LLR` and its interval in the joint fit excludes the
+    negligible band.  Stop when no addition qualifies, when every channel's residual is consistent
+    with noise (:func:`_white`) or after :data:`MAX_EFFECTS`.
+    """
+    chosen = [first.name]
+    cur_fit = first.fit
+    cur_ho = first.heldout
+    steps = [{"step": 1, "added": first.name, "score": first.score, "against": "nominal model"}]
+    # The pool: candidates with some evidence of their own against the nominal model, best first
+    # (at most POOL; an effect without any single-step evidence rarely earns a place later).
+    pool = [r.name for r in results if r.testable and r.name != first.name and math.isfinite(r.score)
+            and r.score > POOL_MIN_SCORE][:POOL]
+    while len(chosen) < MAX_EFFECTS and pool:
+        if _white(problem, cur_ho):
+            steps.append({"step": len(chosen) + 1, "stopped": "every channel's residual is consistent with noise"})
+            break
+        start = {n: _xs(cur_fit, n) for n in chosen}
+        trials = []
+        for name in pool:
+            ho = held_out(problem, tuple(chosen + [name]), start=start)
+            sc, per = score(problem, cur_ho, ho)
+            trials.append((sc, name, ho, per))
+        trials.sort(key=lambda t: -t[0])
+        sc, name, ho, per = trials[0]
+        if sc < DETECT_LLR:
+            steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} improves the held-out "
+                          f"log-likelihood by {sc:.1f} < {DETECT_LLR:.0f}"})
+            break
+        from .fit import Joint
+
+        jf = fit(problem, Joint(tuple(chosen + [name]), start))
+        if not _excludes_null(jf, name):
+            steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}) is "
+                          "negligible in the joint fit"})
+            pool.remove(name)
+            continue
+        chosen.append(name)
+        pool.remove(name)
+        cur_fit, cur_ho = jf, ho
+        steps.append({"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1])})
+    if len(chosen) == 1:
+        return chosen, first.fit, first.heldout, steps
+    return chosen, cur_fit, cur_ho, steps
+
+
+def _xs(f: FitResult, name: str) -> np.ndarray:
+    """The fitted values of effect ``name`` in a (joint) fit, in the candidate's parameter order."""
+    eff = f.effects.get(name) or f.params
+    return np.array([eff[p.name] for p in CANDIDATES[name].fitted])
+
+
+def _effect_words(e: dict) -> str:
+    ps = ", ".join(f"{k} = {_fmt(v['value'])}" + (f" [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]"
+                                                   if v.get("ci95") and v["ci95"][0] is not None else "")
+                   + (f" (at its {v['at_bound']} bound)" if v.get("at_bound") else "")
+                   for k, v in e.get("parameters", {}).items())
+    return f"{e['name']} ({ps})" if ps else e["name"]
+
+
+def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> list[dict]:
+    """The report's ``effects`` list: named effects from the joint fit, ambiguous pairs with their
+    correlation, the nominal model's load transfer, and sensor faults found by data checks."""
+    out: list[dict] = []
+    jf = d.joint
+    if jf is not None:
+        # Correlations between parameters of different effects in the joint fit.
+        corr_pairs: dict[tuple[str, str], float] = {}
+        cov = jf.cov
+        if cov is not None and cov.size and np.all(np.isfinite(np.diag(cov))):
+            sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+            cr = cov / np.outer(sd, sd)
+            for i, ni in enumerate(jf.names):
+                for j, nj in enumerate(jf.names):
+                    ei, ej = ni.split(".")[0], nj.split(".")[0]
+                    if j <= i or ei == ej:
+                        continue
+                    key = (ei, ej)
+                    if abs(cr[i, j]) > abs(corr_pairs.get(key, 0.0)):
+                        corr_pairs[key] = float(cr[i, j])
+        steps = {s["added"]: s for s in d.steps if "added" in s}
+        for rank, name in enumerate(chosen):
+            params = {}
+            units = {p.name: p.unit for p in LIBRARY[name].params}
+            for k, v in jf.effects[name].items():
+                if name in jf.ci95_by and k in jf.ci95_by[name]:
+                    lo, hi = jf.ci95_by[name][k]
+                    params[k] = {"value": v, "ci95": [lo, hi], "unit": units.get(k, ""),
+                                 "at_bound": jf.at_bound.get(name, {}).get(k, "")}
+                else:
+                    params[k] = {"value": v, "ci95": None, "unit": units.get(k, ""), "held": True}
+            amb = [{"with": (b if a == name else a), "correlation": c} for (a, b), c in corr_pairs.items()
+                   if name in (a, b) and abs(c) >= TRADE_OFF_CORR]
+            out.append({"name": name, "kind": "sensor_fault" if name in SENSOR_FAULTS else "effect",
+                        "named": d.verdict == "effect" or name != chosen[0],
+                        "rank": rank + 1, "score": steps.get(name, {}).get("score"),
+                        "formula": LIBRARY[name].formula, "plain": CANDIDATES[name].plain,
+                        "parameters": params, "trades_off_with": amb})
+    for name in ambiguous:
+        if name in CANDIDATES and not any(e["name"] == name for e in out):
+            c = d.candidate(name)
+            out.append({"name": name, "kind": "sensor_fault" if name in SENSOR_FAULTS else "effect", "named": False,
+                        "ambiguous": True, "score": c.score if c else None, "formula": LIBRARY[name].formula,
+                        "plain": CANDIDATES[name].plain, "parameters": {}, "trades_off_with": []})
+    for e in out:
+        if e["name"] in ambiguous:
+            e["ambiguous"] = True
+    fl = d.problem.channels.get("front_load")
+    if fl is not None:
+        eff = jf.effects if jf is not None else {}
+        out.append({"name": "load_transfer", "kind": "nominal", "named": False,
+                    "formula": LIBRARY["load_transfer"].formula,
+                    "plain": "part of the nominal model: heights fitted from the front-axle load",
+                    "parameters": fl.nominal_heights(restrict(eff, fl))})
+    elif d.features.frame.fzf_modelled:
+        veh = d.features.frame.vehicle
+        out.append({"name": "load_transfer", "kind": "nominal", "named": False,
+                    "formula": LIBRARY["load_transfer"].formula,
+                    "plain": "part of the nominal model: modelled from the vehicle file (no front-axle load signal)",
+                    "parameters": {"h_hitch_m": {"value": veh.hitch_height_m, "ci95": None, "unit": "m", "held": True},
+                                   "h_cg_m": {"value": veh.cg_height_m, "ci95": None, "unit": "m", "held": True}}})
+    for f in d.features.sensor_faults:
+        out.append({"name": "wheel_speed_hold", "kind": "sensor_fault", "named": True, "detected_by": "data check",
+                    "formula": LIBRARY["wheel_speed_hold"].formula, "plain": f"wheel-speed {f['kind']} on {f['wheel']}",
+                    "parameters": {"wheel": {"value": f["wheel"], "unit": ""},
+                                   "t0_s": {"value": f["t0_s"], "unit": "s"},
+                                   "duration_s": {"value": f["duration_s"], "unit": "s"}}})
+    return out
 
 
 def _signal_stats(problem: Problem, null: HeldOut, cand: HeldOut | None) -> tuple[dict, dict]:
@@ -293,5 +514,5 @@ def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -
                    for k in r.fit.ci95)
     sig = ", ".join(f"{k} r = {v:+.2f}" for k, v in sorted(ev.items(), key=lambda kv: -abs(kv[1]))[:3])
     where = f"the {lead} residual" if lead else "the residual"
-    return (f"{cand.plain}: {EFFECTS[effect].formula}.  Evidence: {where} ({problem.channels[lead].signal}) "
+    return (f"{cand.plain}: {LIBRARY[effect].formula}.  Evidence: {where} ({problem.channels[lead].signal}) "
             f"correlates with {sig}; held-out score {r.score:.1f}.  Fitted {ps}.")

@@ -79,6 +79,8 @@ class Features:
     w: NDArray[np.float64] | None = None
     """Position across the main axis [m]."""
     notes: list[str] = field(default_factory=list)
+    sensor_faults: list[dict] = field(default_factory=list)
+    """Wheel-speed holds and dropouts found and repaired (:func:`wheel_speed_faults`)."""
 
     @property
     def n(self) -> int:
@@ -98,25 +100,37 @@ class WheelState:
 
 
 def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64] | None, *,
-                delta_m: float = 0.0, eps_r: float = 0.0, eta: float = 1.0, loss_nm: float = 0.0) -> WheelState:
+                delta_m: float = 0.0, eps_r: float = 0.0, eta: float = 1.0, loss_nm: float = 0.0,
+                gain: tuple[float, float] = (0.0, 0.0), offset_nm: tuple[float, float] = (0.0, 0.0),
+                fzf_offset: NDArray[np.float64] | float = 0.0, rho_t_factor: float = 1.0) -> WheelState:
     """Wheel loads, radii, forces, μ and slip for the recorded inputs.
 
     ``delta_m`` [kg] adds mass (the rear wheels carry what the front pin does
     not see: F_z,rear = ((m + Δm) g − F_zf)/2); ``eps_r`` scales the rolling
     radius r = (1 + ε) r_d (effect ``wheel_radius``); ``eta``, ``loss_nm`` are
-    the drivetrain effect M_wheel = η M_d − M_loss sgn ω.
+    the drivetrain effect M_wheel = η M_d − M_loss sgn ω.  Sensor faults:
+    ``gain``, ``offset_nm`` (front, rear) undo a torque gain and offset,
+    M = (M_meas − b)/(1 + k); ``fzf_offset`` [N] is removed from the measured
+    front-axle load; ``rho_t_factor`` scales ρ_t (tyre pressure).
     """
     from ..model import effects as fx
 
     veh = fr.vehicle
-    fz = wheel_loads(fr.fzf, veh, weight_n=(veh.mass_kg + delta_m) * G)
+    fzf = fr.fzf
+    if np.any(np.asarray(fzf_offset) != 0.0):
+        fzf = fzf - fzf_offset
+    fz = wheel_loads(fzf, veh, weight_n=(veh.mass_kg + delta_m) * G)
     r = rolling_radius(fz, veh)
     if eps_r != 0.0:
         r = fx.wheel_radius_true(r, eps_r)
     md = fr.md
+    if gain != (0.0, 0.0) or offset_nm != (0.0, 0.0):
+        k = np.array([gain[0], gain[0], gain[1], gain[1]])
+        b = np.array([offset_nm[0], offset_nm[0], offset_nm[1], offset_nm[1]])
+        md = fx.torque_true(md, k, b)
     if eta != 1.0 or loss_nm != 0.0:
         md = fx.drivetrain_torque(md, fr.omega, eta, loss_nm)
-    fh = (md - veh.wheel_inertia_kgm2 * omega_dot) / r - veh.rho_t * fz * np.sign(fr.omega)
+    fh = (md - veh.wheel_inertia_kgm2 * omega_dot) / r - veh.rho_t * rho_t_factor * fz * np.sign(fr.omega)
     with np.errstate(divide="ignore", invalid="ignore"):
         mu = fh / fz
         slip = None
@@ -402,10 +416,100 @@ def _cells(u: NDArray, w: NDArray, ok: NDArray[np.bool_], rate_hz: float) -> tup
     return cell, len(labels)
 
 
+HOLD_MIN_S = 1.0
+"""A wheel speed frozen, zero or missing for at least this long [s] while the others move is a sensor fault."""
+HOLD_MOVING_RADPS = 1.0
+"""The other wheels must turn faster than this [rad/s] (≈ 0.8 m/s on 1.6 m tyres) for a hold to count."""
+
+
+def modelled_front_load(fr: Frame) -> NDArray[np.float64]:
+    """Front-axle load [N] when no pin measures it: the static split minus the load transfer of the
+    vehicle file's hitch and centre-of-gravity heights (effect ``load_transfer``, part of the
+    nominal model), with the acceleration from the GNSS speed (1 s central difference) and no grade."""
+    from ..model import effects as fx
+
+    veh = fr.vehicle
+    v = np.nan_to_num(fr.v_gps) if fr.v_gps is not None else np.zeros(fr.n)
+    k = max(1, int(round(fr.rate_hz)))
+    vs = np.convolve(v, np.ones(k) / k, mode="same")
+    acc = np.gradient(vs, fr.dt)
+    fdx = np.nan_to_num(fr.fdx) if fr.fdx is not None else np.zeros(fr.n)
+    dfr = fx.load_transfer_rear(fdx, acc, np.zeros(fr.n), veh.mass_kg, veh.wheelbase_m, veh.hitch_height_m,
+                                veh.cg_height_m)
+    return veh.static_front_load_n() - dfr
+
+
+def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
+    """Find wheel-speed sensor holds and dropouts (library fault ``wheel_speed_hold``) and repair them.
+
+    A wheel whose speed is missing, zero, or exactly constant for at least :data:`HOLD_MIN_S` while
+    the other three turn faster than :data:`HOLD_MOVING_RADPS` and change is a sensor fault, not
+    physics.  Its samples take the speed of the other wheel on the same axle (so the force balance
+    stays continuous) and the rows are returned as bad (slip and fits skip them).
+    Returns (faults, bad rows).
+    """
+    bad = np.zeros(fr.n, dtype=bool)
+    out: list[dict] = []
+    if fr.omega is None or fr.n < 3:
+        return out, bad
+    om = fr.omega
+    names = ("FL", "FR", "RL", "RR")
+    kmin = max(2, int(round(HOLD_MIN_S * fr.rate_hz)))
+    for i in range(4):
+        others = [j for j in range(4) if j != i]
+        oth = om[:, others]
+        moving = np.all(np.isfinite(oth), axis=1) & (np.nanmin(np.abs(oth), axis=1) > HOLD_MOVING_RADPS)
+        med = np.nanmedian(np.abs(oth), axis=1)
+        wi = om[:, i]
+        missing = ~np.isfinite(wi)
+        zero = np.isfinite(wi) & (np.abs(wi) < 0.05 * med)
+        d = np.diff(wi, prepend=np.nan)
+        with np.errstate(invalid="ignore"):
+            do = np.max(np.nan_to_num(np.abs(np.diff(oth, axis=0, prepend=np.nan)), nan=0.0), axis=1)
+        held = (d == 0.0) & (do > 0.0)
+        held = held | np.concatenate([held[1:], [False]])  # the first sample of the held run too
+        for kind, mask in (("missing", missing), ("dropout", zero), ("hold", held)):
+            for a, b in runs(mask & moving):
+                if b - a < kmin:
+                    continue
+                bad[a:b] = True
+                out.append({"name": "wheel_speed_hold", "kind": kind, "wheel": names[i],
+                            "t0_s": float(fr.t[a]), "duration_s": float((b - a) * fr.dt)})
+                mate = i ^ 1   # the other wheel on the same axle
+                fill = om[a:b, mate]
+                if not np.all(np.isfinite(fill)):
+                    fill = np.nanmean(oth[a:b], axis=1)
+                om[a:b, i] = fill
+                if fr.hf_omega is not None:
+                    k = fr.hf_omega.shape[0] // fr.n
+                    fr.hf_omega[a * k:b * k, i] = fr.hf_omega[a * k:b * k, mate]
+    if out and fr.omega_dot is not None:
+        fr.omega_dot[bad] = np.nan   # recomputed from the repaired speeds below
+    return out, bad
+
+
 def compute(fr: Frame) -> Features:
     """All derived features of a frame that has per-wheel drive data."""
     notes: list[str] = []
     n = fr.n
+    if fr.has("omega", "md") and not fr.has("fzf"):
+        fr.fzf = modelled_front_load(fr)
+        fr.fzf_modelled = True
+        veh = fr.vehicle
+        notes.append(f"no front-axle load signal: wheel loads from the static split and the load transfer of the "
+                     f"vehicle file's heights (hitch {veh.hitch_height_m:g} m, centre of gravity {veh.cg_height_m:g} m)")
+    sensor_faults: list[dict] = []
+    fault_rows = np.zeros(n, dtype=bool)
+    if fr.omega is not None:
+        fr.omega = fr.omega.copy()
+        if fr.hf_omega is not None:
+            fr.hf_omega = fr.hf_omega.copy()
+        if fr.omega_dot is not None:
+            fr.omega_dot = fr.omega_dot.copy()
+        sensor_faults, fault_rows = wheel_speed_faults(fr)
+        for f in sensor_faults:
+            notes.append(f"wheel-speed sensor {f['wheel']}: {f['kind']} for {f['duration_s']:.1f} s from "
+                         f"t = {f['t0_s']:.1f} s; those samples are left out")
     have_wheels = fr.has("omega", "md", "fzf")
     v_gps = fr.v_gps if fr.has("v_gps") else None
     valid = np.ones(n, dtype=bool)
@@ -413,6 +517,7 @@ def compute(fr: Frame) -> Features:
         valid &= np.isfinite(v_gps)
     if have_wheels:
         valid &= np.all(np.isfinite(fr.omega), axis=1) & np.all(np.isfinite(fr.md), axis=1) & np.isfinite(fr.fzf)
+    valid &= ~fault_rows
     omega_dot = None
     if have_wheels:
         omega_dot = fr.omega_dot if fr.omega_dot is not None else smooth_derivative(np.nan_to_num(fr.omega), fr.dt)
@@ -462,5 +567,7 @@ def compute(fr: Frame) -> Features:
     else:
         cell, n_cells = np.zeros(n, dtype=np.int64), 1
     fold = (np.floor(fr.t / FOLD_BLOCK_S).astype(np.int64) % 2)
-    return Features(fr, valid, omega_dot, v_gps, v_ref, accel, theta, grade, segment, direction, cell,
+    feat = Features(fr, valid, omega_dot, v_gps, v_ref, accel, theta, grade, segment, direction, cell,
                     n_cells, fold, u, w, notes)
+    feat.sensor_faults = sensor_faults
+    return feat

@@ -73,6 +73,64 @@ class FitResult:
     cost: float
     ok: bool
     message: str = ""
+    effects: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Every fitted effect's full parameter dict (one entry for a single candidate)."""
+    ci95_by: dict[str, dict[str, tuple[float, float]]] = field(default_factory=dict)
+    se_by: dict[str, dict[str, float]] = field(default_factory=dict)
+    at_bound: dict[str, dict[str, str]] = field(default_factory=dict)
+    """``{effect: {param: "lower"|"upper"}}`` for estimates on a parameter bound (reported as such)."""
+    names: tuple[str, ...] = ()
+    """Fitted parameters in x order, as ``effect.param``."""
+
+
+class Joint:
+    """Several candidates fitted together (forward stepwise augmentation, :mod:`.engine`).
+
+    ``start`` holds the values already found for some of them: their start grid is that value only.
+    """
+
+    def __init__(self, names, start: dict[str, NDArray] | None = None):
+        self.names = tuple(names)
+        self.name = "+".join(self.names)
+        self.cands = [CANDIDATES[n] for n in self.names]
+        self.fitted = tuple(p for c in self.cands for p in c.fitted)
+        self.start = dict(start or {})
+
+    def split(self, x) -> list:
+        out, k = [], 0
+        for c in self.cands:
+            out.append(np.asarray(x[k:k + len(c.fitted)]))
+            k += len(c.fitted)
+        return out
+
+    def effects(self, x) -> dict[str, dict[str, float]]:
+        out = {}
+        for c, xc in zip(self.cands, self.split(x)):
+            out.update(c.effects(xc))
+        return out
+
+    def grids(self) -> list:
+        g = []
+        for c in self.cands:
+            if c.name in self.start:
+                g += [np.array([float(v)]) for v in self.start[c.name]]
+            else:
+                g += [np.asarray(p.starts, dtype=float) for p in c.fitted]
+        return g
+
+
+def as_model(name) -> "Candidate | Joint":
+    if isinstance(name, (Candidate, Joint)):
+        return name
+    if isinstance(name, str):
+        return CANDIDATES[name]
+    names = tuple(name)
+    return CANDIDATES[names[0]] if len(names) == 1 else Joint(names)
+
+
+def restrict(eff: Effects, ch: Channel) -> Effects:
+    """The effects of ``eff`` that act on channel ``ch``."""
+    return {k: v for k, v in eff.items() if k in ch.effects}
 
 
 @dataclass
@@ -144,76 +202,92 @@ class Problem:
             r = c.residual({}, np.ones(c.m, dtype=bool))
             self.sigma[c.name] = float(np.sqrt(np.mean(r * r))) or 1.0
 
-    def acting(self, cand: Candidate) -> list[Channel]:
-        return [c for c in self.channels.values() if cand.name in c.effects]
+    def acting(self, cand) -> list[Channel]:
+        return [c for c in self.channels.values() if any(n in c.effects for n in cand.names)]
 
     def rows(self, ch: Channel, fold: int | None, train: bool) -> NDArray[np.bool_]:
         if fold is None:
             return np.ones(ch.m, dtype=bool)
         return (ch.fold != fold) if train else (ch.fold == fold)
 
-    def stacked(self, cand: Candidate, x, chans: list[Channel], rows: dict[str, NDArray]) -> NDArray:
-        eff: Effects = {cand.name: cand.params(x)}
-        parts = [c.residual(eff, rows[c.name]) / self.sigma[c.name] for c in chans]
+    def stacked(self, cand, x, chans: list[Channel], rows: dict[str, NDArray]) -> NDArray:
+        eff: Effects = cand.effects(x)
+        parts = [c.residual(restrict(eff, c), rows[c.name]) / self.sigma[c.name] for c in chans]
         return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def fit(problem: Problem, name: str, fold: int | None = None, with_cov: bool = True) -> FitResult:
-    """Fit candidate ``name`` on all rows (``fold`` None) or on the rows outside ``fold``."""
-    cand = CANDIDATES[name]
+def fit(problem: Problem, name, fold: int | None = None, with_cov: bool = True,
+        rows_override: dict[str, NDArray] | None = None, x_start: NDArray | None = None) -> FitResult:
+    """Fit candidate ``name`` (a name, a tuple of names fitted jointly, or a :class:`Joint`) on all
+    rows (``fold`` None), on the rows outside ``fold``, or on ``rows_override``."""
+    cand = as_model(name)
     chans = problem.acting(cand)
-    rows = {c.name: problem.rows(c, fold, train=True) for c in chans}
+    rows = rows_override or {c.name: problem.rows(c, fold, train=True) for c in chans}
     lo = np.array([p.lo for p in cand.fitted])
     hi = np.array([p.hi for p in cand.fitted])
     if not chans:
         x = np.array([p.null for p in cand.fitted])
-        return FitResult(name, x, np.full((x.size, x.size), np.nan), cand.params(x), {}, {}, {}, {}, math.nan, False,
-                         "no channel for this effect")
+        return FitResult(cand.name, x, np.full((x.size, x.size), np.nan), {}, {}, {}, {}, {}, math.nan, False,
+                         "no channel for this effect", effects=cand.effects(x))
 
     def fun(x):
         return problem.stacked(cand, x, chans, rows)
 
-    x, ok, msg = _minimise(fun, cand, lo, hi)
+    x, ok, msg = _minimise(fun, cand, lo, hi, x_start=x_start, chans=chans)
+    cov_w = None
     if len(chans) > 1:
         # Re-weight by each channel's score autocorrelation at the solution, κ_c = tr(S_c)/(s_c² tr(A_c))
         # (1 for independent scores), and solve again: channels whose evidence is serially
         # correlated count for what it is worth.
         kap = _kappa(problem, cand, x, chans, rows, lo, hi)
         saved = dict(problem.sigma)
-        eff0 = {name: cand.params(x)}
+        eff0 = cand.effects(x)
         try:
             for c in chans:
-                r = c.residual(eff0, rows[c.name])
+                r = c.residual(restrict(eff0, c), rows[c.name])
                 ms = float(np.mean(r * r)) if r.size else saved[c.name] ** 2
                 problem.sigma[c.name] = math.sqrt(max(ms, 1e-30) * kap.get(c.name, 1.0))
-            x, ok, msg = _minimise(fun, cand, lo, hi)
+            x, ok, msg = _minimise(fun, cand, lo, hi, x_start=x, chans=chans)
             if with_cov:
                 cov_w = sandwich(problem, cand, x, chans, rows, lo, hi)
         finally:
             problem.sigma.update(saved)
     sse = {}
     nrow = {}
-    eff = {name: cand.params(x)}
+    eff = cand.effects(x)
     for c in chans:
-        r = c.residual(eff, rows[c.name])
+        r = c.residual(restrict(eff, c), rows[c.name])
         sse[c.name] = float(np.sum(r * r))
         nrow[c.name] = int(r.size)
     cost = float(np.sum(fun(x) ** 2))
     cov = np.full((x.size, x.size), np.nan)
     if with_cov:
-        cov = cov_w if len(chans) > 1 else sandwich(problem, cand, x, chans, rows, lo, hi)
-    if name == "grade" and with_cov:
-        cov = cov + _grade_calibration_var(problem, x)
-    se = {p.name: float(math.sqrt(cov[j, j])) if np.isfinite(cov[j, j]) and cov[j, j] >= 0 else math.nan
-          for j, p in enumerate(cand.fitted)}
-    ci = {}
-    for j, p in enumerate(cand.fitted):
-        s = se[p.name]
+        cov = cov_w if cov_w is not None else sandwich(problem, cand, x, chans, rows, lo, hi)
+    names = [f"{c.name}.{p.name}" for c in (cand.cands if isinstance(cand, Joint) else [cand]) for p in c.fitted]
+    if with_cov and "grade.scale" in names:
+        j = names.index("grade.scale")
+        cov = cov.copy()
+        cov[j, j] += _grade_calibration_var(problem, x[j:j + 1])[0, 0]
+    se_by: dict[str, dict[str, float]] = {}
+    ci_by: dict[str, dict[str, tuple[float, float]]] = {}
+    bound: dict[str, dict[str, str]] = {}
+    for j, (nm, p) in enumerate(zip(names, cand.fitted)):
+        en = nm.split(".", 1)[0]
+        s = float(math.sqrt(cov[j, j])) if np.isfinite(cov[j, j]) and cov[j, j] >= 0 else math.nan
+        se_by.setdefault(en, {})[p.name] = s
+        span = p.hi - p.lo
+        side = "lower" if x[j] <= p.lo + 1e-6 * span else ("upper" if x[j] >= p.hi - 1e-6 * span else "")
+        if side:
+            bound.setdefault(en, {})[p.name] = side
         if math.isfinite(s):
-            ci[p.name] = (float(max(p.lo, x[j] - 1.96 * s)), float(min(p.hi, x[j] + 1.96 * s)))
+            ci_by.setdefault(en, {})[p.name] = (float(max(p.lo, x[j] - 1.96 * s)), float(min(p.hi, x[j] + 1.96 * s)))
         else:
-            ci[p.name] = (math.nan, math.nan)
-    return FitResult(name, x, cov, cand.params(x), ci, se, sse, nrow, cost, ok, msg)
+            ci_by.setdefault(en, {})[p.name] = (math.nan, math.nan)
+    first = cand.names[0]
+    single = len(cand.names) == 1
+    return FitResult(cand.name, x, cov, eff[first] if single else {}, ci_by.get(first, {}) if single else {},
+                     se_by.get(first, {}) if single else {}, sse, nrow, cost, ok, msg, effects=eff, ci95_by=ci_by,
+                     se_by=se_by, at_bound=bound, names=tuple(names))
 
 
 def _grade_calibration_var(problem: Problem, x: NDArray) -> NDArray:
@@ -230,12 +304,17 @@ def _grade_calibration_var(problem: Problem, x: NDArray) -> NDArray:
     return out
 
 
-def _minimise(fun, cand: Candidate, lo: NDArray, hi: NDArray) -> tuple[NDArray, bool, str]:
+def _minimise(fun, cand, lo: NDArray, hi: NDArray, x_start: NDArray | None = None,
+              chans: list[Channel] | None = None) -> tuple[NDArray, bool, str]:
     import itertools
 
     from scipy.optimize import minimize_scalar
 
-    grids = [np.clip(np.asarray(p.starts, dtype=float), p.lo, p.hi) for p in cand.fitted]
+    raw = cand.grids() if isinstance(cand, Joint) else [np.asarray(p.starts, dtype=float) for p in cand.fitted]
+    grids = [np.clip(g, p.lo, p.hi) for g, p in zip(raw, cand.fitted)]
+    if x_start is not None and len(grids) > 1:
+        # A refinement: start from the previous solution only.
+        grids = [np.array([v]) for v in np.clip(x_start, lo, hi)]
     pts = [np.array(c) for c in itertools.product(*grids)]
     costs = [float(np.sum(fun(x0) ** 2)) for x0 in pts]
     jb = int(np.argmin(costs))
@@ -252,18 +331,27 @@ def _minimise(fun, cand: Candidate, lo: NDArray, hi: NDArray) -> tuple[NDArray, 
         x = np.array([res.x]) if res.fun <= costs[jb] else x0
         return x, bool(res.success), str(res.message)
     scale = np.maximum(np.abs(hi - lo) * 0.01, 1e-6)
+    # Several parameters: the discrete nuisance (surface class) is chosen at the best start and held
+    # during the local search (it would put steps into the cost), then free again.
+    fun(x0)
+    for c in chans or ():
+        c.freeze(True)
     try:
-        res = least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale=scale, diff_step=1e-3, max_nfev=200)
+        res = least_squares(fun, x0, bounds=(lo, hi), method="trf", x_scale=scale, diff_step=1e-3, max_nfev=80,
+                            ftol=1e-6, xtol=1e-6, gtol=1e-8)
         return res.x, bool(res.success), str(res.message)
     except (ValueError, np.linalg.LinAlgError) as exc:  # pragma: no cover - defensive
         return x0, False, str(exc)
+    finally:
+        for c in chans or ():
+            c.freeze(False)
 
 
 def _pieces(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> dict[str, tuple[NDArray, NDArray, float]]:
     """Per channel: (A_c = J̃ᵀJ̃, S_c HAC long-run covariance of the scores, mean square of ẽ)."""
     k = x.size
-    eff = {cand.name: cand.params(x)}
-    res = {c.name: c.residual(eff, rows[c.name]) / problem.sigma[c.name] for c in chans}
+    eff = cand.effects(x)
+    res = {c.name: c.residual(restrict(eff, c), rows[c.name]) / problem.sigma[c.name] for c in chans}
     # Hold discrete nuisance choices (surface class) at the solution while differentiating.
     for c in chans:
         c.freeze(True)
@@ -277,11 +365,11 @@ def _pieces(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> dict[s
             xm[j] = max(x[j] - h, lo[j])
             if xp[j] == xm[j]:
                 continue
-            ep = {cand.name: cand.params(xp)}
-            em = {cand.name: cand.params(xm)}
+            ep = cand.effects(xp)
+            em = cand.effects(xm)
             for c in chans:
-                rp = c.residual(ep, rows[c.name]) / problem.sigma[c.name]
-                rm = c.residual(em, rows[c.name]) / problem.sigma[c.name]
+                rp = c.residual(restrict(ep, c), rows[c.name]) / problem.sigma[c.name]
+                rm = c.residual(restrict(em, c), rows[c.name]) / problem.sigma[c.name]
                 jac[c.name][:, j] = (rp - rm) / (xp[j] - xm[j])
     finally:
         for c in chans:
@@ -322,27 +410,33 @@ def sandwich(problem: Problem, cand: Candidate, x, chans, rows, lo, hi) -> NDArr
     return Ainv @ meat @ Ainv
 
 
-def held_out(problem: Problem, name: str | None) -> HeldOut:
-    """Held-out sums of squares of every channel for candidate ``name`` (None = null)."""
+def held_out(problem: Problem, name, start: dict[str, NDArray] | None = None,
+             x_start: NDArray | None = None) -> HeldOut:
+    """Held-out sums of squares of every channel for candidate ``name`` (None = null; a tuple of names
+    is fitted jointly, ``start`` holding values already found for some of them; ``x_start``: start
+    the fold fits of a several-parameter model from these values instead of its grid)."""
     sse = {c: 0.0 for c in problem.channels}
     n = {c: 0 for c in problem.channels}
     resid = {c: np.full(ch.m, np.nan) for c, ch in problem.channels.items()}
     fold_params = []
+    label = "null"
     for fold in (0, 1):
         eff: Effects = {}
-        if name is not None:
-            fr = fit(problem, name, fold=fold, with_cov=False)
-            eff = {name: fr.params}
-            fold_params.append(fr.params)
+        if name is not None and not (isinstance(name, tuple) and not name):
+            model = as_model(name) if start is None or isinstance(name, str) else Joint(name, start)
+            label = model.name
+            fr = fit(problem, model, fold=fold, with_cov=False, x_start=x_start)
+            eff = fr.effects
+            fold_params.append(fr.params if len(model.names) == 1 else fr.effects)
         for cname, ch in problem.channels.items():
             rows = ch.fold == fold
             if not rows.any():
                 continue
-            r = ch.residual(eff if (name is None or name in ch.effects) else {}, rows)
+            r = ch.residual(restrict(eff, ch), rows)
             resid[cname][rows] = r
             sse[cname] += float(np.sum(r * r))
             n[cname] += int(r.size)
-    return HeldOut(name or "null", sse, n, resid, fold_params)
+    return HeldOut(label, sse, n, resid, fold_params)
 
 
 def score(problem: Problem, null: HeldOut, cand: HeldOut) -> tuple[float, dict[str, float]]:

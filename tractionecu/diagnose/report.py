@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..model.effects import EFFECTS
+from ..model.effects import EFFECTS, LIBRARY
 from .candidates import CANDIDATES
 from .engine import DETECT_LLR, Diagnosis
 from .locate import per_time
@@ -53,7 +53,7 @@ def _params(d: Diagnosis, name: str | None) -> dict:
     if c is None or c.fit is None:
         return {}
     out = {}
-    units = {p.name: p.unit for p in EFFECTS[name].params}
+    units = {p.name: p.unit for p in LIBRARY[name].params}
     for k, v in c.fit.params.items():
         lo, hi = c.fit.ci95.get(k, (math.nan, math.nan))
         entry = {"value": v, "ci95": [lo, hi], "unit": units.get(k, "")}
@@ -70,7 +70,7 @@ def to_json(d: Diagnosis, estimator: dict | None = None) -> dict:
         cands.append({"name": c.name, "score": c.score if c.testable else None, "testable": c.testable,
                       "detected": c.detected, "reason": c.reason, "per_channel": c.per_channel,
                       "parameters": _params(d, c.name) if c.testable else {},
-                      "formula": EFFECTS[c.name].formula})
+                      "formula": LIBRARY[c.name].formula})
     lead_param = d.effect or (d.ambiguous_between[0] if d.ambiguous_between and d.ambiguous_between[0] in EFFECTS else None)
     signals = {}
     for ch, sb in d.stats_before.items():

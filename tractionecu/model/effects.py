@@ -216,3 +216,134 @@ def delayed(t: ArrayLike, x: ArrayLike, tau_s: float) -> NDArray[np.float64]:
 def wheel_radius_true(r_nominal: ArrayLike, epsilon: float) -> NDArray[np.float64]:
     """wheel_radius: r_true = (1 + ε) r_nominal [m]."""
     return (1.0 + epsilon) * np.asarray(r_nominal, dtype=float)
+
+
+# ---- sensor faults and engine-level terms -----------------------------------------
+# Faults of the measuring chain, not of the machine's physics: the simulator never switches them
+# on (its truth stays physical); tests and the diagnosis suite inject them into a written
+# recording (``tractionecu.evaluation.faults``), and diagnosis fits them like the effects above.
+
+TYRE_DEFLECTION_RATIO = 0.05
+"""Static tyre deflection over unloaded radius at the rated pressure, δ_0/r_0 [-] (agricultural
+radial tyres at rated load and pressure deflect about 4–6 % of their radius; ETRTO load tables)."""
+TYRE_RR_PRESSURE_EXPONENT = 0.4
+"""Exponent α of the tyre-deformation rolling resistance against inflation pressure, ρ_t ∝ p^−α
+(≈ 0.4 for pneumatic tyres on firm ground; Wong, *Theory of Ground Vehicles*, ch. 1)."""
+
+SENSOR_FAULTS: dict[str, EffectDef] = {
+    e.name: e
+    for e in (
+        EffectDef(
+            "torque_gain",
+            "Drive-torque sensor gain error, per axle (strain-gauge calibration, motor-model error).",
+            "M_meas = (1 + k_axle) M_true",
+            "μ from the torque balance scales by 1/(1 + k): the curve parameter a absorbs it on one surface; "
+            "the speed equation's force scales with torque (acceleration and pull)",
+            (ParamSpec("k_front", "-", 0.05, -0.3, 0.3, "relative gain error of the front-axle torques"),
+             ParamSpec("k_rear", "-", 0.05, -0.3, 0.3, "relative gain error of the rear-axle torques")),
+        ),
+        EffectDef(
+            "torque_offset",
+            "Drive-torque sensor offset, per axle (zero drift of a strain gauge).",
+            "M_meas = M_true + b_axle",
+            "adhesion μ offset of b/(r F_z) at zero slip; a constant force in the speed equation",
+            (ParamSpec("b_front_nm", "N·m", 100.0, -2000.0, 2000.0, "offset of each front-wheel torque"),
+             ParamSpec("b_rear_nm", "N·m", 100.0, -2000.0, 2000.0, "offset of each rear-wheel torque")),
+        ),
+        EffectDef(
+            "draft_offset",
+            "Draft sensor (hitch load pin) offset and linear drift.",
+            "F_dx,meas = F_dx + b_0 + b_1 t",
+            "the speed equation's residual force grows with time (drift) and remains with the implement lifted; "
+            "a constant offset alone is a constant resistance (ρ_s)",
+            (ParamSpec("b0_n", "N", 500.0, -10000.0, 10000.0, "offset b_0"),
+             ParamSpec("b1_npm", "N/min", 0.0, -2000.0, 2000.0, "drift b_1 per minute")),
+        ),
+        EffectDef(
+            "axle_load_offset",
+            "Front-axle load sensor offset and linear drift.",
+            "F_zf,meas = F_zf + b_0 + b_1 t",
+            "front-axle residual level (and trend) without inertia; wheel loads shift between the axles",
+            (ParamSpec("b0_n", "N", 1000.0, -20000.0, 20000.0, "offset b_0"),
+             ParamSpec("b1_npm", "N/min", 0.0, -5000.0, 5000.0, "drift b_1 per minute")),
+        ),
+        EffectDef(
+            "clock_skew",
+            "The CAN logger's clock runs apart from GNSS time (offset and rate error).",
+            "t_CAN = t_GNSS + δ_0 + κ t",
+            "GNSS speed against the force-integrated speed ∝ dv/dt with a lag that grows with time; "
+            "a constant δ_0 alone is the GNSS latency with the opposite sign",
+            (ParamSpec("offset_s", "s", 0.1, -2.0, 2.0, "offset δ_0"),
+             ParamSpec("rate_ppm", "ppm", 100.0, -5000.0, 5000.0, "rate error κ [10⁻⁶ s/s]")),
+        ),
+        EffectDef(
+            "tyre_pressure",
+            "Inflation pressure differs from the rated one: rolling radius and tyre rolling resistance change together.",
+            "r = r_d (1 − (δ_0/r_0)(p_0/p − 1)),  ρ_t = ρ_t,0 (p_0/p)^α   (δ_0/r_0 = 0.05, α = 0.4)",
+            "a slip offset (radius) together with a larger rolling resistance (lower pressure)",
+            (ParamSpec("p_ratio", "-", 0.7, 0.3, 2.0, "pressure over the rated pressure p/p_0"),),
+        ),
+        EffectDef(
+            "wheel_speed_hold",
+            "A wheel-speed sensor drops out (reads 0) or holds its last value for a while.",
+            "ω_meas,i(t) = 0 or ω_i(t_0) for t_0 ≤ t < t_0 + d",
+            "one wheel's speed frozen or zero while the other three follow the ground speed",
+            (ParamSpec("wheel", "-", 0.0, 0.0, 3.0, "wheel index (FL, FR, RL, RR)"),
+             ParamSpec("t0_s", "s", 0.0, 0.0, 1e7, "start t_0"),
+             ParamSpec("duration_s", "s", 3.0, 0.0, 1e7, "duration d")),
+        ),
+    )
+}
+
+ENGINE_TERMS: dict[str, EffectDef] = {
+    e.name: e
+    for e in (
+        EffectDef(
+            "zero_slip_offset",
+            "Traction ratio already present at zero slip: rolling resistance, transmission losses and "
+            "power to the PTO and hydraulics that the engine torque carries but the soil does not.",
+            "μ_soil = μ_engine − μ_0,  μ(s) = a g(s) for the soil's share",
+            "the slip–traction points cross zero slip at μ ≈ μ_0 > 0",
+            (ParamSpec("mu0", "-", 0.2, -0.5, 1.0, "traction ratio at zero slip μ_0"),),
+        ),
+        EffectDef(
+            "aux_power",
+            "Auxiliary power draw (PTO, hydraulics, fan) taken from the engine before the wheels.",
+            "F_h = (η T_e ω_e − P_aux)/v_w",
+            "a traction-ratio offset that grows at low speed as 1/v",
+            (ParamSpec("p_aux_w", "W", 10000.0, -50000.0, 200000.0, "auxiliary power P_aux"),),
+        ),
+        EffectDef(
+            "drivetrain_efficiency",
+            "Transmission efficiency between the engine and the wheels (engine-level data).",
+            "F_h = η T_e ω_e / v_w",
+            "scales the traction ratio like the curve parameter a: separable only with a draft or a known a",
+            (ParamSpec("eta", "-", 0.88, 0.5, 1.0, "efficiency η"),),
+        ),
+    )
+}
+
+LIBRARY: dict[str, EffectDef] = {**EFFECTS, **SENSOR_FAULTS}
+"""Everything diagnosis can name on per-wheel recordings: the physical effects and the sensor faults."""
+
+
+def torque_true(md_meas: ArrayLike, gain: ArrayLike, offset_nm: ArrayLike) -> NDArray[np.float64]:
+    """torque_gain / torque_offset: M_true = (M_meas − b)/(1 + k) [N·m] (per wheel, broadcast)."""
+    return (np.asarray(md_meas, dtype=float) - np.asarray(offset_nm, dtype=float)) / (1.0 + np.asarray(gain, dtype=float))
+
+
+def offset_drift(t_s: ArrayLike, b0: float, b1_per_min: float) -> NDArray[np.float64]:
+    """draft_offset / axle_load_offset: b_0 + b_1 t (b_1 per minute, t in seconds)."""
+    return b0 + b1_per_min * np.asarray(t_s, dtype=float) / 60.0
+
+
+def clock_shift_s(t_s: ArrayLike, offset_s: float, rate_ppm: float) -> NDArray[np.float64]:
+    """clock_skew: δ(t) = δ_0 + κ t [s] by which the CAN clock runs ahead of GNSS time."""
+    return offset_s + rate_ppm * 1e-6 * np.asarray(t_s, dtype=float)
+
+
+def tyre_pressure_terms(p_ratio: float) -> tuple[float, float]:
+    """tyre_pressure: (ε, ρ_t factor) for p/p_0 = ``p_ratio``:
+    ε = −(δ_0/r_0)(p_0/p − 1),  ρ_t/ρ_t,0 = (p_0/p)^α."""
+    inv = 1.0 / float(p_ratio)
+    return -TYRE_DEFLECTION_RATIO * (inv - 1.0), inv ** TYRE_RR_PRESSURE_EXPONENT
