@@ -5,7 +5,6 @@ import hashlib
 import math
 import tomllib
 from collections import defaultdict
-from dataclasses import replace
 
 import numpy as np
 import pytest

@@ -30,7 +30,7 @@ V_SLIP_MIN = 0.1
 V_SIGN_BAND = 0.02
 """Speed band around zero [m/s] in which the resistances' sign functions are linear."""
 V_RELAX_MIN = 0.3
-"""Least speed in the relaxation rate [m/s]: the force still builds up at standstill (Pacejka 2006, 8.6)."""
+"""Least speed in the relaxation rate [m/s]: the force still builds up at standstill (Pacejka 2006: low-speed relaxation)."""
 PEAK_C = 1.5
 SIGMOID_K = 1.6
 L_MIN = 0.05
@@ -72,7 +72,7 @@ def shape_slope(s, law, s_shape):
 @njit(cache=True)
 def relaxation_length(fz, tmax, sf, law, s_shape, c_x):
     """L_r = C_Fκ / c_x: the slip stiffness F_z T_max f'(σ_f) over the carcass' longitudinal stiffness
-    (Pacejka 2006, section 7.2), within [L_MIN, L_MAX]."""
+    (Pacejka 2006), within [L_MIN, L_MAX]."""
     return min(L_MAX, max(L_MIN, fz * tmax * shape_slope(sf, law, s_shape) / c_x))
 
 

@@ -9,14 +9,13 @@ reflected to the wheel; the wheel receives it through
 * the reduction's losses: a torque efficiency η = 0.95 when the motor
   drives, 1/η when it brakes (two planetary stages at 0.97–0.98 each and the
   hub bearings and seals; Naunheimer et al. 2011, "Automotive
-  Transmissions", 2nd ed., section 3.5: 0.97–0.99 per planetary stage), and a
+  Transmissions", 2nd ed.: 0.97–0.99 per planetary stage), and a
   speed-proportional drag (oil churning);
 * a torsional compliance between motor and wheel (the half-shaft, the
   planetary carrier and the tyre's own torsional wind-up in the rim region):
   a spring k and damper c in series with the motor inertia.  Wheel-side
   torsional stiffness of tractor axle drives is 20–100 kN·m/rad (Renius
-  2020, "Fundamentals of Tractor Design", chapter 5: drive-line vibration
-  models), here 50 kN·m/rad with a damping ratio of ≈ 0.1.
+  2020, "Fundamentals of Tractor Design", drive-line chapters), here 50 kN·m/rad with a damping ratio of ≈ 0.1.
 
 The wheel-speed pickup sits on the motor shaft: it measures the motor speed,
 which differs from the wheel speed while the shaft winds up.
@@ -26,8 +25,7 @@ Mechanical MFWD tractor
 A ≈ 100 kW diesel with an all-speed governor, a powershift gearbox of 12
 forward ratios, a rear axle (bevel gear, open differential, final
 planetaries) and a mechanical front-wheel drive (MFWD) whose axle turns
-1–5 % faster than the rear ("lead", ASABE D497.7 section 4.1.3: 1–5 %;
-Renius 2020 ch. 5: 1–4 %).  With MFWD engaged the front axle is coupled
+1–5 % faster than the rear ("lead", 1–5 % on MFWD tractors; Renius 2020).  With MFWD engaged the front axle is coupled
 kinematically to the rear through the lead ratio: the share of torque that
 goes to the front follows from that constraint, the two axles' shaft
 compliances and the tyres, never from a fixed split.  The MFWD disengages
@@ -40,7 +38,7 @@ above the rated torque at 1500 rpm, which is what OECD tractor tests of
 the Nebraska Tractor Test Laboratory's reports of 6R-, Maxxum- and
 Vario 700-class tractors).  The governor's speed droop is ≈ 8 % from high
 idle to rated speed.  Drive-line efficiency from engine to wheel is 0.90
-in work (Renius 2020 ch. 4: mechanical stepped transmissions of tractors
+in work (Renius 2020: mechanical stepped transmissions of tractors
 0.85–0.92 at full load) with an auxiliary load (fan, charge pump,
 alternator) taken off at the flywheel.
 

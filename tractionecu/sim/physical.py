@@ -82,11 +82,11 @@ H_INT = 0.002
 
 @dataclass(frozen=True)
 class HitchSpec:
-    """Where and how the implement pulls (ASABE D497.7 section 4.1.4: line of pull)."""
+    """Where and how the implement pulls (ASABE D497.7: line of pull)."""
 
     behind_rear_axle_m: float = 1.0
-    """Drawbar pin behind the rear axle [m] (ASABE S482: drawbar hitch point 400–500 mm behind the PTO
-    shaft end, which sits ≈ 0.5 m behind the axle)."""
+    """Drawbar pin behind the rear axle [m] (an assumption: the drawbar hitch point of a 100 kW tractor
+    lies some 0.4–0.5 m behind the PTO shaft end, itself ≈ 0.5 m behind the axle)."""
     pull_angle_deg: float = 8.0
     """Line of pull below the horizontal, towards the implement [deg] (drawn tillage tools 5–15°)."""
     draft_a: float = 46.0
@@ -431,11 +431,9 @@ def simulate_physical(scn):
             p[6] = direction * net * eff * ratio * dip
             p[7] = eng.inertia_kgm2 * ratio * ratio
 
-        for _ in range(1):
-            accel = K.integrate(x, w, p, h, n_sub)
+        accel = K.integrate(x, w, p, h, n_sub)
         d = min(d + abs(x[8]) * dt, next_cusp)
         K.outputs(x, w, p, outb)
-        sig = outb[0]
         trac = outb[1]
         # Paper-terms truth (module doc).
         drho = tyre.rho_t - veh.rho_t
@@ -480,7 +478,6 @@ def simulate_physical(scn):
         else:
             out["md"].append(md_act.copy())
             out["omega_sensor"].append(x[9:13].copy())
-        del sig
 
     arr = {k: np.asarray(vv) for k, vv in out.items()}
     arr["direction"] = arr["direction"].astype(np.int8)

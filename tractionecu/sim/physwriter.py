@@ -107,12 +107,10 @@ def write_physical_recording(scn, tr, out: str | Path, codec: Codec | None = Non
         w = CandumpWriter(fh, "can0")
         for t, cid, data in frames:
             w.write(t, cid, data, True)
-    veh = scn.vehicle
     save_vehicle(_declared_vehicle(scn), out / "vehicle.toml", scn.sensors)
     if export is not None:
         _write_export(out / EXPORT_CSV, scn, export, gps)
     _write_truth(scn, tr, out, biases)
-    del veh
     return counts
 
 
@@ -418,6 +416,10 @@ def _write_truth(scn, tr, out: Path, b: SensorBiases) -> None:
     lines += ["# Systematic sensor errors of this run (drawn once from the seed; zero = none).", "[biases]"]
     lines += [f"{f.name} = {toml_value(getattr(b, f.name))}" for f in dataclasses.fields(b)]
     lines.append("")
-    phys = dataclasses.replace(ps, soils=())
+    dl = ps.drivetrain
+    phys = dataclasses.replace(ps, soils=(), drivetrain=None)
     lines += _toml_table("physical", phys)
+    lines += ["[physical.drivetrain]", f'kind = "{dl.kind}"', ""]
+    lines += _toml_table("physical.drivetrain." + ("mech" if dl.kind == "mechanical" else "hub"),
+                         dl.mech if dl.kind == "mechanical" else dl.hub)
     (out / "truth.toml").write_text("\n".join(lines), encoding="utf-8")

@@ -1,5 +1,10 @@
 """Truth model of the field simulator: a four-wheel-drive tractor pulling an implement.
 
+Two truth models exist (``Scenario.truth``): ``paper``, this module, and
+``physical`` (:mod:`.physical`), whose tyre–soil forces, load transfer,
+turning kinematics and drive-line are not the filter's.  :func:`simulate`
+runs the one the scenario names.  What follows describes the paper model.
+
 The truth model is the paper's model (section 2) with the true μ(s) curve of
 the soil under each wheel, plus the effects from :mod:`tractionecu.model.effects`
 that a scenario switches on.  Per wheel i (FL, FR, RL, RR):

@@ -1,8 +1,7 @@
 """Tyre–soil force of the physical truth model (independent of the filter's μ(s) family).
 
-Traction law: Brixius (1987) mobility-number equations, as in ASABE D497.7
-(section 4.1.2, "Traction equations for bias-ply tyres"; the same form is used
-for radial tyres there with B_n computed from the tyre dimensions):
+Traction law: Brixius (1987) mobility-number equations, as ASABE D497.7
+gives them for the traction of wheeled tractors:
 
     B_n = (CI b d / W) · (1 + 5 δ/h) / (1 + 3 b/d)                  mobility number [-]
     GT  = 0.88 (1 − e^{−0.1 B_n}) (1 − e^{−7.5 s}) + 0.04          gross traction ratio  [-]
@@ -24,32 +23,31 @@ replace Brixius' slip function 1 − e^{−7.5 s} (``law``):
 
 * ``"brixius"``: 1 − e^{−7.5 s} (Brixius 1987);
 * ``"peaked"``: a wet, plastic clay whose pull falls after a peak near
-  s ≈ 0.2: the sine–arctangent shape of the Magic Formula (Pacejka 2006,
-  section 4.3.2) without its curvature term, sin(C atan(B s)), C = 1.5, B
+  s ≈ 0.2: the sine–arctangent shape of the Magic Formula (Pacejka 2006) without its curvature term, sin(C atan(B s)), C = 1.5, B
   from the peak slip, so that the pull at s = 0.5 is ≈ 10 % below the peak;
 * ``"sigmoid"``: loose sand / freshly tilled soil where the lugs must sink
   before the soil shears: a Weibull rise 1 − exp(−(s/s0)^k), k = 1.6, whose
   slope at s = 0 is zero (no exponential sum has that).
 
 Transient force build-up: the force follows the kinematic slip through a
-first-order relaxation length L_r [m] (Pacejka 2006, section 7.2; measured
-longitudinal relaxation lengths of agricultural tyres are 0.3–1 m, about
-half the tyre radius to one radius, Schlotter 2006):
+first-order relaxation length L_r [m] (Pacejka 2006, Tire and Vehicle
+Dynamics, transient slip), of the order of half a tyre radius to a radius
+(0.3–1 m) for large agricultural tyres:
 
     dσ_f/dt = (max(|v_w|, V_RELAX_MIN) / L_r) (σ − σ_f),   L_r = F_z T_max f'(σ_f) / c_x
 
 The relaxation length is the slip stiffness over the carcass' longitudinal
-stiffness c_x (Pacejka 2006, eq. 7.8 ff.): 0.5 m at zero slip under a 15 kN
+stiffness c_x (Pacejka 2006): 0.5 m at zero slip under a 15 kN
 load on firm soil, shorter at working slip where μ(s) flattens, which damps
 the wheel–tyre oscillation as real tyres do.
 
 Rolling radius: the effective rolling radius of a radial tyre lies between
 the unloaded and the static loaded radius, r_e ≈ r0 − δ/3 (TMeasy, Rill 2011,
-"Road Vehicle Dynamics", section 2.3.3), with the static deflection δ = W/k_z
+"Road Vehicle Dynamics"), with the static deflection δ = W/k_z
 from a vertical stiffness that grows linearly with inflation pressure
-(Wong 2008, "Theory of Ground Vehicles", 4th ed., section 1.3; Lines &
-Murphy 1991 measured 250–450 kN/m for tractor rear tyres at field
-pressures).
+(Wong 2008, "Theory of Ground Vehicles", chapter 1).  356 kN/m for a
+540/65R34 at 1.6 bar is an assumption of this model (deflection ≈ 5 cm at
+18 kN, about 1/7 of the section height).
 """
 
 from __future__ import annotations
@@ -74,7 +72,7 @@ class PhysSoil:
     name: str
     cone_index_pa: float
     """Cone index CI [Pa] (ASABE S313: 30° cone, 323 mm² base). Firm stubble 1.2–2 MPa,
-    tilled 0.6–1 MPa, soft/wet 0.3–0.6 MPa (ASABE D497.7 Table 3)."""
+    tilled 0.6–1 MPa, soft/wet 0.3–0.6 MPa (ASABE D497.7 gives B_n ≈ 50 firm, 30 tilled, 20 soft)."""
     law: str = "brixius"
     """Slip function: ``brixius``, ``peaked`` or ``sigmoid`` (module doc)."""
     s_shape: float = 0.2
@@ -102,8 +100,7 @@ class TyreSpec:
     aspect_ratio: float = 0.65
     """Section height / width h/b [-] (the "65" of 540/65R34)."""
     carcass_stiffness_npm: float = 2.0e5
-    """Longitudinal carcass stiffness c_x [N/m]: the relaxation length is L_r = C_Fκ / c_x (Pacejka 2006,
-    section 7.2), 0.5 m at zero slip under a 15 kN wheel load on firm soil, shorter where μ(s) flattens."""
+    """Longitudinal carcass stiffness c_x [N/m]: the relaxation length is L_r = C_Fκ / c_x (Pacejka 2006), 0.5 m at zero slip under a 15 kN wheel load on firm soil, shorter where μ(s) flattens."""
     rho_t: float = GT_INTERNAL
     """Internal (hysteresis) loss ratio of the tyre [-]: Brixius' 0.04."""
 
