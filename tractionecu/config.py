@@ -427,6 +427,9 @@ class VehicleParams:
     track_width_m: float = setting(1.8, "track width, wheel centre to wheel centre [m]", 0.5, 5.0)
     cd_area_m2: float = setting(4.5, "drag area C_d·A [m²]", 0.0, 50.0)
     max_wheel_torque_nm: float = setting(9000.0, "torque limit of one wheel drive [N·m]", 10.0, 1e5)
+    pull_angle_deg: float = setting(0.0, "line of pull above the horizontal at the hitch β [deg]: the draft adds "
+                                    "F_dx·tan β to the wheel loads (ASABE D497.7 4.1.4); used by the "
+                                    "machine-level estimator", -30.0, 45.0)
     drivetrain: DrivetrainSpec = section(DrivetrainSpec, "what drives the wheels and what the bus says about it "
                                                          "(also a top-level [drivetrain] table)")
 

@@ -29,7 +29,9 @@ The estimate is **machine level** (status bit :data:`MACHINE_LEVEL`):
   every wheel follows μ_i = a·g(s_i);
 * a variance of μ that includes the efficiency tolerance:
   P_μ + (σ_η/η · μ)², σ_η/η = ``efficiency_tolerance`` (a bias the data
-  cannot reveal: η and a scale the force alike).
+  cannot reveal: η and a scale the force alike), in ``P_diag`` and
+  ``sigma_mu``; the same bias moves ρ_s by as much through eq. 8
+  (``sigma_rho_s``).
 
 Model
 -----
@@ -71,6 +73,7 @@ Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -79,7 +82,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import erfcinv
 
-from ..config import G, SensorSpec, VehicleParams, setting, validate
+from ..config import SensorSpec, VehicleParams, setting, validate
 from ..errors import EstimatorError
 from ..model.vehicle import compiled, rolling_radius
 from .config import EstimatorConfig
@@ -87,6 +90,7 @@ from .curve import CurveEstimator
 from .estimator import (COV_REPAIRED, DRAFT_TIMEOUT, GPS_TIMEOUT, INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED,
                         STANDSTILL, TORQUE_TIMEOUT, WHEEL_TIMEOUT, AXLE_TIMEOUT, DRAFT_NOT_SEPARATED, INVALID_MASK,
                         MACHINE_LEVEL, Estimate)
+from .calibration import RadiusCalibration
 from .rates import BusRates
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
@@ -149,6 +153,10 @@ def _slip1(w: float, v: float, r_d: float) -> float:
 
 
 _ABSENT = object()
+_SLICES = {(a, b): slice(a, b + 1) for a in range(3) for b in range(a, 3)}
+"""Output slices of the update, made once: the filter caches its fast path per slice object."""
+_NAN2 = np.full(2, np.nan)
+_ONE2 = np.ones(2)
 _INPUT_KEYS = ("Te", "Tref", "gear", "Fzf", "Fdx")
 
 
@@ -203,7 +211,12 @@ class MachineEstimator:
             {"Te": cfg.torque_timeout_s, "gear": cfg.torque_timeout_s, "Fzf": cfg.axle_timeout_s,
              "Fdx": cfg.draft_timeout_s, "omega": cfg.wheel_timeout_s, "v": cfg.gps_timeout_s},
             cfg.timeout_periods, cfg.rate_window, cfg.max_gap_s)
+        self._hold_s = min(cfg.torque_timeout_s, cfg.wheel_timeout_s)
+        """A step without new samples is held (:meth:`step`) at most this long [s] after the last step with data,
+        and never past the first time a stream could time out."""
         self._consts = np.array([vehicle.rho_t, self.W, self.m])
+        self._tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
+        self._cal_cfg = cfg.calibration if hasattr(cfg, "calibration") else None
         self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
         grid = np.linspace(0.0, 1.0, 4001)
         self._g_table = (self._cls0.g(grid), grid)
@@ -241,15 +254,21 @@ class MachineEstimator:
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._held: tuple[float, list[float]] | None = None
-        self._Q_key: tuple | None = None
-        self._Q_val = np.zeros((N_MACHINE, N_MACHINE))
+        self._Q_cache: dict[tuple, NDArray[np.float64]] = {}
         self._adapt_version = 0
-        self._loads_key: tuple[float, float] | None = None
+        self._radius = RadiusCalibration(self._cal_cfg)
+        self._radius_version = 0
+        self._turning = False
+        self._turning_gnss = False
+        self._course: tuple[float, float] | None = None
+        self._loads_key: tuple[float, float, int] | None = None
         self._loads = (math.nan,) * 4
         self._terms_key: float | None = None
         self._terms_val = (math.nan,) * 5
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
-                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0}
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0}
+        self._last: MachineEstimate | None = None
+        self._hold_until = -math.inf
 
     # ------------------------------------------------------------------ drivetrain terms
     def ratio(self) -> float:
@@ -266,19 +285,22 @@ class MachineEstimator:
 
     def loads(self) -> tuple[float, float, float, float]:
         """(F_zf, F_zr [N], r_d front, r_d rear [m]): measured front-axle load, else the static share less
-        the draft's load transfer F_dx h_hitch / L; r_d per axle from eq. 9."""
-        key = (self._in["Fzf"], self._in["Fdx"])
+        the draft's load transfer F_dx h_hitch / L; the rear carries the rest of m g + F_dx tan β (the line of
+        pull, ``pull_angle_deg``); r_d per axle from eq. 9, times the rear axle's self-calibrated scale
+        (:mod:`.calibration`, once applied)."""
+        key = (self._in["Fzf"], self._in["Fdx"], self._radius_version)
         if key == self._loads_key:
             return self._loads
         veh = self.vehicle
+        fdx = key[1] if self.draft and math.isfinite(key[1]) else 0.0
         fzf = key[0] if self.front_load and math.isfinite(key[0]) else math.nan
         if not math.isfinite(fzf):
-            fdx = key[1] if self.draft and math.isfinite(key[1]) else 0.0
             fzf = veh.static_front_fraction * self.W - fdx * veh.hitch_height_m / veh.wheelbase_m
             fzf = min(max(fzf, 0.05 * self.W), 0.95 * self.W)
-        fzr = self.W - fzf
+        fzr = self.W + fdx * self._tan_pull - fzf
         rdf, rdr = rolling_radius(np.array([0.5 * fzf, 0.5 * fzr]), veh).tolist()
-        self._loads_key, self._loads = key, (fzf, fzr, rdf, rdr)
+        k = self._radius.applied[1]
+        self._loads_key, self._loads = key, (fzf, fzr, rdf * k, rdr * k)
         self._terms_key = None
         return self._loads
 
@@ -307,11 +329,12 @@ class MachineEstimator:
 
     def _Q(self, dt: float, u: NDArray[np.float64], t_te: float) -> NDArray[np.float64]:
         key = (dt, self._i_last, self._in["Tref"], t_te, self._rates.period("Fdx"), float(u[5]), self._adapt_version)
-        if key == self._Q_key:
-            return self._Q_val
-        self._Q_key = key
-        self._Q_val = self._build_Q(dt, u, t_te)
-        return self._Q_val
+        Q = self._Q_cache.get(key)
+        if Q is None:
+            if len(self._Q_cache) >= 8:
+                self._Q_cache.clear()
+            Q = self._Q_cache[key] = self._build_Q(dt, u, t_te)
+        return Q
 
     def _build_Q(self, dt: float, u: NDArray[np.float64], t_te: float) -> NDArray[np.float64]:
         q = self._q_tune * (self._f * dt) * self._A
@@ -336,9 +359,23 @@ class MachineEstimator:
     # ------------------------------------------------------------------ step
     def step(self, t: float, inputs: Mapping[str, Any] | None = None,
              measurements: Mapping[str, Any] | None = None) -> MachineEstimate:
-        """Advance to time t [s] with new inputs and measurements (any subset; see module doc)."""
-        cfg = self.cfg
+        """Advance to time t [s] with new inputs and measurements (any subset; see module doc).
+
+        A step that brings no new sample, while no stream can have timed out since the last data
+        (:attr:`hold_s`), changes nothing the data support: it returns the last estimate at the new time
+        and the filter predicts across it at the next step with data (the right-hand side is constant
+        meanwhile, so the prediction of the mean is the same).
+        """
         t = float(t)
+        last = self._last
+        if not inputs and not measurements and last is not None and t < self._hold_until and t > last.t:
+            self.counters["steps"] += 1
+            self.counters["held_steps"] += 1
+            e = copy.copy(last)
+            e.t, e.nis, e.nis_dof = t, math.nan, 0
+            return e
+        cfg = self.cfg
+        self._last = None
         status = MACHINE_LEVEL | (0 if self.draft else DRAFT_NOT_SEPARATED)
         predict_only = False
         counters = self.counters
@@ -429,6 +466,19 @@ class MachineEstimator:
             self._t_omega = t
             if rates.trackers["omega"].push(t):
                 rates.refresh("omega")
+        rel = meas.get("rel_r")                                # EBC2 rear wheels relative to the front axle
+        if rel is not None and vfa is not None and vfa > 0.5:
+            rl = np.asarray(rel, dtype=float)
+            if rl.shape == (2,) and np.isfinite(rl).all():
+                self._turning = abs(float(rl[0] - rl[1])) > self._radius.cfg.max_turn_rel * vfa
+        crs = meas.get("course")                               # GNSS course: a turn bends it
+        if crs is not None and math.isfinite(crs):
+            if self._course is not None and t > self._course[0]:
+                d = (float(crs) - self._course[1] + 180.0) % 360.0 - 180.0
+                rate = math.radians(abs(d)) / (t - self._course[0])
+                self._turning_gnss = rate > self._radius.cfg.max_turn_rel / self.vehicle.track_width_m * max(
+                    abs(self._last_v or 0.0), 0.5)
+            self._course = (t, float(crs))
         zv: list[tuple[int, float, float]] = []
         vm = meas.get("v")
         if vm is not None:
@@ -453,6 +503,12 @@ class MachineEstimator:
             status |= WHEEL_TIMEOUT
         if t - self._t_v > timeout["v"]:
             status |= GPS_TIMEOUT
+        # the next time a stream could time out: steps without data before it are held (see above)
+        t_in = self._t_in
+        self._hold_until = min(t + self._hold_s, t_in["Te"] + timeout["Te"], self._t_omega + timeout["omega"],
+                               self._t_v + timeout["v"], t_in["gear"] + timeout["gear"],
+                               t_in["Fdx"] + timeout["Fdx"] if self.draft else math.inf,
+                               t_in["Fzf"] + timeout["Fzf"] if self.front_load else math.inf)
         M = self._torque(i_tot)
         # ---- initialisation
         ukf = self.ukf
@@ -494,9 +550,8 @@ class MachineEstimator:
             idx = ([_OUT_W] if z_w is not None else []) + [k for k, _, _ in zv]
             z = ([z_w] if z_w is not None else []) + [x for _, x, _ in zv]
             R = ([r_w] if z_w is not None else []) + [r for _, _, r in zv]
-            contiguous = idx[-1] - idx[0] == len(idx) - 1          # a slice: the filter's fast path
-            ukf.update(np.array(z), slice(idx[0], idx[-1] + 1) if contiguous else np.array(idx, dtype=np.intp),
-                       np.array(R))
+            sl = _SLICES.get((idx[0], idx[-1])) if idx[-1] - idx[0] == len(idx) - 1 else None
+            ukf.update(np.array(z), sl if sl is not None else np.array(idx, dtype=np.intp), np.array(R))
             if ukf.last_gated:
                 status |= MEAS_GATED
                 counters["gated"] += bin(ukf.last_gated).count("1")
@@ -506,6 +561,8 @@ class MachineEstimator:
                 if cfg.adaptation:
                     self._cm.push(*ukf.correction())
         x = ukf.x
+        if vm is not None and self._radius.cfg.enabled and zv and zv[0][0] == _OUT_V:
+            self._calibrate(t, zv[0][1], x)
         # ---- adaptation and supervisor (paper eqs. 16-17, FLS)
         self._dyn.update(t, float(x[IX_V]), M)
         if t - self._t_adapt >= cfg.adapt_period_s:
@@ -518,6 +575,26 @@ class MachineEstimator:
             self._adapt_version += 1
         counters["chol_repairs"] = ukf.chol_repairs
         return self._estimate(t, status, x, i_tot, updated)
+
+    def _calibrate(self, t: float, v_gnss: float, x: NDArray[np.float64]) -> None:
+        """One GNSS epoch to the rolling-radius self-calibration (:class:`~.calibration.RadiusCalibration`,
+        the hub estimator's): the rear wheels at the drive speed, the front at the kinematic ratio; samples
+        while turning (EBC2 left/right wheels, or the GNSS course) are refused.  Its rear scale, once applied,
+        scales both axles' radii (the front axle's speed is not measured apart from the lead)."""
+        w, v, mu = float(x[IX_W]), float(x[IX_V]), float(x[IX_MU])
+        fzf, fzr, rdf, rdr = self.loads()
+        k0 = self._radius.applied[1]
+        rdf0, rdr0 = rdf / k0, rdr / k0
+        kf = (1.0 + self.lead) * rdr0 / rdf0 if self.engaged else 1.0
+        conv = (self.t_init is not None and t - self.t_init >= self.cfg.conv_min_s
+                and self.ukf is not None and self.ukf.P[IX_MU, IX_MU] < self.cfg.conv_sigma_mu ** 2)
+        ok = conv and abs(v) >= self.cfg.standstill_speed_mps and not (self._turning or self._turning_gnss)
+        cs = self._curve_state
+        self._radius.push(t, v_gnss, [kf * w, kf * w, w, w], rdf0, rdr0, [mu] * 4, self._dyn.accel, ok,
+                          cs.a, cs.class_name)
+        if self._radius.applied[1] != k0:
+            self._radius_version += 1
+            self._terms_key = None
 
     def _learn_ratio(self, we: float, vwb: float) -> None:
         """Engine speed over wheel speed [-], smoothed; a change of more than 5 % held for three samples is a
@@ -581,7 +658,8 @@ class MachineEstimator:
             nan4 = np.full(4, np.nan)
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
-                                   cs.class_index, level=self.level, total_ratio=i_tot)
+                                   cs.class_index, sigma_mu=nan4, radius_scale=_NAN2, radius_halfwidth=_NAN2,
+                                   radius_applied=_ONE2, level=self.level, total_ratio=i_tot)
         w, v, mu, rho = x.tolist()
         P = ukf.P
         pw, pv, pmu, prho = P[0, 0], P[1, 1], P[2, 2], P[3, 3]
@@ -621,10 +699,14 @@ class MachineEstimator:
         pd = np.array([var_w_f, var_w_f, pw, pw, pv, var_mu, var_mu, var_mu, var_mu,
                        prho if self.draft else math.nan])
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        return MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
+        sig_rho = math.sqrt(prho + (self.dt.efficiency_tolerance * mu) ** 2) if self.draft else math.nan
+        self._last = MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
                                np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
-                               (status & INVALID_MASK) == 0, dof, cs.class_index, level=self.level,
+                               (status & INVALID_MASK) == 0, dof, cs.class_index, sigma_mu=np.full(4, math.sqrt(var_mu)),
+                               sigma_rho_s=sig_rho, radius_scale=_NAN2, radius_halfwidth=_NAN2,
+                               radius_applied=np.full(2, self._radius.applied[1]), level=self.level,
                                resistance=resistance, total_ratio=i_tot)
+        return self._last
 
 
 def _machine_step(sig, u, c, dt):                             # pragma: no cover - compiled

@@ -20,6 +20,7 @@ from typing import Any
 
 from .map_truth import score_replay_map
 from .plots import plot_run
+from .machine_score import is_machine_level, machine_scorecard
 from .scoring import read_truth, scorecard
 
 
@@ -48,7 +49,12 @@ def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
     truth = sc = None
     if rec.truth_csv_path is not None:
         truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
-        sc = scorecard(arrays, truth)
+        if is_machine_level(arrays):                     # one μ for the machine: scored against ΣF_h/ΣF_z
+            from ..pipeline.replay import machine_of
+
+            sc = machine_scorecard(arrays, truth, rec.truth_csv_path, machine_of(rec)[0].mass_kg)
+        else:
+            sc = scorecard(arrays, truth)
         add["scorecard"] = sc
     if plot:
         add["plots"] = plot_run(out, arrays, truth, sc)
