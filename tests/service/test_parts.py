@@ -455,8 +455,10 @@ def service_cfg(tmp_path: Path, **sections) -> ServiceConfig:
 def test_service_declares_its_parts_in_the_documented_order(tmp_path: Path) -> None:
     cfg = service_cfg(tmp_path, gps={"source": "serial", "port": str(tmp_path / "tty")}, map={"enabled": True})
     assert Service(cfg, env={}).lifecycle.names() == [
-        "state", "estimator", "map", "can", "gps", "network", "warm-up", "estimation", "status", "ready"]
-    assert Service(service_cfg(tmp_path), env={}).lifecycle.names() == [
+        "state", "estimator", "map", "can", "gps", "network", "warm-up", "estimation", "advice", "web", "status",
+        "ready"]
+    assert Service(service_cfg(tmp_path, advice={"enabled": False}, web={"enabled": False}),
+                   env={}).lifecycle.names() == [
         "state", "estimator", "can", "network", "warm-up", "estimation", "status", "ready"]
 
 
@@ -490,7 +492,8 @@ async def test_a_part_added_to_the_service_starts_in_order_and_stops_in_reverse(
 
         wrap()
     names = svc.lifecycle.names()
-    assert names == ["state", "estimator", "can", "extra", "network", "warm-up", "estimation", "status", "ready"]
+    assert names == ["state", "estimator", "can", "extra", "network", "warm-up", "estimation", "advice", "web",
+                     "status", "ready"]
     stop = asyncio.Event()
     with caplog.at_level(logging.ERROR, logger="tractionecu.service.daemon"):
         task = asyncio.create_task(svc.run(stop))

@@ -17,6 +17,12 @@ estimation          :class:`~.loop.EstimationLoop`: the estimator on its grid
 map, can, gps       :class:`~.mapwriter.MapWriter`, :class:`~.canlink.CanLink`,
                     :class:`~.gps.GpsReader`
 status              :class:`~.status.StatusReporter`: the status line
+advice              :class:`~tractionecu.advice.part.AdvicePart`: traction
+                    efficiency, the optimal slip s* and advice from the
+                    last estimate, ``TECU_EstEfficiency`` on the bus, the
+                    live map (``[advice]``)
+web                 :class:`~tractionecu.web.server.WebPart`: the read-only
+                    in-cab page (``[web]``)
 ==================  =========================================================
 
 Start-up runs :meth:`Service.parts` in this order (the one place a part is
@@ -34,10 +40,14 @@ added); shutdown runs it backwards and gathers the errors
 6. ``warm-up``: estimator warm-up (its compiled kernels), then
    :func:`~.heap.settle_heap` (GC freeze of the start-up objects, glibc's
    mmap threshold fixed);
-7. ``estimation``, ``status``: the estimation loop and the status task;
-8. ``ready``: ``READY=1`` to systemd once the bus and the GNSS port are open.
+7. ``estimation``: the estimation loop;
+8. ``advice``, ``web``: efficiency and advice, and the in-cab page, each its own
+   task beside the loop (never inside a step; a port that cannot be bound
+   leaves the daemon running without its page);
+9. ``status``: the status task;
+10. ``ready``: ``READY=1`` to systemd once the bus and the GNSS port are open.
 
-A task of ``can``, ``gps``, ``estimation`` or ``status`` that ends by itself
+A task of ``can``, ``gps``, ``estimation``, ``advice``, ``web`` or ``status`` that ends by itself
 is a bug: the service stops with exit code 1 and systemd restarts it.
 
 Bad input never stops the daemon: 11-bit, remote, error and CAN FD frames,
@@ -59,6 +69,11 @@ from typing import IO, Any, Callable, Iterable
 
 import can
 
+from ..advice.bus import efficiency_frame
+from ..advice.efficiency import efficiency_config_for
+from ..advice.engine import AdviceEngine
+from ..advice.part import AdvicePart, LiveMap
+from ..advice.rules import AdviceSettings
 from ..bus import j1939
 from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS
@@ -78,7 +93,7 @@ from .loop import EstimationLoop, EstimatorFactory, default_estimator_factory, e
 from .mapwriter import MapWriter
 from .network import Network
 from .notify import Notifier, watchdog_interval
-from .status import StatusReporter
+from .status import StatusReporter, web_snapshot
 
 log = logging.getLogger(__name__)
 
@@ -232,6 +247,18 @@ class Service:
             after_step=self.network.serve_requests, stats=self.stats)
         self.status = StatusReporter(cfg.service.status_interval_s, self.clock.speed, self._totals,
                                      self.status_line, self.notifier, status_stream)
+        self.live_map: LiveMap | None = LiveMap() if cfg.web.enabled else None
+        self.advice: AdvicePart | None = None
+        if cfg.advice.enabled:
+            self.advice = AdvicePart(self._advice_engine, lambda: self.estimation.last_estimate,
+                                     period_s=1.0 / cfg.broadcast.rate_hz, speed=self.clock.speed,
+                                     fix_at=self.fixes.fix_at, live_map=self.live_map,
+                                     send=self._send_efficiency if cfg.broadcast.enabled else None)
+        self.web: Any = None
+        if cfg.web.enabled:
+            from ..web.server import WebPart      # aiohttp only when the page is served
+
+            self.web = WebPart(cfg.web, self.web_state, self.live_map, on_listening=self._announce_page)
         self.ready = asyncio.Event()
         self.started_mono = time.monotonic()
         self.exit_code = 0
@@ -253,9 +280,12 @@ class Service:
             self.network,
             Hook("warm-up", start=self._warm_up),
             self.estimation,
-            self.status,
-            Readiness(self),
         ]
+        if self.advice is not None:
+            parts.append(self.advice)
+        if self.web is not None:
+            parts.append(self.web)
+        parts += [self.status, Readiness(self)]
         return parts
 
     def request_stop(self) -> None:
@@ -286,6 +316,42 @@ class Service:
             except Exception as e:  # the real steps will show it; do not stop here
                 log.warning("estimator warm-up failed: %r", e)
         settle_heap()
+
+    # ------------------------------------------------------------ advice and the page
+    def _advice_engine(self) -> AdviceEngine:
+        """The advice engine for the configured machine (the estimator's vehicle) and ``[advice]``."""
+        from ..config import VehicleParams
+
+        a = self.cfg.advice
+        vehicle = self.estimation.machine[0] if self.estimation.machine else VehicleParams()
+        settings = AdviceSettings(axle_type=a.axle_type, slip_min=a.slip_min, slip_max=a.slip_max,
+                                  distance_m=a.distance_m, eta_loss=a.eta_loss, eta_minutes=a.eta_minutes,
+                                  tyre_pressure_min_pa=a.tyre_pressure_min_pa)
+        eff = efficiency_config_for(vehicle, max_sigma_s_star=a.max_sigma_s_star)
+        return AdviceEngine(vehicle, settings, eff=eff)
+
+    def _send_efficiency(self, report: Any) -> bool:
+        """``TECU_EstEfficiency`` from our claimed address, if the claim allows (as the estimate broadcast)."""
+        cl = self.network.claimer
+        if cl is None or self.can.bus is None or cl.address is None or not cl.can_transmit(self.clock.now()):
+            self.stats["efficiency_skipped"] += 1
+            return False
+        cid, data = efficiency_frame(self.codec, report, cl.address, self.cfg.broadcast.priority)
+        ok = self.can.send(cid, data)
+        self.stats["efficiency_sent" if ok else "efficiency_errors"] += 1
+        return ok
+
+    def _announce_page(self, address: str) -> None:
+        """The page listens: say where on the status stream (``run --simulate`` prints it)."""
+        if self.status.stream is not None:
+            try:
+                print(f"in-cab page: {address}", file=self.status.stream, flush=True)
+            except (OSError, ValueError):
+                pass
+
+    def web_state(self) -> dict[str, Any]:
+        """What the in-cab page shows (:mod:`tractionecu.web`): estimate, efficiency, curve, advice, health."""
+        return web_snapshot(self)
 
     # ------------------------------------------------------------ status
     def _totals(self) -> dict[str, float]:
@@ -319,6 +385,8 @@ class Service:
         g0 = self.estimation.grid_t0
         t = "" if g0 is None else f"t {self.clock.now() - g0:6.1f} s  "
         behind = self.estimation.behind_text(time.monotonic())
+        if self.advice is not None and e is not None:
+            est += " | " + self.advice.engine.status_text()
         return (f"{behind + ' | ' if behind else ''}{t}{est} | CAN {can_s} {r.get('can', 0):.0f} fr/s (inputs {r.get('inputs', 0):.0f}/s)"
                 f"  GPS {gps_s} {r.get('gps', 0):.1f} Hz  est {r.get('est', 0):.0f} Hz"
                 f"  tx {r.get('tx', 0):.0f} fr/s  addr {self.network.describe_address()}")
@@ -338,6 +406,12 @@ class Service:
             out["map"] = dict(self.map.stats)
             if self.map.store is not None:
                 out["map_store"] = dict(self.map.store.stats)
+        if self.advice is not None:
+            out["advice"] = {**self.advice.stats, "max_work_s": self.advice.max_work_s,
+                             "active": [r.kind for r in self.advice.engine.advice]}
+        if self.web is not None:
+            out["web"] = {**self.web.stats, "viewers": len(self.web.viewers), "max_build_s": self.web.max_build_s,
+                          "address": self.web.address}
         est = self.estimation.estimator
         if est is not None and hasattr(est, "counters"):
             out["estimator"] = dict(est.counters)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import time
 from dataclasses import dataclass
-from typing import IO, Callable, ClassVar
+from typing import IO, Any, Callable, ClassVar
 
 from .lifecycle import TaskPart
 from .notify import Notifier
@@ -68,3 +68,64 @@ class StatusReporter(TaskPart):
         while True:
             await asyncio.sleep(self.period_s)
             self.report()
+
+
+# ------------------------------------------------------------------ the in-cab page's state
+CURVE_POINTS = 61
+"""Points of the μ(s) and η(s) curves the page draws, slip 0 to :data:`CURVE_S_MAX`."""
+CURVE_S_MAX = 0.3
+
+
+def web_snapshot(svc: Any) -> dict[str, Any]:
+    """The state the in-cab page shows (:mod:`tractionecu.web`), from a running
+    :class:`~tractionecu.service.daemon.Service`: the last estimate, efficiency and s*, the μ(s) and η(s)
+    curves with the operating point, the advice, and health (bus and GNSS state, estimator status bits,
+    frame rates, dropped frames).  Reads the parts' attributes only; NaN where nothing is known."""
+    import numpy as np
+
+    from ..estimation.estimator import STATUS_NAMES
+    from ..advice.efficiency import curve_of, eta_curve
+
+    e = svc.estimation.last_estimate
+    out: dict[str, Any] = {"wall": time.time()}
+    g0 = svc.estimation.grid_t0
+    out["t"] = None if g0 is None else svc.clock.now() - g0
+    if e is not None:
+        status = int(getattr(e, "status", 0) or 0)
+        out["estimate"] = {
+            "v": float(e.v), "mu": [float(x) for x in e.mu], "slip": [float(x) for x in e.slip],
+            "rho_s": float(e.rho_s), "a": float(e.a), "soil_class": str(getattr(e, "soil_class", "")),
+            "status": status, "status_bits": [n for b, n in STATUS_NAMES.items() if status & b],
+            "valid": bool(getattr(e, "valid", False)),
+        }
+    adv = svc.advice
+    rep = adv.engine.report if adv is not None else None
+    if rep is not None:
+        out["efficiency"] = rep.as_dict()
+        out["advice"] = [r.as_dict() for r in adv.engine.advice]
+        c = curve_of(e) if e is not None else None
+        if c is not None and e is not None:
+            s = np.linspace(0.0, CURVE_S_MAX, CURVE_POINTS)
+            out["curve"] = {"s": s.round(4).tolist(), "mu": c.mu(s).round(4).tolist(),
+                            "eta": eta_curve(s, c, float(e.rho_s), adv.engine.tracker.cfg.rho_t).round(4).tolist(),
+                            "class": c.class_name, "a": c.a}
+    else:
+        out["advice"] = []
+    r = svc.status.rates
+    can_stats = svc.can.stats
+    health: dict[str, Any] = {
+        "can": "open" if svc.can.is_open.is_set() else "down",
+        "gps": "off" if svc.gps is None else ("open" if svc.gps.is_open.is_set() else "down"),
+        "rates": {k: round(v, 2) for k, v in r.items()},
+        "dropped_frames": int(can_stats.get("rx_kernel_dropped", 0) + can_stats.get("rx_overflow", 0)),
+        "bad_frames": int(svc.stats.get("bad_frames", 0)),
+        "unknown_pgn_frames": int(svc.stats.get("unknown_pgn_frames", 0)),
+        "skipped_steps": int(svc.stats.get("skipped_steps", 0)),
+        "late_frames": int(svc.steps.counts.get("late", 0)),
+        "address": svc.network.describe_address(),
+        "behind": svc.estimation.behind_text(time.monotonic()),
+    }
+    if svc.gps is not None:
+        health["gps_fixes"] = int(svc.stats.get("gps_fixes", 0))
+    out["health"] = health
+    return out
