@@ -29,9 +29,9 @@ The estimate is **machine level** (status bit :data:`MACHINE_LEVEL`):
   every wheel follows μ_i = a·g(s_i);
 * a variance of μ that includes the efficiency tolerance:
   P_μ + (σ_η/η · μ)², σ_η/η = ``efficiency_tolerance`` (a bias the data
-  cannot reveal: η and a scale the force alike), in ``P_diag`` and
-  ``sigma_mu``; the same bias moves ρ_s by as much through eq. 8
-  (``sigma_rho_s``).
+  cannot reveal: η and a scale the force alike), in ``P_diag`` (so in
+  ``sigma_mu``); the same bias moves ρ_s by as much through eq. 8, which
+  ``P_diag`` of ρ_s includes likewise.
 
 Model
 -----
@@ -658,7 +658,7 @@ class MachineEstimator:
             nan4 = np.full(4, np.nan)
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
-                                   cs.class_index, sigma_mu=nan4, radius_scale=_NAN2, radius_halfwidth=_NAN2,
+                                   cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
                                    radius_applied=_ONE2, level=self.level, total_ratio=i_tot)
         w, v, mu, rho = x.tolist()
         P = ukf.P
@@ -697,13 +697,11 @@ class MachineEstimator:
         var_mu = pmu + (self.dt.efficiency_tolerance * mu) ** 2
         var_w_f = k * k * pw if self.engaged else math.nan
         pd = np.array([var_w_f, var_w_f, pw, pw, pv, var_mu, var_mu, var_mu, var_mu,
-                       prho if self.draft else math.nan])
+                       prho + (self.dt.efficiency_tolerance * mu) ** 2 if self.draft else math.nan])
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        sig_rho = math.sqrt(prho + (self.dt.efficiency_tolerance * mu) ** 2) if self.draft else math.nan
         self._last = MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
                                np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
-                               (status & INVALID_MASK) == 0, dof, cs.class_index, sigma_mu=np.full(4, math.sqrt(var_mu)),
-                               sigma_rho_s=sig_rho, radius_scale=_NAN2, radius_halfwidth=_NAN2,
+                               (status & INVALID_MASK) == 0, dof, cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
                                radius_applied=np.full(2, self._radius.applied[1]), level=self.level,
                                resistance=resistance, total_ratio=i_tot)
         return self._last
