@@ -199,11 +199,11 @@ for heavy draft work)."""
 
 
 def ballast_needed(seed: int = 0, **kw) -> Scenario:
-    """A light, unballasted 75 kW MFWD tractor pulling a heavy implement (draft ≈ 0.57 of its weight) on
+    """A light, unballasted 75 kW MFWD tractor pulling a heavy implement (draft ≈ 0.62 of its weight) on
     the three soils: slip stays above ≈ 15 %, the case where an advisor should recommend ballast."""
     plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.0, v_turn=1.2)
     kw.setdefault("vehicle", LIGHT_MFWD)
-    kw.setdefault("implement", ImplementSpec(draft_n=24000.0))
+    kw.setdefault("implement", ImplementSpec(draft_n=26000.0))
     return _physical("ballast-needed", PHYSICAL_THREE_SOILS, plan, seed, kw, axle_load_sensor=False,
                      drivetrain=DriveLineSpec("mechanical", mech=MechDriveSpec(
                          engine=_scaled_engine(0.75), final_drive=28.0)))
