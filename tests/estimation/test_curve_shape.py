@@ -165,5 +165,5 @@ def test_scoring_uses_the_identified_shape():
     curve3, _ = identified_curve(idx, a_e2, cls_e, None, S_GRID)
     assert np.allclose(curve3, STUBBLE.mu(S_GRID, float(a_e2.mean())))
     # a tabulated true curve
-    tab = {"soil_class": "stubble", "a": 0.8, "curve_s": [0.0, 0.2, 0.4], "curve_mu": [0.0, 0.6, 0.8]}
+    tab = {"soil_class": "stubble", "a": 0.8, "mu_curve_s": [0.0, 0.2, 0.4], "mu_curve": [0.0, 0.6, 0.8]}
     assert true_curve(tab, np.array([0.1, 0.3])) == pytest.approx([0.3, 0.7])

@@ -60,6 +60,7 @@ from typing import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import f as f_dist
 
 from ..model.mucurve import CURVE_FORMS, SOIL_CLASSES, MuCurve, SoilClass, solve_a_array
 
@@ -303,11 +304,12 @@ class CurveEstimator:
 # each linear in its amplitudes once the exponents are fixed, so every form is solved exactly on a
 # grid of k = −α (variable projection: weighted normal equations of one or two basis functions)
 # and the best grid point refined by damped Gauss–Newton (Levenberg–Marquardt) within the bounds
-# (0 ≤ p ≤ 1, α1 ≤ 1.3 α2 < 0, 2 ≤ −α ≤ 200, −0.1 ≤ c ≤ 0.3).  Forms are compared by BIC,
+# (P_MIN ≤ p ≤ P_MAX with μ'(0) ≥ 0, α1 ≤ 1.3 α2 < 0, 2 ≤ −α ≤ 200, −0.1 ≤ c ≤ 0.3).  Forms are compared by BIC,
 # n ln(SSE/n) + m ln n (n bins, m parameters); the best free form replaces the class only when
-# its BIC is lower by ``bic_margin``, and only if it is well posed: covariance finite,
+# its BIC is lower by ``bic_margin`` and an F test of its extra parameters rejects the class at
+# ``test_level`` (eq. 14 contains every class), and only if it is well posed: covariance finite,
 # σ_a/a ≤ ``max_rel_sigma_a`` (the asymptote is not an extrapolation the data cannot support),
-# eq. 14 exponents distinct by a factor ≥ 1.3 and 0.02 < p < 0.98 (else it is exp1).  The
+# eq. 14 exponents distinct by a factor ≥ 1.3 and p not within 0.02 of 0 or 1 (else it is exp1).  The
 # covariance is (JᵀWJ)⁻¹ · max(1, χ²/(n − m)).  Cost: 1–3 ms per fit; a segment is refitted at
 # most every ``fit_period_s`` and only when its weight grew by half (module figures in the
 # test and README).
@@ -322,7 +324,22 @@ K_MIN, K_MAX = 2.0, 200.0
 """Bounds of the decay rates k = −α [-] of the free forms' exponents.  k ≥ 2: μ reaches at least 55 % of a by
 s = 0.4, as every published field curve does (the classes here have k ≥ 3.5; Brixius 1987: k = 7.5);
 a smaller k would be a near-linear curve whose asymptote no slip range can show."""
+P_MIN, P_MAX = -4.0, 4.0
+"""Bounds of eq. 14's weight p [-] in the shape fit.  The paper's classes have 0 ≤ p ≤ 1 (a rise
+with two time constants); p > 1 gives a curve that peaks and falls back to a (wet, plastic soils:
+Pacejka 2006 §4.3), p < 0 with μ'(0) = −a(p α1 + (1−p) α2) ≥ 0 an S-shaped rise whose slope
+grows first (loose soils where the lugs sink before the soil shears), e.g. p = −1, α1 = 2α2:
+a(1 − e^{α2 s})²."""
 K_GRID = np.geomspace(K_MIN, K_MAX, 28)
+PRIOR_A = (0.8, 0.15)
+"""Prior on the asymptote a of a fitted shape [-]: mean and standard deviation.  The asymptotic gross
+traction ratio of agricultural tyres is 0.88 (1 − e^{−0.1 B_n}) in Brixius (1987, ASABE D497.7):
+0.76–0.88 for mobility numbers 20–80, and the classes here span 0.6–0.9.  A slip range of a few
+per cent seldom shows where the curve levels off; without the prior an S-shaped or nearly linear
+stretch leaves a unbounded.  Where the data do show it, the prior (σ 0.15) hardly moves it; its
+weight is in the covariance, so the interval of a says how much is prior."""
+S_INF = 50.0
+"""Slip at which the prior on a enters the fit [-]: every form equals its a there (e^{−2·50} ≈ 0)."""
 """Grid of k of the variable-projection start."""
 
 
@@ -473,7 +490,11 @@ def _grid_start(form: str, s: NDArray[np.float64], mu: NDArray[np.float64], w: N
         b1 = (gjj * h[i] - gij * h[j]) / det
         b2 = (gii * h[j] - gij * h[i]) / det
         sse = mm - (b1 * h[i] + b2 * h[j])
-    bad = ~(det > 1e-9 * gii * gjj) | (b1 < 0) | (b2 < 0)
+        a_ = b1 + b2
+        p_ = b1 / a_
+    # a > 0, P_MIN ≤ p ≤ P_MAX, and μ'(0) = b1 k_i + b2 k_j ≥ 0 (no pull against the slip)
+    bad = (~(det > 1e-9 * gii * gjj) | ~(a_ > 0) | (p_ < P_MIN) | (p_ > P_MAX)
+           | (b1 * K_GRID[i] + b2 * K_GRID[j] < 0))
     sse[bad] = np.inf
     q = int(np.argmin(sse))
     if not np.isfinite(sse[q]):
@@ -485,7 +506,7 @@ def _grid_start(form: str, s: NDArray[np.float64], mu: NDArray[np.float64], w: N
 _BOUNDS = {
     "exp1": (np.array([1e-3, -K_MAX]), np.array([3.0, -K_MIN])),
     "exp1_offset": (np.array([-0.1, 1e-3, -K_MAX]), np.array([0.3, 3.0, -K_MIN])),
-    "eq14": (np.array([1e-3, 0.0, -K_MAX, -K_MAX]), np.array([3.0, 1.0, -K_MIN, -K_MIN])),
+    "eq14": (np.array([1e-3, P_MIN, -K_MAX, -K_MAX]), np.array([3.0, P_MAX, -K_MIN, -K_MIN])),
 }
 
 
@@ -528,8 +549,12 @@ def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: ND
                 lam *= 10.0
                 continue
             cand = np.clip(th + step, lo, hi)
-            if form == "eq14" and cand[2] > 1.3 * cand[3]:          # α1 ≤ 1.3 α2: distinct exponents
-                cand[2] = 1.3 * cand[3]
+            if form == "eq14":
+                if cand[2] > 1.3 * cand[3]:                         # α1 ≤ 1.3 α2: distinct exponents
+                    cand[2] = 1.3 * cand[3]
+                if cand[1] * cand[2] + (1.0 - cand[1]) * cand[3] > 0:   # μ'(0) < 0: not a traction curve
+                    lam *= 10.0
+                    continue
             fc, Jc = _model(form, cand, s)
             rc = mu - fc
             val = float((w * rc * rc).sum())
@@ -546,12 +571,15 @@ def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: ND
 
 def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: float = 2.0,
               sigma_s_floor: float = 0.002, sigma_mu_floor: float = 0.002, bic_margin: float = 6.0,
-              max_rel_sigma_a: float = 0.3, forms: Sequence[str] = ("exp1", "exp1_offset", "eq14")
-              ) -> CurveFit | None:
+              max_rel_sigma_a: float = 0.3, forms: Sequence[str] = ("exp1", "exp1_offset", "eq14"),
+              prior_a: tuple[float, float] | None = PRIOR_A, test_level: float = 0.01) -> CurveFit | None:
     """Fit the candidates to one segment's bins and select (see the section comment above).
 
     Returns None with fewer than 3 usable bins.  ``sigma_s_floor``, ``sigma_mu_floor``: floors of
     the within-bin standard deviations of ŝ and μ̂ [-] (a bin of identical samples is not exact).
+    ``prior_a``: (mean, standard deviation) of the prior on the asymptote a [-] (None: none).
+    ``test_level``: a free shape replaces the best class only if an F test of its extra parameters
+    rejects the class at this level (and its BIC is ``bic_margin`` lower).
     """
     s, mu, vs, vm, W = bins.means(min_bin_weight)
     n = s.size
@@ -560,24 +588,36 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
     var_s = np.maximum(vs, sigma_s_floor ** 2) / W              # variance of the bin means
     var_m = np.maximum(vm, sigma_mu_floor ** 2) / W
     s_range = (float(s.min()), float(s.max()))
+    if prior_a is not None:
+        # the prior on a as one more observation at s → ∞, where every form equals its a
+        s = np.append(s, S_INF)
+        mu = np.append(mu, prior_a[0])
+        var_s = np.append(var_s, 0.0)
+        var_m = np.append(var_m, prior_a[1] ** 2)
 
     def bic(sse: float, m: int) -> float:
         return n * math.log(max(sse, 1e-300) / n) + m * math.log(n)
 
     slope = np.array([c.dg(s) for c in classes]).mean(axis=0) * float((mu / np.maximum(classes[0].g(s), 1e-9)).mean())
-    result: dict[str, tuple[MuCurve, float]] = {}
+    result: dict[str, tuple[MuCurve, float, float]] = {}        # (curve, BIC, data SSE)
+
+    def data_sse(fn: NDArray[np.float64], w: NDArray[np.float64]) -> float:
+        r = mu[:n] - fn[:n]
+        return float((w[:n] * r * r).sum())
+
     for final in (False, True):
         # first pass: grid solutions only, for the slope of the effective variance; second: refined
         w = 1.0 / (var_m + slope * slope * var_s)
         result = {}
-        for c in classes:
-            g = c.g(s)
-            den = float((w * g * g).sum())
-            a = float((w * g * mu).sum()) / den
-            r = mu - a * g
-            sse = float((w * r * r).sum())
+        for c in classes:                                        # a is identified: no prior
+            g = c.g(s[:n])
+            wd = w[:n]
+            den = float((wd * g * g).sum())
+            a = float((wd * g * mu[:n]).sum()) / den
+            r = mu[:n] - a * g
+            sse = float((wd * r * r).sum())
             chi = max(1.0, sse / max(n - 1, 1))
-            result[f"class:{c.name}"] = (MuCurve.from_class(c, a, chi / den), bic(sse, 1))
+            result[f"class:{c.name}"] = (MuCurve.from_class(c, a, chi / den), bic(sse, 1), sse)
         for form in forms:
             m = len(CURVE_FORMS[form])
             if n <= m + 1:
@@ -586,25 +626,34 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
             if start is None:
                 continue
             if not final:
-                result[form] = (MuCurve(form, start[0], np.full((m, m), np.nan), f"shape:{form}"), bic(start[1], m))
+                cv = MuCurve(form, start[0], np.full((m, m), np.nan), f"shape:{form}")
+                sse = data_sse(cv.mu(s), w)
+                result[form] = (cv, bic(sse, m), sse)
                 continue
-            th, sse, J = _refine(form, start[0], s, mu, w)
+            th, sse_all, J = _refine(form, start[0], s, mu, w)
             try:
-                C = np.linalg.inv(J.T @ (J * w[:, None])) * max(1.0, sse / (n - m))
+                C = np.linalg.inv(J.T @ (J * w[:, None])) * max(1.0, sse_all / (n - m))
             except np.linalg.LinAlgError:
                 continue
             cv = MuCurve(form, tuple(float(x) for x in th), C, f"shape:{form}", s_range=s_range)
             if not _well_posed(cv, max_rel_sigma_a):
                 continue
-            result[form] = (cv, bic(sse, m))
+            sse = data_sse(cv.mu(s), w)
+            result[form] = (cv, bic(sse, m), sse)
         best = min(result.values(), key=lambda x: x[1])[0]
         slope = best.dmu_ds(s)
+        slope[n:] = 0.0                                          # the prior's observation has no slip error
     cls_best = min((v for k, v in result.items() if k.startswith("class:")), key=lambda x: x[1])
     free = [v for k, v in result.items() if not k.startswith("class:")]
     chosen = cls_best[0]
     if free:
         f_best = min(free, key=lambda x: x[1])
-        if f_best[1] + bic_margin < cls_best[1]:
+        m_f = len(f_best[0].theta)
+        sse_c, sse_f = cls_best[2], f_best[2]
+        # the class must be rejected as well: F test of the extra parameters at ``test_level``
+        # (BIC alone is too lenient with a dozen bins, and eq. 14 contains every class)
+        F = ((sse_c - sse_f) / (m_f - 1)) / (sse_f / max(n - m_f, 1))
+        if f_best[1] + bic_margin < cls_best[1] and F > f_dist.ppf(1.0 - test_level, m_f - 1, max(n - m_f, 1)):
             chosen = f_best[0]
     return CurveFit(chosen, cls_best[0], {k: v[1] for k, v in result.items()}, n, s_range)
 
@@ -619,7 +668,8 @@ def _well_posed(c: MuCurve, max_rel_sigma_a: float) -> bool:
         return False
     if c.form == "eq14":
         _, p, a1, a2 = c.theta
-        if not (0.02 < p < 0.98 and a1 < 1.3 * a2 < 0):
+        if not (P_MIN <= p <= P_MAX and abs(p) > 0.02 and abs(p - 1.0) > 0.02 and a1 <= 1.3 * a2 < 0
+                and p * a1 + (1.0 - p) * a2 <= 0):
             return False
     if c.form == "exp1_offset" and not (-0.1 <= c.theta[0] < c.theta[1]):
         return False

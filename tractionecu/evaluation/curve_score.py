@@ -12,7 +12,7 @@ curve per step on one of two paths (:mod:`tractionecu.estimation.curve`):
 
 The path is the one most of the soil's samples report.  The true curve is the soil's class curve
 from ``truth.toml`` (``soil_class``, ``a``), or, for a truth model whose μ(s) is none of the classes,
-its tabulated curve ``curve_s`` / ``curve_mu`` (same file), interpolated; both are compared on the
+its tabulated curve ``mu_curve_s`` / ``mu_curve`` (same file), interpolated; both are compared on the
 same slip grid.
 """
 
@@ -29,9 +29,9 @@ from ..model.mucurve import SOIL_CLASSES
 
 def true_curve(info: dict[str, Any], s_grid: NDArray[np.float64]) -> NDArray[np.float64]:
     """True μ(s) [-] of one soil of ``truth.toml`` on ``s_grid`` (tabulated curve if given, else its class)."""
-    if "curve_s" in info and "curve_mu" in info:
-        s = np.asarray(info["curve_s"], dtype=float)
-        mu = np.asarray(info["curve_mu"], dtype=float)
+    if "mu_curve_s" in info and "mu_curve" in info:
+        s = np.asarray(info["mu_curve_s"], dtype=float)
+        mu = np.asarray(info["mu_curve"], dtype=float)
         order = np.argsort(s)
         return np.interp(s_grid, s[order], mu[order])
     return SOIL_CLASSES[info["soil_class"]].mu(s_grid, info["a"])

@@ -64,7 +64,7 @@ class Truth:
     slip: NDArray[np.float64]
     v: NDArray[np.float64]
     soils: dict[str, dict[str, Any]]
-    """name -> {"soil_class": str, "a": float, "rho_s": float} (and ``curve_s``, ``curve_mu``: a
+    """name -> {"soil_class": str, "a": float, "rho_s": float} (and ``mu_curve_s``, ``mu_curve``: a
     tabulated true μ(s) for a truth model whose curve is none of the classes)."""
 
 
@@ -88,7 +88,7 @@ def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Tru
         data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
         for s in data.get("soils", []):
             soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"]),
-                                **{k: s[k] for k in ("curve_s", "curve_mu") if k in s}}   # tabulated true μ(s)
+                                **{k: s[k] for k in ("mu_curve_s", "mu_curve") if k in s}}   # tabulated true μ(s)
     return Truth(
         t=c["t"], mu=np.column_stack([c[f"mu_{w}"] for w in WHEELS]), rho_s=c["rho_s"], a=c["a"],
         soil_id=c["soil_id"].astype(np.int64), soil_name=names,
