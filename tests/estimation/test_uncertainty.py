@@ -115,6 +115,7 @@ def test_reporting_leaves_the_filter_alone(biased_run):
     f, e = b[-1], a[-1]
     assert np.allclose(f.sigma_mu, np.sqrt(f.P_diag[5:9])) and f.sigma_rho_s == pytest.approx(math.sqrt(f.P_diag[9]))
     assert (e.sigma_mu > f.sigma_mu).all() and e.sigma_rho_s > f.sigma_rho_s
+    assert np.allclose(e.sigma_mu ** 2, e.P_diag[5:9] + e.sys_var[:4])
     assert not f.status & UNVERIFIED and e.status & UNVERIFIED
 
 

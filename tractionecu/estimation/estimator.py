@@ -161,12 +161,9 @@ class Estimate:
     lost_since: float = math.nan
     """On the step the filter is declared lost: the time the lost period began [s] (estimates
     since then were not trustworthy, whatever they said); NaN on every other step."""
-    sigma_mu: Any = dataclasses.field(default_factory=lambda: np.full(4, np.nan))
-    """Reported standard uncertainty of μ per wheel (4,) [-]: the filter's √P combined with the
-    systematic part from the sensor tolerances (:mod:`.uncertainty`); the band μ ± 2σ is meant to hold
-    the truth 95 % of the time.  ``P_diag`` stays the filter's own covariance."""
-    sigma_rho_s: float = math.nan
-    """Reported standard uncertainty of ρ_s [-] (as ``sigma_mu``)."""
+    sys_var: Any = None
+    """Systematic variances (u_μ1..4², u_ρs²) (5,) from the sensor tolerances (:mod:`.uncertainty`), shared
+    between estimates until they are recomputed (adaptation period); None: none."""
     radius_scale: Any = dataclasses.field(default_factory=lambda: np.full(2, np.nan))
     """Rolling-radius scale r_true / r_d per axle (front, rear) (2,) [-] from the self-calibration
     (:mod:`.calibration`); NaN until estimated."""
@@ -176,6 +173,20 @@ class Estimate:
     """Scale the filter uses per axle (2,) [-]: 1 until the calibration's interval is tight enough."""
     curve_state: Any = None
     """The curve identification (:class:`~.curve.CurveState`) this estimate reports ``a`` from."""
+
+    @property
+    def sigma_mu(self) -> NDArray[np.float64]:
+        """Reported standard uncertainty of μ per wheel (4,) [-]: the filter's √P combined with the
+        systematic part from the sensor tolerances, √(P_μi + u_μi²) (:mod:`.uncertainty`); the band
+        μ ± 2σ is meant to hold the truth 95 % of the time.  ``P_diag`` stays the filter's own covariance."""
+        p = self.P_diag[5:9]
+        return np.sqrt(p if self.sys_var is None else p + self.sys_var[:4])
+
+    @property
+    def sigma_rho_s(self) -> float:
+        """Reported standard uncertainty of ρ_s [-], √(P_ρs + u_ρs²) (as ``sigma_mu``)."""
+        p = float(self.P_diag[9])
+        return math.sqrt(p if self.sys_var is None else p + float(self.sys_var[4]))
 
     @property
     def curve(self) -> Any:
@@ -281,7 +292,7 @@ class Estimator:
         self._fz = np.zeros(4)
         self._rd = np.full(4, self.vehicle.r0_m)
         # reported uncertainty (.uncertainty) and rolling-radius calibration (.calibration)
-        self._sys_var = np.zeros(5)
+        self._sys_var: NDArray[np.float64] | None = None
         self._sys_flag = False
         self._r_lat = 0.0
         self._cal = RadiusCalibration(cfg.calibration) if cfg.calibration.enabled else None
@@ -562,8 +573,7 @@ class Estimator:
                 self._f = self._fuzzy.factor(abs(self._dyn.accel), abs(self._dyn.torque_rate))
             self._adapt_mu = self._f * float(self._A[IX_MU].mean())
             self._Qbase = None
-            if self._unc is not None:
-                self._systematic(ukf)
+            self._systematic(ukf)
         counters["chol_repairs"] = ukf.chol_repairs
         e = self._estimate(t, status, x, updated)
         if self._cal is not None and v_meas is not None and omega is not None:
@@ -572,19 +582,22 @@ class Estimator:
 
     # ------------------------------------------------------------------ uncertainty, radius calibration
     def _systematic(self, ukf: UnscentedFilter) -> None:
-        """Systematic variances of μ and ρ_s, the GNSS latency term of R_v and the UNVERIFIED test
-        (:mod:`.uncertainty`), at the adaptation period."""
+        """Systematic variances of μ and ρ_s (the estimates' ``sys_var``), the GNSS latency term of R_v
+        and the UNVERIFIED test (:mod:`.uncertainty`), at the adaptation period."""
         unc = self._unc
+        if unc is None:
+            return
+        pd = ukf.P.diagonal()[5:10]
         u = self._u
         _, _, rdf, rdr = self.model.load_floats(float(u[4]))
         ur = self._cal.radius_sigma(unc.u_r) if self._cal is not None else (unc.u_r, unc.u_r)
         vm, vr = unc.variances(u[:4].tolist(), float(u[4]), float(u[5]), rdf * self._kf, rdr * self._kr, *ur)
-        sv = self._sys_var
-        sv[:4] = vm
-        sv[4] = vr
+        vm.append(vr)
+        sv = np.array(vm)
         if not np.isfinite(sv).all():
             sv[:] = 0.0
-        self._sys_flag = bool((sv > ukf.P.diagonal()[5:10]).any())
+        self._sys_var = sv                 # a new array: the estimates already made keep theirs
+        self._sys_flag = bool((sv > pd).any())
         self._r_lat = unc.gnss_latency_var(self._dyn.accel)
 
     def _calibrate(self, t: float, v_meas: float, wl: list[float], e: Estimate) -> None:
@@ -660,7 +673,7 @@ class Estimator:
             rad = self._rad
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
                             nan4.copy(), np.full(N_STATE, np.nan), math.nan, self._f, status | NOT_CONVERGED, False,
-                            0, self._curve_state.class_index, math.nan, nan4.copy(), math.nan,
+                            0, self._curve_state.class_index, math.nan, None,
                             rad[0], rad[1], rad[2])
         c_mu = cfg.conv_sigma_mu ** 2
         c_rho = cfg.conv_sigma_rho ** 2
@@ -702,10 +715,9 @@ class Estimator:
             self._held = (rho, s)
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        sig = np.sqrt(pd[5:10] + self._sys_var)
         if self._sys_flag:
             status |= UNVERIFIED
         rad = self._rad
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index, math.nan,
-                        sig[:4], float(sig[4]), rad[0], rad[1], rad[2], cs)
+                        self._sys_var, rad[0], rad[1], rad[2], cs)
