@@ -116,9 +116,10 @@ def missing_report(rec: Any, missing: list[str]) -> list[str]:
 
 def profile_note(rec: Any) -> list[str]:
     """A line naming the hub needs the recording lacks though replay runs (the estimator flags those steps)."""
-    from ..pipeline.signals import ESTIMATED_PROFILES, profile_status
+    from ..pipeline.replay import machine_of
+    from ..pipeline.signals import estimator_profile, profile_status
 
-    run_as = ESTIMATED_PROFILES[0]
+    run_as = estimator_profile(machine_of(rec)[0])       # hub, or mechanical for an engine-driven [drivetrain]
     absent = [need.what for need, sig in profile_status(rec)[run_as] if sig is None]
     if not absent:
         return []
