@@ -52,6 +52,11 @@ MAX_EFFECTS = 4
 """Most effects the forward stepwise augmentation adds to the nominal model."""
 TRADE_OFF_CORR = 0.8
 """Two fitted parameters of different effects whose estimates correlate beyond this trade off (ambiguous pair)."""
+CHARACTERISTIC = {"relaxation": ("sigma_m", 0.05, 3.0), "drivetrain": ("eta", 0.80, 1.0)}
+"""Effects every machine has, with the range of a healthy one: tyre relaxation lengths of
+agricultural tyres (about 0.3–2 m, a fraction to a few rolling radii) and drivetrain efficiencies
+(0.8–0.95 mechanical transmissions, 0.9–0.97 hub drives).  Found at such a size they are reported as
+characteristics of the machine (like the load transfer of the nominal model), not as faults."""
 GENERALISES = {"tyre_pressure": "wheel_radius"}
 """Effect → the simpler effect whose term it contains (and explains as one of its causes)."""
 POOL = 6
@@ -271,6 +276,11 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
             ambiguous = [best.name] + rivals
         else:
             verdict, effect = "effect", best.name
+        # What every machine has, at a healthy size, is characterised, not a fault (the verdict names
+        # the first fault the augmentation chose, or none).
+        faults = [n for n in chosen if not _healthy(n, joint)]
+        if verdict == "effect" and effect not in faults:
+            verdict, effect = ("effect", faults[0]) if faults else ("none", None)
     # Locate: the channel that disagrees most (the winner's strongest channel, else the worst by LB).
     lead = None
     focus = detected[0] if detected else None
@@ -300,15 +310,28 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         d.statement += (f"  A possible cause: {CANDIDATES[c].plain} ({ps}) explains it as well (held-out score "
                         f"{cr.score:.1f}); the recording cannot tell the cause from the term.")
         d.notes.append(f"{c} fits as well as {GENERALISES[c]} (its term); named: {GENERALISES[c]}")
-    if len([e for e in d.effects if e["kind"] in ("effect", "sensor_fault") and e.get("named")]) > 1:
-        d.statement += "  Several effects at once: " + "; ".join(
-            _effect_words(e) for e in d.effects if e.get("named")) + "."
+    named = [e for e in d.effects if e["kind"] in ("effect", "sensor_fault") and e.get("named")]
+    if len(named) > 1:
+        d.statement += "  Several effects at once: " + "; ".join(_effect_words(e) for e in named) + "."
+    chars = [e for e in d.effects if e["kind"] == "characteristic"]
+    if chars:
+        d.statement += ("  Characteristics of this machine (what every machine has, at a healthy size; not "
+                        "faults): " + "; ".join(_effect_words(e) for e in chars) + ".")
     from .openworld import open_world
 
     d.open_world = open_world(d)
     if d.open_world.get("statement"):
         d.statement += "  " + d.open_world["statement"]
     return d
+
+
+def _healthy(name: str, f: FitResult | None) -> bool:
+    """True for a characteristic effect (:data:`CHARACTERISTIC`) whose fitted value is in the healthy range."""
+    if name not in CHARACTERISTIC or f is None:
+        return False
+    key, lo, hi = CHARACTERISTIC[name]
+    v = (f.effects.get(name) or f.params).get(key, math.nan)
+    return bool(lo <= v <= hi)
 
 
 def _white(problem: Problem, ho: HeldOut) -> bool:
@@ -423,8 +446,10 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
                     params[k] = {"value": v, "ci95": None, "unit": units.get(k, ""), "held": True}
             amb = [{"with": (b if a == name else a), "correlation": c} for (a, b), c in corr_pairs.items()
                    if name in (a, b) and abs(c) >= TRADE_OFF_CORR]
-            out.append({"name": name, "kind": "sensor_fault" if name in SENSOR_FAULTS else "effect",
-                        "named": d.verdict == "effect" or name != chosen[0],
+            kind = ("characteristic" if _healthy(name, jf) else
+                    "sensor_fault" if name in SENSOR_FAULTS else "effect")
+            out.append({"name": name, "kind": kind,
+                        "named": d.verdict != "ambiguous" or name != chosen[0],
                         "rank": rank + 1, "score": steps.get(name, {}).get("score"),
                         "formula": LIBRARY[name].formula, "plain": CANDIDATES[name].plain,
                         "parameters": params, "trades_off_with": amb})

@@ -467,7 +467,7 @@ def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
         with np.errstate(invalid="ignore"):
             do = np.max(np.nan_to_num(np.abs(np.diff(oth, axis=0, prepend=np.nan)), nan=0.0), axis=1)
         held = (d == 0.0) & (do > 0.0)
-        held = held | np.concatenate([held[1:], [False]])  # the first sample of the held run too
+        held = (held | np.concatenate([held[1:], [False]])) & ~zero   # the first sample of the run too
         for kind, mask in (("missing", missing), ("dropout", zero), ("hold", held)):
             for a, b in runs(mask & moving):
                 if b - a < kmin:

@@ -96,11 +96,23 @@ def _why_unusable(fr: Frame, ok: np.ndarray) -> str:
     return reason
 
 
-def _model(x, cls_inv: _CurveInverse, mu, vw, with_eps: bool):
-    a = x[0]
-    eps = x[1] if with_eps else 0.0
-    s = cls_inv(mu / a)
-    r_scale = float(fx.wheel_radius_true(1.0, eps))
+TERM_BOUNDS = {"a": (0.1, 2.0, 0.7), "eps": (-0.1, 0.1, 0.0), "mu0": (-0.5, 1.0, 0.0), "p_aux": (-5e4, 2e5, 0.0)}
+"""(lower, upper, start) of the reduced model's parameters: curve parameter a [-], speed-ratio
+offset ε [-], zero-slip traction-ratio offset μ_0 [-] (``zero_slip_offset``) and auxiliary power
+P_aux [W] (``aux_power``)."""
+TERM_SCALE = {"a": 0.1, "eps": 0.01, "mu0": 0.05, "p_aux": 5000.0}
+A_PLAUSIBLE = (0.3, 1.2)
+"""Physical range of the curve parameter a on agricultural soils [-] (peak traction ratios of 0.3–1.1,
+ASABE D497); a fit outside it means a term is missing."""
+
+
+def _model(x, cls_inv: _CurveInverse, mu, vw, terms, mg: float = 1.0):
+    """v̂_g = v_w (1 + ε)(1 − g⁻¹(μ_soil/a)),  μ_soil = μ − μ_0 − P_aux/(v_w m g); ``terms`` names the
+    parameters after a (``eps``, ``mu0``, ``p_aux``); ``mg`` the weight m g [N]."""
+    p = dict(zip(("a",) + tuple(terms), x))
+    mu_soil = mu - p.get("mu0", 0.0) - p.get("p_aux", 0.0) / (vw * mg)
+    s = cls_inv(mu_soil / p["a"])
+    r_scale = float(fx.wheel_radius_true(1.0, p.get("eps", 0.0)))
     return vw * r_scale * (1.0 - s)
 
 
@@ -126,32 +138,27 @@ def diagnose_reduced(fr: Frame) -> dict:
     mu = F / (veh.mass_kg * G)
     fold = (np.floor(t / FOLD_BLOCK_S).astype(int) % 2)
 
-    def fit(rows, inv, with_eps):
-        x0 = [0.7, 0.0] if with_eps else [0.7]
-        lo = [0.1, -0.1] if with_eps else [0.1]
-        hi = [2.0, 0.1] if with_eps else [2.0]
-        res = least_squares(lambda x: _model(x, inv, mu[rows], vw[rows], with_eps) - vg[rows], x0,
-                            bounds=(lo, hi), method="trf")
-        return res
+    mg = veh.mass_kg * G
 
-    # Surface class by least squares of the full slip model on all data.
-    costs = {name: fit(np.ones(t.size, bool), _CurveInverse(cls), True).cost for name, cls in SOIL_CLASSES.items()}
-    cls_name = min(costs, key=costs.get)
-    inv = _CurveInverse(SOIL_CLASSES[cls_name])
+    def fit(rows, inv, terms):
+        names = ("a",) + tuple(terms)
+        x0 = [TERM_BOUNDS[k][2] for k in names]
+        lo = [TERM_BOUNDS[k][0] for k in names]
+        hi = [TERM_BOUNDS[k][1] for k in names]
+        return least_squares(lambda x: _model(x, inv, mu[rows], vw[rows], terms, mg) - vg[rows], x0,
+                             bounds=(lo, hi), method="trf", x_scale=[TERM_SCALE[k] for k in names])
 
-    # Held-out: null (no slip), slip model without ε, slip model with ε.
-    sse = {"no_slip": 0.0, "slip": 0.0, "slip_eps": 0.0}
-    resid = {k: np.full(t.size, np.nan) for k in sse}
-    for f in (0, 1):
-        tr, te = fold != f, fold == f
-        r0 = vg[te] - vw[te]
-        resid["no_slip"][te] = r0
-        for key, with_eps in (("slip", False), ("slip_eps", True)):
-            res = fit(tr, inv, with_eps)
-            r = vg[te] - _model(res.x, inv, mu[te], vw[te], with_eps)
-            resid[key][te] = r
-        for k in sse:
-            sse[k] += float(np.nansum(resid[k][te] ** 2))
+    def heldout(inv, terms):
+        """Held-out residual of a model form (None: no slip), two folds of alternating blocks."""
+        r = np.full(t.size, np.nan)
+        for f in (0, 1):
+            tr, te = fold != f, fold == f
+            if terms is None:
+                r[te] = vg[te] - vw[te]
+            else:
+                res_f = fit(tr, inv, terms)
+                r[te] = vg[te] - _model(res_f.x, inv, mu[te], vw[te], terms, mg)
+        return r
 
     def neff(r):
         r = r[np.isfinite(r)]
@@ -161,26 +168,58 @@ def diagnose_reduced(fr: Frame) -> dict:
         rho = max(float(np.dot(rr[1:], rr[:-1]) / np.dot(rr, rr)), 0.0)
         return r.size * (1 - rho) / (1 + rho)
 
-    def llr(a, b):
-        return 0.5 * neff(resid[b]) * math.log(sse[a] / sse[b]) if sse[a] > 0 and sse[b] > 0 else 0.0
+    def llr(r0, r1):
+        s0, s1 = float(np.nansum(r0 ** 2)), float(np.nansum(r1 ** 2))
+        return 0.5 * neff(r1) * math.log(s0 / s1) if s0 > 0 and s1 > 0 else 0.0
 
-    score_slip = llr("no_slip", "slip")
-    score_eps = llr("slip", "slip_eps")
-    # Full fit with ε and HAC intervals.
-    res = fit(np.ones(t.size, bool), inv, True)
+    from .engine import DETECT_LLR
+
+    # Surface class by least squares of the slip model with both offsets on all data.
+    costs = {name: fit(np.ones(t.size, bool), _CurveInverse(cls), ("eps", "mu0")).cost
+             for name, cls in SOIL_CLASSES.items()}
+    cls_name = min(costs, key=costs.get)
+    inv = _CurveInverse(SOIL_CLASSES[cls_name])
+    resid = {"no_slip": heldout(inv, None), "slip": heldout(inv, ()), "slip_eps": heldout(inv, ("eps",))}
+    score_slip = llr(resid["no_slip"], resid["slip"])
+    score_eps = llr(resid["slip"], resid["slip_eps"])
+    terms: tuple[str, ...] = ("eps",) if score_eps > 0 else ()
+    cur = resid["slip_eps"] if terms else resid["slip"]
+    term_scores: dict[str, float] = {}
+    # Forward augmentation by the engine-level terms: the zero-slip traction-ratio offset and an
+    # auxiliary power draw, each kept when it earns DETECT_LLR held out.
+    while True:
+        trials = {}
+        for term in ("mu0", "p_aux"):
+            if term not in terms:
+                r = heldout(inv, terms + (term,))
+                trials[term] = (llr(cur, r), r)
+        if not trials:
+            break
+        best = max(trials, key=lambda k: trials[k][0])
+        for k, v in trials.items():
+            term_scores.setdefault(k, v[0])
+        if trials[best][0] < DETECT_LLR:
+            break
+        term_scores[best] = trials[best][0]
+        terms = terms + (best,)
+        cur = trials[best][1]
+    resid["final"] = cur
+    names = ("a",) + (terms if "eps" in terms else ("eps",) + terms)
+    res = fit(np.ones(t.size, bool), inv, names[1:])
     J = res.jac
     e = res.fun
     A = J.T @ J
     S = hac_meat(J * e[:, None])
     cov = np.linalg.pinv(A) @ S @ np.linalg.pinv(A)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    a_hat, eps_hat = float(res.x[0]), float(res.x[1])
-    ci_a = [a_hat - 1.96 * se[0], a_hat + 1.96 * se[0]]
-    ci_e = [eps_hat - 1.96 * se[1], eps_hat + 1.96 * se[1]]
-    from .engine import DETECT_LLR
+    est = {k: (float(res.x[j]), [float(res.x[j] - 1.96 * se[j]), float(res.x[j] + 1.96 * se[j])])
+           for j, k in enumerate(names)}
+    a_hat, ci_a = est["a"]
+    eps_hat, ci_e = est["eps"]
+    sse = {k: float(np.nansum(v ** 2)) for k, v in resid.items()}
 
     slip_found = score_slip >= DETECT_LLR
-    after = "slip_eps" if sse["slip_eps"] < sse["slip"] else "slip"   # the offset must earn its place held out
+    after = "final"
     s_meas = 1.0 - vg / vw
     load = mu > np.percentile(mu, 75)
     light = mu < np.percentile(mu, 25)
@@ -195,7 +234,43 @@ def diagnose_reduced(fr: Frame) -> dict:
                 f"{cls_name}) fits with a = {a_hat:.3f} [{ci_a[0]:.3f}, {ci_a[1]:.3f}] "
                 f"(held-out score {score_slip:.1f} against no slip).") if slip_found else (
                 "No significant wheel slip: the GNSS speed follows the wheel-based speed.")
-    statement = (slip_txt + "  No effect from the library can be tested with these signals (engine torque and "
+    from ..model.effects import ENGINE_TERMS
+
+    words = {"mu0": "zero_slip_offset", "p_aux": "aux_power"}
+    effects = []
+    for term in terms:
+        if term not in words:
+            continue
+        name = words[term]
+        spec = ENGINE_TERMS[name].params[0]
+        v, ci = est[term]
+        effects.append({"name": name, "kind": "engine_term", "named": True, "score": term_scores.get(term),
+                        "formula": ENGINE_TERMS[name].formula, "plain": ENGINE_TERMS[name].doc,
+                        "parameters": {spec.name: {"value": v, "ci95": ci, "unit": spec.unit}},
+                        "trades_off_with": []})
+    # Trade-offs among the fitted parameters (a with μ_0 or P_aux).
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    corr_m = cov / np.outer(sd, sd)
+    for e_ in effects:
+        term = next(k for k, w in words.items() if w == e_["name"])
+        j = names.index(term)
+        for i, k in enumerate(names):
+            if i != j and abs(corr_m[i, j]) >= 0.8:
+                e_["trades_off_with"].append({"with": k, "correlation": float(corr_m[i, j])})
+    term_txt = ""
+    if effects:
+        term_txt = "  " + "; ".join(
+            f"{e_['plain'].split(':')[0]} ({e_['name']}): {e_['formula']}, "
+            + ", ".join(f"{k} = {p_['value']:.3g} [{p_['ci95'][0]:.3g}, {p_['ci95'][1]:.3g}] {p_['unit']}".rstrip()
+                        for k, p_ in e_["parameters"].items())
+            + f" (held-out score {e_['score']:.1f})" for e_ in effects) + "."
+    plaus = []
+    if slip_found and not (A_PLAUSIBLE[0] <= a_hat <= A_PLAUSIBLE[1]):
+        plaus.append(f"a = {a_hat:.2f} is outside the physical range {A_PLAUSIBLE[0]}–{A_PLAUSIBLE[1]} of "
+                     "agricultural soils: a term is missing (searched: zero-slip offset, auxiliary power; "
+                     f"held-out scores {', '.join(f'{words[k]} {v:.1f}' for k, v in term_scores.items())})")
+    statement = (slip_txt + term_txt + ("  Implausible: " + "; ".join(plaus) + "." if plaus else "")
+                 + "  No effect from the library can be tested with these signals (engine torque and "
                  "speed, one wheel-based speed, GNSS; no per-wheel data, no draft): see the candidates' reasons.")
     signals = {"ground_speed": {
         "signal": "GNSS speed against the wheel-based speed (model without slip) and with the μ(s) curve",
@@ -215,8 +290,17 @@ def diagnose_reduced(fr: Frame) -> dict:
         "slip_model": {"detected": bool(slip_found), "score": score_slip, "soil_class": cls_name,
                        "a": {"value": a_hat, "ci95": ci_a, "unit": "-"},
                        "epsilon": {"value": eps_hat, "ci95": ci_e, "unit": "-", "held_out_score": score_eps,
-                                   "used": after == "slip_eps"},
-                       "formula": "v_g = v_w (1 + ε)(1 − g⁻¹(μ/a)),  μ = T_e ω_e / (v_w m g)"},
+                                   "used": "eps" in terms},
+                       "terms": {words.get(k, k): {"value": est[k][0], "ci95": est[k][1], "held_out_score":
+                                                   term_scores.get(k)} for k in names if k in words},
+                       "term_scores": {words[k]: v for k, v in term_scores.items()},
+                       "plausible": not plaus,
+                       "formula": "v_g = v_w (1 + ε)(1 − g⁻¹(μ_soil/a)),  μ_soil = μ − μ_0 − P_aux/(v_w m g),  "
+                                  "μ = T_e ω_e / (v_w m g)"},
+        "effects": ([{"name": "slip_under_load", "kind": "slip", "named": bool(slip_found), "score": score_slip,
+                      "formula": "μ(s) = a g(s) (paper eq. 14)", "plain": "wheel slip under load",
+                      "parameters": {"a": {"value": a_hat, "ci95": ci_a, "unit": "-"}}, "trades_off_with": []}]
+                    if slip_found else []) + effects,
         "signals": signals,
         "locate": {"lead_channel": "ground_speed", "change_points": [], "regimes": [], "signature_correlation": corr},
         "grade_check": {}, "detect_threshold": DETECT_LLR, "notes": list(fr.notes) + [

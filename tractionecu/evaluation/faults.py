@@ -116,3 +116,96 @@ def cut(src: Path, dst: Path, t0: float, t1: float) -> Path:
         out.append(line)
     (dst / "gps.nmea").write_text("\n".join(out) + "\n", encoding="ascii")
     return dst
+
+
+# --------------------------------------------------------------------------- sensor faults
+# The measuring chain's faults of the effect library (``tractionecu.model.effects.SENSOR_FAULTS``),
+# written the way the faulty sensor would put them on the bus.  Times ``t0``/``t1`` are seconds
+# since the first CAN frame.
+
+WHEEL_ORDER = ("FL", "FR", "RL", "RR")
+
+
+def _t_start(src: Path) -> float:
+    for fr in read_candump(src / "can.log"):
+        return float(fr.t)
+    return 0.0
+
+
+def torque_gain(src: Path, dst: Path, gains: dict[str, float]) -> Path:
+    """Drive torques read (1 + k) times the true ones, per wheel: ``gains`` maps FL/FR/RL/RR to k
+    (both wheels of an axle for the library's per-axle fault; one wheel for an out-of-library one)."""
+    def edit(t, name, v):
+        if name != "TECU_DriveTorques":
+            return v
+        return {k: (x * (1.0 + gains.get(k.rsplit("_", 1)[-1], 0.0)) if k.startswith("DriveTorque_") else x)
+                for k, x in v.items()}
+    return rewrite_can(src, dst, edit)
+
+
+def torque_offset(src: Path, dst: Path, offsets_nm: dict[str, float]) -> Path:
+    """Drive torques read b [N·m] above the true ones, per wheel (``offsets_nm``: FL/FR/RL/RR → b)."""
+    def edit(t, name, v):
+        if name != "TECU_DriveTorques":
+            return v
+        return {k: (x + offsets_nm.get(k.rsplit("_", 1)[-1], 0.0) if k.startswith("DriveTorque_") else x)
+                for k, x in v.items()}
+    return rewrite_can(src, dst, edit)
+
+
+def signal_offset(src: Path, dst: Path, message: str, signal: str,
+                  offset: Callable[[float], float]) -> Path:
+    """``signal`` of ``message`` reads ``offset(t)`` above the truth (t since the first frame [s]):
+    a constant offset, a linear drift b_0 + b_1 t, or any time-varying error."""
+    t0 = _t_start(src)
+
+    def edit(t, name, v):
+        if name != message or signal not in v:
+            return v
+        out = dict(v)
+        out[signal] = v[signal] + offset(t - t0)
+        return out
+    return rewrite_can(src, dst, edit)
+
+
+def draft_offset(src: Path, dst: Path, b0_n: float, b1_npm: float = 0.0) -> Path:
+    """Draft sensor offset and drift: F_dx,meas = F_dx + b_0 + b_1 t (b_1 per minute)."""
+    return signal_offset(src, dst, "RearHitchStatus", "DraftForce", lambda t: b0_n + b1_npm * t / 60.0)
+
+
+def axle_load_offset(src: Path, dst: Path, b0_n: float, b1_npm: float = 0.0) -> Path:
+    """Front-axle load sensor offset and drift: F_zf,meas = F_zf + b_0 + b_1 t (b_1 per minute)."""
+    return signal_offset(src, dst, "TECU_AxleLoad", "FrontAxleLoad", lambda t: b0_n + b1_npm * t / 60.0)
+
+
+def wheel_speed_hold(src: Path, dst: Path, wheel: str, t0: float, duration_s: float, kind: str = "hold") -> Path:
+    """One wheel-speed sensor holds its last value (``kind="hold"``) or reads 0 (``"dropout"``) for
+    ``duration_s`` from ``t0`` [s since the first frame]."""
+    start = _t_start(src)
+    key = f"WheelSpeed_{wheel}"
+    held: list[float] = []
+
+    def edit(t, name, v):
+        if name != "TECU_WheelSpeeds":
+            return v
+        if not (t0 <= t - start < t0 + duration_s):
+            held[:] = [v[key]]
+            return v
+        out = dict(v)
+        out[key] = 0.0 if kind == "dropout" else (held[0] if held else v[key])
+        return out
+    return rewrite_can(src, dst, edit)
+
+
+def clock_skew(src: Path, dst: Path, offset_s: float, rate_ppm: float = 0.0) -> Path:
+    """The CAN logger's clock runs ahead of GNSS time by δ(t) = δ_0 + κ t: every CAN frame's time
+    stamp moves by δ (the GNSS sentences keep theirs)."""
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(src, dst)
+    frames = list(read_candump(src / "can.log"))
+    t0 = float(frames[0].t) if frames else 0.0
+    out = [(fr.t + offset_s + rate_ppm * 1e-6 * (fr.t - t0), fr.channel, fr.can_id, fr.is_extended, fr.data)
+           for fr in frames]
+    write_candump(dst / "can.log", out)
+    return dst
