@@ -215,6 +215,9 @@ def simulate_physical(scn):
     dtr = ps.drivetrain
     mech = dtr.kind == "mechanical"
     L, track = veh.wheelbase_m, veh.track_width_m
+    if scn.effects:
+        raise ValueError(f"scenario {scn.name}: effects ({', '.join(scn.effects)}) belong to the paper truth model; "
+                         "the physical model has its own physics")
     if len(ps.soils) != len(fld.regions):
         raise ValueError(f"scenario {scn.name}: {len(ps.soils)} physical soils for {len(fld.regions)} field regions")
 
