@@ -60,7 +60,8 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     values = centred_map_values(gps.t, np.where(lost[:, None], np.nan, arrays["mu"][idx]), arrays["slip"][idx],
                                 arrays["P_diag"][idx, 5:9], arrays["v"][idx],
                                 np.where(lost, np.nan, arrays["rho_s"][idx]),
-                                np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s)
+                                np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s,
+                                curves=None if "curve" not in arrays else [arrays["curve"][i] for i in idx.tolist()])
     offered = arrays["valid"][idx] & inside
     if gps_mask is not None:
         offered &= np.asarray(gps_mask, dtype=bool)

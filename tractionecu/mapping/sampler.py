@@ -59,12 +59,15 @@ def pair_weights(mu: NDArray[np.float64], slip: NDArray[np.float64], var_mu: NDA
 
 def centred_map_values(t: NDArray[np.float64], mu: NDArray[np.float64], slip: NDArray[np.float64],
                        var_mu: NDArray[np.float64], v: NDArray[np.float64], rho_s: NDArray[np.float64],
-                       soil_class: Any, half_window_s: float = DEFAULT_HALF_WINDOW_S) -> dict[str, NDArray[np.float64]]:
+                       soil_class: Any, half_window_s: float = DEFAULT_HALF_WINDOW_S,
+                       curves: Any = None) -> dict[str, NDArray[np.float64]]:
     """Centred-window map values at every sample time t (n,) of a whole run.
 
     ``mu``, ``slip``, ``var_mu`` are (n, 4); ``soil_class`` is a sequence of
     class names (n,).  Returns layers ``a``, ``p``, ``alpha1``, ``alpha2``,
-    ``rho_s``, ``mu`` (n,); ``a`` is NaN where the window holds no usable pair.
+    ``rho_s``, ``mu`` (n,); ``a`` is NaN where the window holds no usable pair.  ``curves`` (n,),
+    the estimator's identified curves: where one is on the shape path with an eq. 14 form, its
+    a, p, α1, α2 are mapped instead (the shape was fitted over its soil segment already).
     """
     t = np.asarray(t, dtype=float)
     n = t.size
@@ -106,11 +109,22 @@ def centred_map_values(t: NDArray[np.float64], mu: NDArray[np.float64], slip: ND
         with np.errstate(divide="ignore", invalid="ignore"):
             a[sel] = np.where(d > 0, num[sel] / d, np.nan)
         p[sel], a1[sel], a2[sel] = cls.p, cls.alpha1, cls.alpha2
+    for j, c in enumerate(curves if curves is not None else ()):
+        if c is not None and _shape_params(c) is not None:
+            a[j], p[j], a1[j], a2[j] = _shape_params(c)  # type: ignore[misc]
     with np.errstate(divide="ignore", invalid="ignore"):
         rho_c = np.where(rw > 0, rsum / rw, np.nan)
         finite = np.isfinite(mu)
         mu_mean = np.where(finite.any(axis=1), np.where(finite, mu, 0.0).sum(axis=1) / finite.sum(axis=1), np.nan)
     return {"a": a, "p": p, "alpha1": a1, "alpha2": a2, "rho_s": rho_c, "mu": mu_mean}
+
+
+def _shape_params(c: Any) -> tuple[float, float, float, float] | None:
+    """(a, p, α1, α2) of an identified curve on the shape path with an eq. 14 form, else None."""
+    if not str(getattr(c, "path", "")).startswith("shape:"):
+        return None
+    vals = (float(c.a), float(c.p), float(c.alpha1), float(c.alpha2))
+    return vals if all(np.isfinite(vals)) else None
 
 
 @dataclass
@@ -125,6 +139,7 @@ class _Pending:
     soil_class: str
     rho_s: float
     mu_mean: float
+    curve: Any = None
 
 
 class CentredSampler:
@@ -152,7 +167,8 @@ class CentredSampler:
         with np.errstate(invalid="ignore"):
             mu_mean = float(np.nanmean(mu)) if np.isfinite(mu).any() else float("nan")
         self._pending.append(_Pending(t, lat, lon, fix_quality, hdop, bool(est.valid), int(est.status),
-                                      str(est.soil_class), float(est.rho_s), mu_mean))
+                                      str(est.soil_class), float(est.rho_s), mu_mean,
+                                      getattr(est, "curve", None)))
         while len(self._pending) > self.max_pending:
             self._pending.popleft()
         return self._emit(t)
@@ -194,6 +210,10 @@ class CentredSampler:
                 rho += kern * r
                 nr += kern
         a = num / den if den > 0 else float("nan")
+        shape = _shape_params(s.curve) if s.curve is not None else None
+        if shape is not None:                         # the shape path: its fitted a, p, α1, α2
+            return {"a": shape[0], "p": shape[1], "alpha1": shape[2], "alpha2": shape[3],
+                    "rho_s": rho / nr if nr else float("nan"), "mu": s.mu_mean}
         return {"a": a, "p": cls.p if cls else float("nan"), "alpha1": cls.alpha1 if cls else float("nan"),
                 "alpha2": cls.alpha2 if cls else float("nan"), "rho_s": rho / nr if nr else float("nan"),
                 "mu": s.mu_mean}

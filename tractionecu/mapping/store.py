@@ -746,6 +746,39 @@ class MapStore:
         g = self.grid(layer)
         return g.mean, g.x0, g.y0, g.res
 
+    def curve_paths(self, extent: tuple[int, int, int, int] | None = None, *,
+                    classes: Mapping[str, Any] | None = None, tol: float = 1e-6) -> NDArray[np.object_]:
+        """Per cell, how its μ(s) curve was identified: ``"class:<name>"`` where every sample
+        mapped to it carried that class's fixed shape (p, α1, α2 of the paper's one-parameter path,
+        eq. 18), ``"shape"`` where the cell's shape parameters are none of the classes' (the shape
+        identified from the data, :mod:`tractionecu.estimation.curve`, or samples of several paths
+        averaged), ``""`` where the cell has no shape sample.
+
+        Derived from the ``p``, ``alpha1``, ``alpha2`` layers (means and variances), so maps
+        written before the shape path read back as class cells.  ``classes`` maps names to
+        objects with ``p``, ``alpha1``, ``alpha2`` (default: the built-in surface classes); the
+        grid is that of :meth:`grid` over ``extent`` (default: the cells with a ``p`` sample).
+        """
+        from ..model.mucurve import SOIL_CLASSES
+        classes = SOIL_CLASSES if classes is None else classes
+        names = ("p", "alpha1", "alpha2")
+        if any(n not in self._layer_index for n in names):
+            raise KeyError(f"curve_paths needs the layers {names}; this map has {list(self.layers)}")
+        if extent is None:
+            extent = self.extent(["p"]) or (0, 0, 0, 0)
+        grids = [self.grid(n, extent) for n in names]
+        out = np.full(grids[0].mean.shape, "", dtype=object)
+        has = grids[0].count > 0
+        out[has] = "shape"
+        for name, c in classes.items():
+            ref = (float(c.p), float(c.alpha1), float(c.alpha2))
+            same = has.copy()
+            for g, v in zip(grids, ref):
+                spread = np.where(g.count >= 2, np.nan_to_num(g.var, nan=0.0), 0.0)
+                same &= (np.abs(g.mean - v) <= tol * max(1.0, abs(v))) & (spread <= (tol * max(1.0, abs(v))) ** 2)
+            out[same] = f"class:{name}"
+        return out
+
     def track(self) -> NDArray[np.float64]:
         """Vehicle track so far: (N, 4) array of t [s], x [m], y [m], accepted flag."""
         return self._track.read()
