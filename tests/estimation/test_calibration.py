@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
@@ -72,30 +70,16 @@ def test_outliers_do_not_move_the_scale():
     assert abs(f.scale - 0.98) <= f.halfwidth < 0.005
 
 
-def _transport_then_work(eps: float, seed: int):
-    """A 130 m transport run at 3 m/s with the implement raised, then 70 m of work (the paper's firm stubble);
-    the tyres roll (1 + eps) × the nominal radius (effect ``wheel_radius``)."""
-    from tractionecu.sim.field import Field
-    from tractionecu.sim.plan import straight
-    from tractionecu.sim.scenarios import PAPER_SOILS
-    from tractionecu.sim.simulator import Scenario
-
-    plan = straight(0.0, 10.0, 0.0, 200.0, 2.5)
-    d = plan.s
-    plan = replace(plan, work=(d > 130.0) & (d < plan.length - 3.0), v_target=np.where(d < 130.0, 3.0, 2.5))
-    return Scenario("transport-then-work", Field([PAPER_SOILS[0]]), plan, seed=seed,
-                    effects={"wheel_radius": {"epsilon": eps}})
-
-
 def test_recording_with_a_radius_error(tmp_path):
     """+2 % rolling radius: the scale is found within its interval, applied, and slip and μ errors in work fall."""
+    from tractionecu.evaluation.coverage import radius_scenario, work_errors
     from tractionecu.evaluation.scoring import read_truth
     from tractionecu.pipeline.replay import replay
     from tractionecu.recording.reader import read_recording
     from tractionecu.sim.simulator import simulate
     from tractionecu.sim.writer import write_recording
 
-    scn = _transport_then_work(0.02, seed=5)
+    scn = radius_scenario(0.02, seed=5)
     write_recording(scn, simulate(scn), tmp_path / "rec")
     rec = read_recording(tmp_path / "rec")
     truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
@@ -103,18 +87,18 @@ def test_recording_with_a_radius_error(tmp_path):
     for on in (True, False):
         cfg = EstimatorConfig(calibration=CalibrationConfig(enabled=on))
         a = replay(rec, cfg=cfg).arrays
+        w = work_errors(a, truth)
+        assert w["work_samples"] > 1000
+        errs[on] = (w["slip_mae"], w["mu_rel_error"])
         k = np.clip(np.searchsorted(truth.t, a["t"] + 1e-9, side="right") - 1, 0, len(truth.t) - 1)
-        work = a["valid"] & (truth.mu[k].mean(axis=1) > 0.2)
-        assert work.sum() > 1000
-        errs[on] = (np.mean(np.abs(a["slip"][work] - truth.slip[k][work])),
-                    np.mean(np.abs(a["mu"][work] - truth.mu[k][work]) / truth.mu[k][work]))
+        work_start = int(np.argmax(a["valid"] & (truth.mu[k].mean(axis=1) > 0.2)))
         if on:
             scale, hw, applied = a["radius_scale"][-1], a["radius_halfwidth"][-1], a["radius_applied"][-1]
             assert (np.abs(scale - 1.02) <= hw).all() and (hw <= 0.005).all()
             assert np.array_equal(applied, scale)
             # applied before the work began
             first = int(np.argmax(a["radius_applied"][:, 0] != 1.0))
-            assert 0 < first and not work[:first].any()
+            assert 0 < first < work_start
         else:
             assert np.isnan(a["radius_scale"][-1]).all() and (a["radius_applied"][-1] == 1.0).all()
     print(f"slip MAE in work: {errs[False][0]:.4f} uncalibrated, {errs[True][0]:.4f} calibrated; "

@@ -98,3 +98,35 @@ def biased_trace(tr: Any, sensors: SensorSpec, rng: np.random.Generator) -> tupl
     draws = {"torque_gain": g.tolist(), "torque_offset_nm": o.tolist(), "axle_gain": float(ag),
              "axle_offset_n": float(ao), "draft_gain": float(dg), "draft_offset_n": float(do)}
     return dataclasses.replace(tr, md=md, fzf=tr.fzf * (1.0 + ag) + ao, fdx=tr.fdx * (1.0 + dg) + do), draws
+
+
+def radius_scenario(eps: float, seed: int = 0) -> Any:
+    """A run for the rolling-radius calibration on the project's simulator: 130 m of transport at 3 m/s with
+    the implement raised (low slip), then 70 m of work at 2.5 m/s on the paper's firm stubble; the tyres roll
+    (1 + ``eps``) × the nominal radius (effect ``wheel_radius``)."""
+    from dataclasses import replace
+
+    from ..sim.field import Field
+    from ..sim.plan import straight
+    from ..sim.scenarios import PAPER_SOILS
+    from ..sim.simulator import Scenario
+
+    plan = straight(0.0, 10.0, 0.0, 200.0, 2.5)
+    d = plan.s
+    plan = replace(plan, work=(d > 130.0) & (d < plan.length - 3.0), v_target=np.where(d < 130.0, 3.0, 2.5))
+    return Scenario("transport-then-work", Field([PAPER_SOILS[0]]), plan, seed=seed,
+                    effects={"wheel_radius": {"epsilon": eps}})
+
+
+def work_errors(arrays: dict[str, Any], truth: Truth, mu_work: float = 0.2) -> dict[str, float]:
+    """Slip mean absolute error and μ mean absolute relative error over the valid samples in work
+    (mean true μ above ``mu_work``)."""
+    t = np.asarray(arrays["t"], dtype=float)
+    k = np.clip(np.searchsorted(truth.t, t + 1e-9, side="right") - 1, 0, len(truth.t) - 1)
+    mu_t = truth.mu[k]
+    work = np.asarray(arrays["valid"], dtype=bool) & (mu_t.mean(axis=1) > mu_work)
+    if not work.any():
+        return {"work_samples": 0, "slip_mae": math.nan, "mu_rel_error": math.nan}
+    return {"work_samples": int(work.sum()),
+            "slip_mae": float(np.mean(np.abs(arrays["slip"][work] - truth.slip[k][work]))),
+            "mu_rel_error": float(np.mean(np.abs(arrays["mu"][work] - mu_t[work]) / np.abs(mu_t[work])))}
