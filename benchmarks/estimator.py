@@ -216,12 +216,23 @@ def time_estimator(rec_dir: Path, data: dict, n: int = 10000) -> float:
     return (time.perf_counter() - t0) / len(steps)
 
 
+def uncertainty_figures(work: Path, seed: int) -> dict:
+    """Issue 13's coverage, biased-sensor μ error and radius-scale rows (``benchmarks/uncertainty.py``)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from uncertainty import figures as _figures
+
+    print("coverage with biased sensors, radius calibration ...", flush=True)
+    return _figures(work / "uncertainty", [seed])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--json", required=True, help="write the figures to this JSON file")
     ap.add_argument("--seed", type=int, default=0, help="simulation seed of the recording")
     ap.add_argument("--keep", default=None, help="keep the recording and replay output in this directory")
     ap.add_argument("--steps", type=int, default=10000, help="steps of the filterpy comparison (default 10000)")
+    ap.add_argument("--no-uncertainty", action="store_true",
+                    help="skip the coverage and radius-calibration figures (benchmarks/uncertainty.py)")
     args = ap.parse_args(argv)
 
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="tecu-bench-"))
@@ -265,6 +276,8 @@ def main(argv: list[str] | None = None) -> int:
                 figures[f"scorecard_{k}"] = sc[k]
         if "r2_mu_curve" in sc:
             figures["scorecard_r2_mu_curve_min"] = min(sc["r2_mu_curve"].values())
+        if not args.no_uncertainty:
+            figures.update(uncertainty_figures(work, args.seed))
         targets = {"ukf_step_speedup_vs_filterpy": (">=", 20.0), "max_rel_state_diff_vs_filterpy": ("<=", 1e-6),
                    "replay_realtime_factor": (">=", 100.0)}
         for k, v in figures.items():
