@@ -57,6 +57,19 @@ the full bus; the figures above are then the ones under that flood
 drops them (they are not for us); on the ``virtual`` bus python-can filters
 them in Python, in the service's process.
 
+``--viewers N`` (``--bus virtual``) measures the in-cab page: the run is
+made twice, first with ``web.enabled=false`` (the baseline), then with the
+page served and N WebSocket viewers connected from a separate process (so
+their own CPU is not counted).  ``page_cpu_fraction`` is the service's CPU
+with the viewers minus the baseline's (target <= 0.05 with one viewer, 0.10
+with five); ``viewer_messages`` counts the updates they received, and the
+jitter, latency and gap figures are the ones with the viewers connected
+(``baseline`` holds the first run's figures).  On a busy machine the
+difference of two runs is noisy; ``page_cpu_fraction_measured_in_place`` is
+the page's own CPU time (thread CPU time around building the updates and
+each send to a viewer) over the window, and ``advice_cpu_fraction`` the
+advice part's (efficiency, s*, advice, the efficiency frame, the live map).
+
 Also: ``bus``, ``where``, ``bus_frames_per_s`` (sent in the window),
 ``input_to_broadcast_latency_median_ms``, ``broadcasts_measured``, the
 service's counters (``service_counters``).
@@ -252,12 +265,33 @@ def config_text(channel: str, port: str, vehicle: Path, state: Path, options: li
 
 
 # ----------------------------------------------------------------------------- virtual bus (host)
-def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0.0) -> dict:
+VIEWER_CLIENT = """
+import asyncio, sys, aiohttp
+async def viewer(session, url, counts, i):
+    async with session.ws_connect(url) as ws:
+        async for msg in ws:
+            counts[i] += 1
+async def main(url, n):
+    counts = [0] * n
+    async with aiohttp.ClientSession() as session:
+        tasks = [asyncio.create_task(viewer(session, url, counts, i)) for i in range(n)]
+        for _ in range(int(float(sys.argv[3]) * 2)):
+            await asyncio.sleep(0.5)
+            print(sum(counts), flush=True)
+        for t in tasks:
+            t.cancel()
+asyncio.run(main(sys.argv[1], int(sys.argv[2])))
+"""
+"""N WebSocket viewers of the in-cab page in their own process; prints the messages they received."""
+
+
+def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0.0, viewers: int = 0) -> dict:
     import can
 
     from tractionecu.service.config import load_config
     from tractionecu.service.daemon import Service
 
+    work.mkdir(parents=True, exist_ok=True)
     rec, t_first = make_load(work, seconds)
     channel = f"bench-{uuid.uuid4().hex[:8]}"
     master, slave = os.openpty()
@@ -305,6 +339,14 @@ def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0
         task = asyncio.create_task(svc.run(stop_svc))
         await asyncio.wait_for(svc.ready.wait(), STARTUP_TIMEOUT_S)
         await asyncio.sleep(1.0)                                   # address claim + 250 ms
+        clients = None
+        if viewers > 0:
+            if svc.web is None or svc.web.address is None:
+                raise RuntimeError("--viewers: the in-cab page is not served")
+            url = svc.web.address.replace("http://", "ws://") + "ws"
+            clients = await asyncio.create_subprocess_exec(sys.executable, "-c", VIEWER_CLIENT, url, str(viewers),
+                                                           str(seconds + 5.0), stdout=asyncio.subprocess.PIPE)
+            await asyncio.sleep(1.0)
         t_play = time.time() + 0.2
         shift = t_play - t_first
         window[0], window[1] = t_play + SETTLE_S, t_play + seconds
@@ -314,9 +356,19 @@ def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0
             th.start()
         await asyncio.sleep(window[0] - time.time())
         c0, w0 = threads_cpu_s(exclude), time.time()
+        p0 = svc.web.cpu_s if svc.web is not None else 0.0
+        a0 = svc.advice.cpu_s if svc.advice is not None else 0.0
         await asyncio.sleep(window[1] - time.time())
         c1, w1 = threads_cpu_s(exclude), time.time()
+        p1 = svc.web.cpu_s if svc.web is not None else 0.0
+        a1 = svc.advice.cpu_s if svc.advice is not None else 0.0
         rss, peak = mem_mb()
+        viewers_now = len(svc.web.viewers) if svc.web is not None else 0
+        received = None
+        if clients is not None:
+            clients.terminate()
+            out, _ = await clients.communicate()
+            received = int(out.decode().split()[-1]) if out.decode().split() else None
         stop.set()
         for th in threads:
             th.join(timeout=10)
@@ -337,6 +389,12 @@ def run_virtual(seconds: float, options: list[str], work: Path, flood: float = 0
             "measured_seconds": w1 - w0,
             "service_counters": svc.counters(),
         }
+        res["page_cpu_fraction_measured_in_place"] = (p1 - p0) / (w1 - w0)
+        res["advice_cpu_fraction"] = (a1 - a0) / (w1 - w0)
+        if viewers > 0:
+            res["viewers"] = viewers
+            res["viewers_connected_at_end"] = viewers_now
+            res["viewer_messages"] = received
         return res
 
     try:
@@ -447,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
                          "UML guest")
     ap.add_argument("--flood-requests", type=float, default=0.0, metavar="N",
                     help="add N Requests/s to another destination (0x00) to the full bus, e.g. 2500")
+    ap.add_argument("--viewers", type=int, default=0, metavar="N",
+                    help="(virtual bus) measure the in-cab page: a baseline run without it, then one with N "
+                         "WebSocket viewers; prints page_cpu_fraction")
     ap.add_argument("--keep", metavar="DIR", default=None, help="copy the recording, logs and captures here")
     ap.add_argument("--option", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a daemon config key (TOML value), e.g. map.enabled=false; repeatable")
@@ -464,9 +525,21 @@ def main(argv: list[str] | None = None) -> int:
             cmd += ["--option", o]
         print("starting the UML guest (tests/vcan/run-in-vcan.sh) for a real SocketCAN vcan0 ...", flush=True)
         return subprocess.call(cmd, cwd=REPO)
+    if args.viewers and args.bus != "virtual":
+        ap.error("--viewers needs --bus virtual")
     work = Path(tempfile.mkdtemp(prefix="tecu-bench-"))
     try:
-        res = (run_vcan if args.bus == "vcan" else run_virtual)(args.seconds, args.option, work, args.flood_requests)
+        if args.viewers > 0:
+            base = run_virtual(args.seconds, args.option + ["web.enabled=false"], work / "baseline",
+                               args.flood_requests)
+            res = run_virtual(args.seconds, args.option + ["web.port=0"], work / "viewers", args.flood_requests,
+                              viewers=args.viewers)
+            res["page_cpu_fraction"] = res["service_cpu_fraction_full_bus"] - base["service_cpu_fraction_full_bus"]
+            res["baseline"] = {k: v for k, v in base.items() if k != "service_counters"}
+            TARGETS["page_cpu_fraction"] = 0.05 if args.viewers <= 1 else 0.10
+        else:
+            res = (run_vcan if args.bus == "vcan" else run_virtual)(args.seconds, args.option, work,
+                                                                    args.flood_requests)
     finally:
         if args.keep:
             shutil.copytree(work, args.keep, dirs_exist_ok=True)
@@ -474,7 +547,7 @@ def main(argv: list[str] | None = None) -> int:
     res["options"] = args.option
     res["flood_requests_per_s"] = args.flood_requests
     for k, v in res.items():
-        if k == "service_counters":
+        if k in ("service_counters", "baseline"):
             continue
         target = TARGETS.get(k)
         tail = "" if target is None else f"   (target <= {target})"

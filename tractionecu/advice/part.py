@@ -1,8 +1,10 @@
 """The service's ``advice`` part: efficiency, s* and advice from the live estimates, on the bus and the map.
 
-Runs as its own task beside the estimation loop, never inside its step: at
-``broadcast.rate_hz`` of service time it takes the loop's last estimate (a
-reference; the loop never waits for this part), feeds the
+Runs as its own task beside the estimation loop, never inside its step:
+woken right after each broadcast step (the daemon's broadcast callback sets
+an event; the next broadcast is a whole broadcast period away) it takes the
+loop's last estimate (a reference; the loop never waits for this part),
+feeds the
 :class:`~.engine.AdviceEngine` (s* is recomputed once a second), sends
 ``TECU_EstEfficiency`` (:mod:`.bus`) and adds the estimate at its GNSS
 position to the live map (:class:`LiveMap`) the in-cab page shows.
@@ -103,8 +105,10 @@ class AdvicePart(TaskPart):
 
     def __init__(self, engine: AdviceEngine | Callable[[], AdviceEngine], estimate: Callable[[], Any], *,
                  period_s: float = 0.1, speed: float = 1.0, fix_at: Callable[[float], Any] | None = None,
-                 send: Callable[[Any], Any] | None = None, live_map: LiveMap | None = None) -> None:
+                 send: Callable[[Any], Any] | None = None, live_map: LiveMap | None = None,
+                 trigger: asyncio.Event | None = None) -> None:
         super().__init__()
+        self.trigger = trigger
         self._make = None if isinstance(engine, AdviceEngine) else engine
         self.engine: AdviceEngine = engine if isinstance(engine, AdviceEngine) else AdviceEngine()
         self.estimate = estimate
@@ -115,6 +119,8 @@ class AdvicePart(TaskPart):
         self.map = live_map
         self.stats: Counter[str] = Counter()
         self.max_work_s = 0.0
+        self.cpu_s = 0.0
+        """CPU time of the ticks [s]."""
         self._last_t = math.nan
 
     def tick(self) -> None:
@@ -150,13 +156,23 @@ class AdvicePart(TaskPart):
         loop = asyncio.get_running_loop()
         nxt = loop.time()
         while True:
-            nxt += wall
-            delay = nxt - loop.time()
-            if delay < -wall:                  # far behind: do not catch up in a burst
-                nxt = loop.time()
-                delay = 0.0
-            await asyncio.sleep(max(delay, 0.0))
+            if self.trigger is not None:
+                # right after the loop's broadcast step: the furthest from the next broadcast
+                try:
+                    await asyncio.wait_for(self.trigger.wait(), timeout=max(2 * wall, 0.5))
+                except asyncio.TimeoutError:
+                    self.stats["untriggered"] += 1
+                self.trigger.clear()
+            else:
+                nxt += wall
+                delay = nxt - loop.time()
+                if delay < -wall:                  # far behind: do not catch up in a burst
+                    nxt = loop.time()
+                    delay = 0.0
+                await asyncio.sleep(max(delay, 0.0))
             t0 = time.perf_counter()
+            c0 = time.thread_time()
             self.tick()
+            self.cpu_s += time.thread_time() - c0
             self.max_work_s = max(self.max_work_s, time.perf_counter() - t0)
 

@@ -242,23 +242,26 @@ class Service:
         self.map: MapWriter | None = MapWriter(cfg.map, cfg.map_dir(env)) if cfg.map.enabled else None
         self.estimation = EstimationLoop(
             cfg, self.clock, self.steps, factory=estimator_factory or default_estimator_factory,
-            broadcast=self.network.broadcast, map_writer=self.map, fixes=self.fixes, can=self.can, gps=self.gps,
+            broadcast=self._broadcast, map_writer=self.map, fixes=self.fixes, can=self.can, gps=self.gps,
             watchdog=self.notifier.watchdog, watchdog_s=watchdog_interval(env), status=self.notifier.status,
             after_step=self.network.serve_requests, stats=self.stats)
         self.status = StatusReporter(cfg.service.status_interval_s, self.clock.speed, self._totals,
                                      self.status_line, self.notifier, status_stream)
         self.live_map: LiveMap | None = LiveMap() if cfg.web.enabled else None
+        self._after_broadcast: list[asyncio.Event] = []
         self.advice: AdvicePart | None = None
         if cfg.advice.enabled:
             self.advice = AdvicePart(self._advice_engine, lambda: self.estimation.last_estimate,
                                      period_s=1.0 / cfg.broadcast.rate_hz, speed=self.clock.speed,
                                      fix_at=self.fixes.fix_at, live_map=self.live_map,
-                                     send=self._send_efficiency if cfg.broadcast.enabled else None)
+                                     send=self._send_efficiency if cfg.broadcast.enabled else None,
+                                     trigger=self._broadcast_event())
         self.web: Any = None
         if cfg.web.enabled:
             from ..web.server import WebPart      # aiohttp only when the page is served
 
-            self.web = WebPart(cfg.web, self.web_state, self.live_map, on_listening=self._announce_page)
+            self.web = WebPart(cfg.web, self.web_state, self.live_map, on_listening=self._announce_page,
+                               trigger=self._broadcast_event())
         self.ready = asyncio.Event()
         self.started_mono = time.monotonic()
         self.exit_code = 0
@@ -318,6 +321,19 @@ class Service:
         settle_heap()
 
     # ------------------------------------------------------------ advice and the page
+    def _broadcast_event(self) -> asyncio.Event:
+        ev = asyncio.Event()
+        self._after_broadcast.append(ev)
+        return ev
+
+    def _broadcast(self, est: Any) -> bool:
+        """The estimation loop's broadcast: the estimate frames, then wake the advice and the page, whose
+        work so runs after this step, a broadcast period before the next broadcast."""
+        ok = self.network.broadcast(est)
+        for ev in self._after_broadcast:
+            ev.set()
+        return ok
+
     def _advice_engine(self) -> AdviceEngine:
         """The advice engine for the configured machine (the estimator's vehicle) and ``[advice]``."""
         from ..config import VehicleParams

@@ -13,7 +13,9 @@ Routes (GET and HEAD only; nothing writes, nothing names a file):
 ===============  ==========================================================
 
 Work off the estimation path.  The page's work runs in the daemon's event
-loop, between the estimation loop's steps, never inside one: the pusher
+loop, between the estimation loop's steps, never inside one, and right
+after a broadcast step (``trigger``), a whole broadcast period before the
+next broadcast: the pusher
 builds one update (the service's :meth:`snapshot` callable, the map's new
 cells) and serialises it once for every viewer; each viewer has its own
 bounded queue (``web.queue_updates``) and sender task, and a viewer whose
@@ -98,14 +100,18 @@ class WebPart(TaskPart):
         :class:`~tractionecu.advice.part.LiveMap` (None: no map).
     on_listening:
         Called with the page's address once it listens.
+    trigger:
+        An event the estimation loop sets after each broadcast step: updates are built right after one
+        (None: on a timer).
     """
 
     name = "web"
 
     def __init__(self, cfg: Any, snapshot: Callable[[], dict[str, Any]], live_map: Any = None,
-                 on_listening: Callable[[str], Any] | None = None) -> None:
+                 on_listening: Callable[[str], Any] | None = None, trigger: asyncio.Event | None = None) -> None:
         super().__init__()
         self.on_listening = on_listening
+        self.trigger = trigger
         self.cfg = cfg
         self.snapshot = snapshot
         self.map = live_map
@@ -117,6 +123,8 @@ class WebPart(TaskPart):
         self.last_build_s = 0.0
         self.max_build_s = 0.0
         self.build_s_total = 0.0
+        self.cpu_s = 0.0
+        """CPU time of building the updates and sending them to the viewers [s] (the event loop's thread)."""
         self._assets: dict[str, tuple[bytes, str]] = {}
 
     # ------------------------------------------------------------ app
@@ -176,7 +184,9 @@ class WebPart(TaskPart):
         try:
             while True:
                 text = await v.queue.get()
+                c0 = time.thread_time()
                 await v.ws.send_str(text)
+                self.cpu_s += time.thread_time() - c0
                 v.sent += 1
         except asyncio.CancelledError:
             raise
@@ -211,6 +221,7 @@ class WebPart(TaskPart):
     def build(self) -> str:
         """One update as JSON (module doc)."""
         t0 = time.perf_counter()
+        c0 = time.thread_time()
         state = clean(self.snapshot())
         state["viewers"] = len(self.viewers)
         state["kind"] = "update"
@@ -223,6 +234,7 @@ class WebPart(TaskPart):
         else:
             self.last_json = text
         dt = time.perf_counter() - t0
+        self.cpu_s += time.thread_time() - c0
         self.last_build_s = dt
         self.build_s_total += dt
         self.max_build_s = max(self.max_build_s, dt)
@@ -244,7 +256,19 @@ class WebPart(TaskPart):
         nxt = loop.time()
         while True:
             nxt += period
-            await asyncio.sleep(max(nxt - loop.time(), 0.0))
+            if self.trigger is not None:
+                # wake after a broadcast step of the estimation loop once the period is (nearly) over
+                while True:
+                    try:
+                        await asyncio.wait_for(self.trigger.wait(), timeout=period)
+                    except asyncio.TimeoutError:
+                        self.stats["untriggered"] += 1
+                        break
+                    self.trigger.clear()
+                    if loop.time() >= nxt - 0.25 * period:
+                        break
+            else:
+                await asyncio.sleep(max(nxt - loop.time(), 0.0))
             if loop.time() - nxt > period:
                 nxt = loop.time()
             try:
