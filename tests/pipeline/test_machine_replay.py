@@ -53,7 +53,7 @@ def test_mechanical_recording_replays_at_machine_level(tmp_path: Path, capsys) -
 def test_without_a_draft_sensor_no_rho_s_is_reported(tmp_path: Path) -> None:
     rec, run = tmp_path / "rec", tmp_path / "run"
     _simulate("mechanical-no-draft", rec, 20.0)
-    assert main(["replay", str(rec), "--out", str(run), "--no-map"]) == 0
+    assert main(["replay", str(rec), "--out", str(run)]) == 0           # the map too: no ρ_s to map
     e = _estimates(run)
     status = e["status"].astype(np.int64)
     assert np.all(status & DRAFT_NOT_SEPARATED) and np.all(status & MACHINE_LEVEL)

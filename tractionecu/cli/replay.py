@@ -156,9 +156,12 @@ def format_summary(res: dict[str, Any]) -> str:
             lines += [f"{a:<{w}}  {b:<{w2}}  {c}" for a, b, c in rows]
     msc = res.get("map_scorecard")
     if msc:
-        lines.append(f"{'map_soil_accuracy':<22}  {msc['map_soil_accuracy'] * 100:.1f} %  (target >= 95 %)")
-        lines.append(f"{'map_a_rmse':<22}  {msc['map_a_rmse']:.4f}")
-        lines.append(f"{'map_rho_s_rmse':<22}  {msc['map_rho_s_rmse']:.4f}")
+        def num(x: Any, fmt: str, scale: float = 1.0) -> str:    # None: nothing to score (no ρ_s mapped)
+            return "n/a" if x is None else format(x * scale, fmt)
+
+        lines.append(f"{'map_soil_accuracy':<22}  {num(msc['map_soil_accuracy'], '.1f', 100.0)} %  (target >= 95 %)")
+        lines.append(f"{'map_a_rmse':<22}  {num(msc['map_a_rmse'], '.4f')}")
+        lines.append(f"{'map_rho_s_rmse':<22}  {num(msc['map_rho_s_rmse'], '.4f')}")
     if "map_samples" in res:
         lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped -> {res['map_dir']}")
     for k in ("estimates_csv", "scorecard_json", "config"):
