@@ -299,7 +299,7 @@ class CurveEstimator:
 # variables; the slope from the previous pass), candidates
 #   the configured classes a·g_c(s)      (1 parameter, the paper's path),
 #   exp1          a(1 − e^{α1 s})          (2),
-#   exp1_offset   c + (a−c)(1 − e^{α1 s})   (3),
+#   exp1_offset   c + (a−c)(1 − e^{α1 s})   (3, only when asked for: not an eq. 14 form),
 #   eq14          a(1 − p e^{α1 s} − (1−p) e^{α2 s})   (4),
 # each linear in its amplitudes once the exponents are fixed, so every form is solved exactly on a
 # grid of k = −α (variable projection: weighted normal equations of one or two basis functions)
@@ -331,6 +331,10 @@ Pacejka 2006 §4.3), p < 0 with μ'(0) = −a(p α1 + (1−p) α2) ≥ 0 an S-sh
 grows first (loose soils where the lugs sink before the soil shears), e.g. p = −1, α1 = 2α2:
 a(1 − e^{α2 s})²."""
 K_GRID = np.geomspace(K_MIN, K_MAX, 28)
+DEFAULT_FORMS = ("exp1", "eq14")
+"""Free forms tried by default.  Both are eq. 14 (exp1 with p = 1), so every identified curve has
+eq. 14's parameters a, p, α1, α2 (maps, ISO 11783 export, the advice's s*); ``exp1_offset``
+(μ(0⁺) = c ≠ 0) can be asked for but has no eq. 14 form."""
 PRIOR_A = (0.8, 0.15)
 """Prior on the asymptote a of a fitted shape [-]: mean and standard deviation.  The asymptotic gross
 traction ratio of agricultural tyres is 0.88 (1 − e^{−0.1 B_n}) in Brixius (1987, ASABE D497.7):
@@ -571,7 +575,7 @@ def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: ND
 
 def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: float = 2.0,
               sigma_s_floor: float = 0.002, sigma_mu_floor: float = 0.002, bic_margin: float = 6.0,
-              max_rel_sigma_a: float = 0.3, forms: Sequence[str] = ("exp1", "exp1_offset", "eq14"),
+              max_rel_sigma_a: float = 0.3, forms: Sequence[str] = DEFAULT_FORMS,
               prior_a: tuple[float, float] | None = PRIOR_A, test_level: float = 0.01) -> CurveFit | None:
     """Fit the candidates to one segment's bins and select (see the section comment above).
 

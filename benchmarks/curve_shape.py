@@ -1,0 +1,142 @@
+"""μ(s) beyond one parameter: R² of the identified curve per soil, its path, and its cost.
+
+Run from the repository root::
+
+    python benchmarks/curve_shape.py --json OUT.json [--seeds 0 1] [--scenarios soils-off-class ...] [--keep DIR]
+
+For each scenario and seed: simulate (``tractionecu simulate``), replay (``tractionecu replay``) and
+print, per soil, the scorecard's R² of the identified μ(s) against the truth's curve (the class
+curve for the paper truth model, the tabulated ``mu_curve`` of ``truth.toml`` for the physical one),
+the curve path most samples reported (``class:<name>`` or ``shape:<form>``) and the slip span of
+the soil's true slips (5–95 %).  Two rows per soil:
+
+``chain``
+    the whole estimator: the curve fitted to the filter's own (μ̂, ŝ), as the scorecard scores it;
+``pairs``
+    the curve identification alone (:class:`~tractionecu.estimation.curve.CurveEstimator`, same
+    settings) fed at 10 Hz with the truth's per-wheel (μ, s) plus a slip error of 0.009 (AR(1),
+    0.5 s: the filter's slip error on straight passes, README) and 0.003 on μ, so that the
+    identification is measured apart from the filter's own μ and slip errors.
+
+Cost: ``curve_us_per_step`` is the time of all curve updates of the ``pairs`` run (shape
+identification on) divided by the number of 100 Hz estimator steps of the same duration, and
+``curve_us_per_step_paper_path`` the same with the shape identification off.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tractionecu.estimation.curve import CurveEstimator  # noqa: E402
+from tractionecu.evaluation.curve_score import identified_curve, true_curve  # noqa: E402
+from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared  # noqa: E402
+
+SLIP_SIGMA = 0.009
+SLIP_CORR_S = 0.5
+
+
+def pairs_run(rec: Path, seed: int, shape: bool = True) -> tuple[dict[str, dict], float, float]:
+    """The identification alone on the truth's pairs: per soil {r2, path}, curve seconds, run seconds."""
+    tr = read_truth(rec / "truth.csv", rec / "truth.toml")
+    rng = np.random.default_rng(seed)
+    ce = CurveEstimator(["stubble"], tau_s=3.0, shape=shape)
+    tc = -math.inf
+    e = 0.0
+    states: dict[str, list] = collections.defaultdict(list)
+    spent = 0.0
+    for i in range(len(tr.t)):
+        if tr.t[i] - tc < 0.1 - 1e-9 or abs(tr.v[i]) < 0.5:
+            continue
+        dt = 0.1 if tc == -math.inf else float(tr.t[i] - tc)
+        tc = float(tr.t[i])
+        e = e * math.exp(-dt / SLIP_CORR_S) + math.sqrt(1 - math.exp(-2 * dt / SLIP_CORR_S)) * SLIP_SIGMA * rng.standard_normal()
+        mu = tr.mu[i] + 0.003 * rng.standard_normal(4)
+        s = tr.slip[i] + e
+        t0 = time.perf_counter()
+        st = ce.update(tc, mu, s, np.full(4, 0.005), np.full(4, SLIP_SIGMA))
+        spent += time.perf_counter() - t0
+        states[tr.soil_name[i]].append(st)
+    out = {}
+    for name, sts in states.items():
+        a = np.array([x.a for x in sts])
+        idx = np.flatnonzero(np.isfinite(a))
+        if not idx.size:
+            continue
+        cur, info = identified_curve(idx, a, [x.class_name for x in sts], [x.curve for x in sts], S_GRID)
+        out[name] = {"r2": r_squared(cur, true_curve(tr.soils[name], S_GRID)), "path": info["curve_path"],
+                     "shape_share": float(np.mean([x.curve_path.startswith("shape:") for x in sts]))}
+    return out, spent, float(tr.t[-1] - tr.t[0])
+
+
+def slip_spans(rec: Path) -> dict[str, float]:
+    """5–95 % span of the true slips per soil while working (|μ| ≥ 0.15, v ≥ 0.5 m/s)."""
+    tr = read_truth(rec / "truth.csv", rec / "truth.toml")
+    out = {}
+    names = np.array(tr.soil_name, dtype=object)
+    for name in sorted(set(tr.soil_name)):
+        m = (names == name)[:, None] & (np.abs(tr.mu) >= 0.15) & (np.abs(tr.v)[:, None] >= 0.5)
+        s = np.abs(tr.slip[m])
+        out[name] = float(np.percentile(s, 95) - np.percentile(s, 5)) if s.size else math.nan
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path, required=True)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--scenarios", nargs="+", default=["soils-off-class", "physical-three-soils", "paper-three-soils"])
+    ap.add_argument("--keep", type=Path, default=None)
+    args = ap.parse_args(argv)
+    work = args.keep or Path(tempfile.mkdtemp(prefix="curve_shape_"))
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    cost = {"curve_s_shape": 0.0, "curve_s_paper": 0.0, "run_s": 0.0}
+    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'chain path':18s} "
+          f"{'pairs R2':>9s} {'pairs path':18s}")
+    for scn in args.scenarios:
+        for seed in args.seeds:
+            rec, run = work / f"rec_{scn}_{seed}", work / f"run_{scn}_{seed}"
+            py = [sys.executable, "-m", "tractionecu"]
+            if not (rec / "truth.csv").exists():
+                subprocess.run(py + ["simulate", "--scenario", scn, "--seed", str(seed), "--out", str(rec)],
+                               check=True, capture_output=True)
+            subprocess.run(py + ["replay", str(rec), "--out", str(run)], check=True, capture_output=True)
+            card = json.loads((run / "scorecard.json").read_text())
+            spans = slip_spans(rec)
+            pairs, spent, dur = pairs_run(rec, seed)
+            _, spent0, _ = pairs_run(rec, seed, shape=False)
+            cost["curve_s_shape"] += spent
+            cost["curve_s_paper"] += spent0
+            cost["run_s"] += dur
+            for soil, r2 in card["r2_mu_curve"].items():
+                row = {"scenario": scn, "seed": seed, "soil": soil, "slip_span": spans.get(soil, math.nan),
+                       "chain_r2": r2, "chain_path": card["curves"].get(soil, {}).get("curve_path", ""),
+                       "pairs_r2": pairs.get(soil, {}).get("r2", math.nan),
+                       "pairs_path": pairs.get(soil, {}).get("path", ""),
+                       "mu_mean_abs_rel_error": card.get("mu_mean_abs_rel_error", math.nan)}
+                rows.append(row)
+                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} {row['chain_path']:18s} "
+                      f"{row['pairs_r2']:9.4f} {row['pairs_path']:18s}")
+    steps = cost["run_s"] * 100.0
+    figures = {"curve_us_per_step": cost["curve_s_shape"] / steps * 1e6,
+               "curve_us_per_step_paper_path": cost["curve_s_paper"] / steps * 1e6, "rows": rows}
+    print(f"curve_us_per_step {figures['curve_us_per_step']:.2f} (paper path only: "
+          f"{figures['curve_us_per_step_paper_path']:.2f})")
+    args.json.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
