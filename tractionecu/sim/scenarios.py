@@ -11,6 +11,13 @@ boundary on each pass.
 Other scenarios vary soils, speeds and terrain for the diagnosis suite;
 ``headland-reverse`` drives the paper's field with a three-point turn at
 every headland that reverses 12 m straight back at 1 m/s.
+
+The scenarios from ``physical-three-soils`` on run the physical truth model
+(:mod:`.physical`, ``Scenario.truth = "physical"``): soils given by cone
+index, geometric load transfer, turning kinematics, a hub drive with
+compliance and losses or a mechanical MFWD tractor; each says in its
+docstring what it exercises.  :func:`get` takes ``truth=`` to run any
+scenario on the other model (:func:`with_truth`).
 """
 
 from __future__ import annotations
