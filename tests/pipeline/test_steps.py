@@ -66,8 +66,8 @@ def _daemon_estimates(rec, nmea_lines: list[tuple[float, str]], grid, gate: Gnss
     vehicle, sensors = machine_of(rec)
     est = Estimator(vehicle, sensors=sensors)
     asm = StepAssembler()
-    stream = NmeaStream(GpsConfig(), lambda s: asm.push_speed(s.t, s.speed_mps) if s.speed_mps is not None else None,
-                        gate)
+    stream = NmeaStream(GpsConfig(), lambda s: asm.push_speed(s.t, s.speed_mps, s.course_deg)
+                        if s.speed_mps is not None else None, gate)
     ev: list[tuple[float, int, str, object]] = [(t, k, "bus", v) for t, k, v in _bus_events(rec)]
     ev += [(t, len(ev) + k, "nmea", line) for k, (t, line) in enumerate(nmea_lines)]
     ev.sort(key=lambda e: (e[0], e[1]))
@@ -102,19 +102,20 @@ def test_vector_and_incremental_forms_give_equal_arguments(short_recording: Path
     rec = read_recording(short_recording)
     grid = recording_grid(rec, 100.0)
     mask = GnssGate().track_mask(rec.gps)
-    vec = list(vector_steps(rec.signals, rec.gps.t[mask], rec.gps.speed[mask], grid))
+    vec = list(vector_steps(rec.signals, rec.gps.t[mask], rec.gps.speed[mask], grid, course=rec.gps.course[mask]))
     asm = StepAssembler()
     ev = [(t, k, "bus", v) for t, k, v in _bus_events(rec)]
-    ev += [(float(t), len(ev) + k, "v", float(v)) for k, (t, v) in enumerate(zip(rec.gps.t[mask], rec.gps.speed[mask]))]
+    ev += [(float(t), len(ev) + k, "v", (float(v), float(c)))
+           for k, (t, v, c) in enumerate(zip(rec.gps.t[mask], rec.gps.speed[mask], rec.gps.course[mask]))]
     ev.sort(key=lambda e: (e[0], e[1]))
     j = 0
-    passed = {"Md": 0, "Fzf": 0, "Fdx": 0, "omega": 0, "dir": 0, "v": 0}
+    passed = {"Md": 0, "Fzf": 0, "Fdx": 0, "omega": 0, "dir": 0, "v": 0, "course": 0}
     for k, t in enumerate(grid.tolist()):
         while j < len(ev) and ev[j][0] <= t + LAG_S:
             if ev[j][2] == "bus":
                 asm.push_signals(ev[j][0], ev[j][3])  # type: ignore[arg-type]
             else:
-                asm.push_speed(ev[j][0], ev[j][3])  # type: ignore[arg-type]
+                asm.push_speed(ev[j][0], *ev[j][3])  # type: ignore[misc]
             j += 1
         inc = asm.take(t)
         for a, b in zip(vec[k], inc):
@@ -129,6 +130,7 @@ def test_vector_and_incremental_forms_give_equal_arguments(short_recording: Path
     assert passed["omega"] > 0.95 * n and passed["Md"] > 0.95 * n
     assert 0.45 * n < passed["Fzf"] < 0.55 * n and 0.45 * n < passed["Fdx"] < 0.55 * n
     assert 0.09 * n < passed["v"] < 0.11 * n
+    assert passed["course"] == passed["v"]          # the course goes with the speed of its epoch
 
 
 def test_daemon_path_matches_replay_exactly(short_recording: Path) -> None:

@@ -235,11 +235,12 @@ def add_torque_noise(Qb, u, a, r, q2, gain, Q):             # pragma: no cover -
         Q[i, i] += (sm * sm + q2) * gain
 
 
-def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, out):      # pragma: no cover - compiled
+def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, k, out):      # pragma: no cover - compiled
     """out (22,) = [μ (4), slip (4, eq. 6 as model.vehicle.slip), ω (4), diag P (10)] of the state x;
-    returns whether every P_μμ < c_mu and P_ρρ < c_rho (False for NaN)."""
-    va = abs(x[4])
+    returns whether every P_μμ < c_mu and P_ρρ < c_rho (False for NaN).  k (4,): each wheel's ground
+    speed over v (model.vehicle.wheel_speed_factors), so slip i is that of ω_i against k_i·v."""
     for i in range(4):
+        va = abs(x[4] * k[i])
         w = x[i]
         vw = abs((rdf if i < 2 else rdr) * w)
         if vw < 1e-6 and va < 1e-6:
@@ -308,5 +309,5 @@ def warm_up() -> None:
         update_block(x, P, x[:m].copy(), np.full(m, 1e-4), 0, math.inf, lo, hi, np.empty(n), np.empty((n, n)),
                      np.empty((n, m + 2)), np.empty((2 * m + 1, m)))
     add_torque_noise(P, u, 1.0, 0.01, 0.1, 1e-6, np.empty((n, n)))
-    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, np.empty(22))
+    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, np.ones(4), np.empty(22))
     _warm = True

@@ -275,7 +275,7 @@ class UnscentedFilter:
         """
         self.repaired_last = False
         model = self._model
-        if model is not None and u.dtype == np.float64 and u.shape == (6,):
+        if model is not None and u.dtype == np.float64 and u.shape in ((6,), (7,)):
             n = self.n
             x = np.empty(n)
             P = np.empty((n, n))

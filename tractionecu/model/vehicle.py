@@ -13,6 +13,25 @@ Equations (paper numbering)
 (8)  m v̇ = Σ F_h,i − F_dx − ρ_s m g                             longitudinal dynamics
 (9)  r_d = r0 − Δr,  Δr = F_z / (2π p_t √(b_t r0 / 2))          (Guskov 1988, p_t in Pa)
 
+Kinematics in turns (beyond the paper, which drives straight)
+-------------------------------------------------------------
+The reference point of v is the centre of the rear axle; the path
+curvature κ [1/m] of that point is positive in a left (counter-clockwise)
+turn, κ = ψ̇ / v with the body yaw rate ψ̇ and the signed speed v, so the same
+κ describes the same circle forwards and in reverse.  With no lateral slip
+of the rigid body, each wheel's ground speed along its own heading is
+v_i = k_i(κ)·v (:func:`wheel_speed_factors`, b the track width, L the
+wheelbase, front wheels steered to roll without side slip):
+
+    k_RL,RR = 1 ∓ κb/2,     k_FL,FR = √((1 ∓ κb/2)² + (κL)²)
+
+and a front wheel's longitudinal force acts along the wheel, at the steer
+angle δ_i to the body axis, cos δ_i = (1 ∓ κb/2)/k_i: eq. 8 becomes
+m v̇ = Σ F_h,i cos δ_i − F_dx − ρ_s m g.  (The along-body components of the
+front lateral force and of the centripetal acceleration of the centre of
+mass cancel to first order in κ and are left out.)  κ is the model's input
+u[6]; without it (six inputs) κ = 0, the paper's straight-line model.
+
 Vertical loads come from the measured front-axle load F_zf: each front wheel
 carries F_zf/2 and each rear wheel (m g − F_zf)/2 (paper section 3.1: "the rear
 wheel vertical force can then be calculated using vehicle parameters").
@@ -71,7 +90,8 @@ N_STATE = 10
 IU_MD = slice(0, 4)
 IU_FZF = 4
 IU_FDX = 5
-N_INPUT = 6
+IU_KAPPA = 6
+N_INPUT = 7
 STATE_NAMES = ("omega_FL", "omega_FR", "omega_RL", "omega_RR", "v", "mu_FL", "mu_FR", "mu_RL", "mu_RR", "rho_s")
 
 
@@ -94,6 +114,29 @@ def wheel_loads(fzf: ArrayLike, params: VehicleParams, weight_n: float | None = 
     front = 0.5 * fzf
     rear = 0.5 * (w - fzf)
     return np.stack([front, front, rear, rear], axis=-1)
+
+
+def wheel_speed_factors(kappa: ArrayLike, track_m: float, wheelbase_m: float) -> NDArray[np.float64]:
+    """Ground speed of each wheel over the rear-axle centre's speed, (..., 4) FL, FR, RL, RR [-] (module doc).
+
+    ``kappa`` [1/m] is the path curvature of the rear-axle centre, positive
+    in a left turn, for either sign of v.
+    """
+    k = np.asarray(kappa, dtype=float)
+    h = 0.5 * track_m * k
+    lk = wheelbase_m * k
+    left, right = 1.0 - h, 1.0 + h
+    return np.stack([np.sqrt(left * left + lk * lk), np.sqrt(right * right + lk * lk), left, right], axis=-1)
+
+
+def wheel_speed_factor_slopes(kappa: float, track_m: float, wheelbase_m: float) -> tuple[float, float, float, float]:
+    """∂k_i/∂κ [m] of :func:`wheel_speed_factors` at one κ (FL, FR, RL, RR)."""
+    h = 0.5 * track_m
+    left, right = 1.0 - h * kappa, 1.0 + h * kappa
+    lk = wheelbase_m * kappa
+    kfl = math.sqrt(left * left + lk * lk)
+    kfr = math.sqrt(right * right + lk * lk)
+    return ((-h * left + wheelbase_m * lk) / kfl, (h * right + wheelbase_m * lk) / kfr, -h, h)
 
 
 def slip(omega: ArrayLike, v: ArrayLike, r_d: ArrayLike, eps: float = 1e-6) -> NDArray[np.float64]:
@@ -133,9 +176,11 @@ class FilterModel:
         self.m = params.mass_kg
         self.J = params.wheel_inertia_kgm2
         self.rho_t = params.rho_t
-        # Constants of the compiled step: m g, the deflection stiffness of eq. 9, the 30 % limit, r0, ρ_t, J, m.
+        # Constants of the compiled step: m g, the deflection stiffness of eq. 9, the 30 % limit, r0, ρ_t, J, m,
+        # half the track width, the wheelbase.
         k = 2.0 * np.pi * params.tyre_pressure_pa * np.sqrt(params.tyre_width_m / 2.0 * params.r0_m)
-        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, params.r0_m, self.rho_t, self.J, self.m])
+        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, params.r0_m, self.rho_t, self.J, self.m,
+                             0.5 * params.track_width_m, params.wheelbase_m])
         self._fzf_key: float | None = None
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -157,11 +202,24 @@ class FilterModel:
         md = u[..., IU_MD]
         fh = mu * fz                                                   # eq. 4
         domega = (md - r_d * fh - r_d * self.rho_t * fz * np.sign(omega)) / self.J   # eq. 2
-        dv = (fh.sum(axis=-1) - u[..., IU_FDX] - rho_s * self.m * G * np.sign(v)) / self.m  # eq. 8
+        if u.shape[-1] > IU_KAPPA:                                     # front forces along the steered wheels
+            c = self.front_cosines(u[..., IU_KAPPA])
+            fx = fh[..., 0] * c[..., 0] + fh[..., 1] * c[..., 1] + fh[..., 2] + fh[..., 3]
+        else:
+            fx = fh.sum(axis=-1)
+        dv = (fx - u[..., IU_FDX] - rho_s * self.m * G * np.sign(v)) / self.m  # eq. 8
         dx = np.zeros(np.broadcast_shapes(x.shape, u.shape[:-1] + (N_STATE,)))
         dx[..., IX_OMEGA] = domega
         dx[..., IX_V] = dv
         return dx
+
+    def front_cosines(self, kappa: ArrayLike) -> NDArray[np.float64]:
+        """cos δ of the front wheels FL, FR (..., 2) at path curvature κ [1/m] (module doc); 1 at κ = 0."""
+        k = np.asarray(kappa, dtype=float)
+        h = 0.5 * self.params.track_width_m * k
+        lk = self.params.wheelbase_m * k
+        left, right = 1.0 - h, 1.0 + h
+        return np.stack([left / np.sqrt(left * left + lk * lk), right / np.sqrt(right * right + lk * lk)], axis=-1)
 
     def load_floats(self, fzf: float) -> tuple[float, float, float, float]:
         """(F_z front, F_z rear [N], r_d front, r_d rear [m]) of one front-axle load F_zf [N].
@@ -207,12 +265,15 @@ class FilterModel:
         if u.ndim != 1 or x.ndim > 2 or x.shape[-1] != N_STATE:
             fz, r_d = self.loads(u)
             return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
-        if JIT and x.dtype == np.float64 and u.dtype == np.float64 and u.shape[0] == N_INPUT:
+        if JIT and x.dtype == np.float64 and u.dtype == np.float64 and u.shape[0] in (N_INPUT - 1, N_INPUT):
             # Compiled RK4 (all four stages, same operation order as rk4(rhs)).
             if x.ndim == 1:
                 return _rk4_points(np.ascontiguousarray(x).reshape(1, N_STATE), np.ascontiguousarray(u),
                                    self._kc, float(dt))[0]
             return _rk4_points(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, float(dt))
+        if u.shape[0] > IU_KAPPA and u[IU_KAPPA] != 0.0:     # in a turn: the general right-hand side
+            fz, r_d = self.loads(u)
+            return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
         fz, r_d, c = self._load_terms(float(u[IU_FZF]))
         k = np.empty(x.shape[:-1] + (5,))
         fh = x[..., IX_MU] * fz                                          # eq. 4
@@ -264,21 +325,26 @@ def _sign(a: float) -> float:
     return a
 
 
-def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, ff, fr, rdf, rdr, cf, cr, J, m):  # pragma: no cover - compiled
+def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, ff, fr, rdf, rdr, cf, cr, J, m, c0, c1):  # pragma: no cover - compiled
     """(ω̇1..4, v̇) of one state, with FilterModel.rhs's operation order.
 
     ff, fr: front / rear wheel load [N]; rdf, rdr: their rolling radii [m];
-    cf, cr: r_d ρ_t F_z of a front / rear wheel.
+    cf, cr: r_d ρ_t F_z of a front / rear wheel; c0, c1: cos δ of the front
+    wheels (1 on a straight path).
     """
     fh0 = mu0 * ff
     fh1 = mu1 * ff
     fh2 = mu2 * fr
     fh3 = mu3 * fr
+    if c0 == 1.0 and c1 == 1.0:
+        fx = ((fh0 + fh1) + fh2) + fh3
+    else:
+        fx = ((fh0 * c0 + fh1 * c1) + fh2) + fh3
     return (((u[0] - rdf * fh0) - cf * _sign(w0)) / J,
             ((u[1] - rdf * fh1) - cf * _sign(w1)) / J,
             ((u[2] - rdr * fh2) - cr * _sign(w2)) / J,
             ((u[3] - rdr * fh3) - cr * _sign(w3)) / J,
-            ((((fh0 + fh1) + fh2) + fh3 - u[5]) - rho * m * G * _sign(v)) / m)
+            ((fx - u[5]) - rho * m * G * _sign(v)) / m)
 
 
 def _radius(fz, r0, k, lim):                                  # pragma: no cover - compiled
@@ -294,10 +360,18 @@ def _radius(fz, r0, k, lim):                                  # pragma: no cover
 def _rk4_points(x, u, kc, dt):                              # pragma: no cover - compiled
     """Classical RK4 over dt for every row of x (N, 10), as rk4(FilterModel.rhs) computes it.
 
-    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m) (see FilterModel._kc).  The
+    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m, b/2, L) (see FilterModel._kc).  The
     stage states of μ and ρ_s are x + h·0 (their derivative is zero), as in rk4().
+    u[6], when given, is the path curvature κ (module doc).
     """
     w_n, k, lim, r0, rho_t, J, m = kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6]
+    cosl = 1.0
+    cosr = 1.0
+    if u.shape[0] > 6 and u[6] != 0.0:
+        hk = kc[7] * u[6]
+        lk = kc[8] * u[6]
+        cosl = (1.0 - hk) / math.sqrt((1.0 - hk) * (1.0 - hk) + lk * lk)
+        cosr = (1.0 + hk) / math.sqrt((1.0 + hk) * (1.0 + hk) + lk * lk)
     fzf = u[4]
     ff = 0.5 * fzf                     # wheel_loads()
     fr = 0.5 * (w_n - fzf)
@@ -315,14 +389,14 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     for p in range(npt):
         x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
-        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m)
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
         h0, h1, h2, h3, hr = m0 + zh, m1 + zh, m2 + zh, m3 + zh, r + zh
         b0, b1, b2, b3, b4 = _rhs5(x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4,
-                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m)
+                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
         c0, c1, c2, c3, c4 = _rhs5(x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4,
-                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m)
+                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
         d0, d1, d2, d3, d4 = _rhs5(x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4,
-                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m)
+                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
         out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
         out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
         out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)

@@ -32,13 +32,17 @@ from numpy.typing import NDArray
 
 from .signals import ANCHOR_SIGNAL, GNSS_SPEED, GROUPS, INPUT_GROUPS, VECTOR_KEYS
 
+GNSS_COURSE = "course"
+"""Estimator measurement key of the GNSS course over ground [deg from true north], passed with the speed of
+the same epoch (NaN when the epoch has none); the estimator's path curvature and direction test use it."""
+
 GRID_MARGIN_S = 0.0015
 """Grid time after the wheel-speed frame time [s]: covers CAN arrival jitter and the spread of one burst."""
 
 GRID_MAX_GAP_S = 2.0
 """Wheel-speed gaps longer than this [s] get no grid steps; the estimator restarts after them."""
 
-__all__ = ["GRID_MARGIN_S", "GRID_MAX_GAP_S", "StepAssembler", "arrivals", "build_grid", "vector_steps"]
+__all__ = ["GNSS_COURSE", "GRID_MARGIN_S", "GRID_MAX_GAP_S", "StepAssembler", "arrivals", "build_grid", "vector_steps"]
 
 
 # ----------------------------------------------------------------------------- grid
@@ -76,12 +80,14 @@ def arrivals(src_t: NDArray[np.float64], grid: NDArray[np.float64]) -> tuple[NDA
 
 
 def vector_steps(signals: Mapping[str, Any], speed_t: NDArray[np.float64], speed: NDArray[np.float64],
-                 grid: NDArray[np.float64], groups: Any = None) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
+                 grid: NDArray[np.float64], groups: Any = None,
+                 course: NDArray[np.float64] | None = None) -> Iterator[tuple[dict[str, Any], dict[str, Any]]]:
     """``(inputs, measurements)`` for every grid step of a whole recording (replay's form).
 
     ``signals`` maps DBC signal names to series with ``t`` and ``value``
     arrays (:class:`~tractionecu.recording.reader.Series`); ``speed_t`` and
-    ``speed`` are the accepted GNSS epochs [s] and their speeds [m/s].  A
+    ``speed`` are the accepted GNSS epochs [s] and their speeds [m/s], ``course`` their
+    courses over ground [deg] (passed as :data:`GNSS_COURSE` with the speed).  A
     group with a missing or empty signal is never passed.  ``groups``: another estimator's signal table
     (:class:`~.signals.SignalGroups`), default the hub estimator's.
     """
@@ -103,6 +109,9 @@ def vector_steps(signals: Mapping[str, Any], speed_t: NDArray[np.float64], speed
     if len(speed_t):
         gi, new_v = arrivals(np.asarray(speed_t, dtype=float), grid)
         streams.append((GNSS_SPEED, False, np.asarray(speed, dtype=float)[np.maximum(gi, 0)].tolist(), new_v.tolist()))
+        if course is not None:
+            streams.append((GNSS_COURSE, False, np.asarray(course, dtype=float)[np.maximum(gi, 0)].tolist(),
+                            new_v.tolist()))
     for k in range(n):
         inputs: dict[str, Any] = {}
         meas: dict[str, Any] = {}
@@ -149,7 +158,7 @@ class StepAssembler:
         self._groups, self._inputs, self._vectors, self._anchor_signal = (
             (GROUPS, INPUT_GROUPS, VECTOR_KEYS, ANCHOR_SIGNAL) if g is None else
             (g.groups, g.inputs, g.vectors, g.anchor))
-        self._rings = {k: _Ring(depth) for k in (*self._groups, GNSS_SPEED)}
+        self._rings = {k: _Ring(depth) for k in (*self._groups, GNSS_SPEED, GNSS_COURSE)}
         self._signal_group = {names[0]: key for key, names in self._groups.items()}
         self.t_taken = -math.inf
         self.max_late_s = 0.0
@@ -181,9 +190,15 @@ class StepAssembler:
         if self.anchor is None and self._anchor_signal in values:
             self.anchor = t + GRID_MARGIN_S
 
-    def push_speed(self, t: float, speed_mps: float) -> None:
-        """Add a GNSS speed over ground [m/s] of the accepted epoch at ``t`` [s]."""
+    def push_speed(self, t: float, speed_mps: float, course_deg: float | None = None) -> None:
+        """Add a GNSS speed over ground [m/s] of the accepted epoch at ``t`` [s] and its course over ground
+        [deg] (None: the epoch has none, passed as NaN as replay passes a missing course)."""
+        n = self._rings[GNSS_SPEED].seq
         self._push(GNSS_SPEED, t, speed_mps)
+        if self._rings[GNSS_SPEED].seq != n:          # kept (not backwards): the course goes with it, uncounted
+            r = self._rings[GNSS_COURSE]
+            r.seq += 1
+            r.buf.append((t, r.seq, math.nan if course_deg is None else float(course_deg)))
 
     def take(self, t: float) -> tuple[dict[str, Any], dict[str, Any]]:
         """``(inputs, measurements)`` for the step at ``t`` [s] (the rule of the module doc)."""

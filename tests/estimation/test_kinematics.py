@@ -1,0 +1,274 @@
+"""Kinematics in turns, the course-against-heading direction, standstill and inputs slower than the step.
+
+Fast and seeded: closed forms of the wheel-speed factors, the compiled model
+in a turn against plain RK4, the curvature filter on a synthetic circle, the
+estimator on the synthetic truth loop driven round a circle (each wheel at
+its own ground speed), a short ``s-curves-30m`` recording of the physical
+truth model, and a standstill whose covariance must keep growing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from est_synth import synth_run
+
+from tractionecu.config import VehicleParams
+from tractionecu.estimation.estimator import STANDSTILL, Estimator, EstimatorConfig
+from tractionecu.estimation.kinematics import CurvatureFilter
+from tractionecu.model.vehicle import (FilterModel, JIT, rk4, wheel_speed_factor_slopes, wheel_speed_factors)
+
+VEH = VehicleParams()
+B, L = VEH.track_width_m, VEH.wheelbase_m
+
+
+# ----------------------------------------------------------------------------- geometry
+def test_wheel_speed_factors_are_the_radii_of_a_circle():
+    R = 30.0                                   # left turn of 30 m radius round the rear-axle centre
+    k = wheel_speed_factors(1.0 / R, B, L)
+    # each wheel's distance from the turn centre over R
+    assert k[2] == pytest.approx((R - B / 2) / R) and k[3] == pytest.approx((R + B / 2) / R)
+    assert k[0] == pytest.approx(math.hypot(R - B / 2, L) / R) and k[1] == pytest.approx(math.hypot(R + B / 2, L) / R)
+    assert k[1] > k[3] > 1.0 > k[0] > k[2]    # outer faster, front on the larger radius
+    np.testing.assert_allclose(wheel_speed_factors(-1.0 / R, B, L), k[[1, 0, 3, 2]])   # the mirror turn
+    np.testing.assert_array_equal(wheel_speed_factors(0.0, B, L), np.ones(4))
+    # the slopes are the derivative
+    h = 1e-6
+    num = (wheel_speed_factors(1 / R + h, B, L) - wheel_speed_factors(1 / R - h, B, L)) / (2 * h)
+    np.testing.assert_allclose(wheel_speed_factor_slopes(1 / R, B, L), num, rtol=1e-6)
+
+
+def _turn_states(rng, k):
+    x = rng.normal([3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06], [0.05, 0.05, 0.05, 0.05, 0.05, .05, .05, .05, .05, .01],
+                   size=(21, 10))
+    kap = [1 / 30.0, -1 / 30.0, 0.2, 0.0][k % 4]
+    u = np.array([3000.0, 3100.0, 4000.0, 4100.0, 24000.0, 15000.0, kap])
+    return x, u
+
+
+@pytest.mark.skipif(not JIT, reason="compiled core not in use")
+def test_compiled_step_in_a_turn_is_bitwise_rk4():
+    model = FilterModel(VEH)
+    rng = np.random.default_rng(3)
+    for k in range(40):
+        x, u = _turn_states(rng, k)
+        fz, r_d = model.loads(u)
+        ref = rk4(lambda y: model.rhs(y, u, fz, r_d), x, 0.01)
+        assert np.array_equal(model.step(x, u, 0.01), ref)
+
+
+def test_curvature_enters_the_longitudinal_balance():
+    """Front forces act along the steered wheels: v̇ is lower in a turn by Σ F_h,front (1 − cos δ)/m."""
+    model = FilterModel(VEH)
+    x = np.array([3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06])
+    u0 = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 15000.0])
+    u1 = np.append(u0, 1 / 30.0)
+    d0, d1 = model.rhs(x, u0), model.rhs(x, u1)
+    c = model.front_cosines(1 / 30.0)
+    fz, _ = model.loads(u0)
+    assert d1[4] - d0[4] == pytest.approx(-(0.3 * fz[0] * ((1 - c[0]) + (1 - c[1]))) / VEH.mass_kg, rel=1e-9)
+    np.testing.assert_array_equal(d1[:4], d0[:4])
+    np.testing.assert_array_equal(model.rhs(x, np.append(u0, 0.0)), d0)      # κ = 0 is the paper's model
+
+
+# ----------------------------------------------------------------------------- curvature filter
+def _circle(cf: CurvatureFilter, kappa: float, v: float, slip_diff: float, course_sigma: float, seconds: float,
+            rng, gnss: bool = True, direction: float = 1.0) -> None:
+    """Drive cf round a circle: rear wheels at 100 Hz with a slip difference, GNSS course at 10 Hz."""
+    r = 0.78
+    psi = 0.3                                            # heading, counter-clockwise from east
+    for k in range(int(seconds * 100)):
+        t = k * 0.01
+        psi += v * kappa * 0.01
+        v_rl, v_rr = v * (1 - kappa * B / 2), v * (1 + kappa * B / 2)
+        w_rl = v_rl / (r * (1 - 0.05))
+        w_rr = v_rr / (r * (1 - 0.05 - slip_diff))
+        cf.wheels(t, w_rl + 1e-3 * rng.standard_normal(), w_rr + 1e-3 * rng.standard_normal(), 1e-6, 1e-6, v)
+        if gnss and k % 10 == 9:
+            course = math.degrees(math.pi / 2 - psi) + (180.0 if direction < 0 else 0.0)
+            cf.course(t, course + math.degrees(course_sigma) * rng.standard_normal(), abs(v), direction)
+
+
+@pytest.mark.parametrize("v", [2.5, -1.0])
+def test_curvature_from_wheels_and_course_removes_the_slip_difference(v):
+    rng = np.random.default_rng(5)
+    cf = CurvatureFilter(B, 0.05)
+    kappa = 1 / 30.0
+    _circle(cf, kappa, v, 0.01, 0.05 / abs(v), 60.0, rng, direction=math.copysign(1.0, v))
+    k, var = cf.curvature(v, 0.2)
+    # the wheels alone read κ + Δs/b (0.0056 1/m too much); the course removes that bias
+    assert abs(cf.kappa_w - kappa) > 0.004
+    assert abs(k - kappa) < 0.0015 and abs(k - kappa) < 3.0 * math.sqrt(var)
+    assert math.sqrt(var) < 0.006
+
+
+def test_curvature_without_gnss_uses_the_wheels_and_says_so():
+    rng = np.random.default_rng(6)
+    cf = CurvatureFilter(B, 0.05)
+    _circle(cf, 1 / 30.0, 2.5, 0.0, 0.02, 30.0, rng, gnss=False)
+    k, var = cf.curvature(2.5, 0.2)
+    assert abs(k - 1 / 30.0) < 0.0005          # equal slips: the wheel ratio is the curvature
+    sd30 = math.sqrt(var)
+    _circle(cf, 1 / 30.0, 2.5, 0.0, 0.02, 30.0, rng, gnss=False)
+    assert math.sqrt(cf.curvature(2.5, 0.2)[1]) > sd30        # the bias is not checked: σ grows
+    assert cf.curvature(0.05, 0.2) == (0.0, math.inf)            # at standstill κ = ψ̇/v is not defined
+
+
+def test_course_against_heading_tells_the_direction():
+    rng = np.random.default_rng(7)
+    cf = CurvatureFilter(B, 0.05)
+    _circle(cf, 0.0, 2.5, 0.0, 0.02, 10.0, rng)                 # heading known from the forward course
+    heading_course = math.degrees(math.pi / 2 - 0.3)
+    assert cf.course_direction(heading_course + 3.0, 1.0) == 1.0
+    assert cf.course_direction(heading_course + 183.0, 1.0) == -1.0
+    assert cf.course_direction(heading_course + 90.0, 1.0) == 0.0
+    assert CurvatureFilter(B, 0.05).course_direction(heading_course, 1.0) == 0.0     # no heading yet
+
+
+# ----------------------------------------------------------------------------- the estimator in a turn
+def _turning(run, kappa: float, course: bool = True):
+    """The synthetic straight run bent round a circle of curvature κ: each wheel's speed scaled by its
+    ground-speed factor (same slip per wheel), the GNSS course turning at v κ."""
+    k = wheel_speed_factors(kappa, B, L)
+    out = []
+    psi = 0.0
+    t_prev = 0.0
+    vi = 0
+    for t, inputs, meas in run.steps:
+        while vi + 1 < len(run.t) and run.t[vi + 1] <= t:
+            vi += 1
+        psi += run.v[vi] * kappa * (t - t_prev)
+        t_prev = t
+        m = dict(meas)
+        m["omega"] = np.asarray(meas["omega"]) * k
+        if course and "v" in meas:
+            m["course"] = (90.0 - math.degrees(psi)) % 360.0
+        out.append((t, inputs, m))
+    return out
+
+
+@pytest.fixture(scope="module")
+def run20():
+    return synth_run(seed=11, duration=20.0)
+
+
+def test_per_wheel_slip_in_a_turn(run20):
+    """Round a 30 m circle each wheel's slip is as accurate as on the straight (the truth's slip per
+    wheel is the same in both runs); without the curvature the outer wheels read about ±κb/2 of slip
+    too much or too little."""
+    kappa = 1 / 30.0
+    n0 = int(10.0 / 0.01)
+
+    def slip_error(steps, no_curvature=False):
+        est = Estimator(VEH)
+        if no_curvature:
+            est._kin.curvature = lambda v, m: (0.0, math.inf)          # type: ignore[method-assign]
+        got = [est.step(*s) for s in steps]
+        slip = np.array([e.slip for e in got[n0:]])
+        return np.abs(slip - run20.slip[n0:len(got)]).mean(axis=0), np.array([e.kappa for e in got[n0:]])
+
+    straight, _ = slip_error(run20.steps)
+    turn, kap = slip_error(_turning(run20, kappa))
+    assert abs(np.median(kap) - kappa) < 0.001
+    assert (turn <= 1.05 * straight + 3e-4).all()
+    flat, _ = slip_error(_turning(run20, kappa), no_curvature=True)
+    assert (flat > straight + 0.01).all()
+
+
+def test_s_curves_physical_left_right_slip_difference(make_recording):
+    """On the physical truth model's S-curves (30 m radius) the left-right slip difference of each axle
+    (free of the rolling-radius error, which is the same on both sides) follows the truth."""
+    from tractionecu.evaluation.scoring import read_truth
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.recording.reader import read_recording
+
+    rec_dir = make_recording("s-curves-30m", 2, 60.0)
+    res = replay(read_recording(rec_dir))
+    a = res.arrays
+    tr = read_truth(rec_dir / "truth.csv")
+    k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    m = a["valid"] & (np.abs(tr.v[k]) > 1.0)
+    assert m.sum() > 2000
+    se, st = a["slip"][m], tr.slip[k][m]
+    for i, j in ((0, 1), (2, 3)):
+        assert np.mean(np.abs((se[:, j] - se[:, i]) - (st[:, j] - st[:, i]))) < 0.008
+
+
+# ----------------------------------------------------------------------------- standstill
+def test_standstill_holds_flags_and_the_covariance_keeps_growing(run20):
+    """At v = 0 the data cannot support ρ_s or slip: STANDSTILL, not valid, the last moving values held,
+    and the filter's variance of ρ_s and of μ grows step after step."""
+    est = Estimator(VEH)
+    for s in run20.steps:
+        e = est.step(*s)
+    assert e.valid
+    t0, last_in, last_meas = run20.steps[-1]
+    om, md = np.asarray(last_meas["omega"]), np.asarray(last_in["Md"])
+    v0 = float(run20.v[-1])
+    fzf = VEH.static_front_load_n()
+    held = None
+    p_rho = []
+    for k in range(1, 1301):                       # 3 s braking to a stop, then 10 s standing
+        t = t0 + 0.01 * k
+        f = max(0.0, 1.0 - k / 300.0)
+        meas = {"omega": om * f}
+        if k % 10 == 0:
+            meas["v"] = v0 * f
+        e = est.step(t, {"Md": md * f, "Fzf": fzf, "Fdx": 15000.0 * f}, meas)
+        if k <= 300:
+            continue
+        assert e.status & STANDSTILL and not e.valid
+        if held is None:
+            held = (e.rho_s, e.slip.copy())
+        assert e.rho_s == held[0] and np.array_equal(e.slip, held[1])
+        p_rho.append(e.P_diag[9])
+    p_rho = np.array(p_rho)
+    # the variance of ρ_s grows on every step, past the convergence bound: after 10 s standing the filter
+    # itself no longer claims to know ρ_s
+    assert (np.diff(p_rho) > 0).all() and p_rho[-1] > EstimatorConfig().conv_sigma_rho ** 2
+
+
+# ----------------------------------------------------------------------------- inputs slower than the step
+def _subsample(run, every: int):
+    """Wheel speeds and torques only every ``every`` steps (a slower bus), the rest as recorded."""
+    out = []
+    for k, (t, inputs, meas) in enumerate(run.steps):
+        i, m = dict(inputs), dict(meas)
+        if k % every:
+            i.pop("Md", None)
+            m.pop("omega", None)
+        out.append((t, i, m))
+    return out
+
+
+def test_first_order_hold_follows_the_torque_at_20_hz(run20):
+    """With wheel and torque samples at 20 Hz, the first-order hold of the inputs gives μ closer to the
+    truth than holding each sample (the estimate lagged the torque by more than a period)."""
+    steps = _subsample(run20, 5)
+    errs = []
+    for foh in (True, False):
+        est = Estimator(VEH)
+        if not foh:
+            est._first_order_hold = lambda *a: None                   # type: ignore[method-assign]
+        mu = np.array([est.step(*s).mu for s in steps])
+        errs.append(np.nanmean(np.abs(mu[1000:] - run20.mu[1000:len(mu)])))
+    assert errs[0] < 0.95 * errs[1]
+
+
+def test_every_sample_every_step_is_unchanged_by_the_hold(run20):
+    """Inputs on every step: the first-order hold changes nothing (the paper's replay stays as it was)."""
+    est, ref = Estimator(VEH), Estimator(VEH)
+    ref._first_order_hold = lambda *a: None                            # type: ignore[method-assign]
+    steps = [(t, {"Md": i["Md"], "Fzf": VEH.static_front_load_n(), "Fdx": 15000.0}, m)
+             for t, i, m in run20.steps[:600]]
+    for s in steps:
+        a, b = est.step(*s), ref.step(*s)
+        assert np.array_equal(a.mu, b.mu, equal_nan=True)
+
+
+def test_curvature_is_zero_on_a_straight_line(run20):
+    est = Estimator(VEH, EstimatorConfig())
+    kap = [est.step(*s).kappa for s in run20.steps]
+    assert np.max(np.abs(kap[300:])) < 0.01

@@ -1,0 +1,189 @@
+"""Path curvature and the course-against-heading direction test (kinematics in turns).
+
+The estimator's model (:mod:`tractionecu.model.vehicle`, "Kinematics in
+turns") needs the path curvature κ [1/m] of the rear-axle centre, κ = ψ̇/v.
+Two sources measure it:
+
+* the **rear wheels** (not steered, on the reference axle): with equal slip
+  on both sides, r ω_RR / r ω_RL = (1 + κb/2)/(1 − κb/2), so
+
+      κ_w = (2/b)·(ω_RR − ω_RL)/(ω_RR + ω_RL),
+
+  b the track width, for either sign of travel and whatever the common slip.
+  Precise (wheel-speed noise of a few 0.1 %), but a slip difference Δs =
+  s_RR − s_RL between the two wheels reads as curvature: κ_w ≈ κ + Δs/b;
+* the **GNSS course over ground** (RMC/VTG): unbiased, but its noise,
+  σ_χ ≈ σ_v/|v| per epoch (the Doppler velocity noise across the track,
+  ``SensorSpec.gps_speed_sigma``), makes a differentiated course useless at
+  work speed (0.02 rad per epoch at 2.5 m/s, 0.3 rad/s between 10 Hz epochs).
+
+:class:`CurvatureFilter` fuses them as a heading filter fuses a gyro with a
+GNSS course: the state is (heading h, curvature bias β = Δs/b); h is
+propagated with (κ_w − β)·v, v the estimator's signed speed, and every GNSS
+epoch (|v| above ``min_speed``) updates h with the course, turned by 180° in
+reverse.  β is a random walk whose density comes from a rear slip
+difference of up to :data:`SLIP_DIFF_MAX` building up over
+:data:`BIAS_TAU_S` (an assumption: lateral load transfer at 30 m radius and
+2.5 m/s moves about 4 % of a rear wheel's load, a few thousandths of slip,
+and soil varies under the two tracks).  κ = κ_w − β̂ with the variance of
+the (low-passed) wheel term plus P_ββ.  Without GNSS the wheel term is used
+alone and P_ββ grows; without wheel speeds, or below ``min_speed``, κ is not
+known (0 with an infinite variance: the caller limits it).
+
+The wheel term is low-passed with :data:`YAW_TAU_S`: the curvature of a
+work pass changes over metres (a clothoid between S-curve arcs), the
+wheel-speed noise over one sample.
+
+Heading convention: course convention (clockwise from true north, rad), so
+h decreases in a left turn: ḣ = −κ v.
+
+Direction test: once the heading is known (σ_h below ``sigma_max_rad``),
+a course within 60° of the heading means forwards and within 60° of the
+opposite means reverse (:meth:`CurvatureFilter.course_direction`); the
+estimator uses it when neither the machine's direction bit nor the sign of
+wheel rotation decides.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["BIAS_TAU_S", "CurvatureFilter", "SLIP_DIFF_MAX", "YAW_TAU_S"]
+
+SLIP_DIFF_MAX = 0.01
+"""Rear slip difference (right − left) assumed to build up over :data:`BIAS_TAU_S` [-] (module doc)."""
+
+BIAS_TAU_S = 10.0
+"""Time over which that difference builds up [s]."""
+
+YAW_TAU_S = 0.1
+"""Time constant of the low pass on the wheel curvature [s] (module doc)."""
+
+SIGMA_H0 = math.pi
+"""Initial heading uncertainty [rad] (unknown until the first GNSS course)."""
+
+
+def _wrap(a: float) -> float:
+    """Angle into (−π, π]."""
+    return a - 2.0 * math.pi * math.floor((a + math.pi) / (2.0 * math.pi))
+
+
+class CurvatureFilter:
+    """Heading and curvature bias from the rear wheel speeds and the GNSS course (module doc).
+
+    Parameters
+    ----------
+    track_m : rear track width b [m].
+    course_sigma_mps : GNSS velocity noise across the track [m/s] (σ_χ = this / |v|).
+    min_speed_mps : no course update and no curvature below this speed [m/s].
+    """
+
+    def __init__(self, track_m: float, course_sigma_mps: float, min_speed_mps: float = 0.5) -> None:
+        self.b = float(track_m)
+        self.course_sigma = max(float(course_sigma_mps), 1e-4)
+        self.min_speed = float(min_speed_mps)
+        self.q_beta = (SLIP_DIFF_MAX / self.b) ** 2 / BIAS_TAU_S        # 1/(m² s)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the heading and the bias."""
+        self.h = math.nan
+        """Heading [rad], course convention; NaN until the first GNSS course."""
+        self.P = [SIGMA_H0 ** 2, 0.0, (SLIP_DIFF_MAX / self.b) ** 2]     # P_hh, P_hβ, P_ββ
+        self.beta = 0.0
+        """Curvature bias of the wheel term [1/m]."""
+        self.kappa_w = math.nan
+        """Low-passed wheel curvature κ_w [1/m]."""
+        self.var_w = math.inf
+        """Its variance [1/m²]."""
+        self.v = 0.0
+        self._t = math.nan
+        self._tw = math.nan
+
+    # ------------------------------------------------------------------ sources
+    def wheels(self, t: float, w_rl: float, w_rr: float, var_rl: float, var_rr: float, v: float) -> None:
+        """Rear wheel speeds ω_RL, ω_RR [rad/s] at t [s] with their noise variances, and the signed
+        speed v [m/s] of the rear-axle centre (the heading moves with κ v)."""
+        sm = w_rr + w_rl
+        if not math.isfinite(sm) or abs(sm) < 1e-9:
+            return
+        self._predict(t)
+        self.v = v
+        k = 2.0 / self.b * (w_rr - w_rl) / sm
+        # ∂κ_w/∂ω_RR = (4/b) ω_RL / sm², ∂κ_w/∂ω_RL = −(4/b) ω_RR / sm²
+        g = 4.0 / (self.b * sm * sm)
+        var = g * g * (w_rl * w_rl * var_rr + w_rr * w_rr * var_rl)
+        dt = t - self._tw if self._tw == self._tw else math.inf
+        self._tw = t
+        if not self.kappa_w == self.kappa_w or not dt < 10.0 * YAW_TAU_S:
+            self.kappa_w, self.var_w = k, var
+            return
+        a = dt / (YAW_TAU_S + dt)
+        self.kappa_w += a * (k - self.kappa_w)
+        # white input noise through the low pass (a/(2 − a) of it once settled)
+        self.var_w = (1.0 - a) * (1.0 - a) * self.var_w + a * a * var
+
+    def _predict(self, t: float) -> None:
+        dt = t - self._t if self._t == self._t else 0.0
+        self._t = t
+        if not dt > 0.0:
+            return
+        P = self.P
+        if self.h == self.h and self.kappa_w == self.kappa_w:
+            # ḣ = −(κ_w − β) v: h ← h − (κ_w − β) v dt, ∂h/∂β = v dt
+            vd = self.v * dt
+            self.h = _wrap(self.h - (self.kappa_w - self.beta) * vd)
+            phh = P[0] + 2.0 * vd * P[1] + vd * vd * P[2] + self.var_w * vd * vd
+            phb = P[1] + vd * P[2]
+            P[0], P[1] = phh, phb
+        P[2] += self.q_beta * dt
+
+    def course(self, t: float, course_deg: float, speed_mps: float, direction: float) -> None:
+        """A GNSS course over ground [deg from north] at t [s] with the speed [m/s] and the direction of travel
+        (+1 forwards, −1 reverse: the course then points 180° from the heading)."""
+        if not (math.isfinite(course_deg) and math.isfinite(speed_mps)) or abs(speed_mps) < self.min_speed:
+            return
+        self._predict(t)
+        z = math.radians(course_deg) + (math.pi if direction < 0 else 0.0)
+        r = (self.course_sigma / abs(speed_mps)) ** 2
+        if self.h != self.h:
+            self.h = _wrap(z)
+            self.P[0] = r
+            self.P[1] = 0.0
+            return
+        P = self.P
+        nu = _wrap(z - self.h)
+        s = P[0] + r
+        if nu * nu > 16.0 * s:
+            # a course far from the heading: a direction change not seen yet, or a glitch; the
+            # heading is not moved by it
+            return
+        kh, kb = P[0] / s, P[1] / s
+        self.h = _wrap(self.h + kh * nu)
+        self.beta += kb * nu                 # β is seen through its correlation with h (P_hβ)
+        p00, p01, p11 = P
+        P[0] = p00 - kh * p00
+        P[1] = p01 - kh * p01
+        P[2] = p11 - kb * p01
+
+    # ------------------------------------------------------------------ outputs
+    def curvature(self, v: float, min_speed_mps: float) -> tuple[float, float]:
+        """(κ [1/m], its variance [1/m²]) of the rear-axle centre moving at the signed speed v [m/s].
+
+        Below ``min_speed_mps`` (or without wheel speeds) the curvature is not known: (0, ∞).
+        """
+        if not self.kappa_w == self.kappa_w or abs(v) < min_speed_mps:
+            return 0.0, math.inf
+        return self.kappa_w - self.beta, self.var_w + self.P[2]
+
+    def course_direction(self, course_deg: float, speed_mps: float, sigma_max_rad: float = 0.35) -> float:
+        """+1 when the course points along the heading, −1 when against it, 0 when undecided."""
+        if (self.h != self.h or not math.isfinite(course_deg) or abs(speed_mps) < self.min_speed
+                or self.P[0] > sigma_max_rad * sigma_max_rad):
+            return 0.0
+        d = abs(_wrap(math.radians(course_deg) - self.h))
+        if d < math.pi / 3.0:
+            return 1.0
+        if d > 2.0 * math.pi / 3.0:
+            return -1.0
+        return 0.0
