@@ -167,3 +167,23 @@ def test_scoring_uses_the_identified_shape():
     # a tabulated true curve
     tab = {"soil_class": "stubble", "a": 0.8, "mu_curve_s": [0.0, 0.2, 0.4], "mu_curve": [0.0, 0.6, 0.8]}
     assert true_curve(tab, np.array([0.1, 0.3])) == pytest.approx([0.3, 0.7])
+
+
+def test_estimates_carry_the_curve():
+    """The estimator hands its curve state to every estimate: Estimate.curve (callable) and .curve_path."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from est_synth import synth_run
+
+    from tractionecu.config import VehicleParams
+    from tractionecu.estimation.estimator import Estimator
+
+    run = synth_run(seed=1, duration=12.0, a=0.72)
+    est = Estimator(VehicleParams())
+    out = [est.step(t, u, z) for t, u, z in run.steps]
+    last = out[-1]
+    assert last.curve_path == "class:stubble" and last.curve is not None
+    assert last.curve.a == last.a and last.curve(0.1) == pytest.approx(STUBBLE.mu(0.1, last.a))
+    assert out[0].curve is None or out[0].curve_path.startswith("class:")
