@@ -8,8 +8,10 @@ next to ``estimates.csv``:
   ``truth.csv``, with the replay's ``realtime_factor``;
 * ``map_scorecard.json`` — when the replay wrote a map, that map against the
   field of ``truth.toml`` (:mod:`.map_truth`);
-* with ``plot``: ``fig6_mu_rho.png`` and ``fig5_mu_curves.png``
-  (:mod:`.plots`), also for a recording without truth (estimates only).
+* with ``plot``: ``fig6_mu_rho.png``, ``fig5_mu_curves.png``,
+  ``fig_efficiency.png`` (η and s*) and ``report.html`` (map, curves,
+  efficiency over the track, advice) (:mod:`.plots`), also for a recording
+  without truth (estimates only).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from .map_truth import score_replay_map
-from .plots import plot_run
+from .plots import plot_efficiency, plot_run
 from .machine_score import is_machine_level, machine_scorecard
 from .scoring import read_truth, scorecard
 
@@ -58,6 +60,8 @@ def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
         add["scorecard"] = sc
     if plot:
         add["plots"] = plot_run(out, arrays, truth, sc)
+        eff_paths, _ = plot_efficiency(out, rec, arrays, truth)     # η and s*, and report.html
+        add["plots"] += eff_paths
     if sc is not None:
         sc_out = dict(sc)
         if "realtime_factor" in summary:
