@@ -382,6 +382,9 @@ class DrivetrainSpec:
                                 "(one wheel-based speed)")
     wheel_speed_radius_m: float = setting(0.0, "radius the tractor converts wheel speed to its wheel-based "
                                           "speed with (CCVS1 / WBSD) [m]; 0: r0_m", 0.0, 2.5)
+    rolling_radius_m: float = setting(0.0, "effective rolling radius of the rear wheels at their static load, from "
+                                      "the tractor's wheel-speed distance calibration (a measured 100 m driven "
+                                      "with the implement raised) [m]; 0: eq. 9 from r0_m and the tyre data", 0.0, 2.5)
     load_sensing: str = setting("none", "front-axle (load pins) | none (loads from the mass, the static front "
                                 "share and the draft)")
     draft_sensing: bool = setting(True, "the hitch measures the draft (ISO 11783-7 rear hitch status); false: "

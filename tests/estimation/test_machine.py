@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from tractionecu.config import G, DrivetrainSpec, VehicleParams
+from tractionecu.config import DrivetrainSpec, VehicleParams
 from tractionecu.estimation.estimator import STATUS_NAMES, status_names
 from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MachineEstimate,
                                             MachineEstimator)
@@ -181,3 +181,17 @@ def test_hub_vehicle_is_refused_and_bad_input_is_counted() -> None:
     est = MachineEstimator(mech_vehicle())
     e = est.step(0.0, {"Te": float("nan"), "Tref": -3.0, "gear": None}, {"we": -1.0, "v": float("inf")})
     assert not e.valid and est.counters["rejected_inputs"] == 1 and est.counters["rejected_measurements"] == 2
+
+
+def test_declared_line_of_pull_and_calibrated_radius_set_the_loads() -> None:
+    import dataclasses
+
+    veh = dataclasses.replace(mech_vehicle(rolling_radius_m=0.78), pull_angle_deg=8.0)
+    est = MachineEstimator(veh)
+    est._in["Fdx"] = 20000.0
+    fzf, fzr, rdf, rdr = est.loads()
+    assert fzf + fzr == pytest.approx(veh.weight_n + 20000.0 * math.tan(math.radians(8.0)))
+    est._in["Fdx"] = 0.0
+    _, fzr0, _, rdr0 = est.loads()
+    assert fzr0 == pytest.approx(0.6 * veh.weight_n) and rdr0 == pytest.approx(0.78)
+    assert rdr < rdr0                                 # more load in work: eq. 9's change from the static load

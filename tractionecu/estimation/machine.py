@@ -216,6 +216,8 @@ class MachineEstimator:
         and never past the first time a stream could time out."""
         self._consts = np.array([vehicle.rho_t, self.W, self.m])
         self._tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
+        self._r_cal = dt.rolling_radius_m
+        self._rdr_static = float(rolling_radius(0.5 * (1.0 - vehicle.static_front_fraction) * self.W, vehicle))
         self._cal_cfg = cfg.calibration if hasattr(cfg, "calibration") else None
         self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
         grid = np.linspace(0.0, 1.0, 4001)
@@ -286,7 +288,8 @@ class MachineEstimator:
     def loads(self) -> tuple[float, float, float, float]:
         """(F_zf, F_zr [N], r_d front, r_d rear [m]): measured front-axle load, else the static share less
         the draft's load transfer F_dx h_hitch / L; the rear carries the rest of m g + F_dx tan β (the line of
-        pull, ``pull_angle_deg``); r_d per axle from eq. 9, times the rear axle's self-calibrated scale
+        pull, ``pull_angle_deg``); r_d per axle from eq. 9 (moved to the declared ``rolling_radius_m`` at the
+        rear wheels' static load, when given), times the rear axle's self-calibrated scale
         (:mod:`.calibration`, once applied)."""
         key = (self._in["Fzf"], self._in["Fdx"], self._radius_version)
         if key == self._loads_key:
@@ -299,6 +302,9 @@ class MachineEstimator:
             fzf = min(max(fzf, 0.05 * self.W), 0.95 * self.W)
         fzr = self.W + fdx * self._tan_pull - fzf
         rdf, rdr = rolling_radius(np.array([0.5 * fzf, 0.5 * fzr]), veh).tolist()
+        if self._r_cal > 0.0:                  # the calibrated radius, with eq. 9's change from its static load
+            shift = self._r_cal - self._rdr_static
+            rdf, rdr = rdf + shift, rdr + shift
         k = self._radius.applied[1]
         self._loads_key, self._loads = key, (fzf, fzr, rdf * k, rdr * k)
         self._terms_key = None
