@@ -11,11 +11,12 @@ reflected to the wheel; the wheel receives it through
   hub bearings and seals; Naunheimer et al. 2011, "Automotive
   Transmissions", 2nd ed.: 0.97–0.99 per planetary stage), and a
   speed-proportional drag (oil churning);
-* a torsional compliance between motor and wheel (the half-shaft, the
-  planetary carrier and the tyre's own torsional wind-up in the rim region):
-  a spring k and damper c in series with the motor inertia.  Wheel-side
-  torsional stiffness of tractor axle drives is 20–100 kN·m/rad (Renius
-  2020, "Fundamentals of Tractor Design", drive-line chapters), here 50 kN·m/rad with a damping ratio of ≈ 0.1.
+* a torsional compliance between motor and wheel (gear meshes, planet
+  carrier, hub and rim): a spring k and damper c between the motor inertia
+  and the wheel.  150 kN·m/rad at the wheel with a damping ratio of ≈ 0.3
+  (mesh damping and the inverter's current loop) is an assumption of this
+  model; the tyre's own torsional wind-up is the relaxation length of
+  :mod:`.tyre`.
 
 The wheel-speed pickup sits on the motor shaft: it measures the motor speed,
 which differs from the wheel speed while the shaft winds up.
@@ -66,9 +67,9 @@ class HubDriveSpec:
     """Torque efficiency of the hub reduction (motor → wheel) [-]."""
     drag_nms: float = 4.0
     """Speed-proportional drag at the wheel [N·m per rad/s] (≈ 13 N·m at 2.5 m/s)."""
-    stiffness_nmprad: float = 5.0e4
+    stiffness_nmprad: float = 1.5e5
     """Torsional stiffness between motor and wheel, wheel side [N·m/rad]."""
-    damping_nmsprad: float = 300.0
+    damping_nmsprad: float = 1000.0
     """Torsional damping between motor and wheel [N·m·s/rad]."""
     motor_inertia_kgm2: float = 37.0
     """Rotor inertia reflected to the wheel [kg·m²] (0.06 kg·m² through 1:25)."""
