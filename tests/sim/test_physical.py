@@ -256,3 +256,18 @@ def test_paper_scenario_byte_identical(tmp_path):
     write_recording(scn, simulate(scn), tmp_path)
     got = {n: hashlib.sha256((tmp_path / n).read_bytes()).hexdigest() for n in PAPER_20S_SHA256}
     assert got == PAPER_20S_SHA256
+
+
+def test_s_curve_and_circle_plans_have_30m_radius():
+    from tractionecu.sim.physical import _path_curvature
+    from tractionecu.sim.plan import circles, s_curves
+    p = s_curves(0.0, 0.0, 240.0, 3, 12.0, radius=30.0, v_work=2.5, v_turn=1.2)
+    k = _path_curvature(p)[p.work]
+    assert np.median(np.abs(k)) == pytest.approx(1 / 30.0, rel=0.01)
+    assert (k > 0.02).mean() > 0.3 and (k < -0.02).mean() > 0.3        # left and right arcs alternate
+    sign_changes = np.count_nonzero(np.diff(np.sign(k[np.abs(k) > 0.02])) != 0)
+    assert sign_changes >= 20
+    c = circles(0.0, 0.0, 30.0, 2, v_work=2.5)
+    kc = _path_curvature(c)
+    assert np.sum(np.abs(kc - 1 / 30) < 1e-3) * 0.05 == pytest.approx(2 * np.pi * 30, rel=0.01)
+    assert np.sum(np.abs(kc + 1 / 30) < 1e-3) * 0.05 == pytest.approx(2 * np.pi * 30, rel=0.01)
