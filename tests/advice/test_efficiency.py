@@ -144,3 +144,23 @@ def test_the_message_decodes_back() -> None:
     assert all(math.isnan(vals[k]) for k in ("OptimalSlip", "TractionEfficiency", "TractionEfficiencyAtOptimum"))
     _, vals = codec.decode(*efficiency_frame(codec, None, sa=0x90, priority=6))
     assert int(vals["EfficiencyValidity"]) & eff.CURVE_NOT_IDENTIFIED
+
+
+def test_the_identified_mucurve_of_any_form_is_used() -> None:
+    from tractionecu.model.mucurve import MuCurve
+
+    # the class path without var(a) yet: a from the curve, σ(a) left to the estimate
+    est = SimpleNamespace(curve=MuCurve.from_class(STUBBLE, 0.7), soil_class="stubble", a=0.7)
+    c = eff.curve_of(est)
+    assert c is not None and c.cov is None and c.mu(0.08) == pytest.approx(float(STUBBLE.mu(0.08, 0.7)))
+    # a fitted eq. 14 shape with its covariance: s* and its interval from all four parameters
+    theta = (0.7, STUBBLE.p, STUBBLE.alpha1, STUBBLE.alpha2)
+    cov = np.diag([0.01 ** 2, 0.02 ** 2, 2.0 ** 2, 0.3 ** 2])
+    est = SimpleNamespace(curve=MuCurve("eq14", theta, cov, "shape:eq14"), soil_class="stubble", a=0.7)
+    c = eff.curve_of(est)
+    s0, e0, ss, _ = eff.optimum_with_interval(c, 0.07, 0.015, 0.0)
+    assert (s0, e0) == pytest.approx(eff.optimum(curve(0.7), 0.07, 0.015), abs=1e-9)
+    assert 0 < ss < 0.05
+    # a shape whose covariance is not known: no interval, so no s*
+    est = SimpleNamespace(curve=MuCurve("eq14", theta, np.full((4, 4), np.nan), "shape:eq14"), soil_class="x", a=0.7)
+    assert math.isinf(eff.optimum_with_interval(eff.curve_of(est), 0.07, 0.015, 0.0)[2])

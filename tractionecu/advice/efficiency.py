@@ -36,7 +36,7 @@ undetermined) and the interval of s* is narrow enough.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Sequence
 
 import numpy as np
@@ -86,25 +86,47 @@ class CurveParams:
     cov: NDArray[np.float64] | None = None
     names: tuple[str, ...] = ("a",)
     class_name: str = ""
+    theta: tuple[float, ...] | None = None
+    """Parameters of a curve of another form (``model.mucurve.MuCurve``: ``names``, ``cov`` over them),
+    evaluated by ``eval_theta(theta, s)``; None: eq. 14 from a, p, α1, α2."""
+    eval_theta: Any = None
 
     def mu(self, s: ArrayLike) -> NDArray[np.float64]:
         """μ(s) [-], odd in s."""
         s = np.asarray(s, dtype=float)
+        if self.eval_theta is not None:
+            return np.asarray(self.eval_theta(self.theta, s), dtype=float)
         sa = np.abs(s)
         return np.sign(s) * self.a * (1.0 - self.p * np.exp(self.alpha1 * sa) - (1.0 - self.p) * np.exp(self.alpha2 * sa))
 
     def g(self, s: float) -> float:
         """g(s) = μ(s)/a for s ≥ 0 [-]."""
+        if self.eval_theta is not None:
+            return float(self.mu(s)) / self.a
         return 1.0 - self.p * math.exp(self.alpha1 * s) - (1.0 - self.p) * math.exp(self.alpha2 * s)
 
     def dg(self, s: float) -> float:
         """dg/ds for s ≥ 0 [-]."""
+        if self.eval_theta is not None:
+            h = 1e-5
+            return (float(self.mu(s + h)) - float(self.mu(max(s - h, 0.0)))) / (s + h - max(s - h, 0.0)) / self.a
         return -self.p * self.alpha1 * math.exp(self.alpha1 * s) - (1.0 - self.p) * self.alpha2 * math.exp(self.alpha2 * s)
 
     def with_values(self, **kw: float) -> "CurveParams":
+        if self.eval_theta is not None:
+            th = list(self.theta or ())
+            for k, v in kw.items():
+                th[self.names.index(k)] = v
+            return replace(self, theta=tuple(th))
         d = dict(a=self.a, p=self.p, alpha1=self.alpha1, alpha2=self.alpha2)
         d.update(kw)
-        return CurveParams(**d, sigma_a=self.sigma_a, cov=self.cov, names=self.names, class_name=self.class_name)
+        return replace(self, **d)
+
+    def value(self, name: str) -> float:
+        """A parameter's value by name."""
+        if self.eval_theta is not None:
+            return float((self.theta or ())[self.names.index(name)])
+        return float(getattr(self, name))
 
     def covariance(self) -> tuple[tuple[str, ...], NDArray[np.float64]]:
         """``(names, covariance)`` of the identified parameters (a alone from ``sigma_a`` without ``cov``)."""
@@ -117,10 +139,14 @@ class CurveParams:
 def curve_of(est: Any, sigma_a: float = math.nan) -> CurveParams | None:
     """The identified curve of an estimate, None while a is unknown.
 
-    Reads a richer identification when the estimate carries one (an object
-    ``est.curve`` with ``a, p, alpha1, alpha2`` and optionally ``cov`` over
-    ``names``); else the estimate's class shape (:data:`SOIL_CLASSES`) with
-    its ``a`` and ``sigma_a``.
+    Reads the estimate's identified curve when it carries one (``est.curve``:
+    a :class:`~tractionecu.model.mucurve.MuCurve` of any form, evaluated by
+    its ``eval_theta`` with ``cov`` over its ``names``; or any object with
+    ``a, p, alpha1, alpha2`` and optionally ``cov`` over ``names``); else the
+    estimate's class shape (:data:`SOIL_CLASSES`) with its ``a`` and
+    ``sigma_a``.  A covariance not known yet (NaN) leaves σ(a) to
+    :func:`sigma_a_from_estimate` when only a is identified, and makes the
+    interval unknown (s* not given) for a fitted shape.
     """
     c = getattr(est, "curve", None)
     if c is not None and all(hasattr(c, k) for k in ("a", "p", "alpha1", "alpha2")):
@@ -128,11 +154,20 @@ def curve_of(est: Any, sigma_a: float = math.nan) -> CurveParams | None:
         if not (math.isfinite(a) and a > 0):
             return None
         cov = getattr(c, "cov", None)
+        cov = None if cov is None else np.asarray(cov, dtype=float)
         names = tuple(getattr(c, "names", ("a", "p", "alpha1", "alpha2")))
-        sa = _f(getattr(c, "sigma_a", sigma_a))
-        return CurveParams(a, _f(c.p), _f(c.alpha1), _f(c.alpha2), sa,
-                           None if cov is None else np.asarray(cov, dtype=float), names,
-                           str(getattr(est, "soil_class", "")))
+        if cov is not None and (cov.shape != (len(names), len(names)) or not np.isfinite(cov).all()):
+            cov = None                   # not known yet: σ(a) from the estimate when only a is identified
+        name = str(getattr(est, "soil_class", ""))
+        theta = getattr(c, "theta", None)
+        if theta is not None and hasattr(c, "eval_theta"):      # model.mucurve.MuCurve (any form)
+            if cov is None and names != ("a",):
+                cov = np.full((len(names), len(names)), np.inf)   # a shape without its covariance: unknown
+            return CurveParams(a, _f(c.p), _f(c.alpha1), _f(c.alpha2), sigma_a, cov, names,
+                               str(getattr(c, "path", name)).split(":")[-1], tuple(float(x) for x in theta),
+                               c.eval_theta)
+        return CurveParams(a, _f(c.p), _f(c.alpha1), _f(c.alpha2), _f(getattr(c, "sigma_a", sigma_a)), cov,
+                           names, name)
     a = _f(getattr(est, "a", math.nan))
     cls = SOIL_CLASSES.get(str(getattr(est, "soil_class", "")))
     if cls is None or not (math.isfinite(a) and a > 0):
@@ -215,13 +250,14 @@ def optimum_with_interval(curve: CurveParams, rho_s: float, rho_t: float,
         return s0, e0, math.inf, math.inf
     J = np.zeros((2, n))
     for j, name in enumerate(names):
-        h = _STEPS[name]
         if name == "rho_s":
+            h = _STEPS[name]
             sp, ep = optimum(curve, rho_s + h, rho_t)
             sm, em = optimum(curve, max(rho_s - h, 0.0), rho_t)
             hh = (rho_s + h) - max(rho_s - h, 0.0)
         else:
-            v = getattr(curve, name)
+            v = curve.value(name)
+            h = _STEPS.get(name, 0.01 * max(abs(v), 0.1))
             sp, ep = optimum(curve.with_values(**{name: v + h}), rho_s, rho_t)
             sm, em = optimum(curve.with_values(**{name: v - h}), rho_s, rho_t)
             hh = 2 * h
@@ -405,11 +441,10 @@ class EfficiencyTracker:
             if pulling and not flags & ESTIMATE_INVALID:
                 self._sigma_a = sigma_a_from_estimate(curve, mu, s, v, P)
             if curve.cov is None:
-                curve = CurveParams(curve.a, curve.p, curve.alpha1, curve.alpha2, self._sigma_a, None, ("a",),
-                                    curve.class_name)
+                curve = replace(curve, sigma_a=self._sigma_a, names=("a",))
             rep.sigma_a = curve.sigma_a if curve.cov is None else math.sqrt(max(float(curve.covariance()[1][0, 0]), 0.0))
             var_rho = float(P[9]) if P.shape[-1] > 9 else math.nan
-            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_s, var_rho)
+            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_s, var_rho, curve.theta)
             if with_optimum or self._cache is None:
                 if math.isfinite(rho_s):
                     self._cache = (key, optimum_with_interval(curve, rho_s, c.rho_t, var_rho))

@@ -42,10 +42,12 @@ def run_advice(arrays: dict[str, Any], vehicle: Any, settings: AdviceSettings | 
     events: list[dict[str, Any]] = []
     active: set[str] = set()
     cls = arrays["soil_class"]
+    curves = arrays.get("curve")
     for j, k in enumerate(idx.tolist()):
         e = SimpleNamespace(t=float(t[k]), mu=arrays["mu"][k], slip=arrays["slip"][k], rho_s=float(arrays["rho_s"][k]),
                             v=float(arrays["v"][k]), P_diag=arrays["P_diag"][k], a=float(arrays["a"][k]),
-                            soil_class=str(cls[k]), status=int(arrays["status"][k]), valid=bool(arrays["valid"][k]))
+                            soil_class=str(cls[k]), status=int(arrays["status"][k]), valid=bool(arrays["valid"][k]),
+                            curve=None if curves is None else curves[k])
         rep = eng.feed(e)
         for name in keys:
             out[name][j] = getattr(rep, name)
