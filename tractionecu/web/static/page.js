@@ -118,7 +118,8 @@
     }
     if (!isFinite(x0)) { ctx.fillStyle = "#777"; ctx.fillText("no mapped position yet", 10, 20); return; }
     const k = Math.min((W - 10) / (x1 - x0), (H - 10) / (y1 - y0));
-    const X = (i) => 5 + (i - x0) * k, Y = (i) => H - 5 - (i - y0) * k;
+    const ox = (W - (x1 - x0) * k) / 2, oy = (H - (y1 - y0) * k) / 2;     // centred
+    const X = (i) => ox + (i - x0) * k, Y = (i) => H - oy - (i - y0) * k;
     const span = (v1 - v0) || 1;
     for (const c of map.cells.values()) {
       if (c[j] == null) continue;
