@@ -164,6 +164,11 @@ def format_summary(res: dict[str, Any]) -> str:
         lines.append(f"{'map_rho_s_rmse':<22}  {num(msc['map_rho_s_rmse'], '.4f')}")
     if "map_samples" in res:
         lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped -> {res['map_dir']}")
+    for axle, c in res.get("radius_calibration", {}).items():       # estimation/calibration.py
+        if c.get("blocks"):
+            val = "n/a" if c["scale"] is None else f"{c['scale']:.4f} ± {c['halfwidth95']:.4f} (95 %)"
+            lines.append(f"radius_scale[{axle}]: {val}, {c['blocks']} low-slip blocks, "
+                         f"{'applied' if c['applied'] else 'not applied'}")
     for k in ("estimates_csv", "scorecard_json", "config"):
         if k in res:
             lines.append(f"{k}: {res[k]}")
