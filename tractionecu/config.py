@@ -371,15 +371,12 @@ class DrivetrainSpec:
     front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls)")
     front_lead: float = setting(0.02, "front-axle lead: front over rear wheel circumferential speed, minus 1 [-] "
                                 "(1-5 % on MFWD tractors)", -0.1, 0.2)
-    front_torque_share: float = setting(-1.0, "share of the wheel torque to the front axle when a "
-                                        "centre differential or clutch sets it [-]; -1: rigid MFWD coupling "
-                                        "(the tyres share it)", -1.0, 1.0)
     engine_friction_percent: float = setting(0.0, "nominal friction percent torque (J1939 EEC3 SPN 514) taken "
                                              "off EEC1's indicated percent torque [%]", 0.0, 50.0)
     engine_inertia_kgm2: float = setting(2.0, "engine flywheel and crankshaft inertia J_e [kg·m²] "
                                          "(reflected to the wheels by the total ratio squared)", 0.0, 100.0)
-    wheel_speeds: str = setting("auto", "auto | per-wheel | per-axle (EBC2 relative speeds) | machine "
-                                "(one wheel-based speed)")
+    wheel_speeds: str = setting("auto", "auto | per-wheel | per-axle (EBC2 front-axle and relative speeds) | "
+                                "machine (one wheel-based speed: EBC2 is not used)")
     wheel_speed_radius_m: float = setting(0.0, "radius the tractor converts wheel speed to its wheel-based "
                                           "speed with (CCVS1 / WBSD) [m]; 0: r0_m", 0.0, 2.5)
     rolling_radius_m: float = setting(0.0, "effective rolling radius of the rear wheels at their static load, from "
@@ -397,9 +394,6 @@ class DrivetrainSpec:
                              ("front_drive", FRONT_DRIVE)):
             if getattr(self, key) not in allowed:
                 raise ConfigError(f"drivetrain.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
-        if not (self.front_torque_share == -1.0 or 0.0 <= self.front_torque_share <= 1.0):
-            raise ConfigError(f"drivetrain.front_torque_share = {self.front_torque_share!r}: a share in [0, 1], "
-                              "or -1 for a rigid coupling")
         if self.kind != "hub" and self.gear_ratio == "bus" and not self.final_drive_ratio >= 1.0:
             raise ConfigError(f"drivetrain.final_drive_ratio: needed for kind = {self.kind!r} with gear_ratio = "
                               "'bus' (the wheel torque is the engine torque times gear and final drive ratios)")

@@ -66,7 +66,11 @@ Measurements, in state units: the drive speed ω from the engine speed over
 the total ratio (EEC1 at 10-20 ms), else from the wheel-based speed (CCVS1
 or WBSD, over ``wheel_speed_radius_m``), else from EBC2's front-axle speed
 over (1 + λ) r_r; the ground speed from GBSD (radar) and the GNSS, each
-when it arrives.
+when it arrives.  EBC2's left and right rear wheels tell a turn (for the
+radius calibration); ``[drivetrain] wheel_speeds = "machine"`` leaves EBC2
+out.  Axle-level estimation (a torque split set by a centre differential)
+is not implemented: with a rigid MFWD coupling the bus supports the
+machine level only.
 
 Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 """
@@ -217,6 +221,7 @@ class MachineEstimator:
         self._consts = np.array([vehicle.rho_t, self.W, self.m])
         self._tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
         self._r_cal = dt.rolling_radius_m
+        self._ebc2 = dt.wheel_speeds != "machine"      # EBC2's front-axle and wheel speeds used
         self._rdr_static = float(rolling_radius(0.5 * (1.0 - vehicle.static_front_fraction) * self.W, vehicle))
         self._cal_cfg = cfg.calibration if hasattr(cfg, "calibration") else None
         self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
@@ -448,7 +453,7 @@ class MachineEstimator:
         if we is not None and not (math.isfinite(we) and we >= 0.0):
             counters["rejected_measurements"] += 1
             we = None
-        vfa = meas.get("vfa")
+        vfa = meas.get("vfa") if self._ebc2 else None
         if vfa is not None and not (math.isfinite(vfa) and vfa >= 0.0):
             vfa = None
         if vwb is not None:
