@@ -205,6 +205,9 @@ class Estimate:
 
 # ----------------------------------------------------------------------------- estimator
 _INPUT_KEYS = ("Md", "Fzf", "Fdx")
+KAPPA_NOISE_MIN = 0.003
+"""Below this path curvature [1/m] (radius above 330 m) the curvature's term in Q is left out: it grows with
+κ², and there it is below 0.1 % of the model-error term q_v (Estimator._kappa_noise)."""
 KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
 curvature input is limited to ±this, and so is its standard deviation when it is not known."""
@@ -344,7 +347,8 @@ class Estimator:
         terms, which depend on μ̂ and r_d) are rebuilt when the adaptation is
         recomputed or dt changes; the torque term is added every step.
         """
-        if dt != self._Qdt or self._Qbase is None:
+        if self._Qbase is None or abs(dt - self._Qdt) > 1e-6 * dt:
+            # (steps of the same period differ in their last bits on epoch-second grids: the same Q)
             self._rebuild_Q(dt)
         if not self.cfg.input_noise:
             return self._Qbase  # type: ignore[return-value]
@@ -356,7 +360,8 @@ class Estimator:
             Q = self._Qbase.copy()  # type: ignore[union-attr]
             sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
             Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
-        if self._u[IU_KAPPA] != 0.0 and self.ukf is not None:
+        kap = self._u[IU_KAPPA]
+        if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
             Q[IX_V, IX_V] += self._kappa_noise(dt)
         return Q
 
