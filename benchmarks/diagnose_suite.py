@@ -57,7 +57,12 @@ def run_case(name: str, workdir: str, reuse: bool) -> dict:
     if not (reuse and (rec / "can.log").is_file()):
         write_case(case, rec)
     t1 = time.perf_counter()
-    d = diagnose(rec)
+    try:
+        d = diagnose(rec)
+    except Exception as exc:  # a crash is a result of the suite: counted as wrong, with its message
+        return {"case": name, "kind": case.kind, "truth_model": case.truth_model, "truth": None,
+                "verdict": "error", "effect": None, "ambiguous_between": [], "reported": [],
+                "correct": False, "covered": {}, "fitted": {}, "error": f"{type(exc).__name__}: {exc}"}
     t2 = time.perf_counter()
     row = score_case(case, d)
     row["simulate_s"] = round(t1 - t0, 2)
@@ -119,8 +124,15 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     names = [c.name for c in sel]
     if args.jobs > 1:
+        from concurrent.futures import as_completed
+
         with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-            rows = list(ex.map(run_case, names, [workdir] * len(names), [args.reuse] * len(names)))
+            futs = {ex.submit(run_case, n, workdir, args.reuse): n for n in names}
+            done = {}
+            for f in as_completed(futs):
+                done[futs[f]] = f.result()
+                print(table([done[futs[f]]]).splitlines()[-1], flush=True)   # progress, one line per case
+            rows = [done[n] for n in names]
     else:
         rows = [run_case(n, workdir, args.reuse) for n in names]
     wall = time.perf_counter() - t0

@@ -11,6 +11,15 @@
   ljung_box_p_after, nis_coverage_before, nis_coverage_after, noise_sigma, unit, signal}`` on
   held-out data (NIS coverage: share inside the χ²(1) 95 % bound, see :mod:`.locate`);
 - ``locate``: lead channel, change points, regimes, signature correlations;
+- ``effects``: every effect the diagnosis reports, in rank order, each ``{name, kind, named,
+  score, formula, plain, parameters: {p: {value, ci95, unit, at_bound}}, trades_off_with: [{with,
+  correlation}]}``; ``kind`` is ``effect`` or ``sensor_fault`` (named by the forward stepwise
+  augmentation and fitted jointly), ``characteristic`` (healthy-size relaxation or drivetrain
+  efficiency: what every machine has), ``nominal`` (the load transfer of the nominal model) or
+  ``sensor_fault`` found by a data check (wheel-speed hold);
+- ``steps``: the augmentation, step by step, and why it stopped;
+- ``open_world``: structure left after the named effects (channel, where, when, how big) and the
+  held-out sparse regression of it on measured signals (:mod:`.openworld`);
 - ``statement``, ``grade_check``, ``notes``, and ``estimator`` when the innovation view ran.
 
 Figures: ``residual_before_after.png``, ``residual_map.png``, ``ranking.png``.
@@ -100,6 +109,9 @@ def to_json(d: Diagnosis, estimator: dict | None = None) -> dict:
         "grade_check": d.grade_check,
         "detect_threshold": DETECT_LLR,
         "notes": d.notes,
+        "effects": d.effects,
+        "steps": d.steps,
+        "open_world": d.open_world,
     }
     if estimator is not None:
         out["estimator"] = estimator
@@ -213,6 +225,28 @@ def to_markdown(rep: dict) -> str:
                 f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci[0] is not None and ci[1] is not None else "—")
             L.append(f"| {k} | {p['value']:.4g} | {cis} | {p['unit']} |")
         L.append("")
+    effs = rep.get("effects") or []
+    if effs:
+        L += ["## Effects (stepwise, fitted jointly; 95 % intervals)", "",
+              "| rank | effect | kind | parameters | trades off with |", "|---|---|---|---|---|"]
+        for k, e in enumerate(effs, 1):
+            ps = []
+            for pn, p in (e.get("parameters") or {}).items():
+                v = p.get("value")
+                ci = p.get("ci95")
+                txt = f"{pn} = {v:.4g}" if isinstance(v, (int, float)) else f"{pn} = {v}"
+                if ci and ci[0] is not None and ci[1] is not None:
+                    txt += f" [{ci[0]:.4g}, {ci[1]:.4g}]"
+                if p.get("at_bound"):
+                    txt += f" (at the {p['at_bound']} bound)"
+                ps.append(txt + (f" {p['unit']}" if p.get("unit") else ""))
+            tr = ", ".join(f"{t['with']} (r = {t['correlation']:+.2f})" for t in e.get("trades_off_with") or [])
+            kind = e["kind"] + (" (ambiguous)" if e.get("ambiguous") else "")
+            L.append(f"| {k} | {e['name']} | {kind} | {'; '.join(ps)} | {tr or '—'} |")
+        L.append("")
+    ow = rep.get("open_world") or {}
+    if ow.get("statement"):
+        L += ["## Open world: what the library leaves unexplained", "", ow["statement"], ""]
     L += ["## Signals (held-out: each half predicted from a fit on the other half)", "",
           "| channel | what | RMSE before | RMSE after | R² before | R² after | Ljung–Box p before | after "
           "| NIS coverage before | after |",
