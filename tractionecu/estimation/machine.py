@@ -53,8 +53,10 @@ the rigid drivetrain, summed eq. 2 over the wheels, and eq. 8 give
     m v̇   = μ (F_zr + F_zf) − F_dx − ρ m g sgn v,
     J_eq  = J_e i² + 2 J_w (1 + k²)
 
-(front disengaged: the front wheels roll, F_h,f = −ρ_t F_zf, and only the
-rear load carries μ).  The axle loads are the measured front-axle load, or
+(front disengaged: the front wheels roll, F_h,f = −ρ_t F_zf, the rear
+wheels carry F_h,r = μ ΣF_z + ρ_t F_zf, and the rear torque balance reads
+J_eq ω̇ = M − (μ + ρ_t) r_r ΣF_z with the same machine μ; the μ(s) pair is
+then the rear axle's, (F_h,r/F_zr, s_r)).  The axle loads are the measured front-axle load, or
 the static share less the draft's load transfer F_dx h_hitch / L; r_d per
 axle from eq. 9.  The right-hand side is constant between sign changes of ω
 and v, so one Euler step is its exact solution (the RK4 of the hub model
@@ -331,7 +333,8 @@ class MachineEstimator:
             k = (1.0 + self.lead) * rdr / rdf
             a_w = rdr * (fzr + (1.0 + self.lead) * fzf)
             return a_w, fzf + fzr, 0.0, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw * (1.0 + k * k), k
-        return rdr * fzr, fzr, self.vehicle.rho_t * fzf, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw, math.nan
+        # front rolling: F_h,f = −ρ_t F_zf, so the rear carries μ ΣF_z + ρ_t F_zf and the same machine μ balances
+        return rdr * (fzf + fzr), fzf + fzr, 0.0, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw, math.nan
 
     # ------------------------------------------------------------------ process model
     def fx(self, sig: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
@@ -688,7 +691,8 @@ class MachineEstimator:
             self._t_curve = t
             s_e = self._effective_slip(s_f, s_r, fzf, fzr)
             sig_s = math.sqrt(pv) / max(rdr * abs(w), 1e-3)
-            self._curve_state = cs = self._curve.update(t, np.array([mu]), np.array([s_e]),
+            mu_c = mu if self.engaged else (mu * (fzf + fzr) + self.vehicle.rho_t * fzf) / fzr   # rear axle's
+            self._curve_state = cs = self._curve.update(t, np.array([mu_c]), np.array([s_e]),
                                                         np.array([math.sqrt(pmu)]), np.array([sig_s]))
         conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
                 and pmu < cfg.conv_sigma_mu ** 2 and prho < cfg.conv_sigma_rho ** 2)
