@@ -3,24 +3,29 @@
 import pytest
 
 from tractionecu.evaluation.suite import Case, all_cases, cases, fast_cases, summarize
+from tractionecu.model.effects import EFFECTS, SENSOR_FAULTS
 
 
 def test_summarize_counts_each_kind():
     rows = [
-        {"kind": "effect", "correct": True, "covered": {"a": True, "b": False}, "rmse_reduction": 0.9},
-        {"kind": "effect", "correct": False, "covered": {"a": True}, "rmse_reduction": 0.5},
-        {"kind": "effect", "correct": True, "covered": {"a": False}, "rmse_reduction": 0.7},
+        {"kind": "effect", "correct": True, "top1": True, "covered": {"a.x": True, "b.y": False}, "rmse_reduction": 0.9},
+        {"kind": "effect", "correct": False, "top1": False, "covered": {"a.x": True}, "rmse_reduction": 0.5},
+        {"kind": "effect", "correct": True, "covered": {"a.x": False}, "rmse_reduction": 0.7},
+        {"kind": "characteristic", "correct": True, "covered": {"relaxation.sigma_m": True}},
         {"kind": "null", "correct": True},
-        {"kind": "null", "correct": False},
+        {"kind": "nominal", "correct": False, "covered": {"load_transfer.h_cg_m": True}},
         {"kind": "confounded", "correct": True},
+        {"kind": "outside", "correct": True, "located": False},
     ]
     s = summarize(rows)
-    assert s["top1_accuracy"] == pytest.approx(2 / 3)
-    assert s["ci_coverage"] == pytest.approx(2 / 4)
-    assert s["ci_coverage_primary"] == pytest.approx(2 / 3)
+    assert s["named_above_absent"] == pytest.approx(3 / 4)
+    assert s["top1_accuracy_single"] == pytest.approx(1 / 2)
+    assert s["ci_coverage"] == pytest.approx(4 / 6)
+    assert s["ci_coverage_per_effect"] == {"a": "2/3", "b": "0/1", "load_transfer": "1/1", "relaxation": "1/1"}
     assert s["median_heldout_rmse_reduction"] == pytest.approx(0.7)
-    assert s["null_false_alarms"] == 1
+    assert s["null_false_alarms"] == 1 and s["n_null_cases"] == 2
     assert s["confounded_as_ambiguous"] is True
+    assert s["outside_no_library_name"] == "1/1" and s["outside_located"] == "0/1"
 
 
 def test_suite_cases_conceal_valid_library_effects():
@@ -28,10 +33,18 @@ def test_suite_cases_conceal_valid_library_effects():
     assert len(names) == len(set(names))
     full = cases()
     kinds = {c.kind for c in full}
-    assert kinds == {"effect", "null", "confounded"}
+    assert kinds == {"effect", "null", "confounded", "nominal", "characteristic", "outside"}
     assert sum(c.kind == "null" for c in full) >= 2
-    concealed = {c.effect for c in full if c.kind == "effect"}
-    assert {"grade", "load_transfer", "gps_latency", "wheel_radius", "relaxation", "draft_speed", "mass"} <= concealed
+    concealed = set()
+    for c in full:
+        concealed |= set(c.concealed())
+    assert {"grade", "gps_latency", "wheel_radius", "relaxation", "draft_speed", "mass", "drivetrain"} <= concealed
+    assert {"torque_gain", "draft_offset", "axle_load_offset", "wheel_speed_hold"} <= concealed
+    assert concealed <= set(EFFECTS) | set(SENSOR_FAULTS)
+    # Several effects in one recording, the independent truth model, and its healthy recordings.
+    assert any(len(c.concealed()) >= 2 for c in full)
+    assert sum(c.truth_model == "physical" and c.kind == "null" for c in full) >= 2
+    assert any(c.kind == "outside" for c in full)
     assert fast_cases() and all(isinstance(c, Case) for c in fast_cases())
     # Seeds differ between cases.
     seeds = [c.build().seed for c in all_cases()]
