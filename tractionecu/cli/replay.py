@@ -121,9 +121,14 @@ def profile_note(rec: Any) -> list[str]:
 
     run_as = estimator_profile(machine_of(rec)[0])       # hub, or mechanical for an engine-driven [drivetrain]
     absent = [need.what for need, sig in profile_status(rec)[run_as] if sig is None]
-    if not absent:
-        return []
-    return [f"profile {run_as}: missing {', '.join(absent)}: the estimator flags those steps (time-out bits)"]
+    out = []
+    if run_as == "mechanical" and "draft" in absent:      # by design: the machine-level estimator's sum
+        absent.remove("draft")
+        out.append("profile mechanical: no draft: rho_s and the draft are estimated as their sum, rho_s is not "
+                   "reported (status rho_s_and_draft_not_separated)")
+    if absent:
+        out.append(f"profile {run_as}: missing {', '.join(absent)}: the estimator flags those steps (time-out bits)")
+    return out
 
 
 def format_summary(res: dict[str, Any]) -> str:
