@@ -747,19 +747,20 @@ class ShapeIdentifier:
         self._cp = self._cn = 0.0
         self._t_cp = self._t_cn = -math.inf          # time each CUSUM side last left zero
         self._hist: deque[tuple[float, list[tuple[int, float, float, float]]]] = deque()
+        self.mature = PairBins()
+        """The segment's pairs older than ``confirm_s`` (the fit's data)."""
+        self._young: deque[tuple[float, list[tuple[int, float, float, float]]]] = deque()
 
     def _new_segment(self, t_from: float) -> None:
         """Close the segment; the pairs at or after t_from move to the new one."""
         moved = [e for e in self._hist if e[0] >= t_from]
-        old = self.bins
-        for _, pairs in moved:
-            for k, w, s, m in pairs:
-                old.add(k, -w, s, m)
         self.bins = PairBins()
         for _, pairs in moved:
             for k, w, s, m in pairs:
                 self.bins.add(k, w, s, m)
         self._hist = deque(moved)
+        self.mature = PairBins()
+        self._young = deque(moved)
         self.segment += 1
         self.fit = None
         self._t_fit = -math.inf
@@ -784,7 +785,8 @@ class ShapeIdentifier:
         nz = 0
         pairs = []
         M1 = bins.M1
-        g_ref = self.classes[0]
+        c0 = self.classes[0]
+        p0, a10, a20 = c0.p, c0.alpha1, c0.alpha2
         for m, x, ss in zip(mu, s, sigma_s):
             m, x = abs(m), abs(x)
             k = min(int(m / MU_BIN_WIDTH), last)
@@ -798,8 +800,9 @@ class ShapeIdentifier:
                 sj = S1[j] / wj
                 mj = M1[j] / wj
                 if j != k:
-                    dg = float(g_ref.dg(sj))
-                    gj = float(g_ref.g(sj))
+                    e1, e2 = math.exp(a10 * sj), math.exp(a20 * sj)
+                    dg = -p0 * a10 * e1 - (1.0 - p0) * a20 * e2
+                    gj = 1.0 - p0 * e1 - (1.0 - p0) * e2
                     if dg > 0 and gj > 0:
                         sj += (m - mj) * gj / (mj * dg)      # ds/dμ = 1/(a g'(s)), a = μ̄/g(s̄)
                 var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
@@ -824,6 +827,11 @@ class ShapeIdentifier:
         hist.append((t, pairs))
         while hist[0][0] < t - self.history_s:
             hist.popleft()
+        young = self._young
+        young.append((t, pairs))
+        while young and young[0][0] <= t - self.confirm_s:
+            for k, w, x, m in young.popleft()[1]:
+                self.mature.add(k, w, x, m)
         if t - self._t_check >= 1.0:
             self._t_check = t
             self._cap_weight()
@@ -835,7 +843,8 @@ class ShapeIdentifier:
         if total > self.max_weight:
             f = self.max_weight / total
             self.bins.scale(f)
-            for _, ps in self._hist:
+            self.mature.scale(f)
+            for _, ps in self._hist:                      # (the young pairs are the same lists)
                 for i, (k, w, x, m) in enumerate(ps):
                     ps[i] = (k, w * f, x, m)
             self._w_fit *= f
@@ -847,14 +856,7 @@ class ShapeIdentifier:
         pairs older than ``confirm_s``: a soil change is found within a few seconds, and the new
         soil's first pairs must not reach the old soil's fit (they would widen its span with
         another curve)."""
-        bins = self.bins
-        if self.confirm_s > 0:
-            bins = bins.copy()
-            for tk, pairs in reversed(self._hist):
-                if tk <= t - self.confirm_s:
-                    break
-                for k, w, x, m in pairs:
-                    bins.add(k, -w, x, m)
+        bins = self.mature
         lo, hi, nb = bins.span(self.min_bin_weight)
         self._span = (lo, hi, nb)
         if nb < self.min_bins or not (hi - lo >= self.min_span):
