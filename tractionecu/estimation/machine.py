@@ -673,7 +673,7 @@ class MachineEstimator:
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
                                    cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
-                                   radius_applied=_ONE2, level=self.level, total_ratio=i_tot)
+                                   radius_applied=_ONE2, curve_state=cs, level=self.level, total_ratio=i_tot)
         w, v, mu, rho = x.tolist()
         P = ukf.P
         pw, pv, pmu, prho = P[0, 0], P[1, 1], P[2, 2], P[3, 3]
@@ -717,7 +717,7 @@ class MachineEstimator:
         self._last = MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
                                np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
                                (status & INVALID_MASK) == 0, dof, cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
-                               radius_applied=np.full(2, self._radius.applied[1]), level=self.level,
+                               radius_applied=np.full(2, self._radius.applied[1]), curve_state=cs, level=self.level,
                                resistance=resistance, total_ratio=i_tot)
         return self._last
 
