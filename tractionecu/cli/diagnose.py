@@ -51,5 +51,12 @@ def run(args: argparse.Namespace) -> int:
     head = rep["verdict"] + (f": {rep['effect']}" if rep.get("effect") else "")
     if rep.get("ambiguous_between"):
         head += " (" + " / ".join(rep["ambiguous_between"]) + ")"
-    print(f"{head}\n{rep['statement']}\n-> {Path(args.out) / 'report.md'} ({dt:.1f} s)")
+    lines = [head, rep["statement"]]
+    for e in rep.get("effects") or []:
+        ps = ", ".join(f"{k} = {p['value']:.4g}" if isinstance(p.get("value"), (int, float)) else f"{k} = {p.get('value')}"
+                       for k, p in (e.get("parameters") or {}).items())
+        lines.append(f"  {e['kind']:15s} {e['name']}" + (f": {ps}" if ps else "")
+                     + (" (ambiguous)" if e.get("ambiguous") else ""))
+    lines.append(f"-> {Path(args.out) / 'report.md'} ({dt:.1f} s)")
+    print("\n".join(lines))
     return 0
