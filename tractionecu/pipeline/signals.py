@@ -106,6 +106,9 @@ ANCHOR_SIGNAL = WHEEL_SPEEDS[0]
 INPUT_MESSAGES = ("TECU_WheelSpeeds", "TECU_DriveTorques", "TECU_AxleLoad", "RearHitchStatus")
 """DBC messages that carry the estimator's bus signals (the daemon reports their rate)."""
 
+MACHINE_INPUT_MESSAGES = ("EEC1", "EC1", "ETC2", "CCVS1", "EBC2", "WBSD", "GBSD", "RearHitchStatus")
+"""The standard messages the machine-level estimator reads (the daemon reports their rate for such a machine)."""
+
 # ----------------------------------------------------------------------------- standard J1939 signals
 ENGINE_SPEED = "EngineSpeed"
 """Engine speed [rad/s] (J1939 EEC1, SPN 190)."""
@@ -360,7 +363,7 @@ __all__ = ["ANCHOR_SIGNAL", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGI
            "GEAR_RATIO", "GNSS_SPEED", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
            "SignalGroups", "estimator_profile", "machine_missing", "required_missing", "ENGINE_CURRENT_GEAR",
            "REAR_RELATIVE_SPEEDS", "FRONT_RELATIVE_SPEEDS", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
-           "INPUT_MESSAGES", "IN_WORK", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",
+           "INPUT_MESSAGES", "IN_WORK", "MACHINE_INPUT_MESSAGES", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",
            "Need", "PARKING_BRAKE", "PROFILES", "REPLAY_REQUIRED", "SELECTED_GEAR", "SPEED_SIGNALS", "VECTOR_KEYS",
            "VEHICLE_SPEED", "WHEEL_BASED_SPEED", "WHEEL_SPEEDS", "missing_signals", "motion", "profile_status",
            "signal_state", "source_of"]

@@ -79,7 +79,7 @@ from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS
 from ..errors import ConfigError
 from ..pipeline.gnss import gate_from_config
-from ..pipeline.signals import INPUT_MESSAGES
+from ..pipeline.signals import INPUT_MESSAGES, MACHINE_INPUT_MESSAGES
 from ..pipeline.steps import StepAssembler
 from .canlink import CanLink
 from .clock import ServiceClock
@@ -220,7 +220,9 @@ class Service:
         self.env = env
         self.warm_up_estimator = warm_up_estimator
         self.stats: Counter[str] = Counter()
-        self.steps = StepAssembler(depth=max(256, int(cfg.estimation.lag_s * 200) + 64), groups=estimator_groups(cfg))
+        groups = estimator_groups(cfg)
+        self.steps = StepAssembler(depth=max(256, int(cfg.estimation.lag_s * 200) + 64), groups=groups)
+        self._input_messages = INPUT_MESSAGES if groups is None else MACHINE_INPUT_MESSAGES
         gate = gate_from_config(cfg.gps, cfg.map.max_fix_age_s)
         self.fixes = FixBuffer(gate)
         self.network = Network(cfg.broadcast, self.codec, self.clock, stats=self.stats)
@@ -373,7 +375,7 @@ class Service:
     def _totals(self) -> dict[str, float]:
         return {
             "can": float(self.can.stats["rx_frames"]),
-            "inputs": float(sum(self.stats["rx_" + m] for m in INPUT_MESSAGES)),
+            "inputs": float(sum(self.stats["rx_" + m] for m in self._input_messages)),
             "gps": float(self.stats["gps_fixes"]),
             "est": float(self.stats["steps"]),
             "tx": float(self.can.stats["tx_frames"]),
