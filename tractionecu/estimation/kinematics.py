@@ -59,6 +59,13 @@ BIAS_TAU_S = 10.0
 YAW_TAU_S = 0.1
 """Time constant of the low pass on the wheel curvature [s] (module doc)."""
 
+FAR_EPOCHS = 5
+"""GNSS epochs in a row with the course far outside the heading's gate (16 σ²) after which the heading is
+restarted from the course and the bias forgotten: a heading that refuses every course can never recover."""
+
+BETA0_VAR_FACTOR = 1.0
+"""Initial variance of the bias in units of (SLIP_DIFF_MAX / b)²."""
+
 SIGMA_H0 = math.pi
 """Initial heading uncertainty [rad] (unknown until the first GNSS course)."""
 
@@ -89,7 +96,8 @@ class CurvatureFilter:
         """Forget the heading and the bias."""
         self.h = math.nan
         """Heading [rad], course convention; NaN until the first GNSS course."""
-        self.P = [SIGMA_H0 ** 2, 0.0, (SLIP_DIFF_MAX / self.b) ** 2]     # P_hh, P_hβ, P_ββ
+        self.P = [SIGMA_H0 ** 2, 0.0, BETA0_VAR_FACTOR * (SLIP_DIFF_MAX / self.b) ** 2]     # P_hh, P_hβ, P_ββ
+        self._far = 0
         self.beta = 0.0
         """Curvature bias of the wheel term [1/m]."""
         self.kappa_w = math.nan
@@ -97,6 +105,8 @@ class CurvatureFilter:
         self.var_w = math.inf
         """Its variance [1/m²]."""
         self.v = 0.0
+        self.restarts = 0
+        """Times the heading was restarted from the course (:data:`FAR_EPOCHS`)."""
         self._t = math.nan
         self._tw = math.nan
 
@@ -156,8 +166,17 @@ class CurvatureFilter:
         s = P[0] + r
         if nu * nu > 16.0 * s:
             # a course far from the heading: a direction change not seen yet, or a glitch; the
-            # heading is not moved by it
+            # heading is not moved by it.  Persistently far: the heading (or the bias that moved it)
+            # is wrong: start again from the course, the bias unknown
+            self._far += 1
+            if self._far >= FAR_EPOCHS:
+                self.restarts += 1
+                self.h = _wrap(z)
+                self.beta = 0.0
+                self.P[:] = [r, 0.0, BETA0_VAR_FACTOR * (SLIP_DIFF_MAX / self.b) ** 2]
+                self._far = 0
             return
+        self._far = 0
         kh, kb = P[0] / s, P[1] / s
         self.h = _wrap(self.h + kh * nu)
         self.beta += kb * nu                 # β is seen through its correlation with h (P_hβ)
@@ -175,6 +194,7 @@ class CurvatureFilter:
         if not self.kappa_w == self.kappa_w or abs(v) < min_speed_mps:
             return 0.0, math.inf
         return self.kappa_w - self.beta, self.var_w + self.P[2]
+
 
     def course_direction(self, course_deg: float, speed_mps: float, sigma_max_rad: float = 0.35) -> float:
         """+1 when the course points along the heading, −1 when against it, 0 when undecided."""
