@@ -276,18 +276,23 @@ def test_curvature_is_zero_on_a_straight_line(run20):
 
 def test_a_heading_that_refuses_the_course_starts_again():
     """Wheels that show no turn while the course turns (a truth without Ackermann wheel speeds, or a
-    wrong track width) push the bias far out; once the course is refused epoch after epoch the heading
-    restarts from it, and on the straight that follows the curvature is back near zero."""
+    wrong track width) push the bias far out and the heading away from the course; once the course is
+    refused epoch after epoch the heading restarts from it, and on the straight that follows the
+    curvature is back near zero."""
     rng = np.random.default_rng(8)
     cf = CurvatureFilter(B, 0.05)
-    v, psi, t = 1.2, 0.0, 0.0
-    for phase, (seconds, rate) in enumerate(((10.0, 0.0), (13.0, math.pi / 2 / 13.0), (40.0, 0.0))):
+    psi, t = 0.0, 0.0
+    # a headland as in headland-reverse: quarter circle, 12 m back, quarter circle; twice
+    legs = [(20.0, 2.5, 0.0)] + [(8.0, 1.2, math.pi / 16.0), (12.0, -1.0, 0.0), (8.0, 1.2, math.pi / 16.0),
+                                 (20.0, 2.5, 0.0)] * 2
+    for seconds, v, rate in legs:
         for k in range(int(seconds * 100)):
             t += 0.01
             psi += rate * 0.01
             w = v / 0.78
             cf.wheels(t, w + 1e-3 * rng.standard_normal(), w + 1e-3 * rng.standard_normal(), 1e-6, 1e-6, v)
             if k % 10 == 9:
-                cf.course(t, math.degrees(math.pi / 2 - psi) + 0.5 * rng.standard_normal(), v, 1.0)
-    k_end, _ = cf.curvature(v, 0.2)
+                course = math.degrees(math.pi / 2 - psi) + (180.0 if v < 0 else 0.0)
+                cf.course(t, course + 0.5 * rng.standard_normal(), abs(v), math.copysign(1.0, v))
+    k_end, _ = cf.curvature(2.5, 0.2)
     assert abs(k_end) < 0.003
