@@ -24,6 +24,31 @@ Figures (printed and written as JSON keys):
     GPS alignment, the 100 Hz estimator, ``estimates.csv``, the map and the
     scorecards.
 
+Scenario families (issue 13; ``--families``, on by default): one row per
+scenario family and truth model, each recording simulated with ``--seed``
+and replayed with its own ``vehicle.toml`` as ``tractionecu replay`` does.
+Truth models: ``paper`` (the project's simulator, the filter's own
+equations) and ``physical`` (``Scenario.truth``: Brixius tyre-soil forces,
+load transfer, Ackermann wheel speeds, drivetrain compliance, toothed
+pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
+
+``valid_work``
+    share of steps marked valid while the implement is in work (truth ``work``);
+``mu_err``
+    the scorecard's μ mean absolute relative error;
+``slip_mae``
+    per-wheel slip mean absolute error over valid steps in work;
+``slip_lr``
+    mean absolute error of each axle's right-minus-left slip difference over
+    the same steps (the rolling-radius error, equal on both sides, cancels:
+    what is left is the turn kinematics);
+``rev_*``
+    over valid steps while reversing faster than 0.5 m/s (truth speed < 0):
+    steps with the wrong sign of v (count), ρ_s and slip mean absolute errors;
+``still_valid``
+    valid steps while the true speed is below 0.1 m/s (the data cannot support
+    ρ_s or slip there: the target is 0).
+
 Also reported: ``estimator_step_us`` (full AUKF-FS step with adaptation,
 supervisor, curve), ``ukf_step_us``, ``filterpy_step_us``,
 ``model_call_us_21_points`` / ``model_call_us_1_point`` (the floor set by
@@ -67,6 +92,70 @@ from tractionecu.sim.writer import write_recording  # noqa: E402
 def make_recording(out: Path, seed: int) -> None:
     scn = scenarios.get("paper-three-soils", seed=seed)
     write_recording(scn, simulate(scn), out)
+
+
+FAMILIES = (
+    ("straight", "paper", "paper-three-soils", {}),
+    ("straight", "physical", "physical-three-soils", {}),
+    ("S-curves 30 m", "physical", "s-curves-30m", {}),
+    ("circles 30 m", "physical", "circles-30m", {}),
+    ("reverse 1 m/s", "paper", "headland-reverse", {}),
+    ("reverse 1 m/s", "physical", "physical-headland-reverse", {}),
+    ("bus 20/10 Hz", "paper", "paper-three-soils", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
+    ("bus 20/10 Hz", "physical", "physical-three-soils", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
+)
+"""(family, truth model, scenario, SensorSpec changes) of the per-family rows."""
+
+
+def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) -> dict:
+    """Simulate ``scenario``, replay it and compute one family row (module doc)."""
+    from tractionecu.config import replace
+    from tractionecu.evaluation.scoring import read_truth, scorecard
+    from tractionecu.pipeline.replay import replay
+
+    kw = {}
+    if sensor_changes:
+        kw["sensors"] = replace(SensorSpec(), **sensor_changes)
+    scn = scenarios.get(scenario, seed=seed, **kw)
+    write_recording(scn, simulate(scn), rec_dir)
+    res = replay(read_recording(rec_dir))
+    a = res.arrays
+    tr = read_truth(rec_dir / "truth.csv", rec_dir / "truth.toml")
+    head = (rec_dir / "truth.csv").read_text(encoding="utf-8").split("\n", 1)[0].split(",")
+    work_t = np.loadtxt(rec_dir / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index("work")]) > 0.5
+    k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    valid, work, v_t = a["valid"], work_t[k], tr.v[k]
+    m = valid & work
+    se, st = a["slip"], tr.slip[k]
+    sc = scorecard(a, tr)
+    rev = valid & (v_t < -0.5)
+    row = {"valid_work": float(valid[work].mean()) if work.any() else float("nan"),
+           "mu_err": float(sc.get("mu_mean_abs_rel_error", float("nan"))),
+           "slip_mae": float(np.mean(np.abs(se[m] - st[m]))) if m.any() else float("nan"),
+           "slip_lr": float(np.mean([np.mean(np.abs((se[m, j] - se[m, i]) - (st[m, j] - st[m, i])))
+                                     for i, j in ((0, 1), (2, 3))])) if m.any() else float("nan"),
+           "rev_steps": int(rev.sum()),
+           "rev_wrong_sign": int(np.sum(rev & (a["v"] > 0.0))),
+           "rev_rho_mae": float(np.mean(np.abs(a["rho_s"][rev] - tr.rho_s[k][rev]))) if rev.any() else float("nan"),
+           "rev_slip_mae": float(np.mean(np.abs(se[rev] - st[rev]))) if rev.any() else float("nan"),
+           "still_valid": int(np.sum(valid & (np.abs(v_t) < 0.1)))}
+    return row
+
+
+def families(work: Path, seed: int) -> list[dict]:
+    """Every row of :data:`FAMILIES`, printed as it is measured."""
+    rows = []
+    print(f"{'family':15s} {'truth':9s} {'scenario':26s} {'valid_work':>10s} {'mu_err':>7s} {'slip_mae':>8s} "
+          f"{'slip_lr':>8s} {'rev_n':>6s} {'rev_wrong':>9s} {'rev_rho':>8s} {'rev_slip':>8s} {'still_valid':>11s}",
+          flush=True)
+    for n, (family, truth, scenario, changes) in enumerate(FAMILIES):
+        r = family_row(work / f"family{n}-{scenario}", scenario, seed, changes)
+        r.update(family=family, truth=truth, scenario=scenario, sensors=changes)
+        rows.append(r)
+        print(f"{family:15s} {truth:9s} {scenario:26s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% "
+              f"{r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['rev_steps']:6d} {r['rev_wrong_sign']:9d} "
+              f"{r['rev_rho_mae']:8.4f} {r['rev_slip_mae']:8.4f} {r['still_valid']:11d}", flush=True)
+    return rows
 
 
 def recorded_data(rec_dir: Path) -> dict:
@@ -231,6 +320,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="simulation seed of the recording")
     ap.add_argument("--keep", default=None, help="keep the recording and replay output in this directory")
     ap.add_argument("--steps", type=int, default=10000, help="steps of the filterpy comparison (default 10000)")
+    ap.add_argument("--no-families", action="store_true", help="skip the per-family rows (module doc)")
     ap.add_argument("--no-uncertainty", action="store_true",
                     help="skip the coverage and radius-calibration figures (benchmarks/uncertainty.py)")
     args = ap.parse_args(argv)
@@ -287,6 +377,9 @@ def main(argv: list[str] | None = None) -> int:
                 ok = v >= tgt[1] if tgt[0] == ">=" else v <= tgt[1]
                 mark = f"   (target {tgt[0]} {tgt[1]:g}: {'met' if ok else 'NOT met'})"
             print(f"{k:34s} {v:.6g}{mark}")
+        if not args.no_families:
+            print("scenario families (seed %d) ..." % args.seed, flush=True)
+            figures["families"] = families(work, args.seed)
         Path(args.json).write_text(json.dumps(figures, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     finally:
         if not args.keep:
