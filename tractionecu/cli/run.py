@@ -8,6 +8,10 @@ daemon on the configured CAN interface and GNSS serial port until SIGTERM
 time (``--speed`` for faster) into the real service code over python-can's
 ``virtual`` interface and a pseudo-terminal serial port, prints one status
 line a second and writes map tiles to ``--state-dir``.
+
+Both serve the read-only in-cab page (``[web]``, default
+http://127.0.0.1:8080/; ``--simulate`` prints its address) and send the
+efficiency message ``TECU_EstEfficiency`` with s*, η and η(s*) (``[advice]``).
 """
 
 from __future__ import annotations
@@ -32,7 +36,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--interface", default=None, help="override can.interface (python-can interface name)")
     p.add_argument("--channel", default=None, help="override can.channel")
     p.add_argument("--gps-port", default=None, help="override gps.port ('none' disables GNSS)")
-    p.add_argument("--quiet", action="store_true", help="no status line on stdout")
+    p.add_argument("--quiet", action="store_true", help="no status line (nor the page's address) on stdout")
+    p.add_argument("--no-web", action="store_true", help="do not serve the in-cab page (web.enabled = false)")
     g = p.add_argument_group("simulation (no hardware needed)")
     g.add_argument("--simulate", action="store_true",
                    help="drive the service with the built-in simulator over a virtual CAN bus and a pty")
@@ -55,6 +60,8 @@ def _config(args: argparse.Namespace):
         over.setdefault("can", {})["interface"] = args.interface
     if args.channel:
         over.setdefault("can", {})["channel"] = args.channel
+    if getattr(args, "no_web", False):
+        over.setdefault("web", {})["enabled"] = False
     if args.gps_port:
         if args.gps_port == "none":
             over.setdefault("gps", {})["source"] = "none"
