@@ -5,6 +5,9 @@
   const fmt = (x, d) => (x === null || x === undefined || !isFinite(x)) ? "-" : Number(x).toFixed(d);
   const pct = (x, d) => (x === null || x === undefined || !isFinite(x)) ? "-" : (100 * x).toFixed(d) + " %";
   let updates = 0, last = null;
+  // estimator status bits that are notices, not faults (estimation/estimator.py)
+  const NOTICES = new Set(["measurement_gated", "covariance_repaired", "unverified_assumptions", "machine_level",
+                           "rho_s_and_draft_not_separated"]);
   const map = { cell: 3, fields: ["a", "rho_s", "slip", "eta"], cells: new Map(), track: [] };
 
   function connect() {
@@ -151,7 +154,7 @@
     const h = s.health || {}, e = s.estimate || {}, r = h.rates || {};
     const rows = [
       ["CAN", h.can, h.can === "open"], ["GNSS", h.gps, h.gps !== "down"],
-      ["status bits", (e.status_bits || []).join(", ") || "none", !(e.status_bits || []).length],
+      ["status bits", (e.status_bits || []).join(", ") || "none", (e.status_bits || []).every((b) => NOTICES.has(b))],
       ["CAN frames", fmt(r.can, 0) + " /s (inputs " + fmt(r.inputs, 0) + " /s)", true],
       ["GNSS fixes", fmt(r.gps, 1) + " /s", true], ["estimates", fmt(r.est, 0) + " /s", true],
       ["sent", fmt(r.tx, 0) + " frames/s from " + (h.address || "-"), true],
