@@ -187,3 +187,13 @@ def test_estimates_carry_the_curve():
     assert last.curve_path == "class:stubble" and last.curve is not None
     assert last.curve.a == last.a and last.curve(0.1) == pytest.approx(STUBBLE.mu(0.1, last.a))
     assert out[0].curve is None or out[0].curve_path.startswith("class:")
+
+
+def test_the_shape_path_can_be_switched_off():
+    from tractionecu.config import VehicleParams
+    from tractionecu.estimation.estimator import Estimator, EstimatorConfig
+
+    est = Estimator(VehicleParams(), EstimatorConfig(curve_shape=False))
+    assert est._curve.shape is None
+    est2 = Estimator(VehicleParams(), EstimatorConfig(curve_shape_min_span=0.06))
+    assert est2._curve.shape is not None and est2._curve.shape.min_span == 0.06

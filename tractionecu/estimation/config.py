@@ -90,6 +90,8 @@ class EstimatorConfig:
     curve_class_tau_s: float = setting(30.0, "forgetting time constant of the class evidence [s]", 1e-3, 1e6)
     curve_switch_min_delta: float = setting(10.0, "class switch needs the new class's log-likelihood this much better [nats]", 0.0, 1e9)
     curve_slip_corr_s: float = setting(0.5, "correlation time of the slip error for the class evidence [s]", 1e-3, 1e3)
+    curve_shape: bool = setting(True, "identify the μ(s) shape per soil segment once its slips span curve_shape_min_span (False: the one-parameter class path only)")
+    curve_shape_min_span: float = setting(0.04, "slip span of a soil segment's pairs the shape fit needs [-]", 0.005, 1.0)
     # reported uncertainty (estimation/uncertainty.py)
     systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
                                                  "μ and ρ_s and the GNSS latency bound to the GNSS speed noise")
