@@ -9,7 +9,7 @@ import math
 import pytest
 from aiohttp.test_utils import TestClient, TestServer
 
-from tractionecu.advice.part import LiveMap
+from tractionecu.service.advice import LiveMap
 from tractionecu.service.config import WebConfig
 from tractionecu.web.server import ASSETS, SECURITY_HEADERS, WebPart, clean, load_assets
 

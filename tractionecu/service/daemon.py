@@ -17,7 +17,7 @@ estimation          :class:`~.loop.EstimationLoop`: the estimator on its grid
 map, can, gps       :class:`~.mapwriter.MapWriter`, :class:`~.canlink.CanLink`,
                     :class:`~.gps.GpsReader`
 status              :class:`~.status.StatusReporter`: the status line
-advice              :class:`~tractionecu.advice.part.AdvicePart`: traction
+advice              :class:`~.advice.AdvicePart`: traction
                     efficiency, the optimal slip s* and advice from the
                     last estimate, ``TECU_EstEfficiency`` on the bus, the
                     live map (``[advice]``)
@@ -42,12 +42,13 @@ added); shutdown runs it backwards and gathers the errors
    mmap threshold fixed);
 7. ``estimation``: the estimation loop;
 8. ``advice``, ``web``: efficiency and advice, and the in-cab page, each its own
-   task beside the loop (never inside a step; a port that cannot be bound
-   leaves the daemon running without its page);
+   task beside the loop, woken right after a broadcast step (never inside a
+   step); the page is not watched: a port that cannot be bound, or a page
+   that fails, leaves the daemon estimating without it;
 9. ``status``: the status task;
 10. ``ready``: ``READY=1`` to systemd once the bus and the GNSS port are open.
 
-A task of ``can``, ``gps``, ``estimation``, ``advice``, ``web`` or ``status`` that ends by itself
+A task of ``can``, ``gps``, ``estimation``, ``advice`` or ``status`` that ends by itself
 is a bug: the service stops with exit code 1 and systemd restarts it.
 
 Bad input never stops the daemon: 11-bit, remote, error and CAN FD frames,
@@ -72,7 +73,6 @@ import can
 from ..advice.bus import efficiency_frame
 from ..advice.efficiency import efficiency_config_for
 from ..advice.engine import AdviceEngine
-from ..advice.part import AdvicePart, LiveMap
 from ..advice.rules import AdviceSettings
 from ..bus import j1939
 from ..bus.dbc import Codec
@@ -81,6 +81,7 @@ from ..errors import ConfigError
 from ..pipeline.gnss import gate_from_config
 from ..pipeline.signals import INPUT_MESSAGES, MACHINE_INPUT_MESSAGES
 from ..pipeline.steps import StepAssembler
+from .advice import AdvicePart, LiveMap
 from .canlink import CanLink
 from .clock import ServiceClock
 from .config import ServiceConfig, to_toml

@@ -22,7 +22,9 @@ bounded queue (``web.queue_updates``) and sender task, and a viewer whose
 queue is full (a slow or stalled viewer) is dropped, never buffered.  At
 most ``web.max_viewers`` viewers at once.  A port that cannot be bound is
 logged and counted (``bind_failed``): the daemon goes on estimating without
-its page.
+its page.  The part is not one of the service's watched tasks: the page
+stopping never stops the estimation (its pusher logs and counts its own
+errors and goes on).
 """
 
 from __future__ import annotations
@@ -37,8 +39,6 @@ from importlib import resources
 from typing import Any, Callable
 
 from aiohttp import WSMsgType, web
-
-from ..service.lifecycle import TaskPart
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ class Viewer:
         self.sent = 0
 
 
-class WebPart(TaskPart):
+class WebPart:
     """The ``web`` part (module doc).
 
     Parameters
@@ -97,7 +97,7 @@ class WebPart(TaskPart):
     snapshot:
         ``snapshot() -> dict``: the state to show (called ``update_hz`` times a second).
     live_map:
-        :class:`~tractionecu.advice.part.LiveMap` (None: no map).
+        :class:`~tractionecu.service.advice.LiveMap` (None: no map).
     on_listening:
         Called with the page's address once it listens.
     trigger:
@@ -109,7 +109,7 @@ class WebPart(TaskPart):
 
     def __init__(self, cfg: Any, snapshot: Callable[[], dict[str, Any]], live_map: Any = None,
                  on_listening: Callable[[str], Any] | None = None, trigger: asyncio.Event | None = None) -> None:
-        super().__init__()
+        self.task: asyncio.Task[None] | None = None
         self.on_listening = on_listening
         self.trigger = trigger
         self.cfg = cfg
@@ -303,10 +303,15 @@ class WebPart(TaskPart):
         log.info("in-cab page at %s", self.address)
         if self.on_listening is not None:
             self.on_listening(self.address)
-        await super().start()
+        self.task = asyncio.create_task(self.run(), name=self.name)
 
     async def stop(self) -> None:
-        await super().stop()
+        if self.task is not None and not self.task.done():
+            self.task.cancel()
+            try:
+                await self.task
+            except asyncio.CancelledError:
+                pass
         for v in list(self.viewers):
             self._drop(v, "service stopping")
         if self.runner is not None:

@@ -5,8 +5,8 @@ woken right after each broadcast step (the daemon's broadcast callback sets
 an event; the next broadcast is a whole broadcast period away) it takes the
 loop's last estimate (a reference; the loop never waits for this part),
 feeds the
-:class:`~.engine.AdviceEngine` (s* is recomputed once a second), sends
-``TECU_EstEfficiency`` (:mod:`.bus`) and adds the estimate at its GNSS
+:class:`~tractionecu.advice.engine.AdviceEngine` (s* is recomputed once a second), sends
+``TECU_EstEfficiency`` (:mod:`tractionecu.advice.bus`) and adds the estimate at its GNSS
 position to the live map (:class:`LiveMap`) the in-cab page shows.
 """
 
@@ -19,8 +19,8 @@ import time
 from collections import Counter
 from typing import Any, Callable
 
-from ..service.lifecycle import TaskPart
-from .engine import AdviceEngine
+from ..advice.engine import AdviceEngine
+from .lifecycle import TaskPart
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ class LiveMap:
 class AdvicePart(TaskPart):
     """The ``advice`` part (module doc).
 
-    ``engine`` is the :class:`~.engine.AdviceEngine` or a callable building it at start-up;
+    ``engine`` is the :class:`~tractionecu.advice.engine.AdviceEngine` or a callable building it at start-up;
     ``estimate()`` returns the loop's last estimate; ``fix_at(t)`` the fix
     for a time (or None); ``send(report)`` puts ``TECU_EstEfficiency`` on the
     bus (None: nothing sent); ``period_s`` service seconds between samples;
