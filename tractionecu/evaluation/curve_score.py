@@ -8,9 +8,10 @@ curve per step on one of two paths (:mod:`tractionecu.estimation.curve`):
   identified a over the soil's class-path samples and g the most frequently reported class (as before the shape
   path existed, so class-path figures do not move);
 * ``shape:<form>``: a fitted shape.  The representative curve is the mean of the identified curves
-  μ̂_j(s) over the samples on that path, which for one class reduces to a̅·g(s) again.
+  μ̂_j(s) over the samples on the shape path (any form), which for one class reduces to a̅·g(s).
 
-The path is the one most of the soil's samples report.  The true curve is the soil's class curve
+The shape path is scored when most of the soil's samples report a fitted shape (of any form;
+``curve_path`` names the most frequent form), else the class path.  The true curve is the soil's class curve
 from ``truth.toml`` (``soil_class``, ``a``), or, for a truth model whose μ(s) is none of the classes,
 its tabulated curve ``mu_curve_s`` / ``mu_curve`` (same file), interpolated; both are compared on the
 same slip grid.
@@ -50,7 +51,10 @@ def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Se
     il = idx.tolist()
     paths = (Counter(curves[j].path if curves[j] is not None else f"class:{cls_e[j]}" for j in il)
              if curves is not None else Counter())
-    path = paths.most_common(1)[0][0] if paths else ""
+    n_shape = sum(n for p, n in paths.items() if p.startswith("shape:"))
+    # the shape path when most samples report a fitted shape (of any form), else the class path
+    path = (max((p for p in paths if p.startswith("shape:")), key=lambda p: paths[p])
+            if n_shape > len(il) - n_shape else "")
     sel = [cls_e[j] for j in il]
     cls_name = max(set(sel), key=sel.count)
     if not path.startswith("shape:"):
@@ -61,16 +65,16 @@ def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Se
         return SOIL_CLASSES[cls_name].mu(s_grid, a_bar), {
             "a_identified": a_bar, "class_identified": cls_name, "curve_path": path or f"class:{cls_name}"}
     assert curves is not None
-    use = [j for j in il if curves[j] is not None and curves[j].path == path]
+    use = [j for j in il if curves[j] is not None and curves[j].path.startswith("shape:")]
     count = Counter(id(curves[j]) for j in use)           # many steps share one fitted curve
     first = {id(curves[j]): curves[j] for j in use}
     tot = float(len(use))
     mean = np.zeros_like(s_grid, dtype=float)
-    theta = np.zeros(len(first[next(iter(first))].theta))
     for key, n in count.items():
         mean += n / tot * first[key].mu(s_grid)
-        theta += n / tot * np.asarray(first[key].theta, dtype=float)
-    names = first[next(iter(first))].names
+    same = [j for j in use if curves[j].path == path]
+    names = curves[same[0]].names
+    theta = np.mean([curves[j].theta for j in same], axis=0)
     return mean, {"a_identified": float(np.mean([curves[j].a for j in use])), "class_identified": cls_name,
                   "curve_path": path, "shape_params": dict(zip(names, theta.tolist())),
                   "shape_share": len(use) / len(il)}
