@@ -195,3 +195,13 @@ def test_declared_line_of_pull_and_calibrated_radius_set_the_loads() -> None:
     _, fzr0, _, rdr0 = est.loads()
     assert fzr0 == pytest.approx(0.6 * veh.weight_n) and rdr0 == pytest.approx(0.78)
     assert rdr < rdr0                                 # more load in work: eq. 9's change from the static load
+
+
+def test_power_split_runs_the_machine_level_estimator_on_the_reported_ratio(synthetic) -> None:
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle(kind="power-split"))
+    late = [e for e in run(est, bus) if e.t > 20.0]
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    assert late[-1].status & MACHINE_LEVEL and late[-1].total_ratio == pytest.approx(80.0)
+    assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
