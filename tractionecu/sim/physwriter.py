@@ -45,6 +45,7 @@ from ..bus.dbc import Codec, default_codec
 from ..config import save_vehicle, to_toml, toml_value
 from ..gnss import nmea
 from ..model.vehicle import WHEELS
+from . import tyre as ty
 from .sensors import SensorBiases, ToothedPickup, draw_biases, ou_noise, pickup_speeds, quantise
 from .writer import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA, _course_over_ground
 
@@ -121,13 +122,36 @@ def _declared_vehicle(scn):
     if ps.drivetrain.kind != "mechanical" or not any(f.name == "drivetrain" for f in dataclasses.fields(veh)):
         return veh
     from ..config import DrivetrainSpec as DeclaredDrivetrain
+    from .physical import axle_loads
+    from .tyre import rolling_radius as tyre_radius
     md = ps.drivetrain.mech
+    eng = md.engine
+    # What the owner knows, each with an error drawn once per seed inside its tolerance (own stream: nothing
+    # else of the recording moves): SPN 514 nominal friction percent torque, which J1939-71 defines as the
+    # basic engine's friction plus the accessories' loss torque (1 %/bit); the line of pull from the
+    # implement's hitch geometry; the rear wheels' rolling radius from a 100 m calibration run at static load.
+    rng = np.random.default_rng(scn.seed + 7_000_003)
+    err = rng.uniform(-1.0, 1.0, 3) * np.array([DECLARED_FRICTION_TOL_PCT, DECLARED_PULL_ANGLE_TOL_DEG,
+                                                 DECLARED_RADIUS_TOL_REL])
+    friction_pct = 100.0 * (eng.friction_nm + eng.aux_torque_nm) / eng.reference_torque_nm + float(err[0])
+    fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
+    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
     dd = DeclaredDrivetrain(kind="mechanical", final_drive_ratio=md.final_drive, gear_ratio="bus",
                             front_drive="engaged" if md.mfwd else "disengaged", front_lead=md.front_lead,
-                            engine_friction_percent=round(100.0 * md.engine.friction_nm / md.engine.reference_torque_nm, 2),
-                            engine_inertia_kgm2=md.engine.inertia_kgm2, wheel_speeds="per-axle",
-                            load_sensing="none", draft_sensing=bool(ps.draft_sensor))
-    return dataclasses.replace(veh, drivetrain=dd)
+                            engine_friction_percent=round(friction_pct, 2),
+                            engine_inertia_kgm2=eng.inertia_kgm2, wheel_speeds="per-axle",
+                            load_sensing="none", draft_sensing=bool(ps.draft_sensor),
+                            rolling_radius_m=round(r_cal, 4))
+    return dataclasses.replace(veh, drivetrain=dd,
+                               pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2))
+
+
+DECLARED_FRICTION_TOL_PCT = 1.0
+"""Tolerance of a declared (or EEC3-read) nominal friction percent torque [% of the reference]: its 1 %/bit."""
+DECLARED_PULL_ANGLE_TOL_DEG = 2.0
+"""Tolerance of a line of pull taken from the hitch and implement geometry [deg]."""
+DECLARED_RADIUS_TOL_REL = 0.005
+"""Tolerance of a rolling radius from a 100 m calibration run [-] (course and wheel-pulse count, ±0.5 %)."""
 
 
 # ----------------------------------------------------------------------------- hub drive
@@ -401,6 +425,13 @@ def _write_truth(scn, tr, out: Path, b: SensorBiases) -> None:
              "# truth.csv: slip_* is eq. 6 of each wheel against its own ground speed v_* (not v);",
              "# mu_* = F_h/F_z in the paper's split with the declared rho_t (see tractionecu.sim.physical).", ""]
     lines += ["[field]", f"origin_lat = {scn.field.origin_lat}", f"origin_lon = {scn.field.origin_lon}", ""]
+    veh = scn.vehicle
+    fz_static = (veh.static_front_fraction * veh.mass_kg * 9.81 / 2, (1 - veh.static_front_fraction) * veh.mass_kg * 9.81 / 2)
+
+    def axle_curve(soil, s_grid, axle):
+        return ty.paper_mu(s_grid, soil, fz_static[axle], veh.tyre_width_m, veh.r0_m, ps.tyre, veh.tyre_pressure_pa,
+                           veh.rho_t)
+
     for r, s in zip(scn.field.regions, ps.soils):
         s_grid, mu_grid = class_curve(s, scn.vehicle, ps.tyre)
         lines += ["[[soils]]", f'name = "{r.name}"', f'soil_class = "{r.soil_class}"', f"a = {r.a}", f"rho_s = {r.rho_s}",
@@ -408,7 +439,10 @@ def _write_truth(scn, tr, out: Path, b: SensorBiases) -> None:
                   "# a, soil_class: the filter's class that fits this soil's mu(s) best (s 0..0.3, static mean wheel load)",
                   f"cone_index_pa = {s.cone_index_pa!r}", f'law = "{s.law}"', f"s_shape = {s.s_shape!r}",
                   "mu_curve_s = " + toml_value([round(float(x), 4) for x in s_grid]),
-                  "mu_curve = " + toml_value([round(float(x), 5) for x in mu_grid]), ""]
+                  "mu_curve = " + toml_value([round(float(x), 5) for x in mu_grid]),
+                  "# the same under the static front and rear wheel loads (mu(s) depends on the load)",
+                  "mu_curve_front = " + toml_value([round(float(x), 5) for x in axle_curve(s, s_grid, 0)]),
+                  "mu_curve_rear = " + toml_value([round(float(x), 5) for x in axle_curve(s, s_grid, 1)]), ""]
     lines.append("[effects]")
     lines.append("")
     lines.append(to_toml(scn.implement, "implement"))
