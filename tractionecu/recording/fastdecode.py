@@ -60,7 +60,7 @@ from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..errors import DecodeError, UnknownFrame
 
-CHUNK_CHARS = 1 << 22
+CHUNK_CHARS = 1 << 20
 """Characters read at a time (whole lines are processed per chunk)."""
 
 _HEXVAL = np.full(256, -1, dtype=np.int16)
