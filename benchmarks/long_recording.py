@@ -5,7 +5,7 @@ copy's CAN and NMEA times moved on by the span of the copies before it (NMEA tim
 rewritten, checksums recomputed), so the whole is one continuous drive of the chosen length on the
 same field.  Each command runs in its own process; peak RSS is that process's ``ru_maxrss``.
 
-    python benchmarks/long_recording.py [--hours 0.1667 1 4] [--work DIR] [--skip-diagnose]
+    python benchmarks/long_recording.py [--hours 0.1667 1 4] [--work DIR] [--skip-diagnose] [--only CMD ...]
 
 Prints one line per command and length, then the ratio of time per recorded hour between the longest
 and the shortest recording.
@@ -97,6 +97,8 @@ def main() -> int:
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 6, 1.0, 4.0])
     ap.add_argument("--work", type=Path, default=None, help="directory for the recordings (default: a temp dir)")
     ap.add_argument("--skip-diagnose", action="store_true")
+    ap.add_argument("--only", nargs="+", default=None, metavar="COMMAND",
+                    help="run only these of replay, replay+map, inspect, diagnose")
     args = ap.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="long_recording_"))
     exe = [sys.executable, "-m", "tractionecu"]
@@ -117,6 +119,8 @@ def main() -> int:
         if not args.skip_diagnose:
             cmds["diagnose"] = [*exe, "diagnose", str(rec), "--out", str(work / f"diag_{h:g}h")]
         for name, cmd in cmds.items():
+            if args.only and name not in args.only:
+                continue
             wall, rss, first = measure_fresh(cmd)
             per_hour.setdefault(name, []).append((length, wall))
             print(f"{name:<11} {length / 3600:6.2f} h recorded: {wall:8.1f} s wall, peak RSS {rss:7.0f} MB, "
