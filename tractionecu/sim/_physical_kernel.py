@@ -175,12 +175,26 @@ def integrate(x, w, p, h, n):
 
 
 @njit(cache=True)
+def slip_eq6(omega, r, vw):
+    """Paper eq. 6 slip of a wheel against its own ground speed v_w (magnitudes; s > 0 driving)."""
+    u = abs(r * omega)
+    va = abs(vw)
+    if max(u, va) < 1e-6:
+        return 0.0
+    if va <= u:
+        return 1.0 - va / u
+    return -1.0 + u / va
+
+
+@njit(cache=True)
 def outputs(x, w, p, out):
-    """Per-wheel kinematic slip (own ground speed), traction term T and shaft torque into out (3, 4)."""
+    """Per-wheel signed slip σ (own ground speed), traction term T, shaft torque and eq. 6 slip into
+    out (4, 4)."""
     for i in range(4):
         vw = w[2, i] * x[8]
         out[0, i] = slip_signed(x[i], w[1, i], vw)
         out[1, i] = w[3, i] * shape(x[4 + i], int(w[4, i]), w[5, i])
+        out[3, i] = slip_eq6(x[i], w[1, i], vw)
     if int(p[5]) == 0:
         for i in range(4):
             out[2, i] = p[8] * x[13 + i] + p[9] * (x[9 + i] - x[i])

@@ -310,7 +310,7 @@ def simulate_physical(scn):
     integ = 0.0
     share = np.array([veh.static_front_fraction / 2] * 2 + [(1 - veh.static_front_fraction) / 2] * 2)
     w = np.zeros((9, 4))
-    outb = np.zeros((3, 4))
+    outb = np.zeros((4, 4))
     d = 0.0
     keys = ("t", "omega", "v", "md", "fz", "fzf", "fdx", "mu", "slip", "rho_s", "a", "a_wheel", "soil", "soil_wheel",
             "x", "y", "heading", "alt", "theta", "work", "direction", "v_wheel", "curvature", "omega_sensor")
@@ -444,7 +444,7 @@ def simulate_physical(scn):
         mu = trac + drho * sgn_w
         rho_i = w[6] + w[7] * np.abs(x[4:8]) + drho
         vw = g * x[8]
-        s_eq6 = _eq6(x[0:4], vw, r)
+        s_eq6 = outb[3].copy()
 
         out["t"].append(t + dt)
         out["omega"].append(x[0:4].copy())
@@ -486,11 +486,3 @@ def simulate_physical(scn):
     arr["direction"] = arr["direction"].astype(np.int8)
     return TruthTrace(**arr)
 
-
-def _eq6(omega: np.ndarray, vw: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Paper eq. 6 slip of each wheel against its own ground speed (magnitudes; s > 0 driving)."""
-    u = np.abs(r * omega)
-    va = np.abs(vw)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.where(va <= u, 1.0 - va / u, -1.0 + u / va)
-    return np.where(np.maximum(u, va) < 1e-6, 0.0, s)
