@@ -8,6 +8,25 @@ sample) and steps one :class:`~tractionecu.estimation.estimator.Estimator`.
 The result stays in memory (:class:`ReplayResult`), so diagnosis reads it
 without files.
 
+Streaming
+---------
+Both feed one step function (:class:`_Run`) with blocks of signals: the grid
+of :func:`~.steps.build_grid` is handed out as the anchor frames arrive
+(:class:`_GridStream`, the same float arithmetic) and each group's latest
+sample is taken by :func:`~.steps.vector_steps`' rule, block by block
+(:class:`_Group`).  :func:`replay` feeds the whole recording as one block;
+:func:`replay_to_dir` given a path reads the capture twice: a survey
+(:func:`~tractionecu.recording.reader.read_recording` keeping whole only the
+speeds, :mod:`.survey`) for the signals present, the statistics and the clock
+offset, then block by block
+(:func:`~tractionecu.recording.reader.stream_signals`).  ``estimates.csv`` is
+written as the steps age past the window a lost filter may reach back
+(``lost_after_s`` + ``max_gap_s`` + 1 s); the map keeps the step at or after
+each GNSS epoch, the one :func:`~tractionecu.mapping.from_replay.write_replay_map`
+samples.  Peak memory does not grow with the recording's length (but for
+the GNSS track and those map steps, 10 Hz); the results are the in-memory
+replay's, byte for byte (``tests/pipeline/test_replay.py``).
+
 :func:`replay_to_dir` is ``tractionecu replay``'s job: read the recording,
 replay it and write
 
