@@ -27,8 +27,11 @@ raises :class:`~tractionecu.errors.RecordingError` saying why;
 
 CAN decoding
 ------------
-Frames are decoded in bulk (:mod:`.fastdecode`), with the same results as
-frame by frame (:func:`read_can_per_frame`).  Every 29-bit frame is decoded by its PGN through :class:`~tractionecu.bus.dbc.Codec`,
+Frames are decoded in bulk (:mod:`.fastdecode`), block by block
+(:mod:`.chunks`: a candump ``-L`` file is never held whole), with the same
+results as frame by frame (:func:`read_can_per_frame`).  ``keep`` makes a
+survey that keeps only some signals whole; :func:`stream_signals` reads the
+capture again block by block for a streamed replay.  Every 29-bit frame is decoded by its PGN through :class:`~tractionecu.bus.dbc.Codec`,
 whatever its source (and, for PDU1, destination) address.  Frames whose
 PGN the DBC lacks are skipped and counted per PGN (with the source
 addresses seen); frames of a known PGN with the wrong DLC are skipped and
