@@ -11,7 +11,8 @@ from the filter where real machines do:
    sigmoid μ(s); the force builds up over a relaxation length.
 2. **Load transfer from geometry**, every step: the drawbar pull along a
    line of pull (hitch height, hitch behind the rear axle, pull angle),
-   acceleration at the centre of gravity, and grade.
+   acceleration at the centre of gravity, and grade; in turns the
+   centripetal acceleration moves load to the outer wheels.
 3. **Turning kinematics** (Ackermann, no lateral tyre slip): the reference
    point is the rear-axle midpoint (also the GNSS antenna), whose path has
    curvature κ; with yaw rate Ω = v κ each wheel's ground speed along its
@@ -119,6 +120,8 @@ class PhysicalSpec:
     gnss_latency_s: float = 0.0
     """GNSS latency [s]: the fix stamped t describes the machine at t − latency (with ``sensor_biases``
     it is drawn in 50–100 ms when left at 0)."""
+    lateral_load_transfer: bool = True
+    """Shift load to the outer wheels in turns (m v² κ h_cg / track, shared by the axles as their loads)."""
     draft_cycle: tuple[float, float, float] | None = None
     """(low, high, period [m]): the working depth, and with it the draft, varies between low and high times
     nominal with the distance travelled (an implement on uneven ground or a depth-control programme)."""
@@ -370,7 +373,13 @@ def simulate_physical(scn):
         fzf, fzr = axle_loads(veh, ps.hitch, m, fdx, accel, theta)
         fzf = max(fzf, 200.0)
         fzr = max(fzr, 200.0)
-        fz = np.array([fzf / 2, fzf / 2, fzr / 2, fzr / 2])
+        # Lateral load transfer in a turn: centripetal acceleration v² κ at the CG height, shared by the
+        # axles as their loads; the outer wheels gain what the inner lose (κ > 0: left turn, right wheels outer).
+        d_lat = m * v * v * kappa * veh.cg_height_m / track if ps.lateral_load_transfer else 0.0
+        share_f = fzf / (fzf + fzr)
+        dlf = min(max(d_lat * share_f / 2, -0.45 * fzf), 0.45 * fzf)
+        dlr = min(max(d_lat * (1 - share_f) / 2, -0.45 * fzr), 0.45 * fzr)
+        fz = np.array([fzf / 2 - dlf, fzf / 2 + dlf, fzr / 2 - dlr, fzr / 2 + dlr])
         r = ty.rolling_radius(fz, veh.r0_m, tyre, veh.tyre_pressure_pa)
         bn = ty.mobility_number(soil_ci[soil_w], fz, veh.tyre_width_m, veh.r0_m, tyre, veh.tyre_pressure_pa)
         g = wheel_speed_ratios(kappa, track, L)
