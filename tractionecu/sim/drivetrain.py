@@ -136,8 +136,6 @@ class MechDriveSpec:
     """Torsional stiffness of the front drive-line (prop shaft, front axle) at the wheels [N·m/rad]."""
     damping_ratio: float = 0.1
     """Damping ratio of the drive-line's torsional modes [-]."""
-    wheel_inertia_kgm2: float = 37.0
-    """Tyre and rim inertia of each wheel [kg·m²]."""
     mfwd: bool = True
     """MFWD engaged in work."""
     mfwd_off_steer_deg: float = 15.0

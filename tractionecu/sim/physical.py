@@ -267,7 +267,7 @@ def simulate_physical(scn):
     hub = dtr.hub
     md_ = dtr.mech
     if mech:
-        jw = md_.wheel_inertia_kgm2
+        jw = veh.wheel_inertia_kgm2          # tyre and rim; the drive-line's inertia sits in the node
         eng = md_.engine
         p[5] = 1.0
         p[8], p[10] = md_.rear_stiffness_nmprad, md_.front_stiffness_nmprad
