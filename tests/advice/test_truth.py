@@ -87,3 +87,14 @@ def test_ballast_needed_scenario_fires_on_its_true_slip(make_recording) -> None:
     kinds = [e["kind"] for e in series["advice"]]
     print([(round(e["t"] - series["t"][0], 1), e["text"]) for e in series["advice"]])
     assert "add_ballast" in kinds and "remove_ballast" not in kinds
+
+
+def test_ballast_needed_scenario_fires_through_the_estimator(make_recording) -> None:
+    """``ballast-needed`` replayed through the estimator (the machine-level one for its mechanical
+    drivetrain): the advice the service would give asks for ballast, never to remove it."""
+    if "ballast-needed" not in scenarios.SCENARIOS:
+        pytest.skip("scenario ballast-needed not in this version of the simulator")
+    series, veh, truth = advice_of(make_recording("ballast-needed", 0))
+    kinds = [e["kind"] for e in series["advice"]]
+    print([(round(e["t"] - series["t"][0], 1), e["text"]) for e in series["advice"]])
+    assert "add_ballast" in kinds and "remove_ballast" not in kinds
