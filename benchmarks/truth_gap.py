@@ -12,6 +12,8 @@ differences from the filter's model taken away one after another, replays each r
 
 What is left in D is what the tyre–soil law (load-dependent μ(s), μ(0) ≠ 0, ρ_s growing with
 slip), the relaxation length, the drive-line compliance, the toothed pickups and the turns cost.
+Each variant's ``vehicle.toml`` is what the recording writer declares for that variant (the
+owner's knowledge of it), so the rows measure what is left after those declarations.
 
     python benchmarks/truth_gap.py [--scenario NAME] [--duration S] [--seed N] [--work DIR]
 """
