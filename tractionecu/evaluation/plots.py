@@ -174,6 +174,7 @@ def _track_svg(rec: Any, t: np.ndarray, values: np.ndarray, label: str) -> str:
     sx = (W - 2 * P) / max(float(np.ptp(x)), 1.0)
     sy = (H - 2 * P) / max(float(np.ptp(y)), 1.0)
     s = min(sx, sy)
+    H = max(float(np.ptp(y)) * s + 2 * P, 60.0)          # as tall as the track needs
     X = P + (x - x.min()) * s
     Y = H - P - (y - y.min()) * s
     segs = []
