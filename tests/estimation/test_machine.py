@@ -14,7 +14,7 @@ import pytest
 
 from tractionecu.config import DrivetrainSpec, VehicleParams
 from tractionecu.estimation.estimator import STATUS_NAMES, status_names
-from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MachineEstimate,
+from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MACHINE_UNSUPPORTED, MachineEstimate,
                                             MachineEstimator)
 from tractionecu.errors import EstimatorError
 from tractionecu.model.mucurve import SOIL_CLASSES
@@ -205,3 +205,57 @@ def test_power_split_runs_the_machine_level_estimator_on_the_reported_ratio(synt
     mu = np.array([e.mu[0] for e in late])
     assert late[-1].status & MACHINE_LEVEL and late[-1].total_ratio == pytest.approx(80.0)
     assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
+
+
+def _edit(bus, key, t0, t1, fn):
+    return [(t, k, fn(t, v) if k == key and t0 <= t < t1 else v) for t, k, v in bus]
+
+
+def _unsupported(out, t0, t1):
+    sel = [e for e in out if t0 <= e.t < t1]
+    return np.mean([bool(e.status & MACHINE_UNSUPPORTED) and not e.valid for e in sel])
+
+
+def test_shift_and_clutch_slip_mark_mu_unsupported(synthetic) -> None:
+    """An ETC2 gear change, or engine speed off the reported ratio (a slipping clutch), makes the μ
+    not valid for shift_hold_s; before and after, the run stays valid."""
+    truth, bus = synthetic
+    bus = _edit(bus, "cgear", 30.0, 30.25, lambda t, v: 5.0)             # a gear reported and back again
+    bus = _edit(bus, "we", 40.0, 40.5, lambda t, v: v * 1.10)            # engine 10 % over the wheels
+    est = MachineEstimator(mech_vehicle())
+    hold = est.validity.shift_hold_s
+    out = run(est, bus)
+    assert _unsupported(out, 30.05, 30.25 + hold - 0.05) == 1.0
+    assert _unsupported(out, 40.05, 40.5 + hold - 0.05) == 1.0
+    assert _unsupported(out, 21.0, 29.9) == 0.0 and _unsupported(out, 33.0, 39.9) == 0.0
+    assert np.mean([e.valid for e in out if 43.0 < e.t < 60.0]) > 0.99
+    assert "machine_mu_unsupported" in status_names(MACHINE_UNSUPPORTED)
+    assert est.counters["unsupported_steps"] > 0
+
+
+def test_low_net_torque_marks_mu_unsupported(synthetic) -> None:
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle())
+    out = run(est, _edit(bus, "Te", 45.0, 50.0, lambda t, v: est.validity.min_net_torque_pct - 2.0))
+    assert _unsupported(out, 45.1, 50.0) == 1.0 and _unsupported(out, 25.0, 44.9) == 0.0
+
+
+def test_tight_turn_and_decoupled_front_axle_mark_mu_unsupported(synthetic) -> None:
+    """EBC2: rear wheels apart by a turn whose front-axle path exceeds the rear's by more than
+    max_front_path_excess; then the front axle slower than the coupling's ratio (an MFWD disengaged)."""
+    truth, bus = synthetic
+    veh = mech_vehicle()
+    lk = 0.3                                             # L·κ: front path √(1 + 0.09) − 1 = 4.4 % longer
+    ebc2 = []
+    for t, k, v in bus:
+        if k != "vwb":
+            continue
+        vfa = v * 1.03                                     # engaged: the front axle at the lead
+        if 45.0 <= t < 55.0:
+            vfa *= 0.95                                    # rolling front axle
+        d = 0.5 * lk / veh.wheelbase_m * veh.track_width_m * v if 35.0 <= t < 38.0 else 0.0
+        ebc2 += [(t, "vfa", vfa), (t, "rel_r", np.array([v + d - vfa, v - d - vfa]))]
+    out = run(MachineEstimator(veh), sorted(bus + ebc2, key=lambda b: b[0]))
+    assert _unsupported(out, 35.05, 38.9) == 1.0
+    assert _unsupported(out, 25.0, 34.9) == 0.0 and _unsupported(out, 40.0, 44.9) == 0.0
+    assert _unsupported(out, 48.0, 55.0) > 0.9                 # after the 3 s smoothing has seen it

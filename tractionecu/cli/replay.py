@@ -153,6 +153,11 @@ def format_summary(res: dict[str, Any]) -> str:
                 extra = f" (a {c.get('a_identified', float('nan')):.3f} vs {c.get('a_true', float('nan')):.3f})" if c else ""
                 rows.append((f"r2_mu_curve[{name}]", f"{r2:.4f}{extra}", ">= 0.95" if mach else ">= 0.98"))
             if mach:
+                if "valid_fraction" in sc:                 # the population of the errors above
+                    rows.insert(1, ("valid_fraction (mu, rho_s over valid)", f"{sc['valid_fraction'] * 100:.1f} %", ""))
+                    rows.insert(2, ("mu_mean_abs_rel_error_all", f"{sc['mu_mean_abs_rel_error_all'] * 100:.2f} %",
+                                    "every step after convergence"))
+                rows += [(f"curve_path[{n}]", str(c.get("curve_path", "")), "") for n, c in sc["curves"].items()]
                 rows.append(("rho_s_reported_fraction", f"{sc['rho_s_reported_fraction'] * 100:.1f} %",
                              "0 % without a draft sensor"))
             w = max(len(r[0]) for r in rows)

@@ -100,8 +100,12 @@ STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed
                 INPUT_REJECTED: "input_rejected", MEAS_GATED: "measurement_gated",
                 COV_REPAIRED: "covariance_repaired", FILTER_LOST: "filter_lost", STANDSTILL: "standstill",
                 UNVERIFIED: "unverified_assumptions"}
+MACHINE_UNSUPPORTED = 0x1000
+"""The machine-level μ is not supported by the bus now (:class:`.machine.MachineValidity`: gear shift or clutch
+slip, front axle not coupled as modelled, too little drive torque): not valid."""
+STATUS_NAMES[MACHINE_UNSUPPORTED] = "machine_mu_unsupported"
 INVALID_MASK = (WHEEL_TIMEOUT | GPS_TIMEOUT | TORQUE_TIMEOUT | AXLE_TIMEOUT | DRAFT_TIMEOUT | NOT_CONVERGED
-                | INPUT_REJECTED | FILTER_LOST | STANDSTILL)
+                | INPUT_REJECTED | FILTER_LOST | STANDSTILL | MACHINE_UNSUPPORTED)
 """Bits that make an estimate not ``valid`` (gating and a repaired covariance are notices only)."""
 MACHINE_LEVEL = 0x4000
 """One μ for the whole machine (:mod:`.machine`: an engine-driven tractor's bus supports no more): the same μ

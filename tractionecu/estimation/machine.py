@@ -95,13 +95,14 @@ from .config import EstimatorConfig
 from .curve import CurveEstimator
 from .estimator import (COV_REPAIRED, DRAFT_TIMEOUT, GPS_TIMEOUT, INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED,
                         STANDSTILL, TORQUE_TIMEOUT, WHEEL_TIMEOUT, AXLE_TIMEOUT, DRAFT_NOT_SEPARATED, INVALID_MASK,
-                        MACHINE_LEVEL, Estimate)
+                        MACHINE_LEVEL, MACHINE_UNSUPPORTED, Estimate)
 from .calibration import RadiusCalibration
 from .rates import BusRates
 from .supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
 from .ukf import UnscentedFilter
 
-__all__ = ["DRAFT_NOT_SEPARATED", "MACHINE_LEVEL", "MachineEstimate", "MachineEstimator", "MachineSensors"]
+__all__ = ["DRAFT_NOT_SEPARATED", "MACHINE_LEVEL", "MACHINE_UNSUPPORTED", "MachineEstimate", "MachineEstimator",
+           "MachineSensors", "MachineValidity"]
 
 N_MACHINE = 4
 IX_W, IX_V, IX_MU, IX_RHO = 0, 1, 2, 3
@@ -134,6 +135,44 @@ class MachineSensors:
 
     def __post_init__(self) -> None:
         validate(self, "machine_sensors")
+
+
+@dataclass(frozen=True)
+class MachineValidity:
+    """When the bus cannot support a machine-level μ (status :data:`MACHINE_UNSUPPORTED`, not valid).
+
+    * **Gear shift or clutch slip**: ETC2's actual gear ratio (or current gear) changed, or the engine speed
+      over the wheel-based speed disagrees with the reported total ratio by more than ``ratio_tolerance``
+      (a slipping clutch or a powershift changeover: the engine torque does not reach the wheels as
+      M = (p − p_f) T_ref i η says).  Held ``shift_hold_s`` after the last such sample: a powershift
+      changes over in 0.3–1 s and the filter's μ, which took the torque step meanwhile, settles after it.
+    * **Front axle not coupled as modelled** (MFWD declared engaged): in a turn the front axle travels a
+      longer path than the rear, √(1 + (Lκ)²) times, which the rigid coupling's kinematics (front wheels
+      (1 + λ) r_r/r_f times the rear's angular speed on a straight line) do not hold; beyond
+      ``max_front_path_excess`` the front slip of the model is that far off, and tractors with automatic
+      MFWD management disengage it at some steering angle.  κ from EBC2's rear wheels (left − right
+      over the track) or the GNSS course rate over the speed.  Also when EBC2's front-axle over rear-wheel
+      speed, smoothed over ``coupling_tau_s``, departs by more than ``coupling_tolerance`` times the lead
+      from its value learnt over ``coupling_ref_tau_s`` (the engaged axle's fixed gear ratio; a disengaged
+      front axle rolls and its ratio falls by λ + s_r).  A disengagement that lasts much longer than
+      ``coupling_ref_tau_s`` is learnt as the normal ratio: declare ``front_drive`` as it is driven.
+    * **Too little drive torque**: the net percent torque p − p_f below ``min_net_torque_pct``: at 10 % a
+      1 % error of the friction percent (its resolution) is already a 10 % error of μ.
+    """
+
+    ratio_tolerance: float = setting(0.03, "engine speed / (wheel speed x total ratio) tolerance [-]", 0.001, 1.0)
+    shift_hold_s: float = setting(2.0, "time after a ratio change or clutch slip with μ not supported [s]", 0.0, 60.0)
+    max_front_path_excess: float = setting(0.01, "front-axle path over the rear's in a turn, less 1 [-]", 0.0, 1.0)
+    turn_hold_s: float = setting(1.0, "time after a turn beyond the limit with μ not supported [s]", 0.0, 60.0)
+    coupling_tau_s: float = setting(3.0, "smoothing of the front/rear speed ratio [s]", 0.0, 60.0)
+    coupling_ref_tau_s: float = setting(30.0, "time constant of the learnt coupled front/rear speed ratio [s]",
+                                        1.0, 3600.0)
+    coupling_tolerance: float = setting(1.0, "front/rear ratio departure tolerated, in units of the lead [-]",
+                                        0.0, 10.0)
+    min_net_torque_pct: float = setting(10.0, "net percent torque below which μ is not supported [%]", 0.0, 100.0)
+
+    def __post_init__(self) -> None:
+        validate(self, "machine_validity")
 
 
 @dataclass(slots=True)
@@ -186,7 +225,7 @@ class MachineEstimator:
 
     def __init__(self, vehicle: VehicleParams, cfg: EstimatorConfig | None = None,
                  sensors: SensorSpec | None = None, *, draft: bool = True, front_load: bool | None = None,
-                 machine_sensors: MachineSensors | None = None) -> None:
+                 machine_sensors: MachineSensors | None = None, validity: MachineValidity | None = None) -> None:
         dt = vehicle.drivetrain
         if not dt.engine_driven:
             raise EstimatorError("MachineEstimator: the vehicle's [drivetrain] kind is 'hub' (per-wheel torques: "
@@ -196,6 +235,7 @@ class MachineEstimator:
         self.cfg = cfg = cfg or EstimatorConfig()
         self.sensors = sp = sensors or SensorSpec()
         self.ms = machine_sensors or MachineSensors()
+        self.validity = validity or MachineValidity()
         self.draft = bool(draft)
         self.front_load = (dt.load_sensing == "front-axle") if front_load is None else bool(front_load)
         self.m = vehicle.mass_kg
@@ -248,6 +288,12 @@ class MachineEstimator:
         self._ratio_learnt = math.nan
         self._ratio_jump = 0
         self._vwb: float | None = None
+        self._t_shift = -math.inf
+        self._t_turn = -math.inf
+        self._gear_seen: tuple[float, float] = (math.nan, math.nan)
+        self._coupling = math.nan
+        self._coupling_ref = math.nan
+        self._t_coupling = -math.inf
         self._rates.reset()
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
         self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
@@ -259,6 +305,7 @@ class MachineEstimator:
         self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu,
                                      min_slip=cfg.curve_min_slip, class_tau_s=cfg.curve_class_tau_s,
                                      slip_corr_s=cfg.curve_slip_corr_s,
+                                     shape=cfg.curve_shape, shape_kw={"min_span": cfg.curve_shape_min_span},
                                      switch_min_delta=cfg.curve_switch_min_delta)
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
@@ -275,7 +322,8 @@ class MachineEstimator:
         self._terms_key: float | None = None
         self._terms_val = (math.nan,) * 5
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
-                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0}
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0,
+                         "unsupported_steps": 0}
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
 
@@ -419,6 +467,11 @@ class MachineEstimator:
                     self._t_in["gear"] = t
                 else:
                     status |= INPUT_REJECTED
+        if inputs and "gear" in inputs:
+            g = self._in["gear"]
+            if g != self._gear_seen[0] and not (math.isnan(g) and math.isnan(self._gear_seen[0])):
+                self._t_shift = t                              # a ratio change (or neutral): a shift
+            self._gear_seen = (g, self._gear_seen[1])
         if status & INPUT_REJECTED:
             counters["rejected_inputs"] += 1
             predict_only = True
@@ -442,6 +495,10 @@ class MachineEstimator:
             self._dir = 1.0 if d == 1 else -1.0
             self._t_dir_bus = t
         cg = meas.get("cgear")
+        if cg is not None and math.isfinite(cg):
+            if cg != self._gear_seen[1] and math.isfinite(self._gear_seen[1]):
+                self._t_shift = t                              # ETC2 current gear changed
+            self._gear_seen = (self._gear_seen[0], float(cg))
         if cg is not None and math.isfinite(cg) and cg != 0 and t - self._t_dir_bus > cfg.gps_timeout_s:
             self._dir = 1.0 if cg > 0 else -1.0                # ETC2 current gear: negative in reverse
         vwb = None
@@ -465,6 +522,11 @@ class MachineEstimator:
                 self._learn_ratio(float(we), vwb)
         i_tot = self.ratio()
         fzf, fzr, rdf, rdr = self.loads()
+        val = self.validity
+        vw_last = vwb if vwb is not None else self._vwb            # the wheel speed held (CCVS1 every 100 ms)
+        if we is not None and vw_last is not None and vw_last > 0.5 and i_tot > 0.0:
+            if abs(float(we) * self.r_ws / (vw_last * i_tot) - 1.0) > val.ratio_tolerance:
+                self._t_shift = t                              # engine and wheels not at the reported ratio
         z_w = r_w = None
         if we is not None and self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"]) and i_tot > 0:
             s_e = self.ms.engine_speed_sigma_rel * we + self.ms.engine_speed_quant / math.sqrt(12.0)
@@ -485,6 +547,22 @@ class MachineEstimator:
             rl = np.asarray(rel, dtype=float)
             if rl.shape == (2,) and np.isfinite(rl).all():
                 self._turning = abs(float(rl[0] - rl[1])) > self._radius.cfg.max_turn_rel * vfa
+                v_rear = vfa + 0.5 * float(rl[0] + rl[1])
+                if v_rear > 0.5:
+                    lk = self.vehicle.wheelbase_m * abs(float(rl[0] - rl[1])) / (self.vehicle.track_width_m * v_rear)
+                    if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
+                        self._t_turn = t
+                    if self.engaged and self.lead > 0.0:       # front axle over rear wheels, against the coupling
+                        q = vfa / v_rear / ((1.0 + self.lead) * rdr / rdf) - 1.0
+                        a = 1.0 if t - self._t_coupling > 5.0 * max(val.coupling_tau_s, 0.1) else min(
+                            1.0, (t - self._t_coupling) / max(val.coupling_tau_s, 1e-3))
+                        self._coupling = q if not math.isfinite(self._coupling) else self._coupling + a * (
+                            q - self._coupling)
+                        b = min(1.0, (t - self._t_coupling) / val.coupling_ref_tau_s) if math.isfinite(
+                            self._coupling_ref) else 1.0
+                        self._coupling_ref = (self._coupling if not math.isfinite(self._coupling_ref)
+                                              else self._coupling_ref + b * (self._coupling - self._coupling_ref))
+                        self._t_coupling = t
         crs = meas.get("course")                               # GNSS course: a turn bends it
         if crs is not None and math.isfinite(crs):
             if self._course is not None and t > self._course[0]:
@@ -492,6 +570,10 @@ class MachineEstimator:
                 rate = math.radians(abs(d)) / (t - self._course[0])
                 self._turning_gnss = rate > self._radius.cfg.max_turn_rel / self.vehicle.track_width_m * max(
                     abs(self._last_v or 0.0), 0.5)
+                if abs(self._last_v or 0.0) > 0.5:
+                    lk = self.vehicle.wheelbase_m * rate / abs(self._last_v)
+                    if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
+                        self._t_turn = t
             self._course = (t, float(crs))
         zv: list[tuple[int, float, float]] = []
         vm = meas.get("v")
@@ -524,6 +606,12 @@ class MachineEstimator:
                                t_in["Fdx"] + timeout["Fdx"] if self.draft else math.inf,
                                t_in["Fzf"] + timeout["Fzf"] if self.front_load else math.inf)
         M = self._torque(i_tot)
+        if (t - self._t_shift < val.shift_hold_s or t - self._t_turn < val.turn_hold_s
+                or self._pct_net() < val.min_net_torque_pct
+                or (math.isfinite(self._coupling) and t - self._t_coupling < 1.0
+                    and abs(self._coupling - self._coupling_ref) > val.coupling_tolerance * self.lead)):
+            status |= MACHINE_UNSUPPORTED
+            counters["unsupported_steps"] += 1
         # ---- initialisation
         ukf = self.ukf
         if ukf is None:
@@ -687,7 +775,8 @@ class MachineEstimator:
             w_f, s_f = math.nan, math.nan
         s = [s_f, s_f, s_r, s_r]
         # curve parameter a from the machine-level pair
-        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps:
+        if (t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps
+                and not status & MACHINE_UNSUPPORTED):
             self._t_curve = t
             s_e = self._effective_slip(s_f, s_r, fzf, fzr)
             sig_s = math.sqrt(pv) / max(rdr * abs(w), 1e-3)

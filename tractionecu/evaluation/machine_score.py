@@ -6,6 +6,18 @@ against that: the truth's per-wheel μ_i weighted by the wheel loads F_z,i of ``
 the recording's vehicle).  Every other figure is :func:`~.scoring.scorecard`'s on that μ: the mean
 absolute relative error, ρ_s, the μ(s) curve's R² per soil, the re-convergence.  Added:
 
+Population: the μ and ρ_s errors are over the estimates the product reports as **valid** (``valid``: no
+invalid status bit, in particular not ``machine_mu_unsupported`` -- gear shift, front axle decoupled, low
+torque -- and not ``not_converged``), truth μ ≥ ``mu_rel_floor`` for the relative error; the share of the
+steps that are valid is given beside them, and the error over every step after the first convergence
+(valid or not) as well, so that a figure is never read without its population:
+
+``mu_population``
+    the population of ``mu_mean_abs_rel_error`` in words.
+``valid_fraction``
+    share of the steps after the first convergence that are valid.
+``mu_mean_abs_rel_error_all``, ``mu_mean_abs_error_all``, ``rho_s_mean_abs_error_all``
+    the same errors over every step after the first convergence.
 ``level``
     ``"machine"``.
 ``rho_s_reported_fraction``
@@ -58,6 +70,28 @@ def machine_scorecard(arrays: dict[str, Any], truth: Truth, csv_path: str | Path
     mu_m = machine_mu_truth(truth, csv_path, mass_kg)
     sc = scorecard(arrays, dataclasses.replace(truth, mu=np.repeat(mu_m[:, None], 4, axis=1)))
     sc["level"] = "machine"
+    if "error" not in sc:
+        t = np.asarray(arrays["t"], dtype=float)
+        valid = np.asarray(arrays["valid"], dtype=bool)
+        i0 = int(np.argmax(valid))
+        k = np.clip(np.searchsorted(truth.t, t + 1e-9, side="right") - 1, 0, len(truth.t) - 1)
+        mu_t = mu_m[k]
+        mu_e = np.asarray(arrays["mu"], dtype=float)[:, 2]          # the same μ on every wheel
+        err = np.abs(mu_e - mu_t)
+        floor = sc["mu_rel_floor"]
+        after = np.arange(len(t)) >= i0
+        m = valid & after & (np.abs(mu_t) >= floor)
+        for key in ("mu_mean_abs_rel_error", "mu_mean_abs_error", "rho_s_mean_abs_error"):
+            sc[key + "_all"] = sc[key]
+        sc["mu_mean_abs_rel_error"] = float(np.mean(err[m] / np.abs(mu_t[m]))) if m.any() else float("nan")
+        sc["mu_mean_abs_error"] = float(np.mean(err[valid & after]))
+        rho_e = np.asarray(arrays["rho_s"], dtype=float)
+        mr = valid & after & np.isfinite(rho_e)
+        sc["rho_s_mean_abs_error"] = (float(np.mean(np.abs(rho_e[mr] - truth.rho_s[k][mr]))) if mr.any()
+                                      else float("nan"))
+        sc["valid_fraction"] = float(valid[after].mean())
+        sc["mu_population"] = (f"valid estimates after the first convergence ({100 * sc['valid_fraction']:.1f} % "
+                               f"of those steps), truth mu >= {floor:g}")
     rho = np.asarray(arrays["rho_s"], dtype=float)
     st = np.asarray(arrays["status"], dtype=np.int64)
     sc["rho_s_reported_fraction"] = float(np.isfinite(rho).mean()) if rho.size else 0.0

@@ -90,7 +90,9 @@ STATUS_FILTER_LOST = 0x200
 """EstimateStatus bit of a filter that lost the vehicle (DBC ``EstimateStatus``)."""
 STATUS_STANDSTILL = 0x400
 """EstimateStatus bit of a standstill, where ρ_s and slip are not supported by the data."""
-DEFAULT_REJECT_STATUS_MASK = 0x17F | STATUS_FILTER_LOST | STATUS_STANDSTILL
+STATUS_MACHINE_UNSUPPORTED = 0x1000
+"""EstimateStatus bit of a machine-level μ the bus does not support now (shift, front axle decoupled, low torque)."""
+DEFAULT_REJECT_STATUS_MASK = 0x17F | STATUS_FILTER_LOST | STATUS_STANDSTILL | STATUS_MACHINE_UNSUPPORTED
 """EstimateStatus bits that make :meth:`MapStore.add` reject a sample: sensor
 timeouts (0x01–0x10), not converged (0x20), input rejected (0x40),
 covariance repaired (0x100), filter lost (0x200) and standstill (0x400); a
