@@ -189,7 +189,8 @@ def test_replay_marks_the_lost_period_and_the_map_skips_it(base, tmp_path, monke
     f0 = _t0(base) + FAULT_AT_S
     monkeypatch.setattr(_Kicked, "KICK_AT", f0)
     monkeypatch.setattr(_Kicked, "KICK", (IX_RHO, 0.5))
-    monkeypatch.setattr(pr, "Estimator", _Kicked)
+    import tractionecu.estimation.estimator as est_mod
+    monkeypatch.setattr(est_mod, "Estimator", _Kicked)       # replay builds it through pipeline.select
     seen = []
     summary, rec, res = pr.replay_to_dir(base, tmp_path / "run", on_estimate=seen.append)
     a = res.arrays
