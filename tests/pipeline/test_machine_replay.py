@@ -48,6 +48,34 @@ def test_mechanical_recording_replays_at_machine_level(tmp_path: Path, capsys) -
     sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
     assert sc["level"] == "machine"
     assert sc["mu_mean_abs_rel_error"] < 0.25 and sc["rho_s_mean_abs_error"] < 0.06
+    # the errors are over the valid estimates, with their share and the all-steps figure beside them
+    assert 0.0 < sc["valid_fraction"] <= 1.0 and "valid estimates" in sc["mu_population"]
+    assert math.isfinite(sc["mu_mean_abs_rel_error_all"]) and "valid_fraction" in out and "curve_path[" in out
+
+
+def test_the_recording_declares_what_an_owner_knows_never_the_exact_truth(tmp_path: Path) -> None:
+    """vehicle.toml of a mechanical run: line of pull, SPN 514 friction (engine + accessories) and the
+    calibrated rear rolling radius, each off the truth by an error inside its stated tolerance."""
+    from tractionecu.config import load_vehicle
+    from tractionecu.sim import physwriter
+    from tractionecu.sim.physical import axle_loads
+    from tractionecu.sim.tyre import rolling_radius
+
+    rec = tmp_path / "rec"
+    _simulate("mechanical-three-soils", rec, 2.0)
+    veh = load_vehicle(rec / "vehicle.toml")
+    scn = scenarios.SCENARIOS["mechanical-three-soils"]
+    scn = scn() if callable(scn) else scn
+    ps = scn.physical
+    eng = ps.drivetrain.mech.engine
+    friction = 100.0 * (eng.friction_nm + eng.aux_torque_nm) / eng.reference_torque_nm
+    r_true = float(rolling_radius(0.5 * axle_loads(scn.vehicle, ps.hitch, scn.vehicle.mass_kg, 0, 0, 0)[1],
+                                  scn.vehicle.r0_m, ps.tyre, scn.vehicle.tyre_pressure_pa))
+    dt = veh.drivetrain
+    for got, true, tol in ((dt.engine_friction_percent, friction, physwriter.DECLARED_FRICTION_TOL_PCT + 0.005),
+                           (veh.pull_angle_deg, ps.hitch.pull_angle_deg, physwriter.DECLARED_PULL_ANGLE_TOL_DEG + 0.005),
+                           (dt.rolling_radius_m / r_true - 1.0, 0.0, physwriter.DECLARED_RADIUS_TOL_REL + 1e-4)):
+        assert got != true and abs(got - true) <= tol
 
 
 def test_without_a_draft_sensor_no_rho_s_is_reported(tmp_path: Path) -> None:
