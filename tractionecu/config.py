@@ -340,6 +340,12 @@ FRONT_DRIVE = ("engaged", "disengaged")
 """``[drivetrain] front_drive``: the mechanical front-wheel drive (MFWD) clutch."""
 
 
+HUB_EFFICIENCY = 0.96
+"""Default torque efficiency of a hub reduction, motor to wheel [-] (DrivetrainSpec doc)."""
+HUB_EFFICIENCY_TOL = 0.02
+"""Default relative standard uncertainty of the hub reduction's efficiency [-] (DrivetrainSpec doc)."""
+
+
 @dataclass(frozen=True)
 class DrivetrainSpec:
     """What drives the wheels and what the bus says about it (``[drivetrain]`` of ``vehicle.toml``).
@@ -353,6 +359,17 @@ class DrivetrainSpec:
     efficiency.  The estimator that runs on such a machine is
     :mod:`tractionecu.estimation.machine`.
 
+    Hub drive: the reported motor torque reaches the wheel through the hub
+    reduction, M_wheel = η·M_motor driving (M_motor/η braking).  Not given,
+    η = 1 with tolerance 0: the paper's machine, whose reported drive torque
+    is the wheel's (every ``VehicleParams()`` of the paper's scenarios).  A
+    machine with a hub reduction declares its η: :data:`HUB_EFFICIENCY`
+    0.96 is two planetary stages at 0.98 each, the middle of the 0.97-0.99
+    per planetary stage of Naunheimer et al. 2011 ("Automotive
+    Transmissions", 2nd ed.); their range 0.94-0.98 gives
+    :data:`HUB_EFFICIENCY_TOL` 0.02 (1σ, relative; it also covers the
+    bearings' and seals' losses that the stage figures leave out).
+
     Defaults where a machine's figures are not given: the efficiency 0.88 is
     the middle of the 0.85-0.90 transmission efficiency of tractor gearboxes
     (ASABE D497.7 section 4.1.1 for gear transmissions); a front-axle lead of
@@ -365,9 +382,11 @@ class DrivetrainSpec:
     final_drive_ratio: float = setting(0.0, "transmission output to rear wheel speed ratio i_f [-]; "
                                        "0: not known (needed with gear_ratio = 'bus')", 0.0, 200.0)
     gear_ratio: str = setting("bus", "bus (ETC2 actual gear ratio, SPN 526) | learnt (engine speed over wheel speed)")
-    efficiency: float = setting(0.88, "drivetrain efficiency engine to wheels η [-]", 0.3, 1.0)
-    efficiency_tolerance: float = setting(0.03, "relative uncertainty of η [-] (1σ): it bounds how well the "
-                                          "machine-level μ is known", 0.0, 0.5)
+    efficiency: float = setting(math.nan, "drivetrain efficiency engine (hub: motor) to wheels η [-]; "
+                                "not given: the kind's default (hub 1.0, else 0.88)", 0.3, 1.0, nan_ok=True)
+    efficiency_tolerance: float = setting(math.nan, "relative uncertainty of η [-] (1σ): it bounds how well μ "
+                                          "is known; not given: the kind's default (hub 0, else 0.03)", 0.0, 0.5,
+                                          nan_ok=True)
     front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls)")
     front_lead: float = setting(0.02, "front-axle lead: front over rear wheel circumferential speed, minus 1 [-] "
                                 "(1-5 % on MFWD tractors)", -0.1, 0.2)
@@ -388,6 +407,11 @@ class DrivetrainSpec:
                                   "ρ_s and the draft are estimated as their sum, ρ_s is not reported")
 
     def __post_init__(self) -> None:
+        hub = self.kind == "hub"
+        if isinstance(self.efficiency, float) and math.isnan(self.efficiency):
+            object.__setattr__(self, "efficiency", 1.0 if hub else 0.88)
+        if isinstance(self.efficiency_tolerance, float) and math.isnan(self.efficiency_tolerance):
+            object.__setattr__(self, "efficiency_tolerance", 0.0 if hub else 0.03)
         validate(self, "drivetrain")
         for key, allowed in (("kind", DRIVETRAIN_KINDS), ("wheel_speeds", WHEEL_SPEED_SOURCES),
                              ("load_sensing", LOAD_SENSING), ("gear_ratio", GEAR_RATIO_SOURCES),
@@ -426,7 +450,7 @@ class VehicleParams:
     max_wheel_torque_nm: float = setting(9000.0, "torque limit of one wheel drive [N·m]", 10.0, 1e5)
     pull_angle_deg: float = setting(0.0, "line of pull above the horizontal at the hitch β [deg]: the draft adds "
                                     "F_dx·tan β to the wheel loads (ASABE D497.7 4.1.4); used by the "
-                                    "machine-level estimator", -30.0, 45.0)
+                                    "hub and the machine-level estimators", -30.0, 45.0)
     drivetrain: DrivetrainSpec = section(DrivetrainSpec, "what drives the wheels and what the bus says about it "
                                                          "(also a top-level [drivetrain] table)")
 

@@ -253,6 +253,10 @@ class Estimator:
         self._fz_var = sp.axle_sigma_n ** 2 + sp.axle_quant_n ** 2 / 12.0
         self._fd_var = sp.draft_sigma_n ** 2 + sp.draft_quant_n ** 2 / 12.0
         self._weight = vehicle.weight_n
+        # Drive torque input: the reported motor torque through the hub reduction's declared efficiency η
+        # (M_d = η M_motor driving, M_motor/η braking; model doc "Declared drivetrain"); 1: the paper's model.
+        dtr = getattr(vehicle, "drivetrain", None)
+        self._eta = float(dtr.efficiency) if dtr is not None and not dtr.engine_driven else 1.0
         self._unc = SystematicUncertainty(sp, vehicle) if cfg.systematic_uncertainty else None
         # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
         # the SensorSpec rates until enough samples were seen.
@@ -330,7 +334,7 @@ class Estimator:
     # ------------------------------------------------------------------ noise
     def _loads(self) -> None:
         """self._fz, self._rd (4,) for the held F_zf (cached by the model per F_zf)."""
-        self._fz, self._rd, _ = self.model._load_terms(float(self._u[4]))
+        self._fz, self._rd, _ = self.model._load_terms(float(self._u[4]), float(self._u[5]))
 
     def _R_omega(self, z: NDArray[np.float64]) -> NDArray[np.float64]:
         s = self._w_abs + self._w_rel * np.abs(z)
@@ -460,6 +464,8 @@ class Estimator:
                     sm = a0 + a1 + a2 + a3           # = arr.sum(): also catches an overflowing sum
                     if math.isfinite(sm):
                         foh = [(0, u[:4].copy(), t_in["Md"])]
+                        if self._eta != 1.0:           # motor to wheel torque (losses against the power flow)
+                            arr = arr * np.where(arr * self._dir >= 0.0, self._eta, 1.0 / self._eta)
                         u[:4] = arr if self._md_inv is None else arr * self._md_inv
                         self._md_sum = sm
                         t_in["Md"] = t
@@ -512,7 +518,7 @@ class Estimator:
                     if math.isfinite(wl[0] + wl[1] + wl[2] + wl[3]):
                         self._t_omega = t
                         # direction of travel from the sign of wheel rotation (held when creeping)
-                        _, _, rdf, rdr = self.model.load_floats(float(u[4]))
+                        _, _, rdf, rdr = self.model.load_floats(float(u[4]), float(u[5]))
                         v_wheel = 0.25 * (rdf * (wl[0] + wl[1]) + rdr * (wl[2] + wl[3]))
                         if v_wheel != v_wheel:
                             v_wheel = None
@@ -670,7 +676,7 @@ class Estimator:
             return
         pd = ukf.P.diagonal()[5:10]
         u = self._u
-        _, _, rdf, rdr = self.model.load_floats(float(u[4]))
+        _, _, rdf, rdr = self.model.load_floats(float(u[4]), float(u[5]))
         ur = self._cal.radius_sigma(unc.u_r) if self._cal is not None else (unc.u_r, unc.u_r)
         vm, vr = unc.variances(u[:4].tolist(), float(u[4]), float(u[5]), rdf * self._kf, rdr * self._kr, *ur)
         vm.append(vr)
@@ -684,7 +690,7 @@ class Estimator:
     def _calibrate(self, t: float, v_meas: float, wl: list[float], e: Estimate) -> None:
         """Feed the radius calibration one GNSS epoch; apply a new scale (torques ÷ k, slip with k·r_d)."""
         cal = self._cal
-        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
         cs = self._curve_state
         cal.push(t, v_meas, wl, rdf, rdr, e.mu.tolist(), self._dyn.accel, e.valid, cs.a, cs.class_name)
         n = cal._axles[0].n
@@ -800,7 +806,7 @@ class Estimator:
     def _slip(self, w: list[float], v: float, k: list[float]) -> list[float]:
         """Slip per wheel (eq. 6, :func:`~tractionecu.model.vehicle.slip`) from floats, same operations,
         each wheel against its own ground speed k_i·v (``k``: :meth:`_wheel_factors`)."""
-        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
         rdf *= self._kf
         rdr *= self._kr
         out = []
@@ -832,7 +838,7 @@ class Estimator:
         kap = float(self._u[IU_KAPPA])
         kw = self._ones4 if kap == 0.0 else self._wheel_factors(kap)
         if JIT:
-            _, _, rdf, rdr = self.model.load_floats(float(self._u[4]))
+            _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
             buf = np.empty(22)
             conv_p = _kernels.estimate_outputs(x, ukf.P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kw, buf)
             mu, s, omega, pd = buf[0:4], buf[4:8], buf[8:12], buf[12:22]

@@ -26,7 +26,12 @@ rectangular distribution with standard uncertainty b/√3 (GUM, JCGM
 - front-axle load error ΔF_zf (offset ⊕ gain·F_zf): each front wheel
   carries F_zf/2 and each rear wheel (mg − F_zf)/2, so
   ΔF_z,i = ±ΔF_zf/2 and Δμ_i = ∓c_i ΔF_zf / (2 F_z,i);
-- torque offset ΔM: Δμ_i = ΔM / (r_i F_z,i).
+- torque offset ΔM: Δμ_i = ΔM / (r_i F_z,i);
+- the hub reduction's declared efficiency η (``drivetrain.efficiency``,
+  the drive torques are η times the reported ones): its relative standard
+  uncertainty u_η (``drivetrain.efficiency_tolerance``, already 1σ) acts
+  as a torque gain common to the four drives, added to u_g² (0 for the
+  paper's machine, which declares η = 1 with tolerance 0).
   (r_d's own dependence on F_z, eq. 9, moves μ by < 0.1 % per 300 N and
   is left out.)
 
@@ -73,6 +78,9 @@ class SystematicUncertainty:
     def __init__(self, sensors: SensorSpec, vehicle: VehicleParams) -> None:
         sp = sensors
         self.u_g = sp.torque_gain_tol_rel / _SQRT3
+        dtr = getattr(vehicle, "drivetrain", None)
+        self.u_eta = float(dtr.efficiency_tolerance) if dtr is not None and not dtr.engine_driven else 0.0
+        self.tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
         self.u_m0 = sp.torque_offset_tol_nm / _SQRT3
         self.u_a0 = sp.axle_offset_tol_n / _SQRT3
         self.u_ag = sp.axle_gain_tol_rel / _SQRT3
@@ -93,9 +101,11 @@ class SystematicUncertainty:
         draft ``fdx`` [N], rolling radii r_d of a front and a rear wheel [m] and the relative standard
         uncertainties of the radius in use per axle ``ur_f``, ``ur_r`` [-]."""
         ff = 0.5 * fzf
-        fr = 0.5 * (self.weight - fzf)
+        fr = 0.5 * (self.weight - fzf) if self.tan_pull == 0.0 else 0.5 * ((self.weight - fzf) + fdx * self.tan_pull)
         u_fz = 0.5 * math.sqrt(self.u_a0 ** 2 + (self.u_ag * fzf) ** 2)     # per-wheel load error [N]
         g2 = self.u_g * self.u_g
+        if self.u_eta != 0.0:
+            g2 += self.u_eta * self.u_eta
         m02 = self.u_m0 * self.u_m0
         var_mu = []
         f_r = [0.0, 0.0]            # Σ|M_i/r_i| per axle
@@ -112,6 +122,6 @@ class SystematicUncertainty:
             f_r[0 if front else 1] += abs(m_r)
             off2 += m02 / (r * r)
         tot = f_r[0] + f_r[1]
-        num = ((self.u_g * tot) ** 2 + (ur_f * f_r[0]) ** 2 + (ur_r * f_r[1]) ** 2 + off2
+        num = ((self.u_g * tot) ** 2 + (self.u_eta * tot) ** 2 + (ur_f * f_r[0]) ** 2 + (ur_r * f_r[1]) ** 2 + off2
                + self.u_d0 ** 2 + (self.u_dg * fdx) ** 2)
         return var_mu, num / (self.mg * self.mg)

@@ -33,8 +33,23 @@ mass cancel to first order in κ and are left out.)  κ is the model's input
 u[6]; without it (six inputs) κ = 0, the paper's straight-line model.
 
 Vertical loads come from the measured front-axle load F_zf: each front wheel
-carries F_zf/2 and each rear wheel (m g − F_zf)/2 (paper section 3.1: "the rear
-wheel vertical force can then be calculated using vehicle parameters").
+carries F_zf/2 and each rear wheel (m g + F_dx tan β − F_zf)/2 (paper section
+3.1: "the rear wheel vertical force can then be calculated using vehicle
+parameters"; β the line of pull above the horizontal at the hitch,
+``pull_angle_deg``: the implement's pull has a vertical component
+F_dx tan β that the ground takes through the rear axle, ASABE D497.7 4.1.4;
+β = 0, the paper's horizontal pull, gives (m g − F_zf)/2).
+
+Declared drivetrain (beyond the paper, whose motors act on the wheels
+without losses): the estimator maps the reported motor torque to the wheel
+torque M_d = η M_motor (M_motor/η braking), η the declared
+``drivetrain.efficiency`` (:mod:`tractionecu.estimation.estimator`), and a
+declared ``drivetrain.rolling_radius_m`` (the wheel-speed distance
+calibration: the rear wheels' rolling radius at their static load)
+replaces eq. 9's deflection stiffness 2π p_t √(b_t r0/2) by the one that
+calibration measures, k = F_z,static/(r0 − r_cal), so that eq. 9 goes through
+r0 unloaded and r_cal at the static load (:func:`radius_law`; all four wheels
+carry the same tyre in this model).
 Rolling resistances act against the direction of motion (sign of ω resp. v).
 """
 
@@ -96,15 +111,36 @@ STATE_NAMES = ("omega_FL", "omega_FR", "omega_RL", "omega_RR", "v", "mu_FL", "mu
 
 
 def tyre_deflection(fz: ArrayLike, params: VehicleParams) -> NDArray[np.float64]:
-    """Tyre deflection Δr [m] from vertical load F_z [N] (paper eq. 9, p_t in Pa)."""
+    """Tyre deflection Δr [m] from vertical load F_z [N] (paper eq. 9, p_t in Pa; the declared rolling
+    radius's stiffness when given, :func:`radius_law`)."""
     fz = np.asarray(fz, dtype=float)
-    k = 2.0 * np.pi * params.tyre_pressure_pa * np.sqrt(params.tyre_width_m / 2.0 * params.r0_m)
-    return np.clip(fz, 0.0, None) / k
+    return np.clip(fz, 0.0, None) / radius_law(params)[1]
 
 
 def rolling_radius(fz: ArrayLike, params: VehicleParams) -> NDArray[np.float64]:
-    """Dynamic rolling radius r_d = r0 − Δr(F_z) [m], Δr limited to 30 % of r0."""
-    return params.r0_m - np.minimum(tyre_deflection(fz, params), 0.3 * params.r0_m)
+    """Dynamic rolling radius r_d = r0 − Δr(F_z) [m], Δr limited to 30 % of r0 (:func:`radius_law`)."""
+    r0 = radius_law(params)[0]
+    return r0 - np.minimum(tyre_deflection(fz, params), 0.3 * params.r0_m)
+
+
+def radius_law(params: VehicleParams) -> tuple[float, float]:
+    """(r0 [m], k [N/m]) of r_d = r0 − F_z/k (eq. 9).
+
+    Eq. 9's k = 2π p_t √(b_t r0/2), unless the vehicle declares
+    ``drivetrain.rolling_radius_m`` r_cal > 0 (module doc): then the line
+    through r0 at no load and r_cal at the rear wheels' static load
+    F_s = (1 − f_front) m g/2, k = F_s/(r0 − r_cal).  A declared r_cal ≥ r0
+    (no deflection explains it) keeps eq. 9's k and moves r0 to r_cal + F_s/k.
+    """
+    k = 2.0 * math.pi * params.tyre_pressure_pa * math.sqrt(params.tyre_width_m / 2.0 * params.r0_m)
+    dt = getattr(params, "drivetrain", None)
+    r_cal = getattr(dt, "rolling_radius_m", 0.0) if dt is not None else 0.0
+    if not r_cal > 0.0:
+        return params.r0_m, k
+    f_s = 0.5 * (1.0 - params.static_front_fraction) * params.weight_n
+    if r_cal < params.r0_m:
+        return params.r0_m, f_s / (params.r0_m - r_cal)
+    return r_cal + f_s / k, k
 
 
 def wheel_loads(fzf: ArrayLike, params: VehicleParams, weight_n: float | None = None) -> NDArray[np.float64]:
@@ -178,16 +214,22 @@ class FilterModel:
         self.rho_t = params.rho_t
         # Constants of the compiled step: m g, the deflection stiffness of eq. 9, the 30 % limit, r0, ρ_t, J, m,
         # half the track width, the wheelbase.
-        k = 2.0 * np.pi * params.tyre_pressure_pa * np.sqrt(params.tyre_width_m / 2.0 * params.r0_m)
-        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, params.r0_m, self.rho_t, self.J, self.m,
-                             0.5 * params.track_width_m, params.wheelbase_m])
-        self._fzf_key: float | None = None
+        # (r0 and k of eq. 9, or of the declared rolling radius: radius_law), tan β of the line of pull.
+        r0, k = radius_law(params)
+        self.tan_pull = math.tan(math.radians(params.pull_angle_deg))
+        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
+                             0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull])
+        self._fzf_key: tuple[float, float] | None = None
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
 
     def loads(self, u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(F_z (..., 4) [N], r_d (..., 4) [m]) from the inputs."""
+        """(F_z (..., 4) [N], r_d (..., 4) [m]) from the inputs (rear: + F_dx tan β / 2 each, module doc)."""
         fz = wheel_loads(u[..., IU_FZF], self.params)
+        if self.tan_pull != 0.0:          # same operations as load_floats()
+            fr = 0.5 * ((self.params.weight_n - u[..., IU_FZF]) + u[..., IU_FDX] * self.tan_pull)
+            fz[..., 2] = fr
+            fz[..., 3] = fr
         return fz, rolling_radius(fz, self.params)
 
     def rhs(self, x: NDArray[np.float64], u: NDArray[np.float64], fz: NDArray[np.float64] | None = None,
@@ -221,29 +263,33 @@ class FilterModel:
         left, right = 1.0 - h, 1.0 + h
         return np.stack([left / np.sqrt(left * left + lk * lk), right / np.sqrt(right * right + lk * lk)], axis=-1)
 
-    def load_floats(self, fzf: float) -> tuple[float, float, float, float]:
-        """(F_z front, F_z rear [N], r_d front, r_d rear [m]) of one front-axle load F_zf [N].
+    def load_floats(self, fzf: float, fdx: float = 0.0) -> tuple[float, float, float, float]:
+        """(F_z front, F_z rear [N], r_d front, r_d rear [m]) of one front-axle load F_zf [N] and draft
+        F_dx [N] (used with a line of pull β ≠ 0 only, module doc).
 
         Plain floats, equal to :func:`wheel_loads` and :func:`rolling_radius`
-        (same operations, bit for bit); the last F_zf is cached.
+        (same operations, bit for bit); the last (F_zf, F_dx) is cached.
         """
-        if fzf != self._fzf_key:
+        tb = self.tan_pull
+        key = (fzf, fdx if tb != 0.0 else 0.0)
+        if key != self._fzf_key:
             w_n, k, lim, r0 = self._kc[0], self._kc[1], self._kc[2], self._kc[3]
             ff = 0.5 * fzf
-            fr = 0.5 * (w_n - fzf)
+            fr = 0.5 * (w_n - fzf) if tb == 0.0 else 0.5 * ((w_n - fzf) + fdx * tb)
             rd = []
             for fz in (ff, fr):
                 d = (0.0 if fz <= 0.0 else fz) if not fz > 0.0 else fz    # clip(F_z, 0, None), NaN kept
                 d = d / k
                 rd.append(r0 - (lim if d > lim else d))
             self._floats = (float(ff), float(fr), float(rd[0]), float(rd[1]))
-            self._fzf_key = fzf
+            self._fzf_key = key
             self._consts = None
         return self._floats
 
-    def _load_terms(self, fzf: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """(F_z, r_d, r_d ρ_t F_z) arrays (4,) for one front-axle load, kept until F_zf changes."""
-        ff, fr, rdf, rdr = self.load_floats(fzf)
+    def _load_terms(self, fzf: float, fdx: float = 0.0
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(F_z, r_d, r_d ρ_t F_z) arrays (4,) for one front-axle load and draft, kept until they change."""
+        ff, fr, rdf, rdr = self.load_floats(fzf, fdx)
         if self._consts is None:
             fz = np.array([ff, ff, fr, fr])
             r_d = np.array([rdf, rdf, rdr, rdr])
@@ -274,7 +320,7 @@ class FilterModel:
         if u.shape[0] > IU_KAPPA and u[IU_KAPPA] != 0.0:     # in a turn: the general right-hand side
             fz, r_d = self.loads(u)
             return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
-        fz, r_d, c = self._load_terms(float(u[IU_FZF]))
+        fz, r_d, c = self._load_terms(float(u[IU_FZF]), float(u[IU_FDX]))
         k = np.empty(x.shape[:-1] + (5,))
         fh = x[..., IX_MU] * fz                                          # eq. 4
         kom = k[..., IX_OMEGA]
@@ -360,7 +406,7 @@ def _radius(fz, r0, k, lim):                                  # pragma: no cover
 def _rk4_points(x, u, kc, dt):                              # pragma: no cover - compiled
     """Classical RK4 over dt for every row of x (N, 10), as rk4(FilterModel.rhs) computes it.
 
-    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m, b/2, L) (see FilterModel._kc).  The
+    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m, b/2, L, tan β) (see FilterModel._kc).  The
     stage states of μ and ρ_s are x + h·0 (their derivative is zero), as in rk4().
     u[6], when given, is the path curvature κ (module doc).
     """
@@ -375,6 +421,8 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     fzf = u[4]
     ff = 0.5 * fzf                     # wheel_loads()
     fr = 0.5 * (w_n - fzf)
+    if kc[9] != 0.0:                   # the line of pull's vertical component (module doc)
+        fr = 0.5 * ((w_n - fzf) + u[5] * kc[9])
     rdf = _radius(ff, r0, k, lim)
     rdr = _radius(fr, r0, k, lim)
     cf = rdf * rho_t * ff

@@ -119,8 +119,10 @@ def _declared_vehicle(scn):
     """The vehicle as its owner declares it; a mechanical tractor's [drivetrain] from its spec sheet."""
     veh = scn.vehicle
     ps = scn.physical
-    if ps.drivetrain.kind != "mechanical" or not any(f.name == "drivetrain" for f in dataclasses.fields(veh)):
+    if not any(f.name == "drivetrain" for f in dataclasses.fields(veh)):
         return veh
+    if ps.drivetrain.kind != "mechanical":
+        return _declared_hub(scn)
     from ..config import DrivetrainSpec as DeclaredDrivetrain
     from .physical import axle_loads
     from .tyre import rolling_radius as tyre_radius
@@ -152,6 +154,27 @@ DECLARED_PULL_ANGLE_TOL_DEG = 2.0
 """Tolerance of a line of pull taken from the hitch and implement geometry [deg]."""
 DECLARED_RADIUS_TOL_REL = 0.005
 """Tolerance of a rolling radius from a 100 m calibration run [-] (course and wheel-pulse count, ±0.5 %)."""
+
+
+def _declared_hub(scn):
+    """The hub-drive machine as its owner declares it: the hub reduction's efficiency with its tolerance
+    (:data:`tractionecu.config.HUB_EFFICIENCY_TOL`), the line of pull and the rear wheels' calibrated rolling
+    radius, each with an error drawn once per seed inside its tolerance (own stream: nothing else of the
+    recording moves), never the truth's exact figure."""
+    from ..config import HUB_EFFICIENCY_TOL
+    from .physical import axle_loads
+    from .tyre import rolling_radius as tyre_radius
+    veh = scn.vehicle
+    ps = scn.physical
+    rng = np.random.default_rng(scn.seed + 7_000_005)
+    err = rng.uniform(-1.0, 1.0, 3) * np.array([HUB_EFFICIENCY_TOL, DECLARED_PULL_ANGLE_TOL_DEG,
+                                                 DECLARED_RADIUS_TOL_REL])
+    eta = min(1.0, ps.drivetrain.hub.efficiency * (1.0 + float(err[0])))
+    fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
+    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
+    dd = dataclasses.replace(veh.drivetrain, kind="hub", efficiency=round(eta, 4),
+                             efficiency_tolerance=HUB_EFFICIENCY_TOL, rolling_radius_m=round(r_cal, 4))
+    return dataclasses.replace(veh, drivetrain=dd, pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2))
 
 
 # ----------------------------------------------------------------------------- hub drive
