@@ -496,9 +496,10 @@ def _grid_start(form: str, s: NDArray[np.float64], mu: NDArray[np.float64], w: N
         sse = mm - (b1 * h[i] + b2 * h[j])
         a_ = b1 + b2
         p_ = b1 / a_
-    # a > 0, P_MIN ≤ p ≤ P_MAX, and μ'(0) = b1 k_i + b2 k_j ≥ 0 (no pull against the slip)
-    bad = (~(det > 1e-9 * gii * gjj) | ~(a_ > 0) | (p_ < P_MIN) | (p_ > P_MAX)
-           | (b1 * K_GRID[i] + b2 * K_GRID[j] < 0))
+        slope0 = b1 * K_GRID[i] + b2 * K_GRID[j]
+    # a > 0, P_MIN ≤ p ≤ P_MAX, and μ'(0) = b1 k_i + b2 k_j ≥ 0 (no pull against the slip); a singular
+    # pair (det ≈ 0) gives inf or NaN coefficients, which the first test rejects
+    bad = (~(det > 1e-9 * gii * gjj) | ~(a_ > 0) | (p_ < P_MIN) | (p_ > P_MAX) | ~(slope0 >= 0))
     sse[bad] = np.inf
     q = int(np.argmin(sse))
     if not np.isfinite(sse[q]):
