@@ -505,6 +505,7 @@ class Estimator:
             predict_only = True
         # ---- measurements
         omega = v_meas = v_wheel = None
+        r_om: list[float] | None = None
         wl: list[float] = []
         if measurements:
             om = measurements.get("omega")
@@ -528,8 +529,8 @@ class Estimator:
                             self._dir = 1.0
                         elif v_wheel <= -cfg.direction_min_speed_mps:
                             self._dir = -1.0
-                        rw = self._R_list(wl[2:])
-                        self._kin.wheels(t, wl[2], wl[3], rw[0], rw[1],
+                        r_om = self._R_list(wl)         # R_ω, also the update's
+                        self._kin.wheels(t, wl[2], wl[3], r_om[2], r_om[3],
                                          float(self.ukf.x[IX_V]) if self.ukf is not None else v_wheel)
                     else:
                         fin = np.isfinite(omega)
@@ -617,12 +618,12 @@ class Estimator:
         wheel_out = ground_out = None
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
-                R = self._R_list(wl)
+                R = r_om if r_om is not None else self._R_list(wl)
                 R.append(self._r_v + self._r_lat)
                 wl.append(v_meas)
                 ukf.update(np.array(wl), _SL_WV, np.array(R))
             elif omega is not None:
-                ukf.update(omega, _SL_W, np.array(self._R_list(wl)))
+                ukf.update(omega, _SL_W, np.array(r_om if r_om is not None else self._R_list(wl)))
             else:
                 ukf.update(np.array([v_meas]), _SL_V, np.array([self._r_v + self._r_lat]))
             g = ukf.last_gated
