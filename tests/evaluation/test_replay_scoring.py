@@ -8,6 +8,7 @@ are written, with what, and when), not the estimator.
 import importlib.util
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -58,7 +59,8 @@ def test_truth_scores_itself_perfectly_and_both_scorecards_are_written(rec_dir, 
     assert summary == before
     assert set(add) == {"scorecard", "scorecard_json", "map_scorecard"} | ({"plots"} if plot else set())
     if plot:
-        assert add["plots"] == [str(tmp_path / "fig6_mu_rho.png"), str(tmp_path / "fig5_mu_curves.png")]
+        assert add["plots"] == [str(tmp_path / name) for name in
+                                ("fig6_mu_rho.png", "fig5_mu_curves.png", "fig_efficiency.png", "report.html")]
     sc = add["scorecard"]
     assert sc["mu_mean_abs_error"] == 0.0 and sc["rho_s_mean_abs_error"] == 0.0
     assert sc["reconvergence_s"] == 0.0 and sc["n_soil_changes"] >= 1
@@ -94,8 +96,9 @@ def test_recording_without_truth_adds_nothing_but_plots(rec_dir, tmp_path):
     assert not (run / "scorecard.json").exists() and not (run / "map_scorecard.json").exists()
     pytest.importorskip("matplotlib")
     add = score_replay(run, rec, arrays, plot=True, summary=summary)
-    assert add == {"plots": [str(run / "fig6_mu_rho.png")]}     # no truth: no Fig. 5
-    assert (run / "fig6_mu_rho.png").stat().st_size > 0
+    # no truth: no Fig. 5; the efficiency figure and the HTML report need no truth
+    assert add == {"plots": [str(run / name) for name in ("fig6_mu_rho.png", "fig_efficiency.png", "report.html")]}
+    assert all(Path(f).stat().st_size > 0 for f in add["plots"])
 
 
 def test_field_rebuilt_from_truth_toml(rec_dir):
