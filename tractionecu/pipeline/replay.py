@@ -64,7 +64,7 @@ from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
 from .select import estimator_for, groups_for
 from .signals import GNSS_SPEED, required_missing
-from .steps import GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
+from .steps import GNSS_COURSE, GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
 from .survey import survey_keep
 
 _BATCH = 2048
@@ -287,9 +287,12 @@ class _Run:
         self.groups = [_Group(key, names, key in g.vectors) for key, names in g.groups.items()
                        if all(nm in rec.signals and len(rec.signals[nm]) for nm in names)]
         self.speed = _Group(GNSS_SPEED, (GNSS_SPEED,), False)
+        self.course = _Group(GNSS_COURSE, (GNSS_COURSE,), False)       # passed with the speed (.steps)
         if self.gps_mask.any():
             self.speed.push(np.asarray(rec.gps.t[self.gps_mask], dtype=float),
                             [np.asarray(rec.gps.speed[self.gps_mask], dtype=float)])
+            self.course.push(np.asarray(rec.gps.t[self.gps_mask], dtype=float),
+                             [np.asarray(rec.gps.course[self.gps_mask], dtype=float)])
         ws = rec.signals.get(self.anchor)
         self.ws_last = float(ws.t[-1]) if ws is not None and len(ws) else math.nan
         self.t_end = float(rec.t_end)
@@ -321,6 +324,7 @@ class _Run:
         streams = [(grp.key, grp.key in self.inputs, *grp.at(grid)) for grp in self.groups]
         if self.speed.t.size:
             streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
+            streams.append((GNSS_COURSE, False, *self.course.at(grid)))
         step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
         wall = time.perf_counter()
         for k, t in enumerate(grid.tolist()):
