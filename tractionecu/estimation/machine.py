@@ -523,9 +523,10 @@ class MachineEstimator:
         i_tot = self.ratio()
         fzf, fzr, rdf, rdr = self.loads()
         val = self.validity
-        vw_last = vwb if vwb is not None else self._vwb            # the wheel speed held (CCVS1 every 100 ms)
-        if we is not None and vw_last is not None and vw_last > 0.5 and i_tot > 0.0:
-            if abs(float(we) * self.r_ws / (vw_last * i_tot) - 1.0) > val.ratio_tolerance:
+        # engine and wheel speeds of the same step (a held CCVS1 up to 100 ms old would compare across the
+        # driveline's torsional oscillation)
+        if we is not None and vwb is not None and vwb > 0.5 and i_tot > 0.0:
+            if abs(float(we) * self.r_ws / (vwb * i_tot) - 1.0) > val.ratio_tolerance:
                 self._t_shift = t                              # engine and wheels not at the reported ratio
         z_w = r_w = None
         if we is not None and self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"]) and i_tot > 0:
