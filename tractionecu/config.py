@@ -451,6 +451,9 @@ class VehicleParams:
     pull_angle_deg: float = setting(0.0, "line of pull above the horizontal at the hitch β [deg]: the draft adds "
                                     "F_dx·tan β to the wheel loads (ASABE D497.7 4.1.4); used by the "
                                     "hub and the machine-level estimators", -30.0, 45.0)
+    pull_angle_tol_deg: float = setting(0.0, "bound of the error of pull_angle_deg [deg] (rectangular, standard "
+                                        "uncertainty bound/√3 as the sensor tolerances; 0: taken as exact): "
+                                        "enters the hub estimator's reported σ of the rear μ", 0.0, 30.0)
     drivetrain: DrivetrainSpec = section(DrivetrainSpec, "what drives the wheels and what the bus says about it "
                                                          "(also a top-level [drivetrain] table)")
 

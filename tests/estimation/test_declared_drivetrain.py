@@ -125,3 +125,16 @@ def test_physical_recording_mu_error_falls_with_the_declared_figures(make_record
     e_bare = _mu_error(rec_dir, bare)
     e_decl = _mu_error(rec_dir)
     assert e_decl < 0.6 * e_bare, (e_decl, e_bare)
+
+
+def test_pull_angle_tolerance_widens_the_rear_wheels_band_only():
+    args = ([3000.0] * 4, 24000.0, 15000.0, 0.77, 0.76, 0.01, 0.01)
+    veh = _declared(pull_angle_deg=8.0)
+    v0, _ = SystematicUncertainty(SensorSpec(), veh).variances(*args)
+    unc = SystematicUncertainty(SensorSpec(), dataclasses.replace(veh, pull_angle_tol_deg=2.0))
+    v1, _ = unc.variances(*args)
+    assert v1[:2] == v0[:2]
+    fr = 0.5 * (veh.weight_n - 24000.0 + 15000.0 * math.tan(math.radians(8.0)))
+    c = 3000.0 / (0.76 * fr)
+    du = 0.5 * 15000.0 * math.radians(2.0) / math.sqrt(3.0) / math.cos(math.radians(8.0)) ** 2
+    assert v1[2] - v0[2] == pytest.approx((c * du / fr) ** 2, rel=1e-9)

@@ -27,6 +27,10 @@ rectangular distribution with standard uncertainty b/√3 (GUM, JCGM
   carries F_zf/2 and each rear wheel (mg − F_zf)/2, so
   ΔF_z,i = ±ΔF_zf/2 and Δμ_i = ∓c_i ΔF_zf / (2 F_z,i);
 - torque offset ΔM: Δμ_i = ΔM / (r_i F_z,i);
+- the line of pull β (``pull_angle_deg``, bound ``pull_angle_tol_deg``):
+  a rear wheel's load F_dx tan β/2 is off by F_dx Δ(tan β)/2, with
+  Δ(tan β) ≈ Δβ/cos² β, in quadrature with the load-pin error of the rear
+  wheels;
 - the hub reduction's declared efficiency η (``drivetrain.efficiency``,
   the drive torques are η times the reported ones): its relative standard
   uncertainty u_η (``drivetrain.efficiency_tolerance``, already 1σ) acts
@@ -81,6 +85,9 @@ class SystematicUncertainty:
         dtr = getattr(vehicle, "drivetrain", None)
         self.u_eta = float(dtr.efficiency_tolerance) if dtr is not None and not dtr.engine_driven else 0.0
         self.tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
+        tol = getattr(vehicle, "pull_angle_tol_deg", 0.0)
+        c = math.cos(math.radians(vehicle.pull_angle_deg))
+        self.u_tan = math.radians(tol) / _SQRT3 / (c * c)       # standard uncertainty of tan β [-]
         self.u_m0 = sp.torque_offset_tol_nm / _SQRT3
         self.u_a0 = sp.axle_offset_tol_n / _SQRT3
         self.u_ag = sp.axle_gain_tol_rel / _SQRT3
@@ -118,6 +125,8 @@ class SystematicUncertainty:
             m_r = md[i] / r
             c = m_r / fz
             lz = u_fz / fz
+            if not front and self.u_tan != 0.0:
+                lz = math.hypot(u_fz, 0.5 * fdx * self.u_tan) / fz
             var_mu.append(c * c * (g2 + ur * ur + lz * lz) + m02 / (r * fz) ** 2)
             f_r[0 if front else 1] += abs(m_r)
             off2 += m02 / (r * r)

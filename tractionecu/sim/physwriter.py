@@ -174,7 +174,8 @@ def _declared_hub(scn):
     r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
     dd = dataclasses.replace(veh.drivetrain, kind="hub", efficiency=round(eta, 4),
                              efficiency_tolerance=HUB_EFFICIENCY_TOL, rolling_radius_m=round(r_cal, 4))
-    return dataclasses.replace(veh, drivetrain=dd, pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2))
+    return dataclasses.replace(veh, drivetrain=dd, pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2),
+                               pull_angle_tol_deg=DECLARED_PULL_ANGLE_TOL_DEG)
 
 
 # ----------------------------------------------------------------------------- hub drive
