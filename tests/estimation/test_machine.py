@@ -30,7 +30,7 @@ def mech_vehicle(**dt) -> VehicleParams:
 
 
 def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n: float = 15000.0,
-          eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1):
+          eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1, mfwd: bool = True):
     """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value)."""
     rng = np.random.default_rng(seed)
     veh = mech_vehicle()
@@ -49,7 +49,7 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
     truth = {"t": [], "mu": [], "rho_s": [], "v": [], "s_r": [], "s_f": []}
     bus = []
     i_tot = gear * i_f
-    J = veh.drivetrain.engine_inertia_kgm2 * i_tot ** 2 + 2 * jw * (1 + k * k)
+    J = veh.drivetrain.engine_inertia_kgm2 * i_tot ** 2 + 2 * jw * ((1 + k * k) if mfwd else 1.0)
     t_next = {"eec1": 0.0, "etc2": 0.0, "ec1": 0.0, "ccvs": 0.0, "gbsd": 0.0, "hitch": 0.0, "gnss": 0.0}
     period = {"eec1": 0.02, "etc2": 0.1, "ec1": 1.0, "ccvs": 0.1, "gbsd": 0.1, "hitch": 0.1, "gnss": 0.1}
     for j in range(n):
@@ -62,8 +62,12 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
         s_f = 1 - v / (rdf * k * w)
         mu_r = a * float(STUBBLE.g(s_r))
         mu_f = a * float(STUBBLE.g(s_f))
-        fh = mu_r * fzr + mu_f * fzf
-        dw = (M - rdr * (mu_r + veh.rho_t) * fzr - k * rdf * (mu_f + veh.rho_t) * fzf) / J
+        if mfwd:
+            fh = mu_r * fzr + mu_f * fzf
+            dw = (M - rdr * (mu_r + veh.rho_t) * fzr - k * rdf * (mu_f + veh.rho_t) * fzf) / J
+        else:                                  # 2WD: the front wheels roll (F_h,f = −ρ_t F_zf)
+            fh = mu_r * fzr - veh.rho_t * fzf
+            dw = (M - rdr * (mu_r + veh.rho_t) * fzr) / J
         dv = (fh - dn - rho_s * W) / veh.mass_kg
         w += dt * dw
         v += dt * dv
@@ -259,3 +263,17 @@ def test_tight_turn_and_decoupled_front_axle_mark_mu_unsupported(synthetic) -> N
     assert _unsupported(out, 35.05, 38.9) == 1.0
     assert _unsupported(out, 25.0, 34.9) == 0.0 and _unsupported(out, 40.0, 44.9) == 0.0
     assert _unsupported(out, 48.0, 55.0) > 0.9                 # after the 3 s smoothing has seen it
+
+
+def test_two_wheel_drive_front_rolls_and_the_rear_carries_the_torque() -> None:
+    """MFWD declared disengaged (2WD): the plant's front wheels roll, the rear carries every N·m; the
+    machine μ = ΣF_h/ΣF_z and the rear axle's μ(s) (a) come out right."""
+    truth, bus = plant(50.0, mfwd=False, seed=3)
+    est = MachineEstimator(mech_vehicle(front_drive="disengaged"))
+    late = [e for e in run(est, bus) if e.t > 20.0]
+    assert np.mean([e.valid for e in late]) > 0.99
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
+    assert all(math.isnan(e.slip[0]) for e in late)               # the front axle's slip is not modelled
+    assert abs(late[-1].a - 0.7) / 0.7 < 0.05
