@@ -27,6 +27,10 @@ The estimate is **machine level** (status bit :data:`MACHINE_LEVEL`):
   effective slip s_e of the machine: g(s_e) = Σ_axles w_a g(s_a), w_a the
   axle's share of the driven load, so that μ = a·g(s_e) holds exactly when
   every wheel follows μ_i = a·g(s_i);
+* **no μ while the bus cannot support it**: during a gear shift or clutch slip, in a turn the rigid
+  MFWD kinematics do not hold in, with the front axle off its coupling ratio, or at a net torque under
+  10 %, status :data:`MACHINE_UNSUPPORTED` makes the estimate not valid (the map rejects it, the curve
+  takes no pair from it; :class:`MachineValidity`);
 * a variance of μ that includes the efficiency tolerance:
   P_μ + (σ_η/η · μ)², σ_η/η = ``efficiency_tolerance`` (a bias the data
   cannot reveal: η and a scale the force alike), in ``P_diag`` (so in
