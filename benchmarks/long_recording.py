@@ -111,8 +111,9 @@ def main() -> int:
         rec = work / f"rec_{h:g}h"
         if not (rec / "can.log").exists():
             length = concatenate(base, rec, h * 3600.0)
+            (rec / "length_s.txt").write_text(f"{length!r}\n")
         else:
-            length = h * 3600.0
+            length = float((rec / "length_s.txt").read_text())
         cmds = {"replay": [*exe, "replay", str(rec), "--out", str(work / f"run_{h:g}h"), "--no-map"],
                 "replay+map": [*exe, "replay", str(rec), "--out", str(work / f"runm_{h:g}h")],
                 "inspect": [*exe, "inspect", str(rec)]}
