@@ -134,7 +134,7 @@ def test_dispatch_fix_goes_to_the_buffer_and_its_speed_to_the_assembler() -> Non
     d.on_fix(fix(10.0, speed=2.5))
     d.on_fix(fix(10.1, speed=None))
     assert d.stats["gps_fixes"] == 2 and fixes.last is not None and fixes.last.t == 10.1 and len(fixes) == 2
-    assert steps.take(10.2) == ({}, {"v": 2.5})
+    assert steps.take(10.2) == ({}, {"v": 2.5, "course": 90.0})        # the course goes with the speed
 
 
 def test_dispatch_late_fix_is_used_one_step_late_and_warned_once(caplog: pytest.LogCaptureFixture) -> None:
@@ -145,7 +145,7 @@ def test_dispatch_late_fix_is_used_one_step_late_and_warned_once(caplog: pytest.
         d.on_fix(fix(19.995, arrival=20.03))
     assert steps.counts["late"] == 2
     assert len([r for r in caplog.records if "used one step late" in r.getMessage()]) == 1
-    assert steps.take(20.01) == ({}, {"v": 2.5})
+    assert steps.take(20.01) == ({}, {"v": 2.5, "course": 90.0})
 
 
 # ----------------------------------------------------------------------------- fix buffer
@@ -314,7 +314,8 @@ def test_loop_step_feeds_the_assembled_arguments() -> None:
     e = est_loop.step(1.005)
     assert e is not None and est_loop.last_estimate is e and est_loop.stats["steps"] == 1
     t, inputs, meas = est.calls[0]
-    assert t == 1.005 and inputs == {} and set(meas) == {"omega", "v"}
+    assert t == 1.005 and inputs == {} and set(meas) == {"omega", "v", "course"}
+    assert math.isnan(meas["course"])                   # a speed pushed without a course: NaN, as replay passes it
     est_loop.step(1.015)
     assert est.calls[1][2] == {}                         # nothing new: nothing passed
 
