@@ -640,10 +640,15 @@ class SlipChannel(Channel):
         super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
                          frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
                                     "axle_load_offset"}),
-                         fr.t[ti], ti.astype(np.int64), feat.fold[ti], "soil class shape and curve parameter a per field cell")
+                         fr.t[ti], ti.astype(np.int64), feat.fold[ti],
+                         "soil class shape and curve parameter a per field cell and axle")
         self.ti, self.wi = ti, wi
-        self.cell = feat.cell[ti]
-        self.ncell = feat.n_cells
+        # a per field cell *and axle*: the rear wheels run in the front wheels' ruts (multi-pass
+        # soil) and carry another load, and real tyre–soil traction depends on both, so the axles'
+        # adhesion levels differ on a healthy machine.  (A per-axle torque gain is therefore tested
+        # by the force balance of the speed channels, not by the level of μ.)
+        self.cell = feat.cell[ti] * 2 + (wi >= 2)
+        self.ncell = feat.n_cells * 2
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.a_cell = np.full(self.ncell, np.nan)
         self.y = ws.slip[ti, wi]
