@@ -452,7 +452,8 @@ def _xs(f: FitResult, name: str) -> np.ndarray:
 
 
 def _effect_words(e: dict) -> str:
-    ps = ", ".join(f"{k} = {_fmt(v['value'])}" + (f" [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]"
+    ps = ", ".join(f"{k} = {_fmt(v['value']) if isinstance(v['value'], (int, float)) else v['value']}"
+                   + (f" [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]"
                                                    if v.get("ci95") and v["ci95"][0] is not None else "")
                    + (f" (at its {v['at_bound']} bound)" if v.get("at_bound") else "")
                    for k, v in e.get("parameters", {}).items())
