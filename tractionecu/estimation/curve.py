@@ -56,7 +56,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -124,6 +124,14 @@ class CurveEstimator:
     shape_kw : keyword arguments of :class:`ShapeIdentifier` (min_span,
         min_bins, fit_period_s, ...).
     """
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> "CurveEstimator":
+        """The curve identification an :class:`~tractionecu.estimation.config.EstimatorConfig` asks for
+        (its ``soil_classes`` and ``curve_*`` settings); both estimators build theirs here."""
+        return cls(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu, min_slip=cfg.curve_min_slip,
+                   class_tau_s=cfg.curve_class_tau_s, slip_corr_s=cfg.curve_slip_corr_s, shape=cfg.curve_shape,
+                   shape_kw={"min_span": cfg.curve_shape_min_span}, switch_min_delta=cfg.curve_switch_min_delta)
 
     def __init__(self, classes: Sequence[SoilClass | str] = ("stubble",), *, tau_s: float = 5.0,
                  min_mu: float = 0.15, min_slip: float = 0.005, class_tau_s: float = 30.0,

@@ -306,11 +306,7 @@ class MachineEstimator:
         self._f = 1.0
         self._adapt_mu = 1.0
         self._t_adapt = -math.inf
-        self._curve = CurveEstimator(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu,
-                                     min_slip=cfg.curve_min_slip, class_tau_s=cfg.curve_class_tau_s,
-                                     slip_corr_s=cfg.curve_slip_corr_s,
-                                     shape=cfg.curve_shape, shape_kw={"min_span": cfg.curve_shape_min_span},
-                                     switch_min_delta=cfg.curve_switch_min_delta)
+        self._curve = CurveEstimator.from_config(cfg)
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._held: tuple[float, list[float]] | None = None
