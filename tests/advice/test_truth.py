@@ -16,7 +16,6 @@ from tractionecu.config import VehicleParams, load_vehicle
 from tractionecu.evaluation.scoring import read_truth
 from tractionecu.pipeline.replay import replay
 from tractionecu.recording.reader import read_recording
-from tractionecu.sim import scenarios
 
 pytestmark = pytest.mark.slow
 
@@ -71,8 +70,6 @@ def test_ballast_needed_scenario_fires_on_its_true_slip(make_recording) -> None:
 
     Fed with the true wheel values, the band rule must ask for ballast; what the estimator makes of this
     machine is the estimator's part (the benchmark prints both)."""
-    if "ballast-needed" not in scenarios.SCENARIOS:
-        pytest.skip("scenario ballast-needed not in this version of the simulator")
     import numpy as np
 
     rec = make_recording("ballast-needed", 0)
@@ -92,8 +89,6 @@ def test_ballast_needed_scenario_fires_on_its_true_slip(make_recording) -> None:
 def test_ballast_needed_scenario_fires_through_the_estimator(make_recording) -> None:
     """``ballast-needed`` replayed through the estimator (the machine-level one for its mechanical
     drivetrain): the advice the service would give asks for ballast, never to remove it."""
-    if "ballast-needed" not in scenarios.SCENARIOS:
-        pytest.skip("scenario ballast-needed not in this version of the simulator")
     series, veh, truth = advice_of(make_recording("ballast-needed", 0))
     kinds = [e["kind"] for e in series["advice"]]
     print([(round(e["t"] - series["t"][0], 1), e["text"]) for e in series["advice"]])
