@@ -43,11 +43,11 @@ from ..bus import j1939
 from ..bus.candump import CandumpWriter
 from ..bus.dbc import Codec, default_codec
 from ..config import save_vehicle, to_toml, toml_value
-from ..gnss import nmea
 from ..model.vehicle import WHEELS
 from . import tyre as ty
 from .sensors import SensorBiases, ToothedPickup, draw_biases, ou_noise, pickup_speeds, quantise
-from .writer import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA, _course_over_ground
+from .writer import (DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA, _course_over_ground,
+                     gnss_sentences)
 
 ENGINE_SA = 0x00
 TRANSMISSION_SA = 0x03
@@ -347,12 +347,8 @@ def _gnss(scn, tr, b: SensorBiases, rng, emit, *, radar: bool, gbsd_from_gnss: b
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []
     for j, k in enumerate(gi):
-        utc = _dt.datetime.fromtimestamp(round(t0 + float(tg[j]), 2), tz=_dt.timezone.utc)
-        hdop = spec.gps_hdop + 0.05 * math.sin(float(tg[j]) / 60.0)
-        lines.append(nmea.format_gga(utc, float(lat[j]), float(lon[j]), spec.gps_fix_quality, spec.gps_nsat,
-                                     round(hdop, 2), float(alt[j])))
-        lines.append(nmea.format_rmc(utc, float(lat[j]), float(lon[j]), max(float(v_gps[j]), 0.0), float(course[j])))
-        lines.append(nmea.format_vtg(max(float(v_gps[j]), 0.0), float(course[j])))
+        lines += gnss_sentences(spec, t0, float(tg[j]), float(lat[j]), float(lon[j]), float(alt[j]),
+                                float(v_gps[j]), float(course[j]))
         if gbsd_from_gnss:
             emit("GBSD", float(tg[j]) + 0.03, {"GroundBasedMachineSpeed": max(float(v_gps[j]), 0.0),
                                                "GroundBasedMachineDistance": float(gbsd_dist[j]),

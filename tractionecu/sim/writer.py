@@ -29,7 +29,7 @@ import numpy as np
 
 from ..bus.candump import CandumpWriter
 from ..bus.dbc import Codec, default_codec
-from ..config import save_vehicle, to_toml
+from ..config import SensorSpec, save_vehicle, to_toml
 from ..gnss import nmea
 from ..model.vehicle import WHEELS, rolling_radius
 from .sensors import ou_noise, quantise, torque_meas, wheel_speed_meas
@@ -128,13 +128,8 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []
     for j, k in enumerate(gi):
-        # The receiver's epoch is the UTC time of the fix; lines leave the receiver a few ms later.
-        utc = _dt.datetime.fromtimestamp(round(t0 + float(tg[j]), 2), tz=_dt.timezone.utc)
-        hdop = spec.gps_hdop + 0.05 * math.sin(float(tg[j]) / 60.0)
-        lines.append(nmea.format_gga(utc, float(lat[j]), float(lon[j]), spec.gps_fix_quality, spec.gps_nsat,
-                                     round(hdop, 2), float(alt[j])))
-        lines.append(nmea.format_rmc(utc, float(lat[j]), float(lon[j]), max(float(v_gps[j]), 0.0), float(course[j])))
-        lines.append(nmea.format_vtg(max(float(v_gps[j]), 0.0), float(course[j])))
+        lines += gnss_sentences(spec, t0, float(tg[j]), float(lat[j]), float(lon[j]), float(alt[j]),
+                                float(v_gps[j]), float(course[j]))
         emit("GBSD", float(tg[j]) + 0.03, {"GroundBasedMachineSpeed": max(float(v_gps[j]), 0.0),
                                            "GroundBasedMachineDistance": float(gbsd_dist[j]),
                                            "GroundBasedMachineDirection": int(dir_code[k])}, NAV_SA)
@@ -150,6 +145,19 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     save_vehicle(scn.vehicle, out / "vehicle.toml", scn.sensors)
     _write_truth(scn, tr, out)
     return counts
+
+
+def gnss_sentences(spec: SensorSpec, t0: float, t: float, lat_deg: float, lon_deg: float, alt_m: float,
+                   speed_mps: float, course_deg: float) -> tuple[str, str, str]:
+    """GGA, RMC and VTG of one receiver epoch at ``t`` [s] after the epoch ``t0`` [UTC s]: the receiver's
+    epoch is the UTC time of the fix (lines leave the receiver a few ms later); speed over ground is a
+    magnitude; HDOP wanders slowly about ``spec.gps_hdop``."""
+    utc = _dt.datetime.fromtimestamp(round(t0 + t, 2), tz=_dt.timezone.utc)
+    hdop = spec.gps_hdop + 0.05 * math.sin(t / 60.0)
+    sog = max(speed_mps, 0.0)
+    return (nmea.format_gga(utc, lat_deg, lon_deg, spec.gps_fix_quality, spec.gps_nsat, round(hdop, 2), alt_m),
+            nmea.format_rmc(utc, lat_deg, lon_deg, sog, course_deg),
+            nmea.format_vtg(sog, course_deg))
 
 
 def _course_over_ground(heading, v):
