@@ -75,8 +75,6 @@ from .plan import DS
 
 AIR_DENSITY = 1.2
 """Air density [kg/m³] at 20 °C."""
-V_STANDSTILL = 0.01
-"""|v| [m/s] below which the machine counts as standing still (shuttling allowed)."""
 H_INT = 0.002
 """Integration step [s]."""
 
@@ -199,7 +197,7 @@ def _path_curvature(plan) -> np.ndarray:
 
 def simulate_physical(scn):
     """Run the physical truth model; deterministic for a given ``scn.seed``.  Returns a TruthTrace."""
-    from .simulator import TruthTrace
+    from .simulator import Shuttle, TruthTrace
 
     ps: PhysicalSpec = scn.physical
     if ps is None:
@@ -280,13 +278,9 @@ def simulate_physical(scn):
         p[6], p[7], p[8], p[9], p[10] = hub.efficiency, hub.drag_nms, hub.stiffness_nmprad, hub.damping_nmsprad, hub.motor_inertia_kgm2
     p[1] = jw
 
-    direction = int(plan.direction[0])
-    i_cusp = 0
-    next_cusp = float(cusps[0]) if len(cusps) else math.inf
-    still_s = 0.0
-    hold_decay = math.exp(-dt / ctl.hold_tau_s)
+    shuttle = Shuttle(plan, ctl, dt)
 
-    v0 = direction * scn.v0
+    v0 = shuttle.direction * scn.v0
     fzf, fzr = axle_loads(veh, ps.hitch, m, 0.0, 0.0, 0.0)
     fz = np.array([fzf / 2, fzf / 2, fzr / 2, fzr / 2])
     r = ty.rolling_radius(fz, veh.r0_m, tyre, veh.tyre_pressure_pa)
@@ -299,7 +293,7 @@ def simulate_physical(scn):
         gear = md_.gear_for(max(abs(v0), 0.5), r_ctl)
         x[9] = v0 / r[2]
         ratio = md_.gears[gear - 1] * md_.final_drive
-        omega_e = x[9] * ratio * direction
+        omega_e = x[9] * ratio * shuttle.direction
         t_e = 0.0
         shift_t = -1.0
         omega_set = omega_e
@@ -348,22 +342,11 @@ def simulate_physical(scn):
             fdx *= lo + (hi - lo) * (0.5 - 0.5 * math.cos(2.0 * math.pi * d / per))
 
         # Change of direction at cusps (as the paper model: brake, stand, dwell, shuttle).
-        at_cusp = next_cusp - d <= DS and v_ref == 0.0
+        at_cusp = shuttle.at_cusp(d, v_ref)
         if at_cusp:
-            integ *= hold_decay
-        if at_cusp and abs(v) < V_STANDSTILL:
-            still_s += dt
-            if still_s >= ctl.shuttle_dwell_s - 1e-9:
-                d = next_cusp
-                i_cusp += 1
-                direction = int(plan.direction[min(int(round(d / DS)), n_path - 1)])
-                next_cusp = float(cusps[i_cusp]) if i_cusp < len(cusps) else math.inf
-                still_s = 0.0
-        else:
-            still_s = 0.0
-        if next_cusp < math.inf:
-            v_tgt = min(v_tgt, math.sqrt(2.0 * ctl.stop_decel * max(next_cusp - d, 0.0)))
-        v_tgt = direction * v_tgt
+            integ *= shuttle.hold_decay
+        d = shuttle.advance(at_cusp, d, v)
+        v_tgt = shuttle.direction * shuttle.brake(v_tgt, d)
         dv_ref = max(-ctl.accel_max * dt, min(ctl.accel_max * dt, v_tgt - v_ref))
         v_ref += dv_ref
         a_ref = dv_ref / dt
@@ -440,11 +423,11 @@ def simulate_physical(scn):
                 shift_t += dt
                 if shift_t >= md_.shift_time_s:
                     shift_t = -1.0
-            p[6] = direction * net * eff * ratio * dip
+            p[6] = shuttle.direction * net * eff * ratio * dip
             p[7] = eng.inertia_kgm2 * ratio * ratio
 
         accel = K.integrate(x, w, p, h, n_sub)
-        d = min(d + abs(x[8]) * dt, next_cusp)
+        d = min(d + abs(x[8]) * dt, shuttle.next_cusp)
         K.outputs(x, w, p, outb)
         trac = outb[1]
         # Paper-terms truth (module doc).
@@ -474,7 +457,7 @@ def simulate_physical(scn):
         out["alt"].append(float(alt_p[ip]))
         out["theta"].append(theta)
         out["work"].append(work_level >= 1.0)
-        out["direction"].append(direction)
+        out["direction"].append(shuttle.direction)
         out["v_wheel"].append(vw)
         out["curvature"].append(kappa)
         if mech:
@@ -483,7 +466,7 @@ def simulate_physical(scn):
             ratio_now = md_.gears[gear - 1] * md_.final_drive
             out["engine_torque"].append(t_e)
             out["engine_speed"].append(abs(x[9]) * ratio_now)
-            out["gear"].append(direction * gear)
+            out["gear"].append(shuttle.direction * gear)
             out["gear_ratio"].append(md_.gears[gear - 1])
             out["front_lead"].append(md_.front_lead)
             out["mfwd"].append(bool(mfwd_on))

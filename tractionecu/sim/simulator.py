@@ -108,6 +108,52 @@ class ControllerSpec:
     that kept the machine rolling) decays with this time constant [s]: the machine comes to rest."""
 
 
+class Shuttle:
+    """Direction of travel along a plan and its change at each cusp (module doc), for both truth models.
+
+    The speed target brakes to stand still at the next cusp (``ControllerSpec.stop_decel``); at the cusp,
+    once the machine has stood still (|v| < V_STANDSTILL) for ``shuttle_dwell_s``, the direction changes
+    to the plan's direction past the cusp.  ``direction`` (+1 / −1) and ``next_cusp`` (path distance [m],
+    inf when none is ahead) are read by the integrator; ``hold_decay`` is the per-step decay of the speed
+    controller's integral term at a cusp (``hold_tau_s``).
+    """
+
+    def __init__(self, plan: Plan, ctl: ControllerSpec, dt: float) -> None:
+        self._plan, self._ctl, self._dt = plan, ctl, dt
+        self._cusps = plan.cusps
+        self._n_path = len(plan.s)
+        self._i = 0
+        self._still_s = 0.0
+        self.direction = int(plan.direction[0])
+        self.next_cusp = float(self._cusps[0]) if len(self._cusps) else math.inf
+        self.hold_decay = math.exp(-dt / ctl.hold_tau_s)
+
+    def at_cusp(self, d: float, v_ref: float) -> bool:
+        """True at the cusp [path distance d, m] once the plan's speed reference there is zero."""
+        return self.next_cusp - d <= DS and v_ref == 0.0
+
+    def advance(self, at_cusp: bool, d: float, v: float) -> float:
+        """Count the standstill at the cusp; after the dwell, change direction and move past the cusp.
+        Returns the path distance [m] (the cusp's once passed)."""
+        if at_cusp and abs(v) < V_STANDSTILL:
+            self._still_s += self._dt
+            if self._still_s >= self._ctl.shuttle_dwell_s - 1e-9:
+                d = self.next_cusp
+                self._i += 1
+                self.direction = int(self._plan.direction[min(int(round(d / DS)), self._n_path - 1)])
+                self.next_cusp = float(self._cusps[self._i]) if self._i < len(self._cusps) else math.inf
+                self._still_s = 0.0
+        else:
+            self._still_s = 0.0
+        return d
+
+    def brake(self, v_tgt: float, d: float) -> float:
+        """The speed target [m/s, magnitude] limited so as to stand still at the next cusp."""
+        if self.next_cusp < math.inf:
+            return min(v_tgt, math.sqrt(2.0 * self._ctl.stop_decel * max(self.next_cusp - d, 0.0)))
+        return v_tgt
+
+
 @dataclass
 class Scenario:
     """Everything that defines one simulated run."""
@@ -248,14 +294,10 @@ def simulate(scn: Scenario) -> TruthTrace:
     draft_w = rng.standard_normal(n_max) * scn.implement.draft_cv * math.sqrt(1 - phi * phi)
 
     # Direction of travel and the next change of direction (cusp) ahead.
-    direction = int(plan.direction[0])
-    i_cusp = 0
-    next_cusp = float(cusps[0]) if len(cusps) else math.inf
-    still_s = 0.0
-    hold_decay = math.exp(-dt / scn.controller.hold_tau_s)
+    shuttle = Shuttle(plan, scn.controller, dt)
 
     # State.
-    v = direction * scn.v0
+    v = shuttle.direction * scn.v0
     fz = np.array([fzf_static / 2] * 2 + [fzr_static / 2] * 2)
     r = rolling_radius(fz, veh) * r_scale
     omega = np.full(4, v / r[0]) * (r[0] / r)
@@ -313,25 +355,14 @@ def simulate(scn: Scenario) -> TruthTrace:
             fdx *= float(fx.draft_speed_factor(v, p["c_s2pm2"], p["v_ref_mps"]))
 
         # Change of direction: only at the cusp, at standstill, after the dwell.
-        at_cusp = next_cusp - d <= DS and v_ref == 0.0
+        at_cusp = shuttle.at_cusp(d, v_ref)
         if at_cusp:
-            integ *= hold_decay
-        if at_cusp and abs(v) < V_STANDSTILL:
-            still_s += dt
-            if still_s >= scn.controller.shuttle_dwell_s - 1e-9:
-                d = next_cusp
-                i_cusp += 1
-                direction = int(plan.direction[min(int(round(d / DS)), n_path - 1)])
-                next_cusp = float(cusps[i_cusp]) if i_cusp < len(cusps) else math.inf
-                still_s = 0.0
-        else:
-            still_s = 0.0
-        if next_cusp < math.inf:
-            # Brake so as to stand still at the cusp.
-            v_tgt = min(v_tgt, math.sqrt(2.0 * scn.controller.stop_decel * max(next_cusp - d, 0.0)))
+            integ *= shuttle.hold_decay
+        d = shuttle.advance(at_cusp, d, v)
+        v_tgt = shuttle.brake(v_tgt, d)                # brake so as to stand still at the cusp
 
         # Speed controller (signed speeds; the rolling-resistance feed-forward opposes the reference motion).
-        v_tgt = direction * v_tgt
+        v_tgt = shuttle.direction * v_tgt
         dv_ref = max(-scn.controller.accel_max * dt, min(scn.controller.accel_max * dt, v_tgt - v_ref))
         v_ref += dv_ref
         a_ref = dv_ref / dt
@@ -376,7 +407,7 @@ def simulate(scn: Scenario) -> TruthTrace:
                 f_ext = f_other
             omega, v, s_dyn, accel = _implicit_step(omega, v, s_dyn, h, md_wheel, fz, r, a_w, p_w, a1_w, a2_w,
                                                     rho_w, rho_t, J, m, f_ext, relax)
-            d = min(d + abs(v) * h, next_cusp)
+            d = min(d + abs(v) * h, shuttle.next_cusp)
 
         s_kin = slip_fn(omega, v, r)
         s_force = s_dyn if relax is not None else _signed_slip(omega, v, r, s_kin)
@@ -401,7 +432,7 @@ def simulate(scn: Scenario) -> TruthTrace:
         out["alt"].append(alt)
         out["theta"].append(theta)
         out["work"].append(work_level >= 1.0)
-        out["direction"].append(direction)
+        out["direction"].append(shuttle.direction)
 
     arr = {k: np.asarray(vv) for k, vv in out.items()}
     arr["direction"] = arr["direction"].astype(np.int8)
