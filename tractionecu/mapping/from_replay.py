@@ -27,11 +27,15 @@ from .store import STATUS_FILTER_LOST, MapStore
 
 def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
                      half_window_s: float = DEFAULT_HALF_WINDOW_S,
-                     gps_mask: np.ndarray | None = None) -> dict[str, Any]:
+                     gps_mask: np.ndarray | None = None, origin: tuple[float, float] | None = None,
+                     store: MapStore | None = None) -> dict[str, Any]:
     """Write ``out/map`` from replay ``arrays`` (keys t, mu, rho_s, a, status, valid, soil_class).
 
     A previous map in ``out/map`` is replaced: a replay's map is a product of
-    that replay alone.  ``gps_mask`` (one bool per GNSS epoch of ``rec``) keeps
+    that replay alone.  ``origin`` (lat, lon [deg]) fixes the map's origin
+    (default: the recording's first fix); with ``store`` the samples are added
+    to that open store instead (``out`` unused, the caller closes it): a farm
+    map in one frame fed by several replays in sequence.  ``gps_mask`` (one bool per GNSS epoch of ``rec``) keeps
     the epochs the replay's GNSS gate accepted; the others are not mapped.
     Returns a summary: ``map_dir``, ``map_samples`` (estimates stored) and,
     when tiles were written, ``map_epochs`` (GNSS epochs of the recording).
@@ -42,7 +46,7 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
         summary["map_samples"] = 0
         return summary
     map_dir = out / "map"
-    if map_dir.exists():
+    if store is None and map_dir.exists():
         shutil.rmtree(map_dir)
     ok = np.isfinite(gps.lat) & np.isfinite(gps.lon)
     if not ok.any():
@@ -50,7 +54,10 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
         return summary
     first = int(np.flatnonzero(ok)[0])
     kw = {} if resolution_m is None else {"resolution_m": resolution_m}
-    store = MapStore(map_dir, float(gps.lat[first]), float(gps.lon[first]), **kw)
+    own = store is None
+    if store is None:
+        lat0, lon0 = (float(gps.lat[first]), float(gps.lon[first])) if origin is None else origin
+        store = MapStore(map_dir, float(lat0), float(lon0), **kw)
     t = np.asarray(arrays["t"], dtype=float)
     idx = np.searchsorted(t, gps.t - 1e-9)
     inside = (idx < t.size) & (gps.t >= t[0])
@@ -67,7 +74,10 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
         offered &= np.asarray(gps_mask, dtype=bool)
     accepted = store.add_many(gps.lat, gps.lon, values, gps.t, valid=offered,
                               status=arrays["status"][idx], fix_quality=gps.fix_quality, hdop=gps.hdop)
-    store.close()
+    if own:
+        store.close()
+    else:
+        summary["map_dir"] = str(store.directory)
     summary["map_samples"] = int(accepted.sum())
     summary["map_epochs"] = int(len(gps))
     return summary
