@@ -80,6 +80,12 @@ class EstimatorConfig:
     conv_sigma_mu: float = setting(0.01, "converged when every σ_μ is below this [-]", 1e-6, 10.0)
     conv_sigma_rho: float = setting(0.01, "converged when σ_ρ is below this [-]", 1e-6, 10.0)
     conv_min_s: float = setting(1.0, "never converged earlier than this after start [s]", 0.0, 3600.0)
+    conv_exit_factor: float = setting(1.5, "hysteresis of the convergence test: a converged filter is declared not "
+                                           "converged only when a σ_μ or σ_ρ exceeds this multiple of its bound; "
+                                           "between two samples of a 10–20 Hz wheel-speed stream the filter's σ_μ "
+                                           "grows by ×1.2–1.4 and comes back at the next update, which a single "
+                                           "bound turned into a flickering not_converged bit (1: no hysteresis) [-]",
+                                      1.0, 10.0)
     # curve parameter a (paper section 3.2)
     soil_classes: tuple[str, ...] = setting(("stubble",), "surface classes (shapes p, α1, α2) to fit; first = default")
     curve_tau_s: float = setting(3.0, "smoothing time constant of a [s]", 1e-3, 3600.0)

@@ -297,6 +297,7 @@ class Estimator:
         self._dir_bus = 0.0
         self._t_dir_bus = -math.inf
         self._held: tuple[float, NDArray[np.float64]] | None = None
+        self._conv = False                # last convergence verdict (hysteresis, EstimatorConfig.conv_exit_factor)
         self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
         self._dyn = DynamicsMonitor(cfg.dynamics_tau_s)
@@ -308,7 +309,7 @@ class Estimator:
         self._tq_gain = 0.0
         self._adapt_mu = 1.0
         self._t_adapt = -math.inf
-        self._curve = CurveEstimator.from_config(cfg)
+        self._curve = CurveEstimator.from_config(cfg, fz_ref_n=vehicle.mass_kg * G / 4.0)   # μ(s) at the mean wheel load
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._fz = np.zeros(4)
@@ -429,6 +430,7 @@ class Estimator:
                                    kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate,
                                    gate_max_consecutive=cfg.gate_max_consecutive)
         self.t_init = t
+        self._conv = False
         self._monitor.reset()
 
     # ------------------------------------------------------------------ step
@@ -832,6 +834,12 @@ class Estimator:
                             rad[0], rad[1], rad[2])
         c_mu = cfg.conv_sigma_mu ** 2
         c_rho = cfg.conv_sigma_rho ** 2
+        if self._conv:
+            # hysteresis: once converged, the bounds to leave are conv_exit_factor × the bounds to enter (the
+            # σ's sawtooth between the samples of a slow wheel-speed stream is not a loss of convergence)
+            f2 = cfg.conv_exit_factor * cfg.conv_exit_factor
+            c_mu *= f2
+            c_rho *= f2
         kap = float(self._u[IU_KAPPA])
         kw = self._ones4 if kap == 0.0 else self._wheel_factors(kap)
         if JIT:
@@ -857,8 +865,9 @@ class Estimator:
             dk = np.array(wheel_speed_factor_slopes(kap, self.vehicle.track_width_m, self.vehicle.wheelbase_m))
             sig_vi = np.sqrt(pd[IX_V] * kw * kw + (v * dk) ** 2 * self._kappa_var)
             sig_s = sig_vi / np.maximum(self._rd * np.abs(omega), 1e-3)
-            self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s)
+            self._curve_state = self._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s, self._fz)
         conv = self.t_init is not None and t - self.t_init >= cfg.conv_min_s and conv_p
+        self._conv = conv
         if not conv:
             status |= NOT_CONVERGED
         elif self._lost:
