@@ -309,7 +309,7 @@ class Estimator:
         self._tq_gain = 0.0
         self._adapt_mu = 1.0
         self._t_adapt = -math.inf
-        self._curve = CurveEstimator.from_config(cfg, fz_ref_n=vehicle.mass_kg * G / 4.0)   # μ(s) at the mean wheel load
+        self._curve = CurveEstimator.from_config(cfg, fz_ref_n=self.vehicle.mass_kg * G / 4.0)   # μ(s) at the mean wheel load
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._fz = np.zeros(4)
