@@ -17,7 +17,7 @@ from typing import Sequence
 from .. import __version__
 from ..errors import TractionEcuError
 
-SUBCOMMANDS = ("simulate", "inspect", "replay", "map", "run", "diagnose")
+SUBCOMMANDS = ("simulate", "inspect", "replay", "map", "run", "diagnose", "fleet")
 
 log = logging.getLogger("tractionecu")
 
@@ -32,6 +32,7 @@ examples:
   tractionecu inspect capture.blf            what a capture holds (any common CAN log format)
   tractionecu replay --out run/ REC          the estimator over a recording (directory or capture file)
   tractionecu map export --help              the ground-condition map as GeoTIFF, ISO-XML, PNG, GeoJSON
+  tractionecu fleet map DIR --out OUT        a fleet's recordings on Dask: Parquet results, one farm map
   tractionecu run --simulate                 the in-cab service without hardware
   tractionecu COMMAND --help                 the options of one command
 
