@@ -137,7 +137,7 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
                                      for i, j in ((0, 1), (2, 3))])) if m.any() else float("nan"),
            "rev_steps": int(rev.sum()),
            "rev_wrong_sign": int(np.sum(rev & (a["v"] > 0.0))),
-           "rev_rho_mae": float(np.mean(np.abs(a["rho_s"][rev] - tr.rho_s[k][rev]))) if rev.any() else float("nan"),
+           "rev_rho_mae": float(np.mean(np.abs(a["rho_s"][rev] - tr.rho_s_paper[k][rev]))) if rev.any() else float("nan"),
            "rev_slip_mae": float(np.mean(np.abs(se[rev] - st[rev]))) if rev.any() else float("nan"),
            "still_valid": int(np.sum(valid & (np.abs(v_t) < 0.1)))}
     return row

@@ -57,7 +57,7 @@ def coverage(arrays: dict[str, Any], truth: Truth, *, k: float = 2.0, mu_rel_flo
     s_mu = np.asarray(arrays["sigma_mu"], dtype=float)[valid]
     p_mu = np.sqrt(np.asarray(arrays["P_diag"], dtype=float)[valid][:, 5:9])
     rho_e = np.asarray(arrays["rho_s"], dtype=float)[valid]
-    rho_t = truth.rho_s[kk][valid]
+    rho_t = truth.rho_s_paper[kk][valid]         # eq. 8's ρ_s (.scoring module doc)
     s_rho = np.asarray(arrays["sigma_rho_s"], dtype=float)[valid]
     p_rho = np.sqrt(np.asarray(arrays["P_diag"], dtype=float)[valid][:, 9])
     err = np.abs(mu_e - mu_t)

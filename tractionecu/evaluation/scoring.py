@@ -10,8 +10,19 @@ used for an estimate at time t is the latest truth sample at or before t):
     |μ| < ``mu_rel_floor`` are left out; their share is reported as
     ``mu_rel_excluded_fraction`` and the plain ``mu_mean_abs_error`` covers
     every sample.
+``mu_mean_rel_bias``, ``mu_mean_bias``
+    the signed mean of (μ̂ − μ)/|μ| over the samples of ``mu_mean_abs_rel_error``,
+    and the signed mean of μ̂ − μ per wheel (4,) over every sample after the
+    first convergence: what of the error is a bias rather than noise or lag.
 ``rho_s_mean_abs_error``
-    mean |ρ̂_s − ρ_s| from the first convergence on.
+    mean |ρ̂_s − ρ_s| from the first convergence on, with ρ_s as eq. 8 has
+    it: the soil's rolling-resistance force over the weight m g.  The
+    physical truth's ``truth.csv`` writes ρ_s per unit of wheel load,
+    Σρ_s,i F_z,i / ΣF_z,i (``tractionecu.sim.physical``), and ΣF_z =
+    m g cos θ + F_dx tan β carries the vertical part of the implement's pull;
+    :func:`read_truth` turns it into eq. 8's, ρ_s ΣF_z/(ΣF_z − F_dx tan β)
+    (``Truth.rho_s_eq8``; cos θ ≈ 1, within 0.05 % of ρ_s on grades up to
+    3 %).  The paper truth's ρ_s is eq. 8's already.
 ``r2_mu_curve``
     per soil name (the soil under the GPS antenna): the paper's "average
     representative μ(s) characteristic" a̅·g_class(s), a̅ the mean identified
@@ -66,6 +77,13 @@ class Truth:
     soils: dict[str, dict[str, Any]]
     """name -> {"soil_class": str, "a": float, "rho_s": float} (and ``mu_curve_s``, ``mu_curve``: a
     tabulated true μ(s) for a truth model whose curve is none of the classes)."""
+    rho_s_eq8: NDArray[np.float64] | None = None
+    """ρ_s as eq. 8 has it (rolling-resistance force over m g) where ``rho_s`` is not (module doc); None: the same."""
+
+    @property
+    def rho_s_paper(self) -> NDArray[np.float64]:
+        """ρ_s in eq. 8's terms (module doc): ``rho_s_eq8`` when the truth file's ρ_s is per unit of wheel load."""
+        return self.rho_s if self.rho_s_eq8 is None else self.rho_s_eq8
 
 
 def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Truth:
@@ -84,15 +102,27 @@ def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Tru
     c = {k: vals[:, i].copy() for i, k in enumerate(numeric)}
 
     soils: dict[str, dict[str, Any]] = {}
+    rho_eq8 = None
     if toml_path is not None and Path(toml_path).is_file():
         data = tomllib.loads(Path(toml_path).read_text(encoding="utf-8"))
+        pull = data.get("physical", {}).get("hitch", {}).get("pull_angle_deg")
+        fz_cols = [f"fz_{w}" for w in WHEELS]
+        if pull is not None and all(k in col for k in fz_cols) and "fdx" in col:
+            # the physical truth's ρ_s is per unit of wheel load; eq. 8's is per unit of weight (module doc)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)
+                ld = np.loadtxt(csv_path, delimiter=",", skiprows=1, usecols=[col[k] for k in fz_cols + ["fdx"]],
+                                dtype=float, quotechar='"', encoding="utf-8", ndmin=2)
+            sum_fz = ld[:, :4].sum(axis=1)
+            weight = sum_fz - ld[:, 4] * math.tan(math.radians(float(pull)))
+            rho_eq8 = c["rho_s"] * sum_fz / np.where(weight > 0.0, weight, np.nan)
         for s in data.get("soils", []):
             soils[s["name"]] = {"soil_class": s.get("soil_class", "stubble"), "a": float(s["a"]), "rho_s": float(s["rho_s"]),
                                 **{k: s[k] for k in ("mu_curve_s", "mu_curve") if k in s}}   # tabulated true μ(s)
     return Truth(
         t=c["t"], mu=np.column_stack([c[f"mu_{w}"] for w in WHEELS]), rho_s=c["rho_s"], a=c["a"],
         soil_id=c["soil_id"].astype(np.int64), soil_name=names,
-        slip=np.column_stack([c[f"slip_{w}"] for w in WHEELS]), v=c["v"], soils=soils)
+        slip=np.column_stack([c[f"slip_{w}"] for w in WHEELS]), v=c["v"], soils=soils, rho_s_eq8=rho_eq8)
 
 
 def r_squared(y_hat: NDArray[np.float64], y: NDArray[np.float64]) -> float:
@@ -119,7 +149,7 @@ def scorecard(est: dict[str, NDArray[Any]], truth: Truth, *, mu_rel_floor: float
     t = est["t"]
     k = np.clip(np.searchsorted(truth.t, t + 1e-9, side="right") - 1, 0, len(truth.t) - 1)
     mu_t = truth.mu[k]
-    rho_t = truth.rho_s[k]
+    rho_t = truth.rho_s_paper[k]
     soil = truth.soil_id[k]
     mu_e = est["mu"]
     valid = np.asarray(est["valid"], dtype=bool)
@@ -137,6 +167,9 @@ def scorecard(est: dict[str, NDArray[Any]], truth: Truth, *, mu_rel_floor: float
     out["mu_rel_floor"] = mu_rel_floor
     out["mu_rel_excluded_fraction"] = float(1.0 - big.mean())
     out["mu_mean_abs_error"] = float(np.mean(err))
+    sgn = mu_e[sl] - mu_t[sl]
+    out["mu_mean_rel_bias"] = float(np.nanmean(np.where(big, sgn / np.maximum(np.abs(mu_t[sl]), 1e-12), np.nan)))
+    out["mu_mean_bias"] = [float(b) for b in np.mean(sgn, axis=0)]
     out["rho_s_mean_abs_error"] = float(np.mean(np.abs(est["rho_s"][sl] - rho_t[sl])))
 
     # μ(s) curve per soil (paper Fig. 5 and its R²)
