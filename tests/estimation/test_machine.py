@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tractionecu.config import DrivetrainSpec, VehicleParams
-from tractionecu.estimation.estimator import STATUS_NAMES, status_names
+from tractionecu.estimation.estimator import INPUT_REJECTED, NOT_CONVERGED, STATUS_NAMES, status_names
 from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MACHINE_UNSUPPORTED, MachineEstimate,
                                             MachineEstimator)
 from tractionecu.errors import EstimatorError
@@ -30,15 +30,17 @@ def mech_vehicle(**dt) -> VehicleParams:
 
 
 def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n: float = 15000.0,
-          eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1, mfwd: bool = True):
-    """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value)."""
+          eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1, mfwd: bool = True,
+          pull_deg: float = 0.0):
+    """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value).
+    ``pull_deg``: line of pull above the horizontal; its F_dx tan β (at the mean draft) loads the rear axle."""
     rng = np.random.default_rng(seed)
     veh = mech_vehicle()
     W = veh.weight_n
     i_f = veh.drivetrain.final_drive_ratio
     tref = 400.0
     fzf = 0.4 * W - draft_n * veh.hitch_height_m / veh.wheelbase_m
-    fzr = W - fzf
+    fzr = W + draft_n * math.tan(math.radians(pull_deg)) - fzf
     rdf, rdr = rolling_radius(np.array([fzf / 2, fzr / 2]), veh).tolist()
     k = (1 + lead) * rdr / rdf
     jw = veh.wheel_inertia_kgm2
@@ -73,7 +75,7 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
         v += dt * dv
         if j % 10 == 0:
             truth["t"].append(t)
-            truth["mu"].append(fh / W)
+            truth["mu"].append(fh / (fzf + fzr))
             truth["rho_s"].append(rho_s)
             truth["v"].append(v)
             truth["s_r"].append(s_r)
@@ -277,3 +279,62 @@ def test_two_wheel_drive_front_rolls_and_the_rear_carries_the_torque() -> None:
     assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
     assert all(math.isnan(e.slip[0]) for e in late)               # the front axle's slip is not modelled
     assert abs(late[-1].a - 0.7) / 0.7 < 0.05
+
+
+def test_not_available_values_are_missing_samples_not_rejected_inputs() -> None:
+    """J1939 "not available" / "error" decode as NaN: no sample (counted), the held value stays until its
+    stream times out, the step is not predict-only; a draft without a draft sensor is not read at all."""
+    est = MachineEstimator(mech_vehicle())
+    est.step(0.0, {"Te": 40.0, "Tref": 400.0, "gear": 4.0, "Fdx": 15000.0}, {"we": 200.0})
+    e = est.step(0.01, {"Te": math.nan, "gear": math.nan}, {"we": math.nan, "vwb": math.nan})
+    assert not e.status & INPUT_REJECTED and est.counters["rejected_inputs"] == 0
+    assert est.counters["not_available"] == 4 and est.counters["rejected_measurements"] == 0
+    assert est._in["Te"] == 40.0 and est._in["gear"] == 4.0
+    nod = MachineEstimator(mech_vehicle(), draft=False)
+    e = nod.step(0.0, {"Te": 40.0, "Tref": 400.0, "gear": 4.0, "Fdx": math.nan}, {"we": 200.0})
+    assert not e.status & INPUT_REJECTED and nod.counters["not_available"] == 0 and math.isnan(nod._in["Fdx"])
+
+
+def test_convergence_enters_below_the_bound_and_leaves_beyond_the_efficiency_tolerance() -> None:
+    """Entry at P_μ ≤ c²; once converged the estimate stays so up to c² + (σ_η/η·μ)² (the declared
+    efficiency's share of μ's uncertainty) and leaves beyond it; then it re-enters only below c² again."""
+    est = MachineEstimator(mech_vehicle(efficiency_tolerance=0.03))
+    est.t_init = 0.0
+    c2 = est.cfg.conv_sigma_mu ** 2
+    mu = 0.4
+    band = c2 + (0.03 * mu) ** 2
+    seq = [(1.2 * c2, False), (0.9 * c2, True), (0.99 * band, True), (0.5 * band, True), (1.01 * band, False),
+           (0.99 * band, False), (1.01 * c2, False), (0.99 * c2, True)]
+    for k, (pmu, conv) in enumerate(seq):
+        assert est._converged(2.0 + k, pmu, 0.0, mu) is conv, (k, pmu / c2)
+    assert est._converged(0.5, 0.0, 0.0, mu) is False               # never before conv_min_s
+    assert est._converged(3.0, 0.0, 2 * est.cfg.conv_sigma_rho ** 2 + 1.0, mu) is False   # ρ alike
+
+
+def test_the_status_does_not_flicker_in_steady_work(synthetic) -> None:
+    """After the first convergence a steady run stays converged: not_converged changes state at most once."""
+    truth, bus = synthetic
+    out = run(MachineEstimator(mech_vehicle()), bus)
+    nc = np.array([bool(e.status & NOT_CONVERGED) for e in out])
+    after = nc[int(np.argmin(nc)):]
+    assert not after[0] and np.count_nonzero(np.diff(after.astype(int))) <= 1
+
+
+def test_without_draft_the_loads_carry_the_draft_the_sum_implies() -> None:
+    """No draft sensor, a line of pull of 10°: the rear axle carries F_dx tan β the bus does not report.
+    The draft implied by the resistance sum (less the soil class's typical ρ_s) loads the wheels; taking it
+    as 0 made μ = ΣF_h/ΣF_z read F_dx tan β / ΣF_z (about 4 %) high."""
+    import dataclasses
+
+    truth, bus = plant(60.0, pull_deg=10.0, seed=5)
+    veh = dataclasses.replace(mech_vehicle(), pull_angle_deg=10.0)
+    est = MachineEstimator(veh, draft=False)
+    late = [e for e in run(est, bus, drop={"Fdx"}) if e.t > 20.0]
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    bias = np.mean((mu - truth["mu"][i]) / truth["mu"][i])
+    assert abs(bias) < 0.015, bias
+    assert est._fdx_est == pytest.approx(15000.0, rel=0.15)
+    fzf, fzr, _, _ = est.loads()
+    assert fzf + fzr == pytest.approx(veh.weight_n + est._fdx_est * math.tan(math.radians(10.0)))
+    assert all(math.isnan(e.rho_s) for e in late)                       # ρ_s still never reported

@@ -201,6 +201,11 @@ def _slip1(w: float, v: float, r_d: float) -> float:
     return 1.0 - va / vw if va <= vw else -1.0 + vw / va
 
 
+RHO_S_PRIOR_SIGMA = 0.03
+"""Spread (1σ) of a soil's ρ_s about its class's typical value [-], used without a draft sensor
+(:meth:`MachineEstimator._draft_from_sum`): an assumption of about half the step between neighbouring
+classes' typical values (stubble 0.06, tilled 0.12; :data:`~tractionecu.model.mucurve.SOIL_CLASSES`)."""
+
 _ABSENT = object()
 _SLICES = {(a, b): slice(a, b + 1) for a in range(3) for b in range(a, 3)}
 """Output slices of the update, made once: the filter caches its fast path per slice object."""
@@ -310,6 +315,8 @@ class MachineEstimator:
         self._curve_state = self._curve.state()
         self._t_curve = -math.inf
         self._held: tuple[float, list[float]] | None = None
+        self._conv = False
+        self._fdx_est = 0.0
         self._Q_cache: dict[tuple, NDArray[np.float64]] = {}
         self._adapt_version = 0
         self._radius = RadiusCalibration(self._cal_cfg)
@@ -323,7 +330,7 @@ class MachineEstimator:
         self._terms_val = (math.nan,) * 5
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0,
-                         "unsupported_steps": 0}
+                         "unsupported_steps": 0, "not_available": 0}
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
 
@@ -343,14 +350,15 @@ class MachineEstimator:
     def loads(self) -> tuple[float, float, float, float]:
         """(F_zf, F_zr [N], r_d front, r_d rear [m]): measured front-axle load, else the static share less
         the draft's load transfer F_dx h_hitch / L; the rear carries the rest of m g + F_dx tan β (the line of
-        pull, ``pull_angle_deg``); r_d per axle from eq. 9 (moved to the declared ``rolling_radius_m`` at the
+        pull, ``pull_angle_deg``); F_dx the measured draft, or without a draft sensor the draft the
+        resistance sum implies (:meth:`_draft_from_sum`); r_d per axle from eq. 9 (moved to the declared ``rolling_radius_m`` at the
         rear wheels' static load, when given), times the rear axle's self-calibrated scale
         (:mod:`.calibration`, once applied)."""
-        key = (self._in["Fzf"], self._in["Fdx"], self._radius_version)
+        key = (self._in["Fzf"], self._in["Fdx"] if self.draft else self._fdx_est, self._radius_version)
         if key == self._loads_key:
             return self._loads
         veh = self.vehicle
-        fdx = key[1] if self.draft and math.isfinite(key[1]) else 0.0
+        fdx = key[1] if math.isfinite(key[1]) else 0.0
         fzf = key[0] if self.front_load and math.isfinite(key[0]) else math.nan
         if not math.isfinite(fzf):
             fzf = veh.static_front_fraction * self.W - fdx * veh.hitch_height_m / veh.wheelbase_m
@@ -418,6 +426,20 @@ class MachineEstimator:
         """Wheel torque M [N·m] of the held inputs (module doc), NaN while an input is unknown."""
         return self._dir * self._pct_net() / 100.0 * self._in["Tref"] * i_tot * self.dt.efficiency
 
+    def _speed(self, x: Any) -> float | None:
+        """A speed sample [rad/s or m/s], None when there is none: NaN (J1939 "not available" / "error") is
+        counted as ``not_available``, a negative or infinite value as ``rejected_measurements``."""
+        if x is None:
+            return None
+        x = float(x)
+        if math.isnan(x):
+            self.counters["not_available"] += 1
+            return None
+        if not (math.isfinite(x) and x >= 0.0):
+            self.counters["rejected_measurements"] += 1
+            return None
+        return x
+
     # ------------------------------------------------------------------ step
     def step(self, t: float, inputs: Mapping[str, Any] | None = None,
              measurements: Mapping[str, Any] | None = None) -> MachineEstimate:
@@ -447,9 +469,14 @@ class MachineEstimator:
         if inputs:
             for key in _INPUT_KEYS:
                 val = inputs.get(key, _ABSENT)
-                if val is _ABSENT:
-                    continue
+                if val is _ABSENT or (key == "Fdx" and not self.draft):
+                    continue                           # no sample, or a draft this estimator does not use
                 fv = math.nan if val is None else float(val)
+                if math.isnan(fv):
+                    # J1939 "not available" / "error" (decoded as NaN): no sample, never a number; the held
+                    # value ages out by its stream's time-out
+                    counters["not_available"] += 1
+                    continue
                 ok = math.isfinite(fv)
                 if key == "Te":
                     ok = ok and -125.0 <= fv <= 125.0
@@ -462,7 +489,7 @@ class MachineEstimator:
                     self._t_in[key] = t
                     if key in rates.trackers and rates.trackers[key].push(t):
                         rates.refresh(key)
-                elif key == "gear" and val is not None and fv == 0.0:
+                elif key == "gear" and fv == 0.0:
                     self._in["gear"] = math.nan        # neutral: no drive through the gearbox
                     self._t_in["gear"] = t
                 else:
@@ -503,16 +530,10 @@ class MachineEstimator:
             self._dir = 1.0 if cg > 0 else -1.0                # ETC2 current gear: negative in reverse
         vwb = None
         for key in ("vwb", "vwbsd"):
-            x = meas.get(key)
+            x = self._speed(meas.get(key))
             if x is not None:
-                if math.isfinite(x) and x >= 0.0:
-                    vwb = float(x)
-                else:
-                    counters["rejected_measurements"] += 1
-        we = meas.get("we")
-        if we is not None and not (math.isfinite(we) and we >= 0.0):
-            counters["rejected_measurements"] += 1
-            we = None
+                vwb = x
+        we = self._speed(meas.get("we"))
         vfa = meas.get("vfa") if self._ebc2 else None
         if vfa is not None and not (math.isfinite(vfa) and vfa >= 0.0):
             vfa = None
@@ -670,6 +691,8 @@ class MachineEstimator:
         self._dyn.update(t, float(x[IX_V]), M)
         if t - self._t_adapt >= cfg.adapt_period_s:
             self._t_adapt = t
+            if not self.draft:
+                self._draft_from_sum(float(x[IX_RHO]), float(x[IX_V]))
             if cfg.adaptation:
                 self._A = self._cm.compute()
             if cfg.supervisor:
@@ -689,15 +712,27 @@ class MachineEstimator:
         k0 = self._radius.applied[1]
         rdf0, rdr0 = rdf / k0, rdr / k0
         kf = (1.0 + self.lead) * rdr0 / rdf0 if self.engaged else 1.0
-        conv = (self.t_init is not None and t - self.t_init >= self.cfg.conv_min_s
-                and self.ukf is not None and self.ukf.P[IX_MU, IX_MU] < self.cfg.conv_sigma_mu ** 2)
-        ok = conv and abs(v) >= self.cfg.standstill_speed_mps and not (self._turning or self._turning_gnss)
+        ok = self._conv and abs(v) >= self.cfg.standstill_speed_mps and not (self._turning or self._turning_gnss)
         cs = self._curve_state
         self._radius.push(t, v_gnss, [kf * w, kf * w, w, w], rdf0, rdr0, [mu] * 4, self._dyn.accel, ok,
                           cs.a, cs.class_name)
         if self._radius.applied[1] != k0:
             self._radius_version += 1
             self._terms_key = None
+
+    def _draft_from_sum(self, rho_sum: float, v: float) -> None:
+        """Without a draft sensor: the draft the converged resistance sum implies, F_dx ≈ (ρ_Σ − ρ_s,typ) m g
+        (≥ 0), ρ_s,typ the identified soil class's typical ρ_s (:class:`~tractionecu.model.mucurve.SoilClass`),
+        for the wheel loads only (:meth:`loads`: the line of pull's F_dx tan β and the load transfer).
+        Taking F_dx = 0 there put ΣF_z low by F_dx tan β (4-5 % of m g for 20 kN at 9°) and μ as much high.
+        ρ_s itself stays unreported: ρ_s,typ is a class's typical value, its spread
+        (:data:`RHO_S_PRIOR_SIGMA`) is in μ's variance."""
+        if not (self._conv and abs(v) >= self.cfg.standstill_speed_mps):
+            return
+        cs = self._curve_state
+        cls = self._curve.classes
+        rho_typ = cls[cs.class_index if 0 <= cs.class_index < len(cls) else 0].rho_s_typical
+        self._fdx_est = round(max(0.0, (rho_sum - rho_typ) * self.W), -1)      # 10 N: the loads' cache key
 
     def _learn_ratio(self, we: float, vwb: float) -> None:
         """Engine speed over wheel speed [-], smoothed; a change of more than 5 % held for three samples is a
@@ -738,6 +773,7 @@ class MachineEstimator:
         self._u_last = np.array([M, a_w, fzd, c_free, fdx, J])
         self._i_last = i_tot
         self.t_init = t
+        self._conv = False
 
     # ------------------------------------------------------------------ output
     def _effective_slip(self, s_f: float, s_r: float, fzf: float, fzr: float) -> float:
@@ -752,12 +788,34 @@ class MachineEstimator:
         gs, sg = self._g_table
         return sign * float(np.interp(ge, gs, sg))
 
+    def _converged(self, t: float, pmu: float, prho: float, mu: float) -> bool:
+        """Whether the filter's μ and ρ are converged (status ``not_converged`` otherwise), with the
+        filter's own variances P_μ, P_ρ.
+
+        Entry: both standard deviations below the configured bounds c_μ = ``conv_sigma_mu``, c_ρ =
+        ``conv_sigma_rho``, no earlier than ``conv_min_s`` after the filter started.  Once converged, the
+        estimate stays so while P_μ ≤ c_μ² + (σ_η/η·μ)² and P_ρ ≤ c_ρ² + (σ_η/η·μ)²: the declared
+        drivetrain efficiency leaves σ_η/η·μ of μ (and as much of ρ, eq. 8) unknown whatever the data
+        say (``efficiency_tolerance``; the reported variance carries it), so the filter's random part
+        moving inside the total it was accepted with does not change what the estimate is good for, while
+        one beyond it (a soil change, a restart) has lost what it had and re-enters below c.  A single
+        bound made the status flicker as the adapted process noise moved P_μ across it."""
+        cfg = self.cfg
+        c_mu, c_rho = cfg.conv_sigma_mu ** 2, cfg.conv_sigma_rho ** 2
+        if self._conv:
+            sys_var = (self.dt.efficiency_tolerance * mu) ** 2
+            c_mu, c_rho = c_mu + sys_var, c_rho + sys_var
+        self._conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s and pmu <= c_mu
+                      and prho <= c_rho)
+        return self._conv
+
     def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, i_tot: float,
                   updated: bool = False) -> MachineEstimate:
         cfg = self.cfg
         ukf = self.ukf
         cs = self._curve_state
         if x is None or ukf is None:
+            self._conv = False
             nan4 = np.full(4, np.nan)
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
@@ -784,8 +842,7 @@ class MachineEstimator:
             mu_c = mu if self.engaged else (mu * (fzf + fzr) + self.vehicle.rho_t * fzf) / fzr   # rear axle's
             self._curve_state = cs = self._curve.update(t, np.array([mu_c]), np.array([s_e]),
                                                         np.array([math.sqrt(pmu)]), np.array([sig_s]))
-        conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s
-                and pmu < cfg.conv_sigma_mu ** 2 and prho < cfg.conv_sigma_rho ** 2)
+        conv = self._converged(t, pmu, prho, mu)
         if not conv:
             status |= NOT_CONVERGED
         fdx = self._in["Fdx"] if self.draft and math.isfinite(self._in["Fdx"]) else math.nan
@@ -800,6 +857,8 @@ class MachineEstimator:
         elif conv:
             self._held = (rho_s, s)
         var_mu = pmu + (self.dt.efficiency_tolerance * mu) ** 2
+        if not self.draft:                     # the draft from the sum: ΣF_z uncertain by tan β σ_ρs m g
+            var_mu += (mu * self._tan_pull * RHO_S_PRIOR_SIGMA * self.W / (fzf + fzr)) ** 2
         var_w_f = k * k * pw if self.engaged else math.nan
         pd = np.array([var_w_f, var_w_f, pw, pw, pv, var_mu, var_mu, var_mu, var_mu,
                        prho + (self.dt.efficiency_tolerance * mu) ** 2 if self.draft else math.nan])
