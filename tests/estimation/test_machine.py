@@ -31,9 +31,11 @@ def mech_vehicle(**dt) -> VehicleParams:
 
 def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n: float = 15000.0,
           eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1, mfwd: bool = True,
-          pull_deg: float = 0.0):
+          pull_deg: float = 0.0, gear_fn=None):
     """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value).
-    ``pull_deg``: line of pull above the horizontal; its F_dx tan β (at the mean draft) loads the rear axle."""
+    ``pull_deg``: line of pull above the horizontal; its F_dx tan β (at the mean draft) loads the rear axle.
+    ``gear_fn(t)``: a transmission ratio that varies (a CVT; slow, so the reflected inertia's rate term is
+    left out), reported by ETC2 at its 0.001 resolution."""
     rng = np.random.default_rng(seed)
     veh = mech_vehicle()
     W = veh.weight_n
@@ -56,6 +58,10 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
     period = {"eec1": 0.02, "etc2": 0.1, "ec1": 1.0, "ccvs": 0.1, "gbsd": 0.1, "hitch": 0.1, "gnss": 0.1}
     for j in range(n):
         t = j * dt
+        if gear_fn is not None:
+            gear = float(gear_fn(t))
+            i_tot = gear * i_f
+            J = veh.drivetrain.engine_inertia_kgm2 * i_tot ** 2 + 2 * jw * ((1 + k * k) if mfwd else 1.0)
         dn = draft_n * (1.0 + 0.1 * math.sin(0.5 * t))
         we = w * i_tot
         pct = float(np.clip(100.0 * 0.08 * (w_set - we) + 40.0, 0.0, 100.0))   # droop governor
@@ -88,7 +94,7 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
                 bus.append((t, "Te", round(pct + rng.normal(0, 1.0))))
                 bus.append((t, "we", round(we * (1 + rng.normal(0, 0.001)) / (math.pi / 240)) * math.pi / 240))
             elif key == "etc2":
-                bus.append((t, "gear", gear))
+                bus.append((t, "gear", round(gear, 3)))
                 bus.append((t, "cgear", 4.0))
             elif key == "ec1":
                 bus.append((t, "Tref", tref))
@@ -211,6 +217,22 @@ def test_power_split_runs_the_machine_level_estimator_on_the_reported_ratio(synt
     mu = np.array([e.mu[0] for e in late])
     assert late[-1].status & MACHINE_LEVEL and late[-1].total_ratio == pytest.approx(80.0)
     assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
+
+
+def test_power_split_ratio_changes_are_not_gear_shifts() -> None:
+    """A CVT's reported ratio changes every ETC2 frame (here a sweep of ±10 % over 20 s): that is no torque
+    interruption, so μ stays supported; engine speed off the reported ratio (a slipping clutch) still is not."""
+    truth, bus = plant(60.0, gear_fn=lambda t: 4.0 * (1.0 + 0.1 * math.sin(2 * math.pi * t / 20.0)), seed=7)
+    est = MachineEstimator(mech_vehicle(kind="power-split"))
+    out = run(est, _edit(bus, "we", 40.0, 40.5, lambda t, v: v * 1.10))
+    late = [e for e in out if 20.0 < e.t < 39.9 or e.t > 43.0]
+    assert np.mean([not e.status & MACHINE_UNSUPPORTED for e in late]) > 0.99
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.04
+    assert _unsupported(out, 40.11, 40.4 + est.validity.shift_hold_s - 0.05) == 1.0
+    mech = [e for e in run(MachineEstimator(mech_vehicle()), bus) if e.t > 20.0]   # a gearbox: every change a shift
+    assert np.mean([bool(e.status & MACHINE_UNSUPPORTED) for e in mech]) > 0.9
 
 
 def _edit(bus, key, t0, t1, fn):

@@ -150,6 +150,9 @@ class MachineValidity:
       (a slipping clutch or a powershift changeover: the engine torque does not reach the wheels as
       M = (p − p_f) T_ref i η says).  Held ``shift_hold_s`` after the last such sample: a powershift
       changes over in 0.3–1 s and the filter's μ, which took the torque step meanwhile, settles after it.
+      A power-split / CVT transmission (``kind = "power-split"``) moves its reported ratio continuously
+      without interrupting the torque: there only the speed check, neutral and a change of ETC2's current
+      gear (a range change) count.
     * **Front axle not coupled as modelled** (MFWD declared engaged): in a turn the front axle travels a
       longer path than the rear, √(1 + (Lκ)²) times, which the rigid coupling's kinematics (front wheels
       (1 + λ) r_r/r_f times the rear's angular speed on a straight line) do not hold; beyond
@@ -273,6 +276,7 @@ class MachineEstimator:
         self._tan_pull = math.tan(math.radians(vehicle.pull_angle_deg))
         self._r_cal = dt.rolling_radius_m
         self._ebc2 = dt.wheel_speeds != "machine"      # EBC2's front-axle and wheel speeds used
+        self._cvt = dt.kind == "power-split"           # its reported ratio moves without interrupting the torque
         self._rdr_static = float(rolling_radius(0.5 * (1.0 - vehicle.static_front_fraction) * self.W, vehicle))
         self._cal_cfg = cfg.calibration if hasattr(cfg, "calibration") else None
         self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
@@ -496,8 +500,9 @@ class MachineEstimator:
                     status |= INPUT_REJECTED
         if inputs and "gear" in inputs:
             g = self._in["gear"]
-            if g != self._gear_seen[0] and not (math.isnan(g) and math.isnan(self._gear_seen[0])):
-                self._t_shift = t                              # a ratio change (or neutral): a shift
+            if (g != self._gear_seen[0] and not (math.isnan(g) and math.isnan(self._gear_seen[0]))
+                    and (not self._cvt or math.isnan(g) or math.isnan(self._gear_seen[0]))):
+                self._t_shift = t          # a gearbox's ratio change (or neutral): a shift; a CVT's is not
             self._gear_seen = (g, self._gear_seen[1])
         if status & INPUT_REJECTED:
             counters["rejected_inputs"] += 1
