@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
-from .features import Features, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
+from .features import Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
 
 SPEED_WINDOW_S = 2.0
 """Window of the speed-equation error [s]."""
@@ -262,29 +262,21 @@ class GpsSpeedChannel(Channel):
                                     "torque_offset", "draft_offset", "axle_load_offset", "clock_skew"}),
                          fr.t[rows], rows.astype(np.int64), feat.fold[rows], "slow speed correction b(t), cubic spline")
         self.rows_idx = rows
-        self.B = spline_basis(fr.t, SPLINE_KNOT_S)[rows]
+        self.B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True)[rows]
         self.y = feat.v_gps[rows]
         self.theta = np.nan_to_num(feat.theta) if feat.theta is not None else np.zeros(fr.n)
         self._qr: dict[bytes, tuple] = {}
 
     def _project(self, r: NDArray, rows: NDArray[np.bool_]) -> NDArray:
-        """Least-squares fit of the spline nuisance to r on ``rows``: B (BᵀB)⁻¹ Bᵀ r (B is sparse, banded)."""
-        from scipy.linalg import cho_factor, cho_solve
-        from scipy.sparse import csr_matrix
-
+        """Least-squares fit of the spline nuisance to r on ``rows``: B (BᵀB)⁻¹ Bᵀ r (B is sparse, BᵀB
+        banded: :class:`~.features.SplineFit`, linear in the recording's length)."""
         key = np.packbits(rows).tobytes()
         q = self._qr.get(key)
         if q is None:
-            B = self.B[rows]
-            cols = B.sum(axis=0) > 1e-6
-            Bs = csr_matrix(B[:, cols])
-            G = (Bs.T @ Bs).toarray()
-            G[np.diag_indices_from(G)] += 1e-9 * np.trace(G) / G.shape[0]
             if len(self._qr) > 8:
                 self._qr.clear()
-            q = self._qr[key] = (Bs, cho_factor(G))
-        Bs, cf = q
-        return Bs @ cho_solve(cf, Bs.T @ r)
+            q = self._qr[key] = SplineFit(self.B[np.flatnonzero(rows)], min_support=1e-6)
+        return q.project(r)
 
     def v_model(self, eff: Effects) -> NDArray:
         fr = self.feat.frame

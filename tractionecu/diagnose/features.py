@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import BSpline
+from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..config import G
@@ -150,16 +151,62 @@ def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     return out
 
 
-def spline_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+def spline_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float64] | None = None,
+                 sparse: bool = False):
     """Cubic B-spline design matrix with knots every ``knot_s`` [s] over the span of ``t``,
-    evaluated at ``t_eval`` (default ``t``; clamped to the span)."""
+    evaluated at ``t_eval`` (default ``t``; clamped to the span).
+
+    Each row has at most four non-zeros; ``sparse`` returns it as a CSR matrix (its dense form has
+    one column per ``knot_s`` of the recording, so it grows with the square of the length: a
+    4-hour recording at 10 Hz would need 5.5 GB)."""
     t0, t1 = float(np.min(t)), float(np.max(t))
     nk = max(int(math.ceil((t1 - t0) / knot_s)), 1)
     inner = np.linspace(t0, t1, nk + 1)
     k = 3
     knots = np.concatenate([[t0] * k, inner, [t1] * k])
     tt = np.clip(t if t_eval is None else t_eval, t0, t1)
-    return BSpline.design_matrix(tt, knots, k).toarray()
+    B = BSpline.design_matrix(tt, knots, k)
+    return csr_matrix(B) if sparse else B.toarray()
+
+
+SPLINE_RIDGE = 1e-9
+"""Ridge added to the normal equations of a spline fit, as a share of their mean diagonal: it only
+decides the coefficients that the data leave free (a basis function whose support holds a single
+sample at the edge of a gap), where it gives the minimum-norm solution, as a pseudo-inverse would."""
+
+
+class SplineFit:
+    """Least squares on a cubic B-spline basis ``B`` (sparse, rows = the samples fitted), in time and
+    memory linear in the number of samples: BᵀB is banded (a cubic B-spline overlaps three neighbours),
+    so the normal equations are solved by a banded Cholesky factor.  Columns without support in the
+    rows (their sum ≤ ``min_support``) are dropped."""
+
+    def __init__(self, B, min_support: float = 1e-9) -> None:
+        from scipy.linalg import cholesky_banded
+
+        B = csr_matrix(B)
+        self.cols = np.asarray(B.sum(axis=0)).ravel() > min_support
+        self.B = csr_matrix(B[:, np.flatnonzero(self.cols)])
+        G = csr_matrix(self.B.T @ self.B)
+        p = G.shape[0]
+        ab = np.zeros((4, p))
+        for d in range(4):
+            if d < p:
+                ab[3 - d, d:] = G.diagonal(d)
+        ab[3] += SPLINE_RIDGE * float(np.sum(ab[3])) / max(p, 1)
+        self._cf = cholesky_banded(ab) if p else ab
+
+    def coef(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Coefficients β minimising ‖y − B β‖² (over the kept columns)."""
+        from scipy.linalg import cho_solve_banded
+
+        if not self.B.shape[1]:
+            return np.zeros(0)
+        return cho_solve_banded((self._cf, False), self.B.T @ y)
+
+    def project(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
+        """B β: the fitted values at the rows."""
+        return self.B @ self.coef(y)
 
 
 def smooth_derivative(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
@@ -190,14 +237,14 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     v_int = cumtrapz0(force / m, fr.dt)
     if fr.can_time_offset_s:
         v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
-    ok = valid & np.isfinite(fr.v_gps)
-    B = spline_basis(fr.t, SPLINE_KNOT_S)
-    cols = B[ok].sum(axis=0) > 1e-9
+    ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
+    B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True)
     model = delayed(fr.t, v_int, tau_s) if tau_s else v_int
-    beta, *_ = np.linalg.lstsq(B[ok][:, cols], fr.v_gps[ok] - model[ok], rcond=None)
+    sf = SplineFit(B[ok])
+    beta = sf.coef(fr.v_gps[ok] - model[ok])
+    cols = np.flatnonzero(sf.cols)
     if tau_s:
-        Bs = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s)
-        return v_int + Bs[:, cols] @ beta
+        B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s, sparse=True)
     return v_int + B[:, cols] @ beta
 
 
@@ -238,6 +285,9 @@ def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float
     return h0, gu
 
 
+MAX_GRADE_POINTS = 6000
+"""Most samples the altitude surface is fitted to (50 minutes of driving at 2 Hz; a longer recording
+is thinned evenly: about one point every 2 s (5 m) at 4 hours, still several per kernel width)."""
 RELIEF_SNR = 1.5
 """Relief counts as real when the altitude surfaces of passes with independent errors agree:
 cov(h_own, h_other) ≥ RELIEF_SNR · var(h_own − h_other)/2 (relief variance against error variance).
@@ -290,7 +340,10 @@ def grade_from_altitude(fr: Frame, valid: NDArray[np.bool_], bw: float = DEM_BAN
     if ok.sum() < 20:
         return None
     idx = np.nonzero(ok)[0]
-    step = max(1, int(round(fr.rate_hz / 2)))
+    # 2 Hz is plenty for a 20 m kernel; on a long recording fewer points still (at most
+    # MAX_GRADE_POINTS): each point's neighbourhood fills up as the same field is driven again, so the
+    # kernel fits would cost the square of the recording's length.
+    step = max(1, int(round(fr.rate_hz / 2)), int(math.ceil(idx.size / MAX_GRADE_POINTS)))
     sub = idx[::step]
     x, y, h, t = fr.x[sub], fr.y[sub], fr.alt[sub], fr.t[sub]
     hd = fr.heading[sub]

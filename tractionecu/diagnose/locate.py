@@ -8,7 +8,7 @@
   is the same before and after an effect is modelled; white residuals at the
   noise level give 0.95, a systematic mismatch gives less);
 - *when*: change points of the residual level by PELT (``ruptures``, ``l2``
-  cost) on 2-s means, with a penalty of 3 ln(n) σ²_lr (σ²_lr the residual's
+  cost) on 2-s means (wider on recordings over half an hour: :data:`MAX_CHANGE_WINDOWS`), with a penalty of 3 ln(n) σ²_lr (σ²_lr the residual's
   long-run variance), so that autocorrelated noise does not fragment it;
 - *where*: the residual at its GNSS position (the map is drawn by
   :mod:`.report`);
@@ -109,6 +109,11 @@ class ChangePoint:
     level_after: float
 
 
+MAX_CHANGE_WINDOWS = 1000
+"""Most residual-level windows the change-point search sees (a 2-s window up to 33 minutes of residual;
+wider windows beyond, so that its time stays bounded on a working day's recording)."""
+
+
 def change_points(feat: Features, ch: Channel, resid: NDArray, window_s: float = 2.0,
                   max_points: int = 8) -> list[ChangePoint]:
     """Change points of the residual level (module doc)."""
@@ -119,6 +124,9 @@ def change_points(feat: Features, ch: Channel, resid: NDArray, window_s: float =
     if idx.size < 20:
         return []
     t = fr.t[idx]
+    # Windows widen on long recordings so that PELT (quadratic in the number of windows when the level
+    # rarely changes) sees at most MAX_CHANGE_WINDOWS of them.
+    window_s = max(window_s, float(fr.t[idx[-1]] - fr.t[idx[0]]) / MAX_CHANGE_WINDOWS)
     nb = max(1, int(round(window_s * fr.rate_hz)))
     blk = (idx // nb)
     ub, inv = np.unique(blk, return_inverse=True)
