@@ -75,6 +75,8 @@ def _fmt_params(r: dict) -> str:
     for k, f in r.get("fitted", {}).items():
         ok = "✓" if r["covered"].get(k) else "✗"
         b = f" (at {f['at_bound']} bound)" if f.get("at_bound") else ""
+        if f.get("identified") is False:
+            b += " (not identified)"
         out.append(f"{k} {f['value']:.4g} [{f['ci95'][0]:.3g}, {f['ci95'][1]:.3g}]{b} true {f['true']:.4g} {ok}")
     for k, ok in r.get("covered", {}).items():
         if k not in r.get("fitted", {}):

@@ -188,6 +188,34 @@ def _onehot_scaled_fit(y: NDArray, x: NDArray, group: NDArray[np.int64], ng: int
     return beta[group] * x
 
 
+def _two_regressor_fit(y: NDArray, x1: NDArray, x2: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
+    """β₁,g x1 + β₂,g x2 fitted per group by least squares with β₂,g ≥ 0 (a group whose free fit
+    gives β₂ < 0, or whose regressors are collinear, gets β₂ = 0 and the one-regressor fit)."""
+    s11 = np.bincount(group, weights=x1 * x1, minlength=ng)
+    s22 = np.bincount(group, weights=x2 * x2, minlength=ng)
+    s12 = np.bincount(group, weights=x1 * x2, minlength=ng)
+    s1y = np.bincount(group, weights=x1 * y, minlength=ng)
+    s2y = np.bincount(group, weights=x2 * y, minlength=ng)
+    det = s11 * s22 - s12 * s12
+    ok = det > 1e-9 * np.maximum(s11 * s22, 1e-300)
+    detp = np.where(ok, det, 1.0)
+    b1 = (s22 * s1y - s12 * s2y) / detp
+    b2 = (s11 * s2y - s12 * s1y) / detp
+    one = np.where(s11 > 0, s1y / np.where(s11 > 0, s11, 1.0), 0.0)
+    use2 = ok & (b2 > 0)
+    b1 = np.where(use2, b1, one)
+    b2 = np.where(use2, b2, 0.0)
+    return b1[group] * x1 + b2[group] * x2
+
+
+SLIP_RESISTANCE_NOMINAL = True
+"""The speed channel's nominal resistance grows with slip: ρ_s m g + k_s Σ_i F_z,i |s_i| per field cell.
+
+What every tractor on soil has: the motion resistance of a tyre rises with its slip (the tyre digs
+in and bulldozes; Brixius 1987: MR/W = 1/B_n + 0.04 + 0.5 s/√B_n, so k_s = 0.5/√B_n ≈ 0.05–0.1 on
+field soils), and the soil sets its size, so k_s ≥ 0 is free per field cell like ρ_s."""
+
+
 # --------------------------------------------------------------------------- speed
 class SpeedChannel(Channel):
     def __init__(self, feat: Features, wc: _WheelCache):
@@ -203,7 +231,8 @@ class SpeedChannel(Channel):
         super().__init__("speed", "N", "speed equation (eq. 8): unexplained resistive force",
                          frozenset({"grade", "mass", "drivetrain", "aero", "wheel_radius", "torque_gain",
                                     "torque_offset", "draft_offset", "axle_load_offset", "tyre_pressure"}),
-                         fr.t[mid], mid.astype(np.int64), feat.fold[mid], "ρ_s per field cell")
+                         fr.t[mid], mid.astype(np.int64), feat.fold[mid],
+                         "ρ_s and the slip coefficient k_s of the motion resistance per field cell")
         self.cell = feat.cell[mid]
         self.ncell = feat.n_cells
         ka = self.k_avg
@@ -243,8 +272,18 @@ class SpeedChannel(Channel):
         if "aero" in eff:
             f = f + self._win_mean(fx.aero_force(self.v_ref, eff["aero"]["cd_area_m2"]))
         y, f = y[rows], f[rows]
-        nu = _onehot_scaled_fit(y - f, np.full(y.size, m * G), self.cell[rows], self.ncell)
+        if SLIP_RESISTANCE_NOMINAL:
+            xs = self._slip_load(eff)[rows]
+            nu = _two_regressor_fit(y - f, np.full(y.size, m * G), xs, self.cell[rows], self.ncell)
+        else:
+            nu = _onehot_scaled_fit(y - f, np.full(y.size, m * G), self.cell[rows], self.ncell)
         return y, f + nu
+
+    def _slip_load(self, eff: Effects) -> NDArray:
+        """Window mean of Σ_i F_z,i |s_i| [N]: the regressor of the slip-dependent motion resistance."""
+        ws = self.wc.get(eff, with_slip=True)
+        s = np.clip(np.nan_to_num(ws.slip), -0.5, 0.5) if ws.slip is not None else np.zeros_like(ws.fz)
+        return self._win_mean(np.nansum(np.nan_to_num(ws.fz) * np.abs(s), axis=1))
 
     def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
         y, p = self.parts(eff, rows)
@@ -600,6 +639,17 @@ class _CurveInverse:
 
 A_GRID = np.linspace(0.2, 1.3, 45)
 """Grid of the curve parameter a searched per field cell [-] (refined by a parabola)."""
+MU0_NOMINAL = True
+"""The nominal model fits the zero-slip traction ratio μ_0 per axle (see :data:`MU0_RANGE`)."""
+MU0_RANGE = (-0.03, 0.06)
+"""Range of the zero-slip traction ratio μ_0 per axle [-] in the nominal model of the slip channel.
+
+What every tyre has: the adhesion from the torque balance, μ = M/(r F_z) − ρ_t, uses the
+vehicle file's declared ρ_t, while a real tyre's hysteresis (internal) loss depends on its
+construction, load, inflation and temperature: Brixius (1987) puts it at 0.04 of the wheel load,
+ASABE D497 rolling-resistance ratios on firm surfaces are 0.01–0.04, against a declared ρ_t of
+0.01–0.03.  The difference shows as μ(0) ≠ 0, μ = a g(s) + μ_0; a healthy machine has it.
+The range is that difference: a torque-sensor offset or a pressure loss beyond it still shows."""
 
 
 class SlipChannel(Channel):
@@ -643,6 +693,7 @@ class SlipChannel(Channel):
         self.ncell = feat.n_cells * 2
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.a_cell = np.full(self.ncell, np.nan)
+        self.mu0 = np.zeros(2)
         self.y = ws.slip[ti, wi]
         self.r_nom = ws.r[ti, wi]
         self.wv = ws.r[ti, wi] * np.abs(fr.omega[ti, wi])
@@ -712,26 +763,52 @@ class SlipChannel(Channel):
             off = np.where(inner & (den > 0), 0.5 * (s0 - s2) / den, 0.0)
         return A_GRID[jb] + np.clip(off, -0.5, 0.5) * (A_GRID[1] - A_GRID[0])
 
-    def _gauss_newton_a(self, inv: _CurveInverse, mu, k, lead, y, wv, cell, a0: NDArray, iters: int = 6) -> NDArray:
-        """Refine a per cell by Gauss–Newton steps on the cell's sum of squares."""
+    def _gauss_newton_a(self, inv: _CurveInverse, mu, k, lead, y, wv, cell, a0: NDArray, iters: int = 6,
+                        mu0: NDArray | None = None) -> tuple[NDArray, NDArray]:
+        """Refine a per cell and the zero-slip traction ratio μ_0 per axle (nominal model, module
+        :data:`MU0_RANGE`) by Gauss–Newton steps on the sum of squares: s_dyn = g⁻¹((μ − μ_0)/a)."""
         a = a0.copy()
+        m0 = np.zeros(2) if mu0 is None else mu0.copy()
         nc = self.ncell
+        axle = cell % 2
         for _ in range(iters):
             ac = a[cell]
-            s_dyn = inv(mu / ac)
+            q = mu - m0[axle]
+            s_dyn = inv(q / ac)
             dg = np.maximum(inv.cls.dg(s_dyn), 1e-3)
-            ds = -(mu / (ac * ac)) / dg
+            ds = -(q / (ac * ac)) / dg
+            dm = -1.0 / (ac * dg)
             sp = s_dyn
             if lead is not None:
                 sp = s_dyn + lead / (ac * dg)
                 ds = ds - lead / (ac * ac * dg)
             e = (y - (1.0 - k * (1.0 - sp))) * wv
-            J = -k * ds * wv
-            num = np.bincount(cell, weights=J * e, minlength=nc)
-            den = np.bincount(cell, weights=J * J, minlength=nc)
-            step = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+            Ja = -k * ds * wv
+            Jm = -k * dm * wv
+            D = np.bincount(cell, weights=Ja * Ja, minlength=nc)
+            B = np.bincount(cell, weights=Ja * Jm, minlength=nc)
+            ga = np.bincount(cell, weights=Ja * e, minlength=nc)
+            if not MU0_NOMINAL:
+                step = np.where(D > 0, ga / np.where(D > 0, D, 1.0), 0.0)
+                a = np.clip(a - step, A_GRID[0] * 0.5, A_GRID[-1] * 1.5)
+                continue
+            E = np.bincount(axle, weights=Jm * Jm, minlength=2)
+            gm = np.bincount(axle, weights=Jm * e, minlength=2)
+            # Normal equations [[diag D, B·1_axle], [(B·1_axle)ᵀ, diag E]] [Δa; Δμ_0] = [ga; gm], by the
+            # Schur complement on the two axle offsets (each cell belongs to one axle).
+            Dp = np.where(D > 0, D, 1.0)
+            ax_c = np.arange(nc) % 2
+            S = E - np.bincount(ax_c, weights=B * B / Dp, minlength=2)
+            rhs = gm - np.bincount(ax_c, weights=B * ga / Dp, minlength=2)
+            dmu = np.where(S > 1e-12 * np.maximum(E, 1e-300), rhs / np.where(S > 0, S, 1.0), 0.0)
+            # A projected step: μ_0 stays in its range, and a takes the step that is optimal for the
+            # change of μ_0 actually made.
+            m_new = np.clip(m0 - dmu, MU0_RANGE[0], MU0_RANGE[1])
+            dmu = m0 - m_new
+            m0 = m_new
+            step = np.where(D > 0, (ga - B * dmu[ax_c]) / Dp, 0.0)
             a = np.clip(a - step, A_GRID[0] * 0.5, A_GRID[-1] * 1.5)
-        return a
+        return a, m0
 
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
         mu, k, lead = self._inputs(eff)
@@ -744,21 +821,21 @@ class SlipChannel(Channel):
         best, best_sse = None, math.inf
         invs = {self.soil.name: self.inv[self.soil.name]} if self._frozen else self.inv
         if not hasattr(self, "_a_warm"):
-            self._a_warm: dict[str, NDArray] = {}
+            self._a_warm: dict[str, tuple[NDArray, NDArray]] = {}
         for name, inv in invs.items():
             # Warm start from the last solution of this class (successive calls of a fit differ a
             # little): three Gauss–Newton steps then reach what six reach from the grid start.
             warm = self._a_warm.get(name)
             if warm is not None:
-                a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, warm, iters=3)
+                a, m0 = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, warm[0], iters=3, mu0=warm[1])
             else:
-                a = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
-            self._a_warm[name] = a
-            p = self._predict(inv, mu, k, lead, a[cell])
+                a, m0 = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
+            self._a_warm[name] = (a, m0)
+            p = self._predict(inv, mu - m0[cell % 2], k, lead, a[cell])
             total = float(np.sum(((y - p) * wv) ** 2))
             if total < best_sse:
                 best, best_sse = p, total
-                self.soil, self.a_cell = inv.cls, a
+                self.soil, self.a_cell, self.mu0 = inv.cls, a, m0
         return y * wv, best * wv
 
     def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:

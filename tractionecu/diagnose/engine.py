@@ -33,7 +33,7 @@ from ..model.effects import EFFECTS, LIBRARY, SENSOR_FAULTS
 from ..recording.reader import Recording
 from . import data as _data
 from .candidates import CANDIDATES, NOMINAL
-from .channels import Channel, build_channels
+from .channels import MU0_NOMINAL, Channel, build_channels
 from .features import Features, compute
 from .fit import FitResult, HeldOut, Problem, fit, held_out, restrict, score
 from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, nis_coverage, noise_sigma, regimes
@@ -152,6 +152,10 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
             reason = "no draft signal"
         elif name == "axle_load_offset" and "front_load" not in problem.channels:
             reason = "no measured front-axle load"
+        elif name == "torque_offset" and MU0_NOMINAL:
+            reason = ("in driving a torque offset per axle is the tyre's zero-slip traction ratio of the nominal "
+                      "model (μ_0 = b/(r F_z), fitted per axle) plus a constant resistance (ρ_s): not separable; "
+                      "check the torque reading at standstill with the drive unloaded")
         elif name == "clock_skew" and fr.rate_hz < 5.0:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a clock offset"
         out[name] = reason
@@ -234,6 +238,12 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         _calibrate(f, ho.fold_params)
         cr = CandidateResult(name, True, "", sc, per, f, ho)
         cr.detected = bool(sc >= DETECT_LLR and f.ok is not None and _excludes_null(f))
+        side = _implausible_bound(f, name)
+        if cr.detected and side:
+            cr.detected = False
+            cr.reason = (f"fits on the {side} of its range: not a plausible size of this effect; the mismatch it "
+                         "takes up is left to the search for a missing term (open world)")
+            notes.append(f"{name}: {cr.reason}")
         results.append(cr)
     results.sort(key=lambda r: (not r.testable, -(r.score if math.isfinite(r.score) else -1e18)))
 
@@ -243,6 +253,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     ambiguous: list[str] = []
     chosen: list[str] = []
     causes: list[str] = []
+    consistent: dict[str, list[str]] = {}
     steps: list[dict] = []
     joint = None
     joint_ho = None
@@ -256,7 +267,18 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         best = detected[0]
         margin = max(DETECT_LLR, AMBIGUOUS_FRACTION * best.score)
         close = [r for r in detected[1:] if best.score - r.score < margin]
-        chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null)
+        # What every machine has explains the mismatch as well as a fault: the characteristic is chosen
+        # and the faults that score as well are recorded as consistent with it, never named.
+        chars = [r for r in [best] + close if r.name in CHARACTERISTIC and _healthy(r.name, r.fit)]
+        if chars and best.name not in CHARACTERISTIC:
+            ch0 = chars[0]
+            consistent[ch0.name] = [r.name for r in [best] + close if r.name != ch0.name and r.name not in CHARACTERISTIC]
+            best = ch0
+            close = [r for r in close if r.name in CHARACTERISTIC and r.name != ch0.name]
+        elif best.name in CHARACTERISTIC and _healthy(best.name, best.fit):
+            consistent[best.name] = [r.name for r in close if r.name not in CHARACTERISTIC]
+            close = [r for r in close if r.name in CHARACTERISTIC]
+        chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null, consistent)
         # A close competitor that the augmentation did not add as a separate effect explains the same
         # mismatch: the recording cannot tell the two apart.
         rivals = [r.name for r in close if r.name not in chosen]
@@ -270,7 +292,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         if best.name in GENERALISES and rivals == [GENERALISES[best.name]]:
             causes.append(best.name)
             best = next(r for r in detected if r.name == GENERALISES[best.name])
-            chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null)
+            chosen, joint, joint_ho, steps = _stepwise(problem, results, best, null, consistent)
             rivals = []
         if rivals:
             verdict, effect = "ambiguous", None
@@ -305,6 +327,12 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                   stats_after, cps, lead, regs, ev, gcheck, notes)
     d.joint, d.joint_heldout, d.steps = joint, joint_ho, steps
     d.effects = _effect_list(d, chosen, ambiguous)
+    for e in d.effects:
+        alts = [a for a in consistent.get(e["name"], []) if a not in chosen]
+        if alts and e["kind"] == "characteristic":
+            e["consistent_with"] = alts
+            d.notes.append(f"{e['name']} at a healthy size explains the mismatch as well as "
+                           f"{', '.join(alts)}: what every machine has is chosen, no fault is named")
     for c in causes:
         cr = d.candidate(c)
         ps = ", ".join(f"{k} = {_fmt(v)}" for k, v in (cr.fit.params.items() if cr and cr.fit else []))
@@ -370,6 +398,21 @@ def _calibrate(f: FitResult, fold_params: list) -> None:
             f.ci95[pn] = (lo, hi)
 
 
+UNIDENTIFIED_SHARE = 0.9
+"""A 95 % interval spanning this share of the parameter's library range says nothing: the parameter is
+reported as *not identified* (never as a finding, never counted as covering the truth)."""
+
+
+def identified(effect: str, param: str, lo: float, hi: float) -> bool:
+    """True when the 95 % interval [lo, hi] of ``effect.param`` is narrower than
+    :data:`UNIDENTIFIED_SHARE` of the parameter's range in the library (and finite)."""
+    cand = CANDIDATES.get(effect)
+    p = next((q for q in cand.fitted if q.name == param), None) if cand is not None else None
+    if p is None or not (math.isfinite(lo) and math.isfinite(hi)):
+        return False
+    return bool(hi - lo < UNIDENTIFIED_SHARE * (p.hi - p.lo))
+
+
 def _healthy(name: str, f: FitResult | None) -> bool:
     """True for a characteristic effect (:data:`CHARACTERISTIC`) whose fitted value is in the healthy range."""
     if name not in CHARACTERISTIC or f is None:
@@ -392,8 +435,24 @@ def _white(problem: Problem, ho: HeldOut) -> bool:
     return True
 
 
+def _implausible_bound(f: FitResult, name: str) -> str:
+    """'lower bound' / 'upper bound' when a parameter of effect ``name`` in fit ``f`` sits on a bound of
+    the library's range that is not the value at which the effect vanishes (the front-axle share of a
+    mass change is a share: 0 and 1 are physical), else ''."""
+    cand = CANDIDATES[name]
+    for p in cand.fitted:
+        side = f.at_bound.get(name, {}).get(p.name, "")
+        if not side or p.name == "front_share":
+            continue
+        bound = p.lo if side == "lower" else p.hi
+        if abs(bound - p.null) > 1e-9 * max(1.0, abs(p.hi - p.lo)):
+            return f"{side} bound ({p.name} = {bound:g})"
+    return ""
+
+
 def _stepwise(problem: Problem, results: list[CandidateResult], first: CandidateResult,
-              null: HeldOut) -> tuple[list[str], FitResult, HeldOut, list[dict]]:
+              null: HeldOut, consistent: dict[str, list[str]] | None = None
+              ) -> tuple[list[str], FitResult, HeldOut, list[dict]]:
     """Forward stepwise augmentation of the nominal model (issue: several effects at once).
 
     Start from the best detected single effect; at each step add the candidate that most improves
@@ -429,8 +488,31 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
             break
         from .fit import Joint
 
+        margin = max(DETECT_LLR, AMBIGUOUS_FRACTION * sc)
+        near = [t for t in trials[1:] if sc - t[0] < margin and t[0] >= DETECT_LLR]
+        alt_char = next((t for t in near if t[1] in CHARACTERISTIC), None)
+        if name not in CHARACTERISTIC and alt_char is not None:
+            jc = fit(problem, Joint(tuple(chosen + [alt_char[1]]), start))
+            _calibrate(jc, alt_char[2].fold_params)
+            if _healthy(alt_char[1], jc):
+                # A characteristic at a healthy size explains the step as well as a fault.
+                if consistent is not None:
+                    consistent.setdefault(alt_char[1], []).append(name)
+                sc, name, ho, per = alt_char
+                chosen.append(name)
+                pool.remove(name)
+                cur_fit, cur_ho = jc, ho
+                steps.append({"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1]),
+                              "consistent_with": [trials[0][1]]})
+                continue
         jf = fit(problem, Joint(tuple(chosen + [name]), start))
         _calibrate(jf, ho.fold_params)
+        side = _implausible_bound(jf, name)
+        if side:
+            steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}) fits on "
+                          f"the {side}: not a plausible size"})
+            pool.remove(name)
+            continue
         if not _excludes_null(jf, name):
             steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}) is "
                           "negligible in the joint fit"})
@@ -456,6 +538,7 @@ def _effect_words(e: dict) -> str:
                    + (f" [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]"
                                                    if v.get("ci95") and v["ci95"][0] is not None else "")
                    + (f" (at its {v['at_bound']} bound)" if v.get("at_bound") else "")
+                   + (" (not identified: the interval spans its range)" if v.get("identified") is False else "")
                    for k, v in e.get("parameters", {}).items())
     return f"{e['name']} ({ps})" if ps else e["name"]
 
@@ -488,7 +571,8 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
                 if name in jf.ci95_by and k in jf.ci95_by[name]:
                     lo, hi = jf.ci95_by[name][k]
                     params[k] = {"value": v, "ci95": [lo, hi], "unit": units.get(k, ""),
-                                 "at_bound": jf.at_bound.get(name, {}).get(k, "")}
+                                 "at_bound": jf.at_bound.get(name, {}).get(k, ""),
+                                 "identified": identified(name, k, lo, hi)}
                 else:
                     params[k] = {"value": v, "ci95": None, "unit": units.get(k, ""), "held": True}
             amb = [{"with": (b if a == name else a), "correlation": c} for (a, b), c in corr_pairs.items()

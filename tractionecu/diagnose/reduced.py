@@ -101,6 +101,8 @@ TERM_BOUNDS = {"a": (0.1, 2.0, 0.7), "eps": (-0.1, 0.1, 0.0), "mu0": (-0.5, 1.0,
 offset ε [-], zero-slip traction-ratio offset μ_0 [-] (``zero_slip_offset``) and auxiliary power
 P_aux [W] (``aux_power``)."""
 TERM_SCALE = {"a": 0.1, "eps": 0.01, "mu0": 0.05, "p_aux": 5000.0}
+TERM_STARTS = {"mu0": (0.0, 0.3)}
+"""Starts of the least squares (the product over the fitted parameters; the rest start at TERM_BOUNDS)."""
 A_PLAUSIBLE = (0.3, 1.2)
 """Physical range of the curve parameter a on agricultural soils [-] (peak traction ratios of 0.3–1.1,
 ASABE D497); a fit outside it means a term is missing."""
@@ -141,12 +143,20 @@ def diagnose_reduced(fr: Frame) -> dict:
     mg = veh.mass_kg * G
 
     def fit(rows, inv, terms):
+        """Least squares of the slip model from every start of :data:`TERM_STARTS` (the cost has
+        several minima once μ_0 and a trade off); the best is kept."""
+        import itertools
+
         names = ("a",) + tuple(terms)
-        x0 = [TERM_BOUNDS[k][2] for k in names]
         lo = [TERM_BOUNDS[k][0] for k in names]
         hi = [TERM_BOUNDS[k][1] for k in names]
-        return least_squares(lambda x: _model(x, inv, mu[rows], vw[rows], terms, mg) - vg[rows], x0,
-                             bounds=(lo, hi), method="trf", x_scale=[TERM_SCALE[k] for k in names])
+        best = None
+        for x0 in itertools.product(*[TERM_STARTS.get(k, (TERM_BOUNDS[k][2],)) for k in names]):
+            r = least_squares(lambda x: _model(x, inv, mu[rows], vw[rows], terms, mg) - vg[rows], list(x0),
+                              bounds=(lo, hi), method="trf", x_scale=[TERM_SCALE[k] for k in names])
+            if best is None or r.cost < best.cost:
+                best = r
+        return best
 
     def heldout(inv, terms):
         """Held-out residual of a model form (None: no slip), two folds of alternating blocks."""
@@ -214,6 +224,16 @@ def diagnose_reduced(fr: Frame) -> dict:
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     est = {k: (float(res.x[j]), [float(res.x[j] - 1.96 * se[j]), float(res.x[j] + 1.96 * se[j])])
            for j, k in enumerate(names)}
+    # Estimates on a bound of their range are reported as such: the least squares stopped there, so the
+    # value and its interval are not an estimate of the term but a sign that the model lacks one.
+    at_bound = {}
+    for j, k in enumerate(names):
+        lo_k, hi_k, _ = TERM_BOUNDS[k]
+        tol = 1e-3 * (hi_k - lo_k)
+        if res.x[j] <= lo_k + tol:
+            at_bound[k] = "lower"
+        elif res.x[j] >= hi_k - tol:
+            at_bound[k] = "upper"
     a_hat, ci_a = est["a"]
     eps_hat, ci_e = est["eps"]
     sse = {k: float(np.nansum(v ** 2)) for k, v in resid.items()}
@@ -244,9 +264,11 @@ def diagnose_reduced(fr: Frame) -> dict:
         name = words[term]
         spec = ENGINE_TERMS[name].params[0]
         v, ci = est[term]
-        effects.append({"name": name, "kind": "engine_term", "named": True, "score": term_scores.get(term),
+        effects.append({"name": name, "kind": "engine_term", "named": term not in at_bound,
+                        "score": term_scores.get(term),
                         "formula": ENGINE_TERMS[name].formula, "plain": ENGINE_TERMS[name].doc,
-                        "parameters": {spec.name: {"value": v, "ci95": ci, "unit": spec.unit}},
+                        "parameters": {spec.name: {"value": v, "ci95": ci, "unit": spec.unit,
+                                                   "at_bound": at_bound.get(term, "")}},
                         "trades_off_with": []})
     # Trade-offs among the fitted parameters (a with μ_0 or P_aux).
     sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
@@ -258,13 +280,17 @@ def diagnose_reduced(fr: Frame) -> dict:
             if i != j and abs(corr_m[i, j]) >= 0.8:
                 e_["trades_off_with"].append({"with": k, "correlation": float(corr_m[i, j])})
     term_txt = ""
-    if effects:
+    if any(e_["named"] for e_ in effects):
         term_txt = "  " + "; ".join(
             f"{e_['plain'].split(':')[0]} ({e_['name']}): {e_['formula']}, "
             + ", ".join(f"{k} = {p_['value']:.3g} [{p_['ci95'][0]:.3g}, {p_['ci95'][1]:.3g}] {p_['unit']}".rstrip()
                         for k, p_ in e_["parameters"].items())
-            + f" (held-out score {e_['score']:.1f})" for e_ in effects) + "."
+            + f" (held-out score {e_['score']:.1f})" for e_ in effects if e_["named"]) + "."
     plaus = []
+    if at_bound:
+        plaus.append("the fit ends on the bound of " + ", ".join(
+            f"{words.get(k, k)} ({k} = {est[k][0]:.3g}, {side} bound)" for k, side in at_bound.items())
+            + ": the model of these signals lacks a term (not an estimate; not named)")
     if slip_found and not (A_PLAUSIBLE[0] <= a_hat <= A_PLAUSIBLE[1]):
         plaus.append(f"a = {a_hat:.2f} is outside the physical range {A_PLAUSIBLE[0]}–{A_PLAUSIBLE[1]} of "
                      "agricultural soils: a term is missing (searched: zero-slip offset, auxiliary power; "
@@ -295,6 +321,7 @@ def diagnose_reduced(fr: Frame) -> dict:
                                                    term_scores.get(k)} for k in names if k in words},
                        "term_scores": {words[k]: v for k, v in term_scores.items()},
                        "plausible": not plaus,
+                       "at_bound": at_bound,
                        "formula": "v_g = v_w (1 + ε)(1 − g⁻¹(μ_soil/a)),  μ_soil = μ − μ_0 − P_aux/(v_w m g),  "
                                   "μ = T_e ω_e / (v_w m g)"},
         "effects": ([{"name": "slip_under_load", "kind": "slip", "named": bool(slip_found), "score": score_slip,

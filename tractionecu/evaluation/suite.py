@@ -467,9 +467,12 @@ def score_case(case: Case, d) -> dict:
                 cov[key] = False
                 continue
             lo, hi = got[1][k]
+            ident = _identified(name, k, lo, hi)
             fitted[key] = {"value": float(got[0][k]), "ci95": [float(lo), float(hi)], "true": float(tv),
-                           "at_bound": got[2].get(k, "")}
-            cov[key] = bool(lo <= tv <= hi)
+                           "at_bound": got[2].get(k, ""), "identified": ident}
+            # An interval spanning (nearly) the whole range of the parameter says nothing: it does not
+            # count as holding the truth.
+            cov[key] = bool(ident and lo <= tv <= hi)
     row["covered"] = cov
     row["fitted"] = fitted
     final = d.joint_heldout or (d.winner.heldout if d.winner is not None else None)
@@ -485,6 +488,12 @@ def score_case(case: Case, d) -> dict:
     row["affected_signal"] = best
     row["rmse_reduction"] = best_red
     return row
+
+
+def _identified(name: str, k: str, lo: float, hi: float) -> bool:
+    from ..diagnose.engine import identified
+
+    return identified(name, k, float(lo), float(hi))
 
 
 def _candidates():
