@@ -1,0 +1,83 @@
+"""Which recordings a fleet source holds, and their machine, date and field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tractionecu.errors import ConfigError
+from tractionecu.fleet.sources import discover, field_of_fix, first_fix
+
+RMC = "$GNRMC,080000.10,A,4752.89606,N,11033.20423,W,0.595,90.00,100726,,,A,V*21\n"
+GGA = "$GNGGA,080000.10,4752.89606,N,11033.20423,W,2,16,0.90,862.1,M,0.0,M,,*6B\n"
+
+
+def _rec(d: Path, nmea: str = "") -> Path:
+    d.mkdir(parents=True)
+    (d / "can.log").write_text("", encoding="utf-8")
+    (d / "gps.nmea").write_text(nmea, encoding="utf-8")
+    return d
+
+
+def test_tree_machine_date_from_path(tmp_path: Path) -> None:
+    _rec(tmp_path / "m1" / "2026-07-10" / "a")
+    _rec(tmp_path / "m1" / "20260711" / "b")
+    _rec(tmp_path / "machine=m2" / "x" / "date=2026-08-01" / "field=north" / "c")
+    _rec(tmp_path / "loose", GGA + RMC)                          # no machine, date from the RMC
+    (tmp_path / "m3").mkdir()
+    (tmp_path / "m3" / "2026-09-01_capture.blf").write_bytes(b"")   # a capture file
+    (tmp_path / "m1" / "2026-07-10" / "a" / "notes.log").write_text("inside a recording: not one\n")
+    refs = discover(tmp_path)
+    got = {(Path(r.path).relative_to(tmp_path).as_posix(), r.machine, r.date, r.field) for r in refs}
+    assert got == {
+        ("m1/2026-07-10/a", "m1", "2026-07-10", ""),
+        ("m1/20260711/b", "m1", "2026-07-11", ""),
+        ("machine=m2/x/date=2026-08-01/field=north/c", "m2", "2026-08-01", "north"),
+        ("loose", "unknown", "2026-07-10", ""),
+        ("m3/2026-09-01_capture.blf", "m3", "2026-09-01", ""),
+    }
+
+
+def test_output_inside_the_tree_is_not_searched(tmp_path: Path) -> None:
+    _rec(tmp_path / "m1" / "2026-07-10" / "a")
+    _rec(tmp_path / "out" / "m9" / "2026-01-01" / "z")
+    assert [Path(r.path).name for r in discover(tmp_path, exclude=tmp_path / "out")] == ["a"]
+
+
+def test_manifest_columns_win(tmp_path: Path) -> None:
+    _rec(tmp_path / "data" / "m1" / "2026-07-10" / "a")
+    _rec(tmp_path / "data" / "b")
+    man = tmp_path / "manifest.csv"
+    man.write_text("path,machine,date,field\ndata/m1/2026-07-10/a,,,\ndata/b,tractor-7,2026-05-04,west\n",
+                   encoding="utf-8")
+    refs = {Path(r.path).name: r for r in discover(man)}
+    assert (refs["a"].machine, refs["a"].date) == ("data", "2026-07-10")     # path rule, relative to the manifest
+    assert (refs["b"].machine, refs["b"].date, refs["b"].field) == ("tractor-7", "2026-05-04", "west")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("path,date\ndata/b,10.07.2026\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match="not YYYY-MM-DD"):
+        discover(bad)
+    with pytest.raises(ConfigError, match="'path' column"):
+        (tmp_path / "nopath.csv").write_text("file\nx\n", encoding="utf-8")
+        discover(tmp_path / "nopath.csv")
+
+
+def test_glob(tmp_path: Path) -> None:
+    _rec(tmp_path / "m1" / "2026-07-10" / "a")
+    _rec(tmp_path / "m2" / "2026-07-11" / "b")
+    refs = discover(str(tmp_path / "*" / "2026-07-1*" / "*"))
+    assert [(r.machine, r.date) for r in refs] == [("m1", "2026-07-10"), ("m2", "2026-07-11")]
+
+
+def test_missing_source_is_a_clear_error(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="no such directory"):
+        discover(tmp_path / "nothing")
+
+
+def test_first_fix_and_field_name(tmp_path: Path) -> None:
+    d = _rec(tmp_path / "r", "$GNGGA,080000.00,,,,,0,00,99.9,,M,,M,,*00\n" + GGA)
+    lat, lon = first_fix(d)
+    assert lat == pytest.approx(47 + 52.89606 / 60, abs=1e-12)
+    assert lon == pytest.approx(-(110 + 33.20423 / 60), abs=1e-12)
+    assert field_of_fix(lat, lon) == "lat47.88_lon-110.56"

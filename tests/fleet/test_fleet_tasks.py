@@ -1,0 +1,102 @@
+"""Fleet replay and diagnosis tasks in this process (the scheduler is not what these test): outputs,
+Parquet read back, failures reported, re-runs skipped."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow.dataset as ds
+
+from tractionecu.fleet import runner
+from tractionecu.fleet.store import DIAGNOSIS_COLUMNS, RECORDINGS_COLUMNS
+from tractionecu.fleet.tasks import diagnosis_rows
+from tractionecu.pipeline.replay import CSV_COLUMNS
+
+
+def test_replay_tables_failures_and_rerun(tmp_path: Path, fleet_tree: Path) -> None:
+    out = tmp_path / "out"
+    recs = runner.run_kind("replay", fleet_tree, out, stream=None)
+    by = {(r["machine"], r["date"]): r for r in recs}
+    assert set(by) == {("tractor-a", "2026-07-10"), ("tractor-b", "2026-07-11"), ("tractor-b", "2026-07-12")}
+    bad = by[("tractor-b", "2026-07-12")]
+    assert bad["status"] == "failed" and bad["error"] == "RecordingError" and "broken" in bad["path"]
+    ok = [by[("tractor-a", "2026-07-10")], by[("tractor-b", "2026-07-11")]]
+    assert all(r["status"] == "ok" and not r["cached"] for r in ok)
+
+    # estimates: 1 Hz, partitioned by machine and date, the replay's columns
+    est = pd.read_parquet(out / "estimates")
+    assert set(zip(est["machine"].astype(str), est["date"].astype(str))) == {("tractor-a", "2026-07-10"),
+                                                                          ("tractor-b", "2026-07-11")}
+    for col in CSV_COLUMNS + ("recording", "recording_hash", "field"):
+        assert col in est.columns
+    assert est["valid"].dtype == bool and est["status"].dtype == np.int64
+    for _, g in est.groupby("recording"):
+        sec = np.floor(g["t"].to_numpy())
+        assert np.all(np.diff(sec) >= 1)                  # one row per second
+        assert 18 <= len(g) <= 21                         # a 20 s recording
+    assert sum(r["estimates_rows"] for r in ok) == len(est)
+    # the 10 Hz map samples, with positions and layer values where accepted
+    ms = ds.dataset(out / "map_samples", format="parquet", partitioning="hive").to_table().to_pandas()
+    assert len(ms) == sum(r["map_samples"] for r in ok) and ms["accepted"].any()
+    acc = ms[ms["accepted"]]
+    assert np.isfinite(acc["mu"]).all() and np.isfinite(acc["lat"]).all()
+    assert not np.isfinite(ms.loc[~ms["accepted"], "mu"]).any()
+    # the recordings and failures tables
+    table = pd.read_parquet(out / "recordings.parquet")
+    assert list(table.columns) == list(RECORDINGS_COLUMNS) and len(table) == 3
+    fail = pd.read_parquet(out / "failures.parquet")
+    assert fail["path"].tolist() == [bad["path"]]
+    # the farm map of the run, exported
+    s = runner.build_farm_map(out, recs, ("geojson",))
+    assert s["merged_now"] == 2 and Path(s["exports"]["geojson"]).is_file()
+
+    # a re-run skips the done recordings (same content, same software) and tries the failed one again
+    again = runner.run_kind("replay", fleet_tree, out, stream=None)
+    assert sorted(r["cached"] for r in again) == [False, True, True]
+    assert [r for r in again if not r["cached"]][0]["status"] == "failed"
+    assert len(pd.read_parquet(out / "estimates")) == len(est)     # nothing written twice
+    s2 = runner.build_farm_map(out, again)
+    assert s2["merged_now"] == 0 and s2["reused"] == 2
+
+    # a changed recording is a new task
+    gps = Path(ok[0]["path"]) / "gps.nmea"
+    gps.write_text(gps.read_text(encoding="ascii"), encoding="ascii")      # same bytes: still cached
+    assert sum(r["cached"] for r in runner.run_kind("replay", fleet_tree, out, stream=None)) == 2
+    with open(gps, "a", encoding="ascii") as fh:
+        fh.write("\n")
+    third = runner.run_kind("replay", fleet_tree, out, stream=None)
+    assert sum(r["cached"] for r in third) == 1
+
+
+def test_diagnosis_rows_flatten_effects_with_intervals() -> None:
+    rep = {"verdict": "named", "effects": [
+        {"name": "torque_gain", "kind": "effect", "named": True, "rank": 1, "score": 40.0,
+         "parameters": {"k_front": {"value": 0.05, "ci95": [0.04, 0.06], "unit": "-", "at_bound": ""},
+                        "k_rear": {"value": -0.01, "ci95": [-0.03, 0.01], "unit": "-"}}},
+        {"name": "load_transfer", "kind": "nominal", "named": False, "parameters": {}}]}
+    ref = {"machine": "m", "date": "2026-07-10", "path": "r"}
+    rows = diagnosis_rows(rep, ref, "h")
+    assert [(r["effect"], r["parameter"], r["value"], r["ci95_lo"], r["ci95_hi"]) for r in rows] == [
+        ("torque_gain", "k_front", 0.05, 0.04, 0.06), ("torque_gain", "k_rear", -0.01, -0.03, 0.01)]
+    assert set(DIAGNOSIS_COLUMNS) <= set(rows[0])
+    none = diagnosis_rows({"verdict": "nominal", "effects": []}, ref, "h")
+    assert len(none) == 1 and none[0]["effect"] == "" and math.isnan(none[0]["value"])
+
+
+def test_diagnose_table(tmp_path: Path, radius_season: Path) -> None:
+    out = tmp_path / "out"
+    src = radius_season / "tractor-a" / "2026-08-10"
+    recs = runner.run_kind("diagnose", src, out, stream=None)
+    assert [r["status"] for r in recs] == ["ok"], [(r.get("message"), r.get("traceback")) for r in recs]
+    t = pd.read_parquet(out / "diagnosis.parquet")
+    assert list(t.columns) == list(DIAGNOSIS_COLUMNS) and len(t) >= 1
+    rep = json.loads((out / "tasks" / "diagnose" / recs[0]["key"] / "diagnose" / "report.json").read_text())
+    assert len(t) == len(diagnosis_rows(rep, {"machine": "", "date": "", "path": ""}, ""))
+    assert (t["recording"] == str(src / "run")).all() and (t["recording_hash"] == recs[0]["recording_hash"]).all()
+    p = t[t["parameter"] != ""]
+    assert len(p) and ((p["ci95_lo"] <= p["value"]) & (p["value"] <= p["ci95_hi"])).all()
+    assert (t["verdict"] == str(rep.get("verdict", ""))).all()
