@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,8 +32,12 @@ from ..errors import RecordingError
 from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, GROUND_BASED_SPEED, IN_WORK, WHEEL_BASED_SPEED,
                                 WHEEL_SPEEDS)
 from ..recording.containers import MAX_TABLE_ROWS
-from ..recording.reader import Recording, read_recording
+from ..pipeline.survey import survey_keep
+from ..recording.reader import Recording, read_recording, stream_signals
 
+FRAME_SIGNALS = (*WHEEL_SPEEDS, *DRIVE_TORQUES, FRONT_AXLE_LOAD, DRAFT, IN_WORK, WHEEL_BASED_SPEED,
+                 GROUND_BASED_SPEED, "EngineTorque", "EngineSpeed")
+"""The CAN signals the frame bins (all a streamed recording is read for)."""
 EARTH_R = 6378137.0
 """WGS84 equatorial radius [m]."""
 
@@ -156,8 +161,59 @@ def local_xy(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> tuple[NDArra
     return x, y
 
 
-def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float | None = None) -> Frame:
-    """Resample a :class:`Recording` onto a regular grid (see module doc)."""
+MEDIAN_SAMPLES = 1 << 17
+"""Wheel-speed samples (22 minutes at 100 Hz) from which the raw sample period is taken when a
+recording is streamed: the median interval of the first ones (of all of them when it is shorter)."""
+
+
+class _Windows:
+    """Running means of samples over fixed time windows ``[lo, hi)``, fed block by block.
+
+    ``lo``/``hi`` are the window bounds in grid order, ``per_bin`` windows per frame bin (the windows
+    of bin k are ``k·per_bin ... (k+1)·per_bin − 1``).  Each block's samples (sorted in time) are summed
+    into the windows it covers by a cumulative sum over the block, as :func:`_bin_mean` does over a
+    whole series: fed as one block, the result is :func:`_bin_mean`'s."""
+
+    def __init__(self, grid: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64],
+                 per_bin: int, period: float, width: int = 1) -> None:
+        self.grid, self.lo, self.hi, self.per_bin, self.period = grid, lo, hi, per_bin, period
+        self.sum = np.zeros((lo.size, width))
+        self.cnt = np.zeros((lo.size, width), dtype=np.int32)
+        self.t: NDArray[np.float64] | None = None
+
+    def add(self, t: NDArray[np.float64], v: NDArray[np.float64], col: int = 0) -> None:
+        ok = np.isfinite(v)
+        st, sv = t[ok], v[ok]
+        if st.size == 0:
+            return
+        k0 = max(int(np.searchsorted(self.grid, st[0] - 2 * self.period)) - 1, 0)
+        k1 = min(int(np.searchsorted(self.grid, st[-1] + 2 * self.period)) + 1, self.grid.size)
+        w0, w1 = k0 * self.per_bin, min(k1 * self.per_bin + (self.lo.size - self.grid.size * self.per_bin),
+                                        self.lo.size)
+        if w1 <= w0:
+            return
+        cs = np.concatenate([[0.0], np.cumsum(sv)])
+        lo = np.searchsorted(st, self.lo[w0:w1], side="left")
+        hi = np.searchsorted(st, self.hi[w0:w1], side="left")
+        self.sum[w0:w1, col] += cs[hi] - cs[lo]
+        self.cnt[w0:w1, col] += (hi - lo).astype(np.int32)
+
+    def mean(self) -> NDArray[np.float64]:
+        """(windows, width) means, NaN where a window is empty (the sums' memory is reused)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out = np.divide(self.sum, np.maximum(self.cnt, 1), out=self.sum)
+        out[self.cnt == 0] = np.nan
+        return out
+
+
+def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float | None = None,
+                         blocks: Iterable[Mapping[str, tuple[NDArray, NDArray]]] | None = None) -> Frame:
+    """Resample a :class:`Recording` onto a regular grid (see module doc).
+
+    ``blocks``: the CAN signals in blocks of ``{name: (t, value)}`` in time order (a streamed
+    recording, :func:`tractionecu.recording.reader.stream_signals`); ``rec`` then needs only its
+    survey (GNSS track, statistics and which signals exist).  Without ``blocks`` the signals of
+    ``rec`` are the one block.  Memory is that of the frame and one block."""
     sig = rec.signals
     gps = rec.gps
     if rate_hz is None:
@@ -183,38 +239,94 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
     else:
         grid = t_start + np.arange(int(math.floor((t_end - t_start) / period)) + 1) * period
     half = 0.5 * period
+    if blocks is None:
+        blocks = [{name: (s.t, s.value) for name, s in sig.items()}]
+    present = [n for n in FRAME_SIGNALS if len(sig.get(n, ()))]
+    means = {n: _Windows(grid, grid - half, grid + half, 1, period) for n in present}
+    have_wheels = all(n in means for n in WHEEL_SPEEDS) and all(n in means for n in DRIVE_TORQUES)
+    edges = np.concatenate([grid - half, [grid[-1] + half]])
+    w0name = WHEEL_SPEEDS[0]
+    fine: dict[str, _Windows] = {}
+    t_first = math.nan
+    raw_dt = math.nan
+    pending: list[Mapping[str, tuple[NDArray, NDArray]]] = []
+    seen: list[NDArray] = []
+
+    def start_fine() -> None:
+        # Values at the bin edges from the raw samples nearest each edge (about ±1.5 sample periods),
+        # and the raw wheel speeds on a uniform grid of the raw period (bin means), for dynamics
+        # faster than the frame rate (tyre relaxation).
+        nonlocal raw_dt
+        tw = np.concatenate(seen) if seen else np.zeros(0)
+        raw_dt = float(np.median(np.diff(tw))) if tw.size > 2 else period
+        if not (have_wheels and raw_dt < 0.5 * period):
+            return
+        eh = 1.5 * raw_dt
+        fine["edge"] = _Windows(grid, edges - eh, edges + eh, 1, period, width=8)
+        k = int(round(period / raw_dt))
+        hf_grid = (grid[:, None] + (np.arange(k) - (k - 1) / 2.0)[None, :] * raw_dt).ravel()
+        fine["hf"] = _Windows(grid, hf_grid - raw_dt / 2, hf_grid + raw_dt / 2, k, period, width=4)
+        fine["hf"].t = hf_grid
+
+    def feed(block: Mapping[str, tuple[NDArray, NDArray]]) -> None:
+        nonlocal t_first
+        for name, (t, v) in block.items():
+            acc = means.get(name)
+            if acc is None:
+                continue
+            acc.add(t, v)
+            if name == w0name and t.size:
+                if not math.isfinite(t_first):
+                    t_first = float(t[0])
+                if "toff" not in fine:
+                    fine["toff"] = _Windows(grid, grid - half, grid + half, 1, period)
+                fine["toff"].add(t, t - t_first)
+            if "edge" in fine:
+                if name in WHEEL_SPEEDS:
+                    i = WHEEL_SPEEDS.index(name)
+                    fine["edge"].add(t, v, i)
+                    fine["hf"].add(t, v, i)
+                elif name in DRIVE_TORQUES:
+                    fine["edge"].add(t, v, 4 + DRIVE_TORQUES.index(name))
+
+    n_seen = 0
+    for block in blocks:
+        if pending is not None:
+            pending.append(block)
+            if w0name in block:
+                seen.append(np.asarray(block[w0name][0], dtype=float))
+                n_seen += seen[-1].size
+            if n_seen < MEDIAN_SAMPLES:
+                continue
+            start_fine()
+            for b in pending:
+                feed(b)
+            pending = None
+            seen = []
+            continue
+        feed(block)
+    if pending is not None:
+        start_fine()
+        for b in pending:
+            feed(b)
+        pending = None
 
     def mean(name: str) -> NDArray[np.float64] | None:
-        s = sig.get(name)
-        return None if s is None or len(s) == 0 else _bin_mean(s.t, s.value, grid, half)
+        acc = means.get(name)
+        return None if acc is None else acc.mean()[:, 0]
 
     fr = Frame(t=grid - grid[0], t0_epoch=float(grid[0]), rate_hz=rate_hz, vehicle=vehicle, source=str(rec.path))
-    om = [mean(n) for n in WHEEL_SPEEDS]
-    if all(o is not None for o in om):
-        fr.omega = np.stack(om, axis=1)  # type: ignore[arg-type]
-    md = [mean(n) for n in DRIVE_TORQUES]
-    if all(m is not None for m in md):
-        fr.md = np.stack(md, axis=1)  # type: ignore[arg-type]
-    # Values at the bin edges from the raw samples nearest each edge (about ±1.5 sample periods).
-    edges = np.concatenate([grid - half, [grid[-1] + half]])
-    if fr.omega is not None and fr.md is not None:
-        s0 = sig[WHEEL_SPEEDS[0]]
-        raw_dt = float(np.median(np.diff(s0.t))) if len(s0) > 2 else period
-        if raw_dt < 0.5 * period:
-            eh = 1.5 * raw_dt
-            om_e = np.stack([_bin_mean(sig[n].t, sig[n].value, edges, eh) for n in WHEEL_SPEEDS], axis=1)
-            fr.omega_dot = np.diff(om_e, axis=0) / period
-            fr.md_edge = np.stack([_bin_mean(sig[n].t, sig[n].value, edges, eh) for n in DRIVE_TORQUES], axis=1)
-            # Raw wheel speeds on a uniform grid of the raw period (bin means), for dynamics
-            # faster than the frame rate (tyre relaxation).
-            k = int(round(period / raw_dt))
-            hf_grid = (grid[:, None] + (np.arange(k) - (k - 1) / 2.0)[None, :] * raw_dt).ravel()
-            fr.hf_t = hf_grid - grid[0]
-            fr.hf_omega = np.stack([_bin_mean(sig[n].t, sig[n].value, hf_grid, raw_dt / 2) for n in WHEEL_SPEEDS],
-                                   axis=1)
-    s0 = sig.get(WHEEL_SPEEDS[0])
-    if s0 is not None and len(s0) > 2:
-        tb = _bin_mean(s0.t, s0.t - s0.t[0], grid, half) + s0.t[0]
+    if have_wheels:
+        fr.omega = np.stack([mean(n) for n in WHEEL_SPEEDS], axis=1)
+        fr.md = np.stack([mean(n) for n in DRIVE_TORQUES], axis=1)
+    if "edge" in fine:
+        e = fine["edge"].mean()
+        fr.omega_dot = np.diff(e[:, :4], axis=0) / period
+        fr.md_edge = np.ascontiguousarray(e[:, 4:])
+        fr.hf_t = fine["hf"].t - grid[0]
+        fr.hf_omega = fine["hf"].mean()
+    if "toff" in fine and int(fine["toff"].cnt.sum()) > 2:
+        tb = fine["toff"].mean()[:, 0] + t_first
         d = tb - grid
         fr.can_time_offset_s = float(np.nanmedian(d)) if np.isfinite(d).any() else 0.0
     fr.fzf = mean(FRONT_AXLE_LOAD)
@@ -239,7 +351,7 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         course = _at(gps.t, gps.course, grid, tol)
         fr.heading = np.where(np.isfinite(course), np.radians(90.0 - course), np.nan)
         fr.heading = _track_heading(fr)
-    if fr.v_gps is None and GROUND_BASED_SPEED in sig:
+    if fr.v_gps is None and GROUND_BASED_SPEED in means:
         fr.v_gps = mean(GROUND_BASED_SPEED)
     return fr
 
@@ -264,7 +376,17 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
     ``vehicle`` defaults to the recording's ``vehicle.toml``; without one the
     package defaults are used and a note says so.
     """
-    rec = path if isinstance(path, Recording) else read_recording(path)
+    blocks = None
+    if isinstance(path, Recording):
+        rec = path
+    else:
+        rec = read_recording(path, keep=survey_keep)
+        if len(rec.gps) > 2:
+            # Streamed: the survey (GNSS track, statistics, clock offset, which signals exist), then
+            # the CAN capture again block by block into the frame's bins.
+            blocks = (blk for blk, _before in stream_signals(rec, names=FRAME_SIGNALS))
+        else:
+            rec = read_recording(path)   # no GNSS: the frame rate comes from the signals themselves
     notes = []
     if isinstance(vehicle, VehicleParams):
         veh = vehicle
@@ -275,6 +397,6 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
     else:
         veh = VehicleParams()
         notes.append("no vehicle.toml: package default vehicle parameters used")
-    fr = frame_from_recording(rec, veh, rate_hz)
+    fr = frame_from_recording(rec, veh, rate_hz, blocks)
     fr.notes[:0] = notes
     return fr

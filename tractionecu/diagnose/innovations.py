@@ -17,62 +17,110 @@ import math
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .features import Features
 from .locate import ljung_box_p
 
 
+class _OnGrid:
+    """Estimator tracks sampled on the frame grid as the steps arrive: ``np.interp`` of each track at
+    fixed query times, one batch of steps at a time (each batch joined to the last step before it,
+    so the values are those of one ``np.interp`` over the whole track), plus running NIS sums.
+    Memory: the frame-grid outputs and one batch."""
+
+    BATCH = 4096
+
+    def __init__(self, queries: list[NDArray[np.float64]], n_tracks: int) -> None:
+        from scipy.stats import chi2
+
+        self.chi2 = chi2
+        self.q = queries                       # per track: sorted query times [epoch s]
+        self.out = [np.full(q.size, np.nan) for q in queries]
+        self.k = [0] * len(queries)            # next query not yet answered
+        self.buf = np.empty((self.BATCH, 1 + n_tracks))
+        self.nis = np.empty((self.BATCH, 3))   # nis, dof, valid
+        self.m = 0
+        self.prev: NDArray[np.float64] | None = None   # the last step of the batch before
+        self.steps = 0
+        self.n_valid = 0
+        self.nis_n = 0
+        self.nis_in = 0
+        self.nis_per_dof = 0.0
+        self._band: dict[int, tuple[float, float]] = {}
+
+    def add(self, t: float, tracks: tuple[float, ...], nis: float, dof: int, valid: bool) -> None:
+        self.buf[self.m, 0] = t
+        self.buf[self.m, 1:] = tracks
+        self.nis[self.m] = (nis, dof, valid)
+        self.m += 1
+        if self.m == self.BATCH:
+            self._flush()
+
+    def _flush(self, last: bool = False) -> None:
+        b = self.buf[:self.m]
+        n = self.nis[:self.m]
+        self.steps += self.m
+        ok = n[:, 2] > 0
+        self.n_valid += int(ok.sum())
+        mk = ok & np.isfinite(n[:, 0]) & (n[:, 1] > 0)
+        if mk.any():
+            dof = n[mk, 1].astype(int)
+            lo = self.chi2.ppf(0.025, dof)
+            hi = self.chi2.ppf(0.975, dof)
+            x = n[mk, 0]
+            self.nis_n += int(mk.sum())
+            self.nis_in += int(np.sum((x >= lo) & (x <= hi)))
+            self.nis_per_dof += float(np.sum(x / dof))
+        seg = b if self.prev is None else np.vstack([self.prev[None, :], b])
+        if seg.shape[0]:
+            for j, q in enumerate(self.q):
+                k0 = self.k[j]
+                k1 = q.size if last else int(np.searchsorted(q, seg[-1, 0], side="right"))
+                if k1 > k0:
+                    self.out[j][k0:k1] = np.interp(q[k0:k1], seg[:, 0], seg[:, 1 + j])
+                    self.k[j] = k1
+            self.prev = seg[-1].copy()
+        self.m = 0
+
+    def close(self) -> None:
+        self._flush(last=True)
+
+
 def estimator_view(recording_dir: str | Path, feat: Features, rate_hz: float = 50.0) -> dict:
-    """Replay the estimator over ``recording_dir`` and summarise its innovations (module doc)."""
-    from scipy.stats import chi2
+    """Replay the estimator over ``recording_dir`` and summarise its innovations (module doc).
 
-    from ..pipeline.replay import replay
-    from ..recording.reader import read_recording
+    The recording is streamed (:func:`~tractionecu.pipeline.replay.replay_streamed`) and every step
+    is reduced as it comes: NIS coverage by running counts, the tracks sampled on the frame grid
+    (:class:`_OnGrid`), so memory does not grow with the number of steps."""
+    from ..pipeline.replay import replay_streamed
 
-    ts: list[float] = []
-    rho: list[float] = []
-    v_hat: list[float] = []
-    nis: list[float] = []
-    dof: list[int] = []
-    mu_fr: list[float] = []
-    valid: list[bool] = []
+    fr = feat.frame
+    q_prior = fr.t - 1.0 / rate_hz + fr.t0_epoch
+    q_now = fr.t + fr.t0_epoch
+    grid = _OnGrid([q_prior, q_now, q_now], 3)
 
     def hook(e) -> None:
-        ts.append(e.t)
-        rho.append(e.rho_s)
-        v_hat.append(e.v)
-        nis.append(e.nis)
-        dof.append(e.nis_dof)
-        mu_fr.append(float(np.mean(e.mu[:2]) - np.mean(e.mu[2:])))
-        valid.append(bool(e.valid))
+        grid.add(e.t, (e.v, e.rho_s, float(np.mean(e.mu[:2]) - np.mean(e.mu[2:]))), e.nis, e.nis_dof, bool(e.valid))
 
-    replay(read_recording(recording_dir), rate_hz=rate_hz, on_estimate=hook)
-    t = np.asarray(ts)
-    ok = np.asarray(valid)
-    nis_a = np.asarray(nis)
-    dof_a = np.asarray(dof)
-    m = ok & np.isfinite(nis_a) & (dof_a > 0)
-    out: dict = {"steps": int(t.size), "valid_share": float(ok.mean()) if ok.size else math.nan}
-    if m.any():
-        lo = chi2.ppf(0.025, dof_a[m])
-        hi = chi2.ppf(0.975, dof_a[m])
-        inside = (nis_a[m] >= lo) & (nis_a[m] <= hi)
-        out["nis_coverage_95"] = float(inside.mean())
-        out["nis_mean_per_dof"] = float(np.mean(nis_a[m] / dof_a[m]))
-    fr = feat.frame
-    te = t - fr.t0_epoch
+    replay_streamed(recording_dir, rate_hz=rate_hz, on_estimate=hook)
+    grid.close()
+    out: dict = {"steps": int(grid.steps),
+                 "valid_share": float(grid.n_valid / grid.steps) if grid.steps else math.nan}
+    if grid.nis_n:
+        out["nis_coverage_95"] = float(grid.nis_in / grid.nis_n)
+        out["nis_mean_per_dof"] = float(grid.nis_per_dof / grid.nis_n)
+    have = grid.steps > 0
     # Ground-speed innovation proxy at the GNSS epochs: measured minus the estimate one step before.
-    if feat.v_gps is not None and t.size > 2:
-        vh = np.asarray(v_hat)
-        prior = np.interp(fr.t - 1.0 / rate_hz, te, vh)
-        inn = feat.v_gps - prior
+    if feat.v_gps is not None and grid.steps > 2:
+        inn = feat.v_gps - grid.out[0]
         g = np.isfinite(inn) & feat.valid
         if g.sum() > 30:
             out["v_innovation_rmse"] = float(np.sqrt(np.mean(inn[g] ** 2)))
             out["v_innovation_ljung_box_p"] = ljung_box_p(inn[g])
     # Parameter tracks against signatures.
-    rho_f = np.interp(fr.t, te, np.asarray(rho)) if t.size else None
-    dmu_f = np.interp(fr.t, te, np.asarray(mu_fr)) if t.size else None
+    rho_f = grid.out[1] if have else None
+    dmu_f = grid.out[2] if have else None
     corr: dict[str, float] = {}
 
     def c(name: str, a, b) -> None:

@@ -82,7 +82,7 @@ CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_c
 """Columns of ``estimates.csv``."""
 
 __all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recording_grid", "replay",
-           "replay_to_dir", "write_estimates_csv"]
+           "replay_streamed", "replay_to_dir", "write_estimates_csv"]
 
 
 class MissingSignals(ConfigError):
@@ -179,6 +179,29 @@ def replay(rec: Recording, *, rate_hz: float = 100.0, vehicle: VehicleParams | N
     run.close()
     return ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss,
                         run.loop_seconds)
+
+
+def replay_streamed(recording: str | Path, *, rate_hz: float = 100.0, cfg: EstimatorConfig | None = None,
+                    gate: GnssGate | None = None, on_estimate: Callable[[Estimate], None] | None = None,
+                    ) -> tuple[Recording, dict[str, int]]:
+    """Step the estimator over the recording at ``recording`` and keep nothing: every estimate goes to
+    ``on_estimate`` (in time order), as :func:`replay` does, but the capture is streamed as
+    :func:`replay_to_dir` streams it, so memory does not grow with the recording's length.  Returns the
+    survey (:func:`replay_to_dir`'s) and the estimator's counters."""
+    rec = read_recording(recording, keep=survey_keep)
+    vehicle, sensors = machine_of(rec)
+    missing = required_missing(rec, vehicle)
+    if missing:
+        raise MissingSignals(read_recording(recording), missing)
+    if not rate_hz > 0:
+        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), _Sink(keep_all=False),
+               on_estimate)
+    names = {nm for grp in run.groups for nm in grp.names}
+    for block, before in stream_signals(rec, names=sorted(names)):
+        run.feed(block, before)
+    run.close()
+    return rec, dict(run.est.counters)
 
 
 # ----------------------------------------------------------------------------- streaming
