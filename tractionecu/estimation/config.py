@@ -57,6 +57,12 @@ class EstimatorConfig:
     standstill_speed_mps: float = setting(0.2, "below this ground speed ρ_s drops out of eq. 8 and slip is undefined: "
                                                "the estimate is flagged standstill (0x400) and not valid [m/s]",
                                           0.0, 10.0)
+    slip_sigma_max: float = setting(0.0125, "largest standard deviation of a wheel's slip, from the filter's σ_v and "
+                                            "σ_κ, that the data supports [-]: above it slip is held and flagged "
+                                            "(0x2000) and no μ(s) pair goes to the curve (μ and ρ_s keep their own "
+                                            "validity); "
+                                            "0.0125 keeps the expected absolute error of a supported slip "
+                                            "(0.8 σ) within 0.01; 0 disables", 0.0, 1.0)
     mu_min: float = setting(-1.2, "lower bound of μ [-]", -5.0, 0.0)
     mu_max: float = setting(1.2, "upper bound of μ [-]", 0.0, 5.0)
     rho_min: float = setting(0.0, "lower bound of ρ_s [-]", -1.0, 0.0)

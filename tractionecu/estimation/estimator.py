@@ -100,6 +100,13 @@ STATUS_NAMES = {WHEEL_TIMEOUT: "wheel_speed_timeout", GPS_TIMEOUT: "ground_speed
                 INPUT_REJECTED: "input_rejected", MEAS_GATED: "measurement_gated",
                 COV_REPAIRED: "covariance_repaired", FILTER_LOST: "filter_lost", STANDSTILL: "standstill",
                 UNVERIFIED: "unverified_assumptions"}
+SLIP_UNCERTAIN = 0x2000
+"""The slip's standard deviation from the filter's covariance (σ_v, σ_κ through eq. 6 with k_i(κ)·v) exceeds
+``slip_sigma_max`` on some wheel (creeping, manoeuvring, the first seconds after a start): slip is not supported
+by the data.  The last supported slip is held (as at standstill) and no (μ, s) pair goes to the curve, so ``a``
+holds too.  μ and ρ_s do not rest on the slip (eqs. 2 and 8 take the torques, loads and v̇): their validity is
+their own, and this bit alone does not make the estimate invalid; a consumer of ``slip`` checks it."""
+STATUS_NAMES[SLIP_UNCERTAIN] = "slip_not_supported"
 MACHINE_UNSUPPORTED = 0x1000
 """The machine-level μ is not supported by the bus now (:class:`.machine.MachineValidity`: gear shift or clutch
 slip, front axle not coupled as modelled, too little drive torque): not valid."""
@@ -573,6 +580,8 @@ class Estimator:
         # ---- path curvature of the rear-axle centre (input u[6], .kinematics)
         ukf = self.ukf
         v_ref = float(ukf.x[IX_V]) if ukf is not None else (v_wheel if v_wheel is not None else 0.0)
+        if -cfg.standstill_speed_mps < v_ref < cfg.standstill_speed_mps:
+            self._kin.standstill()              # no slip, no slip difference (.kinematics)
         kap, kvar = self._kin.curvature(v_ref, cfg.standstill_speed_mps)
         if kap > KAPPA_MAX:
             kap = KAPPA_MAX
@@ -820,6 +829,33 @@ class Estimator:
                 out.append(-1.0 + vw / va if va != 0.0 else math.nan)
         return out
 
+    def _slip_supported(self, v: float, kap: float, kw: NDArray[np.float64], omega: NDArray[np.float64],
+                        pd: NDArray[np.float64]) -> bool:
+        """Whether every wheel's slip standard deviation is within ``slip_sigma_max`` (SLIP_UNCERTAIN).
+
+        Eq. 6 against the wheel's ground speed k_i(κ)·v: ∂s_i/∂v = k_i/(r_d,i|ω_i|) and ∂s_i/∂κ =
+        v ∂k_i/∂κ/(r_d,i|ω_i|) (driving; braking the same to first order in s), so
+        σ_s,i² = (P_vv k_i² + (v ∂k_i/∂κ)² σ_κ²)/(r_d,i ω_i)².  At 2.5 m/s with the datasheet GNSS
+        speed noise σ_s ≈ 0.010; at 1 m/s ≈ 0.025.
+        """
+        bound = self.cfg.slip_sigma_max
+        if not bound > 0.0:
+            return True
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
+        rdf *= self._kf
+        rdr *= self._kr
+        pv = float(pd[IX_V])
+        kv = self._kappa_var
+        hb = self._hb
+        dks = wheel_speed_factor_slopes(kap, 2.0 * hb, self.vehicle.wheelbase_m) if kv > 0.0 else (0.0,) * 4
+        lim = bound * bound
+        for ki, dk, w, rd in zip(kw.tolist(), dks, omega.tolist(), (rdf, rdf, rdr, rdr)):
+            vw = rd * w
+            vi = v * dk
+            if pv * ki * ki + vi * vi * kv > lim * vw * vw:
+                return False
+        return True
+
     def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, updated: bool = False) -> Estimate:
         cfg = self.cfg
         ukf = self.ukf
@@ -857,8 +893,10 @@ class Estimator:
             mu = x[IX_MU].copy()
             omega = x[:4].copy()
             conv_p = (pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu and pl[IX_RHO] < c_rho)
+        slip_ok = self._slip_supported(v, kap, kw, omega, pd)
         # curve parameter a (paper section 3.2) at the curve rate; not fed by a filter that was lost
-        if t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps and not self._lost:
+        if (t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps and not self._lost
+                and slip_ok):
             self._t_curve = t
             self._loads()
             # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v
@@ -880,8 +918,14 @@ class Estimator:
             status |= STANDSTILL
             if self._held is not None:
                 rho, s = self._held
-        elif conv:
-            self._held = (rho, s)
+        else:
+            if not slip_ok:
+                # slip not supported (creeping): the last supported slip, flagged; ρ_s stays live
+                status |= SLIP_UNCERTAIN
+                if self._held is not None:
+                    s = self._held[1]
+            if conv and (slip_ok or self._held is not None):
+                self._held = (rho, s)
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
         if self._sys_flag:

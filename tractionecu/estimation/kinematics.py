@@ -21,18 +21,39 @@ Two sources measure it:
 GNSS course: the state is (heading h, curvature bias β = Δs/b); h is
 propagated with (κ_w − β)·v, v the estimator's signed speed, and every GNSS
 epoch (|v| above ``min_speed``) updates h with the course, turned by 180° in
-reverse.  β is a random walk whose density comes from a rear slip
-difference of up to :data:`SLIP_DIFF_MAX` building up over
-:data:`BIAS_TAU_S` (an assumption: lateral load transfer at 30 m radius and
-2.5 m/s moves about 4 % of a rear wheel's load, a few thousandths of slip,
-and soil varies under the two tracks).  κ = κ_w − β̂ with the variance of
-the (low-passed) wheel term plus P_ββ.  Without GNSS the wheel term is used
+reverse.  β is a first-order Gauss–Markov process in the distance
+travelled, dβ/ds = −β/D + w, D = :data:`BIAS_DIST_M`, whose stationary
+standard deviation is a rear slip difference of :data:`SLIP_DIFF_MAX` over
+the track (an assumption: lateral load transfer at 30 m radius and 2.5 m/s
+moves about 4 % of a rear wheel's load, a few thousandths of slip, and soil
+varies under the two tracks; both change with the ground and the path under
+the wheels, so with distance, not time):
+
+    β ← φ β,   P_ββ ← φ² P_ββ + σ_β² (1 − φ²),   P_hβ ← φ P_hβ,
+    φ = exp(−|v| Δt / D),   σ_β = SLIP_DIFF_MAX / b.
+
+A slip difference is bounded and forgets itself (it follows the torques,
+loads and soil of the moment); a random walk would let β drift without
+bound, and then a course that turns while the wheels do not (a heading
+disagreement that no slip difference explains) is absorbed into a bias of
+several σ_β, which then bends every wheel's ground speed long after the
+turn.  Even so a persistent disagreement pulls β̂ far into the tail of that
+distribution (a 9 m radius quarter circle whose wheels show no turn pulled
+it to 0.1 1/m, 20 σ_β): an estimate beyond :data:`BETA_MAX_SIGMAS` σ_β is
+no slip difference, and the heading restarts from the course with β = 0,
+so κ stays the wheels' within a plausible slip difference; the wheels
+measure the ground speeds that each wheel's slip is taken against.  At
+standstill (:meth:`CurvatureFilter.standstill`) there is no slip,
+so no slip difference: β returns to 0 with its stationary variance.
+κ = κ_w − β̂ with the variance of the (low-passed) wheel term plus P_ββ.  Without GNSS the wheel term is used
 alone and P_ββ grows; without wheel speeds, or below ``min_speed``, κ is not
 known (0 with an infinite variance: the caller limits it).
 
 The wheel term is low-passed with :data:`YAW_TAU_S`: the curvature of a
 work pass changes over metres (a clothoid between S-curve arcs), the
-wheel-speed noise over one sample.
+wheel-speed noise over one sample.  The heading integrates the unfiltered
+wheel term (its integral averages the noise, and the low pass's lag would
+become a heading error that the course then explains as a bias).
 
 Heading convention: course convention (clockwise from true north, rad), so
 h decreases in a left turn: ḣ = −κ v.
@@ -48,20 +69,33 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["BIAS_TAU_S", "CurvatureFilter", "SLIP_DIFF_MAX", "YAW_TAU_S"]
+__all__ = ["BIAS_DIST_M", "BIAS_TAU_S", "CurvatureFilter", "SLIP_DIFF_MAX", "YAW_TAU_S"]
 
 SLIP_DIFF_MAX = 0.01
-"""Rear slip difference (right − left) assumed to build up over :data:`BIAS_TAU_S` [-] (module doc)."""
+"""Stationary standard deviation of the rear slip difference (right − left) [-] (module doc)."""
+
+BIAS_DIST_M = 25.0
+"""Correlation distance of that difference [m] (module doc)."""
 
 BIAS_TAU_S = 10.0
-"""Time over which that difference builds up [s]."""
+"""Its correlation time at work speed (2.5 m/s) [s]: the curvature error's correlation time in the estimator's
+process noise."""
 
-YAW_TAU_S = 0.1
-"""Time constant of the low pass on the wheel curvature [s] (module doc)."""
+YAW_TAU_S = 0.03
+"""Time constant of the low pass on the wheel curvature [s] (module doc).  A ramp κ̇ is lagged by κ̇·τ: between
+two S-curve arcs of 30 m the curvature turns by 2/30 1/m within about a second, so 0.1 s lagged it by
+0.006 1/m there (measured on ``s-curves-30m``: the mean curvature error in work was 0.0022 1/m, 0.0059 in the
+transitions); the wheel term's own noise, ≈ 0.0013 1/m per 100 Hz sample with the datasheet wheel-speed noise,
+through a low pass of τ is ≈ 0.0013·√(Δt/2τ), 0.0005 1/m at 0.03 s: the sum of both is smallest near 0.02–0.03 s."""
 
 FAR_EPOCHS = 5
 """GNSS epochs in a row with the course far outside the heading's gate (16 σ²) after which the heading is
 restarted from the course and the bias forgotten: a heading that refuses every course can never recover."""
+
+BETA_MAX_SIGMAS = 3.0
+"""A bias estimate beyond this many stationary σ_β (a rear slip difference of 3 × SLIP_DIFF_MAX) is not a slip
+difference: the course disagrees with the wheels (a truth or machine whose wheel speeds do not follow the path, a
+wrong track width, side slip); the heading restarts from the course with β = 0 (module doc)."""
 
 BETA0_VAR_FACTOR = 1.0
 """Initial variance of the bias in units of (SLIP_DIFF_MAX / b)²."""
@@ -89,14 +123,14 @@ class CurvatureFilter:
         self.b = float(track_m)
         self.course_sigma = max(float(course_sigma_mps), 1e-4)
         self.min_speed = float(min_speed_mps)
-        self.q_beta = (SLIP_DIFF_MAX / self.b) ** 2 / BIAS_TAU_S        # 1/(m² s)
+        self.var_beta = (SLIP_DIFF_MAX / self.b) ** 2                      # stationary P_ββ [1/m²]
         self.reset()
 
     def reset(self) -> None:
         """Forget the heading and the bias."""
         self.h = math.nan
         """Heading [rad], course convention; NaN until the first GNSS course."""
-        self.P = [SIGMA_H0 ** 2, 0.0, BETA0_VAR_FACTOR * (SLIP_DIFF_MAX / self.b) ** 2]     # P_hh, P_hβ, P_ββ
+        self.P = [SIGMA_H0 ** 2, 0.0, BETA0_VAR_FACTOR * self.var_beta]     # P_hh, P_hβ, P_ββ
         self._far = 0
         self.beta = 0.0
         """Curvature bias of the wheel term [1/m]."""
@@ -104,6 +138,8 @@ class CurvatureFilter:
         """Low-passed wheel curvature κ_w [1/m]."""
         self.var_w = math.inf
         """Its variance [1/m²]."""
+        self._k_raw = math.nan              # the last sample's wheel curvature, unfiltered [1/m], and its variance
+        self._var_raw = math.inf
         self.v = 0.0
         self.restarts = 0
         """Times the heading was restarted from the course (:data:`FAR_EPOCHS`)."""
@@ -123,6 +159,7 @@ class CurvatureFilter:
         # ∂κ_w/∂ω_RR = (4/b) ω_RL / sm², ∂κ_w/∂ω_RL = −(4/b) ω_RR / sm²
         g = 4.0 / (self.b * sm * sm)
         var = g * g * (w_rl * w_rl * var_rr + w_rr * w_rr * var_rl)
+        self._k_raw, self._var_raw = k, var
         dt = t - self._tw if self._tw == self._tw else math.inf
         self._tw = t
         if not self.kappa_w == self.kappa_w or not dt < 10.0 * YAW_TAU_S:
@@ -139,14 +176,28 @@ class CurvatureFilter:
         if not dt > 0.0:
             return
         P = self.P
-        if self.h == self.h and self.kappa_w == self.kappa_w:
-            # ḣ = −(κ_w − β) v: h ← h − (κ_w − β) v dt, ∂h/∂β = v dt
+        if self.h == self.h and self._k_raw == self._k_raw:
+            # ḣ = −(κ_w − β) v: h ← h − (κ_w − β) v dt, ∂h/∂β = v dt.  The heading integrates the
+            # unfiltered wheel curvature (the integral itself averages its noise): the low pass's lag,
+            # integrated over a change of curvature (0.1 s × 2/30 1/m × 2.5 m/s ≈ 0.017 rad between two
+            # S-curve arcs), would be a heading error that the course then explains as a bias
             vd = self.v * dt
-            self.h = _wrap(self.h - (self.kappa_w - self.beta) * vd)
-            phh = P[0] + 2.0 * vd * P[1] + vd * vd * P[2] + self.var_w * vd * vd
+            self.h = _wrap(self.h - (self._k_raw - self.beta) * vd)
+            phh = P[0] + 2.0 * vd * P[1] + vd * vd * P[2] + self._var_raw * vd * vd
             phb = P[1] + vd * P[2]
             P[0], P[1] = phh, phb
-        P[2] += self.q_beta * dt
+        # β: first-order Gauss–Markov (module doc)
+        phi = math.exp(-abs(self.v) * dt / BIAS_DIST_M)
+        self.beta *= phi
+        P[1] *= phi
+        P[2] = phi * phi * P[2] + self.var_beta * (1.0 - phi * phi)
+
+    def standstill(self) -> None:
+        """The machine stands: no slip, so no slip difference; β returns to 0 with its stationary
+        variance and its correlation with the heading is dropped (module doc).  The heading is kept."""
+        self.beta = 0.0
+        self.P[1] = 0.0
+        self.P[2] = self.var_beta
 
     def course(self, t: float, course_deg: float, speed_mps: float, direction: float) -> None:
         """A GNSS course over ground [deg from north] at t [s] with the speed [m/s] and the direction of travel
@@ -173,7 +224,7 @@ class CurvatureFilter:
                 self.restarts += 1
                 self.h = _wrap(z)
                 self.beta = 0.0
-                self.P[:] = [r, 0.0, BETA0_VAR_FACTOR * (SLIP_DIFF_MAX / self.b) ** 2]
+                self.P[:] = [r, 0.0, BETA0_VAR_FACTOR * self.var_beta]
                 self._far = 0
             return
         self._far = 0
@@ -184,6 +235,13 @@ class CurvatureFilter:
         P[0] = p00 - kh * p00
         P[1] = p01 - kh * p01
         P[2] = p11 - kb * p01
+        if self.beta * self.beta > BETA_MAX_SIGMAS * BETA_MAX_SIGMAS * self.var_beta:
+            # no slip difference explains what the course says the wheels do not (module doc): the wheels
+            # measure the ground speeds the slip needs; start the heading again from the course
+            self.restarts += 1
+            self.h = _wrap(z)
+            self.beta = 0.0
+            self.P[:] = [r, 0.0, self.var_beta]
 
     # ------------------------------------------------------------------ outputs
     def curvature(self, v: float, min_speed_mps: float) -> tuple[float, float]:
