@@ -100,3 +100,27 @@ def test_diagnose_table(tmp_path: Path, radius_season: Path) -> None:
     p = t[t["parameter"] != ""]
     assert len(p) and ((p["ci95_lo"] <= p["value"]) & (p["value"] <= p["ci95_hi"])).all()
     assert (t["verdict"] == str(rep.get("verdict", ""))).all()
+
+
+def test_a_task_that_raises_is_retried_then_reported(monkeypatch) -> None:
+    """A worker's death (here a MemoryError raised by the task) is retried; past the retries the
+    recording is a failure record, and the other recordings are done."""
+    calls: dict[str, int] = {}
+
+    def flaky(spec: dict) -> dict:
+        p = spec["ref"]["path"]
+        calls[p] = calls.get(p, 0) + 1
+        if p == "always" or (p == "once" and calls[p] == 1):
+            raise MemoryError("worker out of memory")
+        return {"kind": "replay", **spec["ref"], "status": "ok", "hours": 0.5, "cached": False}
+
+    monkeypatch.setattr(runner, "run_task", flaky)
+    specs = [{"kind": "replay", "ref": {"path": p, "machine": "m", "date": "2026-07-10", "field": ""},
+              "out": "", "options": {}} for p in ("once", "always", "fine")]
+    prog = runner.Progress("replay", 3, None)
+    recs = runner.run_specs(specs, None, retries=2, progress=prog)
+    assert [r["status"] for r in recs] == ["ok", "failed", "ok"]
+    assert calls == {"once": 2, "always": 3, "fine": 1}
+    assert recs[1]["error"] == "MemoryError"
+    assert (prog.done, prog.failed, prog.hours) == (3, 1, 1.0)
+    assert prog.line().startswith("fleet replay: 3/3 recordings (0 cached, 1 failed), 1.00 h processed")
