@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sel = fast_cases() if args.fast else cases()
     if args.realistic:
-        sel = [c for c in cases() if c.truth_model == "physical" or c.name.startswith("multi_")]
+        sel = [c for c in cases() if c.truth_model != "paper" or c.name.startswith("multi_")]
     if args.cases:
         want = {c.strip() for c in args.cases.split(",")}
         sel = [c for c in all_cases() if c.name in want]

@@ -107,3 +107,32 @@ def test_reduced_diagnosis_flags_a_term_on_its_bound_and_does_not_name_it():
     else:
         # The offset was taken up by another term: then that term is flagged or a is implausible.
         assert not sm["plausible"]
+
+
+def _slip_stub(shift_fl: float, seed: int = 2):
+    """A diagnosis stand-in with a slip channel of four wheels over 2000 straight samples; FL's
+    residual is shifted by ``shift_fl`` slip points (its torque reads high against FR's)."""
+    from tractionecu.diagnose.fit import HeldOut
+
+    rng = np.random.default_rng(seed)
+    n = 2000
+    ti = np.repeat(np.arange(n), 4)
+    wi = np.tile(np.arange(4), n)
+    wv = np.full(ti.size, 2.5)
+    e = np.repeat(rng.normal(0, 0.004, n), 4) + rng.normal(0, 0.003, ti.size)   # common + own noise [-]
+    e = e + np.where(wi == 0, shift_fl, 0.0)
+    frame = SimpleNamespace(n=n, heading=np.zeros(n), dt=0.1)
+    ch = SimpleNamespace(ti=ti, wi=wi, wv=wv)
+    ho = HeldOut("x", {}, {}, {"slip": e * wv})
+    return SimpleNamespace(problem=SimpleNamespace(channels={"slip": ch}), features=SimpleNamespace(frame=frame)), ho
+
+
+def test_one_wheel_disagreeing_with_its_partner_is_located():
+    from tractionecu.diagnose.openworld import wheel_asymmetry
+
+    d, ho = _slip_stub(-0.01)
+    a = wheel_asymmetry(d, ho)
+    assert a is not None and a["axle"] == "front" and a["wheels"] == ("FL", "FR")
+    assert a["mean_slip_diff"] == pytest.approx(-0.01, abs=0.001)
+    d, ho = _slip_stub(0.0)
+    assert wheel_asymmetry(d, ho) is None

@@ -165,8 +165,83 @@ def _noise(ch, r: NDArray) -> float:
     return 1.4826 * float(np.median(np.abs(dd - np.median(dd)))) / math.sqrt(2.0)
 
 
+WHEEL_ASYM_Z = 5.0
+"""|mean| / HAC standard error of the left–right slip-residual difference of an axle above which one
+wheel disagrees with its partner (a per-wheel fault no per-axle term explains)."""
+WHEEL_ASYM_MIN_SLIP = 0.004
+"""... and at least this much slip [-] (0.4 slip points: beyond what the two wheels of a healthy axle
+differ by in straight work; under a tenth of the optimum slip)."""
+
+
+def wheel_asymmetry(d, ho) -> dict | None:
+    """The wheel of an axle whose slip residual departs from its partner's in straight work.
+
+    Per time index t and axle the difference Δ_t = e_left − e_right of the slip channel's held-out
+    residual (ground-speed error [m/s] of each wheel's slip against the μ(s) curve at its adhesion),
+    turned into slip by the wheel speed r|ω|; its mean with a Newey–West (HAC) standard error.  Rows
+    in turns are left out (the two wheels run at different speeds there).  The nominal model fits a
+    and μ_0 per axle, so anything that affects one wheel only (one torque sensor's gain, one tyre's
+    pressure, a wheel-speed sensor's tooth count) stays in Δ.
+    """
+    from .fit import hac_meat
+
+    ch = d.problem.channels.get("slip")
+    if ch is None or "slip" not in ho.resid:
+        return None
+    fr = d.features.frame
+    r = ho.resid["slip"] / np.maximum(ch.wv, 0.3)
+    straight = np.ones(fr.n, dtype=bool)
+    if fr.heading is not None:
+        yaw = np.abs(np.gradient(np.unwrap(np.nan_to_num(fr.heading)), fr.dt))
+        straight = yaw < 0.02
+    best = None
+    for left, right, name in ((0, 1, "front"), (2, 3, "rear")):
+        rl = np.full(fr.n, np.nan)
+        rr = np.full(fr.n, np.nan)
+        ml, mr = ch.wi == left, ch.wi == right
+        rl[ch.ti[ml]] = r[ml]
+        rr[ch.ti[mr]] = r[mr]
+        dlt = rl - rr
+        ok = np.isfinite(dlt) & straight
+        if ok.sum() < 100:
+            continue
+        x = dlt[ok]
+        mean = float(x.mean())
+        var = float(hac_meat((x - mean)[:, None])[0, 0]) / x.size ** 2
+        se = math.sqrt(var) if var > 0 else math.inf
+        z = abs(mean) / se if se > 0 else 0.0
+        cand = {"axle": name, "wheels": ("FL", "FR") if left == 0 else ("RL", "RR"), "mean_slip_diff": mean,
+                "se": se, "z": z, "n": int(ok.sum())}
+        if z >= WHEEL_ASYM_Z and abs(mean) >= WHEEL_ASYM_MIN_SLIP and (best is None or z > best["z"]):
+            best = cand
+    return best
+
+
 def open_world(d) -> dict:
     """Unexplained structure after the named effects, located and modelled generically (module doc)."""
+    out = _balance_structure(d)
+    ho = d.joint_heldout or (d.winner.heldout if d.winner is not None else d.null_heldout)
+    asym = wheel_asymmetry(d, ho)
+    if asym is not None:
+        lw, rw = asym["wheels"]
+        m = asym["mean_slip_diff"]
+        # Measured slip below what the curve needs at the wheel's adhesion: its adhesion (torque) reads
+        # high against its partner, or its radius is larger.
+        hi = lw if m < 0 else rw
+        txt = (f"Unexplained mismatch between the wheels of the {asym['axle']} axle: in straight work {lw}'s "
+               f"slip departs from {rw}'s by {100 * m:+.2f} slip points at the same adhesion "
+               f"(± {100 * 1.96 * asym['se']:.2f}, z = {asym['z']:.0f}); {hi} carries more adhesion from its "
+               "torque than its slip supports — one wheel's torque reading or rolling radius, which no per-axle "
+               "term of the library explains.  No library effect is named for it.")
+        out["wheel_asymmetry"] = asym
+        out["structure_remains"] = True
+        out.setdefault("channel", f"slip ({lw} vs {rw})")
+        out["statement"] = (out.get("statement", "") + "  " + txt).strip()
+    return out
+
+
+def _balance_structure(d) -> dict:
+    """Structure on the balance channels (module doc)."""
     ho = d.joint_heldout or (d.winner.heldout if d.winner is not None else d.null_heldout)
     problem = d.problem
     fr = d.features.frame

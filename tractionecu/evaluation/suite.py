@@ -62,7 +62,8 @@ class Case:
     note: str = ""
     truth_model: str = "paper"
     """Which simulator made the recording: ``paper`` (the paper's model with library effects switched
-    on) or ``physical`` (the independent truth model, ``tractionecu.sim.physical``)."""
+    on), ``physical`` (the independent truth model, ``tractionecu.sim.physical``, hub drive) or
+    ``physical-mech`` (the same truth model with the mechanical MFWD drive-line)."""
     extra: dict[str, dict[str, float]] = field(default_factory=dict)
     """Further concealed effects of the paper truth model (several effects at once)."""
     faults: tuple[Fault, ...] = ()
@@ -250,6 +251,15 @@ def _phys_spec(**phys):
     return PhysicalSpec(PHYSICAL_THREE_SOILS, **phys)
 
 
+def _mech(seed: int):
+    """``mechanical-three-soils`` of the independent truth model with the mechanical drive-line."""
+    def build():
+        from ..sim.scenarios import mechanical_three_soils
+
+        return mechanical_three_soils(seed=seed)
+    return build
+
+
 def _phys_short(seed: int):
     """A shorter physical-truth recording (two 110-m passes) for the CI subset."""
     def build():
@@ -271,6 +281,11 @@ def _realistic_cases(add) -> None:
     add("phys_null_a", "null", None, {}, _phys(1101), truth_model="physical")
     add("phys_null_b", "null", None, {}, _phys(1102), truth_model="physical")
     add("phys_null_short", "null", None, {}, _phys_short(1103), truth_model="physical", fast=True, full=False)
+    add("phys_null_c", "null", None, {}, _phys(1104), truth_model="physical")
+    # The mechanical MFWD tractor of the physical truth model (engine, powershift, front-axle lead,
+    # drive-line losses; J1939 engine-level signals, no per-wheel torque, no axle-load pin).
+    add("mech_null_a", "null", None, {}, _mech(1111), truth_model="physical-mech")
+    add("mech_null_b", "null", None, {}, _mech(1112), truth_model="physical-mech")
     # Sensor faults on the physical truth.
     add("phys_torque_rear_low", "effect", None, {}, _phys(1201), truth_model="physical",
         faults=(Fault("torque_gain", {"k_front": 0.0, "k_rear": -0.07},
