@@ -26,12 +26,22 @@ import sys
 from ..errors import ConfigError
 
 EXIT_SOME_FAILED = 5
+DESCRIPTION = """\
+One task per recording of SOURCE (a directory tree <machine>/<date>/<recording>, a manifest CSV with
+columns path[,machine,date,field], or a glob), on a local Dask cluster (--workers, --memory-limit) or an
+existing one (--scheduler).  Done recordings (same content hash, same software) are skipped; a failing
+one is listed in DIR/failures.parquet and the run goes on (exit code 5).
+
+  replay    estimates (1 Hz) and map samples (10 Hz) to Parquet by machine and date; recordings.parquet
+  diagnose  diagnosis.parquet: machine, recording, effects, parameters with 95 % intervals
+  map       replay, then the farm map DIR/farm_map merged cell by cell, exported to DIR/farm_export
+  drift     replay and diagnose, then DIR/drift.md: machines whose parameters moved beyond their interval"""
 FORMATS_ALL = ("geotiff", "isoxml", "geojson", "png")
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("fleet", help="replay, diagnose, map and watch a fleet's recordings on Dask",
-                       description=__doc__.split("\n\n")[1] if __doc__ else None)
+                       description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("action", choices=("replay", "diagnose", "map", "drift"))
     p.add_argument("source", metavar="SOURCE", help="directory tree, manifest CSV (column path) or glob")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
