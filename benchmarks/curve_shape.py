@@ -16,7 +16,14 @@ the soil's true slips (5–95 %).  Two rows per soil:
     the curve identification alone (:class:`~tractionecu.estimation.curve.CurveEstimator`, same
     settings) fed at 10 Hz with the truth's per-wheel (μ, s) plus a slip error of 0.009 (AR(1),
     0.5 s: the filter's slip error on straight passes, README) and 0.003 on μ, so that the
-    identification is measured apart from the filter's own μ and slip errors.
+    identification is measured apart from the filter's own μ and slip errors; with the truth's
+    wheel loads ``fz_*`` (the hub estimator passes its own), so that the load dependence can be fitted.
+
+Scoring load: the truth's tabulated ``mu_curve`` is μ(s) at the static mean wheel load m g/4, and the
+identified curve is evaluated at the same load (its reference load m g/4 of ``vehicle.toml``; a curve
+without a load dependence is one curve for every load).  ``front``/``rear``: the same curve at the
+static front and rear wheel loads against the truth's ``mu_curve_front``/``mu_curve_rear``, as a check
+that the load dependence, where identified, holds away from the reference load.
 
 Cost: ``curve_us_per_step`` is the time of all curve updates of the ``pairs`` run (shape
 identification on) divided by the number of 100 Hz estimator steps of the same duration, and
@@ -41,6 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tractionecu.estimation.curve import CurveEstimator  # noqa: E402
 from tractionecu.evaluation.curve_score import identified_curve, true_curve  # noqa: E402
+from tractionecu.config import G, load_vehicle  # noqa: E402
 from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared  # noqa: E402
 
 SLIP_SIGMA = 0.009
@@ -50,8 +58,11 @@ SLIP_CORR_S = 0.5
 def pairs_run(rec: Path, seed: int, shape: bool = True) -> tuple[dict[str, dict], float, float]:
     """The identification alone on the truth's pairs: per soil {r2, path}, curve seconds, run seconds."""
     tr = read_truth(rec / "truth.csv", rec / "truth.toml")
+    fz = truth_loads(rec)
+    veh = load_vehicle(rec / "vehicle.toml")
+    fz_ref = veh.mass_kg * G / 4.0
     rng = np.random.default_rng(seed)
-    ce = CurveEstimator(["stubble"], tau_s=3.0, shape=shape)
+    ce = CurveEstimator(["stubble"], tau_s=3.0, shape=shape, fz_ref_n=fz_ref)
     tc = -math.inf
     e = 0.0
     states: dict[str, list] = collections.defaultdict(list)
@@ -65,7 +76,7 @@ def pairs_run(rec: Path, seed: int, shape: bool = True) -> tuple[dict[str, dict]
         mu = tr.mu[i] + 0.003 * rng.standard_normal(4)
         s = tr.slip[i] + e
         t0 = time.perf_counter()
-        st = ce.update(tc, mu, s, np.full(4, 0.005), np.full(4, SLIP_SIGMA))
+        st = ce.update(tc, mu, s, np.full(4, 0.005), np.full(4, SLIP_SIGMA), None if fz is None else fz[i])
         spent += time.perf_counter() - t0
         states[tr.soil_name[i]].append(st)
     out = {}
@@ -76,8 +87,37 @@ def pairs_run(rec: Path, seed: int, shape: bool = True) -> tuple[dict[str, dict]
             continue
         cur, info = identified_curve(idx, a, [x.class_name for x in sts], [x.curve for x in sts], S_GRID)
         out[name] = {"r2": r_squared(cur, true_curve(tr.soils[name], S_GRID)), "path": info["curve_path"],
-                     "shape_share": float(np.mean([x.curve_path.startswith("shape:") for x in sts]))}
+                     "shape_share": float(np.mean([x.curve_path.startswith("shape:") for x in sts])),
+                     **axle_r2(rec, name, idx, sts, veh)}
     return out, spent, float(tr.t[-1] - tr.t[0])
+
+
+def truth_loads(rec: Path) -> np.ndarray | None:
+    """The truth's wheel loads fz_FL..fz_RR [N] (n, 4), None for a truth without them."""
+    with open(rec / "truth.csv", encoding="utf-8") as fh:
+        head = fh.readline().strip().split(",")
+    cols = [f"fz_{w}" for w in ("FL", "FR", "RL", "RR")]
+    if not all(c in head for c in cols):
+        return None
+    return np.loadtxt(rec / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index(c) for c in cols], ndmin=2)
+
+
+def axle_r2(rec: Path, name: str, idx: np.ndarray, sts: list, veh) -> dict[str, float]:
+    """R² of the soil's identified curves at the static front / rear wheel loads against the truth's
+    ``mu_curve_front`` / ``mu_curve_rear`` (mean over the shape-path samples; {} without them)."""
+    import tomllib
+    soils = {s["name"]: s for s in tomllib.loads((rec / "truth.toml").read_text(encoding="utf-8")).get("soils", [])}
+    info = soils.get(name, {})
+    curves = [sts[j].curve for j in idx.tolist() if sts[j].curve is not None and sts[j].curve_path.startswith("shape:")]
+    if "mu_curve_front" not in info or len(curves) * 2 < len(idx):
+        return {}
+    out = {}
+    ff = veh.static_front_fraction
+    for key, fz in (("front", ff * veh.mass_kg * G / 2.0), ("rear", (1.0 - ff) * veh.mass_kg * G / 2.0)):
+        mean = np.mean([c.mu(S_GRID, np.full_like(S_GRID, fz)) for c in curves], axis=0)
+        true = np.interp(S_GRID, info["mu_curve_s"], info[f"mu_curve_{key}"])
+        out[f"r2_{key}"] = r_squared(mean, true)
+    return out
 
 
 def slip_spans(rec: Path) -> dict[str, float]:
@@ -103,8 +143,8 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     cost = {"curve_s_shape": 0.0, "curve_s_paper": 0.0, "run_s": 0.0}
-    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'chain path':18s} "
-          f"{'pairs R2':>9s} {'pairs path':18s}")
+    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'chain path':20s} "
+          f"{'pairs R2':>9s} {'pairs path':20s} {'front':>6s} {'rear':>6s}")
     for scn in args.scenarios:
         for seed in args.seeds:
             rec, run = work / f"rec_{scn}_{seed}", work / f"run_{scn}_{seed}"
@@ -125,10 +165,13 @@ def main(argv: list[str] | None = None) -> int:
                        "chain_r2": r2, "chain_path": card["curves"].get(soil, {}).get("curve_path", ""),
                        "pairs_r2": pairs.get(soil, {}).get("r2", math.nan),
                        "pairs_path": pairs.get(soil, {}).get("path", ""),
+                       "pairs_r2_front": pairs.get(soil, {}).get("r2_front", math.nan),
+                       "pairs_r2_rear": pairs.get(soil, {}).get("r2_rear", math.nan),
                        "mu_mean_abs_rel_error": card.get("mu_mean_abs_rel_error", math.nan)}
                 rows.append(row)
-                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} {row['chain_path']:18s} "
-                      f"{row['pairs_r2']:9.4f} {row['pairs_path']:18s}")
+                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} {row['chain_path']:20s} "
+                      f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
+                      f"{row['pairs_r2_rear']:6.3f}")
     steps = cost["run_s"] * 100.0
     figures = {"curve_us_per_step": cost["curve_s_shape"] / steps * 1e6,
                "curve_us_per_step_paper_path": cost["curve_s_paper"] / steps * 1e6, "rows": rows}

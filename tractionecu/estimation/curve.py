@@ -52,6 +52,7 @@ Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
@@ -126,17 +127,20 @@ class CurveEstimator:
     """
 
     @classmethod
-    def from_config(cls, cfg: Any) -> "CurveEstimator":
+    def from_config(cls, cfg: Any, fz_ref_n: float = math.nan) -> "CurveEstimator":
         """The curve identification an :class:`~tractionecu.estimation.config.EstimatorConfig` asks for
-        (its ``soil_classes`` and ``curve_*`` settings); both estimators build theirs here."""
+        (its ``soil_classes`` and ``curve_*`` settings); both estimators build theirs here.
+        ``fz_ref_n``: the reference wheel load of the identified curve [N] (the machine's static mean
+        wheel load m g/4; NaN: no load dependence is identified)."""
         return cls(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu, min_slip=cfg.curve_min_slip,
                    class_tau_s=cfg.curve_class_tau_s, slip_corr_s=cfg.curve_slip_corr_s, shape=cfg.curve_shape,
-                   shape_kw={"min_span": cfg.curve_shape_min_span}, switch_min_delta=cfg.curve_switch_min_delta)
+                   shape_kw={"min_span": cfg.curve_shape_min_span}, switch_min_delta=cfg.curve_switch_min_delta,
+                   fz_ref_n=fz_ref_n)
 
     def __init__(self, classes: Sequence[SoilClass | str] = ("stubble",), *, tau_s: float = 5.0,
                  min_mu: float = 0.15, min_slip: float = 0.005, class_tau_s: float = 30.0,
                  switch_min_delta: float = 10.0, slip_corr_s: float = 0.5, shape: bool = True,
-                 shape_kw: dict | None = None):
+                 shape_kw: dict | None = None, fz_ref_n: float = math.nan):
         cls = [SOIL_CLASSES[c] if isinstance(c, str) else c for c in classes]
         if not cls:
             raise ValueError("at least one surface class is needed")
@@ -156,11 +160,16 @@ class CurveEstimator:
         self._best = 0
         self._t: float | None = None
         self.n_used = 0
-        self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **(shape_kw or {})) if shape else None)
+        self.fz_ref_n = float(fz_ref_n)
+        kw = {"fz_ref_n": self.fz_ref_n, **(shape_kw or {})}
+        self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **kw) if shape else None)
 
     def update(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64],
-               sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None = None) -> CurveState:
-        """Add the pairs of one instant t [s]: μ̂ (k,), ŝ (k,) and the standard errors of μ̂ and ŝ (k,)."""
+               sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None = None,
+               fz: NDArray[np.float64] | None = None) -> CurveState:
+        """Add the pairs of one instant t [s]: μ̂ (k,), ŝ (k,), the standard errors of μ̂ and ŝ (k,)
+        and, optionally, the wheel loads F_z (k,) [N] (the shape identification then fits the
+        curve's load dependence where the loads differ, with ``fz_ref_n`` as the reference)."""
         dt = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t
         lam = math.exp(-dt / self.tau)
@@ -168,7 +177,7 @@ class CurveEstimator:
         self._den *= lam
         self._nll *= math.exp(-dt / self.class_tau)
         if self.shape is not None:
-            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s)
+            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz)
         if len(self.classes) == 1:
             self._update_single(np.asarray(mu, dtype=float), np.asarray(s, dtype=float),
                                 np.asarray(sigma_mu, dtype=float))
@@ -203,21 +212,28 @@ class CurveEstimator:
         return self.state()
 
     def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
-                    sigma_s: NDArray[np.float64] | None) -> None:
-        """The pairs the a fit accepts (same rules) go to the shape identification."""
+                    sigma_s: NDArray[np.float64] | None, fz: NDArray[np.float64] | None = None) -> None:
+        """The pairs the a fit accepts (same rules) go to the shape identification, with their
+        relative wheel loads z = F_z/F_z,ref − 1 when the loads and the reference are known."""
         ml = mu.tolist()
         sl = s.tolist()
         n = len(sl)
         ssl = sigma_s.tolist() if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,) else [0.0] * n
-        m_ok, s_ok, ss_ok = [], [], []
+        ref = self.fz_ref_n
+        if fz is not None and ref > 0 and np.shape(fz) == (n,):
+            zl = [f / ref - 1.0 if f == f else 0.0 for f in np.asarray(fz, dtype=float).tolist()]
+        else:
+            zl = [0.0] * n
+        m_ok, s_ok, ss_ok, z_ok = [], [], [], []
         min_mu, min_slip = self.min_mu, self.min_slip
-        for m, x, ss in zip(ml, sl, ssl):
+        for m, x, ss, zz in zip(ml, sl, ssl, zl):
             if m * x > 0 and abs(m) >= min_mu and abs(x) >= min_slip and abs(m) < math.inf and abs(x) < math.inf:
                 m_ok.append(m)
                 s_ok.append(x)
                 ss_ok.append(ss)
+                z_ok.append(zz)
         if m_ok:
-            self.shape.update(t, dt, m_ok, s_ok, ss_ok)  # type: ignore[union-attr]
+            self.shape.update(t, dt, m_ok, s_ok, ss_ok, z_ok)  # type: ignore[union-attr]
 
     def _update_single(self, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64]) -> None:
         """The one-class update of :meth:`update` (no class evidence), with floats where the
@@ -350,6 +366,23 @@ traction ratio of agricultural tyres is 0.88 (1 − e^{−0.1 B_n}) in Brixius (
 per cent seldom shows where the curve levels off; without the prior an S-shaped or nearly linear
 stretch leaves a unbounded.  Where the data do show it, the prior (σ 0.15) hardly moves it; its
 weight is in the covariance, so the interval of a says how much is prior."""
+LOAD_EDGES = (-0.12, 0.12)
+"""Edges of the load groups in relative wheel load z = F_z/F_z,ref − 1 [-] of the fit's bins: a hub-drive
+tractor at work has its front wheels near z ≈ −0.35 and its rear wheels near +0.4 (draft load transfer);
+binned apart, the light and the heavy wheels' curves are seen side by side where their slips overlap."""
+LOAD_MIN_OVERLAP = 0.01
+"""Slip interval [-] over which the light and the heavy bins must overlap, with two bins of each inside,
+for the load sensitivity q to be fitted.  Where the light wheels only work at higher slips than the heavy
+ones, a load effect and the curve's bend are the same thing to the data (the fit trades one for the
+other): q is then not identified, and the curve stays one for every load."""
+LOAD_MIN_SPREAD = 0.1
+"""Weighted standard deviation of the bins' z̄ [-] below which the load sensitivity q is not fitted
+(the loads do not differ enough to separate it from the curve)."""
+Q_MAX = 0.8
+"""Bounds of the load sensitivity q [-] in the fit: −Q_MAX ≤ q ≤ 0.  A tyre's friction coefficient
+falls with its load (Pacejka 2006, §4.3.2: p_Dx2 < 0; on soil, Brixius' mobility number B_n ∝ 1/F_z:
+q ≈ −0.4 at B_n = 15, −0.13 at 33, ≈ 0 above 60); a q > 0 the data ask for is something else (an
+axle's slip or torque bias), which the load term must not absorb."""
 S_INF = 50.0
 """Slip at which the prior on a enters the fit [-]: every form equals its a there (e^{−2·50} ≈ 0)."""
 """Grid of k of the variable-projection start."""
@@ -358,28 +391,41 @@ S_INF = 50.0
 class PairBins:
     """Binned sufficient statistics of (|ŝ|, |μ̂|) pairs by |μ̂| (see the section comment).
 
-    Per bin: weight W and the weighted sums of s, s², μ, μ², kept as Python lists (one pair
-    updates five numbers on the step path; numpy's scalar indexing would cost more than the sums).
+    Per bin: weight W and the weighted sums of s, s², μ, μ² and of the relative wheel load
+    z = F_z/F_z,ref − 1, kept as Python lists (one pair updates six numbers on the step path;
+    numpy's scalar indexing would cost more than the sums).  The wheels of one μ-bin are pooled:
+    its mean load z̄ goes with its mean slip s̄ (to first order, (1 + q z̄) μ(s̄) is the bin's mean).
     """
 
-    __slots__ = ("W", "S1", "S2", "M1", "M2")
+    __slots__ = ("W", "S1", "S2", "M1", "M2", "Z1", "groups")
     N_BINS = int(round(MU_BIN_MAX / MU_BIN_WIDTH))
+    N_GROUPS = 3
 
-    def __init__(self) -> None:
-        n = self.N_BINS
+    def __init__(self, groups: bool = False) -> None:
+        """``groups``: bins per load group as well (:meth:`group_index`), N_GROUPS × N_BINS bins."""
+        self.groups = bool(groups)
+        n = self.N_BINS * (self.N_GROUPS if groups else 1)
         self.W = [0.0] * n
         self.S1 = [0.0] * n
         self.S2 = [0.0] * n
         self.M1 = [0.0] * n
         self.M2 = [0.0] * n
+        self.Z1 = [0.0] * n
 
     @classmethod
     def index(cls, mu: float) -> int:
         """Bin of |μ| [-]."""
         return min(int(abs(mu) / MU_BIN_WIDTH), cls.N_BINS - 1)
 
-    def add(self, k: int, w: float, s: float, mu: float) -> None:
-        """Add (w < 0: remove) one pair of weight w in bin k."""
+    @classmethod
+    def group_index(cls, k: int, z: float) -> int:
+        """Bin of μ-bin k (:meth:`index`) in the load group of z = F_z/F_z,ref − 1 [-] (bins with
+        ``groups``): 0 light (z < LOAD_EDGES[0]), 1 near the reference and every pair without a load,
+        2 heavy (z > LOAD_EDGES[1])."""
+        return (0 if z < LOAD_EDGES[0] else (2 if z > LOAD_EDGES[1] else 1)) * cls.N_BINS + k
+
+    def add(self, k: int, w: float, s: float, mu: float, z: float = 0.0) -> None:
+        """Add (w < 0: remove) one pair of weight w in bin k (relative load z [-])."""
         self.W[k] += w
         ws = w * s
         self.S1[k] += ws
@@ -387,14 +433,15 @@ class PairBins:
         wm = w * mu
         self.M1[k] += wm
         self.M2[k] += wm * mu
+        self.Z1[k] += w * z
 
     def copy(self) -> "PairBins":
-        c = PairBins()
-        c.W, c.S1, c.S2, c.M1, c.M2 = self.W[:], self.S1[:], self.S2[:], self.M1[:], self.M2[:]
+        c = PairBins(self.groups)
+        c.W, c.S1, c.S2, c.M1, c.M2, c.Z1 = self.W[:], self.S1[:], self.S2[:], self.M1[:], self.M2[:], self.Z1[:]
         return c
 
     def scale(self, f: float) -> None:
-        for arr in (self.W, self.S1, self.S2, self.M1, self.M2):
+        for arr in (self.W, self.S1, self.S2, self.M1, self.M2, self.Z1):
             arr[:] = [x * f for x in arr]
 
     @property
@@ -410,8 +457,14 @@ class PairBins:
         return w, m, max(self.S2[k] / w - m * m, 0.0)
 
     def arrays(self) -> NDArray[np.float64]:
-        """(5, n_bins) array of W, Σws, Σws², Σwμ, Σwμ²."""
-        return np.array([self.W, self.S1, self.S2, self.M1, self.M2])
+        """(6, n_bins) array of W, Σws, Σws², Σwμ, Σwμ², Σwz."""
+        return np.array([self.W, self.S1, self.S2, self.M1, self.M2, self.Z1])
+
+    def load_means(self, min_w: float) -> NDArray[np.float64]:
+        """Mean relative wheel load z̄ [-] of the bins :meth:`means` returns (same order)."""
+        W = np.array(self.W)
+        sel = W >= min_w
+        return np.array(self.Z1)[sel] / W[sel]
 
     def means(self, min_w: float) -> tuple[NDArray[np.float64], ...]:
         """(s̄, μ̄, var s, var μ, W) of the bins with W ≥ min_w (within-bin variances)."""
@@ -540,12 +593,26 @@ def _model(form: str, th: NDArray[np.float64], s: NDArray[np.float64]
     return a * g, np.column_stack([g, a * (e2 - e1), -a * p * s * e1, -a * (1.0 - p) * s * e2])
 
 
+def _model_load(form: str, th: NDArray[np.float64], s: NDArray[np.float64], z: NDArray[np.float64] | None
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_model` times the load factor (1 + q z), q the last element of th when z is given."""
+    if z is None:
+        return _model(form, th, s)
+    f, J = _model(form, th[:-1], s)
+    fac = 1.0 + th[-1] * z
+    return fac * f, np.column_stack([J * fac[:, None], z * f])
+
+
 def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: NDArray[np.float64],
-            w: NDArray[np.float64], iters: int = 8) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
-    """Levenberg–Marquardt from theta0 within the form's bounds: (theta, SSE, Jacobian at theta)."""
+            w: NDArray[np.float64], iters: int = 8, z: NDArray[np.float64] | None = None
+            ) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """Levenberg–Marquardt from theta0 within the form's bounds: (theta, SSE, Jacobian at theta).
+    With z (relative wheel loads of the points), theta0 ends with the load sensitivity q."""
     lo, hi = _BOUNDS[form]
+    if z is not None:
+        lo, hi = np.append(lo, -Q_MAX), np.append(hi, 0.0)
     th = np.clip(np.asarray(theta0, dtype=float), lo, hi)
-    f, J = _model(form, th, s)
+    f, J = _model_load(form, th, s, z)
     r = mu - f
     cur = float((w * r * r).sum())
     lam = 1e-3
@@ -568,7 +635,7 @@ def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: ND
                 if cand[1] * cand[2] + (1.0 - cand[1]) * cand[3] > 0:   # μ'(0) < 0: not a traction curve
                     lam *= 10.0
                     continue
-            fc, Jc = _model(form, cand, s)
+            fc, Jc = _model_load(form, cand, s, z)
             rc = mu - fc
             val = float((w * rc * rc).sum())
             if val < cur:
@@ -585,7 +652,8 @@ def _refine(form: str, theta0: tuple[float, ...], s: NDArray[np.float64], mu: ND
 def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: float = 2.0,
               sigma_s_floor: float = 0.002, sigma_mu_floor: float = 0.002, bic_margin: float = 6.0,
               max_rel_sigma_a: float = 0.3, forms: Sequence[str] = DEFAULT_FORMS,
-              prior_a: tuple[float, float] | None = PRIOR_A, test_level: float = 0.01) -> CurveFit | None:
+              prior_a: tuple[float, float] | None = PRIOR_A, test_level: float = 0.01,
+              load: bool = True, fz_ref_n: float = math.nan, load_z: float = 2.0) -> CurveFit | None:
     """Fit the candidates to one segment's bins and select (see the section comment above).
 
     Returns None with fewer than 3 usable bins.  ``sigma_s_floor``, ``sigma_mu_floor``: floors of
@@ -593,23 +661,84 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
     ``prior_a``: (mean, standard deviation) of the prior on the asymptote a [-] (None: none).
     ``test_level``: a free shape replaces the best class only if an F test of its extra parameters
     rejects the class at this level (and its BIC is ``bic_margin`` lower).
+
+    Load dependence (``load``): when the bins' mean relative wheel loads z̄ = F_z/F_z,ref − 1 spread by
+    at least :data:`LOAD_MIN_SPREAD`, every candidate is fitted as (1 + q z) μ(s; θ), the curve
+    μ(s; θ) being the one at the reference load ``fz_ref_n`` [N]; q is kept when the selected curve's
+    |q| ≥ ``load_z`` σ_q, else the fit is repeated without it (one curve for every load).
     """
     s, mu, vs, vm, W = bins.means(min_bin_weight)
     n = s.size
     if n < 3:
         return None
+    kw = dict(bic_margin=bic_margin, max_rel_sigma_a=max_rel_sigma_a, forms=forms, prior_a=prior_a,
+              test_level=test_level, fz_ref_n=fz_ref_n)
     var_s = np.maximum(vs, sigma_s_floor ** 2) / W              # variance of the bin means
     var_m = np.maximum(vm, sigma_mu_floor ** 2) / W
+    fit0 = _fit_bins(s, mu, var_s, var_m, None, classes, **kw)
+    if load and n >= 5:
+        z = bins.load_means(min_bin_weight)
+        zm = float(np.average(z, weights=W))
+        if (math.sqrt(float(np.average((z - zm) ** 2, weights=W))) >= LOAD_MIN_SPREAD
+                and _loads_overlap(s, z)):
+            fit = _fit_bins(s, mu, var_s, var_m, z, classes, **kw)
+            c = fit.curve
+            # the load term must be significant and pay for its parameter: BIC lower by bic_margin
+            # than the one-curve selection on the same bins
+            if (c.load_q != 0.0 and abs(c.load_q) >= load_z * c.load_q_sigma
+                    and fit.bic[_bic_key(c)] + bic_margin < fit0.bic[_bic_key(fit0.curve)]):
+                return fit
+    return fit0
+
+
+def _loads_overlap(s: NDArray[np.float64], z: NDArray[np.float64]) -> bool:
+    """Whether light (z < LOAD_EDGES[0]) and heavy (z > LOAD_EDGES[1]) bins overlap in slip by
+    :data:`LOAD_MIN_OVERLAP` with two bins of each inside the common interval."""
+    sl, sh = s[z < LOAD_EDGES[0]], s[z > LOAD_EDGES[1]]
+    if sl.size < 2 or sh.size < 2:
+        return False
+    lo, hi = max(sl.min(), sh.min()), min(sl.max(), sh.max())
+    if hi - lo < LOAD_MIN_OVERLAP:
+        return False
+    return int(((sl >= lo) & (sl <= hi)).sum()) >= 2 and int(((sh >= lo) & (sh <= hi)).sum()) >= 2
+
+
+def _bic_key(c: MuCurve) -> str:
+    """Key of a selected curve in :attr:`CurveFit.bic`."""
+    return c.path.removesuffix("+load") if c.form == "class" else c.form
+
+
+def _fit_bins(s: NDArray[np.float64], mu: NDArray[np.float64], var_s: NDArray[np.float64], var_m: NDArray[np.float64],
+              z: NDArray[np.float64] | None, classes: Sequence[SoilClass], *, bic_margin: float,
+              max_rel_sigma_a: float, forms: Sequence[str], prior_a: tuple[float, float] | None,
+              test_level: float, fz_ref_n: float) -> CurveFit:
+    """:func:`fit_curve` on the bin means (s̄, μ̄) with the variances of the means; with the bins'
+    relative loads z every candidate carries the load factor (1 + q z)."""
+    n = s.size
     s_range = (float(s.min()), float(s.max()))
+    ld = z is not None
+    zz = np.zeros(n) if z is None else np.asarray(z, dtype=float)
     if prior_a is not None:
         # the prior on a as one more observation at s → ∞, where every form equals its a
         s = np.append(s, S_INF)
         mu = np.append(mu, prior_a[0])
         var_s = np.append(var_s, 0.0)
         var_m = np.append(var_m, prior_a[1] ** 2)
+        zz = np.append(zz, 0.0)                                  # (at the reference load)
+    zl = zz if ld else None
+    extra = 1 if ld else 0                                       # the load sensitivity q
+    suffix = "+load" if ld else ""
 
     def bic(sse: float, m: int) -> float:
         return n * math.log(max(sse, 1e-300) / n) + m * math.log(n)
+
+    def with_load(cv: MuCurve, q: float, var_q: float) -> MuCurve:
+        if not ld:
+            return cv
+        return dataclasses.replace(cv, load_q=float(q), load_q_sigma=math.sqrt(max(var_q, 0.0)), fz_ref_n=fz_ref_n)
+
+    def pred(cv: MuCurve) -> NDArray[np.float64]:
+        return cv.eval_theta(cv.theta, s) * (1.0 + cv.load_q * zz)
 
     slope = np.array([c.dg(s) for c in classes]).mean(axis=0) * float((mu / np.maximum(classes[0].g(s), 1e-9)).mean())
     result: dict[str, tuple[MuCurve, float, float]] = {}        # (curve, BIC, data SSE)
@@ -625,38 +754,77 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
         for c in classes:                                        # a is identified: no prior
             g = c.g(s[:n])
             wd = w[:n]
-            den = float((wd * g * g).sum())
-            a = float((wd * g * mu[:n]).sum()) / den
-            r = mu[:n] - a * g
-            sse = float((wd * r * r).sum())
-            chi = max(1.0, sse / max(n - 1, 1))
-            result[f"class:{c.name}"] = (MuCurve.from_class(c, a, chi / den), bic(sse, 1), sse)
+            if not ld:
+                den = float((wd * g * g).sum())
+                a = float((wd * g * mu[:n]).sum()) / den
+                r = mu[:n] - a * g
+                sse = float((wd * r * r).sum())
+                chi = max(1.0, sse / max(n - 1, 1))
+                result[f"class:{c.name}"] = (MuCurve.from_class(c, a, chi / den), bic(sse, 1), sse)
+                continue
+            B = np.vstack([g, zz[:n] * g])                       # μ = a g + a q z g: linear in (a, a q)
+            sol = _solve_amplitudes(B, mu[:n], wd)
+            if sol is None or not sol[0][0] > 0:
+                continue
+            (b0, b1), sse = sol
+            a, q = float(b0), float(b1 / b0)
+            if not -Q_MAX <= q <= 0.0:                           # outside the physical bounds: at the bound
+                q = min(max(q, -Q_MAX), 0.0)
+                fz_ = g * (1.0 + q * zz[:n])
+                a = float((wd * fz_ * mu[:n]).sum()) / float((wd * fz_ * fz_).sum())
+                r = mu[:n] - a * fz_
+                sse = float((wd * r * r).sum())
+            J = np.column_stack([g * (1.0 + q * zz[:n]), a * zz[:n] * g])
+            try:
+                C = np.linalg.inv(J.T @ (J * wd[:, None])) * max(1.0, sse / max(n - 2, 1))
+            except np.linalg.LinAlgError:
+                continue
+            cv = with_load(MuCurve.from_class(c, a, float(C[0, 0])), q, float(C[1, 1]))
+            result[f"class:{c.name}"] = (cv, bic(sse, 2), sse)
         for form in forms:
             m = len(CURVE_FORMS[form])
-            if n <= m + 1:
+            if n <= m + extra + 1:
                 continue
-            start = _grid_start(form, s, mu, w)
+            q = 0.0
+            start = None
+            for _ in range(2 if ld else 1):                      # alternate: the shape at q, then q at the shape
+                fac = 1.0 + q * zz
+                start = _grid_start(form, s, mu / fac, w * fac * fac)
+                if start is None or not ld:
+                    break
+                f0 = MuCurve(form, start[0], np.full((m, m), np.nan), "").eval_theta(start[0], s)
+                den = float((w * (zz * f0) ** 2).sum())
+                q = float(np.clip((w * zz * f0 * (mu - f0)).sum() / den, -Q_MAX, 0.0)) if den > 0 else 0.0
             if start is None:
                 continue
             if not final:
-                cv = MuCurve(form, start[0], np.full((m, m), np.nan), f"shape:{form}")
-                sse = data_sse(cv.mu(s), w)
-                result[form] = (cv, bic(sse, m), sse)
+                cv = with_load(MuCurve(form, start[0], np.full((m, m), np.nan), f"shape:{form}{suffix}"), q, math.nan)
+                sse = data_sse(pred(cv), w)
+                result[form] = (cv, bic(sse, m + extra), sse)
                 continue
-            th, sse_all, J = _refine(form, start[0], s, mu, w)
+            th0 = tuple(start[0]) + ((q,) if ld else ())
+            th, sse_all, J = _refine(form, th0, s, mu, w, z=zl)
             try:
-                C = np.linalg.inv(J.T @ (J * w[:, None])) * max(1.0, sse_all / (n - m))
+                C = np.linalg.inv(J.T @ (J * w[:, None])) * max(1.0, sse_all / max(n - m - extra, 1))
             except np.linalg.LinAlgError:
                 continue
-            cv = MuCurve(form, tuple(float(x) for x in th), C, f"shape:{form}", s_range=s_range)
+            cv = MuCurve(form, tuple(float(x) for x in th[:m]), C[:m, :m], f"shape:{form}{suffix}", s_range=s_range)
+            cv = with_load(cv, float(th[-1]), float(C[-1, -1])) if ld else cv
             if not _well_posed(cv, max_rel_sigma_a):
                 continue
-            sse = data_sse(cv.mu(s), w)
-            result[form] = (cv, bic(sse, m), sse)
+            sse = data_sse(pred(cv), w)
+            result[form] = (cv, bic(sse, m + extra), sse)
+        if not result:
+            break
         best = min(result.values(), key=lambda x: x[1])[0]
-        slope = best.dmu_ds(s)
+        slope = best.dmu_ds(s) * (1.0 + best.load_q * zz)
         slope[n:] = 0.0                                          # the prior's observation has no slip error
-    cls_best = min((v for k, v in result.items() if k.startswith("class:")), key=lambda x: x[1])
+    classes_fit = [v for k, v in result.items() if k.startswith("class:")]
+    if not classes_fit:                                          # (load fit only: every class singular)
+        c = classes[0]
+        cv = MuCurve.from_class(c, float(mu[:n].mean() / max(float(np.mean(c.g(s[:n]))), 1e-9)), math.nan)
+        classes_fit = [(with_load(cv, 0.0, math.inf), math.inf, math.inf)]
+    cls_best = min(classes_fit, key=lambda x: x[1])
     free = [v for k, v in result.items() if not k.startswith("class:")]
     chosen = cls_best[0]
     if free:
@@ -665,8 +833,9 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
         sse_c, sse_f = cls_best[2], f_best[2]
         # the class must be rejected as well: F test of the extra parameters at ``test_level``
         # (BIC alone is too lenient with a dozen bins, and eq. 14 contains every class)
-        F = ((sse_c - sse_f) / (m_f - 1)) / (sse_f / max(n - m_f, 1))
-        if f_best[1] + bic_margin < cls_best[1] and F > f_dist.ppf(1.0 - test_level, m_f - 1, max(n - m_f, 1)):
+        dof = max(n - m_f - extra, 1)
+        F = ((sse_c - sse_f) / (m_f - 1)) / (sse_f / dof)
+        if f_best[1] + bic_margin < cls_best[1] and F > f_dist.ppf(1.0 - test_level, m_f - 1, dof):
             chosen = f_best[0]
     return CurveFit(chosen, cls_best[0], {k: v[1] for k, v in result.items()}, n, s_range)
 
@@ -722,13 +891,15 @@ class ShapeIdentifier:
     confirm_s : the fit uses the pairs older than this [s] (see :meth:`_maybe_fit`).
     bic_margin : a free shape replaces the class when its BIC is this much lower.
     max_rel_sigma_a : a free shape whose σ_a/a exceeds this is not well posed.
+    load : fit the load sensitivity q where the pairs' wheel loads differ (:func:`fit_curve`).
+    fz_ref_n : reference wheel load F_z,ref [N] of the identified curve (the static mean wheel load).
     """
 
     def __init__(self, classes: Sequence[SoilClass], *, min_span: float = 0.04, min_bins: int = 6,
                  min_bin_weight: float = 2.0, fit_period_s: float = 10.0, slip_corr_s: float = 0.5,
                  cusum_k: float = 0.75, cusum_h: float = 4.0, max_weight: float = 2000.0,
                  history_s: float = 10.0, confirm_s: float = 5.0, bic_margin: float = 6.0,
-                 max_rel_sigma_a: float = 0.3):
+                 max_rel_sigma_a: float = 0.3, load: bool = True, fz_ref_n: float = math.nan):
         self.classes = list(classes)
         self.min_span = float(min_span)
         self.min_bins = int(min_bins)
@@ -742,6 +913,8 @@ class ShapeIdentifier:
         self.bic_margin = float(bic_margin)
         self.max_rel_sigma_a = float(max_rel_sigma_a)
         self.confirm_s = min(float(confirm_s), float(history_s))
+        self.load = bool(load)
+        self.fz_ref_n = float(fz_ref_n)
         self.reset()
 
     def reset(self) -> None:
@@ -755,20 +928,20 @@ class ShapeIdentifier:
         self._span: tuple[float, float, int] = (math.nan, math.nan, 0)
         self._cp = self._cn = 0.0
         self._t_cp = self._t_cn = -math.inf          # time each CUSUM side last left zero
-        self._hist: deque[tuple[float, list[tuple[int, float, float, float]]]] = deque()
-        self.mature = PairBins()
-        """The segment's pairs older than ``confirm_s`` (the fit's data)."""
-        self._young: deque[tuple[float, list[tuple[int, float, float, float]]]] = deque()
+        self._hist: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
+        self.mature = PairBins(groups=True)
+        """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well."""
+        self._young: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
 
     def _new_segment(self, t_from: float) -> None:
         """Close the segment; the pairs at or after t_from move to the new one."""
         moved = [e for e in self._hist if e[0] >= t_from]
         self.bins = PairBins()
         for _, pairs in moved:
-            for k, w, s, m in pairs:
-                self.bins.add(k, w, s, m)
+            for k, w, s, m, zz in pairs:
+                self.bins.add(k, w, s, m, zz)
         self._hist = deque(moved)
-        self.mature = PairBins()
+        self.mature = PairBins(groups=True)
         self._young = deque(moved)
         self.segment += 1
         self.fit = None
@@ -779,11 +952,14 @@ class ShapeIdentifier:
         self._cp = self._cn = 0.0
         self._t_cp = self._t_cn = -math.inf
 
-    def update(self, t: float, dt: float, mu: Sequence[float], s: Sequence[float], sigma_s: Sequence[float]) -> None:
-        """Add the accepted pairs (|μ̂|, |ŝ| of one instant t [s], Δt [s] since the last instant)."""
+    def update(self, t: float, dt: float, mu: Sequence[float], s: Sequence[float], sigma_s: Sequence[float],
+               z: Sequence[float] | None = None) -> None:
+        """Add the accepted pairs (|μ̂|, |ŝ| of one instant t [s], Δt [s] since the last instant) and
+        their relative wheel loads z = F_z/F_z,ref − 1 [-] (None: all at the reference load)."""
         n = len(mu)
         if n == 0:
             return
+        zl = [0.0] * n if z is None else z
         discount = min(1.0, dt / self.slip_corr) if dt > 0 else 1.0
         bins = self.bins
         W, S1, S2 = bins.W, bins.S1, bins.S2
@@ -796,7 +972,7 @@ class ShapeIdentifier:
         M1 = bins.M1
         c0 = self.classes[0]
         p0, a10, a20 = c0.p, c0.alpha1, c0.alpha2
-        for m, x, ss in zip(mu, s, sigma_s):
+        for m, x, ss, zz in zip(mu, s, sigma_s, zl):
             m, x = abs(m), abs(x)
             k = min(int(m / MU_BIN_WIDTH), last)
             j = -1
@@ -817,7 +993,7 @@ class ShapeIdentifier:
                 var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
                 z_sum += (x - sj) / math.sqrt(var)
                 nz += 1
-            pairs.append((k, w_pair, x, m))
+            pairs.append((k, w_pair, x, m, zz))
         if nz:
             z = z_sum / nz                                   # the wheels of one instant: one sample
             cp = max(0.0, self._cp + discount * (z - self.k))
@@ -830,8 +1006,8 @@ class ShapeIdentifier:
             if cp > self.h or cn > self.h:
                 self._new_segment(self._t_cp if cp > self.h else self._t_cn)
                 bins = self.bins
-        for k, w, x, m in pairs:
-            bins.add(k, w, x, m)
+        for k, w, x, m, zz in pairs:
+            bins.add(k, w, x, m, zz)
         hist = self._hist
         hist.append((t, pairs))
         while hist[0][0] < t - self.history_s:
@@ -839,8 +1015,8 @@ class ShapeIdentifier:
         young = self._young
         young.append((t, pairs))
         while young and young[0][0] <= t - self.confirm_s:
-            for k, w, x, m in young.popleft()[1]:
-                self.mature.add(k, w, x, m)
+            for k, w, x, m, zz in young.popleft()[1]:
+                self.mature.add(PairBins.group_index(k, zz), w, x, m, zz)
         if t - self._t_check >= 1.0:
             self._t_check = t
             self._cap_weight()
@@ -854,8 +1030,8 @@ class ShapeIdentifier:
             self.bins.scale(f)
             self.mature.scale(f)
             for _, ps in self._hist:                      # (the young pairs are the same lists)
-                for i, (k, w, x, m) in enumerate(ps):
-                    ps[i] = (k, w * f, x, m)
+                for i, (k, w, x, m, zz) in enumerate(ps):
+                    ps[i] = (k, w * f, x, m, zz)
             self._w_fit *= f
 
     def _maybe_fit(self, t: float) -> None:
@@ -878,7 +1054,8 @@ class ShapeIdentifier:
         self._t_fit = t
         self._w_fit = total
         self.fit = fit_curve(bins, self.classes, min_bin_weight=self.min_bin_weight,
-                             bic_margin=self.bic_margin, max_rel_sigma_a=self.max_rel_sigma_a)
+                             bic_margin=self.bic_margin, max_rel_sigma_a=self.max_rel_sigma_a,
+                             load=self.load, fz_ref_n=self.fz_ref_n)
         self.n_fits += 1
 
     def state(self) -> ShapeState:

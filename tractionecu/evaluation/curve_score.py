@@ -15,6 +15,14 @@ The shape path is scored when most of the soil's samples report a fitted shape (
 from ``truth.toml`` (``soil_class``, ``a``), or, for a truth model whose μ(s) is none of the classes,
 its tabulated curve ``mu_curve_s`` / ``mu_curve`` (same file), interpolated; both are compared on the
 same slip grid.
+
+Load.  The physical truth's μ(s) depends on the wheel load (Brixius' mobility number B_n ∝ 1/F_z), and
+its ``mu_curve`` is the soil's curve at the static mean wheel load m g/4.  A curve identified with its
+load dependence (:attr:`~tractionecu.model.mucurve.MuCurve.load_aware`) is evaluated at its reference
+load, the estimator's m g/4 of ``vehicle.toml``: the same load as the truth's table (the recordings
+declare the simulated mass).  A curve without one is one curve for every load and is compared with the
+same table: pooled over light front and heavy rear wheels it is the soil's curve at no particular load,
+and the score says so.  Never the front or rear table alone, whichever fits better.
 """
 
 from __future__ import annotations

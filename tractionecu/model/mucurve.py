@@ -211,6 +211,16 @@ class MuCurve:
     """The class supplying p, α1, α2 (form ``class`` only)."""
     s_range: tuple[float, float] = (math.nan, math.nan)
     """Slip range [-] of the data the curve was fitted to (NaN for the class path)."""
+    load_q: float = 0.0
+    """Load sensitivity q of the curve's amplitude [-]: μ(s; F_z) = (1 + q (F_z/F_z,ref − 1)) μ(s)
+    (the load influence on the friction coefficient of Pacejka 2006, eq. 4.E13, p_Dx2; q < 0: the
+    heavier wheel grips less, as Brixius' mobility number B_n ∝ 1/F_z says for soil).  0: one curve
+    for every load (the paper's model)."""
+    load_q_sigma: float = math.nan
+    """Standard error of :attr:`load_q` [-] (NaN when q was not identified)."""
+    fz_ref_n: float = math.nan
+    """Reference wheel load F_z,ref [N] at which ``theta`` describes the curve (the static mean wheel
+    load m g/4 of the machine); NaN: no load dependence identified."""
 
     def __post_init__(self) -> None:
         if self.form not in CURVE_FORMS:
@@ -288,9 +298,22 @@ class MuCurve:
             val = a * (1.0 - p * np.exp(a1 * sa) - (1.0 - p) * np.exp(a2 * sa))
         return np.sign(s) * val
 
-    def mu(self, s: ArrayLike) -> NDArray[np.float64]:
-        """μ(s) [-]."""
-        return self.eval_theta(self.theta, s)
+    @property
+    def load_aware(self) -> bool:
+        """True when the curve carries an identified load dependence (q ≠ 0 at a known F_z,ref)."""
+        return self.load_q != 0.0 and self.fz_ref_n == self.fz_ref_n
+
+    def load_factor(self, fz: ArrayLike) -> NDArray[np.float64]:
+        """1 + q (F_z/F_z,ref − 1) for wheel loads F_z [N] (1 where no load dependence is known)."""
+        fz = np.asarray(fz, dtype=float)
+        if not self.load_aware:
+            return np.ones_like(fz)
+        return 1.0 + self.load_q * (fz / self.fz_ref_n - 1.0)
+
+    def mu(self, s: ArrayLike, fz: ArrayLike | None = None) -> NDArray[np.float64]:
+        """μ(s) [-] at the reference load, or at the wheel load ``fz`` [N] (broadcast with s)."""
+        val = self.eval_theta(self.theta, s)
+        return val if fz is None else val * self.load_factor(fz)
 
     __call__ = mu
 
