@@ -36,15 +36,21 @@ pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
     share of steps marked valid while the implement is in work (truth ``work``);
 ``mu_err``
     the scorecard's μ mean absolute relative error;
+``slip_supported_work``
+    share of the valid steps in work whose slip is supported by its own σ
+    (status bit 0x2000 ``slip_not_supported`` clear, ``slip_sigma_max``);
 ``slip_mae``
-    per-wheel slip mean absolute error over valid steps in work;
+    per-wheel slip mean absolute error over valid steps in work whose slip
+    is supported (a flagged slip is a held value);
 ``slip_lr``
     mean absolute error of each axle's right-minus-left slip difference over
     the same steps (the rolling-radius error, equal on both sides, cancels:
     what is left is the turn kinematics);
 ``rev_*``
     over valid steps while reversing faster than 0.5 m/s (truth speed < 0):
-    steps with the wrong sign of v (count), ρ_s and slip mean absolute errors;
+    steps with the wrong sign of v (count), ρ_s mean absolute error, the
+    steps whose slip is supported (``rev_slip_supported``) and their slip
+    mean absolute error;
 ``still_valid``
     valid steps while the true speed is below 0.1 m/s (the data cannot support
     ρ_s or slip there: the target is 0).
@@ -81,7 +87,7 @@ from tractionecu.pipeline.replay import recording_grid, replay_to_dir  # noqa: E
 from tractionecu.pipeline.signals import DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, WHEEL_SPEEDS  # noqa: E402
 from tractionecu.pipeline.steps import arrivals  # noqa: E402
 from tractionecu.config import SensorSpec, load_vehicle  # noqa: E402
-from tractionecu.estimation.estimator import Estimator, EstimatorConfig  # noqa: E402
+from tractionecu.estimation.estimator import SLIP_UNCERTAIN, Estimator, EstimatorConfig  # noqa: E402
 from tractionecu.estimation.ukf import UnscentedFilter  # noqa: E402
 from tractionecu.model.vehicle import JIT, FilterModel  # noqa: E402
 from tractionecu.recording.reader import read_recording  # noqa: E402
@@ -126,11 +132,14 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
     work_t = np.loadtxt(rec_dir / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index("work")]) > 0.5
     k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
     valid, work, v_t = a["valid"], work_t[k], tr.v[k]
-    m = valid & work
+    sok = (a["status"] & SLIP_UNCERTAIN) == 0         # slip supported by its own σ (else held, flagged)
+    m = valid & work & sok
     se, st = a["slip"], tr.slip[k]
     sc = scorecard(a, tr)
     rev = valid & (v_t < -0.5)
+    rs = rev & sok
     row = {"valid_work": float(valid[work].mean()) if work.any() else float("nan"),
+           "slip_supported_work": float(sok[valid & work].mean()) if (valid & work).any() else float("nan"),
            "mu_err": float(sc.get("mu_mean_abs_rel_error", float("nan"))),
            "slip_mae": float(np.mean(np.abs(se[m] - st[m]))) if m.any() else float("nan"),
            "slip_lr": float(np.mean([np.mean(np.abs((se[m, j] - se[m, i]) - (st[m, j] - st[m, i])))
@@ -138,7 +147,8 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
            "rev_steps": int(rev.sum()),
            "rev_wrong_sign": int(np.sum(rev & (a["v"] > 0.0))),
            "rev_rho_mae": float(np.mean(np.abs(a["rho_s"][rev] - tr.rho_s_paper[k][rev]))) if rev.any() else float("nan"),
-           "rev_slip_mae": float(np.mean(np.abs(se[rev] - st[rev]))) if rev.any() else float("nan"),
+           "rev_slip_supported": int(rs.sum()),
+           "rev_slip_mae": float(np.mean(np.abs(se[rs] - st[rs]))) if rs.any() else float("nan"),
            "still_valid": int(np.sum(valid & (np.abs(v_t) < 0.1)))}
     return row
 
@@ -147,15 +157,18 @@ def families(work: Path, seed: int) -> list[dict]:
     """Every row of :data:`FAMILIES`, printed as it is measured."""
     rows = []
     print(f"{'family':15s} {'truth':9s} {'scenario':26s} {'valid_work':>10s} {'mu_err':>7s} {'slip_mae':>8s} "
-          f"{'slip_lr':>8s} {'rev_n':>6s} {'rev_wrong':>9s} {'rev_rho':>8s} {'rev_slip':>8s} {'still_valid':>11s}",
+          f"{'slip_lr':>8s} {'slip_ok':>7s} {'rev_n':>6s} {'rev_wrong':>9s} {'rev_rho':>8s} {'rev_s_ok':>8s} "
+          f"{'rev_slip':>8s} {'still_valid':>11s}",
           flush=True)
     for n, (family, truth, scenario, changes) in enumerate(FAMILIES):
         r = family_row(work / f"family{n}-{scenario}", scenario, seed, changes)
         r.update(family=family, truth=truth, scenario=scenario, sensors=changes)
         rows.append(r)
         print(f"{family:15s} {truth:9s} {scenario:26s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% "
-              f"{r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['rev_steps']:6d} {r['rev_wrong_sign']:9d} "
-              f"{r['rev_rho_mae']:8.4f} {r['rev_slip_mae']:8.4f} {r['still_valid']:11d}", flush=True)
+              f"{r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['slip_supported_work'] * 100:6.2f}% {r['rev_steps']:6d} "
+              f"{r['rev_wrong_sign']:9d} "
+              f"{r['rev_rho_mae']:8.4f} {r['rev_slip_supported']:8d} {r['rev_slip_mae']:8.4f} {r['still_valid']:11d}",
+              flush=True)
     return rows
 
 
