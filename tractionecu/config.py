@@ -392,6 +392,10 @@ class DrivetrainSpec:
                                 "(1-5 % on MFWD tractors)", -0.1, 0.2)
     engine_friction_percent: float = setting(0.0, "nominal friction percent torque (J1939 EEC3 SPN 514) taken "
                                              "off EEC1's indicated percent torque [%]", 0.0, 50.0)
+    engine_reference_torque_nm: float = setting(0.0, "engine reference torque T_ref (J1939 SPN 544) [N·m] as the "
+                                                "engine's data sheet gives it, used while the bus has sent no EC1 "
+                                                "(a capture started after its 5 s broadcast, or an ECU that sends "
+                                                "it only on request); 0: from EC1 only", 0.0, 64255.0)
     engine_inertia_kgm2: float = setting(2.0, "engine flywheel and crankshaft inertia J_e [kg·m²] "
                                          "(reflected to the wheels by the total ratio squared)", 0.0, 100.0)
     wheel_speeds: str = setting("auto", "auto | per-wheel | per-axle (EBC2 front-axle and relative speeds) | "

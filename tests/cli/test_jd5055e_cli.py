@@ -1,8 +1,9 @@
 """The John Deere 5055E capture (stationary, mechanical drivetrain) through ``inspect`` and ``replay``.
 
-``inspect`` lists what each estimation profile finds; ``replay`` does not run (the estimator's hub profile
-needs per-wheel speeds and torques the tractor does not send), writes nothing, reports the profiles, the
-missing signals and "no motion", and exits with code 4.
+``inspect`` lists what each estimation profile finds; without a vehicle.toml ``replay`` does not run (the hub
+profile needs per-wheel speeds and torques the tractor does not send), writes nothing, reports the profiles,
+the missing signals, the profile the signals fit (mechanical) and "no motion", and exits with code 4.  With
+``[drivetrain] kind = "mechanical"`` it runs the machine-level estimator: tests/pipeline/test_machine_replay.py.
 """
 
 from __future__ import annotations
@@ -32,9 +33,12 @@ def jd_dir(tmp_path) -> Path:
 def test_inspect_lists_found_and_missing_signals_per_profile(jd_dir, capsys):
     assert main(["inspect", str(jd_dir)]) == 0
     out = capsys.readouterr().out
-    assert "hub (estimated): 0 of 11 found" in out
+    assert "replay runs hub (no vehicle.toml: the default [drivetrain] kind = \"hub\")" in out
+    assert "hub (replay runs this one): 0 of 11 found" in out
     assert "wheel speed FL   missing: WheelSpeed_FL" in out and "GNSS speed       missing: GNSS speed" in out
-    assert "mechanical (not estimated yet, listed for information): 3 of 6 found" in out
+    assert ('mechanical (estimated with [drivetrain] kind = "mechanical" or "power-split" in vehicle.toml): '
+            "3 of 6 found") in out
+    assert 'the signals fit profile mechanical best: declare [drivetrain] kind = "mechanical"' in out
     assert "engine percent torque    ActualEnginePercentTorque from EEC1" in out
     assert "engine reference torque  EngineReferenceTorque from EC1" in out
     assert "wheel-based speed        WheelBasedVehicleSpeed from CCVS1" in out
@@ -50,9 +54,11 @@ def test_replay_reports_profile_missing_signals_and_no_motion(jd_dir, tmp_path, 
         captured = capsys.readouterr()
         err = captured.err
         assert captured.out == "" and "Traceback" not in err
-        assert "not replayed: profile hub (the one the estimator runs) lacks 8 bus signal(s)" in err
+        assert "not replayed: profile hub (the one the estimator runs, no vehicle.toml" in err
+        assert "lacks 8 bus signal(s)" in err
         assert "missing: WheelSpeed_FL, WheelSpeed_FR, WheelSpeed_RL, WheelSpeed_RR, DriveTorque_FL" in err
-        assert "profile mechanical (not estimated yet): 3 of 6 needs found" in err
+        assert "profile mechanical (estimated with [drivetrain] kind" in err and "3 of 6 needs found" in err
+        assert "the signals fit profile mechanical best" in err
         assert "missing gear ratio, draft, ground speed" in err
         assert "motion: no motion" in err and "idle 900 rpm" in err
         assert not out_dir.exists()

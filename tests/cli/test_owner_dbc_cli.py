@@ -77,7 +77,7 @@ def test_inspect_lists_the_mapped_signals_and_their_source(owner_recording, caps
     assert "DriveCtrl_3" in out and "TECU_WheelSpeeds" not in out
     assert "wheel speed FL   WheelSpeed_FL from DriveCtrl_3.WhlSpdFL x 0.10472" in out
     assert "drive torque RR  DriveTorque_RR from TECU_DriveTorques" in out
-    assert "hub (estimated): 11 of 11 found" in out and "motion: moving" in out
+    assert "hub (replay runs this one): 11 of 11 found" in out and "motion: moving" in out
     assert "owner DBC owner_drivectrl.dbc: 2 messages (DriveCtrl_3, DriveCtrl_4)" in out
     assert "skipped DriveCtrl_5: multiplexed" in out
 

@@ -360,3 +360,19 @@ def test_without_draft_the_loads_carry_the_draft_the_sum_implies() -> None:
     fzf, fzr, _, _ = est.loads()
     assert fzf + fzr == pytest.approx(veh.weight_n + est._fdx_est * math.tan(math.radians(10.0)))
     assert all(math.isnan(e.rho_s) for e in late)                       # ρ_s still never reported
+
+
+def test_declared_reference_torque_stands_in_until_ec1_arrives(synthetic) -> None:
+    """[drivetrain] engine_reference_torque_nm: the wheel torque is known without EC1; EC1's value, once sent,
+    is the ECU's own and replaces it (also after a reset)."""
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle(engine_reference_torque_nm=400.0))
+    late = [e for e in run(est, bus, drop={"Tref"}) if e.t > 20.0]
+    assert np.mean([e.valid for e in late]) > 0.99
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    assert (np.abs(np.array([e.mu[0] for e in late]) - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
+    est.step(61.0, {"Tref": 410.0}, {})
+    assert est._in["Tref"] == 410.0
+    est.reset()
+    assert est._in["Tref"] == 400.0
+    assert math.isnan(MachineEstimator(mech_vehicle())._in["Tref"])

@@ -26,7 +26,8 @@ import time
 from typing import Any
 
 from ..bus.dbc import Codec, extra_dbcs
-from ..pipeline.signals import ESTIMATED_PROFILES, GNSS_TRACK_SPEED, motion, profile_status, signal_state, source_of
+from ..pipeline.signals import (GNSS_TRACK_SPEED, PROFILE_KINDS, best_profile, estimator_profile, motion,
+                                profile_role, profile_status, required_missing, signal_state, source_of)
 from ..pipeline.survey import inspect_keep
 from ..recording.containers import TIME_JUMP_S
 from ..recording.reader import read_recording
@@ -50,14 +51,34 @@ def dbc_lines(codec: Codec) -> list[str]:
     return out
 
 
+def vehicle_of(rec: Any) -> tuple[Any, str]:
+    """The recording's vehicle (:func:`tractionecu.pipeline.replay.machine_of`) and a line saying where it came
+    from; a ``vehicle.toml`` that does not load is reported, and the defaults (hub) stand in."""
+    from ..config import VehicleParams
+    from ..errors import ConfigError
+    from ..pipeline.replay import machine_of
+
+    if rec.vehicle_toml_path is None:
+        return VehicleParams(), "no vehicle.toml: the default [drivetrain] kind = \"hub\""
+    try:
+        veh = machine_of(rec)[0]
+    except ConfigError as e:
+        return VehicleParams(), f"vehicle.toml does not load ({e}): the default [drivetrain] kind = \"hub\""
+    return veh, f"vehicle.toml: [drivetrain] kind = \"{veh.drivetrain.kind}\""
+
+
 def profile_lines(rec: Any) -> list[str]:
-    """The estimation profiles (:data:`tractionecu.pipeline.signals.PROFILES`): for each need the signal found
-    and its message, or what is missing; then the motion the speed signals show."""
-    out = ["  estimation profiles (contract signals found, from which message):"]
-    for name, needs in profile_status(rec).items():
+    """The estimation profiles (:data:`tractionecu.pipeline.signals.PROFILES`): the one replay runs (from the
+    recording's ``vehicle.toml``), and for each profile each need with the signal found and its message, or
+    what is missing; the profile the signals fit best when it is another; then the motion the speed signals
+    show."""
+    veh, origin = vehicle_of(rec)
+    run_as = estimator_profile(veh)
+    status = profile_status(rec, veh)
+    out = [f"  estimation profiles (contract signals found, from which message); replay runs {run_as} ({origin}):"]
+    for name, needs in status.items():
         found = sum(1 for _, sig in needs if sig is not None)
-        role = "estimated" if name in ESTIMATED_PROFILES else "not estimated yet, listed for information"
-        out.append(f"    {name} ({role}): {found} of {len(needs)} found")
+        out.append(f"    {name} ({profile_role(name, run_as)}): {found} of {len(needs)} found")
         width = max(len(need.what) for need, _ in needs)
         for need, sig in needs:
             if sig is not None:
@@ -70,8 +91,15 @@ def profile_lines(rec: Any) -> list[str]:
             note = (f" ({', '.join(source_of(rec, x) or x for x in sent)} sent, every value not available)"
                     if sent else "")
             note += "".join(f" (mapped: {source_of(rec, x)})" for x in need.signals
-                            if signal_state(rec, x) == "absent" and source_of(rec, x))
+                            if x != GNSS_TRACK_SPEED and signal_state(rec, x) == "absent" and source_of(rec, x))
             out.append(f"      {need.what:<{width}}  missing: {names}{note}")
+    best = best_profile(status)
+    if best != run_as:
+        out.append(f"  the signals fit profile {best} best: declare [drivetrain] {PROFILE_KINDS[best]} in "
+                   "vehicle.toml to run it")
+    missing = required_missing(rec, veh)
+    out.append(f"  replay of profile {run_as}: " + (f"does not run, missing {', '.join(missing)}" if missing
+                                                    else "runs (the signals it cannot run without are there)"))
     out.append(f"  motion: {motion(rec).describe()}")
     return out
 

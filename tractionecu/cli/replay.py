@@ -91,23 +91,29 @@ def run(args: argparse.Namespace) -> int:
 def missing_report(rec: Any, missing: list[str]) -> list[str]:
     """Why a recording is not replayed: the profile the estimator runs, what it lacks, the closest profile,
     the motion the recording shows."""
-    from ..pipeline.signals import ESTIMATED_PROFILES, motion, profile_status
+    from ..cli.inspect import vehicle_of
+    from ..pipeline.signals import PROFILE_KINDS, best_profile, estimator_profile, motion, profile_role, profile_status
 
-    status = profile_status(rec)
-    run_as = ESTIMATED_PROFILES[0]
-    lines = [f"tractionecu replay: {rec.path}: not replayed: profile {run_as} (the one the estimator runs) "
-             f"lacks {len(missing)} bus signal(s) it cannot run without",
+    veh, origin = vehicle_of(rec)
+    run_as = estimator_profile(veh)
+    status = profile_status(rec, veh)
+    lines = [f"tractionecu replay: {rec.path}: not replayed: profile {run_as} (the one the estimator runs, "
+             f"{origin}) lacks {len(missing)} bus signal(s) it cannot run without",
              f"  missing: {', '.join(missing)}"]
     absent = [need.what for need, sig in status[run_as] if sig is None]
     lines.append(f"  profile {run_as}: {len(status[run_as]) - len(absent)} of {len(status[run_as])} needs found"
                  + (f"; missing {', '.join(absent)}" if absent else ""))
     for name, needs in status.items():
-        if name in ESTIMATED_PROFILES:
+        if name == run_as:
             continue
         got = [need.what for need, sig in needs if sig is not None]
         lack = [need.what for need, sig in needs if sig is None]
-        lines.append(f"  profile {name} (not estimated yet): {len(got)} of {len(needs)} needs found"
+        lines.append(f"  profile {name} ({profile_role(name, run_as)}): {len(got)} of {len(needs)} needs found"
                      + (f"; found {', '.join(got)}" if got else "") + (f"; missing {', '.join(lack)}" if lack else ""))
+    best = best_profile(status)
+    if best != run_as:
+        lines.append(f"  the signals fit profile {best} best: declare [drivetrain] {PROFILE_KINDS[best]} in "
+                     "vehicle.toml to run it")
     lines.append(f"  motion: {motion(rec).describe()}")
     lines.append(f"  'tractionecu inspect {rec.path}' lists every signal found and missing; an owner's own "
                  "messages: --dbc FILE and a [signals] table in vehicle.toml")
@@ -117,10 +123,11 @@ def missing_report(rec: Any, missing: list[str]) -> list[str]:
 def profile_note(rec: Any) -> list[str]:
     """A line naming the hub needs the recording lacks though replay runs (the estimator flags those steps)."""
     from ..pipeline.replay import machine_of
-    from ..pipeline.signals import estimator_profile, profile_status
+    from ..pipeline.signals import estimator_profile, motion, profile_status
 
-    run_as = estimator_profile(machine_of(rec)[0])       # hub, or mechanical for an engine-driven [drivetrain]
-    absent = [need.what for need, sig in profile_status(rec)[run_as] if sig is None]
+    veh = machine_of(rec)[0]
+    run_as = estimator_profile(veh)                      # hub, or mechanical for an engine-driven [drivetrain]
+    absent = [need.what for need, sig in profile_status(rec, veh)[run_as] if sig is None]
     out = []
     if run_as == "mechanical" and "draft" in absent:      # by design: the machine-level estimator's sum
         absent.remove("draft")
@@ -128,6 +135,9 @@ def profile_note(rec: Any) -> list[str]:
                    "reported (status rho_s_and_draft_not_separated)")
     if absent:
         out.append(f"profile {run_as}: missing {', '.join(absent)}: the estimator flags those steps (time-out bits)")
+    mo = motion(rec, engine=False)                        # the survey keeps no whole engine speed
+    if mo.moving is not True:                             # a stationary capture: no estimate converges
+        out.append(f"motion: {mo.describe()}")
     return out
 
 

@@ -291,7 +291,9 @@ class MachineEstimator:
         self.ukf: UnscentedFilter | None = None
         self.t: float | None = None
         self.t_init: float | None = None
-        self._in = {"Te": math.nan, "Tref": math.nan, "gear": math.nan, "Fzf": math.nan, "Fdx": math.nan}
+        tref = self.dt.engine_reference_torque_nm          # declared, until EC1 says otherwise
+        self._in = {"Te": math.nan, "Tref": tref if tref > 0.0 else math.nan, "gear": math.nan, "Fzf": math.nan,
+                    "Fdx": math.nan}
         self._t_in = {k: -math.inf for k in _INPUT_KEYS}
         self._t_omega = -math.inf
         self._t_v = -math.inf

@@ -22,7 +22,7 @@ Estimation profiles
 :class:`Need` items (any one of a need's signals meets it; ``gps.speed`` is
 the GNSS speed over ground of the recording's track):
 
-* ``hub``, the one the estimator runs (:data:`ESTIMATED_PROFILES`): the four
+* ``hub``, the paper's machine (``[drivetrain] kind = "hub"``, the default): the four
   wheel speeds and drive torques, the front-axle load, the draft and the
   GNSS speed;
 * ``mechanical`` (also a power-split / CVT machine), run by the machine-level
@@ -165,10 +165,27 @@ PROFILES: dict[str, tuple[Need, ...]] = {
 }
 """Estimation profile -> its needs (module doc)."""
 
-ESTIMATED_PROFILES = ("hub",)
-"""The profile replay runs when ``vehicle.toml`` names no engine-driven drivetrain (the default); with
-``[drivetrain] kind = "mechanical"`` or ``"power-split"`` it runs ``mechanical``
+ESTIMATED_PROFILES = ("hub", "mechanical")
+"""Both profiles are estimated: ``hub`` when ``vehicle.toml`` names no engine-driven drivetrain (the
+default), ``mechanical`` with ``[drivetrain] kind = "mechanical"`` or ``"power-split"``
 (:class:`~tractionecu.estimation.machine.MachineEstimator`, :func:`estimator_profile`)."""
+
+PROFILE_KINDS = {"hub": 'kind = "hub"', "mechanical": 'kind = "mechanical" or "power-split"'}
+"""The ``[drivetrain] kind`` that makes replay and the daemon run each profile (``hub`` is the default)."""
+
+DECLARED_REFERENCE_TORQUE = "vehicle.toml [drivetrain] engine_reference_torque_nm"
+"""In :func:`profile_status`: the reference torque need met by the declared value, not by EC1."""
+
+
+def profile_role(name: str, run_as: str) -> str:
+    """How profile ``name`` is run, beside the one (``run_as``) the recording's vehicle selects."""
+    return ("replay runs this one" if name == run_as
+            else f"estimated with [drivetrain] {PROFILE_KINDS[name]} in vehicle.toml")
+
+
+def best_profile(status: dict[str, list[tuple[Need, str | None]]]) -> str:
+    """The profile of :func:`profile_status` whose needs the recording meets best (by share; ties: the first)."""
+    return max(status, key=lambda n: sum(sig is not None for _, sig in status[n]) / max(len(status[n]), 1))
 
 ENGINE_CURRENT_GEAR = "TransmissionCurrentGear"
 """Gear engaged [-], negative in reverse, 0 neutral (J1939 ETC2, SPN 523)."""
@@ -239,10 +256,14 @@ def estimator_profile(vehicle: Any) -> str:
 
 def machine_missing(rec: Any, vehicle: Any = None) -> list[str]:
     """The signals the machine-level estimator cannot run without that ``rec`` lacks (:data:`MACHINE_REQUIRED`,
-    one of :data:`DRIVE_SPEEDS`; with ``gear_ratio = "learnt"`` a wheel-based speed)."""
-    out = missing_signals(rec, MACHINE_REQUIRED)
-    speeds = DRIVE_SPEEDS
+    one of :data:`DRIVE_SPEEDS`; with ``gear_ratio = "learnt"`` a wheel-based speed).  A reference torque
+    declared in ``[drivetrain] engine_reference_torque_nm`` stands in for EC1's."""
     dt = getattr(vehicle, "drivetrain", None)
+    required = MACHINE_REQUIRED
+    if dt is not None and dt.engine_reference_torque_nm > 0.0:
+        required = tuple(n for n in required if n != ENGINE_REFERENCE_TORQUE)
+    out = missing_signals(rec, required)
+    speeds = DRIVE_SPEEDS
     if dt is not None and dt.gear_ratio == "learnt":
         speeds = DRIVE_SPEEDS[1:]
     if all(signal_state(rec, n) != "found" for n in speeds):
@@ -282,14 +303,27 @@ def source_of(rec: Any, name: str) -> str:
     """Where a signal of ``rec`` came from: its message, ``Message.Signal × scale``, or ``GNSS``."""
     if name == GNSS_TRACK_SPEED:
         return "GNSS"
+    if name == DECLARED_REFERENCE_TORQUE:
+        return "vehicle.toml"
     return getattr(rec, "signal_sources", {}).get(name, "")
 
 
-def profile_status(rec: Any) -> dict[str, list[tuple[Need, str | None]]]:
-    """For each profile of :data:`PROFILES`, each need with the first of its signals found (None if none is)."""
-    return {name: [(need, next((s for s in need.signals if signal_state(rec, s) == "found"), None))
-                   for need in needs]
-            for name, needs in PROFILES.items()}
+def profile_status(rec: Any, vehicle: Any = None) -> dict[str, list[tuple[Need, str | None]]]:
+    """For each profile of :data:`PROFILES`, each need with the first of its signals found (None if none is);
+    with ``vehicle``, a declared engine reference torque meets its need (:data:`DECLARED_REFERENCE_TORQUE`)
+    when the recording has no EC1."""
+    dt = getattr(vehicle, "drivetrain", None)
+    declared = dt is not None and dt.engine_reference_torque_nm > 0.0
+    out = {}
+    for name, needs in PROFILES.items():
+        rows = []
+        for need in needs:
+            sig = next((s for s in need.signals if signal_state(rec, s) == "found"), None)
+            if sig is None and declared and need.signals == (ENGINE_REFERENCE_TORQUE,):
+                sig = DECLARED_REFERENCE_TORQUE
+            rows.append((need, sig))
+        out[name] = rows
+    return out
 
 
 def missing_signals(rec: Any, required: Iterable[str] = REPLAY_REQUIRED) -> list[str]:
@@ -322,8 +356,9 @@ class Motion:
         return head + (": " + "; ".join(self.evidence) if self.evidence else "")
 
 
-def motion(rec: Any) -> Motion:
-    """Motion from the speed signals (module doc), with the engine speed, gear and parking brake as context."""
+def motion(rec: Any, engine: bool = True) -> Motion:
+    """Motion from the speed signals (module doc), with the engine speed (``engine``: a streamed replay's survey
+    keeps only a stub of it), gear and parking brake as context."""
     moving: bool | None = None
     evidence = []
     for names, limit, unit in ((SPEED_SIGNALS, MOTION_SPEED_MPS, "m/s"), (WHEEL_SPEEDS, MOTION_WHEEL_RAD_S, "rad/s")):
@@ -337,7 +372,7 @@ def motion(rec: Any) -> Motion:
             label = "GNSS speed" if name == GNSS_TRACK_SPEED else name
             evidence.append(f"{label} {top:.2f} {unit} at most ({int(np.isfinite(v).sum())} samples)")
             moving = bool(moving) or top > limit
-    rpm = _values(rec, ENGINE_SPEED)
+    rpm = _values(rec, ENGINE_SPEED) if engine else None
     if rpm is not None and np.isfinite(rpm).any():
         rpm = rpm[np.isfinite(rpm)] * 30.0 / math.pi
         line = f"engine {rpm.min():.0f} to {rpm.max():.0f} rpm (median {np.median(rpm):.0f})"
@@ -358,12 +393,12 @@ def motion(rec: Any) -> Motion:
     return Motion(moving, tuple(evidence))
 
 
-__all__ = ["ANCHOR_SIGNAL", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
+__all__ = ["ANCHOR_SIGNAL", "DECLARED_REFERENCE_TORQUE", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
            "ENGINE_REFERENCE_TORQUE", "ENGINE_SPEED", "ESTIMATED_PROFILES", "FRONT_AXLE_LOAD", "FRONT_AXLE_SPEED",
            "GEAR_RATIO", "GNSS_SPEED", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
            "SignalGroups", "estimator_profile", "machine_missing", "required_missing", "ENGINE_CURRENT_GEAR",
            "REAR_RELATIVE_SPEEDS", "FRONT_RELATIVE_SPEEDS", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
            "INPUT_MESSAGES", "IN_WORK", "MACHINE_INPUT_MESSAGES", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",
-           "Need", "PARKING_BRAKE", "PROFILES", "REPLAY_REQUIRED", "SELECTED_GEAR", "SPEED_SIGNALS", "VECTOR_KEYS",
+           "Need", "PARKING_BRAKE", "PROFILES", "PROFILE_KINDS", "best_profile", "profile_role", "REPLAY_REQUIRED", "SELECTED_GEAR", "SPEED_SIGNALS", "VECTOR_KEYS",
            "VEHICLE_SPEED", "WHEEL_BASED_SPEED", "WHEEL_SPEEDS", "missing_signals", "motion", "profile_status",
            "signal_state", "source_of"]
