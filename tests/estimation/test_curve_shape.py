@@ -278,3 +278,13 @@ def test_estimator_passes_the_loads_to_the_bins():
     ce2.update(0.0, np.array([0.41, 0.41, 0.29, 0.29]), np.array([0.1, 0.1, 0.06, 0.06]), np.full(4, 0.01),
                np.full(4, 0.009), fz)
     assert all(z == 0.0 for z in ce2.shape.bins.Z1)
+
+
+def test_load_term_is_opt_in_and_configurable():
+    from tractionecu.config import G, VehicleParams
+    from tractionecu.estimation.estimator import Estimator, EstimatorConfig
+
+    veh = VehicleParams()
+    est = Estimator(veh)
+    assert est._curve.shape.load is False and est._curve.fz_ref_n == pytest.approx(veh.mass_kg * G / 4)
+    assert Estimator(veh, EstimatorConfig(curve_shape_load=True))._curve.shape.load is True

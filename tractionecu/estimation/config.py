@@ -104,6 +104,7 @@ class EstimatorConfig:
     curve_slip_corr_s: float = setting(0.5, "correlation time of the slip error for the class evidence [s]", 1e-3, 1e3)
     curve_shape: bool = setting(True, "identify the μ(s) shape per soil segment once its slips span curve_shape_min_span (False: the one-parameter class path only)")
     curve_shape_min_span: float = setting(0.04, "slip span of a soil segment's pairs the shape fit needs [-]", 0.005, 1.0)
+    curve_shape_load: bool = setting(False, "fit the μ(s) curve's load dependence (1 + q (F_z/F_z,ref − 1)) where light and heavy wheels overlap in slip (False: one curve for every load)")
     # reported uncertainty (estimation/uncertainty.py)
     systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
                                                  "μ and ρ_s and the GNSS latency bound to the GNSS speed noise")

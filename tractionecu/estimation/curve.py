@@ -124,6 +124,9 @@ class CurveEstimator:
         one-parameter path only.
     shape_kw : keyword arguments of :class:`ShapeIdentifier` (min_span,
         min_bins, fit_period_s, ...).
+    fz_ref_n : reference wheel load of the identified curve [N] (static mean wheel load m g/4).
+    load : let the shape identification fit the curve's load dependence (:func:`fit_curve`), with the
+        wheel loads given to :meth:`update`; off by default.
     """
 
     @classmethod
@@ -135,12 +138,12 @@ class CurveEstimator:
         return cls(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu, min_slip=cfg.curve_min_slip,
                    class_tau_s=cfg.curve_class_tau_s, slip_corr_s=cfg.curve_slip_corr_s, shape=cfg.curve_shape,
                    shape_kw={"min_span": cfg.curve_shape_min_span}, switch_min_delta=cfg.curve_switch_min_delta,
-                   fz_ref_n=fz_ref_n)
+                   fz_ref_n=fz_ref_n, load=bool(getattr(cfg, "curve_shape_load", False)))
 
     def __init__(self, classes: Sequence[SoilClass | str] = ("stubble",), *, tau_s: float = 5.0,
                  min_mu: float = 0.15, min_slip: float = 0.005, class_tau_s: float = 30.0,
                  switch_min_delta: float = 10.0, slip_corr_s: float = 0.5, shape: bool = True,
-                 shape_kw: dict | None = None, fz_ref_n: float = math.nan):
+                 shape_kw: dict | None = None, fz_ref_n: float = math.nan, load: bool = False):
         cls = [SOIL_CLASSES[c] if isinstance(c, str) else c for c in classes]
         if not cls:
             raise ValueError("at least one surface class is needed")
@@ -161,7 +164,7 @@ class CurveEstimator:
         self._t: float | None = None
         self.n_used = 0
         self.fz_ref_n = float(fz_ref_n)
-        kw = {"fz_ref_n": self.fz_ref_n, **(shape_kw or {})}
+        kw = {"fz_ref_n": self.fz_ref_n, "load": bool(load), **(shape_kw or {})}
         self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **kw) if shape else None)
 
     def update(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64],
@@ -891,7 +894,9 @@ class ShapeIdentifier:
     confirm_s : the fit uses the pairs older than this [s] (see :meth:`_maybe_fit`).
     bic_margin : a free shape replaces the class when its BIC is this much lower.
     max_rel_sigma_a : a free shape whose σ_a/a exceeds this is not well posed.
-    load : fit the load sensitivity q where the pairs' wheel loads differ (:func:`fit_curve`).
+    load : fit the load sensitivity q where the pairs' wheel loads differ (:func:`fit_curve`); off by
+        default (module doc of :mod:`.curve`: on the filter's pairs a soil segment that holds two soils
+        shows a "load effect" the load term absorbs).
     fz_ref_n : reference wheel load F_z,ref [N] of the identified curve (the static mean wheel load).
     """
 
@@ -899,7 +904,7 @@ class ShapeIdentifier:
                  min_bin_weight: float = 2.0, fit_period_s: float = 10.0, slip_corr_s: float = 0.5,
                  cusum_k: float = 0.75, cusum_h: float = 4.0, max_weight: float = 2000.0,
                  history_s: float = 10.0, confirm_s: float = 5.0, bic_margin: float = 6.0,
-                 max_rel_sigma_a: float = 0.3, load: bool = True, fz_ref_n: float = math.nan):
+                 max_rel_sigma_a: float = 0.3, load: bool = False, fz_ref_n: float = math.nan):
         self.classes = list(classes)
         self.min_span = float(min_span)
         self.min_bins = int(min_bins)
