@@ -18,6 +18,15 @@ in one call each.  They compute the same quantities as the numpy code in
 * :func:`update_block` — the closed-form update of a contiguous block of
   states with a diagonal R, per-component NIS gate and bounds.
 
+and, for the estimator's bookkeeping around the filter (the same operations
+as the numpy code they replace, which stays the fallback; bit for bit, see
+``tests/estimation/test_speed_equivalence.py``):
+
+* :func:`cm_push`, :func:`cm_ratio` — covariance matching's window and its
+  ratio (:class:`~.supervisor.CovarianceMatching`);
+* :func:`fuzzy_aggregate` — the fuzzy supervisor's aggregated output set
+  (:class:`~.supervisor.FuzzySupervisor`).
+
 Results go into output arrays the caller allocates (returning arrays from
 compiled code costs more than passing them in); inputs are not changed.
 """
@@ -266,6 +275,61 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, k, out):      # pragma: no cov
     return conv
 
 
+def cm_push(emp, mod, i, dx, ksk):                          # pragma: no cover - compiled
+    """Row i of the covariance-matching window: emp[i] = Δx², mod[i] = diag(K S Kᵀ) (CovarianceMatching.push)."""
+    for j in range(dx.shape[0]):
+        emp[i, j] = dx[j] * dx[j]
+        mod[i, j] = ksk[j]
+
+
+def cm_ratio(emp, mod, a_min, a_max, out):                  # pragma: no cover - compiled
+    """A (n,) into out from the window (CovarianceMatching.compute, same operations): the column sums of emp
+    and mod in row order (numpy's sum over axis 0 of a C-ordered array), their ratio, 1 where it is not
+    finite (a zero sum included), clipped to [a_min, a_max]."""
+    npt, n = emp.shape
+    for j in range(n):
+        se = emp[0, j]
+        sm = mod[0, j]
+        for i in range(1, npt):
+            se += emp[i, j]
+            sm += mod[i, j]
+        r = 1.0
+        if sm != 0.0:
+            r = se / sm
+            if not math.isfinite(r):
+                r = 1.0
+        if r < a_min:
+            r = a_min
+        elif r > a_max:
+            r = a_max
+        out[j] = r
+
+
+def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover - compiled
+    """The aggregated output set (FuzzySupervisor.intensity): agg (G,) = max_k min(s_k, out_mf[k]) for the
+    three rule strengths s_k (clip, then aggregate); NaN everywhere when a strength is NaN (as numpy)."""
+    g = out_mf.shape[1]
+    if s0 != s0 or s1 != s1 or s2 != s2:
+        for j in range(g):
+            agg[j] = math.nan
+        return
+    for j in range(g):
+        a = out_mf[0, j]
+        if s0 < a:
+            a = s0
+        b = out_mf[1, j]
+        if s1 < b:
+            b = s1
+        c = out_mf[2, j]
+        if s2 < c:
+            c = s2
+        if b > a:
+            a = b
+        if c > a:
+            a = c
+        agg[j] = a
+
+
 _rk4_points = _vehicle._rk4_points
 
 sigma_points = compiled(sigma_points)
@@ -274,6 +338,9 @@ predict_model = compiled(_make_predict_model(_model_tag()))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
 estimate_outputs = compiled(estimate_outputs)
+cm_push = compiled(cm_push)
+cm_ratio = compiled(cm_ratio)
+fuzzy_aggregate = compiled(fuzzy_aggregate)
 
 _warm = False
 
@@ -310,4 +377,9 @@ def warm_up() -> None:
                      np.empty((n, m + 2)), np.empty((2 * m + 1, m)))
     add_torque_noise(P, u, 1.0, 0.01, 0.1, 1e-6, np.empty((n, n)))
     estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, np.ones(4), np.empty(22))
+    emp = np.zeros((4, n))
+    cm_push(emp, emp.copy(), 0, x, x)
+    cm_push(emp, emp.copy(), 0, sig[:, 0], sig[:, 1])
+    cm_ratio(emp, emp + 1.0, 0.1, 10.0, np.empty(n))
+    fuzzy_aggregate(1.0, 0.0, 0.0, np.ones((3, 11)), np.empty(11))
     _warm = True

@@ -76,6 +76,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..config import setting, validate
 from ..errors import ConfigError
+from . import _kernels
+from ._kernels import JIT
 
 
 # --------------------------------------------------------------------- memberships
@@ -182,6 +184,7 @@ class FuzzySupervisor:
         self._w[[0, -1]] = 0.5 * h
         self._xw = self.grid * self._w
         self._log_ratio = math.log(c.factor_max / c.factor_min)
+        self._memo: dict[tuple[float, float, float], float] = {}
 
     def memberships(self, accel_abs: float, torque_rate_abs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Degrees (LOW, MEDIUM, HIGH) of e₁ = |dv/dt| [m/s²] and e₂ = |dM_d/dt| [N·m/s]."""
@@ -206,11 +209,23 @@ class FuzzySupervisor:
             for j in range(3):
                 k = _RULES_L[i][j]
                 strength[k] = _max(strength[k], _min(mu1[i], mu2[j]))
-        agg = np.max(np.minimum(np.array(strength)[:, None], self.out_mf), axis=0)   # clip + aggregate
+        # c is a function of the three strengths alone: steady driving repeats the same ones (all LOW:
+        # (1, 0, 0)), and their centroid is kept rather than integrated again
+        key = (strength[0], strength[1], strength[2])
+        c = self._memo.get(key)
+        if c is not None:
+            return c
+        if JIT:
+            agg = np.empty(self.grid.size)
+            _kernels.fuzzy_aggregate(key[0], key[1], key[2], self.out_mf, agg)
+        else:
+            agg = np.max(np.minimum(np.array(strength)[:, None], self.out_mf), axis=0)   # clip + aggregate
         area = float(agg @ self._w)
-        if area <= 0.0:
-            return 0.5
-        return float(agg @ self._xw) / area
+        c = 0.5 if area <= 0.0 else float(agg @ self._xw) / area
+        if len(self._memo) >= 64:
+            self._memo.clear()
+        self._memo[key] = c
+        return c
 
     def factor(self, accel_abs: float, torque_rate_abs: float) -> float:
         """Adaptation factor f = f_min·(f_max/f_min)^c [-]."""
@@ -237,6 +252,8 @@ class DynamicsMonitor:
         """Filtered dv/dt [m/s²]."""
         self.torque_rate = 0.0
         """Filtered dΣM_d/dt [N·m/s]."""
+        self._dt = math.nan
+        self._k = math.nan
 
     def update(self, t: float, v: float, m_total: float) -> None:
         if self._t is None:
@@ -245,7 +262,10 @@ class DynamicsMonitor:
         dt = t - self._t
         if dt <= 0.0:
             return
-        k = 1.0 - math.exp(-dt / self.tau)
+        if dt != self._dt:                  # the step period repeats: the same gain
+            self._dt = dt
+            self._k = 1.0 - math.exp(-dt / self.tau)
+        k = self._k
         v_new = self._v + k * (v - self._v)
         m_new = self._m + k * (m_total - self._m)
         self.accel += k * ((v_new - self._v) / dt - self.accel)
@@ -279,16 +299,26 @@ class CovarianceMatching:
     def push(self, dx: NDArray[np.float64], ksk_diag: NDArray[np.float64]) -> None:
         """Add one update's correction Δx = Kν (n,) and diag(K S Kᵀ) (n,)."""
         i = self._i
-        np.multiply(dx, dx, out=self._emp[i])
-        self._mod[i] = ksk_diag
-        self._i = (i + 1) % self.M
-        self.count = min(self.count + 1, self.M)
+        if JIT:
+            _kernels.cm_push(self._emp, self._mod, i, dx, ksk_diag)
+        else:
+            np.multiply(dx, dx, out=self._emp[i])
+            self._mod[i] = ksk_diag
+        i += 1
+        self._i = 0 if i == self.M else i
+        if self.count < self.M:
+            self.count += 1
 
     def compute(self) -> NDArray[np.float64]:
         """Recompute A_k from the window (A = 1 until the window is full)."""
         if self.count < self.M:
             self.A = np.ones(self.n)
             return self.A
+        if JIT:
+            A = np.empty(self.n)
+            _kernels.cm_ratio(self._emp, self._mod, self.a_min, self.a_max, A)
+            self.A = A
+            return A
         with np.errstate(divide="ignore", invalid="ignore"):
             r = self._emp.sum(axis=0) / self._mod.sum(axis=0)
         r = np.where(np.isfinite(r), r, 1.0)
