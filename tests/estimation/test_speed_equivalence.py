@@ -16,6 +16,7 @@ import pytest
 from est_synth import synth_run
 
 from tractionecu.config import VehicleParams
+from tractionecu.estimation import estimator as est_mod
 from tractionecu.estimation import supervisor as sup_mod
 from tractionecu.estimation.estimator import Estimator, EstimatorConfig
 from tractionecu.estimation.supervisor import CovarianceMatching, DynamicsMonitor, FuzzySupervisor
@@ -143,3 +144,29 @@ def test_estimator_with_compiled_supervisor_equals_numpy_supervisor(monkeypatch)
     ref = _run(run.steps)
     _assert_runs_equal(fast, ref)
 
+
+
+@needs_jit
+@pytest.mark.parametrize("input_noise", [True, False])
+def test_process_noise_kernel_equals_numpy(monkeypatch, input_noise):
+    """Estimator._rebuild_Q (tuning × adaptation, axle-load and draft terms) compiled and in numpy: the same
+    Q bit for bit, along a run with a soil change (μ̂, r_d, adaptation and supervisor moving) and before
+    the filter starts."""
+    from dataclasses import replace
+
+    run = synth_run(seed=6, duration=8.0, change=(4.0, 0.5, 0.1))
+    est = Estimator(VehicleParams(), replace(EstimatorConfig(), input_noise=input_noise))
+    checked = 0
+    for k, s in enumerate(run.steps):
+        if k % 7 == 0:
+            for dt in (0.01, 0.02, 0.0033):
+                est._rebuild_Q(dt)
+                fast = est._Qbase
+                monkeypatch.setattr(est_mod, "JIT", False)
+                est._rebuild_Q(dt)
+                monkeypatch.setattr(est_mod, "JIT", True)
+                assert _same(fast, est._Qbase), (k, dt)
+                checked += 1
+            est._Qbase = None
+        est.step(*s)
+    assert checked > 100 and est.ukf is not None

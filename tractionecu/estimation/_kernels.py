@@ -22,6 +22,8 @@ and, for the estimator's bookkeeping around the filter (the same operations
 as the numpy code they replace, which stays the fallback; bit for bit, see
 ``tests/estimation/test_speed_equivalence.py``):
 
+* :func:`process_noise` — the slowly changing part of the estimator's Q
+  (:meth:`~.estimator.Estimator._rebuild_Q`);
 * :func:`cm_push`, :func:`cm_ratio` — covariance matching's window and its
   ratio (:class:`~.supervisor.CovarianceMatching`);
 * :func:`fuzzy_aggregate` — the fuzzy supervisor's aggregated output set
@@ -275,6 +277,27 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, k, out):      # pragma: no cov
     return conv
 
 
+def process_noise(q_tune, fdt, A, inputs, rd, x, rho_t, J, g_v, c_fz, c_fd, Q):  # pragma: no cover - compiled
+    """Estimator._rebuild_Q's Q (n, n), same operations: diag(q_tune·(f Δt)·A); with the input noise
+    (``inputs``) plus g gᵀ·c_fz, g_i = ∓½ r_d,i (μ_i + ρ_t)/J for the wheels (μ_i = x[5 + i]), g_4 = g_v,
+    and c_fd added to the v diagonal."""
+    n = q_tune.shape[0]
+    g = np.zeros(n)
+    if inputs:
+        for i in range(4):
+            s = -0.5 if i < 2 else 0.5
+            g[i] = ((s * rd[i]) * (x[5 + i] + rho_t)) / J
+        g[4] = g_v
+    for i in range(n):
+        for j in range(n):
+            q = (q_tune[i] * fdt) * A[i] if i == j else 0.0
+            if inputs:
+                q = q + (g[i] * g[j]) * c_fz
+            Q[i, j] = q
+    if inputs:
+        Q[4, 4] += c_fd
+
+
 def cm_push(emp, mod, i, dx, ksk):                          # pragma: no cover - compiled
     """Row i of the covariance-matching window: emp[i] = Δx², mod[i] = diag(K S Kᵀ) (CovarianceMatching.push)."""
     for j in range(dx.shape[0]):
@@ -338,6 +361,7 @@ predict_model = compiled(_make_predict_model(_model_tag()))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
 estimate_outputs = compiled(estimate_outputs)
+process_noise = compiled(process_noise)
 cm_push = compiled(cm_push)
 cm_ratio = compiled(cm_ratio)
 fuzzy_aggregate = compiled(fuzzy_aggregate)
@@ -377,6 +401,8 @@ def warm_up() -> None:
                      np.empty((n, m + 2)), np.empty((2 * m + 1, m)))
     add_torque_noise(P, u, 1.0, 0.01, 0.1, 1e-6, np.empty((n, n)))
     estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, np.ones(4), np.empty(22))
+    process_noise(x, 0.01, x, True, x[:4], x, 0.01, 2.0, 0.1, 1e-6, 1e-6, np.empty((n, n)))
+    process_noise(x, 0.01, x, False, x[:4], x, 0.01, 2.0, 0.0, 0.0, 0.0, np.empty((n, n)))
     emp = np.zeros((4, n))
     cm_push(emp, emp.copy(), 0, x, x)
     cm_push(emp, emp.copy(), 0, sig[:, 0], sig[:, 1])

@@ -223,6 +223,8 @@ KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
 curvature input is limited to ±this, and so is its standard deviation when it is not known."""
 _ABSENT = object()
+_AXLE_SGN = np.array([-0.5, -0.5, 0.5, 0.5])
+"""−∂F_z,i/∂F_zf of the wheels FL, FR, RL, RR (front F_zf/2, rear (mg − F_zf)/2): the axle-load term of Q."""
 _SL_W = slice(0, 4)
 _SL_WV = slice(0, 5)
 _SL_V = slice(4, 5)
@@ -401,18 +403,35 @@ class Estimator:
         return g * g * self._kappa_var * BIAS_TAU_S * dt
 
     def _rebuild_Q(self, dt: float) -> None:
-        q = self._q_tune * (self._f * dt)
-        q *= self._A
-        Q = np.diag(q)
         J = self.J
         period = self._rates.period
         self._tq_gain = period("Md") * dt / (J * J)
-        if self.cfg.input_noise and self.ukf is not None:
+        inputs = self.cfg.input_noise and self.ukf is not None
+        if JIT:
+            # the numpy code below, compiled (same operations: tests/estimation/test_speed_equivalence.py)
+            Q = np.empty((N_STATE, N_STATE))
+            g_v = c_fz = c_fd = 0.0
+            x = self._q_tune
+            if inputs:
+                self._loads()
+                x = self.ukf.x  # type: ignore[union-attr]
+                g_v = -float(_AXLE_SGN @ x[IX_MU]) / self.m
+                c_fz = self._fz_var * period("Fzf") * dt
+                c_fd = self._fd_var * period("Fdx") * dt / (self.m * self.m)
+            _kernels.process_noise(self._q_tune, self._f * dt, self._A, inputs, self._rd, x, self.vehicle.rho_t,
+                                   J, g_v, c_fz, c_fd, Q)
+            self._Qbase = Q
+            self._Qdt = dt
+            return
+        q = self._q_tune * (self._f * dt)
+        q *= self._A
+        Q = np.diag(q)
+        if inputs:
             self._loads()
-            mu = self.ukf.x[IX_MU]
+            mu = self.ukf.x[IX_MU]  # type: ignore[union-attr]
             # axle load: dω̇_i/dF_zf = ∓ r_i (μ_i + ρ_t)/(2J), dv̇/dF_zf = (μ1+μ2−μ3−μ4)/(2m)
             g = np.zeros(N_STATE)
-            sgn = np.array([-0.5, -0.5, 0.5, 0.5])
+            sgn = _AXLE_SGN
             g[:4] = sgn * self._rd * (mu + self.vehicle.rho_t) / J
             g[IX_V] = -float(sgn @ mu) / self.m
             Q += np.outer(g, g) * (self._fz_var * period("Fzf") * dt)
