@@ -229,10 +229,13 @@ def diagnose_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Pa
     """Diagnose one recording; returns ``rows`` of the diagnosis table (:data:`.store.DIAGNOSIS_SCHEMA`)
     and the verdict."""
     from ..diagnose import diagnose_path
+    from ..pipeline.survey import survey_keep
+    from ..recording.reader import read_recording
 
     rep = diagnose_path(ref["path"], tdir / "diagnose")
+    span = read_recording(ref["path"], keep=survey_keep).duration      # the recording's span [s]
     return {"verdict": str(rep.get("verdict", "")), "rows": diagnosis_rows(rep, ref, chash),
-            "hours": float((rep.get("estimator") or {}).get("steps", 0)) / 100.0 / 3600.0}
+            "hours": float(span) / 3600.0 if math.isfinite(span) else 0.0}
 
 
 def diagnosis_rows(rep: dict[str, Any], ref: dict[str, str], chash: str) -> list[dict[str, Any]]:
