@@ -8,32 +8,35 @@ import numpy as np
 import pytest
 
 from tractionecu.config import VehicleParams
-from tractionecu.diagnose.channels import MU0_RANGE, SlipChannel, _CurveInverse, _two_regressor_fit
+from tractionecu.diagnose.channels import (MU0_RANGE, SLIP_RESISTANCE_MAX, SlipChannel, _CurveInverse,
+                                          _rho_and_slip_fit)
 from tractionecu.diagnose.data import Frame
 from tractionecu.diagnose.engine import _implausible_bound, identified
 from tractionecu.diagnose.fit import FitResult
 from tractionecu.model.mucurve import SOIL_CLASSES
 
 
-def test_two_regressor_fit_is_least_squares_per_group_with_a_nonnegative_slip_coefficient():
+def test_rho_per_cell_and_one_slip_coefficient_are_least_squares_within_the_physical_range():
     rng = np.random.default_rng(3)
     n = 600
     group = np.repeat([0, 1, 2], n // 3)
-    x1 = np.full(n, 60000.0)                       # m g
-    x2 = rng.uniform(0.0, 6000.0, n)               # Σ F_z |s|
-    beta1 = np.array([0.05, 0.08, 0.06])
-    beta2 = np.array([0.07, 0.0, -0.2])            # group 2: a negative slip coefficient is unphysical
-    y = beta1[group] * x1 + beta2[group] * x2 + rng.normal(0, 5.0, n)
-    fit = _two_regressor_fit(y, x1, x2, group, 3)
-    for g in (0, 1):
-        m = group == g
-        A = np.column_stack([x1[m], x2[m]])
-        b, *_ = np.linalg.lstsq(A, y[m], rcond=None)
-        if b[1] > 0:
-            assert np.allclose(fit[m], A @ b, rtol=1e-9, atol=1e-6)
-    # Group 2 falls back to ρ_s alone (β₂ = 0): the fitted values are constant.
-    m = group == 2
-    assert np.ptp(fit[m]) < 1e-9 and fit[m][0] == pytest.approx(np.mean(y[m]), rel=1e-9)
+    mg = 60000.0
+    xs = rng.uniform(0.0, 6000.0, n)               # Σ F_z |s| [N]
+    rho = np.array([0.05, 0.08, 0.06])
+    for k_true in (0.07, -0.2, 0.6):
+        y = rho[group] * mg + k_true * xs + rng.normal(0, 5.0, n)
+        fit = _rho_and_slip_fit(y, mg, xs, group, 3)
+        A = np.column_stack([(group == g).astype(float) for g in range(3)] + [xs])
+        b, *_ = np.linalg.lstsq(A, y, rcond=None)
+        k_hat = np.clip(b[3], 0.0, SLIP_RESISTANCE_MAX)
+        assert k_hat == pytest.approx(min(max(k_true, 0.0), SLIP_RESISTANCE_MAX), abs=2e-3)
+        if 0.0 < b[3] < SLIP_RESISTANCE_MAX:
+            assert np.allclose(fit, A @ b, rtol=1e-9, atol=1e-6)
+        else:
+            # On a bound, ρ per cell is the least squares given that k.
+            for g in range(3):
+                m = group == g
+                assert np.mean(fit[m] - k_hat * xs[m]) == pytest.approx(np.mean(y[m] - k_hat * xs[m]), rel=1e-9)
 
 
 def test_slip_channel_fits_the_zero_slip_traction_ratio_per_axle():

@@ -188,32 +188,29 @@ def _onehot_scaled_fit(y: NDArray, x: NDArray, group: NDArray[np.int64], ng: int
     return beta[group] * x
 
 
-def _two_regressor_fit(y: NDArray, x1: NDArray, x2: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
-    """β₁,g x1 + β₂,g x2 fitted per group by least squares with β₂,g ≥ 0 (a group whose free fit
-    gives β₂ < 0, or whose regressors are collinear, gets β₂ = 0 and the one-regressor fit)."""
-    s11 = np.bincount(group, weights=x1 * x1, minlength=ng)
-    s22 = np.bincount(group, weights=x2 * x2, minlength=ng)
-    s12 = np.bincount(group, weights=x1 * x2, minlength=ng)
-    s1y = np.bincount(group, weights=x1 * y, minlength=ng)
-    s2y = np.bincount(group, weights=x2 * y, minlength=ng)
-    det = s11 * s22 - s12 * s12
-    ok = det > 1e-9 * np.maximum(s11 * s22, 1e-300)
-    detp = np.where(ok, det, 1.0)
-    b1 = (s22 * s1y - s12 * s2y) / detp
-    b2 = (s11 * s2y - s12 * s1y) / detp
-    one = np.where(s11 > 0, s1y / np.where(s11 > 0, s11, 1.0), 0.0)
-    use2 = ok & (b2 > 0)
-    b1 = np.where(use2, b1, one)
-    b2 = np.where(use2, b2, 0.0)
-    return b1[group] * x1 + b2[group] * x2
-
-
 SLIP_RESISTANCE_NOMINAL = True
-"""The speed channel's nominal resistance grows with slip: ρ_s m g + k_s Σ_i F_z,i |s_i| per field cell.
+"""The speed channel's nominal resistance grows with slip: ρ_s,cell m g + k_s Σ_i F_z,i |s_i|.
 
 What every tractor on soil has: the motion resistance of a tyre rises with its slip (the tyre digs
-in and bulldozes; Brixius 1987: MR/W = 1/B_n + 0.04 + 0.5 s/√B_n, so k_s = 0.5/√B_n ≈ 0.05–0.1 on
-field soils), and the soil sets its size, so k_s ≥ 0 is free per field cell like ρ_s."""
+in and bulldozes; Brixius 1987: MR/W = 1/B_n + 0.04 + 0.5 s/√B_n, so k_s = 0.5/√B_n).  One k_s per
+recording in [0, :data:`SLIP_RESISTANCE_MAX`] (a per-cell k_s would also take up part of a grade,
+whose climbs raise the slip)."""
+SLIP_RESISTANCE_MAX = 0.15
+"""Largest slip coefficient k_s of the motion resistance [-]: 0.5/√B_n at B_n = 11, softer than the
+mobility numbers of trafficable field soils (B_n ≈ 15–80 for tractor tyres on tilled to firm soil)."""
+
+
+def _rho_and_slip_fit(y: NDArray, mg: float, xs: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
+    """ρ_g m g + k xs fitted by least squares with one ρ per group and one k in [0, SLIP_RESISTANCE_MAX]
+    shared by all (the group means are profiled out first)."""
+    cnt = np.maximum(np.bincount(group, minlength=ng), 1)
+    ym = np.bincount(group, weights=y, minlength=ng) / cnt
+    xm = np.bincount(group, weights=xs, minlength=ng) / cnt
+    yt, xt = y - ym[group], xs - xm[group]
+    den = float(np.dot(xt, xt))
+    k = float(np.clip(np.dot(xt, yt) / den, 0.0, SLIP_RESISTANCE_MAX)) if den > 0 else 0.0
+    rho = ym - k * xm
+    return rho[group] + k * xs
 
 
 # --------------------------------------------------------------------------- speed
@@ -274,7 +271,7 @@ class SpeedChannel(Channel):
         y, f = y[rows], f[rows]
         if SLIP_RESISTANCE_NOMINAL:
             xs = self._slip_load(eff)[rows]
-            nu = _two_regressor_fit(y - f, np.full(y.size, m * G), xs, self.cell[rows], self.ncell)
+            nu = _rho_and_slip_fit(y - f, m * G, xs, self.cell[rows], self.ncell)
         else:
             nu = _onehot_scaled_fit(y - f, np.full(y.size, m * G), self.cell[rows], self.ncell)
         return y, f + nu
