@@ -51,7 +51,11 @@ def test_manifest_columns_win(tmp_path: Path) -> None:
     man = tmp_path / "manifest.csv"
     man.write_text("path,machine,date,field\ndata/m1/2026-07-10/a,,,\ndata/b,tractor-7,2026-05-04,west\n",
                    encoding="utf-8")
-    refs = {Path(r.path).name: r for r in discover(man)}
+    with open(man, "a", encoding="utf-8") as fh:
+        fh.write("data/b,tractor-8,2026-05-05,east\n")               # listed twice: the first row counts
+    listed = discover(man)
+    assert len(listed) == 2
+    refs = {Path(r.path).name: r for r in listed}
     assert (refs["a"].machine, refs["a"].date) == ("data", "2026-07-10")     # path rule, relative to the manifest
     assert (refs["b"].machine, refs["b"].date, refs["b"].field) == ("tractor-7", "2026-05-04", "west")
     bad = tmp_path / "bad.csv"

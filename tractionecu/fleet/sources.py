@@ -176,7 +176,8 @@ def read_manifest(path: Path) -> list[RecordingRef]:
 def discover(source: str | Path, *, exclude: str | Path | None = None) -> list[RecordingRef]:
     """The recordings of ``source`` (module doc), sorted by machine, date and path.
 
-    ``exclude`` (the output directory, when it lies inside the tree) is not searched.
+    ``exclude`` (the output directory, when it lies inside the tree) is not searched; a recording listed
+    twice (a manifest, overlapping globs) is kept once, with its first row.
     """
     s = str(source)
     ex = Path(exclude) if exclude is not None else None
@@ -194,7 +195,14 @@ def discover(source: str | Path, *, exclude: str | Path | None = None) -> list[R
             refs = [from_path(p, p.parent)]
         else:
             refs = [from_path(r, p) for r in _walk(p, ex)]
-    return sorted(refs, key=lambda r: (r.machine, r.date, r.path))
+    seen: set[str] = set()
+    unique = []
+    for r in refs:                       # a recording listed twice is one task (its outputs share a key)
+        k = str(Path(r.path).resolve())
+        if k not in seen:
+            seen.add(k)
+            unique.append(r)
+    return sorted(unique, key=lambda r: (r.machine, r.date, r.path))
 
 
 def first_fix(path: str | Path, max_lines: int = 2000) -> tuple[float, float] | None:
