@@ -62,6 +62,21 @@ def test_replay_tables_failures_and_rerun(tmp_path: Path, fleet_tree: Path) -> N
     s2 = runner.build_farm_map(out, again)
     assert s2["merged_now"] == 0 and s2["reused"] == 2
 
+    # a new day's recording is merged into the farm map as it stands, and the result is the season's merge
+    import shutil
+
+    from tractionecu.fleet.merge import max_difference, merge_maps
+
+    shutil.copytree(Path(ok[1]["path"]), fleet_tree / "tractor-b" / "2026-07-13" / "run2")
+    day = runner.run_kind("replay", fleet_tree, out, stream=None)
+    s3 = runner.build_farm_map(out, day)
+    assert (s3["merged_now"], s3["reused"]) == (1, 2)
+    keys = sorted(r["key"] for r in day if r["status"] == "ok")
+    merge_maps([out / "tasks" / "replay" / k / "farm_map" for k in keys], tmp_path / "scratch")
+    d = max_difference(out / "farm_map", tmp_path / "scratch")
+    assert d["count"] == 0 and d["cells_only_in_one"] == 0 and d["mean"] <= 1e-12 and d["var"] <= 1e-12
+    shutil.rmtree(fleet_tree / "tractor-b" / "2026-07-13")
+
     # a changed recording is a new task
     gps = Path(ok[0]["path"]) / "gps.nmea"
     gps.write_text(gps.read_text(encoding="ascii"), encoding="ascii")      # same bytes: still cached
