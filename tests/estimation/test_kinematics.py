@@ -351,6 +351,30 @@ def test_creeping_slip_is_flagged_held_and_not_fed_to_the_curve(run20):
     assert all(math.sqrt(e.P_diag[4]) / abs(e.v) > EstimatorConfig().slip_sigma_max for e in flagged)
 
 
+def test_a_flagged_slip_makes_no_map_pair():
+    """The map's centred window takes (μ, s) pairs for its a; a slip flagged 0x2000 is a held value, so its
+    sample gives no pair (weight 0), online (CentredSampler) as in replay (centred_map_values)."""
+    from types import SimpleNamespace
+
+    from tractionecu.mapping.sampler import CentredSampler, centred_map_values
+
+    def est(status):
+        return SimpleNamespace(mu=np.full(4, 0.4), slip=np.full(4, 0.08), P_diag=np.full(10, 1e-4), v=2.0,
+                               valid=True, status=status, soil_class="stubble", rho_s=0.06, curve=None)
+
+    for status, paired in ((0, True), (SLIP_UNCERTAIN, False)):
+        smp = CentredSampler()
+        smp.push(0.0, 47.0, 8.0, 4, 0.8, est(status))
+        assert (smp._hist[-1][1] > 0).all() == paired
+    n = 50
+    t = np.arange(n) * 0.1
+    held = np.arange(n) >= 25
+    slip = np.where(held[:, None], np.nan, 0.08) * np.ones((n, 4))
+    vals = centred_map_values(t, np.full((n, 4), 0.4), slip, np.full((n, 4), 1e-4), np.full(n, 2.0),
+                              np.full(n, 0.06), ["stubble"] * n, half_window_s=1.0)
+    assert np.isfinite(vals["a"][:10]).all() and np.isnan(vals["a"][-10:]).all()
+
+
 # ----------------------------------------------------------------------------- inputs slower than the step
 def _subsample(run, every: int):
     """Wheel speeds and torques only every ``every`` steps (a slower bus), the rest as recorded."""

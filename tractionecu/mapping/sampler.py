@@ -46,6 +46,8 @@ MIN_SLIP = 0.005
 """Pairs with |ŝ| below this are skipped [-]."""
 MIN_SPEED = 0.5
 """No pairs below this speed [m/s]."""
+STATUS_SLIP_UNCERTAIN = 0x2000
+"""EstimateStatus bit of a slip its own σ does not support (held by the estimator): its (μ, s) pair is no pair."""
 
 
 def pair_weights(mu: NDArray[np.float64], slip: NDArray[np.float64], var_mu: NDArray[np.float64],
@@ -161,6 +163,8 @@ class CentredSampler:
         """Add one sample (an :class:`~tractionecu.estimation.estimator.Estimate` at GNSS epoch t)."""
         mu = np.asarray(est.mu, dtype=float)
         slip = np.asarray(est.slip, dtype=float)
+        if int(est.status) & STATUS_SLIP_UNCERTAIN:
+            slip = np.full(4, np.nan)            # a held slip: no (μ, s) pair for the map's a
         var_mu = np.asarray(est.P_diag, dtype=float)[5:9]
         w = pair_weights(mu[None, :], slip[None, :], var_mu[None, :], np.array([est.v]))[0]
         self._hist.append((t, w, mu, slip, float(est.rho_s)))
