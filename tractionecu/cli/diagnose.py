@@ -53,10 +53,14 @@ def run(args: argparse.Namespace) -> int:
         head += " (" + " / ".join(rep["ambiguous_between"]) + ")"
     lines = [head, rep["statement"]]
     for e in rep.get("effects") or []:
-        ps = ", ".join(f"{k} = {p['value']:.4g}" if isinstance(p.get("value"), (int, float)) else f"{k} = {p.get('value')}"
+        ps = ", ".join((f"{k} = {p['value']:.4g}" if isinstance(p.get("value"), (int, float)) else f"{k} = {p.get('value')}")
+                       + (f" (at its {p['at_bound']} bound)" if p.get("at_bound") else "")
+                       + (" (not identified)" if p.get("identified") is False else "")
                        for k, p in (e.get("parameters") or {}).items())
         lines.append(f"  {e['kind']:15s} {e['name']}" + (f": {ps}" if ps else "")
-                     + (" (ambiguous)" if e.get("ambiguous") else ""))
+                     + (" (ambiguous)" if e.get("ambiguous") else "")
+                     + (" (not named)" if e.get("named") is False and e["kind"] not in ("nominal",) else "")
+                     + (f" (explains as well: {', '.join(e['consistent_with'])})" if e.get("consistent_with") else ""))
     lines.append(f"-> {Path(args.out) / 'report.md'} ({dt:.1f} s)")
     print("\n".join(lines))
     return 0
