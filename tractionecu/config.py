@@ -336,7 +336,7 @@ LOAD_SENSING = ("front-axle", "none")
 GEAR_RATIO_SOURCES = ("bus", "learnt")
 """``[drivetrain] gear_ratio``: ETC2's actual gear ratio (SPN 526), or learnt from engine speed over wheel speed."""
 
-FRONT_DRIVE = ("engaged", "disengaged")
+FRONT_DRIVE = ("engaged", "disengaged", "auto")
 """``[drivetrain] front_drive``: the mechanical front-wheel drive (MFWD) clutch."""
 
 
@@ -387,7 +387,9 @@ class DrivetrainSpec:
     efficiency_tolerance: float = setting(math.nan, "relative uncertainty of η [-] (1σ): it bounds how well μ "
                                           "is known; not given: the kind's default (hub 0, else 0.03)", 0.0, 0.5,
                                           nan_ok=True)
-    front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls)")
+    front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls) | "
+                               "auto (from the bus: engaged while EBC2's front-axle speed keeps the coupling's "
+                               "ratio to the rear wheels, rolling when it falls below it by the lead)")
     front_lead: float = setting(0.02, "front-axle lead: front over rear wheel circumferential speed, minus 1 [-] "
                                 "(1-5 % on MFWD tractors)", -0.1, 0.2)
     engine_friction_percent: float = setting(0.0, "nominal friction percent torque (J1939 EEC3 SPN 514) taken "

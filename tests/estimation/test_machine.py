@@ -187,6 +187,25 @@ def test_learnt_gear_ratio_without_etc2(synthetic) -> None:
     assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.04
 
 
+def test_without_etc2_the_bus_profile_learns_the_ratio(synthetic) -> None:
+    """gear_ratio = "bus" but no ETC2 on the bus (or its ratio "not available"): the ratio is learnt from engine
+    speed over wheel speed, as with gear_ratio = "learnt", also when CCVS1 is not sent in the step of an EEC1
+    (the latest engine speed within PAIR_S is paired with it)."""
+    truth, bus = synthetic
+    no_gear = [x for x in bus if x[1] != "gear"]
+    shifted = sorted(((t + 0.005 if k == "vwb" else t), k, v) for t, k, v in no_gear)   # CCVS1 not beside EEC1
+    for name, b in (("absent", no_gear),
+                    ("not available", [(t, k, math.nan if k == "gear" else v) for t, k, v in bus]),
+                    ("CCVS1 out of phase with EEC1", shifted)):
+        est = MachineEstimator(mech_vehicle())
+        late = [e for e in run(est, b) if e.t > 20.0]
+        assert abs(late[-1].total_ratio - 80.0) / 80.0 < 0.02, name
+        i = _truth_at(truth, np.array([e.t for e in late]))
+        mu = np.array([e.mu[0] for e in late])
+        assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.04, name
+        assert np.mean([e.valid for e in late]) > 0.95, name
+
+
 def test_hub_vehicle_is_refused_and_bad_input_is_counted() -> None:
     with pytest.raises(EstimatorError, match="hub"):
         MachineEstimator(VehicleParams())
@@ -376,3 +395,36 @@ def test_declared_reference_torque_stands_in_until_ec1_arrives(synthetic) -> Non
     est.reset()
     assert est._in["Tref"] == 400.0
     assert math.isnan(MachineEstimator(mech_vehicle())._in["Tref"])
+
+
+def _with_ebc2(bus, truth, veh, rolling):
+    """EBC2 beside CCVS1: the front-axle speed at the coupling's lead (engaged), or at the ground speed when
+    ``rolling(t)`` (the front axle disengaged); the rear wheels at the wheel-based speed."""
+    out = []
+    for t, k, v in bus:
+        if k != "vwb":
+            continue
+        vfa = truth["v"][_truth_at(truth, t)] if rolling(t) else v * 1.03
+        out += [(t, "vfa", vfa), (t, "rel_r", np.array([v - vfa, v - vfa]))]
+    return sorted(bus + out, key=lambda b: b[0])
+
+
+def test_mfwd_state_from_the_bus() -> None:
+    """front_drive = "auto": a tractor driven in 2WD is recognised from EBC2 (the front axle rolls at the ground
+    speed, below the coupling's ratio by λ + s_r) and estimated with the rolling front axle; a 4WD one stays
+    engaged; the change is held unsupported like a shift."""
+    truth, bus = plant(50.0, mfwd=False, seed=3)
+    est = MachineEstimator(mech_vehicle(front_drive="auto"))
+    out = run(est, _with_ebc2(bus, truth, mech_vehicle(), lambda t: True))
+    late = [e for e in out if e.t > 20.0]
+    assert all(not e.front_engaged for e in late) and est.counters["mfwd_changes"] == 1
+    assert np.mean([e.valid for e in late]) > 0.99
+    i = _truth_at(truth, np.array([e.t for e in late]))
+    mu = np.array([e.mu[0] for e in late])
+    assert (np.abs(mu - truth["mu"][i]) / truth["mu"][i]).mean() < 0.03
+    assert abs(late[-1].a - 0.7) / 0.7 < 0.05                        # the rear axle's μ(s), as declared 2WD
+    truth4, bus4 = plant(40.0, seed=3)
+    est4 = MachineEstimator(mech_vehicle(front_drive="auto"))
+    late4 = [e for e in run(est4, _with_ebc2(bus4, truth4, mech_vehicle(), lambda t: False)) if e.t > 20.0]
+    assert all(e.front_engaged for e in late4) and est4.counters["mfwd_changes"] == 0
+    assert np.mean([e.valid for e in late4]) > 0.99

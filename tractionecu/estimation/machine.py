@@ -74,7 +74,8 @@ or WBSD, over ``wheel_speed_radius_m``), else from EBC2's front-axle speed
 over (1 + λ) r_r; the ground speed from GBSD (radar) and the GNSS, each
 when it arrives.  EBC2's left and right rear wheels tell a turn (for the
 radius calibration); ``[drivetrain] wheel_speeds = "machine"`` leaves EBC2
-out.  Axle-level estimation (a torque split set by a centre differential)
+out.  With gear_ratio = "learnt" (or no ETC2 on the bus) the engine speed over the learnt ratio is the
+drive speed at EEC1's rate, its variance with the learnt ratio's.  Axle-level estimation (a torque split set by a centre differential)
 is not implemented: with a rigid MFWD coupling the bus supports the
 machine level only.
 
@@ -85,6 +86,7 @@ from __future__ import annotations
 
 import copy
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -162,7 +164,11 @@ class MachineValidity:
       speed, smoothed over ``coupling_tau_s``, departs by more than ``coupling_tolerance`` times the lead
       from its value learnt over ``coupling_ref_tau_s`` (the engaged axle's fixed gear ratio; a disengaged
       front axle rolls and its ratio falls by λ + s_r).  A disengagement that lasts much longer than
-      ``coupling_ref_tau_s`` is learnt as the normal ratio: declare ``front_drive`` as it is driven.
+      ``coupling_ref_tau_s`` is learnt as the normal ratio: declare ``front_drive`` as it is driven, or
+      ``front_drive = "auto"``: then the ratio is learnt only while engaged, and a departure below
+      −``coupling_tolerance`` times the lead switches the model to the rolling front axle (back above half
+      of it), held unsupported like a shift (:meth:`MachineEstimator._mfwd_from_bus`; the DBC has no MFWD
+      state parameter, EBC2's speeds are the bus's evidence).
     * **Too little drive torque**: the net percent torque p − p_f below ``min_net_torque_pct``: at 10 % a
       1 % error of the friction percent (its resolution) is already a 10 % error of μ.
     """
@@ -193,6 +199,8 @@ class MachineEstimate(Estimate):
     """ρ_s + F_dx/(m g) [-]: the sum eq. 8 resists with; the filter's state without a draft sensor."""
     total_ratio: float = math.nan
     """Engine to rear wheel speed ratio i in use [-] (bus or learnt)."""
+    front_engaged: bool = True
+    """Whether the model drives the front axle (MFWD engaged: declared, or from EBC2 with ``auto``)."""
 
 
 def _slip1(w: float, v: float, r_d: float) -> float:
@@ -208,6 +216,17 @@ RHO_S_PRIOR_SIGMA = 0.03
 """Spread (1σ) of a soil's ρ_s about its class's typical value [-], used without a draft sensor
 (:meth:`MachineEstimator._draft_from_sum`): an assumption of about half the step between neighbouring
 classes' typical values (stubble 0.06, tilled 0.12; :data:`~tractionecu.model.mucurve.SOIL_CLASSES`)."""
+
+PAIR_S = 0.025
+"""An engine speed at most this old [s] is compared with a wheel-based speed sample (EEC1 every 10-20 ms,
+plus the bus's jitter)."""
+
+WHEEL_SPEED_WINDOW_S = 0.1
+"""The window a wheel-based speed sample averages over [s] (CCVS1 / WBSD every 100 ms from tooth periods)."""
+
+RATIO_GAIN = 0.05
+"""Exponential smoothing gain of the ratio learnt from engine speed over wheel speed, per wheel-based speed
+sample (10 Hz: a time constant of 2 s) [-]."""
 
 _ABSENT = object()
 _SLICES = {(a, b): slice(a, b + 1) for a in range(3) for b in range(a, 3)}
@@ -252,7 +271,9 @@ class MachineEstimator:
         self.front_load = (dt.load_sensing == "front-axle") if front_load is None else bool(front_load)
         self.m = vehicle.mass_kg
         self.W = vehicle.weight_n
-        self.engaged = dt.front_drive == "engaged"
+        self._auto = dt.front_drive == "auto"          # MFWD state from EBC2 (MachineValidity)
+        self._lead_d = dt.front_lead
+        self.engaged = dt.front_drive != "disengaged"
         self.lead = dt.front_lead if self.engaged else 0.0
         self.r_ws = dt.wheel_speed_radius_m or vehicle.r0_m
         self._gate = math.inf if cfg.gate_probability <= 0 else float(2.0 * erfcinv(cfg.gate_probability) ** 2)
@@ -279,10 +300,10 @@ class MachineEstimator:
         self._cvt = dt.kind == "power-split"           # its reported ratio moves without interrupting the torque
         self._rdr_static = float(rolling_radius(0.5 * (1.0 - vehicle.static_front_fraction) * self.W, vehicle))
         self._cal_cfg = cfg.calibration if hasattr(cfg, "calibration") else None
-        self._cls0 = CurveEstimator(cfg.soil_classes).classes[0]
+        self.reset()
+        self._cls0 = self._curve.classes[0]            # the first configured class: the effective slip's g
         grid = np.linspace(0.0, 1.0, 4001)
         self._g_table = (self._cls0.g(grid), grid)
-        self.reset()
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self) -> None:
@@ -303,11 +324,14 @@ class MachineEstimator:
         self._ratio_learnt = math.nan
         self._ratio_jump = 0
         self._vwb: float | None = None
+        self._we_window: deque[tuple[float, float]] = deque()
         self._t_shift = -math.inf
         self._t_turn = -math.inf
         self._gear_seen: tuple[float, float] = (math.nan, math.nan)
         self._coupling = math.nan
-        self._coupling_ref = math.nan
+        self._coupling_ref = 0.0 if self._auto else math.nan    # auto: the declared coupling to start from
+        if self._auto:
+            self.engaged, self.lead = True, self._lead_d
         self._t_coupling = -math.inf
         self._rates.reset()
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
@@ -336,7 +360,7 @@ class MachineEstimator:
         self._terms_val = (math.nan,) * 5
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0,
-                         "unsupported_steps": 0, "not_available": 0}
+                         "unsupported_steps": 0, "not_available": 0, "mfwd_changes": 0}
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
 
@@ -544,22 +568,37 @@ class MachineEstimator:
         vfa = meas.get("vfa") if self._ebc2 else None
         if vfa is not None and not (math.isfinite(vfa) and vfa >= 0.0):
             vfa = None
+        wq = self._we_window
+        if we is not None:
+            wq.append((t, we))
+        # the wheel-based speed (CCVS1: tooth periods over its 100 ms) beside the engine speed over the same
+        # window: the mean of the EEC1 samples of the last WHEEL_SPEED_WINDOW_S, the latest at most PAIR_S
+        # old (EEC1 and CCVS1 are not sent in phase; one engine sample against the wheels' 100 ms mean would
+        # compare across the driveline's torsional oscillation)
+        while wq and t - wq[0][0] > WHEEL_SPEED_WINDOW_S:
+            wq.popleft()
+        we_pair = (sum(x for _, x in wq) / len(wq) if vwb is not None and wq and t - wq[-1][0] <= PAIR_S
+                   else None)
         if vwb is not None:
             self._vwb = vwb
-            if we is not None:
-                self._learn_ratio(float(we), vwb)
+            if we_pair is not None:
+                self._learn_ratio(we_pair, vwb)
         i_tot = self.ratio()
         fzf, fzr, rdf, rdr = self.loads()
         val = self.validity
-        # engine and wheel speeds of the same step (a held CCVS1 up to 100 ms old would compare across the
-        # driveline's torsional oscillation)
-        if we is not None and vwb is not None and vwb > 0.5 and i_tot > 0.0:
-            if abs(float(we) * self.r_ws / (vwb * i_tot) - 1.0) > val.ratio_tolerance:
+        if we_pair is not None and vwb > 0.5 and i_tot > 0.0:
+            if abs(we_pair * self.r_ws / (vwb * i_tot) - 1.0) > val.ratio_tolerance:
                 self._t_shift = t                              # engine and wheels not at the reported ratio
         z_w = r_w = None
-        if we is not None and self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"]) and i_tot > 0:
+        bus_ratio = self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"])
+        learnt = not bus_ratio and i_tot == self._ratio_learnt and self._ratio_jump == 0
+        if we is not None and (bus_ratio or learnt) and i_tot > 0:
+            # the engine speed over the ratio: the drive speed at EEC1's rate; over a learnt ratio with the
+            # learnt ratio's own error beside the engine speed's (:meth:`_learn_ratio`)
             s_e = self.ms.engine_speed_sigma_rel * we + self.ms.engine_speed_quant / math.sqrt(12.0)
             z_w, r_w = self._dir * we / i_tot, (s_e / i_tot) ** 2
+            if learnt:
+                r_w += (we / i_tot * self.ms.wheel_speed_sigma_rel) ** 2 * RATIO_GAIN / (2.0 - RATIO_GAIN)
         elif vwb is not None:
             s_w = self.ms.wheel_speed_sigma_abs + self.ms.wheel_speed_sigma_rel * vwb
             z_w, r_w = self._dir * vwb / self.r_ws, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / self.r_ws ** 2
@@ -581,17 +620,20 @@ class MachineEstimator:
                     lk = self.vehicle.wheelbase_m * abs(float(rl[0] - rl[1])) / (self.vehicle.track_width_m * v_rear)
                     if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
                         self._t_turn = t
-                    if self.engaged and self.lead > 0.0:       # front axle over rear wheels, against the coupling
-                        q = vfa / v_rear / ((1.0 + self.lead) * rdr / rdf) - 1.0
+                    if self._lead_d > 0.0 and (self.engaged or self._auto):   # front over rear, against the coupling
+                        q = vfa / v_rear / ((1.0 + self._lead_d) * rdr / rdf) - 1.0
                         a = 1.0 if t - self._t_coupling > 5.0 * max(val.coupling_tau_s, 0.1) else min(
                             1.0, (t - self._t_coupling) / max(val.coupling_tau_s, 1e-3))
                         self._coupling = q if not math.isfinite(self._coupling) else self._coupling + a * (
                             q - self._coupling)
-                        b = min(1.0, (t - self._t_coupling) / val.coupling_ref_tau_s) if math.isfinite(
-                            self._coupling_ref) else 1.0
-                        self._coupling_ref = (self._coupling if not math.isfinite(self._coupling_ref)
-                                              else self._coupling_ref + b * (self._coupling - self._coupling_ref))
+                        if self.engaged:               # the engaged axle's ratio is learnt while engaged
+                            b = min(1.0, (t - self._t_coupling) / val.coupling_ref_tau_s) if math.isfinite(
+                                self._t_coupling) else 0.0
+                            self._coupling_ref = (self._coupling if not math.isfinite(self._coupling_ref) else
+                                                  self._coupling_ref + b * (self._coupling - self._coupling_ref))
                         self._t_coupling = t
+                        if self._auto:
+                            self._mfwd_from_bus(t, self._coupling - self._coupling_ref)
         crs = meas.get("course")                               # GNSS course: a turn bends it
         if crs is not None and math.isfinite(crs):
             if self._course is not None and t > self._course[0]:
@@ -637,7 +679,7 @@ class MachineEstimator:
         M = self._torque(i_tot)
         if (t - self._t_shift < val.shift_hold_s or t - self._t_turn < val.turn_hold_s
                 or self._pct_net() < val.min_net_torque_pct
-                or (math.isfinite(self._coupling) and t - self._t_coupling < 1.0
+                or (self.engaged and math.isfinite(self._coupling) and t - self._t_coupling < 1.0
                     and abs(self._coupling - self._coupling_ref) > val.coupling_tolerance * self.lead)):
             status |= MACHINE_UNSUPPORTED
             counters["unsupported_steps"] += 1
@@ -727,6 +769,24 @@ class MachineEstimator:
             self._radius_version += 1
             self._terms_key = None
 
+    def _mfwd_from_bus(self, t: float, dq: float) -> None:
+        """``front_drive = "auto"``: the MFWD state from EBC2.  ``dq``: the smoothed front-axle over rear-wheel
+        speed ratio's departure from the engaged axle's learnt ratio [-].  Engaged, the rigid coupling holds it
+        at 0 (less the radius errors the learnt ratio takes up); disengaged, the front axle rolls at the ground
+        speed and the ratio falls by λ + s_r (λ the lead, s_r the rear slip) ≥ λ.  Disengaged below
+        −``coupling_tolerance``·λ, engaged again above half of it; either change is held unsupported like a
+        shift (the model's torque balance changes: module doc)."""
+        tol = self.validity.coupling_tolerance * self._lead_d
+        if self.engaged and dq < -tol:
+            self.engaged, self.lead = False, 0.0
+        elif not self.engaged and dq > -0.5 * tol:
+            self.engaged, self.lead = True, self._lead_d
+        else:
+            return
+        self._terms_key = None
+        self._t_shift = t
+        self.counters["mfwd_changes"] += 1
+
     def _draft_from_sum(self, rho_sum: float, v: float) -> None:
         """Without a draft sensor: the draft the converged resistance sum implies, F_dx ≈ (ρ_Σ − ρ_s,typ) m g
         (≥ 0), ρ_s,typ the identified soil class's typical ρ_s (:class:`~tractionecu.model.mucurve.SoilClass`),
@@ -742,8 +802,9 @@ class MachineEstimator:
         self._fdx_est = round(max(0.0, (rho_sum - rho_typ) * self.W), -1)      # 10 N: the loads' cache key
 
     def _learn_ratio(self, we: float, vwb: float) -> None:
-        """Engine speed over wheel speed [-], smoothed; a change of more than 5 % held for three samples is a
-        gear change and is taken at once."""
+        """Engine speed over wheel speed [-], smoothed (gain :data:`RATIO_GAIN` per wheel-based speed sample: the
+        learnt ratio's relative variance is the sample's times α/(2 − α)); a change of more than 5 % held for
+        three samples is a gear change and is taken at once."""
         if vwb < 0.3:                       # below 1 km/h the ratio of two quantised speeds means little
             return
         raw = we * self.r_ws / vwb
@@ -759,7 +820,7 @@ class MachineEstimator:
                 self.counters["gear_changes"] += 1
             return
         self._ratio_jump = 0
-        self._ratio_learnt = cur + 0.05 * (raw - cur)
+        self._ratio_learnt = cur + RATIO_GAIN * (raw - cur)
 
     def _init_filter(self, t: float, w0: float, r_w: float, M: float, i_tot: float) -> None:
         cfg = self.cfg
@@ -827,7 +888,8 @@ class MachineEstimator:
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
                                    cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
-                                   radius_applied=_ONE2, curve_state=cs, level=self.level, total_ratio=i_tot)
+                                   radius_applied=_ONE2, curve_state=cs, level=self.level, total_ratio=i_tot,
+                                   front_engaged=self.engaged)
         w, v, mu, rho = x.tolist()
         P = ukf.P
         pw, pv, pmu, prho = P[0, 0], P[1, 1], P[2, 2], P[3, 3]
@@ -874,7 +936,7 @@ class MachineEstimator:
                                np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
                                (status & INVALID_MASK) == 0, dof, cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
                                radius_applied=np.full(2, self._radius.applied[1]), curve_state=cs, level=self.level,
-                               resistance=resistance, total_ratio=i_tot)
+                               resistance=resistance, total_ratio=i_tot, front_engaged=self.engaged)
         return self._last
 
 
