@@ -339,7 +339,12 @@ def test_not_available_values_are_missing_samples_not_rejected_inputs() -> None:
 def test_convergence_enters_below_the_bound_and_leaves_beyond_the_efficiency_tolerance() -> None:
     """Entry at P_μ ≤ c²; once converged the estimate stays so up to c² + (σ_η/η·μ)² (the declared
     efficiency's share of μ's uncertainty) and leaves beyond it; then it re-enters only below c² again."""
-    est = MachineEstimator(mech_vehicle(efficiency_tolerance=0.03))
+    import dataclasses
+
+    from tractionecu.estimation.config import EstimatorConfig
+
+    est = MachineEstimator(mech_vehicle(efficiency_tolerance=0.03), dataclasses.replace(EstimatorConfig(),
+                                                                                      conv_exit_factor=1.0))
     est.t_init = 0.0
     c2 = est.cfg.conv_sigma_mu ** 2
     mu = 0.4
@@ -350,6 +355,13 @@ def test_convergence_enters_below_the_bound_and_leaves_beyond_the_efficiency_tol
         assert est._converged(2.0 + k, pmu, 0.0, mu) is conv, (k, pmu / c2)
     assert est._converged(0.5, 0.0, 0.0, mu) is False               # never before conv_min_s
     assert est._converged(3.0, 0.0, 2 * est.cfg.conv_sigma_rho ** 2 + 1.0, mu) is False   # ρ alike
+    # the hub's conv_exit_factor is honoured: the wider of the two exit bounds applies
+    hub = MachineEstimator(mech_vehicle(efficiency_tolerance=0.03))
+    hub.t_init = 0.0
+    f2 = hub.cfg.conv_exit_factor ** 2
+    assert hub._converged(2.0, 0.9 * c2, 0.0, 0.1) and hub._converged(3.0, 0.99 * f2 * c2, 0.0, 0.1)
+    assert not hub._converged(4.0, 1.01 * f2 * c2, 0.0, 0.1)
+    assert hub._converged(5.0, 0.9 * c2, 0.0, 1.0) and hub._converged(6.0, 0.99 * (c2 + 0.03 ** 2), 0.0, 1.0)
 
 
 def test_the_status_does_not_flicker_in_steady_work(synthetic) -> None:

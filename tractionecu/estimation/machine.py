@@ -867,12 +867,16 @@ class MachineEstimator:
         say (``efficiency_tolerance``; the reported variance carries it), so the filter's random part
         moving inside the total it was accepted with does not change what the estimate is good for, while
         one beyond it (a soil change, a restart) has lost what it had and re-enters below c.  A single
-        bound made the status flicker as the adapted process noise moved P_μ across it."""
+        bound made the status flicker as the adapted process noise moved P_μ across it.  The hub
+        estimator's hysteresis (``conv_exit_factor`` × the bounds, for the growth of P between slow
+        wheel-speed samples) is the same setting here: the wider of the two bounds applies (at a working
+        μ of 0.35-0.4 and σ_η/η = 0.03 they are 1.4-1.6 and 1.5 times c)."""
         cfg = self.cfg
         c_mu, c_rho = cfg.conv_sigma_mu ** 2, cfg.conv_sigma_rho ** 2
         if self._conv:
             sys_var = (self.dt.efficiency_tolerance * mu) ** 2
-            c_mu, c_rho = c_mu + sys_var, c_rho + sys_var
+            f2 = getattr(cfg, "conv_exit_factor", 1.0) ** 2
+            c_mu, c_rho = max(c_mu + sys_var, f2 * c_mu), max(c_rho + sys_var, f2 * c_rho)
         self._conv = (self.t_init is not None and t - self.t_init >= cfg.conv_min_s and pmu <= c_mu
                       and prho <= c_rho)
         return self._conv
