@@ -6,6 +6,9 @@ against that: the truth's per-wheel μ_i weighted by the wheel loads F_z,i of ``
 the recording's vehicle).  Every other figure is :func:`~.scoring.scorecard`'s on that μ: the mean
 absolute relative error, ρ_s, the μ(s) curve's R² per soil, the re-convergence.  Added:
 
+ρ_s is compared with eq. 8's (:attr:`~.scoring.Truth.rho_s_paper`: the rolling-resistance force over m g,
+as the machine-level filter's state; the physical truth file's ρ_s is per unit of wheel load m g + F_dx tan β).
+
 Population: the μ and ρ_s errors are over the estimates the product reports as **valid** (``valid``: no
 invalid status bit, in particular not ``machine_mu_unsupported`` -- gear shift, front axle decoupled, low
 torque -- and not ``not_converged``), truth μ ≥ ``mu_rel_floor`` for the relative error; the share of the
@@ -87,7 +90,8 @@ def machine_scorecard(arrays: dict[str, Any], truth: Truth, csv_path: str | Path
         sc["mu_mean_abs_error"] = float(np.mean(err[valid & after]))
         rho_e = np.asarray(arrays["rho_s"], dtype=float)
         mr = valid & after & np.isfinite(rho_e)
-        sc["rho_s_mean_abs_error"] = (float(np.mean(np.abs(rho_e[mr] - truth.rho_s[k][mr]))) if mr.any()
+        rho_t = truth.rho_s_paper[k]                                  # eq. 8's: resistance over m g
+        sc["rho_s_mean_abs_error"] = (float(np.mean(np.abs(rho_e[mr] - rho_t[mr]))) if mr.any()
                                       else float("nan"))
         sc["valid_fraction"] = float(valid[after].mean())
         sc["mu_population"] = (f"valid estimates after the first convergence ({100 * sc['valid_fraction']:.1f} % "
