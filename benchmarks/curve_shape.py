@@ -2,7 +2,10 @@
 
 Run from the repository root::
 
-    python benchmarks/curve_shape.py --json OUT.json [--seeds 0 1] [--scenarios soils-off-class ...] [--keep DIR]
+    python benchmarks/curve_shape.py --json OUT.json [--seeds 0 1] [--scenarios soils-off-class ...] [--keep DIR] [--load]
+
+``--load``: the curve's load dependence on (``[estimator] curve_shape_load = true`` for the replay,
+``load=True`` for the pairs run; default off, as the estimator's default).
 
 For each scenario and seed: simulate (``tractionecu simulate``), replay (``tractionecu replay``) and
 print, per soil, the scorecard's R² of the identified μ(s) against the truth's curve (the class
@@ -55,14 +58,14 @@ SLIP_SIGMA = 0.009
 SLIP_CORR_S = 0.5
 
 
-def pairs_run(rec: Path, seed: int, shape: bool = True) -> tuple[dict[str, dict], float, float]:
+def pairs_run(rec: Path, seed: int, shape: bool = True, load: bool = False) -> tuple[dict[str, dict], float, float]:
     """The identification alone on the truth's pairs: per soil {r2, path}, curve seconds, run seconds."""
     tr = read_truth(rec / "truth.csv", rec / "truth.toml")
     fz = truth_loads(rec)
     veh = load_vehicle(rec / "vehicle.toml")
     fz_ref = veh.mass_kg * G / 4.0
     rng = np.random.default_rng(seed)
-    ce = CurveEstimator(["stubble"], tau_s=3.0, shape=shape, fz_ref_n=fz_ref)
+    ce = CurveEstimator(["stubble"], tau_s=3.0, shape=shape, fz_ref_n=fz_ref, load=load)
     tc = -math.inf
     e = 0.0
     states: dict[str, list] = collections.defaultdict(list)
@@ -138,24 +141,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--scenarios", nargs="+", default=["soils-off-class", "physical-three-soils", "paper-three-soils"])
     ap.add_argument("--keep", type=Path, default=None)
+    ap.add_argument("--load", action="store_true", help="the curve's load dependence on (chain and pairs)")
     args = ap.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="curve_shape_"))
     work.mkdir(parents=True, exist_ok=True)
+    extra = []
+    tag = ""
+    if args.load:
+        tag = "_load"
+        cfg = work / "load.toml"
+        cfg.write_text("[estimator]\ncurve_shape_load = true\n", encoding="utf-8")
+        extra = ["--config", str(cfg)]
     rows = []
     cost = {"curve_s_shape": 0.0, "curve_s_paper": 0.0, "run_s": 0.0}
     print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'chain path':20s} "
           f"{'pairs R2':>9s} {'pairs path':20s} {'front':>6s} {'rear':>6s}")
     for scn in args.scenarios:
         for seed in args.seeds:
-            rec, run = work / f"rec_{scn}_{seed}", work / f"run_{scn}_{seed}"
+            rec, run = work / f"rec_{scn}_{seed}", work / f"run_{scn}_{seed}{tag}"
             py = [sys.executable, "-m", "tractionecu"]
             if not (rec / "truth.csv").exists():
                 subprocess.run(py + ["simulate", "--scenario", scn, "--seed", str(seed), "--out", str(rec)],
                                check=True, capture_output=True)
-            subprocess.run(py + ["replay", str(rec), "--out", str(run)], check=True, capture_output=True)
+            subprocess.run(py + ["replay", str(rec), "--out", str(run)] + extra, check=True, capture_output=True)
             card = json.loads((run / "scorecard.json").read_text())
             spans = slip_spans(rec)
-            pairs, spent, dur = pairs_run(rec, seed)
+            pairs, spent, dur = pairs_run(rec, seed, load=args.load)
             _, spent0, _ = pairs_run(rec, seed, shape=False)
             cost["curve_s_shape"] += spent
             cost["curve_s_paper"] += spent0
