@@ -341,6 +341,20 @@ class CurveEstimator:
 # most every ``fit_period_s`` and only when its weight grew by half (module figures in the
 # test and README).
 
+#
+# Load (``load``, opt-in: EstimatorConfig.curve_shape_load).  On soil the curve depends on the wheel
+# load (Brixius 1987: B_n ∝ 1/F_z; Pacejka 2006 p_Dx2 for tyres in general), and the four wheels of a
+# hub-drive tractor at work carry very different loads (front ≈ 0.65, rear ≈ 1.4 of m g/4 with draft
+# transfer), so one curve pooled over them is the soil's curve at no particular load.  Each pair keeps its
+# relative load z = F_z/F_z,ref − 1 (F_z,ref = m g/4, the load at which a map's curve and the truth's
+# table are given); the fit's bins are kept per load group (LOAD_EDGES) and, where the light and the heavy
+# bins overlap in slip (LOAD_MIN_OVERLAP), every candidate is fitted as (1 + q z) μ(s), −Q_MAX ≤ q ≤ 0.
+# q is kept when |q| ≥ 2 σ_q and the selection's BIC is ``bic_margin`` lower than without it; the curve
+# reported is μ(s) at F_z,ref (``MuCurve.mu(s, fz)`` at any other load), path ``shape:<form>+load``.
+# Off by default: on the hub estimator's own pairs the change test rarely separates soils whose slips at
+# equal μ differ by less than the slip noise (0.014–0.024 at a given μ̂ on physical-three-soils), and a
+# segment that holds two soils shows a front/rear difference that the load term absorbs (README).
+
 MU_BIN_WIDTH = 0.02
 """Width of the |μ̂| bins [-]."""
 _NEAR = (0, -1, 1, -2, 2, -3, 3)
