@@ -248,6 +248,10 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     return v_int + B[:, cols] @ beta
 
 
+DEM_CHUNK = 64
+"""Evaluation points whose kernel neighbourhoods are gathered at once (bounds the pairs held)."""
+
+
 def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float = 0.0,
                   dt_max: float = math.inf) -> tuple[NDArray, NDArray]:
     """Local-linear kernel fit h ≈ h0 + g_u·Δu along the field's main axis, from the fit points
@@ -255,33 +259,51 @@ def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float
 
     Returns (h0, g_u) at (ex, ey).  Only the slope along the passes is fitted: across them the
     passes lie a few metres apart and each carries its own slowly wandering GNSS altitude error,
-    so a cross slope would be that error, not relief.
+    so a cross slope would be that error, not relief.  A point needs 8 fit points within 3 kernel
+    widths (before and after the time condition).  The neighbourhoods of :data:`DEM_CHUNK`
+    evaluation points are gathered at once as index pairs and summed by point (``np.bincount``), so
+    memory is bounded by one chunk's pairs.
     """
     tree = cKDTree(np.c_[x, y])
     h0 = np.full(ex.shape, np.nan)
     gu = np.full(ex.shape, np.nan)
     ca, sa = math.cos(axis), math.sin(axis)
-    neigh = tree.query_ball_point(np.c_[ex, ey], 3.0 * bw)
-    for k, idx in enumerate(neigh):
-        if len(idx) < 8:
+    r = 3.0 * bw
+    for a in range(0, ex.size, DEM_CHUNK):
+        b = min(a + DEM_CHUNK, ex.size)
+        m = b - a
+        pairs = cKDTree(np.c_[ex[a:b], ey[a:b]]).sparse_distance_matrix(tree, r, output_type="ndarray")
+        i = pairs["i"].astype(np.int64)
+        j = pairs["j"].astype(np.int64)
+        # query_ball_point's rule (distance ≤ r); sparse_distance_matrix keeps distance ≤ r as well.
+        n_all = np.bincount(i, minlength=m)
+        k = n_all[i] >= 8
+        i, j = i[k], j[k]
+        adt = np.abs(tf[j] - te[a + i])
+        k = (adt > dt_min) & (adt < dt_max)
+        i, j = i[k], j[k]
+        cnt = np.bincount(i, minlength=m)
+        k = cnt[i] >= 8
+        i, j = i[k], j[k]
+        if not i.size:
             continue
-        idx = np.asarray(idx)
-        adt = np.abs(tf[idx] - te[k])
-        idx = idx[(adt > dt_min) & (adt < dt_max)]
-        if idx.size < 8:
-            continue
-        dx = x[idx] - ex[k]
-        dy = y[idx] - ey[k]
+        dx = x[j] - ex[a + i]
+        dy = y[j] - ey[a + i]
         wgt = np.exp(-0.5 * (dx * dx + dy * dy) / (bw * bw))
         du = dx * ca + dy * sa
-        sw = wgt.sum()
-        mu_ = np.sum(wgt * du) / sw
-        mh = np.sum(wgt * h[idx]) / sw
-        suu = np.sum(wgt * (du - mu_) ** 2)
-        if suu < 1e-3 * sw * bw * bw:
-            continue
-        g = np.sum(wgt * (du - mu_) * (h[idx] - mh)) / suu
-        h0[k], gu[k] = mh - g * mu_, g
+        hj = h[j]
+        sw = np.bincount(i, weights=wgt, minlength=m)
+        ok = sw > 0
+        swd = np.where(ok, sw, 1.0)
+        mu_ = np.bincount(i, weights=wgt * du, minlength=m) / swd
+        mh = np.bincount(i, weights=wgt * hj, minlength=m) / swd
+        dc = du - mu_[i]
+        suu = np.bincount(i, weights=wgt * dc * dc, minlength=m)
+        suh = np.bincount(i, weights=wgt * dc * (hj - mh[i]), minlength=m)
+        good = ok & (cnt >= 8) & ~(suu < 1e-3 * sw * bw * bw)
+        g = np.where(good, suh / np.where(good, suu, 1.0), np.nan)
+        h0[a:b] = np.where(good, mh - g * mu_, np.nan)
+        gu[a:b] = g
     return h0, gu
 
 

@@ -1,0 +1,74 @@
+"""A long recording made of a short one repeated back to back (benchmarks and memory tests).
+
+Each copy's CAN times move on by the span of the copies before it, and its NMEA sentences' UTC time
+(and date, where a sentence carries one) by the same amount, with the checksums recomputed, so the
+whole reads as one continuous drive over the same field: a working day's length from a
+seven-minute simulation, in the same formats a logger writes (``can.log`` candump ``-L``,
+``gps.nmea``).  The vehicle file is copied; truth files are not.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import shutil
+from pathlib import Path
+
+_TIME_FIELD = {"GGA": 1, "RMC": 1, "GNS": 1, "ZDA": 1, "GLL": 5}
+"""Index of the UTC time field (hhmmss.ss) in the NMEA sentences that carry one."""
+
+
+def nmea_shift(line: str, shift_s: float) -> str:
+    """One NMEA sentence with its UTC time (and date, when it carries one) moved by ``shift_s`` [s]."""
+    if not line.startswith("$") or "*" not in line:
+        return line
+    body = line[1:line.rindex("*")]
+    f = body.split(",")
+    kind = f[0][2:]
+    ti = _TIME_FIELD.get(kind)
+    if ti is None or not f[ti]:
+        return line
+    hh, mm, ss = int(f[ti][0:2]), int(f[ti][2:4]), float(f[ti][4:])
+    base = dt.datetime(2000, 1, 1)
+    if kind == "RMC" and f[9]:
+        base = dt.datetime.strptime(f[9], "%d%m%y")
+    elif kind == "ZDA":
+        base = dt.datetime(int(f[4]), int(f[3]), int(f[2]))
+    t = base + dt.timedelta(hours=hh, minutes=mm, seconds=ss + shift_s)
+    dec = len(f[ti].split(".")[1]) if "." in f[ti] else 0
+    sec = f"{t.second + t.microsecond / 1e6:0{3 + dec if dec else 2}.{dec}f}"
+    f[ti] = f"{t.hour:02d}{t.minute:02d}{sec}"
+    if kind == "RMC" and f[9]:
+        f[9] = t.strftime("%d%m%y")
+    elif kind == "ZDA":
+        f[2], f[3], f[4] = f"{t.day:02d}", f"{t.month:02d}", f"{t.year:04d}"
+    body = ",".join(f)
+    ck = 0
+    for ch in body:
+        ck ^= ord(ch)
+    return f"${body}*{ck:02X}"
+
+
+def concatenate(src: str | Path, dst: str | Path, seconds: float) -> float:
+    """``dst``: copies of the recording ``src`` (candump ``-L`` ``can.log``, ``gps.nmea``,
+    ``vehicle.toml``) back to back until about ``seconds`` [s] are recorded (at least one copy);
+    returns the recorded length [s].  Copies follow each other one CAN frame period (10 ms) apart."""
+    src, dst = Path(src), Path(dst)
+    dst.mkdir(parents=True, exist_ok=True)
+    if (src / "vehicle.toml").is_file():
+        shutil.copy(src / "vehicle.toml", dst / "vehicle.toml")
+    can = (src / "can.log").read_text().splitlines()
+    nmea = (src / "gps.nmea").read_text().splitlines() if (src / "gps.nmea").is_file() else []
+    t = [float(ln[1:ln.index(")")]) for ln in can]
+    rest = [ln[ln.index(")") + 1:] for ln in can]
+    span = t[-1] - t[0] + 0.01
+    copies = max(1, round(seconds / span))
+    with open(dst / "can.log", "w") as fc:
+        for c in range(copies):
+            sh = c * span
+            fc.write("".join(f"({x + sh:017.6f}){r}\n" for x, r in zip(t, rest)))
+    if nmea:
+        with open(dst / "gps.nmea", "w") as fg:
+            for c in range(copies):
+                sh = c * span
+                fg.write("".join((nmea_shift(ln, sh) if c else ln) + "\n" for ln in nmea))
+    return copies * span
