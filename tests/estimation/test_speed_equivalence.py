@@ -170,3 +170,54 @@ def test_process_noise_kernel_equals_numpy(monkeypatch, input_noise):
             est._Qbase = None
         est.step(*s)
     assert checked > 100 and est.ukf is not None
+
+
+@needs_jit
+def test_estimate_outputs_kernel_equals_numpy_methods():
+    """estimate_outputs' wheel factors, slip and slip-support test equal Estimator._wheel_factors, _slip and
+    _slip_supported (straight, in turns, reversing, creeping, standstill, NaN)."""
+    from tractionecu.estimation import _kernels
+
+    est = Estimator(VehicleParams())
+    est._u[:] = [3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 15000.0, 0.0]
+    rng = np.random.default_rng(8)
+    hb, wb = est._hb, est.vehicle.wheelbase_m
+    n_unsupported = 0
+    for k in range(3000):
+        x = rng.normal([3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06], [0.5] * 4 + [1.0] + [0.1] * 5)
+        if k % 5 == 0:
+            x[:5] *= [1e-3, 1e-7, 1.0, 0.0, 1e-3][k % 25 // 5]
+        if k % 4 == 1:
+            x[:5] *= -1.0
+        A = rng.normal(size=(10, 10)) * 10.0 ** rng.uniform(-5, -1)
+        P = A @ A.T
+        kap = [0.0, -0.0, 0.033, -0.033, 0.25, 1e-4, math.nan][k % 7]
+        kv = [0.0, 1e-6, 1e-3, 0.0625, math.nan][k % 5]
+        bound = [0.0125, 0.0, 0.05][k % 3]
+        rdf, rdr = 0.78 * (1 + 0.01 * (k % 3)), 0.8
+        est._kf = est._kr = 1.0
+        est._kappa_var = kv
+        est.cfg = EstimatorConfig(slip_sigma_max=bound) if bound != 0.0125 else EstimatorConfig()
+        est.model._fzf_key = None
+        ff, fr, rdf, rdr = est.model.load_floats(float(est._u[4]), float(est._u[5]))
+        buf = np.empty(26)
+        code = _kernels.estimate_outputs(x, P, rdf, rdr, 1e-4, 1e-4, kap, hb, wb, kv, est.cfg.slip_sigma_max, buf)
+        kw = np.ones(4) if kap == 0.0 else est._wheel_factors(kap)
+        assert _same(buf[22:26], kw), k
+        assert _same(buf[4:8], np.array(est._slip(x[:4].tolist(), float(x[4]), kw.tolist()))), k
+        assert _same(buf[12:22], P.diagonal()), k
+        ok = est._slip_supported(float(x[4]), kap, kw, x[:4].copy(), P.diagonal().copy())
+        assert (code >= 2) == ok, k
+        n_unsupported += not ok
+    assert 300 < n_unsupported < 2700
+
+
+@needs_jit
+def test_estimator_compiled_equals_numpy_estimator_paths(monkeypatch):
+    """The estimator's own compiled calls (Q's parts, the outputs) against its numpy code on one run: the same
+    estimates bit for bit (the filter core stays compiled in both, so only the estimator's paths differ)."""
+    run = synth_run(seed=9, duration=10.0, change=(5.0, 0.5, 0.1))
+    fast = _run(run.steps)
+    monkeypatch.setattr(est_mod, "JIT", False)
+    ref = _run(run.steps)
+    _assert_runs_equal(fast, ref)

@@ -246,12 +246,22 @@ def add_torque_noise(Qb, u, a, r, q2, gain, Q):             # pragma: no cover -
         Q[i, i] += (sm * sm + q2) * gain
 
 
-def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, k, out):      # pragma: no cover - compiled
-    """out (22,) = [μ (4), slip (4, eq. 6 as model.vehicle.slip), ω (4), diag P (10)] of the state x;
-    returns whether every P_μμ < c_mu and P_ρρ < c_rho (False for NaN).  k (4,): each wheel's ground
-    speed over v (model.vehicle.wheel_speed_factors), so slip i is that of ω_i against k_i·v."""
+def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out):  # pragma: no cover - compiled
+    """out (26,) = [μ (4), slip (4, eq. 6 as model.vehicle.slip), ω (4), diag P (10), k (4)] of the state x,
+    k the wheels' ground speeds over v at path curvature ``kap`` (Estimator._wheel_factors: half track ``hb``,
+    wheelbase ``wb``), slip i that of ω_i against k_i·v.  Returns bit 0: every P_μμ < c_mu and P_ρρ < c_rho
+    (not for NaN); bit 1: every wheel's slip σ within ``bound`` (Estimator._slip_supported, with the
+    curvature variance ``kv``).  The same operations as those two methods and the numpy path."""
+    h = hb * kap
+    lk = wb * kap
+    left = 1.0 - h
+    right = 1.0 + h
+    out[22] = math.sqrt(left * left + lk * lk)
+    out[23] = math.sqrt(right * right + lk * lk)
+    out[24] = left
+    out[25] = right
     for i in range(4):
-        va = abs(x[4] * k[i])
+        va = abs(x[4] * out[22 + i])
         w = x[i]
         vw = abs((rdf if i < 2 else rdr) * w)
         if vw < 1e-6 and va < 1e-6:
@@ -274,7 +284,31 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, k, out):      # pragma: no cov
             conv = False
     if not P[9, 9] < c_rho:
         conv = False
-    return conv
+    ok = True
+    if bound > 0.0:
+        # wheel_speed_factor_slopes(kap, 2 hb, wb) when the curvature's variance is positive, else 0
+        d0 = d1 = d2 = d3 = 0.0
+        if kv > 0.0:
+            th = 0.5 * (2.0 * hb)
+            lft = 1.0 - th * kap
+            rgt = 1.0 + th * kap
+            lk2 = wb * kap
+            d0 = (-th * lft + wb * lk2) / math.sqrt(lft * lft + lk2 * lk2)
+            d1 = (th * rgt + wb * lk2) / math.sqrt(rgt * rgt + lk2 * lk2)
+            d2 = -th
+            d3 = th
+        pv = P[4, 4]
+        v = x[4]
+        lim = bound * bound
+        for i in range(4):
+            dk = d0 if i == 0 else (d1 if i == 1 else (d2 if i == 2 else d3))
+            ki = out[22 + i]
+            vw = (rdf if i < 2 else rdr) * x[i]
+            vi = v * dk
+            if pv * ki * ki + vi * vi * kv > lim * vw * vw:
+                ok = False
+                break
+    return (1 if conv else 0) + (2 if ok else 0)
 
 
 def process_noise(q_tune, fdt, A, inputs, rd, x, rho_t, J, g_v, c_fz, c_fd, Q):  # pragma: no cover - compiled
@@ -400,7 +434,7 @@ def warm_up() -> None:
         update_block(x, P, x[:m].copy(), np.full(m, 1e-4), 0, math.inf, lo, hi, np.empty(n), np.empty((n, n)),
                      np.empty((n, m + 2)), np.empty((2 * m + 1, m)))
     add_torque_noise(P, u, 1.0, 0.01, 0.1, 1e-6, np.empty((n, n)))
-    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, np.ones(4), np.empty(22))
+    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, 0.01, 0.9, 2.5, 1e-6, 0.0125, np.empty(26))
     process_noise(x, 0.01, x, True, x[:4], x, 0.01, 2.0, 0.1, 1e-6, 1e-6, np.empty((n, n)))
     process_noise(x, 0.01, x, False, x[:4], x, 0.01, 2.0, 0.0, 0.0, 0.0, np.empty((n, n)))
     emp = np.zeros((4, n))

@@ -855,7 +855,8 @@ class Estimator:
         Eq. 6 against the wheel's ground speed k_i(κ)·v: ∂s_i/∂v = k_i/(r_d,i|ω_i|) and ∂s_i/∂κ =
         v ∂k_i/∂κ/(r_d,i|ω_i|) (driving; braking the same to first order in s), so
         σ_s,i² = (P_vv k_i² + (v ∂k_i/∂κ)² σ_κ²)/(r_d,i ω_i)².  At 2.5 m/s with the datasheet GNSS
-        speed noise σ_s ≈ 0.010; at 1 m/s ≈ 0.025.
+        speed noise σ_s ≈ 0.010; at 1 m/s ≈ 0.025.  With numba, ``_kernels.estimate_outputs`` runs the
+        same test compiled: change both (tests/estimation/test_speed_equivalence.py holds them equal).
         """
         bound = self.cfg.slip_sigma_max
         if not bound > 0.0:
@@ -896,14 +897,18 @@ class Estimator:
             c_mu *= f2
             c_rho *= f2
         kap = float(self._u[IU_KAPPA])
-        kw = self._ones4 if kap == 0.0 else self._wheel_factors(kap)
         if JIT:
+            # the numpy path below with _wheel_factors and _slip_supported in one compiled call (same operations)
             _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
-            buf = np.empty(22)
-            conv_p = _kernels.estimate_outputs(x, ukf.P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kw, buf)
-            mu, s, omega, pd = buf[0:4], buf[4:8], buf[8:12], buf[12:22]
+            buf = np.empty(26)
+            code = _kernels.estimate_outputs(x, ukf.P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kap, self._hb,
+                                             self.vehicle.wheelbase_m, self._kappa_var, cfg.slip_sigma_max, buf)
+            mu, s, omega, pd, kw = buf[0:4], buf[4:8], buf[8:12], buf[12:22], buf[22:26]
             v = float(x[IX_V])
+            conv_p = (code & 1) == 1
+            slip_ok = code >= 2
         else:
+            kw = self._ones4 if kap == 0.0 else self._wheel_factors(kap)
             xl = x.tolist()
             v = xl[IX_V]
             s = np.array(self._slip(xl[:4], v, kw.tolist()))
@@ -912,7 +917,7 @@ class Estimator:
             mu = x[IX_MU].copy()
             omega = x[:4].copy()
             conv_p = (pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu and pl[IX_RHO] < c_rho)
-        slip_ok = self._slip_supported(v, kap, kw, omega, pd)
+            slip_ok = self._slip_supported(v, kap, kw, omega, pd)
         # curve parameter a (paper section 3.2) at the curve rate; not fed by a filter that was lost
         if (t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps and not self._lost
                 and slip_ok):

@@ -319,14 +319,14 @@ class UnscentedFilter:
     # ------------------------------------------------------------------ update
     def _fast_entry(self, idx: slice) -> tuple:
         """(the slice, fast spec or None, index array) of an output slice; the spec is
-        (index array, state slice, m, I_m, (m,)) when its states are contiguous."""
+        (index array, state slice, m, I_m, (m,), scratch (2m+1, m)) when its states are contiguous."""
         comp = np.arange(self.meas_index.size)[idx]
         st = self.meas_index[comp]
         m = int(st.size)
         if m == 0 or (m > 1 and (np.diff(st) != 1).any()):
             spec = None
         else:
-            spec = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m), (m,))
+            spec = (comp, slice(int(st[0]), int(st[0]) + m), m, np.eye(m), (m,), np.empty((2 * m + 1, m)))
         ent = (idx, spec, comp)
         if len(self._fast) >= 32:            # a caller making a new slice per step must not grow it
             self._fast.clear()
@@ -360,18 +360,17 @@ class UnscentedFilter:
     def _update_fast(self, z: NDArray[np.float64], R: NDArray[np.float64], spec: tuple) -> bool:
         """Update of contiguous states with a diagonal R; False (nothing changed) if a component
         is non-finite or outside the gate, which the general path then handles."""
-        comp, sl, m, eye, _ = spec
+        comp, sl, m, eye, _, small = spec
         P = self.P
         if JIT:
             n = self.n
             x = np.empty(n)
             Pn = np.empty((n, n))
-            work = np.empty((n, m + 2))
-            small = np.empty((2 * m + 1, m))
+            work = np.empty((n, m + 2))         # kept for correction() (small is scratch only)
             code, nis, clamped = _kernels.update_block(self.x, P, np.ascontiguousarray(z), np.ascontiguousarray(R),
                                                        sl.start, self.gate_chi2, self.x_lo, self.x_hi,
                                                        x, Pn, work, small)
-            if code != _kernels.OK:
+            if code:                            # not _kernels.OK
                 return False
             if self._gate_run_any:
                 run = self._gate_run
