@@ -166,7 +166,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"scaling efficiency 2 workers vs 1: {100 * eff:.0f} % (target >= 80 %; wall(1) / (2 wall(2)) = "
           f"{runs[1]['wall_s']:.1f} / (2 x {runs[2]['wall_s']:.1f}))")
     print(f"peak memory per worker: {peak:.0f} MB = {peak / 1024:.2f} GiB (target <= 1 GiB)")
-    mc = merge_check(work / "out_2w", runs[2]["records"], work)
+    try:
+        mc = merge_check(work / "out_2w", runs[2]["records"], work)
+    except Exception as e:  # noqa: BLE001 - report it beside the other figures
+        mc = {"error": f"{type(e).__name__}: {e}"}
     if "error" in mc:
         print(f"merged map check: {mc['error']}")
     else:
