@@ -49,3 +49,42 @@ def test_suite_cases_conceal_valid_library_effects():
     # Seeds differ between cases.
     seeds = [c.build().seed for c in all_cases()]
     assert len(set(seeds)) == len(seeds)
+
+
+def test_the_physical_plant_has_its_own_rolling_radius_and_the_paper_plant_none():
+    """The independent truth model's tyre deflects by its own law: against the vehicle file's eq. 9
+    radius its rolling radius differs by a few percent, more under the heavier rear wheels."""
+    from tractionecu.evaluation.suite import inherent
+
+    by = {c.name: c for c in all_cases()}
+    assert inherent(by["null_three_soils"]) == {}
+    lo, hi = inherent(by["phys_null_a"])["wheel_radius.epsilon"]
+    assert 0.0 < lo < hi < 0.06
+
+
+def _diagnosis(reported_eps_ci, verdict="effect"):
+    """A diagnosis stand-in that names a rolling-radius error with the given 95 % interval."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    lo, hi = reported_eps_ci
+    fit = SimpleNamespace(params={"epsilon": (lo + hi) / 2}, ci95={"epsilon": (lo, hi)},
+                          at_bound={"wheel_radius": {}})
+    cand = SimpleNamespace(name="wheel_radius", testable=True, score=50.0, fit=fit)
+    eff = [{"name": "wheel_radius", "kind": "effect", "named": True, "parameters": {}}]
+    return SimpleNamespace(effects=eff, verdict=verdict, effect="wheel_radius", ambiguous_between=[],
+                           candidates=[cand], joint=None, joint_heldout=None, winner=None,
+                           problem=SimpleNamespace(channels={}), null_heldout=None, open_world={},
+                           candidate=lambda n: cand if n == "wheel_radius" else None)
+
+
+def test_a_radius_reported_at_the_plants_own_size_is_no_false_alarm_but_another_size_is():
+    from tractionecu.evaluation.suite import inherent, score_case
+
+    case = {c.name: c for c in all_cases()}["phys_null_a"]
+    lo, hi = inherent(case)["wheel_radius.epsilon"]
+    row = score_case(case, _diagnosis((lo - 0.005, lo + 0.002)))
+    assert row["correct"] and row["plant"]["wheel_radius"]["agrees"]
+    row = score_case(case, _diagnosis((-0.03, -0.01)))
+    assert not row["correct"]

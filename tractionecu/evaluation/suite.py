@@ -434,13 +434,24 @@ def score_case(case: Case, d) -> dict:
     """
     conc = case.concealed()
     rep = _reported(d)
-    faults = [n for n in rep if not any(e["name"] == n and e["kind"] == "characteristic" for e in d.effects)]
+    # What the plant has against the nominal model without any concealed effect (the physical truth
+    # model's rolling radius): reported at its true size, it is neither a false alarm nor an absent effect.
+    plant = {}
+    for key, (lo_t, hi_t) in inherent(case).items():
+        name, par = key.split(".", 1)
+        got = _fit_of(d, name) if name in rep else None
+        if got is not None and par in got[1]:
+            lo, hi = got[1][par]
+            plant[name] = {"parameter": par, "value": float(got[0][par]), "ci95": [float(lo), float(hi)],
+                           "plant_range": [lo_t, hi_t], "agrees": bool(lo <= hi_t and hi >= lo_t)}
+    rep_eval = [n for n in rep if not (n in plant and plant[n]["agrees"] and n not in conc)]
+    faults = [n for n in rep_eval if not any(e["name"] == n and e["kind"] == "characteristic" for e in d.effects)]
     row: dict = {"case": case.name, "kind": case.kind, "truth_model": case.truth_model,
                  "truth": "+".join(conc) or (case.note or None), "truth_params": conc,
                  "verdict": d.verdict, "effect": d.effect, "ambiguous_between": list(d.ambiguous_between),
-                 "reported": rep}
+                 "reported": rep, "plant": plant}
     if case.kind in ("null", "nominal"):
-        row["correct"] = d.verdict == "none" and not faults
+        row["correct"] = (d.verdict == "none" or d.effect in plant and plant[d.effect]["agrees"]) and not faults
     elif case.kind == "confounded":
         row["correct"] = d.verdict == "ambiguous"
     elif case.kind == "outside":
@@ -454,8 +465,8 @@ def score_case(case: Case, d) -> dict:
         # no fault named.
         row["correct"] = d.verdict == "none" and not faults and all(n in rep for n in conc)
     else:
-        absent = [i for i, n in enumerate(rep) if n not in conc]
-        found = [rep.index(n) if n in rep else None for n in conc]
+        absent = [i for i, n in enumerate(rep_eval) if n not in conc]
+        found = [rep_eval.index(n) if n in rep_eval else None for n in conc]
         row["correct"] = all(i is not None for i in found) and (not absent or max(found) < min(absent))
     if len(conc) == 1 and case.kind == "effect":
         row["top1"] = d.verdict == "effect" and d.effect == next(iter(conc))
@@ -509,6 +520,30 @@ def _identified(name: str, k: str, lo: float, hi: float) -> bool:
     from ..diagnose.engine import identified
 
     return identified(name, k, float(lo), float(hi))
+
+
+def inherent(case: Case) -> dict[str, tuple[float, float]]:
+    """Deviations the plant of a case has from the nominal model with nothing concealed, as
+    ``{"effect.param": (low, high)}``: for the independent truth model, the rolling radius, whose
+    tyre deflects under load by its own law (``sim.tyre.rolling_radius``) while the nominal model uses
+    the vehicle file's eq. 9 radius; the range is r_truth/r_nominal − 1 over the static front and rear
+    wheel loads.  The paper truth model has none."""
+    if case.truth_model == "paper":
+        return {}
+    from ..config import G
+    from ..model.vehicle import rolling_radius
+    from ..sim import tyre as ty
+
+    scn = case.scenario()
+    veh = scn.vehicle
+    tyre = scn.physical.tyre if scn.physical is not None else ty.TyreSpec()
+    f = veh.static_front_fraction
+    eps = []
+    for fz in (f * veh.mass_kg * G / 2, (1 - f) * veh.mass_kg * G / 2):
+        rt = float(ty.rolling_radius(np.array([fz]), veh.r0_m, tyre, veh.tyre_pressure_pa)[0])
+        rn = float(rolling_radius(np.array([fz]), veh)[0])
+        eps.append(rt / rn - 1.0)
+    return {"wheel_radius.epsilon": (min(eps), max(eps))}
 
 
 def _candidates():
