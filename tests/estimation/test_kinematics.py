@@ -304,6 +304,7 @@ def test_standstill_holds_flags_and_the_covariance_keeps_growing(run20):
             held = (e.rho_s, e.slip.copy())
         assert e.rho_s == held[0] and np.array_equal(e.slip, held[1])
         p_rho.append(e.P_diag[9])
+        assert est._kin.beta == 0.0 and est._kin.P[2] == est._kin.var_beta     # no slip difference standing
     p_rho = np.array(p_rho)
     # the variance of ρ_s grows on every step, past the convergence bound: after 10 s standing the filter
     # itself no longer claims to know ρ_s
