@@ -150,7 +150,7 @@ class Estimate:
     soil_class: str
     """Name of the best-fitting surface class."""
     slip: NDArray[np.float64]
-    """Slip per wheel (eq. 6) [-]."""
+    """Slip per wheel (eq. 6) [-]; the last supported value while ``STANDSTILL`` or ``SLIP_UNCERTAIN`` is set."""
     v: float
     """Ground speed [m/s]."""
     omega: NDArray[np.float64]
@@ -872,7 +872,7 @@ class Estimator:
         for ki, dk, w, rd in zip(kw.tolist(), dks, omega.tolist(), (rdf, rdf, rdr, rdr)):
             vw = rd * w
             vi = v * dk
-            if pv * ki * ki + vi * vi * kv > lim * vw * vw:
+            if not pv * ki * ki + vi * vi * kv <= lim * vw * vw:        # (NaN: not supported either)
                 return False
         return True
 
