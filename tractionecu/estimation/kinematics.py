@@ -37,16 +37,18 @@ loads and soil of the moment); a random walk would let β drift without
 bound, and then a course that turns while the wheels do not (a heading
 disagreement that no slip difference explains) is absorbed into a bias of
 several σ_β, which then bends every wheel's ground speed long after the
-turn.  Even so a persistent disagreement pulls β̂ far into the tail of that
-distribution (a 9 m radius quarter circle whose wheels show no turn pulled
-it to 0.1 1/m, 20 σ_β): an estimate beyond :data:`BETA_MAX_SIGMAS` σ_β is
+turn (0.11 1/m, 20 σ_β, after the 9 m quarter circles of ``headland-reverse``
+on the paper truth, whose wheels all roll at v).  A bounded variance alone
+does not stop a persistent disagreement from pulling β̂ into the tail (0.095
+1/m on the same quarter circle, ``tests/estimation/test_kinematics.py``): an
+estimate beyond :data:`BETA_MAX_SIGMAS` σ_β is
 no slip difference, and the heading restarts from the course with β = 0,
 so κ stays the wheels' within a plausible slip difference; the wheels
 measure the ground speeds that each wheel's slip is taken against.  At
 standstill (:meth:`CurvatureFilter.standstill`) there is no slip,
 so no slip difference: β returns to 0 with its stationary variance.
 κ = κ_w − β̂ with the variance of the (low-passed) wheel term plus P_ββ.  Without GNSS the wheel term is used
-alone and P_ββ grows; without wheel speeds, or below ``min_speed``, κ is not
+alone and P_ββ grows back to σ_β²; without wheel speeds, or below ``min_speed``, κ is not
 known (0 with an infinite variance: the caller limits it).
 
 The wheel term is low-passed with :data:`YAW_TAU_S`: the curvature of a
