@@ -288,3 +288,20 @@ def test_load_term_is_opt_in_and_configurable():
     est = Estimator(veh)
     assert est._curve.shape.load is False and est._curve.fz_ref_n == pytest.approx(veh.mass_kg * G / 4)
     assert Estimator(veh, EstimatorConfig(curve_shape_load=True))._curve.shape.load is True
+
+
+def test_loads_change_nothing_while_the_load_term_is_off():
+    """With the load term off (the default) the wheel loads reach the bins' Σw z but not the fit: the
+    same pairs give the same curves with and without loads."""
+    rng = np.random.default_rng(7)
+    ce0 = CurveEstimator(["stubble"], tau_s=3.0, fz_ref_n=FZ_REF)
+    ce1 = CurveEstimator(["stubble"], tau_s=3.0, fz_ref_n=FZ_REF)
+    fz = FZ_REF * np.array([0.65, 0.65, 1.4, 1.4])
+    f = lambda s: brixius(s, 40.0)  # noqa: E731
+    for k in range(1500):
+        s4 = rng.uniform(0.04, 0.14) * np.array([1.2, 1.2, 0.8, 0.8])
+        mu = f(s4) + 0.003 * rng.standard_normal(4)
+        st0 = ce0.update(0.1 * k, mu, s4, np.full(4, 0.005), np.full(4, 0.009))
+        st1 = ce1.update(0.1 * k, mu, s4, np.full(4, 0.005), np.full(4, 0.009), fz)
+    assert st1.curve_path == st0.curve_path and st1.curve_path.startswith("shape:")
+    assert st1.curve.theta == st0.curve.theta and not st1.curve.load_aware

@@ -948,8 +948,9 @@ class ShapeIdentifier:
         self._cp = self._cn = 0.0
         self._t_cp = self._t_cn = -math.inf          # time each CUSUM side last left zero
         self._hist: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
-        self.mature = PairBins(groups=True)
-        """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well."""
+        self.mature = PairBins(groups=self.load)
+        """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well
+        when the load term is on (else as the change test's bins: the paper path's data unchanged)."""
         self._young: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
 
     def _new_segment(self, t_from: float) -> None:
@@ -960,7 +961,7 @@ class ShapeIdentifier:
             for k, w, s, m, zz in pairs:
                 self.bins.add(k, w, s, m, zz)
         self._hist = deque(moved)
-        self.mature = PairBins(groups=True)
+        self.mature = PairBins(groups=self.load)
         self._young = deque(moved)
         self.segment += 1
         self.fit = None
@@ -1035,7 +1036,7 @@ class ShapeIdentifier:
         young.append((t, pairs))
         while young and young[0][0] <= t - self.confirm_s:
             for k, w, x, m, zz in young.popleft()[1]:
-                self.mature.add(PairBins.group_index(k, zz), w, x, m, zz)
+                self.mature.add(PairBins.group_index(k, zz) if self.load else k, w, x, m, zz)
         if t - self._t_check >= 1.0:
             self._t_check = t
             self._cap_weight()
