@@ -115,6 +115,17 @@ def test_curvature_without_gnss_uses_the_wheels_and_says_so():
     assert cf.curvature(0.05, 0.2) == (0.0, math.inf)            # at standstill κ = ψ̇/v is not defined
 
 
+def test_an_unknown_speed_moves_no_heading():
+    # regression: a hub recording without GNSS and without the axle load has no speed for the rolling
+    # radius (v None); the filter raised TypeError on abs(None) in its prediction
+    cf = CurvatureFilter(B, 0.05)
+    cf.wheels(0.0, 10.0, 10.2, 1e-4, 1e-4, None)
+    cf.wheels(0.01, 10.0, 10.2, 1e-4, 1e-4, math.nan)
+    cf.wheels(0.02, 10.0, 10.2, 1e-4, 1e-4, None)
+    assert cf.v == 0.0 and cf.beta == 0.0
+    assert cf.kappa_w == pytest.approx(2.0 / B * 0.2 / 20.2, rel=0.05)
+
+
 def test_the_bias_grows_back_to_its_spread_when_the_course_is_lost():
     """With the course the bias is known to well inside its stationary spread; once the course is lost
     its σ grows again, with the distance travelled, towards that spread and never beyond it."""

@@ -151,12 +151,14 @@ class CurvatureFilter:
     # ------------------------------------------------------------------ sources
     def wheels(self, t: float, w_rl: float, w_rr: float, var_rl: float, var_rr: float, v: float) -> None:
         """Rear wheel speeds ω_RL, ω_RR [rad/s] at t [s] with their noise variances, and the signed
-        speed v [m/s] of the rear-axle centre (the heading moves with κ v)."""
+        speed v [m/s] of the rear-axle centre (the heading moves with κ v; None or NaN: unknown, taken as 0)."""
         sm = w_rr + w_rl
         if not math.isfinite(sm) or abs(sm) < 1e-9:
             return
         self._predict(t)
-        self.v = v
+        # an unknown speed (no GNSS yet and no axle load for the rolling radius) moves nothing: the heading
+        # and the bias hold until a speed arrives
+        self.v = v if v is not None and math.isfinite(v) else 0.0
         k = 2.0 / self.b * (w_rr - w_rl) / sm
         # ∂κ_w/∂ω_RR = (4/b) ω_RL / sm², ∂κ_w/∂ω_RL = −(4/b) ω_RR / sm²
         g = 4.0 / (self.b * sm * sm)
