@@ -57,7 +57,9 @@ pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
 
 Also reported: ``estimator_step_us`` (full AUKF-FS step with adaptation,
 supervisor, curve; wall time) and ``estimator_step_cpu_us`` (the same steps in
-the process's CPU time, which a machine shared with other jobs inflates less), ``ukf_step_us``, ``filterpy_step_us``,
+the process's CPU time, which a machine shared with other jobs inflates less;
+both the best of three passes over 10 000 steps, each with a fresh estimator),
+``load_average_1min`` (the machine's load when the figures were taken), ``ukf_step_us``, ``filterpy_step_us``,
 ``model_call_us_21_points`` / ``model_call_us_1_point`` (the floor set by
 ``FilterModel.step``), ``ukf_first_step_s`` (the first step of ours in the
 process: numba compilation, or loading its on-disk cache, and first-call
@@ -70,6 +72,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
+import os
 import shutil
 import sys
 import tempfile
@@ -302,8 +306,7 @@ def time_model(data: dict) -> tuple[float, float]:
     return best21, best1
 
 
-def time_estimator(rec_dir: Path, data: dict, n: int = 10000) -> float:
-    est = Estimator(data["vehicle"], EstimatorConfig())
+def time_estimator(rec_dir: Path, data: dict, n: int = 10000, repeats: int = 3) -> float:
     rec = read_recording(rec_dir)
     grid = recording_grid(rec, 100.0)
     steps = []
@@ -313,12 +316,19 @@ def time_estimator(rec_dir: Path, data: dict, n: int = 10000) -> float:
         if data["new_v"][k]:
             meas["v"] = float(data["v"][k])
         steps.append((float(grid[k]), inp, meas))
-    t0 = time.perf_counter()
-    c0 = time.process_time()
-    for s in steps:
-        est.step(*s)
-    time_estimator.cpu_s = (time.process_time() - c0) / len(steps)     # type: ignore[attr-defined]
-    return (time.perf_counter() - t0) / len(steps)
+    # best of ``repeats`` passes, each a fresh estimator over the same steps: on a machine shared with
+    # other jobs the least disturbed pass is the closest to the estimator's own cost (wall and CPU alike)
+    wall = cpu = math.inf
+    for _ in range(repeats):
+        est = Estimator(data["vehicle"], EstimatorConfig())
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        for s in steps:
+            est.step(*s)
+        cpu = min(cpu, time.process_time() - c0)
+        wall = min(wall, time.perf_counter() - t0)
+    time_estimator.cpu_s = cpu / len(steps)     # type: ignore[attr-defined]
+    return wall / len(steps)
 
 
 def uncertainty_figures(work: Path, seed: int) -> dict:
@@ -369,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
             "filterpy_step_us": t_f * 1e6,
             "estimator_step_us": est_us * 1e6,
             "estimator_step_cpu_us": time_estimator.cpu_s * 1e6,      # type: ignore[attr-defined]
+            "load_average_1min": os.getloadavg()[0],
             "model_call_us_21_points": m21 * 1e6,
             "model_call_us_1_point": m1 * 1e6,
             "ukf_first_step_s": first,
@@ -387,6 +398,7 @@ def main(argv: list[str] | None = None) -> int:
             figures.update(uncertainty_figures(work, args.seed))
         targets = {"ukf_step_speedup_vs_filterpy": (">=", 20.0), "max_rel_state_diff_vs_filterpy": ("<=", 1e-6),
                    "estimator_step_us": ("<=", 40.0),
+                   "estimator_step_cpu_us": ("<=", 40.0),
                    "replay_realtime_factor": (">=", 100.0)}
         for k, v in figures.items():
             tgt = targets.get(k)

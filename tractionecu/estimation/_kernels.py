@@ -26,8 +26,8 @@ as the numpy code they replace, which stays the fallback; bit for bit, see
   (:meth:`~.estimator.Estimator._rebuild_Q`);
 * :func:`cm_push`, :func:`cm_ratio` — covariance matching's window and its
   ratio (:class:`~.supervisor.CovarianceMatching`);
-* :func:`fuzzy_aggregate` — the fuzzy supervisor's aggregated output set
-  (:class:`~.supervisor.FuzzySupervisor`).
+* :func:`fuzzy_strengths`, :func:`fuzzy_aggregate` — the fuzzy supervisor's
+  rule strengths and aggregated output set (:class:`~.supervisor.FuzzySupervisor`).
 
 Results go into output arrays the caller allocates (returning arrays from
 compiled code costs more than passing them in); inputs are not changed.
@@ -305,7 +305,7 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out): 
             ki = out[22 + i]
             vw = (rdf if i < 2 else rdr) * x[i]
             vi = v * dk
-            if pv * ki * ki + vi * vi * kv > lim * vw * vw:
+            if not pv * ki * ki + vi * vi * kv <= lim * vw * vw:        # (NaN: not supported either)
                 ok = False
                 break
     return (1 if conv else 0) + (2 if ok else 0)
@@ -362,6 +362,59 @@ def cm_ratio(emp, mod, a_min, a_max, out):                  # pragma: no cover -
         out[j] = r
 
 
+def _fmin(a, b):                                            # pragma: no cover - compiled
+    """supervisor._min: NaN if either is NaN."""
+    if a != a or b != b:
+        return math.nan
+    return a if a <= b else b
+
+
+def _fmax(a, b):                                            # pragma: no cover - compiled
+    """supervisor._max: NaN if either is NaN."""
+    if a != a or b != b:
+        return math.nan
+    return a if a >= b else b
+
+
+def _tri(x, a, b, c):                                       # pragma: no cover - compiled
+    """supervisor._tri1 (triangle membership of one float), same operations."""
+    left = 1.0 if b == a else (x - a) / (b - a)
+    right = 1.0 if c == b else (c - x) / (c - b)
+    y = 0.0 if (x < a or x > c) else _fmin(left, right)
+    return _fmin(_fmax(y, 0.0), 1.0)
+
+
+def _trap(x, a, b, c, d):                                   # pragma: no cover - compiled
+    """supervisor._trap1 (trapezoid membership of one float), same operations."""
+    rise = 1.0 if b == a else (x - a) / (b - a)
+    fall = 1.0 if (d == c or math.isinf(d)) else (d - x) / (d - c)
+    y = _fmin(_fmin(rise, 1.0), fall)
+    if x < a or (not math.isinf(d) and x > d):
+        y = 0.0
+    return _fmin(_fmax(y, 0.0), 1.0)
+
+
+def fuzzy_strengths(e1, e2, a1, a2, a3, m1, m2, m3, rules, out):  # pragma: no cover - compiled
+    """The three rule strengths of FuzzySupervisor.intensity into out (3,): memberships of e₁ = |dv/dt| and
+    e₂ = |dM/dt| (LOW, MEDIUM, HIGH; breakpoints a, m), AND = min, one strength per output set = max over
+    the rule table ``rules`` (3, 3); supervisor._degrees and its loop, same operations."""
+    p0 = _trap(e1, 0.0, 0.0, a1, a2)
+    p1 = _tri(e1, a1, a2, a3)
+    p2 = _trap(e1, a2, a3, math.inf, math.inf)
+    q0 = _trap(e2, 0.0, 0.0, m1, m2)
+    q1 = _tri(e2, m1, m2, m3)
+    q2 = _trap(e2, m2, m3, math.inf, math.inf)
+    out[0] = 0.0
+    out[1] = 0.0
+    out[2] = 0.0
+    for i in range(3):
+        pi = p0 if i == 0 else (p1 if i == 1 else p2)
+        for j in range(3):
+            qj = q0 if j == 0 else (q1 if j == 1 else q2)
+            k = rules[i, j]
+            out[k] = _fmax(out[k], _fmin(pi, qj))
+
+
 def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover - compiled
     """The aggregated output set (FuzzySupervisor.intensity): agg (G,) = max_k min(s_k, out_mf[k]) for the
     three rule strengths s_k (clip, then aggregate); NaN everywhere when a strength is NaN (as numpy)."""
@@ -398,6 +451,11 @@ estimate_outputs = compiled(estimate_outputs)
 process_noise = compiled(process_noise)
 cm_push = compiled(cm_push)
 cm_ratio = compiled(cm_ratio)
+_fmin = compiled(_fmin, inline=True)
+_fmax = compiled(_fmax, inline=True)
+_tri = compiled(_tri, inline=True)
+_trap = compiled(_trap, inline=True)
+fuzzy_strengths = compiled(fuzzy_strengths)
 fuzzy_aggregate = compiled(fuzzy_aggregate)
 
 _warm = False
@@ -442,4 +500,5 @@ def warm_up() -> None:
     cm_push(emp, emp.copy(), 0, sig[:, 0], sig[:, 1])
     cm_ratio(emp, emp + 1.0, 0.1, 10.0, np.empty(n))
     fuzzy_aggregate(1.0, 0.0, 0.0, np.ones((3, 11)), np.empty(11))
+    fuzzy_strengths(0.1, 3000.0, 0.06, 0.15, 0.3, 2000.0, 5000.0, 1e4, np.zeros((3, 3), dtype=np.int64), np.empty(3))
     _warm = True

@@ -185,6 +185,7 @@ class FuzzySupervisor:
         self._xw = self.grid * self._w
         self._log_ratio = math.log(c.factor_max / c.factor_min)
         self._memo: dict[tuple[float, float, float], float] = {}
+        self._st = np.empty(3)
 
     def memberships(self, accel_abs: float, torque_rate_abs: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Degrees (LOW, MEDIUM, HIGH) of e₁ = |dv/dt| [m/s²] and e₂ = |dM_d/dt| [N·m/s]."""
@@ -203,12 +204,20 @@ class FuzzySupervisor:
 
     def intensity(self, accel_abs: float, torque_rate_abs: float) -> float:
         """Defuzzified intensity c ∈ [0, 1] (centroid of the aggregated output set)."""
-        mu1, mu2 = self._degrees(accel_abs, torque_rate_abs)
-        strength = [0.0, 0.0, 0.0]
-        for i in range(3):                                     # AND = min, one strength per output set (max)
-            for j in range(3):
-                k = _RULES_L[i][j]
-                strength[k] = _max(strength[k], _min(mu1[i], mu2[j]))
+        if JIT:                                                # the same as the loop below, compiled
+            c = self.cfg
+            st = self._st
+            _kernels.fuzzy_strengths(abs(float(accel_abs)), abs(float(torque_rate_abs)), c.accel_low_mps2,
+                                     c.accel_mid_mps2, c.accel_high_mps2, c.torque_rate_low_nmps,
+                                     c.torque_rate_mid_nmps, c.torque_rate_high_nmps, RULES, st)
+            strength = st.tolist()
+        else:
+            mu1, mu2 = self._degrees(accel_abs, torque_rate_abs)
+            strength = [0.0, 0.0, 0.0]
+            for i in range(3):                                 # AND = min, one strength per output set (max)
+                for j in range(3):
+                    k = _RULES_L[i][j]
+                    strength[k] = _max(strength[k], _min(mu1[i], mu2[j]))
         # c is a function of the three strengths alone: steady driving repeats the same ones (all LOW:
         # (1, 0, 0)), and their centroid is kept rather than integrated again
         key = (strength[0], strength[1], strength[2])
