@@ -32,9 +32,13 @@ the GNSS speed over ground of the recording's track):
   gear ratio, one wheel-based speed (CCVS1, WBSD or EBC2's front axle), the
   draft and a ground speed (GNSS or GBSD).  Its signal table is
   :data:`MACHINE_GROUPS`; without a draft it runs and says so (ρ_s and the
-  draft are not separable), without GBSD it takes the GNSS speed only.
+  draft are not separable), without GBSD it takes the GNSS speed only,
+  without ETC2 it learns the ratio, without EC1 it takes ``[drivetrain]
+  engine_reference_torque_nm`` when declared (:func:`machine_missing`).
 
-:func:`estimator_profile` names the profile a machine and a recording run.
+:func:`estimator_profile` names the profile a machine and a recording run;
+:func:`best_profile` the one a recording's signals fit best, and
+:func:`profile_role` how ``inspect`` and replay describe each.
 
 :func:`profile_status` tells which needs a recording meets and from which
 message; :func:`missing_signals` the signals it lacks, by default those
