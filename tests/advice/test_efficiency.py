@@ -125,6 +125,18 @@ def test_invalid_estimate_and_unknown_curve() -> None:
     assert rep.flags & eff.NOT_PULLING and not rep.slip_ok
 
 
+def test_a_slip_the_estimator_does_not_support_gives_no_efficiency() -> None:
+    # status 0x2000: the slip's own σ is over its bound and the estimator holds an old value; η (eq. 7,
+    # factor 1 − s) and the excitation of the curve must not rest on it.  0x1000: machine-level μ not
+    # supported (gear shift).
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    rep = trk.update(estimate(0.0, 0.08, status=0x2000))
+    assert rep.flags & eff.ESTIMATE_INVALID and not rep.eta_valid and not rep.slip_ok
+    assert rep.flags & eff.LOW_EXCITATION
+    rep = trk.update(estimate(0.1, 0.08, status=0x1000))
+    assert rep.flags & eff.ESTIMATE_INVALID and not rep.eta_valid
+
+
 def test_the_message_decodes_back() -> None:
     codec = default_codec()
     trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
