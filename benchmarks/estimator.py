@@ -36,6 +36,8 @@ pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
     share of steps marked valid while the implement is in work (truth ``work``);
 ``mu_err``
     the scorecard's μ mean absolute relative error;
+``mu_bias``
+    its signed part, the scorecard's ``mu_mean_rel_bias`` (the bias; the rest is noise and lag);
 ``slip_supported_work``
     share of the valid steps in work whose slip is supported by its own σ
     (status bit 0x2000 ``slip_not_supported`` clear, ``slip_sigma_max``);
@@ -145,6 +147,7 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
     row = {"valid_work": float(valid[work].mean()) if work.any() else float("nan"),
            "slip_supported_work": float(sok[valid & work].mean()) if (valid & work).any() else float("nan"),
            "mu_err": float(sc.get("mu_mean_abs_rel_error", float("nan"))),
+           "mu_bias": float(sc.get("mu_mean_rel_bias", float("nan"))),
            "slip_mae": float(np.mean(np.abs(se[m] - st[m]))) if m.any() else float("nan"),
            "slip_lr": float(np.mean([np.mean(np.abs((se[m, j] - se[m, i]) - (st[m, j] - st[m, i])))
                                      for i, j in ((0, 1), (2, 3))])) if m.any() else float("nan"),
@@ -160,7 +163,7 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
 def families(work: Path, seed: int) -> list[dict]:
     """Every row of :data:`FAMILIES`, printed as it is measured."""
     rows = []
-    print(f"{'family':15s} {'truth':9s} {'scenario':26s} {'valid_work':>10s} {'mu_err':>7s} {'slip_mae':>8s} "
+    print(f"{'family':15s} {'truth':9s} {'scenario':26s} {'valid_work':>10s} {'mu_err':>7s} {'mu_bias':>7s} {'slip_mae':>8s} "
           f"{'slip_lr':>8s} {'slip_ok':>7s} {'rev_n':>6s} {'rev_wrong':>9s} {'rev_rho':>8s} {'rev_s_ok':>8s} "
           f"{'rev_slip':>8s} {'still_valid':>11s}",
           flush=True)
@@ -169,7 +172,7 @@ def families(work: Path, seed: int) -> list[dict]:
         r.update(family=family, truth=truth, scenario=scenario, sensors=changes)
         rows.append(r)
         print(f"{family:15s} {truth:9s} {scenario:26s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% "
-              f"{r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['slip_supported_work'] * 100:6.2f}% {r['rev_steps']:6d} "
+              f"{r['mu_bias'] * 100:+6.2f}% {r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['slip_supported_work'] * 100:6.2f}% {r['rev_steps']:6d} "
               f"{r['rev_wrong_sign']:9d} "
               f"{r['rev_rho_mae']:8.4f} {r['rev_slip_supported']:8d} {r['rev_slip_mae']:8.4f} {r['still_valid']:11d}",
               flush=True)
