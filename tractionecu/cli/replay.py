@@ -84,8 +84,18 @@ def run(args: argparse.Namespace) -> int:
         from ..evaluation.replay import score_replay
 
         summary.update(score_replay(args.out, rec, res.arrays, plot=args.plot, summary=summary))
-    print("\n".join([*profile_note(rec), format_summary(summary)]))
+    print("\n".join([*profile_note(rec), *rejects_note(rec), format_summary(summary)]))
     return 0
+
+
+def rejects_note(rec: Any) -> list[str]:
+    """The lines of the recording's files that were skipped (counted by reason, with the first line
+    numbers), as ``inspect`` lists them: a replay over a damaged capture says what it left out."""
+    out = []
+    for _fname, st in getattr(getattr(rec, "stats", None), "files", {}).items():
+        if getattr(st, "total_rejected", 0):
+            out += [f"skipped {line}" for line in st.describe()]  # type: ignore[attr-defined]
+    return out
 
 
 def missing_report(rec: Any, missing: list[str]) -> list[str]:

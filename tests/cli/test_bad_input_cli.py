@@ -1,0 +1,46 @@
+"""Damaged recordings through the command line: a clear error or a counted skip that the user is told about.
+
+``replay`` over a capture with a garbage line, a line cut short and lines with a NaN or infinite time stamp
+runs, and prints how many lines it skipped and where (before, only ``inspect`` said so; ``replay`` wrote
+its estimates without a word about the lines it had left out).
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from tractionecu.cli.main import main
+
+
+def _damaged(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    for name in ("truth.csv", "truth.toml"):
+        (dst / name).unlink(missing_ok=True)
+    lines = (dst / "can.log").read_text().splitlines(keepends=True)
+    assert len(lines) > 400
+    lines.insert(300, "this line is no candump line \x01 ###\n")          # line 303 once the two below are in
+    lines.insert(200, "(nan) can0 18FF1080#0102030405060708\n")         # line 202
+    lines.insert(100, "(inf) can0 18FF1080#0102030405060708\n")         # line 101
+    last = lines[-1].rstrip("\n")
+    lines[-1] = last[: len(last) - 5]                                     # cut inside the data field
+    (dst / "can.log").write_text("".join(lines))
+    return dst
+
+
+def test_replay_reports_the_lines_it_skipped(short_recording, tmp_path, capsys):
+    rec = _damaged(short_recording, tmp_path / "rec")
+    n_lines = len((rec / "can.log").read_text().splitlines())
+    out = tmp_path / "run"
+    assert main(["replay", "--no-map", "--out", str(out), str(rec)]) == 0
+    text = capsys.readouterr().out
+    assert "skipped bad_timestamp: 2 (can.log line 101, 202)" in text
+    assert "skipped garbage: 1 (can.log line 303)" in text
+    assert f"skipped truncated: 1 (can.log line {n_lines})" in text
+    rows = (out / "estimates.csv").read_text().splitlines()
+    assert len(rows) > 100                                      # the rest of the recording was estimated
+
+
+def test_replay_of_a_clean_recording_reports_no_skips(short_recording, tmp_path, capsys):
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(short_recording)]) == 0
+    assert "skipped" not in capsys.readouterr().out
