@@ -165,10 +165,13 @@ class MachineValidity:
       from its value learnt over ``coupling_ref_tau_s`` (the engaged axle's fixed gear ratio; a disengaged
       front axle rolls and its ratio falls by λ + s_r).  A disengagement that lasts much longer than
       ``coupling_ref_tau_s`` is learnt as the normal ratio: declare ``front_drive`` as it is driven, or
-      ``front_drive = "auto"``: then the ratio is learnt only while engaged, and a departure below
-      −``coupling_tolerance`` times the lead switches the model to the rolling front axle (back above half
+      ``front_drive = "auto"``: then EBC2's front over rear angular speed ratio (fixed by the gears while
+      engaged, whatever the loads; learnt outside turns and shifts) falling by more than
+      ``coupling_tolerance`` times the lead switches the model to the rolling front axle (back above half
       of it), held unsupported like a shift (:meth:`MachineEstimator._mfwd_from_bus`; the DBC has no MFWD
-      state parameter, EBC2's speeds are the bus's evidence).
+      state parameter, EBC2's speeds are the bus's evidence).  In a tight turn a rolling front axle runs
+      faster than the rear on its longer path (+25 % at the simulated headlands), so the state is not told
+      there; such turns are unsupported anyway.
     * **Too little drive torque**: the net percent torque p − p_f below ``min_net_torque_pct``: at 10 % a
       1 % error of the friction percent (its resolution) is already a 10 % error of μ.
     """
@@ -329,7 +332,8 @@ class MachineEstimator:
         self._t_turn = -math.inf
         self._gear_seen: tuple[float, float] = (math.nan, math.nan)
         self._coupling = math.nan
-        self._coupling_ref = 0.0 if self._auto else math.nan    # auto: the declared coupling to start from
+        self._coupling_ref = math.nan
+        self._wr, self._wr_ref, self._t_wr = math.nan, math.nan, -math.inf     # front_drive = "auto"
         if self._auto:
             self.engaged, self.lead = True, self._lead_d
         self._t_coupling = -math.inf
@@ -620,8 +624,10 @@ class MachineEstimator:
                     lk = self.vehicle.wheelbase_m * abs(float(rl[0] - rl[1])) / (self.vehicle.track_width_m * v_rear)
                     if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
                         self._t_turn = t
-                    if self._lead_d > 0.0 and (self.engaged or self._auto):   # front over rear, against the coupling
-                        q = vfa / v_rear / ((1.0 + self._lead_d) * rdr / rdf) - 1.0
+                    if self._auto and self._lead_d > 0.0:
+                        self._mfwd_from_bus(t, vfa / v_rear, rdf, rdr)
+                    if self.engaged and self.lead > 0.0:       # front axle over rear wheels, against the coupling
+                        q = vfa / v_rear / ((1.0 + self.lead) * rdr / rdf) - 1.0
                         a = 1.0 if t - self._t_coupling > 5.0 * max(val.coupling_tau_s, 0.1) else min(
                             1.0, (t - self._t_coupling) / max(val.coupling_tau_s, 1e-3))
                         self._coupling = q if not math.isfinite(self._coupling) else self._coupling + a * (
@@ -632,8 +638,6 @@ class MachineEstimator:
                             self._coupling_ref = (self._coupling if not math.isfinite(self._coupling_ref) else
                                                   self._coupling_ref + b * (self._coupling - self._coupling_ref))
                         self._t_coupling = t
-                        if self._auto:
-                            self._mfwd_from_bus(t, self._coupling - self._coupling_ref)
         crs = meas.get("course")                               # GNSS course: a turn bends it
         if crs is not None and math.isfinite(crs):
             if self._course is not None and t > self._course[0]:
@@ -769,14 +773,26 @@ class MachineEstimator:
             self._radius_version += 1
             self._terms_key = None
 
-    def _mfwd_from_bus(self, t: float, dq: float) -> None:
-        """``front_drive = "auto"``: the MFWD state from EBC2.  ``dq``: the smoothed front-axle over rear-wheel
-        speed ratio's departure from the engaged axle's learnt ratio [-].  Engaged, the rigid coupling holds it
-        at 0 (less the radius errors the learnt ratio takes up); disengaged, the front axle rolls at the ground
-        speed and the ratio falls by λ + s_r (λ the lead, s_r the rear slip) ≥ λ.  Disengaged below
-        −``coupling_tolerance``·λ, engaged again above half of it; either change is held unsupported like a
-        shift (the model's torque balance changes: module doc)."""
-        tol = self.validity.coupling_tolerance * self._lead_d
+    def _mfwd_from_bus(self, t: float, ratio: float, rdf: float, rdr: float) -> None:
+        """``front_drive = "auto"``: the MFWD state from EBC2.  ``ratio``: its front-axle over rear-wheel speed,
+        both from wheel angular speeds over the ECU's one radius, so the front over rear angular speed [-].
+        Engaged, the gears fix it at (1 + λ) r_r/r_f whatever the loads (λ the lead; learnt, smoothed over
+        ``coupling_tau_s``, while engaged outside turns and shifts, with time constant ``coupling_ref_tau_s``,
+        from the declared lead at the first sample); disengaged, the front axle rolls at the ground speed and the
+        ratio falls by about λ + s_r ≥ λ (s_r the rear slip).  Disengaged below −``coupling_tolerance``·λ of the
+        learnt ratio, engaged again above half of it; either change is held unsupported like a shift (the
+        model's torque balance changes: module doc)."""
+        val = self.validity
+        a = 1.0 if t - self._t_wr > 5.0 * max(val.coupling_tau_s, 0.1) else min(
+            1.0, (t - self._t_wr) / max(val.coupling_tau_s, 1e-3))
+        self._wr = ratio if not math.isfinite(self._wr) else self._wr + a * (ratio - self._wr)
+        if not math.isfinite(self._wr_ref):
+            self._wr_ref = (1.0 + self._lead_d) * rdr / rdf
+        elif self.engaged and t - self._t_turn > val.turn_hold_s and t - self._t_shift > val.shift_hold_s:
+            self._wr_ref += min(1.0, (t - self._t_wr) / val.coupling_ref_tau_s) * (self._wr - self._wr_ref)
+        self._t_wr = t
+        dq = self._wr / self._wr_ref - 1.0
+        tol = val.coupling_tolerance * self._lead_d
         if self.engaged and dq < -tol:
             self.engaged, self.lead = False, 0.0
         elif not self.engaged and dq > -0.5 * tol:
