@@ -305,3 +305,15 @@ def test_loads_change_nothing_while_the_load_term_is_off():
         st1 = ce1.update(0.1 * k, mu, s4, np.full(4, 0.005), np.full(4, 0.009), fz)
     assert st1.curve_path == st0.curve_path and st1.curve_path.startswith("shape:")
     assert st1.curve.theta == st0.curve.theta and not st1.curve.load_aware
+
+
+def test_a_load_aware_curve_is_scored_at_its_reference_load():
+    """The scorer compares the curve at its reference load m g/4, the load of the truth's table: the
+    load factor (here 1 + q z at the rear's z = +0.4) must not enter the score."""
+    c = MuCurve("exp1", (0.8, -7.5), np.eye(2) * 1e-6, "shape:exp1+load", load_q=-0.2, load_q_sigma=0.02,
+                fz_ref_n=FZ_REF)
+    n = 6
+    curve, info = identified_curve(np.arange(n), np.full(n, 0.8), ["stubble"] * n, [c] * n, S_GRID)
+    assert info["curve_path"] == "shape:exp1+load"
+    assert np.allclose(curve, 0.8 * -np.expm1(-7.5 * S_GRID))
+    assert np.allclose(c.mu(S_GRID, np.full_like(S_GRID, 1.4 * FZ_REF)), 0.92 * curve)
