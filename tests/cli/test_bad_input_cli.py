@@ -44,3 +44,37 @@ def test_replay_reports_the_lines_it_skipped(short_recording, tmp_path, capsys):
 def test_replay_of_a_clean_recording_reports_no_skips(short_recording, tmp_path, capsys):
     assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(short_recording)]) == 0
     assert "skipped" not in capsys.readouterr().out
+
+
+def test_a_replay_into_an_earlier_output_leaves_no_product_of_the_earlier_one(short_recording, tmp_path, capsys):
+    """An output directory reused for a recording without GNSS (or with --no-map) kept the earlier
+    recording's map, scorecard.json and map_scorecard.json beside the new estimates.csv, and replay said
+    'map: 0 of 0 GNSS epochs mapped -> RUN/map': ``map export RUN`` then exported the other recording's map."""
+    out = tmp_path / "run"
+    assert main(["replay", "--out", str(out), str(short_recording)]) == 0
+    assert (out / "map" / "manifest.json").is_file() and (out / "scorecard.json").is_file()
+    capsys.readouterr()
+
+    rec = tmp_path / "no_gnss"
+    shutil.copytree(short_recording, rec)
+    for name in ("gps.nmea", "truth.csv", "truth.toml"):
+        (rec / name).unlink()
+    assert main(["replay", "--out", str(out), str(rec)]) == 0
+    text = capsys.readouterr().out
+    assert "map: none written: the recording has no GNSS epoch with a position" in text
+    assert "what an earlier replay had written there and this one did not: map, scorecard.json, " \
+           "map_scorecard.json" in text
+    assert sorted(p.name for p in out.iterdir()) == ["config.toml", "estimates.csv"]
+    assert main(["map", "export", str(out), "--format", "geojson"]) == 1     # no map: an error, not the old one
+
+
+def test_a_replay_that_fails_keeps_what_was_written(short_recording, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["replay", "--out", str(out), str(short_recording)]) == 0
+    before = sorted(p.name for p in out.iterdir())
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "can.log").write_text("")
+    assert main(["replay", "--out", str(out), str(bad)]) == 1
+    assert "empty file" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == before

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
@@ -73,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         except ImportError:
             print("tractionecu replay: --plot needs matplotlib (pip install 'tractionecu[maps]')", file=sys.stderr)
             return 3
+    earlier = _products(Path(args.out))
     try:
         with extra_dbcs(args.dbc):
             summary, rec, res = replay_to_dir(args.recording, args.out, rate_hz=args.rate, cfg=cfg,
@@ -84,8 +86,55 @@ def run(args: argparse.Namespace) -> int:
         from ..evaluation.replay import score_replay
 
         summary.update(score_replay(args.out, rec, res.arrays, plot=args.plot, summary=summary))
+    removed = _remove_stale(Path(args.out), earlier, _products(Path(args.out)))
     print("\n".join([*profile_note(rec), *rejects_note(rec), format_summary(summary)]))
+    if removed:
+        print(f"removed from {args.out} what an earlier replay had written there and this one did not: "
+              + ", ".join(removed))
     return 0
+
+
+PRODUCTS = ("map", "scorecard.json", "map_scorecard.json", "fig6_mu_rho.png", "fig5_mu_curves.png",
+            "fig_efficiency.png", "report.html")
+"""What a replay may write into its output directory beside ``estimates.csv`` and ``config.toml``."""
+
+
+def _products(out: Path) -> dict[str, int]:
+    """The replay products present in ``out`` and their modification times [ns] (of ``map/manifest.json``
+    for the map)."""
+    found = {}
+    for name in PRODUCTS:
+        p = out / name / "manifest.json" if name == "map" else out / name
+        try:
+            found[name] = p.stat().st_mtime_ns
+        except OSError:
+            if name == "map" and (out / name).is_dir():
+                found[name] = -1
+    return found
+
+
+def _remove_stale(out: Path, before: dict[str, int], after: dict[str, int]) -> list[str]:
+    """Remove the products an earlier replay left in ``out`` that this replay did not write anew: a
+    scorecard, map or figure of another recording must not sit beside this replay's estimates as if it
+    were theirs.  Returns the names removed.  Called only after the new replay succeeded, so a replay that
+    fails loses nothing already written.
+    """
+    import shutil
+
+    removed = []
+    for name, mtime in before.items():
+        if name not in after:                          # removed by this replay's own step (its map)
+            removed.append(name)
+            continue
+        if after[name] != mtime:
+            continue                                   # written anew
+        p = out / name
+        if p.is_dir():
+            shutil.rmtree(p)
+        else:
+            p.unlink(missing_ok=True)
+        removed.append(name)
+    return removed
 
 
 def rejects_note(rec: Any) -> list[str]:
@@ -192,7 +241,9 @@ def format_summary(res: dict[str, Any]) -> str:
         lines.append(f"{'map_soil_accuracy':<22}  {num(msc['map_soil_accuracy'], '.1f', 100.0)} %  (target >= 95 %)")
         lines.append(f"{'map_a_rmse':<22}  {num(msc['map_a_rmse'], '.4f')}")
         lines.append(f"{'map_rho_s_rmse':<22}  {num(msc['map_rho_s_rmse'], '.4f')}")
-    if "map_samples" in res:
+    if "map_samples" in res and "map_epochs" not in res:    # no tiles written (mapping.from_replay)
+        lines.append("map: none written: the recording has no GNSS epoch with a position")
+    elif "map_samples" in res:
         lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped -> {res['map_dir']}")
     for axle, c in res.get("radius_calibration", {}).items():       # estimation/calibration.py
         if c.get("blocks"):

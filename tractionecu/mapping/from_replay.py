@@ -42,12 +42,12 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     """
     gps = rec.gps
     summary: dict[str, Any] = {"map_dir": str(out / "map")}
+    map_dir = out / "map"
+    if store is None and map_dir.exists():          # also when this replay maps nothing: never another's map
+        shutil.rmtree(map_dir)
     if len(gps) == 0:
         summary["map_samples"] = 0
         return summary
-    map_dir = out / "map"
-    if store is None and map_dir.exists():
-        shutil.rmtree(map_dir)
     ok = np.isfinite(gps.lat) & np.isfinite(gps.lon)
     if not ok.any():
         summary["map_samples"] = 0
