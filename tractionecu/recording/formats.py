@@ -13,6 +13,9 @@ format            recognised by                               read with
 ``csv``           header ``timestamp,arbitration_id,...``     python-can ``CSVReader``
 ``sqlite``        magic ``SQLite format 3``                   python-can ``SqliteReader``
 ``mf4``           magic ``MDF`` or ``UnFinMF`` (unfinalised)    asammdf (the ``mf4`` extra), imported only here
+``polycan``       header ``,time,pgn,priority,source,``         :func:`_polycan_messages` (rows as
+                  ``destination,data,...`` (PolyCAN CSV)       :mod:`.polycan` reads them; a bad row is
+                                                              counted, not fatal)
 ================  ==========================================  ===========================================
 
 The file name is never consulted.  Anything else raises
@@ -50,7 +53,7 @@ from ..bus.candump import ReadStats
 from ..errors import RecordingError
 from .fastdecode import FrameTable
 
-FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4")
+FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4", "polycan")
 """Formats :func:`read_frames` reads."""
 
 TRUSTED_CLOCK = frozenset({"candump", "blf", "trc", "csv", "sqlite", "mf4", "candump-screen -ta"})
@@ -59,7 +62,8 @@ TRUSTED_CLOCK = frozenset({"candump", "blf", "trc", "csv", "sqlite", "mf4", "can
 CONVERT_HINT = (
     "record with `candump -L`, or convert with python-can "
     "(`python -m can.logconvert IN OUT.log`) or can-utils (`log2asc`/`asc2log`); "
-    "formats read: candump -L and screen output, Vector ASC/BLF, PEAK TRC, python-can CSV and SQLite, MF4")
+    "formats read: candump -L and screen output, Vector ASC/BLF, PEAK TRC, python-can CSV and SQLite, MF4, "
+    "PolyCAN CSV")
 
 _SCREEN = re.compile(
     r"^\s*(?:\((?P<ts>[^)]*)\)\s+)?(?P<iface>\S+)\s+(?:(?P<dir>TX|RX)\s+\S\s+\S\s+)?"
@@ -106,6 +110,8 @@ def detect(path: str | Path) -> str:
         return "trc"
     if low.replace(" ", "").startswith("timestamp,arbitration_id,"):
         return "csv"
+    if _POLYCAN_COLUMNS <= {c.strip() for c in low.split(",")}:
+        return "polycan"
     frames = [ln for ln in lines if not ln.lstrip().startswith(("#", ";"))]
     if frames and all(_is_candump_l(ln) for ln in frames[:5]):
         return "candump"
@@ -147,6 +153,8 @@ def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tupl
             return scan_screen(p, rs)
         if fmt == "mf4":
             return _table(_mf4_messages(p), rs), fmt
+        if fmt == "polycan":
+            return _table(_polycan_messages(p, rs), rs), fmt
         return _table(_python_can_messages(p, fmt), rs), fmt
     except RecordingError:
         raise
@@ -179,6 +187,51 @@ def _python_can_messages(p: Path, fmt: str) -> Iterator[tuple]:
         stop = getattr(reader, "stop", None)
         if stop is not None:
             stop()
+
+
+_POLYCAN_COLUMNS = frozenset({"time", "pgn", "priority", "source", "destination", "data"})
+
+
+def _polycan_messages(p: Path, rs: ReadStats) -> Iterator[tuple]:
+    """Frames of a PolyCAN CSV export (:mod:`.polycan`: ``time`` in ms from the capture's start, the
+    29-bit identifier rebuilt from priority, PGN, source and destination).  The times are relative (the
+    export has no absolute clock: not in :data:`TRUSTED_CLOCK`, placed against the GNSS epochs by
+    :mod:`.clock` when there are any).  A row that cannot be read is counted in ``rs`` (``garbage``,
+    ``bad_timestamp``, ``dlc_gt_8``) with its line and skipped."""
+    import csv
+
+    from ..bus import j1939
+
+    with open(p, "r", newline="", encoding="utf-8", errors="replace") as fh:
+        reader = csv.DictReader(fh)
+        fields = {str(f).strip() for f in (reader.fieldnames or [])}
+        if not _POLYCAN_COLUMNS <= fields:
+            raise RecordingError(f"{p}: line 1: not a PolyCAN export (columns {sorted(_POLYCAN_COLUMNS)})")
+        lineno = 1
+        while True:
+            try:
+                row = next(reader, None)
+            except csv.Error as e:                     # e.g. a field beyond csv.field_size_limit()
+                rs.lines += 1
+                rs.reject("garbage", reader.line_num, str(e))
+                lineno = reader.line_num
+                continue
+            if row is None:
+                return
+            lineno = reader.line_num
+            text = ",".join("" if v is None else str(v) for v in row.values() if not isinstance(v, list))
+            try:
+                ms = float(row["time"])
+                pgn, prio = int(row["pgn"]), int(row["priority"])
+                sa, da = int(row["source"]), int(row["destination"])
+                data = bytes.fromhex(row["data"].strip())
+                cid = j1939.make_id(prio, pgn, sa, da if j1939.is_pdu1(pgn) else None)
+            except (TypeError, ValueError, AttributeError):
+                rs.lines += 1
+                rs.reject("garbage", lineno, text)
+                continue
+            t = ms / 1000.0
+            yield (t, cid, True, data, len(data), False, False, False, lineno)
 
 
 def _mf4_messages(p: Path) -> Iterator[tuple]:
@@ -222,12 +275,14 @@ def _mf4_messages(p: Path) -> Iterator[tuple]:
 
 
 def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
-    """A :class:`FrameTable` of decoded messages ``(t, id, ext, data, dlc, error, remote, fd)``;
-    rejects counted like the candump reader's, the frame's position standing for its line."""
+    """A :class:`FrameTable` of decoded messages ``(t, id, ext, data, dlc, error, remote, fd[, line])``;
+    rejects counted like the candump reader's, the frame's position standing for its line unless the
+    message carries its line number."""
     cols: tuple[list, ...] = ([], [], [], [], [], [])
     last = -math.inf
-    for k, (t, cid, ext, data, _dlc, err, rtr, fd) in enumerate(messages, start=1):
+    for k, (t, cid, ext, data, _dlc, err, rtr, fd, *line) in enumerate(messages, start=1):
         rs.lines += 1
+        k = line[0] if line else k                     # a text format's own line number
         t = float(t)
         reason = None
         if err:
