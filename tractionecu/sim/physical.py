@@ -69,9 +69,11 @@ from ..config import G, VehicleParams
 from ..model.mucurve import SOIL_CLASSES
 from . import _physical_kernel as K
 from . import tyre as ty
+from .control import Shuttle
 from .drivetrain import RPM, DriveLineSpec
 from .field import Field, SoilRegion
 from .plan import DS
+from .trace import TruthTrace
 
 AIR_DENSITY = 1.2
 """Air density [kg/m³] at 20 °C."""
@@ -197,8 +199,6 @@ def _path_curvature(plan) -> np.ndarray:
 
 def simulate_physical(scn):
     """Run the physical truth model; deterministic for a given ``scn.seed``.  Returns a TruthTrace."""
-    from .simulator import Shuttle, TruthTrace
-
     ps: PhysicalSpec = scn.physical
     if ps is None:
         raise ValueError(f"scenario {scn.name}: truth 'physical' needs Scenario.physical")

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,18 +53,16 @@ from numpy.typing import NDArray
 from ..config import G, SensorSpec, VehicleParams
 from ..model import effects as fx
 from ..model.vehicle import rolling_radius, slip as slip_fn
+from .control import V_STANDSTILL, ControllerSpec, Shuttle  # noqa: F401  (V_STANDSTILL re-exported)
 from .field import Field
+from .physical import PhysicalSpec, simulate_physical
 from .plan import DS, Plan
-
-if TYPE_CHECKING:
-    from .physical import PhysicalSpec
+from .trace import TruthTrace
 
 V_SLIP_MIN = 0.1
 """Speed below which the slip's denominator is held [m/s] (low-speed regularisation of eq. 6)."""
 V_SIGN_BAND = 0.02
 """Speed band around zero [m/s] in which sgn(v), sgn(ω) of the rolling resistances are linear."""
-V_STANDSTILL = 0.01
-"""|v| [m/s] below which the machine counts as standing still (shuttling allowed)."""
 TRUTH_MODELS = ("paper", "physical")
 """Truth models a scenario can select (``Scenario.truth``)."""
 
@@ -83,75 +80,6 @@ class ImplementSpec:
     """Correlation time of the draft fluctuation [s]."""
     lower_time_s: float = 1.5
     """Time to lower or raise the implement [s]."""
-
-
-@dataclass(frozen=True)
-class ControllerSpec:
-    """Speed controller of the driver / cruise control."""
-
-    accel_max: float = 0.35
-    """Acceleration limit of the speed reference [m/s²]."""
-    kp: float = 1.2
-    """Proportional gain [1/s]."""
-    ki: float = 0.4
-    """Integral gain [1/s²]."""
-    torque_tau_s: float = 0.05
-    """Inverter torque response time constant [s]."""
-    rho_guess: float = 0.07
-    """Rolling resistance used in the feed-forward [-]."""
-    stop_decel: float = 0.25
-    """Deceleration of the speed target approaching a change of direction [m/s²] (below accel_max)."""
-    shuttle_dwell_s: float = 1.0
-    """Time at standstill before the direction of travel changes (power-shuttle reversal) [s]."""
-    hold_tau_s: float = 0.25
-    """At a change of direction, once the speed reference is zero, the integral term (the drive force
-    that kept the machine rolling) decays with this time constant [s]: the machine comes to rest."""
-
-
-class Shuttle:
-    """Direction of travel along a plan and its change at each cusp (module doc), for both truth models.
-
-    The speed target brakes to stand still at the next cusp (``ControllerSpec.stop_decel``); at the cusp,
-    once the machine has stood still (|v| < V_STANDSTILL) for ``shuttle_dwell_s``, the direction changes
-    to the plan's direction past the cusp.  ``direction`` (+1 / −1) and ``next_cusp`` (path distance [m],
-    inf when none is ahead) are read by the integrator; ``hold_decay`` is the per-step decay of the speed
-    controller's integral term at a cusp (``hold_tau_s``).
-    """
-
-    def __init__(self, plan: Plan, ctl: ControllerSpec, dt: float) -> None:
-        self._plan, self._ctl, self._dt = plan, ctl, dt
-        self._cusps = plan.cusps
-        self._n_path = len(plan.s)
-        self._i = 0
-        self._still_s = 0.0
-        self.direction = int(plan.direction[0])
-        self.next_cusp = float(self._cusps[0]) if len(self._cusps) else math.inf
-        self.hold_decay = math.exp(-dt / ctl.hold_tau_s)
-
-    def at_cusp(self, d: float, v_ref: float) -> bool:
-        """True at the cusp [path distance d, m] once the plan's speed reference there is zero."""
-        return self.next_cusp - d <= DS and v_ref == 0.0
-
-    def advance(self, at_cusp: bool, d: float, v: float) -> float:
-        """Count the standstill at the cusp; after the dwell, change direction and move past the cusp.
-        Returns the path distance [m] (the cusp's once passed)."""
-        if at_cusp and abs(v) < V_STANDSTILL:
-            self._still_s += self._dt
-            if self._still_s >= self._ctl.shuttle_dwell_s - 1e-9:
-                d = self.next_cusp
-                self._i += 1
-                self.direction = int(self._plan.direction[min(int(round(d / DS)), self._n_path - 1)])
-                self.next_cusp = float(self._cusps[self._i]) if self._i < len(self._cusps) else math.inf
-                self._still_s = 0.0
-        else:
-            self._still_s = 0.0
-        return d
-
-    def brake(self, v_tgt: float, d: float) -> float:
-        """The speed target [m/s, magnitude] limited so as to stand still at the next cusp."""
-        if self.next_cusp < math.inf:
-            return min(v_tgt, math.sqrt(2.0 * self._ctl.stop_decel * max(self.next_cusp - d, 0.0)))
-        return v_tgt
 
 
 @dataclass
@@ -189,65 +117,9 @@ class Scenario:
             raise ValueError(f"scenario {self.name}: truth {self.truth!r} (known: {', '.join(TRUTH_MODELS)})")
 
 
-@dataclass
-class TruthTrace:
-    """True signals at the control rate; arrays over time (n,) or (n, 4)."""
-
-    t: NDArray[np.float64]
-    omega: NDArray[np.float64]
-    v: NDArray[np.float64]
-    """Ground speed along the body's forward axis [m/s], negative in reverse."""
-    md: NDArray[np.float64]
-    """Drive torque at the motor (what the inverter reports) [N·m]."""
-    fz: NDArray[np.float64]
-    fzf: NDArray[np.float64]
-    fdx: NDArray[np.float64]
-    mu: NDArray[np.float64]
-    """Adhesion coefficient F_h/F_z per wheel [-], signed along the body axis (negative when the wheel
-    pulls backwards, e.g. driving in reverse)."""
-    slip: NDArray[np.float64]
-    """Slip per wheel, paper eq. 6 [-]: positive when the wheel drives (turns faster than the ground
-    passes), in either direction of travel."""
-    rho_s: NDArray[np.float64]
-    """Load-weighted soil rolling resistance Σρ_s,i F_z,i / (m g) [-]."""
-    a: NDArray[np.float64]
-    """Curve parameter a of the soil under the GPS antenna [-]."""
-    a_wheel: NDArray[np.float64]
-    soil: NDArray[np.int64]
-    soil_wheel: NDArray[np.int64]
-    x: NDArray[np.float64]
-    y: NDArray[np.float64]
-    heading: NDArray[np.float64]
-    alt: NDArray[np.float64]
-    theta: NDArray[np.float64]
-    work: NDArray[np.bool_]
-    direction: NDArray[np.int8]
-    """Direction of travel selected (transmission): +1 forwards, −1 reverse; changes only at standstill."""
-    # Physical truth only (None from the paper model):
-    v_wheel: NDArray[np.float64] | None = None
-    """Ground speed of each wheel along its own heading [m/s] (signed like v); slip is against it."""
-    curvature: NDArray[np.float64] | None = None
-    """Path curvature of the rear-axle midpoint [1/m], positive turning left."""
-    omega_sensor: NDArray[np.float64] | None = None
-    """Speed at each wheel's speed pickup, reflected to the wheel [rad/s] (hub: the motor shaft)."""
-    engine_torque: NDArray[np.float64] | None = None
-    """Mechanical: engine net brake torque [N·m]."""
-    engine_speed: NDArray[np.float64] | None = None
-    """Mechanical: engine speed [rad/s]."""
-    gear: NDArray[np.int64] | None = None
-    """Mechanical: gear engaged (negative in reverse)."""
-    gear_ratio: NDArray[np.float64] | None = None
-    """Mechanical: gearbox ratio, input/output [-]."""
-    front_lead: NDArray[np.float64] | None = None
-    """Mechanical: front-axle lead [-]."""
-    mfwd: NDArray[np.bool_] | None = None
-    """Mechanical: MFWD engaged."""
-
-
 def simulate(scn: Scenario) -> TruthTrace:
     """Run the scenario's truth model (``scn.truth``); deterministic for a given ``scn.seed``."""
     if scn.truth == "physical":
-        from .physical import simulate_physical
         return simulate_physical(scn)
     rng = np.random.default_rng(scn.seed)
     veh = scn.vehicle
