@@ -10,6 +10,8 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import pytest
+
 from tractionecu.cli.main import main
 
 
@@ -78,3 +80,23 @@ def test_a_replay_that_fails_keeps_what_was_written(short_recording, tmp_path, c
     assert main(["replay", "--out", str(out), str(bad)]) == 1
     assert "empty file" in capsys.readouterr().err
     assert sorted(p.name for p in out.iterdir()) == before
+
+
+@pytest.mark.parametrize("arg", [["--duration", "0"], ["--duration", "-5"], ["--duration", "nan"],
+                                 ["--duration", "inf"], ["--seed", "-1"]])
+def test_simulate_refuses_a_duration_or_seed_it_cannot_run(arg, tmp_path, capsys):
+    """A negative, NaN or infinite --duration and a negative --seed ended in numpy tracebacks; 0 s wrote a
+    recording of 5 CAN frames and no GNSS line."""
+    out = tmp_path / "rec"
+    assert main(["simulate", *arg, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"tractionecu simulate: error: {arg[0]}:" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_simulate_says_a_mechanical_scenario_on_the_paper_truth_drives_the_hubs(tmp_path, capsys):
+    out = tmp_path / "rec"
+    assert main(["simulate", "--scenario", "mechanical-three-soils", "--truth", "paper", "--duration", "1",
+                 "--out", str(out)]) == 0
+    assert "(hub drive: the paper truth model has no engine" in capsys.readouterr().out
+    assert 'kind = "hub"' in (out / "vehicle.toml").read_text()

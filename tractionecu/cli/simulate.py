@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 
+from ..errors import ConfigError
 from ..model.effects import parse_effect_arg
 from ..sim import scenarios
 from ..sim.simulator import simulate
@@ -28,10 +30,18 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0.0):
+        raise ConfigError(f"--duration: a number of seconds > 0, got {args.duration}")
+    if args.seed < 0:                     # numpy's generators take non-negative seeds only
+        raise ConfigError(f"--seed: a non-negative integer, got {args.seed}")
     effects = dict(parse_effect_arg(e) for e in args.effect)
     scn = scenarios.get(args.scenario, seed=args.seed, effects=effects, duration_s=args.duration)
+    mech = scn.truth == "physical" and scn.physical is not None and scn.physical.drivetrain.kind != "hub"
     if args.truth is not None:
         scn = scenarios.with_truth(scn, args.truth)
+    note = ""
+    if mech and scn.truth == "paper":     # scenarios.with_truth: the paper model drives the hubs
+        note = " (hub drive: the paper truth model has no engine, gearbox or mechanical front-wheel drive)"
     if "grade" in effects and not scn.field.terrain.source.startswith("OFPEDATA2"):
         from ..sim.terrain import Terrain
         scn.field.terrain = Terrain.henrys_field()
@@ -44,5 +54,5 @@ def run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     frames = sum(v for k, v in counts.items() if k != "nmea_lines")
     print(f"{scn.name} ({scn.truth} truth): {tr.t[-1]:.1f} s simulated in {wall:.1f} s; {frames} CAN frames, "
-          f"{counts['nmea_lines']} NMEA lines -> {args.out}")
+          f"{counts['nmea_lines']} NMEA lines -> {args.out}{note}")
     return 0
