@@ -45,9 +45,9 @@ from ..bus.dbc import Codec, default_codec
 from ..config import save_vehicle, to_toml, toml_value
 from ..model.vehicle import WHEELS
 from . import tyre as ty
+from .frames import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA
+from .gnss_receiver import course_over_ground, gnss_sentences
 from .sensors import SensorBiases, ToothedPickup, draw_biases, ou_noise, pickup_speeds, quantise
-from .writer import (DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA, _course_over_ground,
-                     gnss_sentences)
 
 ENGINE_SA = 0x00
 TRANSMISSION_SA = 0x03
@@ -342,7 +342,7 @@ def _gnss(scn, tr, b: SensorBiases, rng, emit, *, radar: bool, gbsd_from_gnss: b
     ez = ou_noise(len(gi), g_dt, spec.gps_alt_sigma, spec.gps_pos_tau_s, rng)
     lat, lon = scn.field.to_latlon(x + ex, y + ey)
     alt = scn.field.origin_alt + alt_t + ez
-    course = _course_over_ground(hd, vt)
+    course = course_over_ground(hd, vt)
     dir_code = np.where(tr.direction > 0, FORWARD, REVERSE)
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []

@@ -14,14 +14,13 @@ direction in SPN 1864 / SPN 1861 (DBC: 0 reverse, 1 forward), taken from the
 direction of travel selected; the GNSS receiver reports an unsigned speed over
 ground (RMC/VTG have no sign) and the course over ground of the motion,
 which is the body heading + 180° in reverse.  Below ``GNSS_COURSE_HOLD_MPS``
-the receiver holds its last course, as receivers do when the velocity
-vector is dominated by noise.
+(:mod:`.gnss_receiver`) the receiver holds its last course, as receivers do
+when the velocity vector is dominated by noise.
 """
 
 from __future__ import annotations
 
 import csv
-import datetime as _dt
 import math
 from pathlib import Path
 
@@ -29,25 +28,13 @@ import numpy as np
 
 from ..bus.candump import CandumpWriter
 from ..bus.dbc import Codec, default_codec
-from ..config import SensorSpec, save_vehicle, to_toml
-from ..gnss import nmea
+from ..config import save_vehicle, to_toml
 from ..model.vehicle import WHEELS, rolling_radius
+from .frames import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA
+from .gnss_receiver import course_over_ground, gnss_sentences
+from .physwriter import write_physical_recording
 from .sensors import ou_noise, quantise, torque_meas, wheel_speed_meas
 from .simulator import Scenario, TruthTrace
-
-DRIVETRAIN_SA = 0x80
-"""Source address of the drive-train ECU sending wheel speeds, torques and axle load."""
-HITCH_SA = 0x82
-"""Source address of the rear hitch ECU (ISO 11783-7 hitch status, draft)."""
-NAV_SA = 0x1C
-"""Source address of the navigation/GNSS ECU sending GBSD."""
-TRACTOR_SA = 0x00
-"""Source address of the tractor ECU sending WBSD."""
-FORWARD, REVERSE = 1, 0
-"""WheelBasedMachineDirection (SPN 1864) / GroundBasedMachineDirection (SPN 1861): ISO 11783-7 values
-(``dbc/tractionecu.dbc`` VAL_: 0 Reverse, 1 Forward, 2 Error, 3 NotAvailable)."""
-GNSS_COURSE_HOLD_MPS = 0.1
-"""Speed over ground below which the receiver holds its last course over ground [m/s]."""
 
 
 def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec | None = None) -> dict[str, int]:
@@ -58,7 +45,6 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     tractor, the standard J1939 messages).
     """
     if getattr(scn, "truth", "paper") == "physical":
-        from .physwriter import write_physical_recording
         return write_physical_recording(scn, tr, out, codec)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -124,7 +110,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     ez = ou_noise(len(gi), g_dt, spec.gps_alt_sigma, spec.gps_pos_tau_s, rng)
     lat, lon = scn.field.to_latlon(tr.x[gi] + ex, tr.y[gi] + ey)
     alt = scn.field.origin_alt + tr.alt[gi] + ez
-    course = _course_over_ground(tr.heading[gi], v_true[gi])
+    course = course_over_ground(tr.heading[gi], v_true[gi])
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []
     for j, k in enumerate(gi):
@@ -145,30 +131,6 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
     save_vehicle(scn.vehicle, out / "vehicle.toml", scn.sensors)
     _write_truth(scn, tr, out)
     return counts
-
-
-def gnss_sentences(spec: SensorSpec, t0: float, t: float, lat_deg: float, lon_deg: float, alt_m: float,
-                   speed_mps: float, course_deg: float) -> tuple[str, str, str]:
-    """GGA, RMC and VTG of one receiver epoch at ``t`` [s] after the epoch ``t0`` [UTC s]: the receiver's
-    epoch is the UTC time of the fix (lines leave the receiver a few ms later); speed over ground is a
-    magnitude; HDOP wanders slowly about ``spec.gps_hdop``."""
-    utc = _dt.datetime.fromtimestamp(round(t0 + t, 2), tz=_dt.timezone.utc)
-    hdop = spec.gps_hdop + 0.05 * math.sin(t / 60.0)
-    sog = max(speed_mps, 0.0)
-    return (nmea.format_gga(utc, lat_deg, lon_deg, spec.gps_fix_quality, spec.gps_nsat, round(hdop, 2), alt_m),
-            nmea.format_rmc(utc, lat_deg, lon_deg, sog, course_deg),
-            nmea.format_vtg(sog, course_deg))
-
-
-def _course_over_ground(heading, v):
-    """Course over ground [deg, clockwise from north] of the motion: the body heading [rad, 0 = east,
-    counter-clockwise], + 180° when v < 0; held at its last value while |v| < GNSS_COURSE_HOLD_MPS."""
-    motion = np.where(v < 0.0, heading + np.pi, heading)
-    course = (90.0 - np.degrees(motion)) % 360.0
-    for j in range(1, len(course)):
-        if abs(v[j]) < GNSS_COURSE_HOLD_MPS:
-            course[j] = course[j - 1]
-    return course
 
 
 def _write_truth(scn: Scenario, tr: TruthTrace, out: Path) -> None:
