@@ -375,7 +375,7 @@ class Estimator:
             Q = self._Qbase.copy()  # type: ignore[union-attr]
             sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
             Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
-        kap = self._u[IU_KAPPA]
+        kap = float(self._u[IU_KAPPA])
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
             Q[IX_V, IX_V] += self._kappa_noise(dt)
         return Q
@@ -779,7 +779,7 @@ class Estimator:
             t0 = max(self._t_upd_w if i == 0 else self._t_upd_v, t_old)
             if not t0 < t_prev or not t - t_old <= self.cfg.max_gap_s:
                 continue                       # one step, or no previous sample: the hold is exact enough
-            new = self._u[:4] if i == 0 else self._u[5]
+            new = self._u[:4] if i == 0 else float(self._u[5])     # (a float: plain arithmetic, same result)
             # mean over (t0, t] of the line from (t_old, old) to (t, new), times the span, minus the held integral
             w = (0.5 * (t0 + t) - t_old) / (t - t_old)
             d = (old + (new - old) * w) * (t - t0) - (old * (t_prev - t0) + new * (t - t_prev))
