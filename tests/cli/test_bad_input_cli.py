@@ -100,3 +100,11 @@ def test_simulate_says_a_mechanical_scenario_on_the_paper_truth_drives_the_hubs(
                  "--out", str(out)]) == 0
     assert "(hub drive: the paper truth model has no engine" in capsys.readouterr().out
     assert 'kind = "hub"' in (out / "vehicle.toml").read_text()
+
+
+@pytest.mark.parametrize("rate", ["0", "nan", "inf", "1e9", "0.5"])
+def test_replay_refuses_a_step_rate_outside_the_services_range(rate, short_recording, tmp_path, capsys):
+    """``--rate 1e9`` ended in a traceback after asking numpy for 149 GiB; inf passed the > 0 test too."""
+    assert main(["replay", "--no-map", "--rate", rate, "--out", str(tmp_path / "run"), str(short_recording)]) == 1
+    assert "tractionecu replay: error: --rate: an estimator step rate in [1, 1000] Hz" in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()

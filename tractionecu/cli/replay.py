@@ -41,12 +41,16 @@ from .inspect import add_dbc_option
 EXIT_MISSING_SIGNALS = 4
 """Exit code when the recording lacks the signals of the profile the estimator runs."""
 
+RATE_HZ = (1.0, 1000.0)
+"""Bounds of ``--rate`` [Hz]: the service's ``estimation.rate_hz`` range (``tractionecu/service/config.py``).
+Above it the step grid outgrows memory (``--rate 1e9`` asked for 149 GiB on a 20 s recording)."""
+
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="run the estimator over a recording; score it against truth if present")
     p.add_argument("recording", metavar="REC", help="recording directory")
     p.add_argument("--out", required=True, metavar="RUN", help="output directory")
-    p.add_argument("--rate", type=float, default=100.0, help="estimator rate [Hz] (default: %(default)s)")
+    p.add_argument("--rate", type=float, default=100.0, help="estimator rate [Hz], 1 to 1000 (default: %(default)s)")
     p.add_argument("--plot", action="store_true", help="also write the paper's Fig. 5 and Fig. 6 as PNG")
     p.add_argument("--no-map", action="store_true", help="do not write map tiles (RUN/map) and map_scorecard.json")
     p.add_argument("--config", metavar="TOML", default=None,
@@ -66,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_estimator_config(args.config) if args.config else EstimatorConfig()
     if args.classes:
         cfg = replace(cfg, soil_classes=tuple(c.strip() for c in args.classes.split(",") if c.strip()))
-    if not args.rate > 0:
-        raise ConfigError(f"--rate: must be > 0, got {args.rate}")
+    if not RATE_HZ[0] <= args.rate <= RATE_HZ[1]:         # NaN fails too
+        raise ConfigError(f"--rate: an estimator step rate in [{RATE_HZ[0]:g}, {RATE_HZ[1]:g}] Hz, got {args.rate}")
     if args.plot:
         try:
             import matplotlib  # noqa: F401
