@@ -83,3 +83,23 @@ def test_info(replay_dir, capsys):
     info = json.loads(capsys.readouterr().out)
     assert info["crs"] == "EPSG:32633" and info["tiles"] >= 1 and info["track_points"] > 0
     assert info["corrupt_tiles"] == []
+
+
+@pytest.mark.parametrize("classes,why", [("firm=abc", "class 'firm': its a is not a number: 'abc'"),
+                                          ("firm=nan,soft=0.4", "class 'firm': its a must be finite, got 'nan'")])
+def test_soil_classes_that_are_not_numbers_are_named(replay_dir, classes, why, capsys):
+    """``--soil-classes firm=abc`` printed only Python's "could not convert string to float: 'abc'", and a NaN
+    a was taken and classified every cell against it."""
+    args = parse(["map", "export", str(replay_dir), "--format", "geojson", "--soil-classes", classes])
+    assert args.func(args) == 2
+    assert f"--soil-classes: {why}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fmt,name", [("geotiff", "map.tif"), ("geojson", "map.geojson")])
+def test_out_an_existing_directory_gets_the_default_file_name(replay_dir, tmp_path, fmt, name, capsys):
+    """``--out DIR`` of a file format ended in "[Errno 21] Is a directory: '.DIR.tmp.1234' -> 'DIR'"."""
+    pytest.importorskip("rasterio")
+    args = parse(["map", "export", str(replay_dir), "--format", fmt, "--out", str(tmp_path)])
+    assert args.func(args) == 0
+    assert (tmp_path / name).stat().st_size > 0
+    assert capsys.readouterr().out.strip() == str(tmp_path / name)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -46,7 +47,8 @@ def add_subparser(subparsers: Any) -> argparse.ArgumentParser:
     e.add_argument("dir", type=Path, help="map directory or replay output directory")
     e.add_argument("--format", required=True, choices=FORMATS, dest="fmt", help="output format")
     e.add_argument("--out", type=Path, default=None,
-                   help="output file (directory for isoxml, isoxml-grid); default DIR/export/...")
+                   help="output file (directory for isoxml, isoxml-grid; an existing directory for the other "
+                        "formats gets map.tif, map.png or map.geojson inside); default DIR/export/...")
     e.add_argument("--layers", default=None,
                    help="comma-separated layers (geotiff, isoxml, isoxml-grid; png: the first one); "
                         "default all with data / a")
@@ -72,7 +74,13 @@ def _parse_classes(text: str) -> dict[str, float]:
         name, sep, val = part.rpartition("=")
         if not sep or not name:
             raise ValueError(f"--soil-classes: expected NAME=A, got {part!r}")
-        out[name.strip()] = float(val)
+        try:
+            a = float(val)
+        except ValueError:
+            raise ValueError(f"--soil-classes: class {name.strip()!r}: its a is not a number: {val.strip()!r}") from None
+        if not math.isfinite(a):
+            raise ValueError(f"--soil-classes: class {name.strip()!r}: its a must be finite, got {val.strip()!r}")
+        out[name.strip()] = a
     if not out:
         raise ValueError("--soil-classes: no classes given")
     return out
@@ -130,6 +138,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"tractionecu map export: {e}", file=sys.stderr)
         return EXIT_USAGE
     out = args.out if args.out is not None else _default_out(Path(args.dir), args.fmt)
+    if args.fmt in ("geotiff", "png", "geojson") and Path(out).is_dir():   # a file format into a directory:
+        from tractionecu.mapping.export import DEFAULT_OUT                 # its default name there
+
+        out = Path(out) / DEFAULT_OUT[args.fmt]
     try:
         path = export(store, args.fmt, out, **kwargs)
     except MissingExtraError as e:
