@@ -42,12 +42,14 @@ import numpy as np
 from ..bus import j1939
 from ..bus.candump import CandumpWriter
 from ..bus.dbc import Codec, default_codec
-from ..config import save_vehicle, to_toml, toml_value
+from ..config import HUB_EFFICIENCY_TOL, DrivetrainSpec as DeclaredDrivetrain, save_vehicle, to_toml, toml_value
 from ..model.vehicle import WHEELS
 from . import tyre as ty
 from .frames import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA
 from .gnss_receiver import course_over_ground, gnss_sentences
+from .physical import axle_loads, class_curve
 from .sensors import SensorBiases, ToothedPickup, draw_biases, ou_noise, pickup_speeds, quantise
+from .tyre import rolling_radius as tyre_radius
 
 ENGINE_SA = 0x00
 TRANSMISSION_SA = 0x03
@@ -123,9 +125,6 @@ def _declared_vehicle(scn):
         return veh
     if ps.drivetrain.kind != "mechanical":
         return _declared_hub(scn)
-    from ..config import DrivetrainSpec as DeclaredDrivetrain
-    from .physical import axle_loads
-    from .tyre import rolling_radius as tyre_radius
     md = ps.drivetrain.mech
     eng = md.engine
     # What the owner knows, each with an error drawn once per seed inside its tolerance (own stream: nothing
@@ -161,9 +160,6 @@ def _declared_hub(scn):
     (:data:`tractionecu.config.HUB_EFFICIENCY_TOL`), the line of pull and the rear wheels' calibrated rolling
     radius, each with an error drawn once per seed inside its tolerance (own stream: nothing else of the
     recording moves), never the truth's exact figure."""
-    from ..config import HUB_EFFICIENCY_TOL
-    from .physical import axle_loads
-    from .tyre import rolling_radius as tyre_radius
     veh = scn.vehicle
     ps = scn.physical
     rng = np.random.default_rng(scn.seed + 7_000_005)
@@ -410,7 +406,6 @@ def _toml_table(name: str, obj) -> list[str]:
 
 
 def _write_truth(scn, tr, out: Path, b: SensorBiases) -> None:
-    from .physical import class_curve
     lat, lon = scn.field.to_latlon(tr.x, tr.y)
     names = [r.name for r in scn.field.regions]
     ps = scn.physical
