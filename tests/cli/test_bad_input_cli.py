@@ -108,3 +108,43 @@ def test_replay_refuses_a_step_rate_outside_the_services_range(rate, short_recor
     assert main(["replay", "--no-map", "--rate", rate, "--out", str(tmp_path / "run"), str(short_recording)]) == 1
     assert "tractionecu replay: error: --rate: an estimator step rate in [1, 1000] Hz" in capsys.readouterr().err
     assert not (tmp_path / "run").exists()
+
+
+def _nmea_checksum(body: str) -> str:
+    cs = 0
+    for c in body:
+        cs ^= ord(c)
+    return f"${body}*{cs:02X}"
+
+
+def test_replay_says_when_the_gate_refused_every_gnss_epoch(short_recording, tmp_path, capsys):
+    """A receiver without a fix (RMC status V throughout) gave a replay that mapped nothing and ran without
+    GNSS speed, and printed only 'map: 0 of N GNSS epochs mapped'."""
+    rec = tmp_path / "no_fix"
+    shutil.copytree(short_recording, rec)
+    lines = []
+    for ln in (rec / "gps.nmea").read_text().splitlines():
+        f = ln[1:ln.index("*")].split(",")
+        if f[0].endswith("RMC"):
+            f[2] = "V"
+        lines.append(_nmea_checksum(",".join(f)))
+    (rec / "gps.nmea").write_text("\n".join(lines) + "\n")
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    out = capsys.readouterr().out
+    n = sum(1 for ln in lines if "RMC" in ln)
+    assert f"GNSS: {n} of {n} epochs refused by the gate (invalid {n}); no GNSS speed or position reached" in out
+
+
+def test_replay_reports_the_clock_offset_it_applied(short_recording, tmp_path, capsys):
+    """CAN times an hour off the GNSS epochs were moved by the offset found, silently in replay (only
+    ``inspect`` said so)."""
+    rec = tmp_path / "late_clock"
+    shutil.copytree(short_recording, rec)
+    out_lines = []
+    for ln in (rec / "can.log").read_text().splitlines():
+        t, rest = ln[1:].split(")", 1)
+        out_lines.append(f"({float(t) + 3600.0:.6f}){rest}")
+    (rec / "can.log").write_text("\n".join(out_lines) + "\n")
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    text = capsys.readouterr().out
+    assert "clock: the CAN frames" in text and "CAN clock offset -3600.0" in text and text.count("applied") == 1

@@ -91,7 +91,8 @@ def run(args: argparse.Namespace) -> int:
 
         summary.update(score_replay(args.out, rec, res.arrays, plot=args.plot, summary=summary))
     removed = _remove_stale(Path(args.out), earlier, _products(Path(args.out)))
-    print("\n".join([*profile_note(rec), *rejects_note(rec), format_summary(summary)]))
+    print("\n".join([*profile_note(rec), *rejects_note(rec), *clock_gnss_note(rec, summary),
+                      format_summary(summary)]))
     if removed:
         print(f"removed from {args.out} what an earlier replay had written there and this one did not: "
               + ", ".join(removed))
@@ -139,6 +140,25 @@ def _remove_stale(out: Path, before: dict[str, int], after: dict[str, int]) -> l
             p.unlink(missing_ok=True)
         removed.append(name)
     return removed
+
+
+def clock_gnss_note(rec: Any, summary: dict[str, Any]) -> list[str]:
+    """The CAN-to-GNSS clock offset the reader applied (as ``inspect`` reports it) and the GNSS epochs the
+    gate refused (``pipeline/gnss.py``): a replay whose CAN times were moved, or whose GNSS speed never
+    reached the estimator, says so."""
+    out = []
+    note = getattr(getattr(rec, "stats", None), "clock_note", "")
+    if note:
+        out.append(f"clock: {note}")
+    gated = {k[len("gated_"):]: int(v) for k, v in (summary.get("gnss_gated") or {}).items()
+             if k.startswith("gated_") and v}
+    n = len(getattr(rec, "gps", ()))
+    if gated and n:
+        total = sum(gated.values())
+        why = ", ".join(f"{k} {v}" for k, v in sorted(gated.items()))
+        out.append(f"GNSS: {total} of {n} epochs refused by the gate ({why})"
+                   + ("; no GNSS speed or position reached the estimator or the map" if total >= n else ""))
+    return out
 
 
 def rejects_note(rec: Any) -> list[str]:
