@@ -72,12 +72,18 @@ def _p(eff: Effects, name: str, key: str, default: float) -> float:
     return float(eff[name][key]) if name in eff and key in eff[name] else default
 
 
+WHEEL_CACHE_BYTES = 256 * 2 ** 20
+"""Most memory the wheel-state memo holds [B] (a state is five (n, 4) arrays: 23 MB on a 4-hour recording)."""
+
+
 class _WheelCache:
-    """wheel_state() memoised on the parameters that change it."""
+    """wheel_state() memoised on the parameters that change it (at most 64 states and
+    :data:`WHEEL_CACHE_BYTES`)."""
 
     def __init__(self, feat: Features):
         self.feat = feat
         self._cache: dict[tuple, WheelState] = {}
+        self._bytes = 0
 
     def v_ref(self, eff: Effects) -> NDArray:
         """Fused ground speed; re-fitted when the candidate delays the GNSS speed."""
@@ -94,9 +100,13 @@ class _WheelCache:
         return v
 
     def _put(self, key, val) -> None:
-        if len(self._cache) > 64:
+        size = val.nbytes if isinstance(val, np.ndarray) else sum(
+            a.nbytes for a in vars(val).values() if isinstance(a, np.ndarray))
+        if len(self._cache) > 64 or self._bytes + size > WHEEL_CACHE_BYTES:
             self._cache.clear()
+            self._bytes = 0
         self._cache[key] = val
+        self._bytes += size
 
     def get(self, eff: Effects, with_slip: bool = False) -> WheelState:
         kw = wheel_kwargs(eff, self.feat.frame)
