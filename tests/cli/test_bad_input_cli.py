@@ -148,3 +148,14 @@ def test_replay_reports_the_clock_offset_it_applied(short_recording, tmp_path, c
     assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
     text = capsys.readouterr().out
     assert "clock: the CAN frames" in text and "CAN clock offset -3600.0" in text and text.count("applied") == 1
+
+
+@pytest.mark.parametrize("arg,why", [(["--seed", "-1"], "--seed: a non-negative integer, got -1"),
+                                     (["--duration", "inf"], "--duration: must be > 0 and finite, got inf"),
+                                     (["--scenario", "bogus"], "scenario 'bogus': unknown (known: ")])
+def test_run_simulate_refuses_what_it_cannot_simulate(arg, why, tmp_path, capsys):
+    """``run --simulate --seed -1`` ended in a numpy traceback after announcing the simulation; an unknown
+    scenario was announced before it was refused."""
+    assert main(["run", "--simulate", "--no-web", "--quiet", "--state-dir", str(tmp_path / "st"), *arg]) == 1
+    cap = capsys.readouterr()
+    assert f"tractionecu run: error: {why}" in cap.err and "simulating" not in cap.out

@@ -87,8 +87,14 @@ def run(args: argparse.Namespace) -> int:
         return run_service(cfg, status_stream=None if args.quiet or not sys.stdout.isatty() else sys.stdout)
     if not args.speed > 0:
         raise ConfigError(f"--speed: must be > 0, got {args.speed}")
-    if args.duration is not None and not args.duration > 0:
-        raise ConfigError(f"--duration: must be > 0, got {args.duration}")
+    if args.duration is not None and not 0 < args.duration < float("inf"):
+        raise ConfigError(f"--duration: must be > 0 and finite, got {args.duration}")
+    if args.seed < 0:                     # numpy's generators take non-negative seeds only
+        raise ConfigError(f"--seed: a non-negative integer, got {args.seed}")
+    from ..sim import scenarios
+
+    if args.scenario not in scenarios.SCENARIOS:   # before a simulation directory is announced
+        raise ConfigError(f"scenario {args.scenario!r}: unknown (known: {', '.join(sorted(scenarios.SCENARIOS))})")
     return asyncio.run(simulate_main(cfg, args))
 
 
