@@ -159,3 +159,27 @@ def test_run_simulate_refuses_what_it_cannot_simulate(arg, why, tmp_path, capsys
     assert main(["run", "--simulate", "--no-web", "--quiet", "--state-dir", str(tmp_path / "st"), *arg]) == 1
     cap = capsys.readouterr()
     assert f"tractionecu run: error: {why}" in cap.err and "simulating" not in cap.out
+
+
+def test_an_output_path_that_is_a_file_is_an_error_not_a_traceback(short_recording, tmp_path, capsys):
+    """``replay --out FILE`` (and simulate, diagnose, fleet) ended in a FileExistsError traceback."""
+    f = tmp_path / "notes.txt"
+    f.write_text("mine\n")
+    assert main(["replay", "--no-map", "--out", str(f), str(short_recording)]) == 1
+    assert f"tractionecu replay: error: {f}: File exists" in capsys.readouterr().err
+    assert main(["simulate", "--duration", "1", "--out", str(f)]) == 1
+    assert f"tractionecu simulate: error: {f}: File exists" in capsys.readouterr().err
+    assert f.read_text() == "mine\n"
+
+
+def test_simulate_does_not_overwrite_a_recording_it_did_not_make(short_recording, tmp_path, capsys):
+    rec = tmp_path / "field_day"
+    rec.mkdir()
+    shutil.copy(short_recording / "can.log", rec / "can.log")             # a real capture: no truth.toml
+    before = (rec / "can.log").read_bytes()
+    assert main(["simulate", "--duration", "1", "--out", str(rec)]) == 1
+    assert "holds a recording that was not simulated" in capsys.readouterr().err
+    assert (rec / "can.log").read_bytes() == before and sorted(p.name for p in rec.iterdir()) == ["can.log"]
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--duration", "1", "--out", str(sim)]) == 0              # a simulated one may be
+    assert main(["simulate", "--duration", "1", "--seed", "2", "--out", str(sim)]) == 0   # simulated again

@@ -78,6 +78,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except TractionEcuError as exc:
         print(f"tractionecu {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:              # a path the file system refuses (exists as a file, permission, disk full)
+        if exc.filename is None:
+            raise
+        where = f"{exc.filename}" + (f" -> {exc.filename2}" if exc.filename2 else "")
+        print(f"tractionecu {args.command}: error: {where}: {exc.strerror or exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         return 130
 

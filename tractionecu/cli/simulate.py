@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
+from pathlib import Path
 
 from ..errors import ConfigError
 from ..model.effects import parse_effect_arg
@@ -34,6 +35,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration: a number of seconds > 0, got {args.duration}")
     if args.seed < 0:                     # numpy's generators take non-negative seeds only
         raise ConfigError(f"--seed: a non-negative integer, got {args.seed}")
+    out = Path(args.out)
+    if out.is_dir() and any((out / n).exists() for n in ("can.log", "gps.nmea")) and \
+            not (out / "truth.toml").is_file():
+        raise ConfigError(f"--out {out}: holds a recording that was not simulated (can.log or gps.nmea without "
+                          "truth.toml); the simulation would overwrite it: choose another directory")
     effects = dict(parse_effect_arg(e) for e in args.effect)
     scn = scenarios.get(args.scenario, seed=args.seed, effects=effects, duration_s=args.duration)
     mech = scn.truth == "physical" and scn.physical is not None and scn.physical.drivetrain.kind != "hub"
