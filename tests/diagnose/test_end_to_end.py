@@ -5,6 +5,7 @@ would (``can.log``, ``gps.nmea``, ``vehicle.toml``) and diagnosed blind; the tru
 knows is used only to score.
 """
 
+import dataclasses
 import json
 import math
 import shutil
@@ -160,3 +161,27 @@ def test_real_engine_export_of_a_standing_machine_says_why_nothing_can_be_diagno
     assert "GNSS speed at most 0.92 m/s" in rep["statement"]
     assert all(not c["testable"] and c["reason"] for c in rep["candidates"])
     assert "does not drive" in (out / "report.md").read_text()
+
+
+def test_an_export_takes_the_reference_torque_the_vehicle_file_declares(tmp_path):
+    """A 1 Hz export carries no EC1: without --reference-torque the vehicle file's [drivetrain]
+    engine_reference_torque_nm (SPN 544 from the data sheet) converts the percent torque."""
+    from tractionecu.config import VehicleParams, save_vehicle
+    from tractionecu.diagnose import diagnose_path
+    from tractionecu.errors import ConfigError
+
+    csv_path = tmp_path / "export.csv"
+    csv_path.write_text("Time [s],EEC1 SPN190 Engine Speed [rpm],EEC1 SPN513 Actual Engine - Percent Torque [%],"
+                        "CCVS1 SPN84 Wheel-Based Vehicle Speed [km/h],GNSS Speed [km/h]\n"
+                        + "".join(f"{k},800,12,0,0\n" for k in range(30)))
+    bare = tmp_path / "bare.toml"
+    save_vehicle(VehicleParams(), bare)
+    with pytest.raises(ConfigError, match="engine_reference_torque_nm"):
+        diagnose_path(csv_path, tmp_path / "r0", vehicle=bare, csv_mapping="auto")
+    veh = VehicleParams()
+    declared = tmp_path / "vehicle.toml"
+    save_vehicle(dataclasses.replace(veh, drivetrain=dataclasses.replace(veh.drivetrain,
+                                                                         engine_reference_torque_nm=450.0)),
+                 declared)
+    rep = diagnose_path(csv_path, tmp_path / "r1", vehicle=declared, csv_mapping="auto")
+    assert (tmp_path / "r1" / "report.json").is_file() and rep["verdict"] == "none"

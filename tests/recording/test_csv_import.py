@@ -197,3 +197,34 @@ def test_diagnose_runs_on_the_prefixed_real_export(tmp_path):
                  "--csv-mapping", "auto", "--csv-timezone", "+06:00", "--reference-torque", "1500"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert "0 of 128 samples usable" in rep["statement"]
+
+
+def test_auto_mapping_reads_bracketed_units_and_spn_numbered_names(tmp_path, caplog):
+    # regression: the simulator's own logger-style 1 Hz export ("Time [s]", "EEC1 SPN190 Engine Speed [rpm]",
+    # ...) was refused with "no time column 'timestamps'": the loose mapping kept the bracketed unit in the
+    # name and matched no SPN-numbered J1939 name
+    from tractionecu.sim.physwriter import EXPORT_COLUMNS
+    p = tmp_path / "export_1hz.csv"
+    row1 = ["0.0", "2026-05-17T10:00:00Z", "1800", "60", "7", "3.2", "9.0", "9.3", "12000", "52.1", "11.6", "8.8"]
+    row2 = ["1.0", "2026-05-17T10:00:01Z", "1900", "70", "7", "3.2", "10.8", "11.1", "13000", "52.1", "11.6", "10.6"]
+    p.write_text(",".join(EXPORT_COLUMNS) + "\n" + ",".join(row1) + "\n" + ",".join(row2) + "\n")
+    rec = import_csv(p, mapping_named("auto"), reference_torque_nm=500.0)
+    sig = rec.signals
+    assert np.allclose(sig["EngineTorque"].value, [300.0, 350.0])
+    assert np.allclose(sig["EngineSpeed"].value, [1800 * np.pi / 30, 1900 * np.pi / 30])
+    assert np.allclose(sig["WheelBasedMachineSpeed"].value, [2.5, 3.0])
+    assert np.allclose(sig["FrontAxleSpeed"].value, [9.3 / 3.6, 11.1 / 3.6])
+    assert np.allclose(sig["DraftForce"].value, [12000.0, 13000.0])
+    assert np.allclose(sig["TransmissionActualGearRatio"].value, [3.2, 3.2])
+    assert sig["EngineSpeed"].t.tolist() == [0.0, 1.0]
+    assert np.allclose(rec.gps.speed, [8.8 / 3.6, 10.6 / 3.6]) and rec.gps.lat.tolist() == [52.1, 52.1]
+    assert rec.stats.files["export_1hz.csv"].unmapped == ["Date Time UTC"]
+
+
+def test_auto_mapping_names_an_unknown_bracketed_unit(tmp_path):
+    p = tmp_path / "export.csv"
+    p.write_text("Time [s],EEC1 SPN190 Engine Speed [furlong/fortnight],GNSS Speed [km/h]\n0,1,3.6\n1,2,7.2\n")
+    rec = import_csv(p, mapping_named("auto"))
+    assert "EngineSpeed" not in rec.signals and np.allclose(rec.gps.speed, [1.0, 2.0])
+    assert rec.stats.files["export.csv"].unmapped == ["EEC1 SPN190 Engine Speed [furlong/fortnight] "
+                                                      "(unit [furlong/fortnight] not known)"]

@@ -18,8 +18,9 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
 
     A CSV export (``csv_mapping`` a :class:`~tractionecu.recording.csv_import.CsvMapping` or the
     name of one, ``"contract"``, ``"j1939"`` or ``"auto"``, or a path ending in ``.csv``) goes
-    through :func:`tractionecu.recording.csv_import.import_csv`; engine-level exports without
-    per-wheel data get the reduced analysis of :mod:`.reduced`.  Returns the ``report.json`` dict.
+    through :func:`tractionecu.recording.csv_import.import_csv` (percent engine torque over
+    ``reference_torque_nm``, else the vehicle file's ``[drivetrain] engine_reference_torque_nm``);
+    engine-level exports without per-wheel data get the reduced analysis of :mod:`.reduced`.  Returns the ``report.json`` dict.
     """
     import json
 
@@ -33,6 +34,12 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
         from ..recording.csv_import import CsvMapping, import_csv, mapping_named
 
         mapping = csv_mapping if isinstance(csv_mapping, CsvMapping) else mapping_named(csv_mapping or "j1939")
+        if reference_torque_nm is None and vehicle is not None:
+            # an export carries no EC1: the engine's reference torque (SPN 544) as the vehicle file declares it
+            from ..config import load_vehicle
+
+            declared = float(load_vehicle(vehicle).drivetrain.engine_reference_torque_nm)
+            reference_torque_nm = declared if declared > 0 else None
         rec = import_csv(p, mapping, time_offset_s=time_offset_s, reference_torque_nm=reference_torque_nm,
                          vehicle_toml=vehicle)
         fr = _data.load(rec, vehicle)

@@ -23,7 +23,13 @@ A header matches a mapping key exactly, or after replacing ``.`` by
 (:data:`J1939_AUTO_MAPPING`, ``--csv-mapping auto``) also drops a bus prefix
 (``CAN1.``, ``CAN2_``, ``can0_``, ``can0.``) and ignores case, so
 ``CAN1.EEC1.ActualEnginePercentTorque`` and ``can0_eec1_actualenginepercenttorque``
-both match ``EEC1_ActualEnginePercentTorque``.  Header columns the mapping
+both match ``EEC1_ActualEnginePercentTorque``.  It also reads the
+"Name [unit]" headers of logger exports: spaces and hyphens count as
+separators, a trailing bracketed unit is the column's unit (``Time [s]`` is
+the time column, ``GNSS Speed [km/h]`` the GNSS speed in km/h), and a name
+that carries a J1939 SPN number (``EEC1 SPN190 Engine Speed [rpm]``) maps by
+that number (:data:`SPN_TARGETS`, else the DBC signal with that SPN
+attribute) whatever else the name says.  Header columns the mapping
 does not use are listed in ``CsvStats.unmapped`` and logged as a warning.
 
 Presets
@@ -185,8 +191,11 @@ J1939_LOGGER_MAPPING = CsvMapping(
 )
 """Typical J1939 logger export names (see module docstring)."""
 
-J1939_AUTO_MAPPING = CsvMapping(J1939_LOGGER_MAPPING.columns, time_column="timestamps", time_unit="auto",
-                                loose=True)
+J1939_AUTO_MAPPING = CsvMapping({**J1939_LOGGER_MAPPING.columns,
+                                 "GNSS_Latitude": Column("gps.lat", "deg"),
+                                 "GNSS_Longitude": Column("gps.lon", "deg"),
+                                 "GNSS_Altitude": Column("gps.alt", "m")},
+                                time_column="timestamps", time_unit="auto", loose=True)
 """The J1939 names with or without bus prefixes, either separator, any case;
 time in epoch s or ms, relative s or date-time (``--csv-mapping auto``)."""
 
@@ -295,8 +304,58 @@ def _norm(h: str) -> str:
 _BUS_PREFIX = re.compile(r"^can\d+[._]", re.IGNORECASE)
 
 
+_SEPARATORS = re.compile(r"[\s.\-]+")
+_BRACKET_UNIT = re.compile(r"^(.*?)\s*\[([^\]]*)\]\s*$")
+_SPN = re.compile(r"(?:^|[^a-z0-9])spn[\s_]*(\d+)(?:$|[^0-9])", re.IGNORECASE)
+
+
 def _norm_loose(h: str) -> str:
-    return _BUS_PREFIX.sub("", h.strip()).replace(".", "_").lower()
+    return _SEPARATORS.sub("_", _BUS_PREFIX.sub("", h.strip())).strip("_").lower()
+
+
+SPN_TARGETS: dict[int, Column] = {
+    513: Column("EngineTorque", REF_TORQUE_UNIT),
+    190: Column("EngineSpeed", "rpm"),
+    84: Column("WheelBasedMachineSpeed", "km/h"),
+    1862: Column("WheelBasedMachineSpeed", "m/s"),
+    1859: Column("GroundBasedMachineSpeed", "m/s"),
+}
+"""J1939 SPN -> target and default unit, where the target is not the DBC signal of that SPN (as in
+:data:`J1939_LOGGER_MAPPING`: percent torque becomes ``EngineTorque`` [N·m], CCVS1's speed the
+wheel-based machine speed).  Any other SPN goes to the DBC signal with that SPN attribute."""
+
+
+def _spn_column(spn: int) -> Column | None:
+    col = SPN_TARGETS.get(spn)
+    if col is not None:
+        return col
+    codec = default_codec()
+    for name, sig in codec.signals.items():
+        if getattr(sig, "spn", None) == spn:
+            unit = sig.unit if sig.unit in UNITS else ""
+            return Column(name, unit)
+    return None
+
+
+def _loose_column(h: str, mp: "CsvMapping", norm_keys: dict[str, str]) -> tuple[Column | None, str]:
+    """(Column, why not) for a header of a loose mapping: the name as it is, the name without its
+    bracketed unit (which then replaces the mapping's unit), or its SPN number."""
+    m = _BRACKET_UNIT.match(h)
+    base, unit = (m.group(1), m.group(2).strip()) if m else (h, None)
+    key = norm_keys.get(_norm_loose(h)) or norm_keys.get(_norm_loose(base))
+    col = mp.columns[key] if key is not None else None
+    if col is None:
+        sm = _SPN.search(base)
+        col = _spn_column(int(sm.group(1))) if sm else None
+    if col is None:
+        return None, ""
+    if unit is None or col.unit == REF_TORQUE_UNIT and unit == "%":
+        return col, ""
+    if unit in ("", "-") and col.unit in ("", "-"):
+        return col, ""
+    if unit not in UNITS:
+        return None, f"unit [{unit}] not known"
+    return Column(col.target, unit), ""
 
 
 def import_csv(
@@ -351,14 +410,23 @@ def import_csv(
         time_names = {norm(tcol)} | ({norm(n) for n in TIME_COLUMN_NAMES} if mp.loose else set())
         for i, h in enumerate(header):
             hn = h.strip()
-            if t_idx is None and (hn == tcol or norm(hn) in time_names):
+            bm = _BRACKET_UNIT.match(hn) if mp.loose else None
+            if t_idx is None and (hn == tcol or norm(hn) in time_names
+                                  or bm is not None and norm(bm.group(1)) in time_names):
                 t_idx = i
                 continue
-            key = hn if hn in mp.columns else norm_keys.get(norm(hn))
-            if key is None:
-                stats.unmapped.append(hn)
+            if hn in mp.columns:
+                col_idx[i] = mp.columns[hn]
+                continue
+            if mp.loose:
+                col, why = _loose_column(hn, mp, norm_keys)
             else:
-                col_idx[i] = mp.columns[key]
+                key = norm_keys.get(norm(hn))
+                col, why = (mp.columns[key] if key is not None else None), ""
+            if col is None:
+                stats.unmapped.append(f"{hn} ({why})" if why else hn)
+            else:
+                col_idx[i] = col
         if t_idx is None:
             raise RecordingError(f"{p}: line 1: no time column {tcol!r} in header")
         if not col_idx:
@@ -370,7 +438,9 @@ def import_csv(
         if any(c.unit == REF_TORQUE_UNIT for c in col_idx.values()):
             if reference_torque_nm is None or not reference_torque_nm > 0:
                 raise ConfigError(
-                    "reference_torque_nm: needed (> 0 N·m) to convert percent engine torque"
+                    "reference_torque_nm: needed (> 0 N·m) to convert percent engine torque (J1939 SPN 544 "
+                    "from the engine's data sheet: diagnose --reference-torque, or [drivetrain] "
+                    "engine_reference_torque_nm in the vehicle file)"
                 )
 
         sig_t: dict[str, list[float]] = {}
