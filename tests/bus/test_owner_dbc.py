@@ -112,3 +112,19 @@ def test_extra_dbcs_block_extends_the_shared_codec_and_restores_it():
         with extra_dbcs([OWNER.with_name("absent.dbc")]):
             pass
     assert default_codec() is before
+
+
+def test_skipped_messages_are_logged_once_per_file_and_reason(tmp_path, caplog):
+    """An owner's DBC of 11-bit messages (the CANedge gnss.dbc: 9 of them) logged one warning per message
+    and again for every codec built from it (inspect --dbc: 18 lines)."""
+    p = tmp_path / "gnss.dbc"
+    p.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
+                 'BO_ 3 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 7 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n')
+    with caplog.at_level("WARNING", logger="tractionecu.bus.dbc"):
+        for _ in range(3):
+            c = Codec(extra=[p])
+            assert [m for _, m, _ in c.skipped] == ["gnss_pos", "gnss_speed"]      # still listed every time
+    lines = [r.getMessage() for r in caplog.records if r.name == "tractionecu.bus.dbc"]
+    assert lines == ["dbc: gnss.dbc: 2 message(s) skipped, 11-bit identifier (J1939 decodes 29-bit frames by PGN): "
+                     "gnss_pos, gnss_speed"]

@@ -83,6 +83,10 @@ from . import j1939
 
 log = logging.getLogger(__name__)
 
+_SKIP_LOGGED: set[tuple] = set()
+"""(DBC file, reason, messages) already logged as skipped: a DBC loaded again (the ``--dbc`` codec of each
+recording read) logs its skipped messages once."""
+
 DBC_FILENAME = "tractionecu.dbc"
 
 WHEELS = ("FL", "FR", "RL", "RR")
@@ -275,12 +279,15 @@ class Codec:
             raise ConfigError(f"dbc: file not found: {path}") from exc
         except Exception as exc:  # cantools raises several unrelated types
             raise ConfigError(f"dbc: cannot load {path}: {exc}") from exc
+        skipped: dict[str, list[str]] = {}
         for m in db.messages:
             if extra and (not m.is_extended_frame or m.is_multiplexed()):
                 why = "11-bit identifier (J1939 decodes 29-bit frames by PGN)" if not m.is_extended_frame \
                     else "multiplexed (not decoded by PGN)"
                 self.skipped.append((path.name, m.name, why))
-                log.warning("dbc: %s: message %s skipped: %s", path.name, m.name, why)
+                names = skipped.setdefault(why, [])
+                if m.name not in names:             # a DBC may define one name on several identifiers
+                    names.append(m.name)
                 continue
             if not m.is_extended_frame:
                 raise ConfigError(f"dbc: message {m.name} is not a 29-bit extended frame")
@@ -312,9 +319,15 @@ class Codec:
             self._keys[m.name] = keys
             for s in m.signals:
                 self.signals[keys[s.name]] = _signal_info(keys[s.name], m.name, cid.pgn, s)
+        for why, names in skipped.items():                    # one line per file and reason, once per process
+            key = (str(path.resolve()), why, tuple(names))
+            if key not in _SKIP_LOGGED:
+                _SKIP_LOGGED.add(key)
+                log.warning("dbc: %s: %d message(s) skipped, %s: %s", path.name, len(names), why, ", ".join(names))
         return db
 
     # ------------------------------------------------------------------ lookup
+
     def message(self, name: str) -> MessageInfo:
         """Message description by name; KeyError if absent."""
         try:
