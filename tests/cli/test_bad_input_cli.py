@@ -183,3 +183,15 @@ def test_simulate_does_not_overwrite_a_recording_it_did_not_make(short_recording
     sim = tmp_path / "sim"
     assert main(["simulate", "--duration", "1", "--out", str(sim)]) == 0              # a simulated one may be
     assert main(["simulate", "--duration", "1", "--seed", "2", "--out", str(sim)]) == 0   # simulated again
+
+
+def test_a_vehicle_file_that_is_not_toml_is_named_once(short_recording, tmp_path, capsys):
+    """The error read 'rec/vehicle.toml: rec/vehicle.toml: not valid TOML: ...'."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    with open(rec / "vehicle.toml", "a") as fh:
+        fh.write("mass_kg = = 3\n")
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 1
+    err = capsys.readouterr().err
+    assert f"tractionecu replay: error: {rec / 'vehicle.toml'}: not valid TOML: " in err
+    assert err.count("vehicle.toml") == 1

@@ -203,8 +203,8 @@ def _resolve(p: Path, codec: Codec | None, dbc: Sequence[str | Path],
     if signals is None and vehicle_toml is not None and vehicle_toml.is_file():
         try:
             mapping = codec.resolve_mapping(load_signal_map(vehicle_toml))
-        except ConfigError as e:
-            raise ConfigError(f"{vehicle_toml}: {e}") from None
+        except ConfigError as e:          # named once: load_toml's own errors already start with the path
+            raise ConfigError(str(e) if str(e).startswith(str(vehicle_toml)) else f"{vehicle_toml}: {e}") from None
     else:
         mapping = codec.resolve_mapping(signals or {})
     return root, can_path, codec, mapping
