@@ -228,3 +228,16 @@ def test_auto_mapping_names_an_unknown_bracketed_unit(tmp_path):
     assert "EngineSpeed" not in rec.signals and np.allclose(rec.gps.speed, [1.0, 2.0])
     assert rec.stats.files["export.csv"].unmapped == ["EEC1 SPN190 Engine Speed [furlong/fortnight] "
                                                       "(unit [furlong/fortnight] not known)"]
+
+
+def test_infinite_cells_are_counted_not_passed_on(tmp_path):
+    """'inf' and '-inf' cells of an export went into the signals as infinite values (float() reads them),
+    uncounted; the diagnosis then fitted through them."""
+    p = tmp_path / "s.csv"
+    p.write_text("t,DraftForce,FrontAxleLoad\n0.0,100,40000\n0.1,inf,40010\n0.2,-INF,40020\n0.3,nan,40030\n")
+    rec = import_csv(p)
+    st = rec.stats.files["s.csv"]
+    assert dict(st.rejected) == {"bad_value": 2} and st.examples == {"bad_value": [3, 4]}
+    d = rec.signals["DraftForce"]
+    assert d.t.tolist() == [0.0, 0.3] and d.value[0] == 100 and math.isnan(d.value[1])   # NaN: not available
+    assert rec.signals["FrontAxleLoad"].t.tolist() == [0.0, 0.1, 0.2, 0.3]

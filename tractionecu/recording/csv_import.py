@@ -484,6 +484,9 @@ def import_csv(
                 except ValueError:
                     stats.reject("bad_value", lineno)
                     continue
+                if math.isinf(raw):     # never a measurement (NaN stays: "not available", as a J1939 NA code)
+                    stats.reject("bad_value", lineno)
+                    continue
                 if col.unit == REF_TORQUE_UNIT:
                     v = raw / 100.0 * float(reference_torque_nm)  # type: ignore[arg-type]
                 else:
