@@ -327,8 +327,42 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                   stats_after, cps, lead, regs, ev, gcheck, notes)
     d.joint, d.joint_heldout, d.steps = joint, joint_ho, steps
     d.effects = _effect_list(d, chosen, ambiguous)
+    # A fault added by a step that another fault improved as much: ambiguous between them.
+    amb_step = next((e for e in d.effects if e.get("ambiguous_with") and e["name"] == d.effect), None)
+    if amb_step is not None:
+        d.verdict, d.effect = "ambiguous", None
+        d.ambiguous_between = [amb_step["name"]] + amb_step["ambiguous_with"]
+        d.statement = (_statement("ambiguous", None, d.ambiguous_between, results, lead, ev, problem, gcheck)
+                       + "  (They take up the same structure: a torque-sensor gain on one axle and a mass on "
+                       "that axle both change its adhesion from the torque balance alike.)"
+                       if {"mass", "torque_gain"} <= set(d.ambiguous_between) else
+                       _statement("ambiguous", None, d.ambiguous_between, results, lead, ev, problem, gcheck))
+    # A fault whose estimate trades off with a characteristic found at a healthy size (|correlation| ≥
+    # TRADE_OFF_CORR in the joint fit) is not separated from what every machine has: not named.
+    chars_ok = {e["name"] for e in d.effects if e["kind"] == "characteristic"}
     for e in d.effects:
-        alts = [a for a in consistent.get(e["name"], []) if a not in chosen]
+        if e["kind"] not in ("effect", "sensor_fault") or not e.get("named") or e["name"] == "wheel_speed_hold":
+            continue
+        with_char = [t for t in e.get("trades_off_with", []) if t["with"] in chars_ok]
+        if with_char:
+            e["named"] = False
+            e["explained_by"] = with_char
+            consistent.setdefault(with_char[0]["with"], []).append(e["name"])
+            chosen_faults = [x for x in chosen if x != e["name"]]
+            d.notes.append(f"{e['name']} trades off with {with_char[0]['with']} (correlation "
+                           f"{with_char[0]['correlation']:+.2f}): not separated from the machine's characteristic")
+            if d.effect == e["name"]:
+                rest = [x["name"] for x in d.effects if x["kind"] in ("effect", "sensor_fault") and x.get("named")
+                        and x["name"] != e["name"] and x["name"] in chosen_faults]
+                d.verdict, d.effect = ("effect", rest[0]) if rest else ("none", None)
+                if d.verdict == "none":
+                    d.statement = ("No fault named: the mismatch the library's effects take up is explained as well "
+                                   "by the machine's characteristics at a healthy size (below).")
+                else:
+                    d.statement = _statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+    for e in d.effects:
+        alts = [a for a in consistent.get(e["name"], [])
+                if a not in chosen or any(x["name"] == a and not x.get("named") for x in d.effects)]
         if alts and e["kind"] == "characteristic":
             e["consistent_with"] = alts
             d.notes.append(f"{e['name']} at a healthy size explains the mismatch as well as "
@@ -489,8 +523,8 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
         from .fit import Joint
 
         margin = max(DETECT_LLR, AMBIGUOUS_FRACTION * sc)
-        near = [t for t in trials[1:] if sc - t[0] < margin and t[0] >= DETECT_LLR]
-        alt_char = next((t for t in near if t[1] in CHARACTERISTIC), None)
+        near = [t for t in trials[1:] if sc - t[0] < margin]
+        alt_char = next((t for t in near if t[1] in CHARACTERISTIC and t[0] >= DETECT_LLR), None)
         if name not in CHARACTERISTIC and alt_char is not None:
             jc = fit(problem, Joint(tuple(chosen + [alt_char[1]]), start))
             _calibrate(jc, alt_char[2].fold_params)
@@ -521,7 +555,13 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
         chosen.append(name)
         pool.remove(name)
         cur_fit, cur_ho = jf, ho
-        steps.append({"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1])})
+        step = {"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1])}
+        # Other faults that improve this step as much (within the margin) explain the same structure:
+        # the recording cannot tell which one it is.
+        rivals = [t[1] for t in near if t[1] not in CHARACTERISTIC and t[1] != name]
+        if rivals and name not in CHARACTERISTIC:
+            step["ambiguous_with"] = rivals
+        steps.append(step)
     if len(chosen) == 1:
         return chosen, first.fit, first.heldout, steps
     return chosen, cur_fit, cur_ho, steps
@@ -584,6 +624,12 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
                         "rank": rank + 1, "score": steps.get(name, {}).get("score"),
                         "formula": LIBRARY[name].formula, "plain": CANDIDATES[name].plain,
                         "parameters": params, "trades_off_with": amb})
+    if jf is not None:
+        for e in out:
+            rv = steps.get(e["name"], {}).get("ambiguous_with") if e["name"] in chosen else None
+            if rv and e["kind"] != "characteristic":
+                e["named"], e["ambiguous"], e["ambiguous_with"] = False, True, list(rv)
+                ambiguous = list(ambiguous) + [r for r in rv if r not in ambiguous]
     for name in ambiguous:
         if name in CANDIDATES and not any(e["name"] == name for e in out):
             c = d.candidate(name)
