@@ -236,6 +236,11 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         ho = held_out(problem, name, x_start=f.x)
         sc, per = score(problem, null, ho)
         _calibrate(f, ho.fold_params)
+        if not (sc > POOL_MIN_SCORE) and name != "grade":
+            # Never detected, never in the stepwise pool, never the focus of a plot: its held-out
+            # residuals (every channel's rows) are not kept, so that a long recording's candidates do
+            # not hold a copy each (12 MB per candidate at 4 hours).
+            ho.resid = {}
         cr = CandidateResult(name, True, "", sc, per, f, ho)
         cr.detected = bool(sc >= DETECT_LLR and f.ok is not None and _excludes_null(f))
         side = _implausible_bound(f, name)
