@@ -632,6 +632,8 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
     if jf is not None:
         for e in out:
             rv = steps.get(e["name"], {}).get("ambiguous_with") if e["name"] in chosen else None
+            # A rival that a later step added in its own right is present too, not an alternative.
+            rv = [r for r in (rv or []) if r not in chosen]
             if rv and e["kind"] != "characteristic":
                 e["named"], e["ambiguous"], e["ambiguous_with"] = False, True, list(rv)
                 ambiguous = list(ambiguous) + [r for r in rv if r not in ambiguous]
