@@ -31,10 +31,23 @@ date, else the date nearest the arrival time) when that lies within
 ``replay`` assumes), else the arrival time minus ``gps.latency_s`` (counted
 as ``time_from_arrival``).
 
+The arrival time of an epoch is that of the read that brought its first
+sentence, but a read that brings several epochs at once (the process was
+not scheduled, or busy with estimation steps, while the port filled) says
+only that the older ones waited in the port: the receiver sends its epochs
+in order, so each epoch of one read is given the age of the newest epoch of
+that read (arrival = read time − (newest epoch − its epoch), counted as
+``arrival_from_newer``).  Otherwise the daemon's own late read would make an
+epoch that came on time "stale", or stamp it from the arrival (and drop the
+next ones as ``repeated``), where ``replay`` of the same recording uses it.
+A receiver that itself sends old epochs is still found: the newest epoch of
+its read is old too.
+
 Counters (:attr:`GpsReader.stats`): ``lines``, ``fixes``, ``accepted``,
 ``rejected_<reason>`` (garbage, missing_checksum, bad_checksum, bad_field,
 overlong), ``ignored`` (valid sentences of other types), ``gated_<reason>``
-(invalid, fix_quality, hdop, no_position, repeated, stale), ``opens``,
+(invalid, fix_quality, hdop, no_position, repeated, stale), ``time_from_arrival``,
+``arrival_from_newer``, ``opens``,
 ``open_failures``, ``link_failures``.
 """
 
@@ -120,6 +133,8 @@ class NmeaStream:
         self.max_delay_s = 0.0
         """Largest arrival − UTC time of an epoch [s] (receiver output latency plus transport)."""
         self._warn = WarnOnce(log)
+        self._pending: list[tuple[GpsFix, float]] = []
+        self._read_tod: float | None = None
 
     def reset_line(self) -> None:
         """Forget a partial line (after the port was reopened)."""
@@ -129,6 +144,13 @@ class NmeaStream:
         """Add received bytes; ``t_arrival`` is their arrival [service s]."""
         buf = self._buf
         buf += data
+        self._read_tod = None
+        try:
+            self._lines(buf, t_arrival)
+        finally:
+            self._release(t_arrival)
+
+    def _lines(self, buf: bytearray, t_arrival: float) -> None:
         while True:
             i = buf.find(b"\n")
             if i < 0:
@@ -161,6 +183,8 @@ class NmeaStream:
         if rec is None:
             self.stats["ignored"] += 1
             return
+        if rec.tod_s is not None:
+            self._read_tod = rec.tod_s       # the newest epoch time of this read (epochs come in order)
         closing_arrival = self._cur_arrival
         if rec.tod_s is not None and (self._cur_tod is None or abs(rec.tod_s - self._cur_tod) > 1e-3):
             if self._cur_types:
@@ -182,6 +206,23 @@ class NmeaStream:
         if self._emitted_tod is not None and abs(fix.tod_s - self._emitted_tod) <= 1e-3:
             return  # rest of an epoch already handed on
         self._emitted_tod = fix.tod_s
+        self._pending.append((fix, t_arrival))
+
+    def _release(self, t_read: float) -> None:
+        """Judge and hand on the epochs completed by the read at ``t_read`` (module doc: an epoch is as
+        old as the newest epoch of the read that brought it, and never arrived later than its first
+        sentence)."""
+        pending, self._pending = self._pending, []
+        newest = self._read_tod
+        for fix, t_arrival in pending:
+            if newest is not None and math.isfinite(t_read):
+                behind = (newest - fix.tod_s) % 86400.0
+                if 0.0 < behind < 43200.0 and t_read - behind < t_arrival:
+                    t_arrival = t_read - behind
+                    self.stats["arrival_from_newer"] += 1
+            self._accept(fix, t_arrival)
+
+    def _accept(self, fix: GpsFix, t_arrival: float) -> None:
         self.stats["fixes"] += 1
         if fix.date is not None:
             self._last_date = fix.date
