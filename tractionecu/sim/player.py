@@ -44,6 +44,10 @@ SEND_AHEAD_S = 0.0
 """Frames are sent when the service clock reaches their time stamp [s]."""
 LEAD_WALL_S = 1.0
 """The service starts this many wall seconds before the first simulated frame (time to open and claim)."""
+READY_MARGIN_WALL_S = 0.2
+"""The service must be ready (bus and pty open) this many wall seconds before the first frame is due."""
+START_ATTEMPTS = 4
+"""Starts of the service tried, each with a longer lead, before the recording is played anyway."""
 
 
 def nmea_schedule(path: str | Path) -> list[tuple[float, str]]:
@@ -236,8 +240,7 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     factory = estimator_factory or default_estimator_factory
     cfg = with_overrides(cfg, estimation={"vehicle": str(rec / "vehicle.toml")})
     await asyncio.get_running_loop().run_in_executor(None, warm_up, factory, *estimator_machine(cfg))
-    clock = ServiceClock(speed=speed, epoch0=first.t - LEAD_WALL_S * speed)
-    machine = SimulatedMachine(rec, clock)
+    machine = SimulatedMachine(rec, ServiceClock(speed=speed, epoch0=first.t - LEAD_WALL_S * speed))
     lag = max(cfg.estimation.lag_s, min(1.0, 0.02 * speed))
     cfg = with_overrides(
         cfg,
@@ -246,15 +249,36 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
         estimation={"lag_s": lag},
         service={"state_dir": str(cfg.state_dir())},
     )
-    svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
-                  warm_up_estimator=False)          # warmed up above
     if before_play is not None:
         before_play(machine)
+    # The service anchors its grid to the first wheel-speed frame it receives, replay to the first one
+    # recorded: a frame sent before the service has opened the bus (a virtual bus delivers only to the
+    # buses open when it is sent) or a line written before it opened the pty would be lost, and the
+    # service would estimate from a later start.  On a loaded machine start-up can take longer than the
+    # lead: then that service is stopped and a new one started with a longer lead (``start_attempts``).
+    lead = LEAD_WALL_S
+    for attempt in range(1, START_ATTEMPTS + 1):
+        clock = ServiceClock(speed=speed, epoch0=first.t - lead * speed)
+        machine.clock = clock
+        svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
+                      warm_up_estimator=False)          # warmed up above
+        stop = asyncio.Event()
+        task = asyncio.create_task(svc.run(stop))
+        t0 = time.monotonic()
+        ready = asyncio.create_task(svc.ready.wait())
+        await asyncio.wait({ready, task}, timeout=max(0.0, clock.mono_at(first.t) - READY_MARGIN_WALL_S
+                                                      - time.monotonic()))
+        ready.cancel()
+        if svc.ready.is_set() or task.done() or attempt == START_ATTEMPTS:
+            break
+        log.info("simulated service not ready %.1f s after its start; starting it again with a longer lead",
+                 time.monotonic() - t0)
+        stop.set()
+        await asyncio.wait({task})
+        lead *= 2
     if info_stream is not None:
         print(f"playing on virtual CAN channel {machine.channel} and NMEA pty {machine.port} at {speed:g}x "
               f"real time; Ctrl-C stops", file=info_stream, flush=True)
-    stop = asyncio.Event()
-    task = asyncio.create_task(svc.run(stop))
     machine.start()
     t_end = first.t + (duration_s if duration_s is not None else math.inf)
     try:
@@ -272,6 +296,8 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
         machine.stop()
     c = svc.counters()
     summary = {
+        "start_attempts": attempt,
+        "ready_before_play": svc.ready.is_set(),
         "played_frames": machine.counts["frames"],
         "played_nmea_lines": machine.counts["lines"],
         "estimator_steps": c["service"].get("steps", 0),
