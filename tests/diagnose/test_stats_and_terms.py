@@ -7,7 +7,7 @@ import pytest
 
 from tractionecu.diagnose.candidates import CANDIDATES, DETECTORS
 from tractionecu.diagnose.channels import _CurveInverse, _onehot_scaled_fit, relaxed, relaxed_by_distance
-from tractionecu.diagnose.fit import andrews_bandwidth, hac_meat, n_effective
+from tractionecu.diagnose.hac import andrews_bandwidth, hac_meat, n_effective
 from tractionecu.model.effects import EFFECTS, LIBRARY, SENSOR_FAULTS
 from tractionecu.model.mucurve import SOIL_CLASSES
 

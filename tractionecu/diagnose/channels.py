@@ -53,6 +53,7 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from .features import Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
+from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
 """Window of the speed-equation error [s]."""
@@ -428,7 +429,6 @@ class FrontLoadChannel(Channel):
 
     def nominal_heights(self, eff: Effects) -> dict:
         """Load-transfer heights of the nominal model on all rows with HAC 95 % intervals."""
-        from .fit import hac_meat
 
         y = self.y - self._effects_part(eff)
         X = self._design(eff)

@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from .hac import hac_meat
 from .locate import ljung_box_p, nis_coverage, noise_sigma, per_time
 
 BALANCE_CHANNELS = frozenset({"speed", "gps_speed", "front_load"})
@@ -183,7 +184,6 @@ def wheel_asymmetry(d, ho) -> dict | None:
     and μ_0 per axle, so anything that affects one wheel only (one torque sensor's gain, one tyre's
     pressure, a wheel-speed sensor's tooth count) stays in Δ.
     """
-    from .fit import hac_meat
 
     ch = d.problem.channels.get("slip")
     if ch is None or "slip" not in ho.resid:

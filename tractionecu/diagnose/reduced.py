@@ -41,7 +41,7 @@ from ..model.effects import EFFECTS
 from ..model.mucurve import SOIL_CLASSES
 from .channels import _CurveInverse
 from .data import Frame
-from .fit import hac_meat
+from .hac import hac_meat
 from .locate import ljung_box_p
 
 FOLD_BLOCK_S = 40.0
