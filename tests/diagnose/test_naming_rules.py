@@ -1,0 +1,244 @@
+"""The naming rules of the diagnosis (:mod:`tractionecu.diagnose.engine`), on synthetic fits.
+
+Two rules decide whether a fault the augmentation added is *named*:
+
+1. a fault whose estimate trades off (|correlation| ≥ ``TRADE_OFF_CORR`` in the joint fit) with a
+   characteristic found at a healthy size is not separated from what every machine has: it is not
+   named and the verdict is recomputed (the next named fault, else none);
+2. a fault added by a step of the augmentation that another fault improves as much (within the
+   margin max(DETECT_LLR, AMBIGUOUS_FRACTION · S)) is ambiguous between the two, unless a later step
+   adds the rival in its own right (then both are present, neither is an alternative).
+
+The recording, its channels and the numerical fits are replaced by small synthetic objects of the
+types the engine consumes (:class:`FitResult` with a correlation matrix, held-out scores, the
+stepwise steps); the naming logic itself runs unchanged.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tractionecu.diagnose import engine
+from tractionecu.diagnose import openworld
+from tractionecu.diagnose.candidates import CANDIDATES
+from tractionecu.diagnose.engine import DETECT_LLR, TRADE_OFF_CORR, CandidateResult
+from tractionecu.diagnose.fit import FitResult, HeldOut
+
+
+# --------------------------------------------------------------------------- synthetic objects
+def _fit(effects: dict[str, dict[str, float]], corr: dict[tuple[str, str], float] | None = None) -> FitResult:
+    """A fit of ``effects`` ({effect: {param: value}}) with unit standard errors, narrow intervals and
+    the given correlations between parameters (keys ``effect.param``); every other pair uncorrelated."""
+    names = tuple(f"{e}.{p}" for e, ps in effects.items() for p in ps)
+    x = np.array([v for ps in effects.values() for v in ps.values()], dtype=float)
+    cov = np.eye(len(names))
+    for (a, b), r in (corr or {}).items():
+        i, j = names.index(a), names.index(b)
+        cov[i, j] = cov[j, i] = r
+    ci = {e: {p: (v - 0.01, v + 0.01) for p, v in ps.items()} for e, ps in effects.items()}
+    flat = {p: v for ps in effects.values() for p, v in ps.items()}
+    return FitResult(candidate="+".join(effects), x=x, cov=cov, params=flat,
+                     ci95={p: iv for c in ci.values() for p, iv in c.items()},
+                     se={p: 1.0 for p in flat}, sse={}, n={}, cost=0.0, ok=True,
+                     effects={e: dict(ps) for e, ps in effects.items()}, ci95_by=ci, at_bound={}, names=names)
+
+
+# Values inside each library range, away from the value at which the effect vanishes.
+VALUE = {"wheel_radius": {"epsilon": 0.03}, "drivetrain": {"eta": 0.90}, "relaxation": {"sigma_m": 0.8},
+         "mass": {"delta_kg": 800.0, "front_share": 0.3}, "torque_gain": {"k_front": 1.0, "k_rear": 1.08},
+         "gps_latency": {"tau_s": 0.3}, "draft_offset": {"b0_n": 900.0, "b1_npm": 0.0}}
+
+
+def _values(*names: str, **override: dict[str, float]) -> dict[str, dict[str, float]]:
+    return {n: {**VALUE[n], **override.get(n, {})} for n in names}
+
+
+def _ho(name: str) -> HeldOut:
+    return HeldOut(candidate=name, sse={}, n={}, resid={}, fold_params=[])
+
+
+def _diagnose(monkeypatch, scores: dict[str, float], chosen: list[str], joint: FitResult, steps: list[dict]):
+    """Run :func:`engine.diagnose` with the candidates' single-step held-out ``scores``, and the
+    augmentation's outcome (``chosen``, the joint fit, its ``steps``) given; everything that reads a
+    recording or fits numerically is replaced, the verdict and naming logic run as in the engine."""
+    frame = SimpleNamespace(source="synthetic", notes=[], fzf_modelled=False)
+    feat = SimpleNamespace(notes=[], sensor_faults=[], frame=frame)
+    monkeypatch.setattr(engine, "_data", SimpleNamespace(Frame=SimpleNamespace, load=lambda s, v: frame))
+    monkeypatch.setattr(engine, "compute", lambda fr: feat)
+    monkeypatch.setattr(engine, "build_channels", lambda f: [])
+    monkeypatch.setattr(engine, "_testability",
+                        lambda p, f: {n: "" if n in scores else "not in this case" for n in CANDIDATES})
+    monkeypatch.setattr(engine, "held_out", lambda problem, name, **kw: _ho(str(name)))
+    monkeypatch.setattr(engine, "score", lambda problem, null, ho: (scores[ho.candidate], {}))
+    monkeypatch.setattr(engine, "fit", lambda problem, name, **kw: _fit(_values(name)))
+    monkeypatch.setattr(engine, "_calibrate", lambda f, fp: None)
+    monkeypatch.setattr(engine, "_excludes_null", lambda f, name=None: True)
+    monkeypatch.setattr(engine, "_implausible_bound", lambda f, name: "")
+    monkeypatch.setattr(engine, "_grade_check", lambda problem, feat, res: {})
+    seen = {}
+
+    def stepwise(problem, results, best, null, consistent=None):
+        seen["first"] = best.name
+        return list(chosen), joint, _ho("+".join(chosen)), [dict(s) for s in steps]
+
+    monkeypatch.setattr(engine, "_stepwise", stepwise)
+    monkeypatch.setattr(engine, "_statement",
+                        lambda verdict, effect, ambiguous, *a: f"<{verdict} {effect} {'/'.join(ambiguous or [])}>")
+    monkeypatch.setattr(openworld, "open_world", lambda d: {})
+    d = engine.diagnose(frame)
+    return d, seen
+
+
+def _effect(d, name: str) -> dict:
+    return next(e for e in d.effects if e["name"] == name)
+
+
+# --------------------------------------------------------------------------- rule 1: trade-off with a characteristic
+def test_fault_trading_off_with_healthy_characteristic_is_not_named(monkeypatch):
+    """A radius error whose ε correlates at −0.93 with a healthy drivetrain efficiency (η = 0.90) in the
+    joint fit: the radius error was the verdict; it is not named, the verdict becomes none and the
+    drivetrain is reported as consistent with it."""
+    joint = _fit(_values("wheel_radius", "drivetrain"), {("wheel_radius.epsilon", "drivetrain.eta"): -0.93})
+    steps = [{"step": 1, "added": "wheel_radius", "score": 60.0, "against": "nominal model"},
+             {"step": 2, "added": "drivetrain", "score": 25.0, "against": "wheel_radius"}]
+    d, seen = _diagnose(monkeypatch, {"wheel_radius": 60.0, "drivetrain": 20.0}, ["wheel_radius", "drivetrain"],
+                        joint, steps)
+    assert seen["first"] == "wheel_radius"          # the radius error led the augmentation
+    wr, dt = _effect(d, "wheel_radius"), _effect(d, "drivetrain")
+    assert dt["kind"] == "characteristic"
+    assert wr["trades_off_with"] == [{"with": "drivetrain", "correlation": pytest.approx(-0.93)}]
+    assert (d.verdict, d.effect) == ("none", None)
+    assert wr["named"] is False
+    assert wr["explained_by"][0]["with"] == "drivetrain"
+    assert dt["consistent_with"] == ["wheel_radius"]
+    assert d.statement.startswith("No fault named")
+    assert any("wheel_radius trades off with drivetrain (correlation -0.93)" in n for n in d.notes)
+
+
+def test_verdict_moves_to_the_next_named_fault(monkeypatch):
+    """With a second, independent fault (a mass change) added later, the verdict is recomputed to it."""
+    joint = _fit(_values("wheel_radius", "drivetrain", "mass"),
+                 {("wheel_radius.epsilon", "drivetrain.eta"): 0.85, ("mass.delta_kg", "drivetrain.eta"): 0.1})
+    steps = [{"step": 1, "added": "wheel_radius", "score": 60.0, "against": "nominal model"},
+             {"step": 2, "added": "drivetrain", "score": 25.0, "against": "wheel_radius"},
+             {"step": 3, "added": "mass", "score": 18.0, "against": "wheel_radius+drivetrain"}]
+    d, _ = _diagnose(monkeypatch, {"wheel_radius": 60.0, "drivetrain": 20.0, "mass": 15.0},
+                     ["wheel_radius", "drivetrain", "mass"], joint, steps)
+    assert (d.verdict, d.effect) == ("effect", "mass")
+    assert d.statement.startswith("<effect mass")
+    assert _effect(d, "wheel_radius")["named"] is False
+    assert _effect(d, "mass")["named"] is True
+
+
+@pytest.mark.parametrize("corr, eta", [(-0.7, 0.90),    # below TRADE_OFF_CORR: separated
+                                       (-0.93, 0.60)])  # η outside the healthy range: a fault, not a characteristic
+def test_radius_error_stays_named_without_a_healthy_trade_off(monkeypatch, corr, eta):
+    assert abs(corr) < TRADE_OFF_CORR or not 0.80 <= eta <= 1.0
+    joint = _fit(_values("wheel_radius", "drivetrain", drivetrain={"eta": eta}),
+                 {("wheel_radius.epsilon", "drivetrain.eta"): corr})
+    steps = [{"step": 1, "added": "wheel_radius", "score": 60.0, "against": "nominal model"},
+             {"step": 2, "added": "drivetrain", "score": 25.0, "against": "wheel_radius"}]
+    d, _ = _diagnose(monkeypatch, {"wheel_radius": 60.0, "drivetrain": 20.0}, ["wheel_radius", "drivetrain"],
+                     joint, steps)
+    assert (d.verdict, d.effect) == ("effect", "wheel_radius")
+    assert _effect(d, "wheel_radius")["named"] is True
+    assert "explained_by" not in _effect(d, "wheel_radius")
+
+
+# --------------------------------------------------------------------------- rule 2: a step tied with another fault
+def _stepwise(monkeypatch, first: str, single: dict[str, float], trials: dict[tuple[str, ...], float],
+              char_values: dict[str, dict[str, float]] | None = None):
+    """Run :func:`engine._stepwise` from ``first`` with held-out improvements ``trials`` per tried model
+    (tuple of effect names, missing → 0) instead of fitting; the joint fits carry :data:`VALUE`
+    (``char_values`` overrides, e.g. an unhealthy characteristic)."""
+    monkeypatch.setattr(engine, "_white", lambda problem, ho: False)
+    monkeypatch.setattr(engine, "held_out", lambda problem, names, **kw: _ho("+".join(names)))
+    monkeypatch.setattr(engine, "score",
+                        lambda problem, cur, ho: (trials.get(tuple(ho.candidate.split("+")), 0.0), {}))
+    monkeypatch.setattr(engine, "fit",
+                        lambda problem, joint, **kw: _fit(_values(*joint.names, **(char_values or {}))))
+    monkeypatch.setattr(engine, "_calibrate", lambda f, fp: None)
+    monkeypatch.setattr(engine, "_excludes_null", lambda f, name=None: True)
+    monkeypatch.setattr(engine, "_implausible_bound", lambda f, name: "")
+    results = [CandidateResult(n, True, "", s, {}, _fit(_values(n)), _ho(n), s >= DETECT_LLR)
+               for n, s in sorted(single.items(), key=lambda kv: -kv[1])]
+    firstr = next(r for r in results if r.name == first)
+    chosen, _, _, steps = engine._stepwise(SimpleNamespace(), results, firstr, _ho("null"), {})
+    return chosen, {s["added"]: s for s in steps if "added" in s}
+
+
+def test_step_tied_with_another_fault_records_the_rival(monkeypatch):
+    """Step 2 adds a mass change (+40); a torque-sensor gain improves it by +33 (within the margin
+    max(10, 0.2·40) = 10), a healthy-sized relaxation by +34 and a GNSS latency by +20 (outside).
+    Only the fault within the margin is a rival: not the characteristic, not the far one."""
+    single = {"wheel_radius": 60.0, "mass": 40.0, "torque_gain": 38.0, "relaxation": 30.0, "gps_latency": 12.0}
+    trials = {("wheel_radius", "mass"): 40.0, ("wheel_radius", "torque_gain"): 33.0,
+              ("wheel_radius", "relaxation"): 34.0, ("wheel_radius", "gps_latency"): 20.0}
+    # The relaxation fits at 5 m (beyond a healthy tyre): it is not taken in place of the fault.
+    chosen, steps = _stepwise(monkeypatch, "wheel_radius", single, trials, {"relaxation": {"sigma_m": 5.0}})
+    assert chosen == ["wheel_radius", "mass"]
+    assert steps["mass"]["ambiguous_with"] == ["torque_gain"]
+    assert "ambiguous_with" not in steps["wheel_radius"]
+
+
+def test_rival_below_detection_but_within_margin_is_a_rival(monkeypatch):
+    """A step of +15 and a rival of +7: the rival is within the margin (10) though below DETECT_LLR
+    on its own; the step cannot be told from it."""
+    single = {"wheel_radius": 60.0, "mass": 40.0, "torque_gain": 38.0}
+    trials = {("wheel_radius", "mass"): 15.0, ("wheel_radius", "torque_gain"): 7.0}
+    chosen, steps = _stepwise(monkeypatch, "wheel_radius", single, trials)
+    assert chosen == ["wheel_radius", "mass"]
+    assert steps["mass"]["ambiguous_with"] == ["torque_gain"]
+
+
+def test_step_clear_of_every_rival_is_not_ambiguous(monkeypatch):
+    single = {"wheel_radius": 60.0, "mass": 40.0, "torque_gain": 38.0}
+    trials = {("wheel_radius", "mass"): 40.0, ("wheel_radius", "torque_gain"): 29.0}
+    chosen, steps = _stepwise(monkeypatch, "wheel_radius", single, trials)
+    assert chosen == ["wheel_radius", "mass"]
+    assert "ambiguous_with" not in steps["mass"]
+
+
+_AMB_STEPS = [{"step": 1, "added": "drivetrain", "score": 80.0, "against": "nominal model"},
+              {"step": 2, "added": "mass", "score": 40.0, "against": "drivetrain", "ambiguous_with": ["torque_gain"]}]
+
+
+def test_first_fault_tied_with_a_rival_makes_the_verdict_ambiguous(monkeypatch):
+    """A healthy drivetrain leads; the first fault (a mass change) was added by a step that a torque
+    gain improved as much: the verdict is ambiguous between them, with the shared structure stated."""
+    joint = _fit(_values("drivetrain", "mass"))
+    d, _ = _diagnose(monkeypatch, {"drivetrain": 80.0, "mass": 50.0, "torque_gain": 45.0},
+                     ["drivetrain", "mass"], joint, _AMB_STEPS)
+    assert (d.verdict, d.effect) == ("ambiguous", None)
+    assert d.ambiguous_between == ["mass", "torque_gain"]
+    assert "torque-sensor gain on one axle and a mass on that axle" in d.statement
+    m = _effect(d, "mass")
+    assert (m["named"], m["ambiguous"], m["ambiguous_with"]) == (False, True, ["torque_gain"])
+    tg = _effect(d, "torque_gain")               # the rival is listed, unnamed
+    assert (tg["named"], tg["ambiguous"]) == (False, True)
+
+
+def test_ambiguous_without_mass_and_torque_gain_has_no_shared_structure_sentence(monkeypatch):
+    steps = [dict(_AMB_STEPS[0]), {**_AMB_STEPS[1], "ambiguous_with": ["gps_latency"]}]
+    d, _ = _diagnose(monkeypatch, {"drivetrain": 80.0, "mass": 50.0, "gps_latency": 45.0},
+                     ["drivetrain", "mass"], _fit(_values("drivetrain", "mass")), steps)
+    assert (d.verdict, d.ambiguous_between) == ("ambiguous", ["mass", "gps_latency"])
+    assert d.statement.startswith("<ambiguous None mass/gps_latency>")
+    assert "torque-sensor gain" not in d.statement
+
+
+def test_rival_added_by_a_later_step_is_present_not_an_alternative(monkeypatch):
+    """The torque gain that tied with the mass step is added by step 3 in its own right: both are
+    faults of this machine, the mass is named and the verdict stays the mass."""
+    steps = _AMB_STEPS + [{"step": 3, "added": "torque_gain", "score": 22.0, "against": "drivetrain+mass"}]
+    joint = _fit(_values("drivetrain", "mass", "torque_gain"))
+    d, _ = _diagnose(monkeypatch, {"drivetrain": 80.0, "mass": 50.0, "torque_gain": 45.0},
+                     ["drivetrain", "mass", "torque_gain"], joint, steps)
+    assert (d.verdict, d.effect) == ("effect", "mass")
+    m, tg = _effect(d, "mass"), _effect(d, "torque_gain")
+    assert m["named"] is True and "ambiguous_with" not in m and not m.get("ambiguous")
+    assert tg["named"] is True and not tg.get("ambiguous")
+    assert "Several effects at once" in d.statement
