@@ -648,6 +648,9 @@ A_GRID = np.linspace(0.2, 1.3, 45)
 """Grid of the curve parameter a searched per field cell [-] (refined by a parabola)."""
 MU0_NOMINAL = True
 """The nominal model fits the zero-slip traction ratio μ_0 per axle (see :data:`MU0_RANGE`)."""
+WARM_CONVERGED = 1e-3
+"""A warm-started Gauss–Newton fit of a (and μ_0) whose last step moved a by less than this [-] has
+settled; otherwise the slip channel also solves from the grid start."""
 MU0_RANGE = (-0.03, 0.06)
 """Range of the zero-slip traction ratio μ_0 per axle [-] in the nominal model of the slip channel.
 
@@ -814,7 +817,10 @@ class SlipChannel(Channel):
             dmu = m0 - m_new
             m0 = m_new
             step = np.where(D > 0, (ga - B * dmu[ax_c]) / Dp, 0.0)
-            a = np.clip(a - step, A_GRID[0] * 0.5, A_GRID[-1] * 1.5)
+            a_new = np.clip(a - step, A_GRID[0] * 0.5, A_GRID[-1] * 1.5)
+            # Size of the last step (a, and μ_0 on the scale of a: μ_0 ≈ a g'(0) Δs, g'(0) ≈ 10).
+            self._gn_moved = float(max(np.max(np.abs(a_new - a), initial=0.0), 10.0 * np.max(np.abs(dmu))))
+            a = a_new
         return a, m0
 
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
@@ -835,17 +841,21 @@ class SlipChannel(Channel):
             # μ_0 fitted beside a, a warm start from a distant call (a grid point at the far end of a
             # fault's range, where μ_0 sat on a bound) does not converge in three steps: the cost then
             # depended on the order of the calls (a radius error of -0.015 was fitted as +0.004).  The
-            # grid start is solved too and the better of the two kept.
-            a, m0 = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
-            p = self._predict(inv, mu - m0[cell % 2], k, lead, a[cell])
-            total = float(np.sum(((y - p) * wv) ** 2))
+            # grid start is solved too when the warm steps have not settled (last step above
+            # WARM_CONVERGED), and the better of the two kept.
             warm = self._a_warm.get(name)
-            if warm is not None and MU0_NOMINAL:
-                aw, mw = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, warm[0], iters=3, mu0=warm[1])
-                pw = self._predict(inv, mu - mw[cell % 2], k, lead, aw[cell])
-                tw = float(np.sum(((y - pw) * wv) ** 2))
-                if tw < total:
-                    a, m0, p, total = aw, mw, pw, tw
+            total = math.inf
+            if warm is not None:
+                self._gn_moved = math.inf
+                a, m0 = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, warm[0], iters=3, mu0=warm[1])
+                p = self._predict(inv, mu - m0[cell % 2], k, lead, a[cell])
+                total = float(np.sum(((y - p) * wv) ** 2))
+            if warm is None or (MU0_NOMINAL and self._gn_moved > WARM_CONVERGED):
+                ac, mc = self._gauss_newton_a(inv, mu, k, lead, y, wv, cell, self._a_start[name])
+                pc = self._predict(inv, mu - mc[cell % 2], k, lead, ac[cell])
+                tc = float(np.sum(((y - pc) * wv) ** 2))
+                if tc < total:
+                    a, m0, p, total = ac, mc, pc, tc
             self._a_warm[name] = (a, m0)
             if total < best_sse:
                 best, best_sse = p, total
