@@ -185,3 +185,29 @@ def test_slow_first_estimator_build_does_not_leave_the_loop_behind(short_recordi
     assert len(builds) >= 2                      # the warm-up and the service's own estimator
     assert c["service"].get("steps", 0) > 300
     assert c["service"].get("skipped_steps", 0) == 0
+
+
+def test_a_restarted_simulated_service_keeps_the_page_address(short_recording: Path, tmp_path: Path,
+                                                              monkeypatch) -> None:
+    """Regression: a service not ready before the first frame is stopped and started again; with the page
+    on port 0 the second one listened on another port, and a browser opened at the printed address saw
+    no update (the in-cab page test failed beside a CPU hog).  A lead far too short forces the restarts."""
+    import io
+
+    from tractionecu.sim import player
+
+    monkeypatch.setattr(player, "LEAD_WALL_S", 0.01)
+    cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state")},
+                         web={"enabled": True, "port": 0, "host": "127.0.0.1"})
+    status = io.StringIO()
+
+    async def go():
+        return await run_simulation(cfg, short_recording, speed=4.0, duration_s=2.0, status_stream=status)
+
+    res = asyncio.run(go())
+    assert res.exit_code == 0
+    assert res.summary["start_attempts"] > 1
+    printed = [ln.split("in-cab page: ", 1)[1].strip() for ln in status.getvalue().splitlines()
+               if "in-cab page: " in ln]
+    assert len(printed) == res.summary["start_attempts"] and len(set(printed)) == 1
+    assert res.service.web.address == printed[0]

@@ -214,6 +214,18 @@ class SimulationResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
+def _port_of(address: str | None) -> int | None:
+    """The TCP port of an ``http://host:port/`` address, or None."""
+    if not address:
+        return None
+    from urllib.parse import urlsplit
+
+    try:
+        return urlsplit(address).port
+    except ValueError:
+        return None
+
+
 async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0, duration_s: float | None = None,
                          status_stream: IO[str] | None = None, info_stream: IO[str] | None = None,
                          before_play: Callable[[SimulatedMachine], None] | None = None,
@@ -275,6 +287,11 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
                  time.monotonic() - t0)
         stop.set()
         await asyncio.wait({task})
+        port = _port_of(getattr(getattr(svc, "web", None), "address", None))
+        if port is not None:
+            # the in-cab page's address was printed and may be open in a browser: the next service serves
+            # it on the same port (it was bound to port 0: any free port)
+            cfg = with_overrides(cfg, web={"port": port})
         lead *= 2
     if info_stream is not None:
         print(f"playing on virtual CAN channel {machine.channel} and NMEA pty {machine.port} at {speed:g}x "
