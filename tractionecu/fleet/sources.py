@@ -28,6 +28,7 @@ import csv
 import datetime as _dt
 import glob as _glob
 import re
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -65,22 +66,27 @@ def _parse_date(text: str) -> str | None:
     return None
 
 
-def _rmc_date(path: Path, max_lines: int = 400) -> str | None:
-    """Date of the first valid RMC sentence of the recording's GNSS log (ddmmyy, field 9)."""
+def _nmea_fields(path: Path, max_lines: int) -> Iterator[list[str]]:
+    """Comma-split fields of the first ``max_lines`` lines of the recording's GNSS log: ``gps.nmea`` in a
+    recording directory, ``<name>.nmea`` or else ``gps.nmea`` beside a capture file (the first found)."""
     cands = [path / "gps.nmea"] if path.is_dir() else [path.with_suffix(".nmea"), path.parent / "gps.nmea"]
     for nmea in cands:
-        if not nmea.is_file():
-            continue
-        with open(nmea, encoding="ascii", errors="replace") as fh:
-            for _, line in zip(range(max_lines), fh):
-                f = line.strip().split(",")
-                if len(f) > 9 and f[0].endswith("RMC") and len(f[9]) == 6 and f[9].isdigit():
-                    d, mo, y = int(f[9][:2]), int(f[9][2:4]), 2000 + int(f[9][4:6])
-                    try:
-                        return _dt.date(y, mo, d).isoformat()
-                    except ValueError:
-                        continue
-        return None
+        if nmea.is_file():
+            with open(nmea, encoding="ascii", errors="replace") as fh:
+                for _, line in zip(range(max_lines), fh):
+                    yield line.strip().split(",")
+            return
+
+
+def _rmc_date(path: Path, max_lines: int = 400) -> str | None:
+    """Date of the first valid RMC sentence of the recording's GNSS log (ddmmyy, field 9)."""
+    for f in _nmea_fields(path, max_lines):
+        if len(f) > 9 and f[0].endswith("RMC") and len(f[9]) == 6 and f[9].isdigit():
+            d, mo, y = int(f[9][:2]), int(f[9][2:4]), 2000 + int(f[9][4:6])
+            try:
+                return _dt.date(y, mo, d).isoformat()
+            except ValueError:
+                continue
     return None
 
 
@@ -207,22 +213,14 @@ def discover(source: str | Path, *, exclude: str | Path | None = None) -> list[R
 
 def first_fix(path: str | Path, max_lines: int = 2000) -> tuple[float, float] | None:
     """(lat, lon) [deg] of the first GGA with a fix in the recording's GNSS log, or None."""
-    p = Path(path)
-    cands = [p / "gps.nmea"] if p.is_dir() else [p.with_suffix(".nmea"), p.parent / "gps.nmea"]
-    for nmea in cands:
-        if not nmea.is_file():
-            continue
-        with open(nmea, encoding="ascii", errors="replace") as fh:
-            for _, line in zip(range(max_lines), fh):
-                f = line.strip().split(",")
-                if len(f) > 6 and f[0].endswith("GGA") and f[6] not in ("", "0") and f[2] and f[4]:
-                    try:
-                        lat = int(f[2][:2]) + float(f[2][2:]) / 60.0
-                        lon = int(f[4][:3]) + float(f[4][3:]) / 60.0
-                    except ValueError:
-                        continue
-                    return (-lat if f[3] == "S" else lat, -lon if f[5] == "W" else lon)
-        return None
+    for f in _nmea_fields(Path(path), max_lines):
+        if len(f) > 6 and f[0].endswith("GGA") and f[6] not in ("", "0") and f[2] and f[4]:
+            try:
+                lat = int(f[2][:2]) + float(f[2][2:]) / 60.0
+                lon = int(f[4][:3]) + float(f[4][3:]) / 60.0
+            except ValueError:
+                continue
+            return (-lat if f[3] == "S" else lat, -lon if f[5] == "W" else lon)
     return None
 
 
