@@ -91,6 +91,24 @@ def _circle(cf: CurvatureFilter, kappa: float, v: float, slip_diff: float, cours
             cf.course(t, course + math.degrees(course_sigma) * rng.standard_normal(), abs(v), direction)
 
 
+def _course_turns_wheels_do_not(cf: CurvatureFilter, legs, rng) -> list[float]:
+    """Drive cf along ``legs`` of (seconds, v [m/s], course rate [rad/s]) with equal rear wheel speeds (the
+    wheels show no turn) at 100 Hz and a GNSS course turning at the leg's rate at 10 Hz; β after each step."""
+    psi, t = 0.0, 0.0
+    beta = []
+    for seconds, v, rate in legs:
+        for k in range(int(seconds * 100)):
+            t += 0.01
+            psi += rate * 0.01
+            w = v / 0.78
+            cf.wheels(t, w + 1e-3 * rng.standard_normal(), w + 1e-3 * rng.standard_normal(), 1e-6, 1e-6, v)
+            if k % 10 == 9:
+                course = math.degrees(math.pi / 2 - psi) + (180.0 if v < 0 else 0.0)
+                cf.course(t, course + 0.5 * rng.standard_normal(), abs(v), math.copysign(1.0, v))
+            beta.append(cf.beta)
+    return beta
+
+
 @pytest.mark.parametrize("v", [2.5, -1.0])
 def test_curvature_from_wheels_and_course_removes_the_slip_difference(v):
     rng = np.random.default_rng(5)
@@ -148,17 +166,7 @@ def test_a_course_the_wheels_do_not_follow_bends_no_wheel_for_long():
     long after the turn; the bounded bias stays within a few σ of its spread."""
     rng = np.random.default_rng(10)
     cf = CurvatureFilter(B, 0.05)
-    psi, t = 0.0, 0.0
-    beta = []
-    for seconds, v, rate in [(20.0, 2.5, 0.0), (13.0, 1.2, 1.2 / 9.0)]:
-        for k in range(int(seconds * 100)):
-            t += 0.01
-            psi += rate * 0.01
-            w = v / 0.78
-            cf.wheels(t, w + 1e-3 * rng.standard_normal(), w + 1e-3 * rng.standard_normal(), 1e-6, 1e-6, v)
-            if k % 10 == 9:
-                cf.course(t, math.degrees(math.pi / 2 - psi) + 0.5 * rng.standard_normal(), v, 1.0)
-            beta.append(cf.beta)
+    beta = _course_turns_wheels_do_not(cf, [(20.0, 2.5, 0.0), (13.0, 1.2, 1.2 / 9.0)], rng)
     assert np.max(np.abs(beta)) < 4.0 * SLIP_DIFF_MAX / B
 
 
@@ -438,18 +446,9 @@ def test_a_heading_that_refuses_the_course_starts_again():
     curvature is back near zero."""
     rng = np.random.default_rng(8)
     cf = CurvatureFilter(B, 0.05)
-    psi, t = 0.0, 0.0
     # a headland as in headland-reverse: quarter circle, 12 m back, quarter circle; twice
     legs = [(20.0, 2.5, 0.0)] + [(8.0, 1.2, math.pi / 16.0), (12.0, -1.0, 0.0), (8.0, 1.2, math.pi / 16.0),
                                  (20.0, 2.5, 0.0)] * 2
-    for seconds, v, rate in legs:
-        for k in range(int(seconds * 100)):
-            t += 0.01
-            psi += rate * 0.01
-            w = v / 0.78
-            cf.wheels(t, w + 1e-3 * rng.standard_normal(), w + 1e-3 * rng.standard_normal(), 1e-6, 1e-6, v)
-            if k % 10 == 9:
-                course = math.degrees(math.pi / 2 - psi) + (180.0 if v < 0 else 0.0)
-                cf.course(t, course + 0.5 * rng.standard_normal(), abs(v), math.copysign(1.0, v))
+    _course_turns_wheels_do_not(cf, legs, rng)
     k_end, _ = cf.curvature(2.5, 0.2)
     assert abs(k_end) < 0.003
