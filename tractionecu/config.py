@@ -387,6 +387,10 @@ class DrivetrainSpec:
     efficiency_tolerance: float = setting(math.nan, "relative uncertainty of η [-] (1σ): it bounds how well μ "
                                           "is known; not given: the kind's default (hub 0, else 0.03)", 0.0, 0.5,
                                           nan_ok=True)
+    hub_drag_nms: float = setting(0.0, "hub drive: the hub reduction's no-load loss as a drag torque at the wheel "
+                                  "per unit wheel speed c [N·m per rad/s] (oil churning, seals, bearings; the "
+                                  "motor torque that turns a lifted wheel at a steady speed, over that speed): "
+                                  "M_wheel = η M_motor − c ω; 0: not known, none taken off", 0.0, 1000.0)
     front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls) | "
                                "auto (from the bus: engaged while EBC2's front-axle speed keeps the coupling's "
                                "ratio to the rear wheels, rolling when it falls below it by the lead)")

@@ -240,3 +240,35 @@ def test_convergence_is_still_lost_when_the_data_stop():
     assert all(e.status & NOT_CONVERGED or e.status & WHEEL_TIMEOUT for e in late)
     sig = np.sqrt(late[-1].P_diag[5:9]).max()
     assert sig > cfg.conv_exit_factor * cfg.conv_sigma_mu and late[-1].status & NOT_CONVERGED
+
+
+def test_declared_hub_drag_is_taken_off_the_wheel_torque_at_the_filters_wheel_speed(run15):
+    """drivetrain.hub_drag_nms c: M_wheel = η M_motor − c ω (ω the filter's wheel speed); the default 0 takes
+    nothing off."""
+    c = 4.0
+    veh = dataclasses.replace(VEH, drivetrain=dataclasses.replace(VEH.drivetrain, efficiency=0.95, hub_drag_nms=c))
+    plain = dataclasses.replace(VEH, drivetrain=dataclasses.replace(VEH.drivetrain, efficiency=0.95))
+    assert VEH.drivetrain.hub_drag_nms == 0.0
+    est, ref = Estimator(veh), Estimator(plain)
+    checked = 0
+    for t, i, m in run15.steps[:200]:
+        w = None if est.ukf is None else est.ukf.x[:4].copy()
+        est.step(t, i, m)
+        ref.step(t, i, m)
+        if "Md" in i and w is not None:
+            md = np.asarray(i["Md"], dtype=float)
+            np.testing.assert_allclose(est._u[:4], 0.95 * md - c * w, rtol=1e-12)
+            np.testing.assert_allclose(ref._u[:4], 0.95 * md, rtol=1e-15)
+            assert (w > 1.0).all()             # moving forwards: the drag takes torque off every wheel
+            checked += 1
+    assert checked > 100
+
+
+def test_vehicle_file_drag_key_round_trips(tmp_path):
+    from tractionecu.config import load_vehicle, save_vehicle
+
+    veh = dataclasses.replace(VEH, drivetrain=dataclasses.replace(VEH.drivetrain, hub_drag_nms=4.0))
+    save_vehicle(veh, tmp_path / "vehicle.toml")
+    assert load_vehicle(tmp_path / "vehicle.toml").drivetrain.hub_drag_nms == 4.0
+    with pytest.raises(ConfigError, match="hub_drag_nms"):
+        dataclasses.replace(VEH.drivetrain, hub_drag_nms=-1.0)

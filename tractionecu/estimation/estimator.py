@@ -63,7 +63,8 @@ from scipy.special import erfcinv
 
 from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
-from ..model.vehicle import IU_KAPPA, IX_MU, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel, wheel_speed_factor_slopes
+from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel,
+                             wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -266,6 +267,8 @@ class Estimator:
         # (M_d = η M_motor driving, M_motor/η braking; model doc "Declared drivetrain"); 1: the paper's model.
         dtr = getattr(vehicle, "drivetrain", None)
         self._eta = float(dtr.efficiency) if dtr is not None and not dtr.engine_driven else 1.0
+        # and less the hub reduction's declared no-load drag c ω (drivetrain.hub_drag_nms; 0: none declared)
+        self._drag = float(dtr.hub_drag_nms) if dtr is not None and not dtr.engine_driven else 0.0
         self._unc = SystematicUncertainty(sp, vehicle) if cfg.systematic_uncertainty else None
         # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
         # the SensorSpec rates until enough samples were seen.
@@ -490,6 +493,8 @@ class Estimator:
                         foh = [(0, u[:4].copy(), t_in["Md"])]
                         if self._eta != 1.0:           # motor to wheel torque (losses against the power flow)
                             arr = arr * np.where(arr * self._dir >= 0.0, self._eta, 1.0 / self._eta)
+                        if self._drag != 0.0 and self.ukf is not None:
+                            arr = arr - self._drag * self.ukf.x[IX_OMEGA]     # the hub's drag at the wheel speed
                         u[:4] = arr if self._md_inv is None else arr * self._md_inv
                         self._md_sum = sm
                         t_in["Md"] = t

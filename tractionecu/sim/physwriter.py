@@ -159,12 +159,18 @@ def _declared_hub(scn):
     """The hub-drive machine as its owner declares it: the hub reduction's efficiency with its tolerance
     (:data:`tractionecu.config.HUB_EFFICIENCY_TOL`), the line of pull and the rear wheels' calibrated rolling
     radius, each with an error drawn once per seed inside its tolerance (own stream: nothing else of the
-    recording moves), never the truth's exact figure."""
+    recording moves), never the truth's exact figure.  With ``PhysicalSpec.declared_exact`` it declares the
+    truth's figures without errors, and also the hub's drag and the motor-plus-wheel inertia."""
     veh = scn.vehicle
     ps = scn.physical
     rng = np.random.default_rng(scn.seed + 7_000_005)
     err = rng.uniform(-1.0, 1.0, 3) * np.array([HUB_EFFICIENCY_TOL, DECLARED_PULL_ANGLE_TOL_DEG,
                                                  DECLARED_RADIUS_TOL_REL])
+    if ps.declared_exact:
+        hub = ps.drivetrain.hub
+        err = np.zeros(3)
+        veh = dataclasses.replace(veh, wheel_inertia_kgm2=hub.motor_inertia_kgm2 + hub.wheel_inertia_kgm2,
+                                  drivetrain=dataclasses.replace(veh.drivetrain, hub_drag_nms=hub.drag_nms))
     eta = min(1.0, ps.drivetrain.hub.efficiency * (1.0 + float(err[0])))
     fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
     r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))

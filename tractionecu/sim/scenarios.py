@@ -115,6 +115,17 @@ def physical_three_soils(seed: int = 0, **kw) -> Scenario:
     return _physical("physical-three-soils", PHYSICAL_THREE_SOILS, plan, seed, kw)
 
 
+def physical_declared_exact(seed: int = 0, **kw) -> Scenario:
+    """``physical-three-soils`` (the same simulated run, byte for byte in ``can.log``, ``gps.nmea`` and
+    ``truth.csv``) with a ``vehicle.toml`` that declares the truth's own figures: hub efficiency 0.95, its
+    no-load drag, the motor-plus-wheel inertia, the 8° line of pull, the rear rolling radius at static load.
+    Sensors at their datasheet noise, no biases, no GNSS latency, no declared figure off: issue 13's
+    "datasheet noise" row.  (``physical-three-soils`` declares the efficiency, the pull and the radius each off
+    by an error inside its tolerance and no drag: a tolerance-bias run of the declared figures.)"""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    return _physical("physical-declared-exact", PHYSICAL_THREE_SOILS, plan, seed, kw, declared_exact=True)
+
+
 def biased_sensors(seed: int = 0, **kw) -> Scenario:
     """``physical-three-soils`` with sensor errors inside their datasheet tolerances, drawn once per run
     from the seed (torque gain ±2 % per wheel, load-pin offsets of a few hundred N, a GNSS latency of
@@ -230,6 +241,7 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "two-soils-tilled": two_soils_tilled,
     "headland-reverse": headland_reverse,
     "physical-three-soils": physical_three_soils,
+    "physical-declared-exact": physical_declared_exact,
     "biased-sensors": biased_sensors,
     "s-curves-30m": s_curves_30m,
     "circles-30m": circles_30m,
