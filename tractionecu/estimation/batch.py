@@ -1,0 +1,398 @@
+"""Batch replay: a recording's estimates as arrays, for offline work where latency does not matter.
+
+The step path (:mod:`tractionecu.pipeline.replay`) is what the daemon runs: per step a dict of inputs
+and measurements, one :meth:`Estimator.step <tractionecu.estimation.estimator.Estimator.step>`, one
+:class:`~tractionecu.estimation.estimator.Estimate`, and ``estimates.csv`` written row by row.  The
+batch path runs the same estimator over the same step arguments and keeps its results as arrays:
+
+* the capture is decoded block by block as replay decodes it (a survey, then
+  :func:`~tractionecu.recording.reader.stream_signals`), and the step arguments of a whole block are
+  assembled at once: the grid and each signal group's new samples come from replay's own stream
+  (:class:`~tractionecu.pipeline.replay._Run`, so the arguments are those of the step path, float for
+  float), and the dicts of every step of the block are filled stream by stream;
+* the estimator is stepped in a tight loop and the estimates are gathered into arrays per block of
+  :data:`BLOCK` steps (the fields read with one ``attrgetter`` per estimate; the reported uncertainty
+  σ_μ = √(P_μ + u_μ²), σ_ρs computed over the block's arrays, the same operations as
+  :attr:`Estimate.sigma_mu <tractionecu.estimation.estimator.Estimate.sigma_mu>`);
+* nothing is formatted as text: :func:`replay_batch` returns the arrays of every step (the keys of
+  :class:`~tractionecu.pipeline.replay.ReplayResult`), :func:`replay_batch_rows` keeps only the steps
+  a consumer asks for (the first step at or after each 1/``rate`` boundary, and the map's steps, one
+  per GNSS epoch), so memory does not grow with the recording's length but for those.
+
+A lost filter marks the estimates since its ``lost_since`` not valid with ``FILTER_LOST``, as the step
+path does; the rows are selected only once they are older than the window a lost filter may reach
+back (``lost_after_s`` + ``max_gap_s`` + 1 s).
+
+Contract: the estimates equal the step path's to 1e-9 in every column (``tests/estimation/test_batch.py``;
+with the same estimator stepped they are equal bit for bit).  The estimator loop itself is the step
+path's Python :meth:`Estimator.step`; it is not compiled over arrays (see README, "Fleet": what the
+batch path saves and what is left).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from operator import attrgetter
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import ConfigError
+from .estimator import FILTER_LOST, Estimate, EstimatorConfig
+
+BLOCK = 4096
+"""Estimates gathered before they are copied into arrays."""
+
+SCALARS = ("t", "rho_s", "a", "v", "nis", "adapt")
+"""Float fields of an estimate kept per step (arrays (n,))."""
+VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", 10))
+"""Vector fields of an estimate kept per step (arrays (n, m))."""
+_FIELDS = attrgetter(*SCALARS, "nis_dof", "status", "valid", "mu", "slip", "omega", "P_diag", "sys_var",
+                     "radius_scale", "radius_halfwidth", "radius_applied", "soil_class", "curve_state")
+
+__all__ = ["BLOCK", "BatchSink", "max_differences", "replay_batch", "replay_batch_rows"]
+
+
+class BatchSink:
+    """Estimates of a replay, gathered into arrays block by block.
+
+    ``keep_all``: every step's arrays are kept (:meth:`arrays`).  ``rate_hz`` (> 0): the first step at or
+    after each 1/rate boundary of the time axis is kept (:meth:`rate_arrays`; 0: every step), once older
+    than ``hold_s`` (the lost-filter window).  ``map_times``: the step at or after each of these times
+    (GNSS epochs), and the first and last step, are kept for the map (:meth:`map_arrays`), as the step
+    path's sink picks them.
+    """
+
+    def __init__(self, *, keep_all: bool = True, rate_hz: float | None = None, hold_s: float = math.inf,
+                 map_times: np.ndarray | None = None, block: int = BLOCK) -> None:
+        self.keep_all = keep_all
+        self.block = int(block)
+        self.rate_hz = rate_hz
+        self.hold_s = hold_s
+        self.map_times = None if map_times is None else np.asarray(map_times, dtype=float) - 1e-9
+        self.map_k = 0
+        self.batch: list[Estimate] = []
+        self.done: list[dict[str, Any]] = []       # blocks kept whole
+        self.pending: list[dict[str, Any]] = []    # blocks not yet past hold_s (rate selection)
+        self.rate_rows: list[dict[str, Any]] = []
+        self.map_rows: list[dict[str, Any]] = []
+        self.last: dict[str, Any] | None = None
+        self.rows = 0
+        self.t_first = self.t_last = math.nan
+        self.steps_finite = self.steps_valid = 0
+        self._bucket = -math.inf
+        self._path: dict[int, str] = {}
+
+    # ------------------------------------------------------------------ input
+    def keep(self, e: Estimate) -> None:
+        self.batch.append(e)
+        if len(self.batch) == self.block:
+            self.flush()
+        if not math.isnan(e.lost_since):
+            self.mark_lost(e.lost_since)
+
+    def extend(self, es: list[Estimate]) -> None:
+        """Many estimates in time order (as :meth:`keep` one by one)."""
+        for e in es:
+            self.keep(e)
+
+    def mark_lost(self, since: float) -> None:
+        """The estimates since ``since`` [s] came from a lost filter: not valid, FILTER_LOST set."""
+        self.flush()
+        for group in (self.done, self.pending, self.map_rows):
+            for b in reversed(group):
+                k = int(np.searchsorted(b["t"], since, side="left"))
+                b["valid"][k:] = False
+                b["status"][k:] |= FILTER_LOST
+                if k > 0:
+                    break
+
+    def flush(self) -> None:
+        b = self.batch
+        if not b:
+            return
+        arr = self._to_arrays(b)
+        b.clear()
+        if self.keep_all:
+            self.done.append(arr)
+        if self.rate_hz is not None:
+            self.pending.append(arr)
+        if self.map_times is not None:
+            self._map_pick(arr)
+        self.last = arr
+        if not self.rows:
+            self.t_first = float(arr["t"][0])
+        self.t_last = float(arr["t"][-1])
+        self.rows += arr["t"].size
+        self._release(float(arr["t"][-1]) - self.hold_s)
+
+    def close(self) -> None:
+        self.flush()
+        if self.map_times is not None and self.last is not None:
+            last = _rows(self.last, np.array([self.last["t"].size - 1]))
+            if not self.map_rows or self.map_rows[-1]["t"][-1] != last["t"][0]:
+                self.map_rows.append(last)
+        self._release(math.inf)
+
+    # ------------------------------------------------------------------ conversion
+    def _to_arrays(self, b: list[Estimate]) -> dict[str, Any]:
+        n = len(b)
+        rows = [_FIELDS(e) for e in b]
+        cols = list(zip(*rows))
+        arr: dict[str, Any] = {}
+        for j, name in enumerate(SCALARS):
+            arr[name] = np.array(cols[j], dtype=float)
+        j = len(SCALARS)
+        arr["nis_dof"] = np.array(cols[j], dtype=np.int64)
+        arr["status"] = np.array(cols[j + 1], dtype=np.int64)
+        arr["valid"] = np.array(cols[j + 2], dtype=bool)
+        j += 3
+        for name, _m in VECTORS:
+            arr[name] = np.array(cols[j], dtype=float)
+            j += 1
+        sys_var = cols[j]
+        arr["radius_scale"] = np.array(cols[j + 1], dtype=float)
+        arr["radius_halfwidth"] = np.array(cols[j + 2], dtype=float)
+        arr["radius_applied"] = np.array(cols[j + 3], dtype=float)
+        arr["soil_class"] = list(cols[j + 4])
+        states = cols[j + 5]
+        # reported uncertainty: Estimate.sigma_mu = sqrt(P_mu + u_mu^2), sigma_rho_s = sqrt(P_rho + u_rho^2)
+        # (u^2 = sys_var, shared between estimates; None: the filter's own P alone), over the block
+        p = arr["P_diag"][:, 5:10]
+        has = np.fromiter((s is not None for s in sys_var), dtype=bool, count=n)
+        sv = np.zeros((n, 5))
+        if has.any():
+            sv[has] = np.array([s for s in sys_var if s is not None], dtype=float)
+        tot = np.where(has[:, None], p + sv, p)
+        sig = np.sqrt(tot)
+        arr["sigma_mu"] = sig[:, :4]
+        arr["sigma_rho_s"] = sig[:, 4].copy()
+        # the identified μ(s) per step and its path ("class:<name>", "shape:<form>"; "" until identified)
+        paths = self._path
+        curves = []
+        cpath = []
+        for cs in states:
+            c = None if cs is None else cs.curve
+            curves.append(c)
+            key = id(c)
+            pth = paths.get(key)
+            if pth is None:
+                pth = c.path if c is not None else ""
+                if len(paths) > 64:
+                    paths.clear()
+                paths[key] = pth
+            cpath.append(pth)
+        arr["curve"] = curves
+        arr["curve_path"] = cpath
+        return arr
+
+    def _map_pick(self, arr: dict[str, Any]) -> None:
+        t = arr["t"]
+        mt = self.map_times
+        hi = int(np.searchsorted(mt, t[-1], side="right"))
+        pick = np.searchsorted(t, mt[self.map_k:hi], side="left")
+        self.map_k = hi
+        if self.rows == 0:
+            pick = np.concatenate([[0], pick])
+        pick = np.unique(pick)
+        if pick.size:
+            self.map_rows.append(_rows(arr, pick))
+
+    def _release(self, upto: float) -> None:
+        """Select the rate rows of the blocks older than ``upto`` [s] (no lost filter can reach them)."""
+        while self.pending and float(self.pending[0]["t"][-1]) < upto:
+            b = self.pending.pop(0)
+            t = b["t"]
+            fin = np.isfinite(t)
+            self.steps_finite += int(fin.sum())
+            self.steps_valid += int((b["valid"] & fin).sum())
+            rate = float(self.rate_hz or 0.0)
+            if rate > 0:
+                bucket = np.floor(t * rate)
+                prev = np.concatenate([[self._bucket], bucket[:-1]])
+                keep = fin & (bucket != prev)
+                self._bucket = float(bucket[-1])
+            else:
+                keep = fin
+            idx = np.flatnonzero(keep)
+            if idx.size:
+                self.rate_rows.append(_rows(b, idx))
+
+    # ------------------------------------------------------------------ output
+    def arrays(self) -> dict[str, Any]:
+        return _concat(self.done)
+
+    def rate_arrays(self) -> dict[str, Any]:
+        return _concat(self.rate_rows)
+
+    def map_arrays(self) -> dict[str, Any]:
+        return _concat(self.map_rows)
+
+
+def _rows(arr: dict[str, Any], k: np.ndarray) -> dict[str, Any]:
+    return {name: (v[k] if isinstance(v, np.ndarray) else [v[i] for i in k.tolist()]) for name, v in arr.items()}
+
+
+def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    if not parts:
+        out: dict[str, Any] = {name: np.empty(0) for name in SCALARS + ("sigma_rho_s",)}
+        for name, m in VECTORS + (("sigma_mu", 4), ("radius_scale", 2), ("radius_halfwidth", 2),
+                                  ("radius_applied", 2)):
+            out[name] = np.empty((0, m))
+        out.update(nis_dof=np.empty(0, dtype=np.int64), status=np.empty(0, dtype=np.int64),
+                   valid=np.empty(0, dtype=bool), soil_class=[], curve=[], curve_path=[])
+        return out
+    return {name: (np.concatenate([p[name] for p in parts]) if isinstance(parts[0][name], np.ndarray)
+                   else [x for p in parts for x in p[name]]) for name in parts[0]}
+
+
+# ----------------------------------------------------------------------------- the run
+def _batch_run_class() -> type:
+    """replay's step function (:class:`~tractionecu.pipeline.replay._Run`: grid, groups, GNSS gate, the
+    estimator of the machine) with the per-step loop replaced by the block-wise one (module doc)."""
+    from ..pipeline.replay import _Run
+
+    class _BatchRun(_Run):
+        def _step(self, grid: np.ndarray) -> None:
+            n = grid.size
+            if n == 0:
+                return
+            streams = [(grp.key, grp.key in self.inputs, *grp.at(grid)) for grp in self.groups]
+            if self.speed.t.size:
+                from ..pipeline.signals import GNSS_SPEED
+                from ..pipeline.steps import GNSS_COURSE
+
+                streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
+                streams.append((GNSS_COURSE, False, *self.course.at(grid)))
+            wall = time.perf_counter()
+            inputs: list[dict[str, Any]] = [{} for _ in range(n)]
+            meas: list[dict[str, Any]] = [{} for _ in range(n)]
+            for key, is_input, vals, new in streams:      # in the step path's order of keys
+                target = inputs if is_input else meas
+                for k in np.flatnonzero(new).tolist():
+                    target[k][key] = vals[k]
+            step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
+            if cb is None:
+                for t, i, m in zip(grid.tolist(), inputs, meas):
+                    keep(step(t, i, m))
+            else:
+                for t, i, m in zip(grid.tolist(), inputs, meas):
+                    e = step(t, i, m)
+                    keep(e)
+                    cb(e)
+            self.loop_seconds += time.perf_counter() - wall
+
+    return _BatchRun
+
+
+def _open(recording: Any) -> tuple[Any, bool]:
+    from ..pipeline.survey import survey_keep
+    from ..recording.reader import Recording, read_recording
+
+    if isinstance(recording, Recording):
+        return recording, False
+    return read_recording(recording, keep=survey_keep), True
+
+
+def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: EstimatorConfig | None, sensors: Any,
+         gate: Any, on_estimate: Callable[[Estimate], None] | None,
+         make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None) -> tuple[Any, Any, BatchSink]:
+    from ..pipeline.gnss import GnssGate
+    from ..pipeline.replay import MissingSignals, machine_of
+    from ..pipeline.signals import required_missing
+    from ..recording.reader import read_recording, stream_signals
+
+    rec, streamed = _open(recording)
+    vehicle, s0 = machine_of(rec)
+    missing = required_missing(rec, vehicle)
+    if missing:
+        raise MissingSignals(read_recording(recording) if streamed else rec, missing)
+    if not rate_hz > 0:
+        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    cfg = cfg or EstimatorConfig()
+    if sink is None:
+        sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()
+    run = _batch_run_class()(rec, rate_hz, vehicle, sensors or s0, cfg, gate or GnssGate(), sink, on_estimate)
+    if streamed:
+        names = {nm for grp in run.groups for nm in grp.names}
+        for block, before in stream_signals(rec, names=sorted(names)):
+            run.feed(block, before)
+    else:
+        run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
+    run.close()
+    return rec, run, sink
+
+
+def replay_batch(recording: Any, *, rate_hz: float = 100.0, cfg: EstimatorConfig | None = None,
+                 sensors: Any = None, gate: Any = None,
+                 on_estimate: Callable[[Estimate], None] | None = None) -> Any:
+    """The estimates of every step of ``recording`` (a path, streamed, or a
+    :class:`~tractionecu.recording.reader.Recording`) as a :class:`~tractionecu.pipeline.replay.ReplayResult`
+    (the step path's :func:`~tractionecu.pipeline.replay.replay` keys, plus ``curve_path``)."""
+    from ..pipeline.replay import ReplayResult
+
+    rec, run, sink = _run(recording, BatchSink(keep_all=True), rate_hz=rate_hz, cfg=cfg, sensors=sensors,
+                          gate=gate, on_estimate=on_estimate)
+    return ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss,
+                        run.loop_seconds)
+
+
+def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, estimate_rate_hz: float = 1.0,
+                      cfg: EstimatorConfig | None = None, sensors: Any = None, gate: Any = None,
+                      map_rows: bool = True) -> dict[str, Any]:
+    """Replay ``recording`` keeping only the estimates at ``estimate_rate_hz`` (the first step at or after
+    each 1/rate boundary; 0: every step) and, with ``map_rows``, the map's steps (one per GNSS epoch, the
+    ones :func:`~tractionecu.mapping.from_replay.write_replay_map` samples).
+
+    Returns ``recording`` (the :class:`~tractionecu.recording.reader.Recording`, a survey when streamed),
+    ``rows`` (arrays at the rate), ``map`` (arrays of the map's steps), ``steps``, ``sim_seconds``,
+    ``valid_steps`` and ``steps_finite`` (steps with a finite time), ``gps_mask``, ``counters``, ``gnss``,
+    ``loop_seconds``, ``radius_calibration`` (:meth:`Estimator.calibration_summary`).
+    """
+    if not estimate_rate_hz >= 0:
+        raise ConfigError(f"estimate_rate_hz: must be >= 0, got {estimate_rate_hz}")
+
+    def make(rec: Any, c: EstimatorConfig) -> BatchSink:
+        return BatchSink(keep_all=False, rate_hz=float(estimate_rate_hz), hold_s=c.lost_after_s + c.max_gap_s + 1.0,
+                         map_times=rec.gps.t if map_rows and len(rec.gps) else None)
+
+    rec, run, sink = _run(recording, None, rate_hz=rate_hz, cfg=cfg, sensors=sensors, gate=gate,
+                          on_estimate=None, make_sink=make)
+    est = run.est
+    return {"recording": rec, "rows": sink.rate_arrays(), "map": sink.map_arrays(), "steps": sink.rows,
+            "sim_seconds": sink.t_last - sink.t_first if sink.rows > 1 else 0.0,
+            "valid_steps": sink.steps_valid, "steps_finite": sink.steps_finite, "gps_mask": run.gps_mask,
+            "counters": dict(est.counters), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
+            "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {}}
+
+
+# ----------------------------------------------------------------------------- the contract
+def max_differences(a: dict[str, Any], b: dict[str, Any]) -> dict[str, float]:
+    """Largest absolute difference per column of two replays' arrays (the keys both hold, but ``curve``):
+    0 for equal columns, inf where the shapes differ, where one is NaN and the other not, or where a text
+    column differs anywhere; integer and bool columns as numbers."""
+    out: dict[str, float] = {}
+    for name in a:
+        if name == "curve" or name not in b:
+            continue
+        x, y = a[name], b[name]
+        if not isinstance(x, np.ndarray):
+            out[name] = 0.0 if list(x) == list(y) else math.inf
+            continue
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        if x.shape != y.shape:
+            out[name] = math.inf
+            continue
+        nx, ny = np.isnan(x), np.isnan(y)
+        if (nx != ny).any():
+            out[name] = math.inf
+            continue
+        both = ~nx
+        xs, ys = x[both], y[both]
+        same = xs == ys                      # equal infinities too
+        d = np.abs(xs[~same] - ys[~same])
+        out[name] = float(d.max()) if d.size else 0.0
+    return out
