@@ -56,7 +56,10 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="rate of the estimates written to Parquet [Hz] (default: %(default)s; 0: every step)")
     p.add_argument("--origin", default=None, metavar="LAT,LON",
                    help="farm map origin [deg] (default: the existing farm map's, else the first recording's first fix)")
-    p.add_argument("--keep-csv", action="store_true", help="keep each replay's estimates.csv")
+    p.add_argument("--keep-csv", action="store_true", help="keep each replay's estimates.csv (the step path)")
+    p.add_argument("--batch", action="store_true",
+                   help="replay on the batch path: the same estimates kept as arrays, Parquet at full precision, "
+                        "no estimates.csv (the daemon's step path otherwise)")
     p.add_argument("--format", action="append", default=None, choices=FORMATS_ALL,
                    help="farm map export format (repeatable; default: all)")
     p.add_argument("--no-diagnose", action="store_true", help="drift: only the replay's series")
@@ -93,7 +96,8 @@ def run(args: argparse.Namespace) -> int:
         kw = dict(client=client, retries=args.retries, stream=stream, refs=refs)
         if args.action in ("replay", "map", "drift"):
             recs = runner.run_kind("replay", args.source, args.out, rate_hz=args.rate,
-                                   estimate_rate_hz=args.estimate_rate_hz, origin=origin, keep_csv=args.keep_csv, **kw)
+                                   estimate_rate_hz=args.estimate_rate_hz, origin=origin, keep_csv=args.keep_csv,
+                                   batch=args.batch, **kw)
             failed += [r for r in recs if r.get("status") != "ok"]
             hours = sum(float(r.get("hours") or 0.0) for r in recs if r.get("status") == "ok")
             print(f"replay: {len(recs) - len(failed)}/{len(recs)} recordings, {hours:.2f} h; "

@@ -180,10 +180,12 @@ def _update_table(path: Path, rows: list[dict[str, Any]], columns: tuple[str, ..
 def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = None, retries: int = DEFAULT_RETRIES,
              rate_hz: float = 100.0, estimate_rate_hz: float = 1.0, origin: tuple[float, float] | None = None,
              keep_csv: bool = False, stream: TextIO | None = sys.stderr,
-             refs: Sequence[RecordingRef] | None = None) -> list[dict[str, Any]]:
+             refs: Sequence[RecordingRef] | None = None, batch: bool = False) -> list[dict[str, Any]]:
     """Run ``kind`` (``replay`` or ``diagnose``) over every recording of ``source`` into ``out``; update
     ``recordings.parquet``, ``failures.parquet`` and, for diagnosis, ``diagnosis.parquet``.  Returns the
-    task records."""
+    task records.  ``batch``: replay on the batch path (:mod:`tractionecu.estimation.batch`: the same
+    estimates, kept as arrays, Parquet written from them at full precision, no ``estimates.csv``;
+    ``keep_csv`` takes the step path)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     refs = list(refs) if refs is not None else discover(source, exclude=out)
@@ -196,7 +198,8 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
             raise ConfigError(f"--estimate-rate-hz: must be >= 0, got {estimate_rate_hz}")
         org = farm_origin(out, refs, origin)
         options: dict[str, Any] = {"rate_hz": float(rate_hz), "estimate_rate_hz": float(estimate_rate_hz),
-                                   "origin": list(org) if org is not None else None, "keep_csv": bool(keep_csv)}
+                                   "origin": list(org) if org is not None else None, "keep_csv": bool(keep_csv),
+                                   "batch": bool(batch)}
     elif kind == "diagnose":
         options = {}
     else:

@@ -159,26 +159,34 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
     from .sources import field_of_fix
 
     rate = float(options.get("rate_hz", 100.0))
-    summary, rec, res = replay_to_dir(ref["path"], tdir / "replay", rate_hz=rate, write_map=True,
-                                      keep_arrays=False)
+    est_rate = float(options.get("estimate_rate_hz", 1.0))
+    if options.get("batch", False) and not options.get("keep_csv", False):
+        summary, rec, map_arrays, gps_mask, rows = _replay_batch(ref["path"], tdir / "replay", rate, est_rate)
+    else:
+        summary, rec, res = replay_to_dir(ref["path"], tdir / "replay", rate_hz=rate, write_map=True,
+                                          keep_arrays=False)
+        map_arrays, gps_mask, rows = res.arrays, res.gps_mask, None
     gps = rec.gps
     ok = np.isfinite(gps.lat) & np.isfinite(gps.lon) if len(gps) else np.zeros(0, bool)
     field = ref.get("field") or (field_of_fix(float(gps.lat[ok][0]), float(gps.lon[ok][0])) if ok.any() else "")
     # named by the content, not the key: a re-run under a new software version replaces the file
     part = f"machine={_safe(ref['machine'])}/date={_safe(ref['date'])}/{chash[:24]}.parquet"
     ident = {"recording": ref["path"], "recording_hash": chash, "field": field}
-    csv_path = Path(summary["estimates_csv"])
-    est = fstore.estimates_csv_to_parquet(csv_path, out / "estimates" / part, float(options.get("estimate_rate_hz", 1.0)),
-                                            ident)
-    if not options.get("keep_csv", False):
-        csv_path.unlink()
+    if rows is not None:
+        est = estimates_arrays_to_parquet(rows, out / "estimates" / part, ident)
+        est.update(steps=summary["steps_finite"], valid_steps=summary["valid_steps"])
+    else:
+        csv_path = Path(summary["estimates_csv"])
+        est = fstore.estimates_csv_to_parquet(csv_path, out / "estimates" / part, est_rate, ident)
+        if not options.get("keep_csv", False):
+            csv_path.unlink()
     origin = options.get("origin")
     n_map = 0
     rho = {"rho_s_mean": math.nan, "rho_s_hw95": math.nan, "rho_s_blocks": 0}
-    if origin is not None and ok.any() and len(res.arrays["t"]):
+    if origin is not None and ok.any() and len(map_arrays["t"]):
         fdir = tdir / "farm_map"
         with MapStore(fdir, float(origin[0]), float(origin[1])) as st:
-            write_replay_map(tdir, rec, res.arrays, gps_mask=res.gps_mask, store=st)
+            write_replay_map(tdir, rec, map_arrays, gps_mask=gps_mask, store=st)
         st = MapStore.open(fdir, read_only=True)
         n_map = fstore.map_samples_to_parquet(st, out / "map_samples" / part, ident)
         fstore.contributors_of(st, ref["machine"], ref["date"], fdir / "contributors.parquet")
@@ -196,6 +204,71 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
         row[f"radius_hw95_{axle}"] = _f(a.get("halfwidth95"))
         row[f"radius_blocks_{axle}"] = int(a.get("blocks") or 0)
     return row
+
+
+def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float
+                  ) -> tuple[dict[str, Any], Any, dict[str, Any], np.ndarray, dict[str, Any]]:
+    """The batch path (:func:`tractionecu.estimation.batch.replay_batch_rows`): the estimates at ``est_rate``
+    and the map's steps as arrays, no ``estimates.csv``; ``config.toml`` and the recording's own map in
+    ``run_dir`` as :func:`~tractionecu.pipeline.replay.replay_to_dir` writes them.  Returns (summary, recording,
+    map arrays, GNSS mask, rows)."""
+    from ..estimation.batch import replay_batch_rows
+    from ..estimation.config import EstimatorConfig
+    from ..mapping.from_replay import write_replay_map
+    from ..pipeline.gnss import GnssGate
+    from ..pipeline.replay import machine_of, resolved_config
+
+    b = replay_batch_rows(path, rate_hz=rate, estimate_rate_hz=est_rate)
+    rec = b["recording"]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    vehicle, sensors = machine_of(rec)
+    (run_dir / "config.toml").write_text(resolved_config(vehicle, sensors, EstimatorConfig(), rate, GnssGate()),
+                                         encoding="utf-8")
+    summary = {"steps": b["steps"], "sim_seconds": b["sim_seconds"], "loop_seconds": b["loop_seconds"],
+               "steps_finite": b["steps_finite"], "valid_steps": b["valid_steps"],
+               "radius_calibration": b["radius_calibration"],
+               **write_replay_map(run_dir, rec, b["map"], gps_mask=b["gps_mask"])}
+    return summary, rec, b["map"], b["gps_mask"], b["rows"]
+
+
+def estimates_arrays_to_parquet(rows: dict[str, Any], out_path: Path, ident: dict[str, str]) -> dict[str, int]:
+    """Estimates as arrays (:func:`tractionecu.estimation.batch.replay_batch_rows`' ``rows``) to Parquet with
+    the schema of :func:`.store.estimates_csv_to_parquet` (the columns of ``estimates.csv`` and ``ident``),
+    at full precision (the step path's went through the text of ``estimates.csv``); returns ``rows``."""
+    import pyarrow as pa
+
+    from ..model.vehicle import STATE_NAMES, WHEELS
+    from ..pipeline.replay import CSV_COLUMNS
+
+    n = int(rows["t"].size)
+    cols: dict[str, Any] = {"t": rows["t"], "rho_s": rows["rho_s"], "a": rows["a"], "v": rows["v"],
+                            "nis": rows["nis"], "adapt": rows["adapt"], "sigma_rho_s": rows["sigma_rho_s"]}
+    for name, pre in (("mu", "mu"), ("slip", "slip"), ("omega", "omega"), ("sigma_mu", "sigma_mu")):
+        for j, w in enumerate(WHEELS):
+            cols[f"{pre}_{w}"] = rows[name][:, j]
+    for j, sn in enumerate(STATE_NAMES):
+        cols[f"var_{sn}"] = rows["P_diag"][:, j]
+    for name, pre in (("radius_scale", "scale"), ("radius_halfwidth", "hw95"), ("radius_applied", "applied")):
+        for j, ax in enumerate(("front", "rear")):
+            cols[f"radius_{pre}_{ax}"] = rows[name][:, j]
+    arrays = []
+    for c in CSV_COLUMNS:
+        if c in ("soil_class", "curve_path"):
+            arrays.append(pa.array([str(x) for x in rows[c]], pa.string()))
+        elif c in ("nis_dof", "status"):
+            arrays.append(pa.array(np.asarray(rows[c], dtype=np.int64), pa.int64()))
+        elif c == "valid":
+            arrays.append(pa.array(np.asarray(rows[c], dtype=bool), pa.bool_()))
+        else:
+            arrays.append(pa.array(np.ascontiguousarray(cols[c], dtype=np.float64), pa.float64()))
+    names = list(CSV_COLUMNS)
+    for k in ("recording", "recording_hash", "field"):
+        arrays.append(pa.array([ident.get(k, "")] * n, pa.string()))
+        names.append(k)
+    from . import store as fstore
+
+    fstore._atomic_parquet(pa.Table.from_arrays(arrays, names=names), out_path)
+    return {"rows": n}
 
 
 def _f(x: Any) -> float:
