@@ -12,12 +12,16 @@ pair, in a tree ``<machine>/<date>/run<seed>`` (kept in ``--work`` and reused). 
 3. the farm map: the merged map of two machines' recordings (their per-recording maps from the
    2-worker run, merged cell by cell) against one map store fed by both replays in sequence
    (:func:`tractionecu.mapping.from_replay.write_replay_map` into one store): the largest differences
-   of count, mean and variance per cell.
+   of count, mean and variance per cell;
+4. batch replay against the step path (``benchmarks/batch_replay.py``'s figures on the season's first
+   recording: CPU time of each path, real time per core, their ratio, the largest difference of the
+   estimates); ``--batch`` runs the fleet replays above on the batch path.
 
 Prints the load average beside every wall time: on a shared machine the scaling figure measures the
 other jobs as much as the fleet code.
 
     python benchmarks/fleet.py [--recordings 64] [--machines 4] [--duration 300] [--work DIR] [--json OUT]
+                               [--batch] [--batch-repeat 3]
 """
 
 from __future__ import annotations
@@ -73,7 +77,7 @@ def _warm(path: str, out: str) -> int:
     return os.getpid()
 
 
-def run_fleet(season: Path, out: Path, workers: int, memory_limit: str, warm_rec: Path) -> dict:
+def run_fleet(season: Path, out: Path, workers: int, memory_limit: str, warm_rec: Path, batch: bool = False) -> dict:
     from tractionecu.fleet import runner
 
     client = runner.make_client(workers, memory_limit)
@@ -81,7 +85,7 @@ def run_fleet(season: Path, out: Path, workers: int, memory_limit: str, warm_rec
         client.run(lambda: _warm(str(warm_rec), tempfile.mkdtemp(prefix="fleet_warm_")))
         load0 = _load()
         t0 = time.perf_counter()
-        recs = runner.run_kind("replay", season, out, client=client, stream=sys.stderr)
+        recs = runner.run_kind("replay", season, out, client=client, stream=sys.stderr, batch=batch)
         wall = time.perf_counter() - t0
         load1 = _load()
     finally:
@@ -134,6 +138,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--memory-limit", default="1GiB", help="memory limit per worker")
     ap.add_argument("--work", type=Path, default=None, help="directory for the season and outputs (kept)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--batch", action="store_true", help="run the fleet replays on the batch path")
+    ap.add_argument("--batch-repeat", type=int, default=3, help="rounds of the batch-vs-step comparison")
     a = ap.parse_args(argv)
     from tractionecu.fleet import runner
     from tractionecu.fleet.tasks import software_version
@@ -155,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         out = work / f"out_{w}w"
         if out.exists():
             shutil.rmtree(out)
-        r = run_fleet(season, out, w, a.memory_limit, warm)
+        r = run_fleet(season, out, w, a.memory_limit, warm, a.batch)
         runs[w] = r
         print(f"{w} worker(s): {r['ok']}/{r['recordings']} recordings, {r['hours']:.3f} h in {r['wall_s']:.1f} s wall "
               f"({r['realtime_factor']:.0f}x real time), task CPU {r['task_cpu_s']:.1f} s, peak RSS per worker "
@@ -176,15 +182,26 @@ def main(argv: list[str] | None = None) -> int:
         print(f"merged map of {mc['machines'][0]} and {mc['machines'][1]} ({mc['cells']} cells) vs one map fed by "
               f"both replays in sequence: max |count diff| {mc['count']:.0f}, max |mean diff| {mc['mean']:.3g}, "
               f"max |var diff| {mc['var']:.3g}, cells in one only {mc['cells_only_in_one']:.0f} (target <= 1e-9)")
-    print(f"batch replay >= 1000x real time per core: not built (the step path runs at "
+    print(f"the fleet runs above: {'batch' if a.batch else 'step'} path, "
           f"{runs[1]['hours'] * 3600 / max(runs[1]['task_cpu_s'], 1e-9):.0f}x real time per CPU second of the "
-          f"1-worker run)")
+          f"1-worker run's tasks")
+    # batch replay against the step path in this run, on the season's first recording (benchmarks/batch_replay.py)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    import batch_replay
+
+    first = sorted(season.glob("*/*/run*"))[0]
+    bm = batch_replay.measure(first, repeat=a.batch_repeat)
+    print(f"batch replay vs step path on {first.relative_to(season)} ({bm['span_s']:.0f} s; best CPU time of "
+          f"{a.batch_repeat}):")
+    for line in batch_replay.report(bm):
+        print("  " + line)
     print(_load())
     if a.json:
         for r in runs.values():
             r.pop("records")
         a.json.write_text(json.dumps({"runs": {str(k): v for k, v in runs.items()}, "scaling_efficiency": eff,
-                                      "peak_rss_mb_per_worker": peak, "merge_check": mc}, indent=1))
+                                      "peak_rss_mb_per_worker": peak, "merge_check": mc, "batch_vs_step": bm},
+                                     indent=1))
     return 0
 
 

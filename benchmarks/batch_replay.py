@@ -1,0 +1,172 @@
+"""Batch replay against the step path, in one run: speed per core (CPU time) and the largest difference.
+
+On one simulated ``paper-three-soils`` recording (``--seed``, ``--duration``; kept in ``--work``), best
+of ``--repeat`` rounds, the two paths alternating within each round, timed by ``time.process_time``
+(CPU seconds of this process: the machine's other jobs inflate it far less than wall time; the load
+average is printed beside):
+
+* ``engine``: the recording decoded once in memory, then :func:`tractionecu.pipeline.replay.replay`
+  (the step path's loop and sink) against :func:`tractionecu.estimation.batch.replay_batch`;
+* ``path``: from the recording's path, what ``tractionecu replay`` and the fleet run:
+  :func:`~tractionecu.pipeline.replay.replay_to_dir` (streamed decoding, the 100 Hz loop,
+  ``estimates.csv``, the map) against :func:`~tractionecu.estimation.batch.replay_batch_rows` (streamed
+  decoding, the loop, the 1 Hz rows and the map's steps) and the map;
+* ``fleet task``: :func:`tractionecu.fleet.tasks.replay_task` on each path (Parquet, the farm-frame
+  map), when pyarrow is installed.
+
+Real time per core = the recording's span / CPU seconds.  The equality line is the batch path's
+contract: the largest absolute difference over every estimate column between the two ``engine`` runs
+(target 1e-9).
+
+    python benchmarks/batch_replay.py [--duration 60] [--seed 0] [--repeat 3] [--work DIR] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+TARGET_X = 1000.0
+TARGET_DIFF = 1e-9
+
+
+def _load() -> str:
+    a, b, c = os.getloadavg()
+    return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
+
+
+def _simulate(out: Path, seed: int, duration: float) -> None:
+    from tractionecu.sim import scenarios
+    from tractionecu.sim.simulator import simulate
+    from tractionecu.sim.writer import write_recording
+
+    scn = scenarios.get("paper-three-soils", seed=seed, duration_s=duration)
+    tmp = out.with_name(out.name + ".tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    write_recording(scn, simulate(scn), tmp)
+    os.replace(tmp, out)
+
+
+def _cpu(fn: Callable[[], Any]) -> tuple[float, float, Any]:
+    w0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return time.process_time() - c0, time.perf_counter() - w0, out
+
+
+def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
+    """The figures of the module doc on the recording at ``path`` (a directory with can.log)."""
+    from tractionecu.estimation import _kernels
+    from tractionecu.estimation.batch import max_differences, replay_batch, replay_batch_rows
+    from tractionecu.mapping.from_replay import write_replay_map
+    from tractionecu.pipeline.replay import replay, replay_to_dir
+    from tractionecu.recording.reader import read_recording
+
+    _kernels.warm_up()
+    scratch = Path(tempfile.mkdtemp(prefix="batch_bench_"))
+    rec = read_recording(path)
+    step_res = replay(rec)                                  # also warms both paths' first-use costs
+    span = step_res.sim_seconds
+    batch_res = replay_batch(rec)
+    diff = max_differences(step_res.arrays, batch_res.arrays)
+
+    def path_step() -> Any:
+        return replay_to_dir(path, scratch / "step", keep_arrays=False)
+
+    def path_batch() -> Any:
+        b = replay_batch_rows(path)
+        write_replay_map(scratch / "batch", b["recording"], b["map"], gps_mask=b["gps_mask"])
+        return b
+
+    cases: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
+        "engine": (lambda: replay(rec), lambda: replay_batch(rec)),
+        "path": (path_step, path_batch),
+    }
+    if fleet:
+        try:
+            import pyarrow  # noqa: F401
+
+            from tractionecu.fleet.tasks import replay_task
+
+            ref = {"path": str(path), "machine": "m", "date": "2026-07-01", "field": "f"}
+
+            def task(batch: bool) -> Callable[[], Any]:
+                def run() -> Any:
+                    d = Path(tempfile.mkdtemp(dir=scratch))
+                    (d / "task").mkdir()
+                    return replay_task(ref, "k", "0" * 64, d / "task", d, {
+                        "rate_hz": 100.0, "estimate_rate_hz": 1.0, "origin": [52.0, 13.0], "batch": batch})
+                return run
+
+            cases["fleet task"] = (task(False), task(True))
+        except ImportError:
+            pass
+    out: dict[str, Any] = {"recording": str(path), "span_s": span, "steps": step_res.steps,
+                           "max_abs_diff": max(diff.values()), "diff_per_column": diff, "cases": {}}
+    for name, (fs, fb) in cases.items():
+        best = {"step": (float("inf"), 0.0), "batch": (float("inf"), 0.0)}
+        load0 = _load()
+        for _ in range(repeat):
+            for kind, fn in (("step", fs), ("batch", fb)):
+                cpu, wall, _ = _cpu(fn)
+                if cpu < best[kind][0]:
+                    best[kind] = (cpu, wall)
+        out["cases"][name] = {k: {"cpu_s": c, "wall_s": w, "x_per_core": span / c} for k, (c, w) in best.items()}
+        out["cases"][name]["load_before"] = load0
+        out["cases"][name]["load_after"] = _load()
+    shutil.rmtree(scratch, ignore_errors=True)
+    return out
+
+
+def report(m: dict[str, Any]) -> list[str]:
+    """The printed lines of :func:`measure`'s figures."""
+    lines = []
+    for name, c in m["cases"].items():
+        s, b = c["step"], c["batch"]
+        lines.append(f"{name}: step path {s['cpu_s']:.2f} s CPU ({s['x_per_core']:.0f}x real time per core; wall "
+                     f"{s['wall_s']:.2f} s), batch {b['cpu_s']:.2f} s CPU ({b['x_per_core']:.0f}x; wall "
+                     f"{b['wall_s']:.2f} s): batch / step {s['cpu_s'] / b['cpu_s']:.2f}; {c['load_before']} before, "
+                     f"{c['load_after']} after")
+    worst = max(m["diff_per_column"].items(), key=lambda kv: kv[1])
+    lines.append(f"batch vs step estimates, {m['steps']} steps, {len(m['diff_per_column'])} columns: max |diff| "
+                 f"{m['max_abs_diff']:.3g} (column {worst[0]}; target <= {TARGET_DIFF:g})")
+    x = m["cases"]["path"]["batch"]["x_per_core"]
+    lines.append(f"batch replay >= {TARGET_X:.0f}x real time per core: {x:.0f}x from the recording's path "
+                 f"({'met' if x >= TARGET_X else 'not met'}; step path {m['cases']['path']['step']['x_per_core']:.0f}x "
+                 f"in the same run)")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds of paper-three-soils")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=3, help="rounds (best CPU time of each path)")
+    ap.add_argument("--work", type=Path, default=None, help="directory for the recording (kept, reused)")
+    ap.add_argument("--no-fleet", action="store_true", help="skip the fleet task case")
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args(argv)
+    work = a.work or Path(tempfile.mkdtemp(prefix="batch_replay_"))
+    work.mkdir(parents=True, exist_ok=True)
+    rec = work / f"paper-three-soils_s{a.seed}_{int(a.duration)}s"
+    if not (rec / "can.log").is_file():
+        _simulate(rec, a.seed, a.duration)
+    print(f"batch replay benchmark: paper-three-soils seed {a.seed}, {a.duration:.0f} s; best CPU time of "
+          f"{a.repeat}; {_load()}", flush=True)
+    m = measure(rec, a.repeat, fleet=not a.no_fleet)
+    for line in report(m):
+        print(line, flush=True)
+    print(_load())
+    if a.json:
+        a.json.write_text(json.dumps(m, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
