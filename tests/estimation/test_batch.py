@@ -56,6 +56,14 @@ def test_batch_equals_step_path_in_every_column(three_soils, step_result):
     assert np.array_equal(batch.gps_mask, step_result.gps_mask)
 
 
+def test_batch_equals_step_path_on_an_engine_driven_tractor(make_recording):
+    """The machine-level estimator (engine-driven vehicle file) through the batch path: the same estimates."""
+    rec = read_recording(make_recording("mechanical-three-soils", 0, 10.0))
+    a, b = replay(rec).arrays, replay_batch(rec).arrays
+    assert a["t"].size > 800 and np.isfinite(b["mu"]).any()
+    _assert_equal(a, b)
+
+
 def test_batch_streamed_from_the_path_equals_step_path(three_soils, step_result):
     """Given the recording's path, the batch path decodes the capture block by block (as replay_to_dir)."""
     batch = replay_batch(three_soils)
