@@ -309,7 +309,7 @@ class GpsSpeedChannel(Channel):
                                     "torque_offset", "draft_offset", "axle_load_offset", "clock_skew"}),
                          fr.t[rows], rows.astype(np.int64), feat.fold[rows], "slow speed correction b(t), cubic spline")
         self.rows_idx = rows
-        self.B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True)[rows]
+        self.B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)[rows]
         self.y = feat.v_gps[rows]
         self.theta = np.nan_to_num(feat.theta) if feat.theta is not None else np.zeros(fr.n)
         self._qr: dict[bytes, tuple] = {}

@@ -92,6 +92,9 @@ class Frame:
     samples per bin cannot be centred exactly); GNSS values are at the grid times."""
     source: str = ""
     notes: list[str] = field(default_factory=list)
+    break_t: tuple[float, ...] = ()
+    """Times t [s] at which the recording starts again after a break (the logger off, or the track
+    jumping elsewhere; :func:`~.features.find_breaks`): no fit or residual spans one."""
 
     @property
     def n(self) -> int:

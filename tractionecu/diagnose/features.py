@@ -23,6 +23,7 @@ Everything is computed from recorded signals and the nominal vehicle file:
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -47,6 +48,14 @@ FOLD_BLOCK_S = 40.0
 """Length of the alternating time blocks that form the two held-out folds [s]."""
 MOVING_MPS = 0.5
 """Below this speed [m/s] samples are not used (slip and grade undefined)."""
+BREAK_GAP_S = 5.0
+"""A stretch this long [s] without any sample (CAN or GNSS) is a break in the recording: the logger
+was off, and the machine may have been driven or stood anywhere meanwhile."""
+BREAK_JUMP_M = 5.0
+"""A GNSS position step longer [m] than the speed allows by this much is a break too (the recording
+restarts elsewhere without a gap in time: a logger restart, joined files)."""
+BREAK_MARGIN_S = 2.0
+"""Samples this close to a break [s] are not used (filters and windows would reach across it)."""
 
 
 @dataclass
@@ -152,13 +161,16 @@ def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
 
 
 def spline_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float64] | None = None,
-                 sparse: bool = False):
+                 sparse: bool = False, breaks: tuple[float, ...] = ()):
     """Cubic B-spline design matrix with knots every ``knot_s`` [s] over the span of ``t``,
-    evaluated at ``t_eval`` (default ``t``; clamped to the span).
+    evaluated at ``t_eval`` (default ``t``; clamped to the span); with ``breaks`` (times at which
+    the recording starts again) one independent basis per piece (:func:`_piecewise_basis`).
 
     Each row has at most four non-zeros; ``sparse`` returns it as a CSR matrix (its dense form has
     one column per ``knot_s`` of the recording, so it grows with the square of the length: a
     4-hour recording at 10 Hz would need 5.5 GB)."""
+    if breaks:
+        return _piecewise_basis(t, knot_s, t if t_eval is None else t_eval, breaks, sparse)
     t0, t1 = float(np.min(t)), float(np.max(t))
     nk = max(int(math.ceil((t1 - t0) / knot_s)), 1)
     inner = np.linspace(t0, t1, nk + 1)
@@ -167,6 +179,33 @@ def spline_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float
     tt = np.clip(t if t_eval is None else t_eval, t0, t1)
     B = BSpline.design_matrix(tt, knots, k)
     return csr_matrix(B) if sparse else B.toarray()
+
+
+def _piecewise_basis(t: NDArray[np.float64], knot_s: float, t_eval: NDArray[np.float64],
+                     breaks, sparse: bool):
+    """One independent cubic B-spline basis per piece between ``breaks`` (times at which a piece
+    starts): the columns of a piece are zero outside it, so a fit is free to jump at a break.  Each
+    point of ``t_eval`` belongs to the piece holding it and is clamped to that piece's span of ``t``."""
+    from scipy.sparse import coo_matrix
+
+    edges = np.concatenate([[-np.inf], np.sort(np.asarray(breaks, dtype=float)), [np.inf]])
+    piece_t = np.searchsorted(edges, t, side="right") - 1
+    piece_e = np.searchsorted(edges, t_eval, side="right") - 1
+    rows, cols, vals = [], [], []
+    off = 0
+    for j in range(edges.size - 1):
+        tj = t[piece_t == j]
+        if tj.size == 0:
+            continue
+        ej = np.flatnonzero(piece_e == j)
+        Bj = spline_basis(tj, knot_s, t_eval=t_eval[ej], sparse=True).tocoo()
+        rows.append(ej[Bj.row])
+        cols.append(Bj.col + off)
+        vals.append(Bj.data)
+        off += Bj.shape[1]
+    B = csr_matrix(coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                              shape=(t_eval.size, off)))
+    return B if sparse else B.toarray()
 
 
 SPLINE_RIDGE = 1e-9
@@ -238,13 +277,13 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     if fr.can_time_offset_s:
         v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
     ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
-    B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True)
+    B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)
     model = delayed(fr.t, v_int, tau_s) if tau_s else v_int
     sf = SplineFit(B[ok])
     beta = sf.coef(fr.v_gps[ok] - model[ok])
     cols = np.flatnonzero(sf.cols)
     if tau_s:
-        B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s, sparse=True)
+        B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s, sparse=True, breaks=fr.break_t)
     return v_int + B[:, cols] @ beta
 
 
@@ -533,8 +572,11 @@ def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
     for i in range(4):
         others = [j for j in range(4) if j != i]
         oth = om[:, others]
-        moving = np.all(np.isfinite(oth), axis=1) & (np.nanmin(np.abs(oth), axis=1) > HOLD_MOVING_RADPS)
-        med = np.nanmedian(np.abs(oth), axis=1)
+        fin = np.isfinite(oth)
+        moving = np.all(fin, axis=1) & (np.min(np.abs(np.where(fin, oth, np.inf)), axis=1) > HOLD_MOVING_RADPS)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # rows without any wheel speed (logger off): NaN
+            med = np.nanmedian(np.abs(oth), axis=1)
         wi = om[:, i]
         missing = ~np.isfinite(wi)
         zero = np.isfinite(wi) & (np.abs(wi) < 0.05 * med)
@@ -561,6 +603,45 @@ def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
     if out and fr.omega_dot is not None:
         fr.omega_dot[bad] = np.nan   # recomputed from the repaired speeds below
     return out, bad
+
+
+def _recorded(fr: Frame) -> NDArray[np.bool_]:
+    """Rows with a sample of any recorded signal (wheel speeds, torques, measured front-axle load,
+    draft, GNSS)."""
+    seen = np.zeros(fr.n, dtype=bool)
+    for a in (fr.omega, fr.md, None if fr.fzf_modelled else fr.fzf, fr.fdx, fr.v_gps, fr.x):
+        if a is not None:
+            f = np.isfinite(a)
+            seen |= f.any(axis=1) if f.ndim == 2 else f
+    return seen
+
+
+def find_breaks(fr: Frame) -> NDArray[np.int64]:
+    """Rows at which the recording starts again after a break (ascending):
+
+    - the first sample after at least :data:`BREAK_GAP_S` without any sample of the wheel speeds,
+      torques, front-axle load, draft or GNSS (the logger was off);
+    - a GNSS fix farther than the speed allows from the fix before it (within :data:`BREAK_GAP_S`),
+      distance > (max |v| + 1 m/s) Δt + :data:`BREAK_JUMP_M` with v the GNSS speed at both fixes:
+      the track restarts elsewhere without a gap in time.
+
+    A real day's log has both (a logger switched off over a break, a restart after a fault); across
+    a break the drive does not continue, so nothing is fitted or compared across it."""
+    seen = _recorded(fr)
+    out: list[int] = []
+    idx = np.flatnonzero(seen)
+    if idx.size > 1:
+        gap = np.diff(fr.t[idx])
+        out += idx[1:][gap >= BREAK_GAP_S].tolist()
+    if fr.x is not None and fr.y is not None:
+        fix = np.flatnonzero(np.isfinite(fr.x) & np.isfinite(fr.y))
+        if fix.size > 1:
+            dt = np.diff(fr.t[fix])
+            d = np.hypot(np.diff(fr.x[fix]), np.diff(fr.y[fix]))
+            v = np.abs(np.nan_to_num(fr.v_gps[fix])) if fr.v_gps is not None else np.zeros(fix.size)
+            allowed = (np.maximum(v[1:], v[:-1]) + 1.0) * dt + BREAK_JUMP_M
+            out += fix[1:][(dt < BREAK_GAP_S) & (d > allowed)].tolist()
+    return np.unique(np.asarray(out, dtype=np.int64))
 
 
 def compute(fr: Frame) -> Features:
@@ -593,6 +674,21 @@ def compute(fr: Frame) -> Features:
     if have_wheels:
         valid &= np.all(np.isfinite(fr.omega), axis=1) & np.all(np.isfinite(fr.md), axis=1) & np.isfinite(fr.fzf)
     valid &= ~fault_rows
+    brk = find_breaks(fr)
+    near_break = np.zeros(n, dtype=bool)
+    if brk.size:
+        fr.break_t = tuple(float(x) for x in fr.t[brk])
+        m = int(math.ceil(BREAK_MARGIN_S * fr.rate_hz))
+        seen = np.flatnonzero(_recorded(fr))
+        for b in brk:
+            # From the margin before the last sample ahead of the break to the margin after it.
+            j = int(np.searchsorted(seen, b))
+            last = int(seen[j - 1]) if j > 0 else int(b) - 1
+            near_break[max(last + 1 - m, 0):b + m] = True
+        valid &= ~near_break
+        notes.append(f"{brk.size} break(s) in the recording (the logger off for {BREAK_GAP_S:g} s or more, or the "
+                     f"track restarting elsewhere) at t = " + ", ".join(f"{x:.1f}" for x in fr.break_t[:5])
+                     + (" ..." if brk.size > 5 else "") + " s: nothing is fitted or compared across them")
     omega_dot = None
     if have_wheels:
         omega_dot = fr.omega_dot if fr.omega_dot is not None else smooth_derivative(np.nan_to_num(fr.omega), fr.dt)
@@ -624,7 +720,7 @@ def compute(fr: Frame) -> Features:
     segment = np.full(n, -1, dtype=np.int64)
     if fr.work is not None:
         k = 0
-        for a, b in runs(fr.work):
+        for a, b in runs(fr.work & ~near_break):
             if (b - a) * fr.dt >= 5.0:
                 segment[a:b] = k
                 k += 1

@@ -1,10 +1,13 @@
-"""A long recording made of a short one repeated back to back (benchmarks and memory tests).
+"""A long recording made of a short one repeated (benchmarks and memory tests).
 
-Each copy's CAN times move on by the span of the copies before it, and its NMEA sentences' UTC time
-(and date, where a sentence carries one) by the same amount, with the checksums recomputed, so the
-whole reads as one continuous drive over the same field: a working day's length from a
-seven-minute simulation, in the same formats a logger writes (``can.log`` candump ``-L``,
-``gps.nmea``).  The vehicle file is copied; truth files are not.
+Each copy's CAN times move on by the span of the copies before it plus a break, and its NMEA
+sentences' UTC time (and date, where a sentence carries one) by the same amount, with the checksums
+recomputed: a working day's length from a seven-minute simulation, in the same formats a logger
+writes (``can.log`` candump ``-L``, ``gps.nmea``).  A day's log is work periods with the logger off
+between them, and the machine may stand anywhere when it starts again; so here, where each copy
+starts back at the first copy's start point and speed, the copies are ``gap_s`` apart (time runs
+on, nothing is logged), not joined as if the machine jumped mid-drive.  The vehicle file is copied;
+truth files are not.
 """
 
 from __future__ import annotations
@@ -48,10 +51,16 @@ def nmea_shift(line: str, shift_s: float) -> str:
     return f"${body}*{ck:02X}"
 
 
-def concatenate(src: str | Path, dst: str | Path, seconds: float) -> float:
+GAP_S = 10.0
+"""Default time between copies with nothing logged [s]: the logger restarted between work periods."""
+
+
+def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float = GAP_S) -> float:
     """``dst``: copies of the recording ``src`` (candump ``-L`` ``can.log``, ``gps.nmea``,
-    ``vehicle.toml``) back to back until about ``seconds`` [s] are recorded (at least one copy);
-    returns the recorded length [s].  Copies follow each other one CAN frame period (10 ms) apart."""
+    ``vehicle.toml``) one after the other until about ``seconds`` [s] are recorded (at least one
+    copy); returns the recorded length [s] (without the gaps).  A copy starts ``gap_s`` [s] after the
+    last CAN frame of the one before (at least one CAN frame period, 10 ms, the copies then joined
+    as if the drive went on)."""
     src, dst = Path(src), Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
     if (src / "vehicle.toml").is_file():
@@ -61,14 +70,15 @@ def concatenate(src: str | Path, dst: str | Path, seconds: float) -> float:
     t = [float(ln[1:ln.index(")")]) for ln in can]
     rest = [ln[ln.index(")") + 1:] for ln in can]
     span = t[-1] - t[0] + 0.01
+    step = span + max(gap_s - 0.01, 0.0)
     copies = max(1, round(seconds / span))
     with open(dst / "can.log", "w") as fc:
         for c in range(copies):
-            sh = c * span
+            sh = c * step
             fc.write("".join(f"({x + sh:017.6f}){r}\n" for x, r in zip(t, rest)))
     if nmea:
         with open(dst / "gps.nmea", "w") as fg:
             for c in range(copies):
-                sh = c * span
+                sh = c * step
                 fg.write("".join((nmea_shift(ln, sh) if c else ln) + "\n" for ln in nmea))
     return copies * span
