@@ -35,7 +35,7 @@ from . import data as _data
 from .candidates import CANDIDATES, NOMINAL
 from .channels import MU0_NOMINAL, Channel, build_channels
 from .features import Features, compute
-from .fit import FitResult, HeldOut, Problem, fit, held_out, restrict, score
+from .fit import FitResult, HeldOut, Problem, fit, held_out, refine_intervals, restrict, score
 from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, nis_coverage, noise_sigma, regimes
 
 DETECT_LLR = 10.0
@@ -309,6 +309,8 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         faults = [n for n in chosen if not _healthy(n, joint)]
         if verdict == "effect" and effect not in faults:
             verdict, effect = ("effect", faults[0]) if faults else ("none", None)
+        # The reported fit's intervals: profile likelihood and block jackknife (fit.refine_intervals).
+        refine_intervals(problem, joint)
     # Locate: the channel that disagrees most (the winner's strongest channel, else the worst by LB).
     lead = None
     focus = detected[0] if detected else None

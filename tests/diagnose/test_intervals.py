@@ -1,0 +1,209 @@
+"""Calibrated intervals (diagnose/intervals.py, fit.refine_intervals) on synthetic linear models with
+AR(1) residuals, where the coverage of a 95 % interval is known: checked over many seeds."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tractionecu.diagnose import intervals as iv
+from tractionecu.diagnose.channels import Channel
+from tractionecu.diagnose.fit import Problem, fit, refine_intervals
+from tractionecu.diagnose.hac import hac_meat
+
+
+def _ar1(rng, n, rho, sd):
+    w = rng.normal(size=n) * sd
+    e = np.empty(n)
+    e[0] = w[0] / math.sqrt(1 - rho * rho)
+    for i in range(1, n):
+        e[i] = rho * e[i - 1] + w[i]
+    return e
+
+
+# --------------------------------------------------------------------------- profile search
+def test_profile_edge_is_the_sandwich_edge_on_a_quadratic_cost():
+    """ΔP = (v − x̂)²/a: the edge of {ΔP ≤ 3.84 κ} is x̂ ± 1.96 √(κ a), found in two evaluations."""
+    a, kappa, x_hat = 0.04, 2.5, 1.3
+    calls = []
+
+    def delta(v):
+        calls.append(v)
+        return (v - x_hat) ** 2 / a
+
+    half = math.sqrt(iv.CHI2_1_95 * kappa * a)
+    # First step at the sandwich edge (se² = κ a): one evaluation per side.
+    out = iv.profile_interval(delta, x_hat, -10.0, 10.0, se=math.sqrt(kappa * a), kappa=kappa)
+    assert out.lo == pytest.approx(x_hat - half, rel=1e-9)
+    assert out.hi == pytest.approx(x_hat + half, rel=1e-9)
+    assert out.evals == 2
+    # From a first step too short (se² = a): walk out, then interpolate on √ΔP, exact here.
+    out = iv.profile_interval(delta, x_hat, -10.0, 10.0, se=math.sqrt(a), kappa=kappa)
+    assert out.lo == pytest.approx(x_hat - half, rel=1e-9)
+    assert out.hi == pytest.approx(x_hat + half, rel=1e-9)
+    assert out.evals <= 6
+
+
+def test_profile_edge_reaches_the_bound_where_the_cost_is_flat_and_follows_an_asymmetric_cost():
+    # Flat beyond x̂ on the low side (a nuisance that leaves its bound takes the change up): the
+    # interval reaches the library bound and says so.
+    e = iv.profile_edge(lambda v: 0.0 if v < 0.5 else (v - 0.5) ** 2 / 0.01, 0.5, 0.0, 0.05, iv.CHI2_1_95)
+    assert e.at_limit and e.value == 0.0
+    # Steep on one side, shallow on the other: the edges follow the cost, not its curvature at x̂.
+    d = lambda v: (v - 1.0) ** 2 / (0.01 if v > 1.0 else 0.09)  # noqa: E731
+    out = iv.profile_interval(d, 1.0, -5.0, 5.0, se=0.1, kappa=1.0)
+    assert out.hi - 1.0 == pytest.approx(1.959964 * 0.1, rel=0.02)
+    assert 1.0 - out.lo == pytest.approx(1.959964 * 0.3, rel=0.02)
+
+
+def test_profile_likelihood_scaled_by_the_long_run_variance_covers_under_ar1_noise():
+    """OLS of y = β x + γ z + e with AR(1) e (ρ = 0.7) and a regressor correlated with the nuisance z.
+    The profile of β (γ re-fitted at each point) with the cost in units of the residual variance and
+    the threshold χ²₁ κ, κ from the Newey–West sandwich, covers at about 90 % (the Bartlett-kernel
+    long-run variance with an estimated bandwidth is biased low in finite samples, Andrews 1991: the
+    sandwich's own Wald interval covers the same 0.89–0.92 here, 300 seeds); the same profile with
+    κ = 1 (independent residuals assumed) covers about 68 %."""
+    n, seeds = 800, 200
+    hit_hac = hit_iid = 0
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        t = np.arange(n)
+        z = np.sin(t / 50.0) + 0.5 * rng.normal(size=n)
+        x = 0.8 * z + np.cos(t / 31.0) + 0.5 * rng.normal(size=n)
+        y = 2.0 * x - 1.0 * z + _ar1(rng, n, 0.7, 1.0)
+        X = np.column_stack([x, z])
+        b = np.linalg.lstsq(X, y, rcond=None)[0]
+        e = y - X @ b
+        s2 = float(np.mean(e * e))
+        J = X / math.sqrt(s2)                       # Jacobian of the weighted residuals
+        A = J.T @ J
+        a_inv = np.linalg.inv(A)
+        cov = a_inv @ hac_meat(J * (e / math.sqrt(s2))[:, None]) @ a_inv
+        c_hat = float(e @ e) / s2
+
+        def delta(v):
+            r = y - v * x
+            g = float(r @ z) / float(z @ z)             # the nuisance re-fitted
+            rr = r - g * z
+            return float(rr @ rr) / s2 - c_hat
+
+        k = iv.hac_inflation(cov, a_inv, 0)
+        out = iv.profile_interval(delta, float(b[0]), -100.0, 100.0, math.sqrt(cov[0, 0]), k)
+        naive = iv.profile_interval(delta, float(b[0]), -100.0, 100.0, math.sqrt(a_inv[0, 0]), 1.0)
+        hit_hac += out.lo <= 2.0 <= out.hi
+        hit_iid += naive.lo <= 2.0 <= naive.hi
+    assert 0.86 <= hit_hac / seeds <= 0.99
+    assert hit_iid / seeds < 0.8
+    assert hit_hac - hit_iid >= 0.15 * seeds
+
+
+# --------------------------------------------------------------------------- jackknife
+def test_jackknife_of_the_mean_is_the_textbook_standard_error():
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=12)
+    loo = np.array([np.delete(x, i).mean() for i in range(x.size)])
+    assert iv.jackknife_se(loo)[0] == pytest.approx(x.std(ddof=1) / math.sqrt(x.size), rel=1e-12)
+
+
+def test_blocks_disagree_at_the_test_level_when_they_do_not():
+    """Estimates from 8 blocks whose spread is what the sandwich says: flagged about 5 % of the time."""
+    rng = np.random.default_rng(11)
+    flags = 0
+    for _ in range(2000):
+        blocks = rng.normal(size=8)                  # per-block estimates, SE of the full mean 1/√8
+        loo = np.array([np.delete(blocks, i).mean() for i in range(8)])
+        flags += iv.heterogeneous(float(iv.jackknife_se(loo)[0]), 1.0 / math.sqrt(8), 8)
+    assert 0.03 <= flags / 2000 <= 0.07
+
+
+# --------------------------------------------------------------------------- through fit.py
+class _Lin(Channel):
+    """y = scale·x1 + μ·x2 + e with the nuisance μ (bounded to [0, 0.6]) profiled inside the residual,
+    as the slip channel profiles the zero-slip traction ratio μ_0 within its range."""
+
+    def __init__(self, y, x1, x2):
+        t = np.arange(y.size) * 0.5
+        super().__init__("lin", "-", "synthetic", frozenset({"grade"}), t, np.arange(y.size, dtype=np.int64),
+                         np.floor(t / 40.0).astype(np.int64) % 2)
+        self.y, self.x1, self.x2 = y, x1, x2
+
+    def residual(self, eff, rows):
+        s = eff.get("grade", {}).get("scale", 0.0)
+        r = self.y[rows] - s * self.x1[rows]
+        x2 = self.x2[rows]
+        mu = float(np.clip(np.dot(r, x2) / np.dot(x2, x2), 0.0, 0.6))
+        return r - mu * x2
+
+
+def _fit_lin(seed, n=1200, mu_true=0.3, regime_amp=0.0, trade_off=True):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n)
+    x1 = 1.0 + 0.5 * np.sin(t / 37.0) + 0.3 * rng.normal(size=n)
+    x2 = x1 + 0.3 * (np.sin(t / 23.0) + 0.5 * rng.normal(size=n)) if trade_off else 1.0 + 0.3 * rng.normal(size=n)
+    y = 1.0 * x1 + mu_true * x2 + _ar1(rng, n, 0.5, 0.3)
+    if regime_amp:
+        # Not the model: the gain of x1's fluctuation changes from one 100-sample stretch to the next.
+        reg = np.repeat(rng.normal(size=n // 100 + 1), 100)[:n]
+        y = y + regime_amp * reg * (x1 - 1.0)
+    pb = Problem(SimpleNamespace(grade=None), [_Lin(y, x1, x2)])
+    f = fit(pb, "grade")
+    before = f.ci95["scale"]
+    refine_intervals(pb, f)
+    return f, before
+
+
+def _coverage(pairs, truth=1.0):
+    return float(np.mean([lo <= truth <= hi for lo, hi in pairs])), float(np.median([hi - lo for lo, hi in pairs]))
+
+
+def test_refined_interval_covers_where_a_bounded_nuisance_trades_off_without_being_wider():
+    """The ε–μ_0 case: the nuisance trades off with the parameter and its true value (0.05) is near
+    its bound.  The sandwich interval, from the curvature with the nuisance held on the bound, covers
+    about 83 % of 150 seeds; the profile covers at the stated rate, and is not bought by width."""
+    fits = [_fit_lin(s, mu_true=0.05) for s in range(150)]
+    cov_before, w_before = _coverage([b for _, b in fits])
+    cov_after, w_after = _coverage([f.ci95["scale"] for f, _ in fits])
+    assert 0.92 <= cov_after <= 1.0
+    assert cov_before < cov_after
+    assert w_after <= 1.2 * w_before
+    assert all(f.ci95_wald_by["grade"]["scale"] == b for f, b in fits)
+    info = fits[0][0].interval_info
+    assert info["params"]["grade.scale"]["profile_evals"] >= 2 and info["cpu_s"] >= 0.0
+
+
+def test_refined_interval_keeps_the_sandwich_width_where_the_model_holds():
+    """Nuisance away from its bound, the model right: the sandwich is right, and so is the profile
+    (the same interval where the cost is quadratic); the jackknife joins on about 5 % of the seeds."""
+    fits = [_fit_lin(s, mu_true=0.3) for s in range(150)]
+    cov_before, w_before = _coverage([b for _, b in fits])
+    cov_after, w_after = _coverage([f.ci95["scale"] for f, _ in fits])
+    assert 0.92 <= cov_after <= 0.99
+    assert w_after == pytest.approx(w_before, rel=0.05)
+    het = np.mean([f.interval_info["params"]["grade.scale"]["blocks_disagree"] for f, _ in fits])
+    assert het <= 0.12
+
+
+def test_block_jackknife_widens_when_the_plant_is_not_the_model():
+    """A gain that changes from stretch to stretch (not in the model): the sandwich and the profile
+    cover about 65 %; the blocks disagree and the jackknife interval brings coverage to the stated rate."""
+    fits = [_fit_lin(s, mu_true=0.3, regime_amp=0.3, trade_off=False) for s in range(150)]
+    cov_before, _ = _coverage([b for _, b in fits])
+    cov_after, _ = _coverage([f.ci95["scale"] for f, _ in fits])
+    assert cov_before < 0.8
+    assert cov_after >= 0.9
+    assert np.mean([f.interval_info["params"]["grade.scale"]["blocks_disagree"] for f, _ in fits]) >= 0.8
+
+
+def test_an_estimate_on_a_bound_keeps_a_one_sided_interval_reaching_it():
+    rng = np.random.default_rng(5)
+    n = 600
+    x1 = 1.0 + 0.3 * rng.normal(size=n)
+    x2 = 1.0 + 0.3 * rng.normal(size=n)
+    y = -0.5 * x1 + 0.3 * x2 + _ar1(rng, n, 0.5, 0.1)          # scale below its library range [0, 5]
+    pb = Problem(SimpleNamespace(grade=None), [_Lin(y, x1, x2)])
+    f = fit(pb, "grade")
+    assert f.at_bound["grade"]["scale"] == "lower"
+    refine_intervals(pb, f)
+    lo, hi = f.ci95["scale"]
+    assert lo == 0.0 and hi > 0.0
