@@ -516,6 +516,8 @@ def relaxed(s: NDArray, v: NDArray, sigma_m: float, dt: float) -> NDArray:
 
 WHEEL_FORCE_SMOOTH_S = 0.05
 """Centred moving average of the raw-rate slip [s] (removes wheel-speed sensor noise, keeps a few hertz)."""
+HF_CHUNK_ROWS = 8192
+"""Frame rows whose raw-rate samples the wheel-force channel processes at once (bounds its temporaries)."""
 WHEEL_FORCE_HP_S = 2.0
 """Moving-average window removed from both sides of the wheel-force channel [s]."""
 
@@ -583,21 +585,43 @@ class WheelForceChannel(Channel):
         self.kw = max(3, int(round(WHEEL_FORCE_HP_S * fr.rate_hz)))
         self.y_hp = _highpass(np.nan_to_num(ws.mu), self.kw)[ti, wi]
         v_hf = np.interp(fr.hf_t, fr.t, feat.v_ref)
-        r_hf = np.repeat(ws.r, k, axis=0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vw = np.abs(r_hf * np.nan_to_num(fr.hf_omega))
-            va = np.abs(v_hf)[:, None]
-            s = np.where(va <= vw, 1.0 - va / np.maximum(vw, 1e-6), -1.0 + vw / np.maximum(va, 1e-6))
+        # The raw-rate slip, HF_CHUNK_ROWS frame rows at a time (its temporaries are each as large as
+        # the raw-rate wheel speeds: 46 MB at four hours).
+        s_raw = np.empty(fr.hf_omega.shape)
+        for a in range(0, fr.n, HF_CHUNK_ROWS):
+            b = min(a + HF_CHUNK_ROWS, fr.n)
+            hs = slice(a * k, b * k)
+            r_hf = np.repeat(ws.r[a:b], k, axis=0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                vw = np.abs(r_hf * np.nan_to_num(fr.hf_omega[hs]))
+                va = np.abs(v_hf[hs])[:, None]
+                s = np.where(va <= vw, 1.0 - va / np.maximum(vw, 1e-6), -1.0 + vw / np.maximum(va, 1e-6))
+            s_raw[hs] = np.clip(np.nan_to_num(s), -0.9, 0.9)
         # Zero-phase smoothing over WHEEL_FORCE_SMOOTH_S of the raw slip (sensor noise): a causal
         # relaxation filter must not win by denoising the regressor, only by a real lag.
         from scipy.ndimage import uniform_filter1d
 
         ks = max(1, int(round(WHEEL_FORCE_SMOOTH_S / float(np.median(np.diff(fr.hf_t))))))
-        self.s_hf = uniform_filter1d(np.clip(np.nan_to_num(s), -0.9, 0.9), size=ks, axis=0, mode="nearest")
+        self.s_hf = uniform_filter1d(s_raw, size=ks, axis=0, mode="nearest")
+        del s_raw
         self.v_hf = v_hf
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.fixed_class = False
         self._frozen = False
+        self._g_plain: dict[str, NDArray] = {}
+        """Per surface class, the high-passed bin means of g(s) at the rows without relaxation (they
+        do not depend on the candidate)."""
+
+    def _g_rows(self, cls: SoilClass, s: NDArray) -> NDArray:
+        """HP[⟨g(s)⟩] at every row: bin means of g over the raw-rate samples, HF_CHUNK_ROWS frame rows
+        at a time, then high-passed."""
+        fr = self.feat.frame
+        k = self.k
+        gb = np.empty((fr.n, 4))
+        for a in range(0, fr.n, HF_CHUNK_ROWS):
+            b = min(a + HF_CHUNK_ROWS, fr.n)
+            gb[a:b] = cls.g(s[a * k:b * k]).reshape(b - a, k, 4).mean(axis=1)
+        return _highpass(gb, self.kw)[self.ti, self.wi]
 
     def use_class(self, cls: SoilClass) -> None:
         """Hold the surface class (the level information of the slip channel fixes it better than the
@@ -611,14 +635,21 @@ class WheelForceChannel(Channel):
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
         fr = self.feat.frame
         s = self.s_hf
-        if "relaxation" in eff:
+        relax = "relaxation" in eff
+        if relax:
             s = relaxed_by_distance(fr.hf_t, s, self.v_hf, eff["relaxation"]["sigma_m"])
         y = self.y_hp[rows]
-        ti, wi, cell = self.ti[rows], self.wi[rows], self.cell[rows]
+        cell = self.cell[rows]
         best, best_sse = None, math.inf
         classes = {self.soil.name: self.soil} if (self._frozen or self.fixed_class) else SOIL_CLASSES
         for cls in classes.values():
-            gb = _highpass(cls.g(s).reshape(fr.n, self.k, 4).mean(axis=1), self.kw)[ti, wi]
+            if relax:
+                gb = self._g_rows(cls, s)[rows]
+            else:
+                g_all = self._g_plain.get(cls.name)
+                if g_all is None:
+                    g_all = self._g_plain[cls.name] = self._g_rows(cls, s)
+                gb = g_all[rows]
             p = _onehot_scaled_fit(y, gb, cell, self.ncell)
             sse = float(np.sum((y - p) ** 2))
             if sse < best_sse:
