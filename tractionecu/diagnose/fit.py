@@ -503,6 +503,9 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
     finally:
         for c in chans:
             c.freeze(False)
+        # Leave the channels' warm starts (the slip channel's a and μ_0) at the solution, where the
+        # rest of the diagnosis expects them.
+        fun_rows(x_hat, rows)
         problem.sigma.clear()
         problem.sigma.update(saved)
     fr.ci95_wald_by = {en: dict(d) for en, d in fr.ci95_by.items()}
