@@ -73,17 +73,24 @@ def _p(eff: Effects, name: str, key: str, default: float) -> float:
     return float(eff[name][key]) if name in eff and key in eff[name] else default
 
 
-WHEEL_CACHE_BYTES = 256 * 2 ** 20
-"""Most memory the wheel-state memo holds [B] (a state is five (n, 4) arrays: 23 MB on a 4-hour recording)."""
+WHEEL_CACHE_BYTES = 96 * 2 ** 20
+"""Most memory the wheel-state memo holds [B] (a state is five (n, 4) arrays: 23 MB on a 4-hour recording).
+
+A fit evaluates each parameter vector once, on every channel it acts on, and the effects that leave
+the wheels alone share the nominal state: the states used again are the last few and the nominal
+one, which a least-recently-used memo of a few states keeps (a state costs a few vector operations
+over the frame to recompute; the fused speed under a GNSS latency, a spline fit, is kept likewise)."""
 
 
 class _WheelCache:
     """wheel_state() memoised on the parameters that change it (at most 64 states and
-    :data:`WHEEL_CACHE_BYTES`)."""
+    :data:`WHEEL_CACHE_BYTES`, the least recently used dropped first)."""
 
     def __init__(self, feat: Features):
+        from collections import OrderedDict
+
         self.feat = feat
-        self._cache: dict[tuple, WheelState] = {}
+        self._cache: OrderedDict[tuple, WheelState] = OrderedDict()
         self._bytes = 0
 
     def v_ref(self, eff: Effects) -> NDArray:
@@ -92,7 +99,7 @@ class _WheelCache:
         if tau == 0.0:
             return self.feat.v_ref
         key = ("v", tau)
-        v = self._cache.get(key)
+        v = self._lookup(key)
         if v is None:
             f = self.feat
             ws = self.get({})
@@ -100,12 +107,22 @@ class _WheelCache:
             self._put(key, v)
         return v
 
-    def _put(self, key, val) -> None:
-        size = val.nbytes if isinstance(val, np.ndarray) else sum(
+    @staticmethod
+    def _size(val) -> int:
+        return val.nbytes if isinstance(val, np.ndarray) else sum(
             a.nbytes for a in vars(val).values() if isinstance(a, np.ndarray))
-        if len(self._cache) > 64 or self._bytes + size > WHEEL_CACHE_BYTES:
-            self._cache.clear()
-            self._bytes = 0
+
+    def _lookup(self, key):
+        val = self._cache.get(key)
+        if val is not None:
+            self._cache.move_to_end(key)
+        return val
+
+    def _put(self, key, val) -> None:
+        size = self._size(val)
+        while self._cache and (len(self._cache) >= 64 or self._bytes + size > WHEEL_CACHE_BYTES):
+            _, old = self._cache.popitem(last=False)
+            self._bytes -= self._size(old)
         self._cache[key] = val
         self._bytes += size
 
@@ -113,7 +130,7 @@ class _WheelCache:
         kw = wheel_kwargs(eff, self.feat.frame)
         key = (tuple((k, v if not isinstance(v, np.ndarray) else v.tobytes()) for k, v in sorted(kw.items())),
                _p(eff, "gps_latency", "tau_s", 0.0) if with_slip else None, with_slip)
-        ws = self._cache.get(key)
+        ws = self._lookup(key)
         if ws is None:
             f = self.feat
             v = self.v_ref(eff) if with_slip else None
