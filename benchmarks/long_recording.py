@@ -1,13 +1,15 @@
 """Replay, inspect and diagnose on long recordings: wall time, CPU time and peak RSS against recorded length.
 
-A long recording is the simulated ``paper-three-soils`` run (seed 7, 415 s) repeated back to back
+A long recording is the simulated ``paper-three-soils`` run (seed 7, 415 s) repeated
 (:func:`tractionecu.recording.concat.concatenate`: each copy's CAN and NMEA times moved on by the span of
-the copies before it, NMEA time of day and date rewritten, checksums recomputed), so the whole is one
-continuous drive of the chosen length on the same field.  Each command runs in its own process; peak RSS
-is that process's ``ru_maxrss``, CPU time its user + system time.  The load average is printed beside
-each line: on a shared machine wall time is not a measure of speed, CPU time is.
+the copies before it and a gap of ``--gap-s`` with nothing logged, NMEA time of day and date rewritten,
+checksums recomputed), so the whole is a day's log of the chosen length on the same field, the logger
+restarted between work periods.  The recorded length excludes the gaps.  Each command runs in its own
+process; peak RSS is that process's ``ru_maxrss``, CPU time its user + system time.  The load average is
+printed beside each line: on a shared machine wall time is not a measure of speed, CPU time is.
 
-    python benchmarks/long_recording.py [--hours 0.1667 1 4] [--work DIR] [--skip-diagnose] [--only CMD ...]
+    python benchmarks/long_recording.py [--hours 0.1667 1 4] [--gap-s 10] [--work DIR] [--skip-diagnose]
+                                        [--only CMD ...]
 
 Prints one line per command and length, then per command the ratio of time per recorded hour (CPU and
 wall) between the longest and the shortest recording.
@@ -25,7 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tractionecu.recording.concat import concatenate  # noqa: E402
+from tractionecu.recording.concat import GAP_S, concatenate  # noqa: E402
 
 
 def measure_fresh(cmd: list[str]) -> tuple[float, float, float, str]:
@@ -48,6 +50,8 @@ def measure_fresh(cmd: list[str]) -> tuple[float, float, float, str]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 6, 1.0, 4.0])
+    ap.add_argument("--gap-s", type=float, default=GAP_S,
+                    help="time between the copies with nothing logged [s] (default: %(default)s)")
     ap.add_argument("--work", type=Path, default=None, help="directory for the recordings (default: a temp dir)")
     ap.add_argument("--skip-diagnose", action="store_true")
     ap.add_argument("--only", nargs="+", default=None, metavar="COMMAND",
@@ -61,9 +65,9 @@ def main() -> int:
                        check=True, capture_output=True)
     per_hour: dict[str, list[tuple[float, float, float]]] = {}
     for h in sorted(args.hours):
-        rec = work / f"rec_{h:g}h"
+        rec = work / f"rec_{h:g}h_gap{args.gap_s:g}"
         if not (rec / "can.log").exists():
-            length = concatenate(base, rec, h * 3600.0)
+            length = concatenate(base, rec, h * 3600.0, gap_s=args.gap_s)
             (rec / "length_s.txt").write_text(f"{length!r}\n")
         else:
             length = float((rec / "length_s.txt").read_text())
