@@ -31,6 +31,7 @@ batch path saves and what is left).
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 from operator import attrgetter
@@ -87,11 +88,13 @@ class BatchSink:
 
     # ------------------------------------------------------------------ input
     def keep(self, e: Estimate) -> None:
-        self.batch.append(e)
-        if len(self.batch) == self.block:
+        b = self.batch
+        b.append(e)
+        if len(b) == self.block:
             self.flush()
-        if not math.isnan(e.lost_since):
-            self.mark_lost(e.lost_since)
+        ls = e.lost_since
+        if ls == ls:                                   # not NaN: the filter was declared lost
+            self.mark_lost(ls)
 
     def extend(self, es: list[Estimate]) -> None:
         """Many estimates in time order (as :meth:`keep` one by one)."""
@@ -274,14 +277,23 @@ def _batch_run_class() -> type:
                 for k in np.flatnonzero(new).tolist():
                     target[k][key] = vals[k]
             step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
-            if cb is None:
-                for t, i, m in zip(grid.tolist(), inputs, meas):
-                    keep(step(t, i, m))
-            else:
-                for t, i, m in zip(grid.tolist(), inputs, meas):
-                    e = step(t, i, m)
-                    keep(e)
-                    cb(e)
+            gc_on = gc.isenabled()
+            if gc_on:
+                # the loop makes no reference cycles; the collector's passes over the block's estimates
+                # and argument dicts are pure overhead (re-enabled below, whatever happens)
+                gc.disable()
+            try:
+                if cb is None:
+                    for t, i, m in zip(grid.tolist(), inputs, meas):
+                        keep(step(t, i, m))
+                else:
+                    for t, i, m in zip(grid.tolist(), inputs, meas):
+                        e = step(t, i, m)
+                        keep(e)
+                        cb(e)
+            finally:
+                if gc_on:
+                    gc.enable()
             self.loop_seconds += time.perf_counter() - wall
 
     return _BatchRun
