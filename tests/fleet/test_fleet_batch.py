@@ -56,3 +56,22 @@ def test_batch_fleet_replay_equals_the_step_path(tmp_path: Path, fleet_tree: Pat
     assert fa["merged_now"] == fb["merged_now"] == 2
     d = max_difference(tmp_path / "step" / "farm_map", tmp_path / "batch" / "farm_map")
     assert d["count"] == 0 and d["cells_only_in_one"] == 0 and d["mean"] == 0 and d["var"] == 0
+
+
+def test_cli_flag_batch_and_keep_csv(tmp_path: Path, fleet_tree: Path, capsys) -> None:
+    """`fleet replay --batch` writes no estimates.csv (its Parquet comes from the arrays); with --keep-csv the
+    task takes the step path, which writes and keeps it."""
+    from tractionecu.cli.main import main
+
+    out = tmp_path / "out"
+    code = main(["fleet", "replay", str(fleet_tree), "--out", str(out), "--workers", "0", "--batch", "--no-progress"])
+    assert code == 5 and "2/3 recordings" in capsys.readouterr().out
+    runs = sorted((out / "tasks" / "replay").glob("*/replay"))
+    assert len(runs) == 2
+    assert all((r / "config.toml").is_file() and (r / "map").is_dir() and not (r / "estimates.csv").exists()
+               for r in runs)
+    assert len(pd.read_parquet(out / "estimates")) >= 36
+    out2 = tmp_path / "out2"
+    main(["fleet", "replay", str(fleet_tree), "--out", str(out2), "--workers", "0", "--batch", "--keep-csv",
+          "--no-progress"])
+    assert all((r / "estimates.csv").is_file() for r in (out2 / "tasks" / "replay").glob("*/replay"))
