@@ -52,6 +52,11 @@ more width there).  This replaces the two held-out folds' disagreement |x̂₀ �
 one-degree-of-freedom estimate of the same spread, for the reported fit.  The interval is clipped
 to the library range; one that spans nearly the whole range is reported *not identified*
 (:func:`.engine.identified`).
+
+In the diagnosis (:func:`.fit.refine_intervals`) the sandwich interval x̂ ± 1.96 √V_jj is kept
+inside the profile's: the profile only widens it.  A profile edge nearer than the sandwich's is
+what a steeper-than-quadratic cost gives, but also what a re-fit of the other parameters that
+stopped early gives, and one recording cannot tell the two apart.
 """
 
 from __future__ import annotations
