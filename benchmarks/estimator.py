@@ -116,8 +116,17 @@ FAMILIES = (
     ("reverse 1 m/s", "physical", "physical-headland-reverse", {}),
     ("bus 20/10 Hz", "paper", "paper-three-soils", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
     ("bus 20/10 Hz", "physical", "physical-three-soils", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
+    ("straight", "physical", "physical-declared-exact", {}),
+    ("bus 20/10 Hz", "physical", "physical-declared-exact", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
 )
-"""(family, truth model, scenario, SensorSpec changes) of the per-family rows."""
+"""(family, truth model, scenario, SensorSpec changes) of the per-family rows.
+
+Which issue-13 target a physical row measures: ``physical-three-soils`` replays on a vehicle file whose
+declared hub efficiency, line of pull and rear radius are each off the truth by an error drawn inside its
+tolerance (and that declares no hub drag): a datasheet-tolerance bias row of the declared figures.
+``physical-declared-exact`` is the same simulated run (``can.log``, ``gps.nmea``, ``truth.csv`` byte for
+byte) on a vehicle file that declares the truth's own figures: the "datasheet noise" row.  Sensor biases
+inside their tolerances: ``biased-sensors`` (``benchmarks/uncertainty.py``)."""
 
 
 def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) -> dict:

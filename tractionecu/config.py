@@ -451,6 +451,11 @@ class VehicleParams:
     tyre_pressure_pa: float = setting(1.6e5, "tyre inflation pressure p_t [Pa]", 2e4, 1e6)
     wheel_inertia_kgm2: float = setting(60.0, "wheel + reflected drive inertia J_w [kg·m²]", 0.1, 5000.0)
     rho_t: float = setting(0.015, "tyre-deformation rolling resistance coefficient ρ_t [-]", 0.0, 0.2)
+    tyre_carcass_stiffness_npm: float = setting(0.0, "longitudinal stiffness c_x of the tyre carcass between rim "
+                                                "and contact patch [N/m] (tyre test data, Pacejka 2006 ch. 7: the "
+                                                "slip stiffness over c_x is the relaxation length); > 0: the hub "
+                                                "estimator's μ follows slip changes through the carcass (transient "
+                                                "slip); 0: the paper's random-walk μ", 0.0, 1e8)
     wheelbase_m: float = setting(2.5, "wheelbase L [m]", 0.5, 6.0)
     cg_height_m: float = setting(1.0, "centre-of-gravity height h_cg [m]", 0.1, 4.0)
     hitch_height_m: float = setting(0.5, "drawbar / hitch height h_hitch [m]", 0.0, 2.0)

@@ -272,3 +272,81 @@ def test_vehicle_file_drag_key_round_trips(tmp_path):
     assert load_vehicle(tmp_path / "vehicle.toml").drivetrain.hub_drag_nms == 4.0
     with pytest.raises(ConfigError, match="hub_drag_nms"):
         dataclasses.replace(VEH.drivetrain, hub_drag_nms=-1.0)
+
+
+def test_carcass_model_compiled_rk4_equals_numpy_rk4_and_relaxes_to_the_random_walk():
+    """Tyre carcass (model doc): μ̇_i = c_x |k_i v| (s_i − σ̄_i)/F_z,i.  The compiled RK4 equals rk4(rhs) bit
+    for bit (straight and in a turn, six or seven inputs); with s = σ̄ μ does not move; c_x = 0 is the paper's
+    model (μ̇ = 0)."""
+    from tractionecu.model.vehicle import FilterModel, rk4, slip
+
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    m = FilterModel(veh)
+    rng = np.random.default_rng(3)
+    x = np.tile([3.2, 3.2, 3.3, 3.3, 2.4, 0.30, 0.31, 0.35, 0.36, 0.06], (21, 1)) + rng.normal(0.0, 0.01, (21, 10))
+    m.set_relaxed_slip(np.array([0.05, 0.06, 0.07, 0.08]))
+    for u in (np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0]),
+              np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0, 0.0]),
+              np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0, 0.03])):
+        fz, rd = m.loads(u)
+        ref = rk4(lambda y: m.rhs(y, u, fz, rd), x, 0.01)
+        np.testing.assert_array_equal(m.step(x, u, 0.01), ref)
+        np.testing.assert_array_equal(m.step(x[3], u, 0.01), ref[3])
+    u = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0])
+    fz, rd = m.loads(u)
+    d = m.rhs(x[0], u, fz, rd)
+    s = slip(x[0, :4], x[0, 4], rd)
+    np.testing.assert_allclose(d[5:9], 2.0e5 * abs(x[0, 4]) * (s - m.relaxed_slip) / fz, rtol=1e-12)
+    m.set_relaxed_slip(s)
+    assert np.abs(m.rhs(x[0], u, fz, rd)[5:9]).max() == 0.0
+    assert np.abs(FilterModel(VEH).rhs(x[0], u, fz, rd)[5:9]).max() == 0.0
+
+
+def test_carcass_estimator_relaxed_slip_follows_the_filters_slip(run15):
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    est = Estimator(veh)
+    out = [est.step(t, i, m) for t, i, m in run15.steps]
+    sb = est.model.relaxed_slip
+    s = np.array([e.slip for e in out[-100:]]).mean(axis=0)
+    assert np.abs(sb - s).max() < 0.01            # steady driving: σ̄ is the slip
+    mu = np.array([e.mu for e in out])
+    sl = slice(500, None)
+    assert (np.abs(mu[sl] - run15.mu[sl]) / run15.mu[sl]).mean() < 0.02
+
+
+def test_carcass_term_only_while_the_wheel_speeds_follow_its_mode(run15):
+    """f_c T ≤ CARCASS_MAX_FT: with the 20 Hz wheel rate of a vehicle file the term is off until 100 Hz
+    periods are observed on the bus."""
+    from tractionecu.config import SensorSpec
+    from tractionecu.estimation.estimator import CARCASS_MAX_FT
+
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    est = Estimator(veh, sensors=SensorSpec(wheel_rate_hz=20.0))
+    assert 0.05 * est._f_carcass > CARCASS_MAX_FT >= 0.01 * est._f_carcass
+    for t, i, m in run15.steps[:8]:
+        est.step(t, i, m)
+    assert est.ukf is not None and est.model.cx == 0.0 and est.model._kc[10] == 0.0
+    for t, i, m in run15.steps[8:300]:
+        est.step(t, i, m)
+    assert est.model.cx == 2.0e5 and est.model._kc[10] == 2.0e5
+
+
+def test_declared_exact_scenario_declares_the_truths_figures():
+    from tractionecu.sim import scenarios
+    from tractionecu.sim.physwriter import _declared_vehicle
+    from tractionecu.sim.tyre import rolling_radius
+    from tractionecu.sim.physical import axle_loads
+
+    scn = scenarios.get("physical-declared-exact", seed=3)
+    ps, hub = scn.physical, scn.physical.drivetrain.hub
+    v = _declared_vehicle(scn)
+    assert v.drivetrain.efficiency == hub.efficiency and v.drivetrain.hub_drag_nms == hub.drag_nms
+    assert v.pull_angle_deg == ps.hitch.pull_angle_deg
+    assert v.wheel_inertia_kgm2 == hub.motor_inertia_kgm2 + hub.wheel_inertia_kgm2
+    assert v.tyre_carcass_stiffness_npm == ps.tyre.carcass_stiffness_npm
+    fzr = axle_loads(scn.vehicle, ps.hitch, scn.vehicle.mass_kg, 0.0, 0.0, 0.0)[1]
+    r = float(rolling_radius(0.5 * fzr, scn.vehicle.r0_m, ps.tyre, scn.vehicle.tyre_pressure_pa))
+    assert v.drivetrain.rolling_radius_m == round(r, 4)
+    tol = _declared_vehicle(scenarios.get("physical-three-soils", seed=3))      # figures off inside tolerances
+    assert tol.drivetrain.hub_drag_nms == 0.0 and tol.tyre_carcass_stiffness_npm == 0.0
+    assert tol.drivetrain.efficiency != hub.efficiency and tol.pull_angle_deg != ps.hitch.pull_angle_deg

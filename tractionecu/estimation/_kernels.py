@@ -115,7 +115,8 @@ def _model_tag() -> int:
     reusing a stale cached copy.
     """
     src = "".join(inspect.getsource(getattr(f, "py_func", f))
-                  for f in (_vehicle._sign, _vehicle._rhs5, _vehicle._radius, _vehicle._rk4_points))
+                  for f in (_vehicle._sign, _vehicle._rhs5, _vehicle._radius, _vehicle._rk4_points,
+                            _vehicle._mudot, _vehicle._rk4_carcass))
     return int(hashlib.sha256(src.encode("utf-8")).hexdigest()[:15], 16)
 
 

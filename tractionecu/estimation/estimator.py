@@ -63,7 +63,8 @@ from scipy.special import erfcinv
 
 from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
-from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel,
+from ..model.mucurve import SOIL_CLASSES
+from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel, slip,
                              wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
@@ -223,6 +224,16 @@ KAPPA_NOISE_MIN = 0.003
 KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
 curvature input is limited to ±this, and so is its standard deviation when it is not known."""
+RELAX_DEFAULT_M = 0.5
+"""Relaxation length of the carcass model before a μ(s) curve is identified [m] (Pacejka 2006, ch. 7: about
+the rolling radius's order for a large tyre near zero slip; :meth:`Estimator._relax`)."""
+RELAX_MIN_M = 0.05
+RELAX_MAX_M = 1.0
+"""Bounds of the carcass model's relaxation length [m] (a slip stiffness near zero on the flat of μ(s), or a
+steep curve at zero slip, would give 0 or several metres)."""
+CARCASS_MAX_FT = 0.08
+"""Largest f_c·T (carcass mode × wheel-speed sample period) at which the carcass term is used: the period
+mean's lag π f_c T ≤ 0.25 rad (:meth:`Estimator._relax`); 6.5 Hz at 100 Hz: 0.065, at 20 Hz: 0.33 (off)."""
 _ABSENT = object()
 _AXLE_SGN = np.array([-0.5, -0.5, 0.5, 0.5])
 """−∂F_z,i/∂F_zf of the wheels FL, FR, RL, RR (front F_zf/2, rear (mg − F_zf)/2): the axle-load term of Q."""
@@ -270,6 +281,10 @@ class Estimator:
         # and less the hub reduction's declared no-load drag c ω (drivetrain.hub_drag_nms; 0: none declared)
         self._drag = float(dtr.hub_drag_nms) if dtr is not None and not dtr.engine_driven else 0.0
         self._unc = SystematicUncertainty(sp, vehicle) if cfg.systematic_uncertainty else None
+        # Tyre carcass (model doc "Tyre carcass"): its longitudinal stiffness c_x [N/m]; 0: the paper's μ.
+        # The mode of the wheel on the carcass, f_c = √(r0² c_x / J)/2π, must be sampled finely enough (_relax).
+        self._cx = self.model.cx
+        self._f_carcass = math.sqrt(vehicle.r0_m ** 2 * self._cx / self.J) / (2.0 * math.pi)
         # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
         # the SensorSpec rates until enough samples were seen.
         self._rates = BusRates(
@@ -309,6 +324,7 @@ class Estimator:
         self._dir_bus = 0.0
         self._t_dir_bus = -math.inf
         self._held: tuple[float, NDArray[np.float64]] | None = None
+        self._t_relax: float | None = None
         self._conv = False                # last convergence verdict (hysteresis, EstimatorConfig.conv_exit_factor)
         self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
@@ -460,6 +476,7 @@ class Estimator:
                                    gate_max_consecutive=cfg.gate_max_consecutive)
         self.t_init = t
         self._conv = False
+        self._t_relax = None
         self._monitor.reset()
 
     # ------------------------------------------------------------------ step
@@ -675,6 +692,8 @@ class Estimator:
                 counters["updates"] += 1
                 if cfg.adaptation:
                     self._cm.push(*ukf.correction())
+        if self._cx != 0.0:
+            self._relax(t, ukf.x)
         # ---- divergence: a filter that has lost the vehicle starts again from the measurements
         x = ukf.x
         xl = x.tolist()
@@ -804,6 +823,48 @@ class Estimator:
                 ukf.P.flat[5 * (N_STATE + 1):9 * (N_STATE + 1):N_STATE + 1] += g * g * nv
             else:
                 x[IX_V] -= d / self.m
+
+    def _relax(self, t: float, x: NDArray[np.float64]) -> None:
+        """Move the carcass model's relaxed slips σ̄_i towards the filter's slips s_i (model doc "Tyre
+        carcass"): σ̄_i += min(1, Δt |v_i| / L_r,i)(s_i − σ̄_i), Pacejka's first-order relaxation, with the
+        relaxation length L_r,i = F_z,i (∂μ/∂s)_i / c_x of the identified μ(s) at σ̄_i (the slip stiffness
+        over the carcass stiffness), within [RELAX_MIN_M, RELAX_MAX_M]; RELAX_DEFAULT_M until a curve is
+        identified.  A new filter starts from σ̄ = s.
+
+        The term is used only while the wheel speeds come often enough to follow the carcass mode: a wheel
+        speed measured by period counting is the mean over its sample period T, which lags the mode f_c by
+        π f_c T; the term is on while f_c T ≤ CARCASS_MAX_FT (a lag of at most 0.25 rad, 14°), else off (μ̇ = 0,
+        the paper's model)."""
+        model = self.model
+        on = self._rates.period("omega") * self._f_carcass <= CARCASS_MAX_FT
+        if on != (model.cx != 0.0):
+            model.set_carcass(on)
+            self._t_relax = None
+        if not on:
+            return
+        _, _, rdf, rdr = model.load_floats(float(self._u[4]), float(self._u[5]))
+        kap = float(self._u[IU_KAPPA])
+        kw = [1.0, 1.0, 1.0, 1.0] if kap == 0.0 else self._wheel_factors(kap).tolist()
+        xl = x.tolist()
+        v = xl[IX_V]
+        s = slip(np.array(xl[:4]), np.array([k * v for k in kw]), np.array([rdf, rdf, rdr, rdr]))
+        sb = model.relaxed_slip
+        t_prev = self._t_relax
+        self._t_relax = t
+        if t_prev is None or not np.isfinite(sb).all():
+            model.set_relaxed_slip(s)
+            return
+        cs = self._curve_state
+        fz = (self._fz if self._fz[0] > 0.0 else model._load_terms(float(self._u[4]), float(self._u[5]))[0])
+        cls = SOIL_CLASSES.get(cs.class_name) if cs.a == cs.a else None
+        for i in range(4):
+            if cls is not None:
+                lr = float(fz[i]) * cs.a * float(cls.dg(abs(float(sb[i])))) / self._cx
+                lr = RELAX_MIN_M if lr < RELAX_MIN_M else (RELAX_MAX_M if lr > RELAX_MAX_M else lr)
+            else:
+                lr = RELAX_DEFAULT_M
+            g = (t - t_prev) * abs(kw[i] * v) / lr
+            sb[i] += (1.0 if g > 1.0 else g) * (float(s[i]) - float(sb[i]))
 
     def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
         """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""

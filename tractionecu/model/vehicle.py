@@ -51,6 +51,24 @@ calibration measures, k = F_z,static/(r0 − r_cal), so that eq. 9 goes through
 r0 unloaded and r_cal at the static load (:func:`radius_law`; all four wheels
 carry the same tyre in this model).
 Rolling resistances act against the direction of motion (sign of ω resp. v).
+
+Tyre carcass (beyond the paper, whose μ is a random walk, "their dynamics
+neglected"): with a declared longitudinal carcass stiffness c_x
+(``tyre_carcass_stiffness_npm`` > 0) the ground force builds up through the
+carcass as in Pacejka's first-order transient slip model (Pacejka 2006,
+"Tyre and Vehicle Dynamics", ch. 7): the force follows the slip with the
+relaxation length L_r = C_Fκ/c_x (C_Fκ the slip stiffness), so that
+
+    μ̇_i = c_x |k_i v| (s_i − σ̄_i) / F_z,i
+
+with s_i eq. 6 against the wheel's ground speed k_i v and σ̄_i the relaxed
+slip, which follows s_i at the rate |k_i v|/L_r (the estimator moves it
+between steps, :meth:`tractionecu.estimation.estimator.Estimator._relax`;
+here it is held over a step).  At steady slip σ̄ = s and μ is the paper's
+random walk; a slip change moves μ through the carcass spring r² c_x at
+once, so the filter predicts the wheel-on-carcass oscillation from the
+wheel speeds and the torque instead of following it from the innovations.
+c_x = 0 (the default) is the paper's model, unchanged bit for bit.
 """
 
 from __future__ import annotations
@@ -204,7 +222,8 @@ class FilterModel:
 
     Inputs u = (M_d1..4 [N·m], F_zf [N], F_dx [N]).  μ and ρ_s are modelled as
     constant over one step (paper: "their dynamics are neglected"), so their
-    derivatives are zero; process noise lets them move between steps.
+    derivatives are zero; process noise lets them move between steps.  With a
+    declared carcass stiffness μ̇ is the carcass term (module doc "Tyre carcass").
     """
 
     def __init__(self, params: VehicleParams):
@@ -217,8 +236,11 @@ class FilterModel:
         # (r0 and k of eq. 9, or of the declared rolling radius: radius_law), tan β of the line of pull.
         r0, k = radius_law(params)
         self.tan_pull = math.tan(math.radians(params.pull_angle_deg))
+        # Tyre carcass (module doc "Tyre carcass"): c_x and the relaxed slips σ̄_i (kc[10], kc[11:15]).
+        self.cx = float(getattr(params, "tyre_carcass_stiffness_npm", 0.0))
         self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
-                             0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull])
+                             0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull, self.cx,
+                             0.0, 0.0, 0.0, 0.0])
         self._fzf_key: tuple[float, float] | None = None
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -253,7 +275,28 @@ class FilterModel:
         dx = np.zeros(np.broadcast_shapes(x.shape, u.shape[:-1] + (N_STATE,)))
         dx[..., IX_OMEGA] = domega
         dx[..., IX_V] = dv
+        if self.cx != 0.0:                                             # the carcass (module doc)
+            if u.shape[-1] > IU_KAPPA:
+                kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
+            else:
+                kw = np.ones(4)
+            vi = kw * v[..., None]
+            dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(omega, vi, r_d) - self._kc[11:15]) / fz
         return dx
+
+    @property
+    def relaxed_slip(self) -> NDArray[np.float64]:
+        """σ̄_i (4,) of the carcass model [-] (a view: :meth:`set_relaxed_slip` changes it)."""
+        return self._kc[11:15]
+
+    def set_carcass(self, on: bool) -> None:
+        """Switch the carcass term of μ̇ on (the declared c_x) or off (μ̇ = 0, the paper's model)."""
+        self.cx = float(getattr(self.params, "tyre_carcass_stiffness_npm", 0.0)) if on else 0.0
+        self._kc[10] = self.cx
+
+    def set_relaxed_slip(self, sbar) -> None:
+        """Set the relaxed slips σ̄_i (4,) that the carcass term of μ̇ relaxes against (module doc)."""
+        self._kc[11:15] = sbar
 
     def front_cosines(self, kappa: ArrayLike) -> NDArray[np.float64]:
         """cos δ of the front wheels FL, FR (..., 2) at path curvature κ [1/m] (module doc); 1 at κ = 0."""
@@ -317,7 +360,7 @@ class FilterModel:
                 return _rk4_points(np.ascontiguousarray(x).reshape(1, N_STATE), np.ascontiguousarray(u),
                                    self._kc, float(dt))[0]
             return _rk4_points(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, float(dt))
-        if u.shape[0] > IU_KAPPA and u[IU_KAPPA] != 0.0:     # in a turn: the general right-hand side
+        if (u.shape[0] > IU_KAPPA and u[IU_KAPPA] != 0.0) or self.cx != 0.0:   # in a turn, or μ̇ ≠ 0: general
             fz, r_d = self.loads(u)
             return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
         fz, r_d, c = self._load_terms(float(u[IU_FZF]), float(u[IU_FDX]))
@@ -427,6 +470,8 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     rdr = _radius(fr, r0, k, lim)
     cf = rdf * rho_t * ff
     cr = rdr * rho_t * fr
+    if kc.shape[0] > 10 and kc[10] != 0.0:      # the carcass: μ̇ ≠ 0 (model doc "Tyre carcass")
+        return _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr)
     npt = x.shape[0]
     out = np.empty_like(x)
     h = 0.5 * dt
@@ -458,7 +503,90 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     return out
 
 
+def _mudot(w, v, k, rd, fz, sb, cx):                         # pragma: no cover - compiled
+    """μ̇ of one wheel with the carcass: c_x |k v| (s − σ̄)/F_z, s eq. 6 of ω against k·v (as slip())."""
+    vi = k * v
+    va = abs(vi)
+    vw = abs(rd * w)
+    if vw < 1e-6 and va < 1e-6:
+        s = 0.0
+    elif va <= vw:
+        s = 1.0 - va / vw
+    else:
+        s = -1.0 + vw / va
+    return ((cx * va) * (s - sb)) / fz
+
+
+def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma: no cover - compiled
+    """_rk4_points with the carcass term of μ̇ (kc[10] = c_x ≠ 0, kc[11:15] = σ̄): the four RK4 stages of
+    ω, v and μ, as rk4(FilterModel.rhs) computes them; ρ_s as in _rk4_points."""
+    J, m, cx = kc[5], kc[6], kc[10]
+    s0, s1, s2, s3 = kc[11], kc[12], kc[13], kc[14]
+    k0 = k1 = k2 = k3 = 1.0
+    if u.shape[0] > 6 and u[6] != 0.0:           # wheel_speed_factors()
+        hk = kc[7] * u[6]
+        lk = kc[8] * u[6]
+        left = 1.0 - hk
+        right = 1.0 + hk
+        k0 = math.sqrt(left * left + lk * lk)
+        k1 = math.sqrt(right * right + lk * lk)
+        k2 = left
+        k3 = right
+    npt = x.shape[0]
+    out = np.empty_like(x)
+    h = 0.5 * dt
+    w = dt / 6.0
+    zh = h * 0.0
+    zd = dt * 0.0
+    zw = w * 0.0
+    for p in range(npt):
+        x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
+        m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
+        e0 = _mudot(x0, x4, k0, rdf, ff, s0, cx)
+        e1 = _mudot(x1, x4, k1, rdf, ff, s1, cx)
+        e2 = _mudot(x2, x4, k2, rdr, fr, s2, cx)
+        e3 = _mudot(x3, x4, k3, rdr, fr, s3, cx)
+        y0, y1, y2, y3, y4 = x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4
+        n0, n1, n2, n3 = m0 + h * e0, m1 + h * e1, m2 + h * e2, m3 + h * e3
+        b0, b1, b2, b3, b4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
+                                   cosl, cosr)
+        f0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
+        f1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
+        f2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
+        f3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        y0, y1, y2, y3, y4 = x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4
+        n0, n1, n2, n3 = m0 + h * f0, m1 + h * f1, m2 + h * f2, m3 + h * f3
+        c0, c1, c2, c3, c4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
+                                   cosl, cosr)
+        g0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
+        g1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
+        g2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
+        g3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        y0, y1, y2, y3, y4 = x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4
+        n0, n1, n2, n3 = m0 + dt * g0, m1 + dt * g1, m2 + dt * g2, m3 + dt * g3
+        d0, d1, d2, d3, d4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m,
+                                   cosl, cosr)
+        q0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
+        q1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
+        q2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
+        q3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
+        out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
+        out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
+        out[p, 3] = x3 + w * (((a3 + 2.0 * b3) + 2.0 * c3) + d3)
+        out[p, 4] = x4 + w * (((a4 + 2.0 * b4) + 2.0 * c4) + d4)
+        out[p, 5] = m0 + w * (((e0 + 2.0 * f0) + 2.0 * g0) + q0)
+        out[p, 6] = m1 + w * (((e1 + 2.0 * f1) + 2.0 * g1) + q1)
+        out[p, 7] = m2 + w * (((e2 + 2.0 * f2) + 2.0 * g2) + q2)
+        out[p, 8] = m3 + w * (((e3 + 2.0 * f3) + 2.0 * g3) + q3)
+        out[p, 9] = r + zw
+    return out
+
+
 _sign = compiled(_sign, inline=True)
 _rhs5 = compiled(_rhs5, inline=True)
 _radius = compiled(_radius, inline=True)
+_mudot = compiled(_mudot, inline=True)
+_rk4_carcass = compiled(_rk4_carcass)
 _rk4_points = compiled(_rk4_points)

@@ -127,10 +127,10 @@ class PhysicalSpec:
     nominal with the distance travelled (an implement on uneven ground or a depth-control programme)."""
     declared_exact: bool = False
     """The recording's ``vehicle.toml`` declares the truth's own hub drive-line and hitch figures (the hub's
-    efficiency and no-load drag, the motor-plus-wheel inertia, the line of pull, the rear wheels' rolling radius
-    at their static load) instead of figures off by errors drawn inside their tolerances: only the truth's
-    physics and the sensors' noise separate the declared machine from the simulated one (recording writer only;
-    the simulated machine is the same)."""
+    efficiency and no-load drag, the motor-plus-wheel inertia, the tyre carcass's stiffness, the line of pull, the
+    rear wheels' rolling radius at their static load) instead of figures off by errors drawn inside their
+    tolerances: only the truth's physics and the sensors' noise separate the declared machine from the simulated
+    one (recording writer only; the simulated machine is the same)."""
 
 
 def class_equivalent(soil: ty.PhysSoil, veh: VehicleParams, tyre: ty.TyreSpec,

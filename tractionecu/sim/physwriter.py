@@ -160,7 +160,8 @@ def _declared_hub(scn):
     (:data:`tractionecu.config.HUB_EFFICIENCY_TOL`), the line of pull and the rear wheels' calibrated rolling
     radius, each with an error drawn once per seed inside its tolerance (own stream: nothing else of the
     recording moves), never the truth's exact figure.  With ``PhysicalSpec.declared_exact`` it declares the
-    truth's figures without errors, and also the hub's drag and the motor-plus-wheel inertia."""
+    truth's figures without errors, and also the hub's drag, the motor-plus-wheel inertia and the tyre
+    carcass's longitudinal stiffness."""
     veh = scn.vehicle
     ps = scn.physical
     rng = np.random.default_rng(scn.seed + 7_000_005)
@@ -170,6 +171,7 @@ def _declared_hub(scn):
         hub = ps.drivetrain.hub
         err = np.zeros(3)
         veh = dataclasses.replace(veh, wheel_inertia_kgm2=hub.motor_inertia_kgm2 + hub.wheel_inertia_kgm2,
+                                  tyre_carcass_stiffness_npm=ps.tyre.carcass_stiffness_npm,
                                   drivetrain=dataclasses.replace(veh.drivetrain, hub_drag_nms=hub.drag_nms))
     eta = min(1.0, ps.drivetrain.hub.efficiency * (1.0 + float(err[0])))
     fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]

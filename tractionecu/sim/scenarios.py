@@ -118,7 +118,8 @@ def physical_three_soils(seed: int = 0, **kw) -> Scenario:
 def physical_declared_exact(seed: int = 0, **kw) -> Scenario:
     """``physical-three-soils`` (the same simulated run, byte for byte in ``can.log``, ``gps.nmea`` and
     ``truth.csv``) with a ``vehicle.toml`` that declares the truth's own figures: hub efficiency 0.95, its
-    no-load drag, the motor-plus-wheel inertia, the 8° line of pull, the rear rolling radius at static load.
+    no-load drag, the motor-plus-wheel inertia, the tyre carcass's stiffness, the 8° line of pull, the rear
+    rolling radius at static load.
     Sensors at their datasheet noise, no biases, no GNSS latency, no declared figure off: issue 13's
     "datasheet noise" row.  (``physical-three-soils`` declares the efficiency, the pull and the radius each off
     by an error inside its tolerance and no drag: a tolerance-bias run of the declared figures.)"""
