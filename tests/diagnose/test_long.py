@@ -152,6 +152,10 @@ def test_a_day_log_is_cut_at_its_breaks(drive, joined):
             after = set(feat.segment[fr.t >= b].tolist()) - {-1}
             assert not before & after
         assert any("break" in n for n in feat.notes)
+        # No fused speed where nothing was measured (the spline's edge coefficients reached 900 m/s
+        # there, and the relaxation filter's distance grid grew with them).
+        assert np.nanmax(np.abs(feat.v_ref)) < np.nanmax(np.abs(fr.v_gps)) + 1.0
+        assert np.isnan(feat.v_ref[features.logger_off(fr)]).all()
 
 
 def test_the_speed_nuisance_is_free_to_jump_at_a_break():

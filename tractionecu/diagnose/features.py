@@ -284,7 +284,12 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     cols = np.flatnonzero(sf.cols)
     if tau_s:
         B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s, sparse=True, breaks=fr.break_t)
-    return v_int + B[:, cols] @ beta
+    v = v_int + B[:, cols] @ beta
+    if fr.break_t:
+        # While the logger was off nothing was measured, and next to a break the spline has no data
+        # (its edge coefficients would reach hundreds of m/s there): no speed.
+        v[logger_off(fr) | near_breaks(fr)] = np.nan
+    return v
 
 
 DEM_CHUNK = 64
@@ -616,6 +621,34 @@ def _recorded(fr: Frame) -> NDArray[np.bool_]:
     return seen
 
 
+def logger_off(fr: Frame) -> NDArray[np.bool_]:
+    """Rows inside a stretch of at least :data:`BREAK_GAP_S` without any sample (the logger off)."""
+    seen = np.flatnonzero(_recorded(fr))
+    off = np.zeros(fr.n, dtype=bool)
+    if seen.size == 0:
+        off[:] = True
+        return off
+    gap = np.diff(fr.t[seen]) >= BREAK_GAP_S
+    for a, b in zip(seen[:-1][gap], seen[1:][gap]):
+        off[a + 1:b] = True
+    return off
+
+
+def near_breaks(fr: Frame) -> NDArray[np.bool_]:
+    """Rows from :data:`BREAK_MARGIN_S` before the last sample ahead of each break in ``fr.break_t``
+    (across the logger's off time) to the margin after the break."""
+    out = np.zeros(fr.n, dtype=bool)
+    if not fr.break_t:
+        return out
+    m = int(math.ceil(BREAK_MARGIN_S * fr.rate_hz))
+    seen = np.flatnonzero(_recorded(fr))
+    for b in np.searchsorted(fr.t, np.asarray(fr.break_t) - 1e-9):
+        j = int(np.searchsorted(seen, b))
+        last = int(seen[j - 1]) if j > 0 else int(b) - 1
+        out[max(last + 1 - m, 0):b + m] = True
+    return out
+
+
 def find_breaks(fr: Frame) -> NDArray[np.int64]:
     """Rows at which the recording starts again after a break (ascending):
 
@@ -678,13 +711,7 @@ def compute(fr: Frame) -> Features:
     near_break = np.zeros(n, dtype=bool)
     if brk.size:
         fr.break_t = tuple(float(x) for x in fr.t[brk])
-        m = int(math.ceil(BREAK_MARGIN_S * fr.rate_hz))
-        seen = np.flatnonzero(_recorded(fr))
-        for b in brk:
-            # From the margin before the last sample ahead of the break to the margin after it.
-            j = int(np.searchsorted(seen, b))
-            last = int(seen[j - 1]) if j > 0 else int(b) - 1
-            near_break[max(last + 1 - m, 0):b + m] = True
+        near_break = near_breaks(fr)
         valid &= ~near_break
         notes.append(f"{brk.size} break(s) in the recording (the logger off for {BREAK_GAP_S:g} s or more, or the "
                      f"track restarting elsewhere) at t = " + ", ".join(f"{x:.1f}" for x in fr.break_t[:5])
