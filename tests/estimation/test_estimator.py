@@ -350,3 +350,27 @@ def test_declared_exact_scenario_declares_the_truths_figures():
     tol = _declared_vehicle(scenarios.get("physical-three-soils", seed=3))      # figures off inside tolerances
     assert tol.drivetrain.hub_drag_nms == 0.0 and tol.tyre_carcass_stiffness_npm == 0.0
     assert tol.drivetrain.efficiency != hub.efficiency and tol.pull_angle_deg != ps.hitch.pull_angle_deg
+
+
+def test_relaxed_slip_kernel_moves_sigma_bar_by_pacejkas_first_order_law():
+    """σ̄ += min(1, Δt |v|/L_r)(s − σ̄), L_r = F_z a g'(|σ̄|)/c_x within [lmin, lmax]; ldef without a curve."""
+    from tractionecu.model.mucurve import SOIL_CLASSES
+    from tractionecu.model.vehicle import FilterModel, relax_slips, slip
+
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    m = FilterModel(veh)
+    x = np.array([3.4, 3.4, 3.5, 3.5, 2.5, 0.3, 0.3, 0.35, 0.35, 0.06])
+    ff, fr, rdf, rdr = m.load_floats(24000.0, 10000.0)
+    s = slip(x[:4], x[4], np.array([rdf, rdf, rdr, rdr]))
+    relax_slips(x, m._kc, 0.0, 0.0, ff, fr, rdf, rdr, math.nan, 0.0, -1.0, -1.0, 0.05, 1.0, 0.5, True)
+    np.testing.assert_allclose(m.relaxed_slip, s, rtol=1e-12)
+    sb0 = s - 0.01
+    m.set_relaxed_slip(sb0)
+    relax_slips(x, m._kc, 0.0, 0.01, ff, fr, rdf, rdr, math.nan, 0.0, -1.0, -1.0, 0.05, 1.0, 0.5, False)
+    np.testing.assert_allclose(m.relaxed_slip, sb0 + 0.01 * 2.5 / 0.5 * 0.01, rtol=1e-9)
+    c = SOIL_CLASSES["stubble"]
+    m.set_relaxed_slip(sb0)
+    relax_slips(x, m._kc, 0.0, 0.01, ff, fr, rdf, rdr, 0.7, c.p, c.alpha1, c.alpha2, 0.05, 1.0, 0.5, False)
+    fz = np.array([ff, ff, fr, fr])
+    lr = np.clip(fz * 0.7 * c.dg(np.abs(sb0)) / 2.0e5, 0.05, 1.0)
+    np.testing.assert_allclose(m.relaxed_slip, sb0 + 0.01 * 2.5 / lr * 0.01, rtol=1e-9)

@@ -64,8 +64,8 @@ from scipy.special import erfcinv
 from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
-from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel, slip,
-                             wheel_speed_factor_slopes)
+from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel,
+                             relax_slips, wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -842,29 +842,16 @@ class Estimator:
             self._t_relax = None
         if not on:
             return
-        _, _, rdf, rdr = model.load_floats(float(self._u[4]), float(self._u[5]))
-        kap = float(self._u[IU_KAPPA])
-        kw = [1.0, 1.0, 1.0, 1.0] if kap == 0.0 else self._wheel_factors(kap).tolist()
-        xl = x.tolist()
-        v = xl[IX_V]
-        s = slip(np.array(xl[:4]), np.array([k * v for k in kw]), np.array([rdf, rdf, rdr, rdr]))
-        sb = model.relaxed_slip
+        ff, fr, rdf, rdr = model.load_floats(float(self._u[4]), float(self._u[5]))
         t_prev = self._t_relax
         self._t_relax = t
-        if t_prev is None or not np.isfinite(sb).all():
-            model.set_relaxed_slip(s)
-            return
+        init = t_prev is None
         cs = self._curve_state
-        fz = (self._fz if self._fz[0] > 0.0 else model._load_terms(float(self._u[4]), float(self._u[5]))[0])
-        cls = SOIL_CLASSES.get(cs.class_name) if cs.a == cs.a else None
-        for i in range(4):
-            if cls is not None:
-                lr = float(fz[i]) * cs.a * float(cls.dg(abs(float(sb[i])))) / self._cx
-                lr = RELAX_MIN_M if lr < RELAX_MIN_M else (RELAX_MAX_M if lr > RELAX_MAX_M else lr)
-            else:
-                lr = RELAX_DEFAULT_M
-            g = (t - t_prev) * abs(kw[i] * v) / lr
-            sb[i] += (1.0 if g > 1.0 else g) * (float(s[i]) - float(sb[i]))
+        cls = SOIL_CLASSES.get(cs.class_name)
+        a = cs.a if cls is not None else math.nan
+        p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
+        relax_slips(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
+                    a, p, al1, al2, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
 
     def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
         """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""

@@ -584,9 +584,53 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma
     return out
 
 
+def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ldef, init):  # pragma: no cover
+    """Move the relaxed slips σ̄_i = kc[11:15] towards the slips s_i of the state x (Pacejka's first-order
+    relaxation, Estimator._relax): σ̄_i += min(1, dt |k_i v|/L_r,i)(s_i − σ̄_i), L_r,i = F_z,i a g'(|σ̄_i|)/c_x
+    of the class (p, α1, α2) within [lmin, lmax], ldef when a is NaN (no curve); init (or σ̄ NaN): σ̄ = s.
+    s_i is eq. 6 against k_i(κ) v as slip() computes it."""
+    cx = kc[10]
+    k0 = k1 = k2 = k3 = 1.0
+    if kap != 0.0:
+        hk = kc[7] * kap
+        lk = kc[8] * kap
+        left = 1.0 - hk
+        right = 1.0 + hk
+        k0 = math.sqrt(left * left + lk * lk)
+        k1 = math.sqrt(right * right + lk * lk)
+        k2 = left
+        k3 = right
+    v = x[4]
+    for i in range(4):
+        k = k0 if i == 0 else (k1 if i == 1 else (k2 if i == 2 else k3))
+        rd = rdf if i < 2 else rdr
+        va = abs(k * v)
+        vw = abs(rd * x[i])
+        if vw < 1e-6 and va < 1e-6:
+            s = 0.0
+        elif va <= vw:
+            s = 1.0 - va / vw
+        else:
+            s = -1.0 + vw / va
+        sb = kc[11 + i]
+        if init or sb != sb:
+            kc[11 + i] = s
+            continue
+        if a == a:
+            sa = abs(sb)
+            dg = -p * al1 * math.exp(al1 * sa) - (1.0 - p) * al2 * math.exp(al2 * sa)
+            lr = (ff if i < 2 else fr) * a * dg / cx
+            lr = lmin if lr < lmin else (lmax if lr > lmax else lr)
+        else:
+            lr = ldef
+        g = dt * va / lr
+        kc[11 + i] = sb + (1.0 if g > 1.0 else g) * (s - sb)
+
+
 _sign = compiled(_sign, inline=True)
 _rhs5 = compiled(_rhs5, inline=True)
 _radius = compiled(_radius, inline=True)
 _mudot = compiled(_mudot, inline=True)
 _rk4_carcass = compiled(_rk4_carcass)
+relax_slips = compiled(relax_slips)
 _rk4_points = compiled(_rk4_points)
