@@ -59,6 +59,9 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     from .engine import diagnose
 
     d = diagnose(source)
+    from .channels import release_memos
+
+    release_memos(d.problem.channels.values())   # the fits are done: memos only spare recomputation
     est = None
     if estimator and not is_csv and p.is_dir():
         from .innovations import estimator_view

@@ -915,6 +915,21 @@ class SlipChannel(Channel):
         return y - p
 
 
+def release_memos(channels) -> None:
+    """Drop what the channels keep only to spare recomputation (the wheel-state memo, the GNSS-speed
+    spline factors, the wheel-force channel's g(s) tables): about 170 MB on a 4-hour recording, of no
+    use once the fits are done.  The residuals stay what they were; a later call recomputes."""
+    for ch in channels:
+        wc = getattr(ch, "wc", None)
+        if wc is not None:
+            wc._cache.clear()
+            wc._bytes = 0
+        for memo in ("_qr", "_g_plain"):
+            m = getattr(ch, memo, None)
+            if isinstance(m, dict):
+                m.clear()
+
+
 def build_channels(feat: Features) -> list[Channel]:
     """Every channel the frame's signals support."""
     fr = feat.frame
