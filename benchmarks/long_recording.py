@@ -4,12 +4,14 @@ A long recording is the simulated ``paper-three-soils`` run (seed 7, 415 s) repe
 (:func:`tractionecu.recording.concat.concatenate`: each copy's CAN and NMEA times moved on by the span of
 the copies before it and a gap of ``--gap-s`` with nothing logged, NMEA time of day and date rewritten,
 checksums recomputed), so the whole is a day's log of the chosen length on the same field, the logger
-restarted between work periods.  The recorded length excludes the gaps.  Each command runs in its own
+restarted between work periods.  The copies start at multiples of ``--align-s`` (80 s: twice the
+diagnosis's held-out block, so that repeated noise is never scored against its own copy in the other
+fold; a real day does not repeat its noise).  The recorded length excludes the gaps.  Each command runs in its own
 process; peak RSS is that process's ``ru_maxrss``, CPU time its user + system time.  The load average is
 printed beside each line: on a shared machine wall time is not a measure of speed, CPU time is.
 
     python benchmarks/long_recording.py [--hours 0.1667 1 4] [--gap-s 10] [--work DIR] [--skip-diagnose]
-                                        [--only CMD ...]
+                                        [--align-s 80] [--only CMD ...]
 
 Prints one line per command and length, then per command the ratio of time per recorded hour (CPU and
 wall) between the longest and the shortest recording.
@@ -52,6 +54,10 @@ def main() -> int:
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 6, 1.0, 4.0])
     ap.add_argument("--gap-s", type=float, default=GAP_S,
                     help="time between the copies with nothing logged [s] (default: %(default)s)")
+    ap.add_argument("--align-s", type=float, default=80.0,
+                    help="copies start at multiples of this [s] (default: %(default)s, twice the diagnosis's "
+                         "40-s held-out block, so that no copy's held-out half repeats another's training "
+                         "half; 0: right after the gap)")
     ap.add_argument("--work", type=Path, default=None, help="directory for the recordings (default: a temp dir)")
     ap.add_argument("--skip-diagnose", action="store_true")
     ap.add_argument("--only", nargs="+", default=None, metavar="COMMAND",
@@ -65,9 +71,9 @@ def main() -> int:
                        check=True, capture_output=True)
     per_hour: dict[str, list[tuple[float, float, float]]] = {}
     for h in sorted(args.hours):
-        rec = work / f"rec_{h:g}h_gap{args.gap_s:g}"
+        rec = work / f"rec_{h:g}h_gap{args.gap_s:g}_align{args.align_s:g}"
         if not (rec / "can.log").exists():
-            length = concatenate(base, rec, h * 3600.0, gap_s=args.gap_s)
+            length = concatenate(base, rec, h * 3600.0, gap_s=args.gap_s, align_s=args.align_s or None)
             (rec / "length_s.txt").write_text(f"{length!r}\n")
         else:
             length = float((rec / "length_s.txt").read_text())

@@ -13,6 +13,7 @@ truth files are not.
 from __future__ import annotations
 
 import datetime as dt
+import math
 import shutil
 from pathlib import Path
 
@@ -55,12 +56,15 @@ GAP_S = 10.0
 """Default time between copies with nothing logged [s]: the logger restarted between work periods."""
 
 
-def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float = GAP_S) -> float:
+def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float = GAP_S,
+                align_s: float | None = None) -> float:
     """``dst``: copies of the recording ``src`` (candump ``-L`` ``can.log``, ``gps.nmea``,
     ``vehicle.toml``) one after the other until about ``seconds`` [s] are recorded (at least one
     copy); returns the recorded length [s] (without the gaps).  A copy starts ``gap_s`` [s] after the
     last CAN frame of the one before (at least one CAN frame period, 10 ms, the copies then joined
-    as if the drive went on)."""
+    as if the drive went on), or, with ``align_s``, at the next multiple of ``align_s`` [s] after
+    that.  (Copies repeat the same noise: aligned to twice the diagnosis's held-out block, a copy's
+    held-out half is never another copy's training half.)"""
     src, dst = Path(src), Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
     if (src / "vehicle.toml").is_file():
@@ -71,6 +75,8 @@ def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float =
     rest = [ln[ln.index(")") + 1:] for ln in can]
     span = t[-1] - t[0] + 0.01
     step = span + max(gap_s - 0.01, 0.0)
+    if align_s:
+        step = math.ceil(step / align_s) * align_s
     copies = max(1, round(seconds / span))
     with open(dst / "can.log", "w") as fc:
         for c in range(copies):
