@@ -287,6 +287,10 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         # A close competitor that the augmentation did not add as a separate effect explains the same
         # mismatch: the recording cannot tell the two apart.
         rivals = [r.name for r in close if r.name not in chosen]
+        if best.name not in chosen:
+            # The backward pass dropped the first step's fault (a later one explains its structure):
+            # what tied with it at that step is no rival of the model kept.
+            rivals = []
         # A cause the library models through another effect's term (low tyre pressure through a
         # radius error): when the two tie, the data show the term, not its cause; the simpler one is
         # named and the cause is mentioned.
@@ -367,6 +371,28 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                                    "by the machine's characteristics at a healthy size (below).")
                 else:
                     d.statement = _statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+    # A fault is named only when the 95 % interval it is reported with (the joint fit's, profile
+    # likelihood and block jackknife) still excludes its negligible band: detection asked that of the
+    # sandwich interval, and a name whose calibrated interval reaches the effect's absence is not a finding
+    # (a rear mass taken up from a few pass-end accelerations of a recording whose time blocks disagree).
+    for e in d.effects:
+        if (e["kind"] not in ("effect", "sensor_fault") or not e.get("named") or e["name"] == "wheel_speed_hold"
+                or joint is None or e["name"] not in joint.ci95_by or _excludes_null(joint, e["name"])):
+            continue
+        e["named"] = False
+        e["not_significant"] = True
+        iv = "; ".join(f"{k} [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]" for k, v in e["parameters"].items()
+                       if v.get("ci95") and k != "front_share")
+        d.notes.append(f"{e['name']}: held-out score {e.get('score') or 0.0:.1f}, but its 95 % interval ({iv}) reaches "
+                       "the value at which it vanishes: not named")
+        if d.effect == e["name"]:
+            rest = [x["name"] for x in d.effects if x["kind"] in ("effect", "sensor_fault") and x.get("named")
+                    and x["name"] in chosen]
+            d.verdict, d.effect = ("effect", rest[0]) if rest else ("none", None)
+            d.statement = (_statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+                           if rest else
+                           "No fault named: the best explanation's 95 % interval reaches the value at which it "
+                           f"vanishes ({e['name']}: {iv}).")
     for e in d.effects:
         alts = [a for a in consistent.get(e["name"], [])
                 if a not in chosen or any(x["name"] == a and not x.get("named") for x in d.effects)]
@@ -569,9 +595,100 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
         if rivals and name not in CHARACTERISTIC:
             step["ambiguous_with"] = rivals
         steps.append(step)
-    if len(chosen) == 1:
+    if len(chosen) > 1:
+        chosen, cur_fit, cur_ho = _prune(problem, results, chosen, cur_fit, cur_ho, steps)
+    if chosen == [first.name]:
         return chosen, first.fit, first.heldout, steps
+    if len(chosen) == 1:
+        one = next(r for r in results if r.name == chosen[0])
+        return chosen, one.fit, one.heldout, steps
     return chosen, cur_fit, cur_ho, steps
+
+
+def _prune(problem: Problem, results: list[CandidateResult], chosen: list[str], cur_fit: FitResult,
+           cur_ho: HeldOut, steps: list[dict]) -> tuple[list[str], FitResult, HeldOut]:
+    """Backward pass of the augmentation: every fault must earn its place beside the others.
+
+    A fault entered when it improved the held-out log-likelihood of the model *at that step* by
+    :data:`DETECT_LLR`; a later addition can explain the same structure better (a front-axle load
+    offset, added after a front mass that took up the same level of the measured load).  Each fault
+    of the joint model is therefore removed in turn and the model without it re-fitted on the folds;
+    the fault whose removal costs least is dropped when that cost is below :data:`DETECT_LLR` (the
+    same evidence the forward step asks for), and the pass repeats.  Characteristics at a healthy
+    size are never dropped (they are the machine's, not findings).
+
+    A dropped fault whose estimate traded off (|correlation| ≥ :data:`TRADE_OFF_CORR`) with a fault that
+    stays, and that stayed cheap to remove too (the data need one of the two, not both), is recorded
+    as ambiguous with it (``ambiguous_with`` and ``trade_off`` on the step that added the one kept):
+    the recording cannot tell which of the two it is.
+    """
+    from .fit import Joint
+
+    by_added = {s["added"]: s for s in steps if "added" in s}
+    while len(chosen) > 1:
+        faults = [n for n in chosen if not _healthy(n, cur_fit)]
+        if not faults:
+            break
+        trials = []
+        for n in faults:
+            rest = tuple(m for m in chosen if m != n)
+            start = {m: _xs(cur_fit, m) for m in rest}
+            if len(rest) == 1:
+                ho = held_out(problem, rest[0], x_start=start[rest[0]])
+            else:
+                ho = held_out(problem, rest, start=start)
+            sc, _ = score(problem, ho, cur_ho)
+            trials.append((sc, n, rest, start, ho))
+        trials.sort(key=lambda t: t[0])
+        sc, n, rest, start, ho = trials[0]
+        if sc >= DETECT_LLR:
+            break
+        corr = {b: c for (a, b), c in _corr_pairs(cur_fit).items() if a == n}
+        corr.update({a: c for (a, b), c in _corr_pairs(cur_fit).items() if b == n})
+        tied = [t[1] for t in trials[1:] if t[0] < DETECT_LLR and abs(corr.get(t[1], 0.0)) >= TRADE_OFF_CORR]
+        if len(rest) == 1:
+            one = next(r for r in results if r.name == rest[0])
+            jf = one.fit
+            ho = one.heldout
+        else:
+            jf = fit(problem, Joint(rest, start))
+            _calibrate(jf, ho.fold_params)
+        chosen = list(rest)
+        cur_fit, cur_ho = jf, ho
+        step = {"step": len(steps) + 1, "removed": n, "score": sc, "against": "+".join(chosen),
+                "why": f"removing {n} costs {sc:.1f} < {DETECT_LLR:.0f} of held-out log-likelihood beside "
+                       + "+".join(chosen)}
+        if tied:
+            keep = tied[0]
+            step["ambiguous_with"] = keep
+            step["correlation"] = corr[keep]
+            s_keep = by_added.get(keep)
+            if s_keep is not None and keep not in CHARACTERISTIC:
+                s_keep["ambiguous_with"] = list(s_keep.get("ambiguous_with", [])) + [n]
+                s_keep.setdefault("trade_off", {})[n] = corr[keep]
+        steps.append(step)
+    return chosen, cur_fit, cur_ho
+
+
+def _corr_pairs(jf: FitResult | None) -> dict[tuple[str, str], float]:
+    """Largest correlation (by magnitude) between the estimates of two different effects of a joint fit,
+    ``{(effect_i, effect_j): r}`` with i before j in the fit's order."""
+    out: dict[tuple[str, str], float] = {}
+    if jf is None:
+        return out
+    cov = jf.cov
+    if cov is None or not cov.size or not np.all(np.isfinite(np.diag(cov))):
+        return out
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    cr = cov / np.outer(sd, sd)
+    for i, ni in enumerate(jf.names):
+        for j, nj in enumerate(jf.names):
+            ei, ej = ni.split(".")[0], nj.split(".")[0]
+            if j <= i or ei == ej:
+                continue
+            if abs(cr[i, j]) > abs(out.get((ei, ej), 0.0)):
+                out[(ei, ej)] = float(cr[i, j])
+    return out
 
 
 def _xs(f: FitResult, name: str) -> np.ndarray:
@@ -597,19 +714,7 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
     jf = d.joint
     if jf is not None:
         # Correlations between parameters of different effects in the joint fit.
-        corr_pairs: dict[tuple[str, str], float] = {}
-        cov = jf.cov
-        if cov is not None and cov.size and np.all(np.isfinite(np.diag(cov))):
-            sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-            cr = cov / np.outer(sd, sd)
-            for i, ni in enumerate(jf.names):
-                for j, nj in enumerate(jf.names):
-                    ei, ej = ni.split(".")[0], nj.split(".")[0]
-                    if j <= i or ei == ej:
-                        continue
-                    key = (ei, ej)
-                    if abs(cr[i, j]) > abs(corr_pairs.get(key, 0.0)):
-                        corr_pairs[key] = float(cr[i, j])
+        corr_pairs = _corr_pairs(jf)
         steps = {s["added"]: s for s in d.steps if "added" in s}
         for rank, name in enumerate(chosen):
             params = {}
@@ -639,12 +744,18 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
             if rv and e["kind"] != "characteristic":
                 e["named"], e["ambiguous"], e["ambiguous_with"] = False, True, list(rv)
                 ambiguous = list(ambiguous) + [r for r in rv if r not in ambiguous]
+                # A rival the backward pass dropped for trading off with this one: their correlation.
+                for r, c in steps.get(e["name"], {}).get("trade_off", {}).items():
+                    if r in rv and not any(t["with"] == r for t in e["trades_off_with"]):
+                        e["trades_off_with"].append({"with": r, "correlation": c})
     for name in ambiguous:
         if name in CANDIDATES and not any(e["name"] == name for e in out):
             c = d.candidate(name)
+            tr = [{"with": s["added"], "correlation": s["trade_off"][name]} for s in d.steps
+                  if "added" in s and name in s.get("trade_off", {})]
             out.append({"name": name, "kind": "sensor_fault" if name in SENSOR_FAULTS else "effect", "named": False,
                         "ambiguous": True, "score": c.score if c else None, "formula": LIBRARY[name].formula,
-                        "plain": CANDIDATES[name].plain, "parameters": {}, "trades_off_with": []})
+                        "plain": CANDIDATES[name].plain, "parameters": {}, "trades_off_with": tr})
     for e in out:
         if e["name"] in ambiguous:
             e["ambiguous"] = True
