@@ -284,7 +284,7 @@ def test_carcass_model_compiled_rk4_equals_numpy_rk4_and_relaxes_to_the_random_w
     m = FilterModel(veh)
     rng = np.random.default_rng(3)
     x = np.tile([3.2, 3.2, 3.3, 3.3, 2.4, 0.30, 0.31, 0.35, 0.36, 0.06], (21, 1)) + rng.normal(0.0, 0.01, (21, 10))
-    m.set_relaxed_slip(np.array([0.05, 0.06, 0.07, 0.08]))
+    m.set_relaxed_slip(np.array([0.05, 0.06, 0.07, 0.08]), 2.4)
     for u in (np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0]),
               np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0, 0.0]),
               np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0, 0.03])):
@@ -295,8 +295,8 @@ def test_carcass_model_compiled_rk4_equals_numpy_rk4_and_relaxes_to_the_random_w
     u = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 10000.0])
     fz, rd = m.loads(u)
     d = m.rhs(x[0], u, fz, rd)
-    s = slip(x[0, :4], x[0, 4], rd)
-    np.testing.assert_allclose(d[5:9], 2.0e5 * abs(x[0, 4]) * (s - m.relaxed_slip) / fz, rtol=1e-12)
+    s = slip(x[0, :4], 2.4, rd)                   # against v̄ = 2.4, not the state's v (model doc)
+    np.testing.assert_allclose(d[5:9], 2.0e5 * 2.4 * (s - m.relaxed_slip) / fz, rtol=1e-12)
     m.set_relaxed_slip(s)
     assert np.abs(m.rhs(x[0], u, fz, rd)[5:9]).max() == 0.0
     assert np.abs(FilterModel(VEH).rhs(x[0], u, fz, rd)[5:9]).max() == 0.0

@@ -61,10 +61,15 @@ relaxation length L_r = C_Fκ/c_x (C_Fκ the slip stiffness), so that
 
     μ̇_i = c_x |k_i v| (s_i − σ̄_i) / F_z,i
 
-with s_i eq. 6 against the wheel's ground speed k_i v and σ̄_i the relaxed
-slip, which follows s_i at the rate |k_i v|/L_r (the estimator moves it
-between steps, :meth:`tractionecu.estimation.estimator.Estimator._relax`;
-here it is held over a step).  At steady slip σ̄ = s and μ is the paper's
+with s_i eq. 6 of ω_i against the wheel's ground speed k_i v̄ and σ̄_i the
+relaxed slip, which follows s_i at the rate |k_i v|/L_r (the estimator moves
+it between steps, :meth:`tractionecu.estimation.estimator.Estimator._relax`;
+here it is held over a step).  v̄ is the filter's mean speed at the start of
+the step, the same for every sigma point: the vehicle's speed hardly moves
+over the carcass's time scales (its mass is two orders above the wheel's
+equivalent), and a v that entered the carcass term would let the wheel
+speeds' ring "measure" v through the exactly-known σ̄ (on the physical truth
+that biased v by 3 % and slip by −0.03).  At steady slip σ̄ = s and μ is the paper's
 random walk; a slip change moves μ through the carcass spring r² c_x at
 once, so the filter predicts the wheel-on-carcass oscillation from the
 wheel speeds and the torque instead of following it from the innovations.
@@ -236,11 +241,12 @@ class FilterModel:
         # (r0 and k of eq. 9, or of the declared rolling radius: radius_law), tan β of the line of pull.
         r0, k = radius_law(params)
         self.tan_pull = math.tan(math.radians(params.pull_angle_deg))
-        # Tyre carcass (module doc "Tyre carcass"): c_x and the relaxed slips σ̄_i (kc[10], kc[11:15]).
+        # Tyre carcass (module doc "Tyre carcass"): c_x, the relaxed slips σ̄_i and the speed v̄ they are taken
+        # against (kc[10], kc[11:15], kc[15]).
         self.cx = float(getattr(params, "tyre_carcass_stiffness_npm", 0.0))
         self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
                              0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull, self.cx,
-                             0.0, 0.0, 0.0, 0.0])
+                             0.0, 0.0, 0.0, 0.0, 0.0])
         self._fzf_key: tuple[float, float] | None = None
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -280,7 +286,7 @@ class FilterModel:
                 kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
             else:
                 kw = np.ones(4)
-            vi = kw * v[..., None]
+            vi = kw * self._kc[15]
             dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(omega, vi, r_d) - self._kc[11:15]) / fz
         return dx
 
@@ -294,9 +300,12 @@ class FilterModel:
         self.cx = float(getattr(self.params, "tyre_carcass_stiffness_npm", 0.0)) if on else 0.0
         self._kc[10] = self.cx
 
-    def set_relaxed_slip(self, sbar) -> None:
-        """Set the relaxed slips σ̄_i (4,) that the carcass term of μ̇ relaxes against (module doc)."""
+    def set_relaxed_slip(self, sbar, v_ref: float | None = None) -> None:
+        """Set the relaxed slips σ̄_i (4,) that the carcass term of μ̇ relaxes against and, when given, the
+        speed v̄ [m/s] the slips are taken against in that term (module doc)."""
         self._kc[11:15] = sbar
+        if v_ref is not None:
+            self._kc[15] = v_ref
 
     def front_cosines(self, kappa: ArrayLike) -> NDArray[np.float64]:
         """cos δ of the front wheels FL, FR (..., 2) at path curvature κ [1/m] (module doc); 1 at κ = 0."""
@@ -521,7 +530,7 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma
     """_rk4_points with the carcass term of μ̇ (kc[10] = c_x ≠ 0, kc[11:15] = σ̄): the four RK4 stages of
     ω, v and μ, as rk4(FilterModel.rhs) computes them; ρ_s as in _rk4_points."""
     J, m, cx = kc[5], kc[6], kc[10]
-    s0, s1, s2, s3 = kc[11], kc[12], kc[13], kc[14]
+    s0, s1, s2, s3, vb = kc[11], kc[12], kc[13], kc[14], kc[15]
     k0 = k1 = k2 = k3 = 1.0
     if u.shape[0] > 6 and u[6] != 0.0:           # wheel_speed_factors()
         hk = kc[7] * u[6]
@@ -543,34 +552,34 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma
         x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
         a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
-        e0 = _mudot(x0, x4, k0, rdf, ff, s0, cx)
-        e1 = _mudot(x1, x4, k1, rdf, ff, s1, cx)
-        e2 = _mudot(x2, x4, k2, rdr, fr, s2, cx)
-        e3 = _mudot(x3, x4, k3, rdr, fr, s3, cx)
+        e0 = _mudot(x0, vb, k0, rdf, ff, s0, cx)
+        e1 = _mudot(x1, vb, k1, rdf, ff, s1, cx)
+        e2 = _mudot(x2, vb, k2, rdr, fr, s2, cx)
+        e3 = _mudot(x3, vb, k3, rdr, fr, s3, cx)
         y0, y1, y2, y3, y4 = x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4
         n0, n1, n2, n3 = m0 + h * e0, m1 + h * e1, m2 + h * e2, m3 + h * e3
         b0, b1, b2, b3, b4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
                                    cosl, cosr)
-        f0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
-        f1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
-        f2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
-        f3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        f0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
+        f1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
+        f2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
+        f3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
         y0, y1, y2, y3, y4 = x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4
         n0, n1, n2, n3 = m0 + h * f0, m1 + h * f1, m2 + h * f2, m3 + h * f3
         c0, c1, c2, c3, c4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
                                    cosl, cosr)
-        g0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
-        g1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
-        g2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
-        g3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        g0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
+        g1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
+        g2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
+        g3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
         y0, y1, y2, y3, y4 = x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4
         n0, n1, n2, n3 = m0 + dt * g0, m1 + dt * g1, m2 + dt * g2, m3 + dt * g3
         d0, d1, d2, d3, d4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m,
                                    cosl, cosr)
-        q0 = _mudot(y0, y4, k0, rdf, ff, s0, cx)
-        q1 = _mudot(y1, y4, k1, rdf, ff, s1, cx)
-        q2 = _mudot(y2, y4, k2, rdr, fr, s2, cx)
-        q3 = _mudot(y3, y4, k3, rdr, fr, s3, cx)
+        q0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
+        q1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
+        q2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
+        q3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
         out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
         out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
         out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
@@ -601,6 +610,7 @@ def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ld
         k2 = left
         k3 = right
     v = x[4]
+    kc[15] = v
     for i in range(4):
         k = k0 if i == 0 else (k1 if i == 1 else (k2 if i == 2 else k3))
         rd = rdf if i < 2 else rdr
