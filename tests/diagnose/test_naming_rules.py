@@ -376,3 +376,28 @@ def test_the_verdict_moves_past_a_fault_whose_interval_reaches_absence(monkeypat
                      reaches_absence=frozenset({"mass"}))
     assert (d.verdict, d.effect) == ("effect", "gps_latency")
     assert _effect(d, "gps_latency")["named"] is True
+
+
+# --------------------------------------------------------------------------- rule 5: a contradicting signal
+def test_an_effect_that_worsens_a_signal_it_acts_on_is_contradicted():
+    assert engine._contradicted({"speed": 30.7, "gps_speed": 2.3, "front_load": 116.4}) == ""
+    why = engine._contradicted({"speed": -15.1, "gps_speed": 27.2})
+    assert why.startswith("contradicted by the speed channel") and "15.1" in why
+    assert engine._contradicted({"speed": -DETECT_LLR + 0.1, "gps_speed": 27.2}) == ""
+
+
+def test_stepwise_does_not_add_a_fault_a_channel_contradicts(monkeypatch):
+    """Step 2's best addition (a mass, +25 in all) lowers the speed channel by 15: it is not added; the next
+    best (a GNSS latency, +12, no channel worse) is."""
+    single = {"wheel_radius": 60.0, "mass": 30.0, "gps_latency": 15.0}
+    per = {("wheel_radius", "mass"): (25.0, {"speed": -15.0, "gps_speed": 40.0}),
+           ("wheel_radius", "gps_latency"): (12.0, {"gps_speed": 12.0})}
+    _stepwise(monkeypatch, "wheel_radius", single, {})
+    monkeypatch.setattr(engine, "score",
+                        lambda problem, cur, ho: per.get(tuple(ho.candidate.split("+")), (0.0, {})))
+    results = [CandidateResult(n, True, "", s, {}, _fit(_values(n)), _ho(n), s >= DETECT_LLR)
+               for n, s in sorted(single.items(), key=lambda kv: -kv[1])]
+    chosen, _, _, steps = engine._stepwise(SimpleNamespace(), results, results[0], _ho("null"), {})
+    assert chosen == ["wheel_radius", "gps_latency"]
+    assert any("best addition mass" in s.get("stopped", "") and "contradicted by the speed channel" in s["stopped"]
+               for s in steps)

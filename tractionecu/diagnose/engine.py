@@ -249,6 +249,11 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
             cr.reason = (f"fits on the {side} of its range: not a plausible size of this effect; the mismatch it "
                          "takes up is left to the search for a missing term (open world)")
             notes.append(f"{name}: {cr.reason}")
+        worse = _contradicted(per)
+        if cr.detected and worse:
+            cr.detected = False
+            cr.reason = worse
+            notes.append(f"{name} (held-out {sc:.1f}): {worse}")
         results.append(cr)
     results.sort(key=lambda r: (not r.testable, -(r.score if math.isfinite(r.score) else -1e18)))
 
@@ -502,6 +507,23 @@ def _white(problem: Problem, ho: HeldOut) -> bool:
     return True
 
 
+def _contradicted(per_channel: dict[str, float]) -> str:
+    """Why a candidate is contradicted by a signal, or ''.
+
+    An effect acts on every channel in whose equation its term appears; fitted where it is real, it
+    improves each of them or leaves it as it was.  One that lowers some channel's held-out
+    log-likelihood by :data:`DETECT_LLR` or more (the evidence a detection asks for, the other way) is
+    fitted to structure elsewhere at that channel's expense: it is not the explanation.  (A rear
+    torque reading 7 % low was taken up by a rear mass of +1.7 t through the GNSS speed channel, +27,
+    while the speed equation, where a mass acts through its inertia directly, lost 15.)"""
+    bad = {c: v for c, v in per_channel.items() if v <= -DETECT_LLR}
+    if not bad:
+        return ""
+    c, v = min(bad.items(), key=lambda kv: kv[1])
+    return (f"contradicted by the {c} channel, whose held-out log-likelihood it lowers by {-v:.1f}: its "
+            "term does not describe that signal, so it is not named")
+
+
 def _implausible_bound(f: FitResult, name: str) -> str:
     """'lower bound' / 'upper bound' when a parameter of effect ``name`` in fit ``f`` sits on a bound of
     the library's range that is not the value at which the effect vanishes (the front-axle share of a
@@ -580,6 +602,11 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
                           f"the {side}: not a plausible size"})
             pool.remove(name)
             continue
+        worse = _contradicted(per)
+        if worse and name not in CHARACTERISTIC:
+            steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}): {worse}"})
+            pool.remove(name)
+            continue
         if not _excludes_null(jf, name):
             steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}) is "
                           "negligible in the joint fit"})
@@ -588,7 +615,8 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
         chosen.append(name)
         pool.remove(name)
         cur_fit, cur_ho = jf, ho
-        step = {"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1])}
+        step = {"step": len(chosen), "added": name, "score": sc, "against": "+".join(chosen[:-1]),
+                "per_channel": {c: round(float(v), 2) for c, v in per.items() if v}}
         # Other faults that improve this step as much (within the margin) explain the same structure:
         # the recording cannot tell which one it is.
         rivals = [t[1] for t in near if t[1] not in CHARACTERISTIC and t[1] != name]
