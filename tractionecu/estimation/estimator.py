@@ -13,7 +13,10 @@ input u = (M_d1..4, F_zf, F_dx).  Sigma points go through
 in one call per step (:mod:`.ukf`); the process noise is adapted by
 covariance matching and the fuzzy supervisor (:mod:`.supervisor`, eqs.
 16–17); a and the surface class come from (μ̂, ŝ) pairs (:mod:`.curve`,
-eq. 18); slip is eq. 6 with r_d from eqs. 9–10.
+eq. 18); slip is eq. 6 with r_d from eqs. 9–10.  Beyond the paper, from the vehicle file: the reported
+motor torque reaches the wheel as η M − c ω (hub efficiency, ``drivetrain.hub_drag_nms``), and with a
+declared ``tyre_carcass_stiffness_npm`` μ follows slip through the carcass (:meth:`Estimator._relax`,
+model doc "Tyre carcass").
 
 Noise model
 -----------
