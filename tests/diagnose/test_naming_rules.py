@@ -157,6 +157,8 @@ def _stepwise(monkeypatch, first: str, single: dict[str, float], trials: dict[tu
     (tuple of effect names, missing → 0) instead of fitting; the joint fits carry :data:`VALUE`
     (``char_values`` overrides, e.g. an unhealthy characteristic)."""
     monkeypatch.setattr(engine, "_white", lambda problem, ho: False)
+    # These synthetic steps carry no per-channel gains: the separation rule (rule 5) is tested on its own.
+    monkeypatch.setattr(engine, "_unseparated", lambda name, per: "")
     monkeypatch.setattr(engine, "held_out", lambda problem, names, **kw: _ho("+".join(names)))
     monkeypatch.setattr(engine, "score",
                         lambda problem, cur, ho: (trials.get(tuple(ho.candidate.split("+")), 0.0), {}))
@@ -257,6 +259,7 @@ def _prune(monkeypatch, first: str, loglik: dict[tuple[str, ...], float], corr=N
 
     ll = {key(k): v for k, v in loglik.items()}
     monkeypatch.setattr(engine, "_white", lambda problem, ho: False)
+    monkeypatch.setattr(engine, "_unseparated", lambda name, per: "")
     monkeypatch.setattr(engine, "held_out",
                         lambda problem, names, **kw: _ho("+".join(key(names))))
     monkeypatch.setattr(engine, "score", lambda problem, ref, ho: (
@@ -401,3 +404,12 @@ def test_stepwise_does_not_add_a_fault_a_channel_contradicts(monkeypatch):
     assert chosen == ["wheel_radius", "gps_latency"]
     assert any("best addition mass" in s.get("stopped", "") and "contradicted by the speed channel" in s["stopped"]
                for s in steps)
+
+
+def test_a_mass_without_support_in_the_speed_equation_or_the_axle_load_is_not_separated():
+    """The GNSS speed channel sees a mass only as the scale of the integrated force, as it sees a torque
+    gain: a mass needs support where its inertia or static load acts."""
+    assert engine._unseparated("mass", {"speed": -1.2, "gps_speed": 13.4}).startswith("no support where it is separable")
+    assert engine._unseparated("mass", {"speed": 30.7, "gps_speed": 2.3, "front_load": 116.4}) == ""
+    assert engine._unseparated("mass", {"speed": -3.0, "front_load": 40.0}) == ""
+    assert engine._unseparated("gps_latency", {"gps_speed": 13.4}) == ""

@@ -249,7 +249,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
             cr.reason = (f"fits on the {side} of its range: not a plausible size of this effect; the mismatch it "
                          "takes up is left to the search for a missing term (open world)")
             notes.append(f"{name}: {cr.reason}")
-        worse = _contradicted(per)
+        worse = _contradicted(per) or _unseparated(name, per)
         if cr.detected and worse:
             cr.detected = False
             cr.reason = worse
@@ -507,6 +507,29 @@ def _white(problem: Problem, ho: HeldOut) -> bool:
     return True
 
 
+SEPARATING = {"mass": ("speed", "front_load")}
+"""Effect → the channels where its term is not a copy of another effect's.  A mass acts on the GNSS speed
+channel only as the scale 1/(m + Δm) of the integrated net force, which a force-scale error of the drive
+(torque-sensor gain, drivetrain efficiency) reproduces; the speed equation holds its inertia Δm dv/dt
+against the measured force itself and the front-axle pin its static share."""
+
+
+def _unseparated(name: str, per_channel: dict[str, float]) -> str:
+    """Why effect ``name`` is not separated from the effects its other channels cannot tell it from, or ''.
+
+    An effect with separating channels (:data:`SEPARATING`) must raise their held-out log-likelihood;
+    evidence from the other channels alone is evidence of a term several effects share."""
+    chans = SEPARATING.get(name)
+    if not chans:
+        return ""
+    gain = sum(per_channel.get(c, 0.0) for c in chans)
+    if gain > 0.0:
+        return ""
+    return (f"no support where it is separable ({' and '.join(chans)}: {gain:+.1f} held out); its gain elsewhere "
+            "is a term a force-scale error of the drive (torque-sensor gain, drivetrain efficiency) shares, so it "
+            "is not named")
+
+
 def _contradicted(per_channel: dict[str, float]) -> str:
     """Why a candidate is contradicted by a signal, or ''.
 
@@ -602,7 +625,7 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
                           f"the {side}: not a plausible size"})
             pool.remove(name)
             continue
-        worse = _contradicted(per)
+        worse = _contradicted(per) or _unseparated(name, per)
         if worse and name not in CHARACTERISTIC:
             steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}): {worse}"})
             pool.remove(name)
