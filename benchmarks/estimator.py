@@ -51,8 +51,10 @@ pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
 ``rev_*``
     over valid steps while reversing faster than 0.5 m/s (truth speed < 0):
     steps with the wrong sign of v (count), ρ_s mean absolute error, the
-    steps whose slip is supported (``rev_slip_supported``) and their slip
-    mean absolute error;
+    steps whose slip is supported (``rev_slip_supported``: bit 0x2000 clear, by
+    the step's own σ or averaged over the last metres, bit 0x10000
+    ``slip_averaged``), of those the averaged ones (``rev_slip_averaged``) and
+    their slip mean absolute error against the truth's slip of the step;
 ``still_valid``
     valid steps while the true speed is below 0.1 m/s (the data cannot support
     ρ_s or slip there: the target is 0).
@@ -93,7 +95,7 @@ from tractionecu.pipeline.replay import recording_grid, replay_to_dir  # noqa: E
 from tractionecu.pipeline.signals import DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, WHEEL_SPEEDS  # noqa: E402
 from tractionecu.pipeline.steps import arrivals  # noqa: E402
 from tractionecu.config import SensorSpec, load_vehicle  # noqa: E402
-from tractionecu.estimation.estimator import SLIP_UNCERTAIN, Estimator, EstimatorConfig  # noqa: E402
+from tractionecu.estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN, Estimator, EstimatorConfig  # noqa: E402
 from tractionecu.estimation.ukf import UnscentedFilter  # noqa: E402
 from tractionecu.model.vehicle import JIT, FilterModel  # noqa: E402
 from tractionecu.recording.reader import read_recording  # noqa: E402
@@ -164,26 +166,30 @@ def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) ->
            "rev_wrong_sign": int(np.sum(rev & (a["v"] > 0.0))),
            "rev_rho_mae": float(np.mean(np.abs(a["rho_s"][rev] - tr.rho_s_paper[k][rev]))) if rev.any() else float("nan"),
            "rev_slip_supported": int(rs.sum()),
+           "rev_slip_averaged": int(np.sum(rs & ((a["status"] & SLIP_AVERAGED) != 0))),
            "rev_slip_mae": float(np.mean(np.abs(se[rs] - st[rs]))) if rs.any() else float("nan"),
            "still_valid": int(np.sum(valid & (np.abs(v_t) < 0.1)))}
     return row
 
 
-def families(work: Path, seed: int) -> list[dict]:
-    """Every row of :data:`FAMILIES`, printed as it is measured."""
+def families(work: Path, seed: int, only: set[str] | None = None) -> list[dict]:
+    """Every row of :data:`FAMILIES` (those of the scenarios in ``only`` if given), printed as it is measured."""
     rows = []
     print(f"{'family':15s} {'truth':9s} {'scenario':26s} {'valid_work':>10s} {'mu_err':>7s} {'mu_bias':>7s} {'slip_mae':>8s} "
           f"{'slip_lr':>8s} {'slip_ok':>7s} {'rev_n':>6s} {'rev_wrong':>9s} {'rev_rho':>8s} {'rev_s_ok':>8s} "
-          f"{'rev_slip':>8s} {'still_valid':>11s}",
+          f"{'rev_avg':>7s} {'rev_slip':>8s} {'still_valid':>11s}",
           flush=True)
     for n, (family, truth, scenario, changes) in enumerate(FAMILIES):
+        if only and scenario not in only:
+            continue
         r = family_row(work / f"family{n}-{scenario}", scenario, seed, changes)
         r.update(family=family, truth=truth, scenario=scenario, sensors=changes)
         rows.append(r)
         print(f"{family:15s} {truth:9s} {scenario:26s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% "
               f"{r['mu_bias'] * 100:+6.2f}% {r['slip_mae']:8.4f} {r['slip_lr']:8.4f} {r['slip_supported_work'] * 100:6.2f}% {r['rev_steps']:6d} "
               f"{r['rev_wrong_sign']:9d} "
-              f"{r['rev_rho_mae']:8.4f} {r['rev_slip_supported']:8d} {r['rev_slip_mae']:8.4f} {r['still_valid']:11d}",
+              f"{r['rev_rho_mae']:8.4f} {r['rev_slip_supported']:8d} {r['rev_slip_averaged']:7d} {r['rev_slip_mae']:8.4f} "
+              f"{r['still_valid']:11d}",
               flush=True)
     return rows
 
@@ -359,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--keep", default=None, help="keep the recording and replay output in this directory")
     ap.add_argument("--steps", type=int, default=10000, help="steps of the filterpy comparison (default 10000)")
     ap.add_argument("--no-families", action="store_true", help="skip the per-family rows (module doc)")
+    ap.add_argument("--only", default="", help="comma-separated scenarios: only their family rows (e.g. "
+                                               "headland-reverse,physical-headland-reverse)")
     ap.add_argument("--no-uncertainty", action="store_true",
                     help="skip the coverage and radius-calibration figures (benchmarks/uncertainty.py)")
     args = ap.parse_args(argv)
@@ -421,7 +429,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{k:34s} {v:.6g}{mark}")
         if not args.no_families:
             print("scenario families (seed %d) ..." % args.seed, flush=True)
-            figures["families"] = families(work, args.seed)
+            figures["families"] = families(work, args.seed, {x for x in args.only.split(",") if x} or None)
         Path(args.json).write_text(json.dumps(figures, indent=2, sort_keys=True) + "\n", encoding="utf-8")
     finally:
         if not args.keep:

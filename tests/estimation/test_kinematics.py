@@ -371,6 +371,81 @@ def test_creeping_slip_is_flagged_held_and_not_fed_to_the_curve(run20):
     assert all(math.sqrt(e.P_diag[4]) / abs(e.v) > EstimatorConfig().slip_sigma_max for e in flagged)
 
 
+def _creep(est, run, f_of_k, n, rng, t0=None, gnss_sigma=0.05):
+    """Continue ``run``'s last step with wheel speeds, torques and draft scaled by f_of_k(k) for n steps of
+    10 ms, GNSS speed at 10 Hz with seeded white noise of gnss_sigma [m/s]: the measurements' slip stays
+    that of the last step.  Returns the estimates."""
+    t_last, last_in, last_meas = run.steps[-1]
+    t0 = t_last if t0 is None else t0
+    om, md = np.asarray(last_meas["omega"]), np.asarray(last_in["Md"])
+    v0 = float(run.v[-1])
+    fzf = VEH.static_front_load_n()
+    out = []
+    for k in range(1, n + 1):
+        f = f_of_k(k)
+        meas = {"omega": om * f}
+        if k % 10 == 0:
+            meas["v"] = abs(v0 * f + gnss_sigma * rng.standard_normal())
+        out.append(est.step(t0 + 0.01 * k, {"Md": md * f, "Fzf": fzf, "Fdx": 15000.0 * f}, meas))
+    return out
+
+
+def test_slip_at_1_mps_is_reported_averaged_over_distance_once_its_sigma_allows(run20):
+    """At 1 m/s the filter's σ_v over |v| (≈ 0.024) is above ``slip_sigma_max`` on every step, but the slip
+    over the last metres is supported once enough metres have passed: the σ of a mean of the speed error,
+    correlated over ``slip_avg_corr_s`` (1 s), falls below the bound after ≈ 7 s.  Those steps carry
+    SLIP_AVERAGED (not SLIP_UNCERTAIN) and the average, within 0.01 of the truth's slip (the measurements'
+    slip is held at the last work step's); a standstill ends the stretch (nothing new valid there), and
+    after it the average needs its metres again."""
+    from tractionecu.estimation.estimator import SLIP_AVERAGED
+    cfg = EstimatorConfig()
+    assert SLIP_AVERAGED & INVALID_MASK == 0 and SLIP_AVERAGED != SLIP_UNCERTAIN
+    est = Estimator(VEH)
+    for s in run20.steps:
+        e = est.step(*s)
+    truth = run20.slip[-1]
+    rng = np.random.default_rng(5)
+    f1 = 0.4                                   # ≈ 1 m/s
+    es = _creep(est, run20, lambda k: max(f1, 1.0 - (1.0 - f1) * k / 200.0), 1600, rng)   # 2 s slowing, 14 s at 1 m/s
+    avg = [e for e in es if e.status & SLIP_AVERAGED]
+    assert len(avg) > 300
+    for e in es:
+        if e.status & SLIP_AVERAGED:
+            assert not e.status & (SLIP_UNCERTAIN | STANDSTILL)
+        else:
+            assert e.status & SLIP_UNCERTAIN or abs(e.v) > 1.5        # per-step slip supported only at speed
+    # at 1 m/s not before the metres are there: the mean over T s has σ·√c(T), c(7 s) ≈ 0.26 → 0.012
+    t_slow = min(e.t for e in es if abs(e.v) < 1.2)
+    slow = [e for e in avg if e.t > t_slow]
+    assert len(slow) > 300 and min(e.t for e in slow) - t_slow > 5.0
+    err = np.array([np.abs(e.slip - truth) for e in slow])
+    assert err.mean() <= 0.01 and err.max() <= 3.0 * cfg.slip_sigma_max
+    length, sig = est.slip_window
+    assert 0.0 < length <= cfg.slip_avg_max_m and sig <= cfg.slip_sigma_max
+    # stop: standstill ends the stretch; nothing averaged or valid there
+    t1 = es[-1].t
+    stop = _creep(est, run20, lambda k: f1 * max(0.0, 1.0 - k / 100.0), 200, rng, t0=t1)
+    still = [e for e in stop if e.status & STANDSTILL]
+    assert len(still) > 50 and not any(e.status & SLIP_AVERAGED or e.valid for e in still)
+    # moving again: the first 3 s have too few metres for the average (σ·√c(3 s) ≈ 0.016 > 0.0125)
+    again = _creep(est, run20, lambda k: f1, 300, rng, t0=stop[-1].t)
+    assert not any(e.status & SLIP_AVERAGED for e in again)
+
+
+def test_averaging_off_and_work_speed_are_unchanged(run20):
+    """``slip_avg_max_m = 0`` switches the average off (the slip is held and flagged as before); at work
+    speed, where each step's slip is supported, the estimates are the same to the bit with it on or off."""
+    from tractionecu.estimation.estimator import SLIP_AVERAGED
+    on, off = Estimator(VEH), Estimator(VEH, EstimatorConfig(slip_avg_max_m=0.0))
+    for s in run20.steps:
+        a, b = on.step(*s), off.step(*s)
+        assert a.status == b.status
+        for x, y in ((a.slip, b.slip), (a.mu, b.mu), (a.v, b.v), (a.rho_s, b.rho_s), (a.P_diag, b.P_diag)):
+            assert np.array_equal(x, y, equal_nan=True)
+    es = _creep(off, run20, lambda k: 0.4, 1500, np.random.default_rng(5))
+    assert not any(e.status & SLIP_AVERAGED for e in es) and all(e.status & SLIP_UNCERTAIN for e in es[100:])
+
+
 def test_a_flagged_slip_makes_no_map_pair():
     """The map's centred window takes (μ, s) pairs for its a; a slip flagged 0x2000 is a held value, so its
     sample gives no pair (weight 0), online (CentredSampler) as in replay (centred_map_values)."""

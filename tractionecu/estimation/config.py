@@ -63,6 +63,17 @@ class EstimatorConfig:
                                             "validity); "
                                             "0.0125 keeps the expected absolute error of a supported slip "
                                             "(0.8 σ) within 0.01; 0 disables", 0.0, 1.0)
+    slip_avg_max_m: float = setting(10.0, "longest stretch of travel [m] over which a slip whose own σ exceeds "
+                                          "slip_sigma_max (creeping, reversing at 1 m/s) may be reported averaged: "
+                                          "the shortest stretch of the last this many metres, in one direction "
+                                          "without a standstill, whose averaged slip has σ within slip_sigma_max "
+                                          "(status 0x10000 slip_averaged, estimator._slip_window); 0 disables",
+                                    0.0, 1000.0)
+    slip_avg_corr_s: float = setting(1.0, "correlation time [s] of the ground-speed error assumed for the σ of an "
+                                          "averaged slip: GNSS Doppler speed errors are correlated over about 1 s "
+                                          "(the receiver's own tracking and navigation filters); the filter's v error "
+                                          "on white 10 Hz GNSS noise decorrelates in 0.2–0.4 s, so this is the "
+                                          "conservative figure", 0.01, 100.0)
     mu_min: float = setting(-1.2, "lower bound of μ [-]", -5.0, 0.0)
     mu_max: float = setting(1.2, "upper bound of μ [-]", 0.0, 5.0)
     rho_min: float = setting(0.0, "lower bound of ρ_s [-]", -1.0, 0.0)

@@ -55,6 +55,7 @@ Equation numbers follow the paper's source; see :mod:`tractionecu.estimation`.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -126,6 +127,14 @@ DRAFT_NOT_SEPARATED = 0x8000
 """No draft sensor: ρ_s and the implement's draft are one term of eq. 8; their sum is estimated and ρ_s is
 reported as NaN (:mod:`.machine`).  A notice, not invalid."""
 STATUS_NAMES.update({MACHINE_LEVEL: "machine_level", DRAFT_NOT_SEPARATED: "rho_s_and_draft_not_separated"})
+SLIP_AVERAGED = 0x10000
+"""The slip of this step is not supported by its own σ (it would be ``SLIP_UNCERTAIN``), but its average over
+the last metres of travel is (:meth:`Estimator._slip_window`): ``slip`` is that average, the shortest stretch
+of at most ``slip_avg_max_m`` in one direction, without a standstill, whose σ (from the filter's P_vv with the
+ground-speed error correlated over ``slip_avg_corr_s``) is within ``slip_sigma_max``.  Reversing and creeping.
+No (μ, s) pair goes to the curve from it.  A notice, not invalid.  Above the 16 bits of the DBC's
+EstimateStatus: not on the bus (there such a step reads as a supported slip)."""
+STATUS_NAMES[SLIP_AVERAGED] = "slip_averaged"
 
 
 def status_names(status: int) -> list[str]:
@@ -327,6 +336,7 @@ class Estimator:
         self._dir_bus = 0.0
         self._t_dir_bus = -math.inf
         self._held: tuple[float, NDArray[np.float64]] | None = None
+        self._win_reset()
         self._t_relax: float | None = None
         self._conv = False                # last convergence verdict (hysteresis, EstimatorConfig.conv_exit_factor)
         self._lost = False
@@ -480,6 +490,7 @@ class Estimator:
         self.t_init = t
         self._conv = False
         self._t_relax = None
+        self._win_reset()
         self._monitor.reset()
 
     # ------------------------------------------------------------------ step
@@ -932,12 +943,142 @@ class Estimator:
                 return False
         return True
 
+    def _win_reset(self) -> None:
+        """Forget the travel the averaged slip is taken over (:meth:`_slip_window`)."""
+        self.slip_window = (0.0, math.nan)
+        """Length [m] and largest per-wheel σ [-] of the stretch the last SLIP_AVERAGED slip was averaged over."""
+        self._win_n = 0
+        self._win_dir = 0.0
+        # cumulative sums since the window began, one entry per step: time, ground distance Σ|v|Δt,
+        # Σ P_vv Δt, per wheel ground distance Σ k_i|v|Δt, rolled distance Σ r_d,i|ω_i|Δt, Σ |v ∂k_i/∂κ|Δt,
+        # Σ μ_i|v|Δt
+        self._win_t: list[float] = []
+        self._win_s: list[float] = []
+        self._win_p: list[float] = []
+        self._win_c: list[tuple[float, ...]] = []
+
+    def _slip_window(self, t: float, v: float, kw: NDArray[np.float64], omega: NDArray[np.float64],
+                     mu: NDArray[np.float64], pvv: float, kap: float) -> NDArray[np.float64] | None:
+        """The slip averaged over the last metres of travel, or None when even that is not supported.
+
+        Called on the steps whose own slip σ exceeds ``slip_sigma_max`` while moving; the window restarts
+        at a standstill, a change of direction, a gap, a new filter and whenever the step's own slip is
+        supported.  Over a stretch of T seconds the slip of wheel i is that of the distances (eq. 6 on
+        their sums): s̄_i = 1 − G_i/W_i driving, −1 + W_i/G_i braking, G_i = Σ k_i|v|Δt the wheel's ground
+        distance, W_i = Σ r_d,i|ω_i|Δt its rolled distance.  Its σ, taken in quadrature:
+
+        * noise: G_i's error is that of the filter's speed integrated over T, variance
+          k̄_i² P̄_vv T² c(T), P̄_vv the mean of the filter's P_vv and c(T) = 2(τ/T)(1 − (τ/T)(1 − e^(−T/τ)))
+          the variance ratio of the mean of an error correlated exponentially over τ = ``slip_avg_corr_s``;
+        * curvature: (Σ|v ∂k_i/∂κ|Δt) σ_κ, not reduced by averaging (the curvature error is a slow bias);
+        * lag: the slip now differs from the stretch's mean as μ does, |μ̂_i − μ̄_i| / (dμ/ds)(s̄_i) on the
+          identified μ(s) (μ̄_i distance-weighted over the stretch); without an identified curve no
+          average is reported.
+
+        σ_s̄,i is the first two through ∂s̄/∂G_i, with the lag added.  Of the stretches ending now of
+        ``slip_avg_max_m`` × 0.8^m metres (m = 0 … 15, none shorter than two steps), the one with the
+        smallest largest-wheel σ is reported if that σ is within ``slip_sigma_max``.
+        """
+        cfg = self.cfg
+        d = 1.0 if v > 0.0 else -1.0
+        n = self._win_n
+        if n and (d != self._win_dir or not 0.0 < t - self._win_t[-1] <= cfg.max_gap_s):
+            self._win_reset()
+            n = 0
+        if n == 0:
+            self._win_dir = d
+            self._win_t.append(t)
+            self._win_s.append(0.0)
+            self._win_p.append(0.0)
+            self._win_c.append((0.0,) * 16)
+            self._win_n = 1
+            return None
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
+        rdf *= self._kf
+        rdr *= self._kr
+        av = abs(v)
+        dt = t - self._win_t[-1]
+        dks = wheel_speed_factor_slopes(kap, 2.0 * self._hb, self.vehicle.wheelbase_m)
+        ml = mu.tolist()
+        inc = ([ki * av * dt for ki in kw.tolist()]
+               + [abs(rd * w) * dt for rd, w in zip((rdf, rdf, rdr, rdr), omega.tolist())]
+               + [abs(v * dk) * dt for dk in dks] + [m * av * dt for m in ml])
+        self._win_t.append(t)
+        self._win_s.append(self._win_s[-1] + av * dt)
+        self._win_p.append(self._win_p[-1] + pvv * dt)
+        self._win_c.append(tuple(a + b for a, b in zip(self._win_c[-1], inc)))
+        n += 1
+        self._win_n = n
+        ws = self._win_s
+        j_lo = bisect.bisect_left(ws, ws[-1] - cfg.slip_avg_max_m)    # first start within slip_avg_max_m
+        if j_lo > 4096:                                               # drop what no window reaches any more
+            for lst in (self._win_t, self._win_s, self._win_p, self._win_c):
+                del lst[:j_lo]
+            n -= j_lo
+            self._win_n = n
+        curve = self._curve_state.curve
+        if curve is None or n < 3:
+            return None
+        tau = cfg.slip_avg_corr_s
+        kv = self._kappa_var
+        wt, wp, wc = self._win_t, self._win_p, self._win_c
+        cn = wc[-1]
+        best: list[float] | None = None
+        top_best = s_best = math.inf
+        length = cfg.slip_avg_max_m
+        last = -1
+        for _ in range(16):
+            j = bisect.bisect_left(ws, ws[-1] - length)
+            length *= 0.8
+            if j == last or j > n - 3:
+                continue
+            last = j
+            T = wt[-1] - wt[j]
+            S = ws[-1] - ws[j]
+            if not (T > 0.0 and S > 0.0):
+                continue
+            r = tau / T
+            var_v = (wp[-1] - wp[j]) / T * 2.0 * r * (1.0 - r * (1.0 - math.exp(-1.0 / r)))
+            cj = wc[j]
+            out = []
+            sig = []
+            for i in range(4):
+                g = cn[i] - cj[i]
+                w = cn[4 + i] - cj[4 + i]
+                kk = cn[8 + i] - cj[8 + i]
+                if not (g > 0.0 and w > 0.0):
+                    out = []
+                    break
+                sg = math.sqrt(g * g / (S * S) * var_v * T * T + kk * kk * kv)      # σ of G_i [m]
+                if g <= w:
+                    out.append(1.0 - g / w)
+                    sig.append(sg / w)
+                else:
+                    out.append(-1.0 + w / g)
+                    sig.append(sg * w / (g * g))
+            if not out:
+                continue
+            slope = np.abs(curve.dmu_ds(np.abs(np.array(out)))).tolist()
+            top = 0.0
+            for i in range(4):
+                lag = abs(ml[i] - (cn[12 + i] - cj[12 + i]) / S) / slope[i] if slope[i] > 0.0 else math.inf
+                si = math.sqrt(sig[i] * sig[i] + lag * lag)
+                top = si if si > top else top
+            if top < top_best:
+                top_best, best, s_best = top, out, S
+        if best is None or not top_best <= cfg.slip_sigma_max:
+            return None
+        self.slip_window = (s_best, top_best)
+        return np.array(best)
+
     def _estimate(self, t: float, status: int, x: NDArray[np.float64] | None, updated: bool = False) -> Estimate:
         cfg = self.cfg
         ukf = self.ukf
         if self._lost:
             status |= FILTER_LOST
         if x is None or ukf is None:
+            if self._win_n:
+                self._win_reset()
             nan4 = np.full(4, np.nan)
             rad = self._rad
             return Estimate(t, nan4, math.nan, math.nan, self._curve_state.class_name, nan4.copy(), math.nan,
@@ -998,12 +1139,22 @@ class Estimator:
             status |= STANDSTILL
             if self._held is not None:
                 rho, s = self._held
+            if self._win_n:
+                self._win_reset()
         else:
             if not slip_ok:
-                # slip not supported (creeping): the last supported slip, flagged; ρ_s stays live
-                status |= SLIP_UNCERTAIN
-                if self._held is not None:
-                    s = self._held[1]
+                # slip not supported (creeping, reversing): its average over the last metres if that is
+                # supported (SLIP_AVERAGED), else the last supported slip, flagged; ρ_s stays live
+                avg = self._slip_window(t, v, kw, omega, mu, float(pd[IX_V]), kap) if cfg.slip_avg_max_m > 0.0 else None
+                if avg is not None:
+                    s = avg
+                    status |= SLIP_AVERAGED
+                else:
+                    status |= SLIP_UNCERTAIN
+                    if self._held is not None:
+                        s = self._held[1]
+            elif self._win_n:
+                self._win_reset()
             if conv and (slip_ok or self._held is not None):
                 self._held = (rho, s)
         cs = self._curve_state
