@@ -65,9 +65,10 @@ class EstimatorConfig:
                                             "(0.8 σ) within 0.01; 0 disables", 0.0, 1.0)
     slip_avg_max_m: float = setting(10.0, "longest stretch of travel [m] over which a slip whose own σ exceeds "
                                           "slip_sigma_max (creeping, reversing at 1 m/s) may be reported averaged: "
-                                          "the shortest stretch of the last this many metres, in one direction "
-                                          "without a standstill, whose averaged slip has σ within slip_sigma_max "
-                                          "(status 0x10000 slip_averaged, estimator._slip_window); 0 disables",
+                                          "of the stretches of up to this many metres ending now, in one direction "
+                                          "without a standstill, the one whose averaged slip has the smallest σ, if "
+                                          "that σ is within slip_sigma_max (status 0x10000 slip_averaged, "
+                                          "Estimator._slip_window); 0 disables",
                                     0.0, 1000.0)
     slip_avg_corr_s: float = setting(1.0, "correlation time [s] of the ground-speed error assumed for the σ of an "
                                           "averaged slip: GNSS Doppler speed errors are correlated over about 1 s "

@@ -129,9 +129,10 @@ reported as NaN (:mod:`.machine`).  A notice, not invalid."""
 STATUS_NAMES.update({MACHINE_LEVEL: "machine_level", DRAFT_NOT_SEPARATED: "rho_s_and_draft_not_separated"})
 SLIP_AVERAGED = 0x10000
 """The slip of this step is not supported by its own σ (it would be ``SLIP_UNCERTAIN``), but its average over
-the last metres of travel is (:meth:`Estimator._slip_window`): ``slip`` is that average, the shortest stretch
-of at most ``slip_avg_max_m`` in one direction, without a standstill, whose σ (from the filter's P_vv with the
-ground-speed error correlated over ``slip_avg_corr_s``) is within ``slip_sigma_max``.  Reversing and creeping.
+the last metres of travel is (:meth:`Estimator._slip_window`): ``slip`` is that average over the stretch of at
+most ``slip_avg_max_m`` (in one direction, without a standstill) whose σ (the filter's P_vv with the
+ground-speed error correlated over ``slip_avg_corr_s``, the curvature's σ, and the lag of a mean behind a
+changing μ) is the smallest, when that σ is within ``slip_sigma_max``.  Reversing and creeping.
 No (μ, s) pair goes to the curve from it.  A notice, not invalid.  Above the 16 bits of the DBC's
 EstimateStatus: not on the bus (there such a step reads as a supported slip)."""
 STATUS_NAMES[SLIP_AVERAGED] = "slip_averaged"
