@@ -91,3 +91,22 @@ def test_a_lost_period_is_not_mapped_and_leaves_every_window():
     ref = centred_map_values(t[:170], mu_ref, slip[:170], var_mu[:170], v[:170], rho_ref, cls[:170], 2.0)
     assert got[k][3]["a"] == pytest.approx(ref["a"][149], rel=1e-9)
     assert got[k][3]["rho_s"] == pytest.approx(ref["rho_s"][149], rel=1e-9)
+
+
+@pytest.mark.parametrize("bit", [0x2000, 0x10000])
+def test_held_or_averaged_slip_makes_no_pair_for_the_map(bit):
+    """A slip the step's own σ does not support (0x2000) or one averaged over the last metres of travel
+    (0x10000, reversing or creeping) beside this step's μ gives the map no (μ, s) pair, so no a."""
+    t, mu, slip, var_mu, v, rho, cls, _ = _run(n=60)
+    smp = CentredSampler(half_window_s=2.0)
+    got = []
+    for k in range(t.size):
+        P = np.zeros(10)
+        P[5:9] = var_mu[k]
+        est = SimpleNamespace(mu=mu[k], slip=slip[k], P_diag=P, v=v[k], rho_s=rho[k], valid=True,
+                              status=bit, soil_class="stubble")
+        got += smp.push(float(t[k]), 47.0, 8.0, 4, 0.8, est)
+    got += smp.drain()
+    assert len(got) == t.size
+    assert all(np.isnan(g[3]["a"]) for g in got)
+    assert all(np.isfinite(g[3]["rho_s"]) for g in got)

@@ -351,8 +351,9 @@ class EfficiencyReport:
 # EstimateStatus bits that make an estimate unusable for efficiency: timeouts of wheel speed, ground
 # speed, torque, axle load, not converged, rejected input, filter lost, standstill, machine-level μ not
 # supported (gear shift, clutch slip), slip not supported by its own σ (η of eq. 7 carries the factor
-# 1 − s, and the estimator then holds an old slip) (estimator module).
-INVALID_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x20 | 0x40 | 0x200 | 0x400 | 0x1000 | 0x2000
+# 1 − s, and the estimator then holds an old slip) or averaged over the last metres of travel (a mean of
+# several seconds, not this step's slip) (estimator module).
+INVALID_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x20 | 0x40 | 0x200 | 0x400 | 0x1000 | 0x2000 | 0x10000
 # ... and the bits that make the slip itself unusable: wheel or ground speed timed out, rejected input,
 # filter lost, standstill, slip not supported by its own σ (creeping, manoeuvring).
 SLIP_INVALID_STATUS = 0x01 | 0x02 | 0x40 | 0x200 | 0x400 | 0x2000

@@ -106,8 +106,10 @@ OUTPUT_SIGNALS: tuple[str, ...] = (
     "CurveParamA",
     *(f"Slip_{w}" for w in WHEELS),
     "EstimateStatus",
+    "EstimateStatusExt",
 )
-"""Contract estimator output signals (dimensionless; EstimateStatus is a bit field)."""
+"""Contract estimator output signals (dimensionless; EstimateStatus and EstimateStatusExt, its bits 16–23,
+are bit fields)."""
 
 CONTRACT_SIGNALS: tuple[str, ...] = INPUT_SIGNALS + OUTPUT_SIGNALS
 

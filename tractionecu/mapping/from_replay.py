@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .sampler import DEFAULT_HALF_WINDOW_S, STATUS_SLIP_UNCERTAIN, centred_map_values
+from .sampler import DEFAULT_HALF_WINDOW_S, STATUS_NO_PAIR, centred_map_values
 from .store import STATUS_FILTER_LOST, MapStore
 
 
@@ -64,8 +64,9 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     idx = np.minimum(idx, t.size - 1)
     # Estimates of a lost filter (status FILTER_LOST) take no part in any window.
     lost = (np.asarray(arrays["status"])[idx] & STATUS_FILTER_LOST) != 0
-    # A slip its own σ does not support (status 0x2000, held by the estimator) makes no (μ, s) pair.
-    held = (np.asarray(arrays["status"])[idx] & STATUS_SLIP_UNCERTAIN) != 0
+    # A slip its own σ does not support (status 0x2000, held by the estimator) or one averaged over the
+    # last metres of travel (0x10000) makes no (μ, s) pair.
+    held = (np.asarray(arrays["status"])[idx] & STATUS_NO_PAIR) != 0
     values = centred_map_values(gps.t, np.where(lost[:, None], np.nan, arrays["mu"][idx]),
                                 np.where(held[:, None], np.nan, arrays["slip"][idx]),
                                 arrays["P_diag"][idx, 5:9], arrays["v"][idx],

@@ -48,6 +48,11 @@ MIN_SPEED = 0.5
 """No pairs below this speed [m/s]."""
 STATUS_SLIP_UNCERTAIN = 0x2000
 """EstimateStatus bit of a slip its own σ does not support (held by the estimator): its (μ, s) pair is no pair."""
+STATUS_SLIP_AVERAGED = 0x10000
+"""EstimateStatus bit of a slip averaged over the last metres of travel (reversing, creeping): a mean over
+several seconds beside this step's μ, so no (μ, s) pair either."""
+STATUS_NO_PAIR = STATUS_SLIP_UNCERTAIN | STATUS_SLIP_AVERAGED
+"""EstimateStatus bits whose (μ, s) is no pair for the map."""
 
 
 def pair_weights(mu: NDArray[np.float64], slip: NDArray[np.float64], var_mu: NDArray[np.float64],
@@ -163,7 +168,7 @@ class CentredSampler:
         """Add one sample (an :class:`~tractionecu.estimation.estimator.Estimate` at GNSS epoch t)."""
         mu = np.asarray(est.mu, dtype=float)
         slip = np.asarray(est.slip, dtype=float)
-        if int(est.status) & STATUS_SLIP_UNCERTAIN:
+        if int(est.status) & STATUS_NO_PAIR:
             slip = np.full(4, np.nan)            # a held slip: no (μ, s) pair for the map's a
         var_mu = np.asarray(est.P_diag, dtype=float)[5:9]
         w = pair_weights(mu[None, :], slip[None, :], var_mu[None, :], np.array([est.v]))[0]

@@ -58,6 +58,7 @@ def estimate_values(est: Any) -> dict[str, dict[str, float]]:
             "SoilRollingResistance": _f(est.rho_s),
             "CurveParamA": _f(est.a),
             "EstimateStatus": float(int(est.status) & 0xFFFF),
+            "EstimateStatusExt": float((int(est.status) >> 16) & 0xFF),
             "SoilClassIndex": math.nan if idx is None or not math.isfinite(_f(idx)) else float(idx),
         },
     }
@@ -76,5 +77,6 @@ def no_estimate_frames(codec: Codec, sa: int, priority: int, status: int = NO_DA
         vals: dict[str, float] = {}
         if name == "TECU_EstSoil":
             vals["EstimateStatus"] = float(status & 0xFFFF)
+            vals["EstimateStatusExt"] = float((status >> 16) & 0xFF)
         out.append(codec.encode(name, vals, sa=sa, priority=priority))
     return out
