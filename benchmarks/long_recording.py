@@ -77,11 +77,11 @@ def main() -> int:
             (rec / "length_s.txt").write_text(f"{length!r}\n")
         else:
             length = float((rec / "length_s.txt").read_text())
-        cmds = {"replay": [*exe, "replay", str(rec), "--out", str(work / f"run_{h:g}h"), "--no-map"],
-                "replay+map": [*exe, "replay", str(rec), "--out", str(work / f"runm_{h:g}h")],
+        cmds = {"replay": [*exe, "replay", str(rec), "--out", str(work / f"run_{rec.name}"), "--no-map"],
+                "replay+map": [*exe, "replay", str(rec), "--out", str(work / f"runm_{rec.name}")],
                 "inspect": [*exe, "inspect", str(rec)]}
         if not args.skip_diagnose:
-            cmds["diagnose"] = [*exe, "diagnose", str(rec), "--out", str(work / f"diag_{h:g}h")]
+            cmds["diagnose"] = [*exe, "diagnose", str(rec), "--out", str(work / f"diag_{rec.name}")]
         for name, cmd in cmds.items():
             if args.only and name not in args.only:
                 continue
