@@ -110,12 +110,8 @@ CANDIDATES: dict[str, Candidate] = {
         Candidate("torque_offset", (_fp("torque_offset", "b_front_nm", 0.0, (-300.0, 0.0, 300.0), 20.0),
                                     _fp("torque_offset", "b_rear_nm", 0.0, (-300.0, 0.0, 300.0), 20.0)),
                   plain="drive-torque sensor offset (per axle)"),
-        Candidate("draft_offset", (_fp("draft_offset", "b1_npm", 0.0, (-300.0, 0.0, 300.0), 50.0),),
-                  fixed={"b0_n": 0.0},
-                  fixed_reason="a constant draft offset is a constant resistance in the speed equation (the soil's "
-                               "ρ_s) and a constant front-axle load in the pin (ballast, a pin offset): not separable "
-                               "in driving; it is held at 0 and only the drift is tested (check the draft reading "
-                               "at standstill with the implement lifted)",
+        Candidate("draft_offset", (_fp("draft_offset", "b0_n", 0.0, (-2000.0, 0.0, 2000.0), 200.0),
+                                   _fp("draft_offset", "b1_npm", 0.0, (-300.0, 0.0, 300.0), 50.0)),
                   plain="draft sensor offset and drift"),
         Candidate("axle_load_offset", (_fp("axle_load_offset", "b0_n", 0.0, (-3000.0, 0.0, 3000.0), 300.0),
                                        _fp("axle_load_offset", "b1_npm", 0.0, (-500.0, 0.0, 500.0), 100.0)),
