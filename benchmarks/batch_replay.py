@@ -6,10 +6,10 @@ of ``--repeat`` rounds, the two paths alternating within each round, timed by ``
 average is printed beside):
 
 * ``engine``: the recording decoded once in memory, then :func:`tractionecu.pipeline.replay.replay`
-  (the step path's loop and sink) against :func:`tractionecu.estimation.batch.replay_batch`;
+  (the step path's loop and sink) against :func:`tractionecu.pipeline.batch.replay_batch`;
 * ``path``: from the recording's path, what ``tractionecu replay`` and the fleet run:
   :func:`~tractionecu.pipeline.replay.replay_to_dir` (streamed decoding, the 100 Hz loop,
-  ``estimates.csv``, the map) against :func:`~tractionecu.estimation.batch.replay_batch_rows` (streamed
+  ``estimates.csv``, the map) against :func:`~tractionecu.pipeline.batch.replay_batch_rows` (streamed
   decoding, the loop, the 1 Hz rows and the map's steps) and the map;
 * ``fleet task``: :func:`tractionecu.fleet.tasks.replay_task` on each path (Parquet, the farm-frame
   map), when pyarrow is installed.
@@ -63,7 +63,7 @@ def _cpu(fn: Callable[[], Any]) -> tuple[float, float, Any]:
 def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     """The figures of the module doc on the recording at ``path`` (a directory with can.log)."""
     from tractionecu.estimation import _kernels
-    from tractionecu.estimation.batch import max_differences, replay_batch, replay_batch_rows
+    from tractionecu.pipeline.batch import max_differences, replay_batch, replay_batch_rows
     from tractionecu.mapping.from_replay import write_replay_map
     from tractionecu.pipeline.replay import replay, replay_to_dir
     from tractionecu.recording.reader import read_recording

@@ -183,7 +183,7 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
              refs: Sequence[RecordingRef] | None = None, batch: bool = False) -> list[dict[str, Any]]:
     """Run ``kind`` (``replay`` or ``diagnose``) over every recording of ``source`` into ``out``; update
     ``recordings.parquet``, ``failures.parquet`` and, for diagnosis, ``diagnosis.parquet``.  Returns the
-    task records.  ``batch``: replay on the batch path (:mod:`tractionecu.estimation.batch`: the same
+    task records.  ``batch``: replay on the batch path (:mod:`tractionecu.pipeline.batch`: the same
     estimates, kept as arrays, Parquet written from them at full precision, no ``estimates.csv``;
     ``keep_csv`` takes the step path)."""
     out = Path(out)

@@ -208,11 +208,11 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
 
 def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float
                   ) -> tuple[dict[str, Any], Any, dict[str, Any], np.ndarray, dict[str, Any]]:
-    """The batch path (:func:`tractionecu.estimation.batch.replay_batch_rows`): the estimates at ``est_rate``
+    """The batch path (:func:`tractionecu.pipeline.batch.replay_batch_rows`): the estimates at ``est_rate``
     and the map's steps as arrays, no ``estimates.csv``; ``config.toml`` and the recording's own map in
     ``run_dir`` as :func:`~tractionecu.pipeline.replay.replay_to_dir` writes them.  Returns (summary, recording,
     map arrays, GNSS mask, rows)."""
-    from ..estimation.batch import replay_batch_rows
+    from ..pipeline.batch import replay_batch_rows
     from ..estimation.config import EstimatorConfig
     from ..mapping.from_replay import write_replay_map
     from ..pipeline.gnss import GnssGate
@@ -232,7 +232,7 @@ def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float
 
 
 def estimates_arrays_to_parquet(rows: dict[str, Any], out_path: Path, ident: dict[str, str]) -> dict[str, int]:
-    """Estimates as arrays (:func:`tractionecu.estimation.batch.replay_batch_rows`' ``rows``) to Parquet with
+    """Estimates as arrays (:func:`tractionecu.pipeline.batch.replay_batch_rows`' ``rows``) to Parquet with
     the schema of :func:`.store.estimates_csv_to_parquet` (the columns of ``estimates.csv`` and ``ident``),
     at full precision (the step path's went through the text of ``estimates.csv``); returns ``rows``."""
     import pyarrow as pa

@@ -1,4 +1,4 @@
-"""The batch replay (tractionecu.estimation.batch) against the step path: the same estimates, to 1e-9.
+"""The batch replay (tractionecu.pipeline.batch) against the step path: the same estimates, to 1e-9.
 
 The contract of the batch path: every estimate column equal to the step path's
 (:func:`tractionecu.pipeline.replay.replay`) within 1e-9, the integer and text columns exactly, on a
@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from tractionecu.estimation.batch import BatchSink, max_differences, replay_batch, replay_batch_rows
+from tractionecu.pipeline.batch import BatchSink, max_differences, replay_batch, replay_batch_rows
 from tractionecu.estimation.estimator import FILTER_LOST
 from tractionecu.pipeline.replay import _Sink, replay, replay_to_dir
 from tractionecu.recording.reader import read_recording

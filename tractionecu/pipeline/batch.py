@@ -41,7 +41,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ConfigError
-from .estimator import FILTER_LOST, Estimate, EstimatorConfig
+from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
 
 BLOCK = 4096
 """Estimates gathered before they are copied into arrays."""
@@ -255,7 +255,7 @@ def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
 def _batch_run_class() -> type:
     """replay's step function (:class:`~tractionecu.pipeline.replay._Run`: grid, groups, GNSS gate, the
     estimator of the machine) with the per-step loop replaced by the block-wise one (module doc)."""
-    from ..pipeline.replay import _Run
+    from .replay import _Run
 
     class _BatchRun(_Run):
         def _step(self, grid: np.ndarray) -> None:
@@ -264,8 +264,8 @@ def _batch_run_class() -> type:
                 return
             streams = [(grp.key, grp.key in self.inputs, *grp.at(grid)) for grp in self.groups]
             if self.speed.t.size:
-                from ..pipeline.signals import GNSS_SPEED
-                from ..pipeline.steps import GNSS_COURSE
+                from .signals import GNSS_SPEED
+                from .steps import GNSS_COURSE
 
                 streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
                 streams.append((GNSS_COURSE, False, *self.course.at(grid)))
@@ -301,7 +301,7 @@ def _batch_run_class() -> type:
 
 
 def _open(recording: Any) -> tuple[Any, bool]:
-    from ..pipeline.survey import survey_keep
+    from .survey import survey_keep
     from ..recording.reader import Recording, read_recording
 
     if isinstance(recording, Recording):
@@ -312,9 +312,9 @@ def _open(recording: Any) -> tuple[Any, bool]:
 def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: EstimatorConfig | None, sensors: Any,
          gate: Any, on_estimate: Callable[[Estimate], None] | None,
          make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None) -> tuple[Any, Any, BatchSink]:
-    from ..pipeline.gnss import GnssGate
-    from ..pipeline.replay import MissingSignals, machine_of
-    from ..pipeline.signals import required_missing
+    from .gnss import GnssGate
+    from .replay import MissingSignals, machine_of
+    from .signals import required_missing
     from ..recording.reader import read_recording, stream_signals
 
     rec, streamed = _open(recording)
@@ -344,7 +344,7 @@ def replay_batch(recording: Any, *, rate_hz: float = 100.0, cfg: EstimatorConfig
     """The estimates of every step of ``recording`` (a path, streamed, or a
     :class:`~tractionecu.recording.reader.Recording`) as a :class:`~tractionecu.pipeline.replay.ReplayResult`
     (the step path's :func:`~tractionecu.pipeline.replay.replay` keys, plus ``curve_path``)."""
-    from ..pipeline.replay import ReplayResult
+    from .replay import ReplayResult
 
     rec, run, sink = _run(recording, BatchSink(keep_all=True), rate_hz=rate_hz, cfg=cfg, sensors=sensors,
                           gate=gate, on_estimate=on_estimate)
