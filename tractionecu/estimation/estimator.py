@@ -133,8 +133,8 @@ the last metres of travel is (:meth:`Estimator._slip_window`): ``slip`` is that 
 most ``slip_avg_max_m`` (in one direction, without a standstill) whose σ (the filter's P_vv with the
 ground-speed error correlated over ``slip_avg_corr_s``, the curvature's σ, and the lag of a mean behind a
 changing μ) is the smallest, when that σ is within ``slip_sigma_max``.  Reversing and creeping.
-No (μ, s) pair goes to the curve from it.  A notice, not invalid.  Above the 16 bits of the DBC's
-EstimateStatus: not on the bus (there such a step reads as a supported slip)."""
+No (μ, s) pair goes to the curve or the map from it.  A notice, not invalid.  Above the 16 bits of the
+DBC's EstimateStatus: on the bus it is bit 0 of EstimateStatusExt (the status's bits 16–23)."""
 STATUS_NAMES[SLIP_AVERAGED] = "slip_averaged"
 
 
