@@ -6,12 +6,14 @@ the copies before it and a gap of ``--gap-s`` with nothing logged, NMEA time of 
 checksums recomputed), so the whole is a day's log of the chosen length on the same field, the logger
 restarted between work periods.  The copies start at multiples of ``--align-s`` (80 s: twice the
 diagnosis's held-out block, so that repeated noise is never scored against its own copy in the other
-fold; a real day does not repeat its noise).  The recorded length excludes the gaps.  Each command runs in its own
+fold; a real day does not repeat its noise).  With ``--seeds N`` the copies are instead independently
+seeded runs (seeds 0..N-1 of ``paper-three-soils``, each simulated once into ``--work``) taken in turn,
+so that no noise repeats as long as N runs cover the length; no alignment is then needed (default 0).  The recorded length excludes the gaps.  Each command runs in its own
 process; peak RSS is that process's ``ru_maxrss``, CPU time its user + system time.  The load average is
 printed beside each line: on a shared machine wall time is not a measure of speed, CPU time is.
 
     python benchmarks/long_recording.py [--hours 0.1667 1 4] [--gap-s 10] [--work DIR] [--skip-diagnose]
-                                        [--align-s 80] [--only CMD ...]
+                                        [--align-s 80] [--seeds N] [--only CMD ...]
 
 Prints one line per command and length, then per command the ratio of time per recorded hour (CPU and
 wall) between the longest and the shortest recording.
@@ -54,10 +56,13 @@ def main() -> int:
     ap.add_argument("--hours", type=float, nargs="+", default=[1 / 6, 1.0, 4.0])
     ap.add_argument("--gap-s", type=float, default=GAP_S,
                     help="time between the copies with nothing logged [s] (default: %(default)s)")
-    ap.add_argument("--align-s", type=float, default=80.0,
-                    help="copies start at multiples of this [s] (default: %(default)s, twice the diagnosis's "
-                         "40-s held-out block, so that no copy's held-out half repeats another's training "
-                         "half; 0: right after the gap)")
+    ap.add_argument("--align-s", type=float, default=None,
+                    help="copies start at multiples of this [s] (default: 80 s with one seed, twice the "
+                         "diagnosis's 40-s held-out block, so that no copy's held-out half repeats another's "
+                         "training half; 0 with --seeds; 0: right after the gap)")
+    ap.add_argument("--seeds", type=int, default=0, metavar="N",
+                    help="join independently seeded runs (seeds 0..N-1), taken in turn, instead of copies of "
+                         "one run (seed 7): no repeated noise while N runs cover the length")
     ap.add_argument("--work", type=Path, default=None, help="directory for the recordings (default: a temp dir)")
     ap.add_argument("--skip-diagnose", action="store_true")
     ap.add_argument("--only", nargs="+", default=None, metavar="COMMAND",
@@ -65,15 +70,23 @@ def main() -> int:
     args = ap.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="long_recording_"))
     exe = [sys.executable, "-m", "tractionecu"]
-    base = work / "base"
-    if not (base / "can.log").exists():
-        subprocess.run([*exe, "simulate", "--scenario", "paper-three-soils", "--seed", "7", "--out", str(base)],
-                       check=True, capture_output=True)
+    if args.align_s is None:
+        args.align_s = 0.0 if args.seeds else 80.0
+    if args.seeds:
+        sources = [work / f"seed{k}" for k in range(args.seeds)]
+        seeds = list(range(args.seeds))
+    else:
+        sources, seeds = [work / "base"], [7]
+    for src, seed in zip(sources, seeds):
+        if not (src / "can.log").exists():
+            subprocess.run([*exe, "simulate", "--scenario", "paper-three-soils", "--seed", str(seed),
+                            "--out", str(src)], check=True, capture_output=True)
+    tag = f"_seeds{args.seeds}" if args.seeds else ""
     per_hour: dict[str, list[tuple[float, float, float]]] = {}
     for h in sorted(args.hours):
-        rec = work / f"rec_{h:g}h_gap{args.gap_s:g}_align{args.align_s:g}"
+        rec = work / f"rec_{h:g}h_gap{args.gap_s:g}_align{args.align_s:g}{tag}"
         if not (rec / "can.log").exists():
-            length = concatenate(base, rec, h * 3600.0, gap_s=args.gap_s, align_s=args.align_s or None)
+            length = concatenate(sources if args.seeds else sources[0], rec, h * 3600.0, gap_s=args.gap_s, align_s=args.align_s or None)
             (rec / "length_s.txt").write_text(f"{length!r}\n")
         else:
             length = float((rec / "length_s.txt").read_text())

@@ -56,7 +56,16 @@ GAP_S = 10.0
 """Default time between copies with nothing logged [s]: the logger restarted between work periods."""
 
 
-def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float = GAP_S,
+def _read(src: Path) -> tuple[list[float], list[str], list[str]]:
+    """(CAN times [s], the rest of each candump line, NMEA lines) of one recording."""
+    can = (src / "can.log").read_text().splitlines()
+    nmea = (src / "gps.nmea").read_text().splitlines() if (src / "gps.nmea").is_file() else []
+    if not can:
+        raise ValueError(f"{src / 'can.log'}: no CAN frames to concatenate")
+    return [float(ln[1:ln.index(")")]) for ln in can], [ln[ln.index(")") + 1:] for ln in can], nmea
+
+
+def concatenate(src: str | Path | list[str | Path], dst: str | Path, seconds: float, gap_s: float = GAP_S,
                 align_s: float | None = None) -> float:
     """``dst``: copies of the recording ``src`` (candump ``-L`` ``can.log``, ``gps.nmea``,
     ``vehicle.toml``) one after the other until about ``seconds`` [s] are recorded (at least one
@@ -64,27 +73,51 @@ def concatenate(src: str | Path, dst: str | Path, seconds: float, gap_s: float =
     last CAN frame of the one before (at least one CAN frame period, 10 ms, the copies then joined
     as if the drive went on), or, with ``align_s``, at the next multiple of ``align_s`` [s] after
     that.  (Copies repeat the same noise: aligned to twice the diagnosis's held-out block, a copy's
-    held-out half is never another copy's training half.)"""
-    src, dst = Path(src), Path(dst)
+    held-out half is never another copy's training half.)
+
+    ``src`` may be a list of recordings (e.g. independently seeded runs of one scenario, which do
+    not repeat their noise): they are taken in order, cycling, with the same gap, alignment and NMEA
+    handling, each moved so that it starts where its turn begins; copies are added while that brings
+    the recorded length closer to ``seconds``.  The first recording's vehicle file is copied: the
+    sources are meant to be one machine."""
+    srcs = [Path(s) for s in src] if isinstance(src, (list, tuple)) else [Path(src)]
+    if not srcs:
+        raise ValueError("concatenate: no source recordings")
+    dst = Path(dst)
     dst.mkdir(parents=True, exist_ok=True)
-    if (src / "vehicle.toml").is_file():
-        shutil.copy(src / "vehicle.toml", dst / "vehicle.toml")
-    can = (src / "can.log").read_text().splitlines()
-    nmea = (src / "gps.nmea").read_text().splitlines() if (src / "gps.nmea").is_file() else []
-    t = [float(ln[1:ln.index(")")]) for ln in can]
-    rest = [ln[ln.index(")") + 1:] for ln in can]
-    span = t[-1] - t[0] + 0.01
-    step = span + max(gap_s - 0.01, 0.0)
-    if align_s:
-        step = math.ceil(step / align_s) * align_s
-    copies = max(1, round(seconds / span))
+    if (srcs[0] / "vehicle.toml").is_file():
+        shutil.copy(srcs[0] / "vehicle.toml", dst / "vehicle.toml")
+    data = [_read(s) for s in srcs] if len(srcs) > 1 else None
+    if data is None:
+        t, rest, nmea = _read(srcs[0])
+        span = t[-1] - t[0] + 0.01
+        step = span + max(gap_s - 0.01, 0.0)
+        if align_s:
+            step = math.ceil(step / align_s) * align_s
+        copies = max(1, round(seconds / span))
+        plan = [(0, c * step) for c in range(copies)]
+        total = copies * span
+    else:
+        t00 = data[0][0][0]
+        plan, total, start, k = [], 0.0, t00, 0
+        while True:
+            t = data[k % len(data)][0]
+            span = t[-1] - t[0] + 0.01
+            if plan and abs(total + span - seconds) >= abs(total - seconds):
+                break
+            plan.append((k % len(data), start - t[0]))
+            total += span
+            start = start + span - 0.01 + max(gap_s, 0.01)
+            if align_s:
+                start = t00 + math.ceil((start - t00) / align_s - 1e-9) * align_s
+            k += 1
+    get = (lambda i: data[i]) if data is not None else (lambda i: (t, rest, nmea))
     with open(dst / "can.log", "w") as fc:
-        for c in range(copies):
-            sh = c * step
-            fc.write("".join(f"({x + sh:017.6f}){r}\n" for x, r in zip(t, rest)))
-    if nmea:
+        for i, sh in plan:
+            ti, ri, _ = get(i)
+            fc.write("".join(f"({x + sh:017.6f}){r}\n" for x, r in zip(ti, ri)))
+    if any(get(i)[2] for i, _ in plan):
         with open(dst / "gps.nmea", "w") as fg:
-            for c in range(copies):
-                sh = c * step
-                fg.write("".join((nmea_shift(ln, sh) if c else ln) + "\n" for ln in nmea))
-    return copies * span
+            for i, sh in plan:
+                fg.write("".join((nmea_shift(ln, sh) if sh else ln) + "\n" for ln in get(i)[2]))
+    return total
