@@ -1057,7 +1057,8 @@ class Estimator:
                 else:
                     out.append(-1.0 + w / g)
                     sig.append(sg * w / (g * g))
-            if not out:
+            if not out or max(sig) > cfg.slip_sigma_max:
+                # σ with the lag only grows (quadrature): a stretch over the bound here is never reported
                 continue
             slope = np.abs(curve.dmu_ds(np.abs(np.array(out)))).tolist()
             top = 0.0
