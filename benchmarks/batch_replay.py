@@ -25,33 +25,16 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
 
+from fleet import _load, _simulate   # benchmarks/fleet.py: the load-average line and the simulated run
+
 TARGET_X = 1000.0
 TARGET_DIFF = 1e-9
-
-
-def _load() -> str:
-    a, b, c = os.getloadavg()
-    return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
-
-
-def _simulate(out: Path, seed: int, duration: float) -> None:
-    from tractionecu.sim import scenarios
-    from tractionecu.sim.simulator import simulate
-    from tractionecu.sim.writer import write_recording
-
-    scn = scenarios.get("paper-three-soils", seed=seed, duration_s=duration)
-    tmp = out.with_name(out.name + ".tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    write_recording(scn, simulate(scn), tmp)
-    os.replace(tmp, out)
 
 
 def _cpu(fn: Callable[[], Any]) -> tuple[float, float, Any]:
