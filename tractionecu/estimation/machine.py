@@ -50,10 +50,14 @@ torque (``engine_friction_percent``), T_ref the EC1 reference torque
 (SPN 544), i_g the ETC2 actual gear ratio (SPN 526) or the ratio learnt from
 engine speed over wheel speed, i_f the final drive, η the efficiency, d = ±1
 the direction of travel.  With the MFWD engaged the front wheels turn at
-k = (1 + λ) r_r / r_f times ω (λ the front-axle lead); the power balance of
-the rigid drivetrain, summed eq. 2 over the wheels, and eq. 8 give
+k = 1 + λ times ω (λ the front-axle lead, declared as the front over rear
+circumferential speed at the tyres' nominal radii, which are equal here: one
+``r0_m``): the gears fix the angular speed ratio, so the loaded radii do not
+enter it, and a lighter front axle on a larger rolling radius r_f runs at a
+front slip above the rear's by more than λ (s_f = 1 − v/(k ω r_f)); the power
+balance of the rigid drivetrain, summed eq. 2 over the wheels, and eq. 8 give
 
-    J_eq ω̇ = M − (μ + ρ_t sgn ω) · r_r (F_zr + (1+λ) F_zf)
+    J_eq ω̇ = M − (μ + ρ_t sgn ω) · (r_r F_zr + k r_f F_zf)
     m v̇   = μ (F_zr + F_zf) − F_dx − ρ m g sgn v,
     J_eq  = J_e i² + 2 J_w (1 + k²)
 
@@ -420,8 +424,8 @@ class MachineEstimator:
                   ) -> tuple[float, float, float, float, float]:
         jw = self.vehicle.wheel_inertia_kgm2
         if self.engaged:
-            k = (1.0 + self.lead) * rdr / rdf
-            a_w = rdr * (fzr + (1.0 + self.lead) * fzf)
+            k = 1.0 + self.lead                # the gears fix the angular ratio (module doc)
+            a_w = rdr * fzr + k * rdf * fzf
             return a_w, fzf + fzr, 0.0, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw * (1.0 + k * k), k
         # front rolling: F_h,f = −ρ_t F_zf, so the rear carries μ ΣF_z + ρ_t F_zf and the same machine μ balances
         return rdr * (fzf + fzr), fzf + fzr, 0.0, self.dt.engine_inertia_kgm2 * i_tot * i_tot + 2.0 * jw, math.nan
@@ -608,7 +612,7 @@ class MachineEstimator:
             z_w, r_w = self._dir * vwb / self.r_ws, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / self.r_ws ** 2
         elif vfa is not None and self.engaged:
             s_w = self.ms.wheel_speed_sigma_abs + self.ms.wheel_speed_sigma_rel * vfa
-            den = (1.0 + self.lead) * rdr
+            den = (1.0 + self.lead) * self.r_ws            # EBC2's axle speed: ω_f over the ECU's radius
             z_w, r_w = self._dir * vfa / den, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / den ** 2
         if z_w is not None:
             self._t_omega = t
@@ -627,7 +631,7 @@ class MachineEstimator:
                     if self._auto and self._lead_d > 0.0:
                         self._mfwd_from_bus(t, vfa / v_rear, rdf, rdr)
                     if self.engaged and self.lead > 0.0:       # front axle over rear wheels, against the coupling
-                        q = vfa / v_rear / ((1.0 + self.lead) * rdr / rdf) - 1.0
+                        q = vfa / v_rear / (1.0 + self.lead) - 1.0
                         a = 1.0 if t - self._t_coupling > 5.0 * max(val.coupling_tau_s, 0.1) else min(
                             1.0, (t - self._t_coupling) / max(val.coupling_tau_s, 1e-3))
                         self._coupling = q if not math.isfinite(self._coupling) else self._coupling + a * (
@@ -764,7 +768,7 @@ class MachineEstimator:
         fzf, fzr, rdf, rdr = self.loads()
         k0 = self._radius.applied[1]
         rdf0, rdr0 = rdf / k0, rdr / k0
-        kf = (1.0 + self.lead) * rdr0 / rdf0 if self.engaged else 1.0
+        kf = 1.0 + self.lead if self.engaged else 1.0
         ok = self._conv and abs(v) >= self.cfg.standstill_speed_mps and not (self._turning or self._turning_gnss)
         cs = self._curve_state
         self._radius.push(t, v_gnss, [kf * w, kf * w, w, w], rdf0, rdr0, [mu] * 4, self._dyn.accel, ok,
@@ -776,7 +780,7 @@ class MachineEstimator:
     def _mfwd_from_bus(self, t: float, ratio: float, rdf: float, rdr: float) -> None:
         """``front_drive = "auto"``: the MFWD state from EBC2.  ``ratio``: its front-axle over rear-wheel speed,
         both from wheel angular speeds over the ECU's one radius, so the front over rear angular speed [-].
-        Engaged, the gears fix it at (1 + λ) r_r/r_f whatever the loads (λ the lead; learnt, smoothed over
+        Engaged, the gears fix it at 1 + λ whatever the loads (λ the lead; learnt, smoothed over
         ``coupling_tau_s``, while engaged outside turns and shifts, with time constant ``coupling_ref_tau_s``,
         from the declared lead at the first sample); disengaged, the front axle rolls at the ground speed and the
         ratio falls by about λ + s_r ≥ λ (s_r the rear slip).  Disengaged below −``coupling_tolerance``·λ of the
@@ -787,7 +791,7 @@ class MachineEstimator:
             1.0, (t - self._t_wr) / max(val.coupling_tau_s, 1e-3))
         self._wr = ratio if not math.isfinite(self._wr) else self._wr + a * (ratio - self._wr)
         if not math.isfinite(self._wr_ref):
-            self._wr_ref = (1.0 + self._lead_d) * rdr / rdf
+            self._wr_ref = 1.0 + self._lead_d
         elif self.engaged and t - self._t_turn > val.turn_hold_s and t - self._t_shift > val.shift_hold_s:
             self._wr_ref += min(1.0, (t - self._t_wr) / val.coupling_ref_tau_s) * (self._wr - self._wr_ref)
         self._t_wr = t
@@ -914,7 +918,7 @@ class MachineEstimator:
         P = ukf.P
         pw, pv, pmu, prho = P[0, 0], P[1, 1], P[2, 2], P[3, 3]
         fzf, fzr, rdf, rdr = self.loads()
-        k = (1.0 + self.lead) * rdr / rdf if self.engaged else math.nan
+        k = 1.0 + self.lead if self.engaged else math.nan
         s_r = _slip1(w, v, rdr)
         if self.engaged:
             w_f = k * w
