@@ -17,6 +17,7 @@ from tractionecu.estimation.estimator import INPUT_REJECTED, NOT_CONVERGED, STAT
 from tractionecu.estimation.machine import (DRAFT_NOT_SEPARATED, MACHINE_LEVEL, MACHINE_UNSUPPORTED, MachineEstimate,
                                             MachineEstimator)
 from tractionecu.errors import EstimatorError
+from tractionecu.estimation.machine_curve import D497, resolve_prior
 from tractionecu.model.mucurve import SOIL_CLASSES
 from tractionecu.model.vehicle import rolling_radius
 
@@ -31,11 +32,11 @@ def mech_vehicle(**dt) -> VehicleParams:
 
 def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n: float = 15000.0,
           eta_true: float = 0.88, lead: float = 0.03, gear: float = 4.0, seed: int = 1, mfwd: bool = True,
-          pull_deg: float = 0.0, gear_fn=None):
+          pull_deg: float = 0.0, gear_fn=None, curve=STUBBLE):
     """Synthetic mechanical tractor at 1 kHz; returns the truth and the bus samples (t, key, value).
     ``pull_deg``: line of pull above the horizontal; its F_dx tan β (at the mean draft) loads the rear axle.
     ``gear_fn(t)``: a transmission ratio that varies (a CVT; slow, so the reflected inertia's rate term is
-    left out), reported by ETC2 at its 0.001 resolution."""
+    left out), reported by ETC2 at its 0.001 resolution.  ``curve``: the wheels' μ(s) shape, μ_i = a·g(s_i)."""
     rng = np.random.default_rng(seed)
     veh = mech_vehicle()
     W = veh.weight_n
@@ -68,8 +69,8 @@ def plant(seconds: float = 60.0, *, a: float = 0.7, rho_s: float = 0.06, draft_n
         M = pct / 100.0 * tref * i_tot * eta_true
         s_r = 1 - v / (rdr * w)
         s_f = 1 - v / (rdf * k * w)
-        mu_r = a * float(STUBBLE.g(s_r))
-        mu_f = a * float(STUBBLE.g(s_f))
+        mu_r = a * float(curve.g(s_r))
+        mu_f = a * float(curve.g(s_f))
         if mfwd:
             fh = mu_r * fzr + mu_f * fzf
             dw = (M - rdr * (mu_r + veh.rho_t) * fzr - k * rdf * (mu_f + veh.rho_t) * fzf) / J
@@ -461,3 +462,38 @@ def test_mfwd_state_from_the_bus() -> None:
     late4 = [e for e in run(est4, _with_ebc2(bus4, truth4, mech_vehicle(), lambda t: False)) if e.t > 20.0]
     assert all(e.front_engaged for e in late4) and est4.counters["mfwd_changes"] == 0
     assert np.mean([e.valid for e in late4]) > 0.99
+
+
+def test_curve_prior_d497_is_the_brixius_slip_term_and_unknown_priors_are_refused() -> None:
+    s = np.linspace(0.0, 0.5, 51)
+    assert np.allclose(D497.g(s), 1.0 - np.exp(-7.5 * s))            # ASABE D497.7 GT's slip term
+    assert resolve_prior("d497") is D497 and resolve_prior("tilled") is SOIL_CLASSES["tilled"]
+    assert resolve_prior(None) is None
+    with pytest.raises(ValueError, match="d497"):
+        resolve_prior("loam")
+
+
+def test_curve_prior_fits_the_machine_pairs_with_its_shape_and_reports_it() -> None:
+    """Wheels on the D497 shape: with ``curve_prior="d497"`` the machine's a comes out (the effective slip
+    takes the prior's g), the reported curve is a·g_d497 on the class path, and the scorer's
+    representative curve reads the shape from the reported curve although ``d497`` is no surface class."""
+    from tractionecu.evaluation.curve_score import identified_curve
+
+    truth, bus = plant(50.0, a=0.8, curve=D497, seed=5)
+    out = run(MachineEstimator(mech_vehicle(), curve_prior="d497"), bus)
+    late = [e for e in out if e.t > 20.0 and e.valid]
+    assert len(late) > 2000
+    assert abs(late[-1].a - 0.8) / 0.8 < 0.05
+    assert late[-1].soil_class == "d497" and late[-1].curve_path == "class:d497"
+    cur = late[-1].curve
+    assert cur is not None and cur.soil_class is D497
+    assert cur.mu(0.2) == pytest.approx(late[-1].a * (1 - math.exp(-1.5)))
+    grid = np.linspace(0.0, 0.4, 41)
+    idx = np.arange(len(late))
+    rep, info = identified_curve(idx, np.array([e.a for e in late]), [e.soil_class for e in late],
+                                 [e.curve for e in late], grid)
+    assert info["curve_path"] == "class:d497"
+    assert np.allclose(rep, np.mean([e.a for e in late]) * D497.g(grid))
+    # the default prior is the configured class: the same bus fitted with stubble's shape
+    dflt = [e for e in run(MachineEstimator(mech_vehicle()), bus) if e.t > 20.0 and e.valid]
+    assert dflt[-1].soil_class == "stubble" and dflt[-1].curve.soil_class is STUBBLE

@@ -100,9 +100,11 @@ from scipy.special import erfcinv
 
 from ..config import SensorSpec, VehicleParams, setting, validate
 from ..errors import EstimatorError
+from ..model.mucurve import SoilClass
 from ..model.vehicle import compiled, rolling_radius
 from .config import EstimatorConfig
-from .curve import CurveEstimator
+from .curve import CurveState
+from .machine_curve import MachineCurveState, machine_curve_estimator, resolve_prior
 from .estimator import (COV_REPAIRED, DRAFT_TIMEOUT, GPS_TIMEOUT, INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED,
                         STANDSTILL, TORQUE_TIMEOUT, WHEEL_TIMEOUT, AXLE_TIMEOUT, DRAFT_NOT_SEPARATED, INVALID_MASK,
                         MACHINE_LEVEL, MACHINE_UNSUPPORTED, Estimate)
@@ -254,6 +256,9 @@ class MachineEstimator:
     draft : whether the hitch measures the draft; False: ρ_s and draft are estimated as their sum.
     front_load : whether the front-axle load is measured (default: ``[drivetrain] load_sensing``).
     machine_sensors : noise of the standard messages (:class:`MachineSensors`).
+    curve_prior : the one shape a·g(s) the machine's μ(s) is fitted with (:mod:`.machine_curve`: ``"d497"``,
+        or a surface class name or :class:`~tractionecu.model.mucurve.SoilClass`); None: the configured
+        ``soil_classes``.
 
     ``step(t, inputs, measurements)`` takes the keys of
     :data:`tractionecu.pipeline.signals.MACHINE_GROUPS` and the GNSS speed ``v``.
@@ -263,7 +268,8 @@ class MachineEstimator:
 
     def __init__(self, vehicle: VehicleParams, cfg: EstimatorConfig | None = None,
                  sensors: SensorSpec | None = None, *, draft: bool = True, front_load: bool | None = None,
-                 machine_sensors: MachineSensors | None = None, validity: MachineValidity | None = None) -> None:
+                 machine_sensors: MachineSensors | None = None, validity: MachineValidity | None = None,
+                 curve_prior: str | SoilClass | None = None) -> None:
         dt = vehicle.drivetrain
         if not dt.engine_driven:
             raise EstimatorError("MachineEstimator: the vehicle's [drivetrain] kind is 'hub' (per-wheel torques: "
@@ -274,6 +280,7 @@ class MachineEstimator:
         self.sensors = sp = sensors or SensorSpec()
         self.ms = machine_sensors or MachineSensors()
         self.validity = validity or MachineValidity()
+        self._prior = resolve_prior(curve_prior)
         self.draft = bool(draft)
         self.front_load = (dt.load_sensing == "front-axle") if front_load is None else bool(front_load)
         self.m = vehicle.mass_kg
@@ -349,8 +356,8 @@ class MachineEstimator:
         self._f = 1.0
         self._adapt_mu = 1.0
         self._t_adapt = -math.inf
-        self._curve = CurveEstimator.from_config(cfg)
-        self._curve_state = self._curve.state()
+        self._curve = machine_curve_estimator(cfg, self._prior)
+        self._curve_state = self._with_prior(self._curve.state())
         self._t_curve = -math.inf
         self._held: tuple[float, list[float]] | None = None
         self._conv = False
@@ -864,6 +871,10 @@ class MachineEstimator:
         self._conv = False
 
     # ------------------------------------------------------------------ output
+    def _with_prior(self, cs: CurveState) -> CurveState:
+        """The curve state, carrying the prior's shape when a ``curve_prior`` is set (:mod:`.machine_curve`)."""
+        return cs if self._prior is None else MachineCurveState.of(cs, self._prior)
+
     def _effective_slip(self, s_f: float, s_r: float, fzf: float, fzr: float) -> float:
         """s_e with g(s_e) = Σ w_a g(s_a) (module doc), the first configured class's g."""
         if not self.engaged:
@@ -933,8 +944,8 @@ class MachineEstimator:
             s_e = self._effective_slip(s_f, s_r, fzf, fzr)
             sig_s = math.sqrt(pv) / max(rdr * abs(w), 1e-3)
             mu_c = mu if self.engaged else (mu * (fzf + fzr) + self.vehicle.rho_t * fzf) / fzr   # rear axle's
-            self._curve_state = cs = self._curve.update(t, np.array([mu_c]), np.array([s_e]),
-                                                        np.array([math.sqrt(pmu)]), np.array([sig_s]))
+            self._curve_state = cs = self._with_prior(self._curve.update(
+                t, np.array([mu_c]), np.array([s_e]), np.array([math.sqrt(pmu)]), np.array([sig_s])))
         conv = self._converged(t, pmu, prho, mu)
         if not conv:
             status |= NOT_CONVERGED

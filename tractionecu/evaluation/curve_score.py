@@ -70,7 +70,14 @@ def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Se
         cl = idx if curves is None else np.array([j for j in il if curves[j] is None or
                                                   not curves[j].path.startswith("shape:")], dtype=np.int64)
         a_bar = float(np.mean(a_e[cl if cl.size else idx]))
-        return SOIL_CLASSES[cls_name].mu(s_grid, a_bar), {
+        cls = SOIL_CLASSES.get(cls_name)
+        if cls is None and curves is not None:    # a shape outside the registry, carried by its curve
+            cls = next((curves[j].soil_class for j in il if curves[j] is not None
+                        and getattr(curves[j], "soil_class", None) is not None
+                        and curves[j].soil_class.name == cls_name), None)
+        if cls is None:
+            raise KeyError(f"surface class {cls_name!r}: not known and no reported curve carries it")
+        return cls.mu(s_grid, a_bar), {
             "a_identified": a_bar, "class_identified": cls_name, "curve_path": path or f"class:{cls_name}"}
     assert curves is not None
     use = [j for j in il if curves[j] is not None and curves[j].path.startswith("shape:")]
@@ -86,3 +93,17 @@ def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Se
     return mean, {"a_identified": float(np.mean([curves[j].a for j in use])), "class_identified": cls_name,
                   "curve_path": path, "shape_params": dict(zip(names, theta.tolist())),
                   "shape_share": len(use) / len(il)}
+
+
+def r_squared_over(y_hat: NDArray[np.float64], y: NDArray[np.float64], s_grid: NDArray[np.float64],
+                   lo: float, hi: float) -> float:
+    """R² of the identified curve ``y_hat`` against the true ``y`` (both on ``s_grid``) over the slips
+    lo ≤ s ≤ hi only [-]: the soil's own slip range, where the identified curve rests on data (over the
+    whole grid the rest is extrapolation).  NaN with fewer than 3 grid points in the range."""
+    m = (s_grid >= lo) & (s_grid <= hi)
+    if int(m.sum()) < 3:
+        return float("nan")
+    r = y[m] - y_hat[m]
+    d = y[m] - y[m].mean()
+    ss = float((d * d).sum())
+    return 1.0 - float((r * r).sum()) / ss if ss > 0 else float("nan")

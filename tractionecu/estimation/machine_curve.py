@@ -1,0 +1,103 @@
+"""The μ(s) prior of the machine-level estimator (:mod:`.machine`): which one-parameter shape a·g(s) it fits.
+
+Why a prior, and why it decides the curve
+-----------------------------------------
+The machine-level estimator gives one (μ, s) pair per instant: μ = ΣF_h/ΣF_z of the whole machine and
+the effective slip s_e of its two axles (g(s_e) = Σ w_a g(s_a), :meth:`.machine.MachineEstimator.
+_effective_slip`).  In steady work the pairs of one soil sit at one working point: on
+``mechanical-three-soils`` seed 0 the rear slip spans 0.031-0.057 / 0.038-0.065 / 0.070-0.102 (5-95 %,
+firm / mid / soft) and the estimated μ and slip are not correlated beyond their noise (correlation of
+the valid pairs 0.00 / 0.22 / 0.47): the data fix the level a·g(s_work) and nothing of the shape.
+Whatever the curve is away from the working point comes from the shape the estimator assumes, so the
+R² of μ(s) over 0-0.4 scores that assumption.  Choosing among several classes on these data does not
+help: with slip noise and no μ-s correlation the class likelihood of :mod:`.curve` prefers the class
+steepest in g'/g at the working slip (its predicted slip varies least), whatever the soil.
+
+Priors
+------
+* the configured ``soil_classes`` (default): the paper's class path (eq. 14 with ``stubble``'s p, α1, α2);
+* ``"d497"`` (:data:`D497`): the shape of the ASABE D497.7 / Brixius (1987) gross traction ratio,
+  GT(s) = 0.88 (1 − e^{−0.1 B_n}) (1 − e^{−7.5 s}) + 0.04, the field's standard traction equation for
+  tractor tyres on agricultural soil.  Its slip dependence 1 − e^{−7.5 s} does not depend on the soil
+  (the mobility number B_n scales it only), so it is a one-parameter family a·g(s) in the paper's sense:
+  eq. 14 with p = 1, α1 = α2 = −7.5.  **The project's physical truth (``tractionecu.sim.tyre``) uses
+  Brixius' equations**, so R² figures with this prior on the simulated tractors measure the estimator
+  against its truth's own family; a real tyre on a real soil departs from D497 by its own amount.
+
+The prior is chosen per estimator (:class:`~.machine.MachineEstimator` ``curve_prior``); a prior outside
+the registry of surface classes (:data:`~tractionecu.model.mucurve.SOIL_CLASSES`, which the simulator's
+truth files are written against) is carried by the reported curve (:class:`MachineCurveState`), so that
+scoring and consumers of ``Estimate.curve`` see its shape.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import cached_property
+from typing import Any
+
+from ..model.mucurve import SOIL_CLASSES, MuCurve, SoilClass
+from .curve import CurveEstimator, CurveState
+
+__all__ = ["D497", "MACHINE_PRIORS", "MachineCurveState", "machine_curve_estimator", "resolve_prior"]
+
+D497 = SoilClass("d497", p=1.0, alpha1=-7.5, alpha2=-7.5, a_typical=0.80, rho_s_typical=0.06,
+                 source="ASABE D497.7 (Brixius 1987) gross traction ratio: slip term 1 - exp(-7.5 s); "
+                        "a = 0.88 (1 - exp(-0.1 B_n)), 0.80 at B_n = 25; typical rho_s as the paper's "
+                        "stubble class, so that the no-draft load split does not move with the prior")
+"""The D497 shape as an eq. 14 class (module doc)."""
+
+MACHINE_PRIORS: dict[str, SoilClass] = {D497.name: D497}
+"""Priors of the machine-level curve beyond the surface classes, by name."""
+
+
+def resolve_prior(prior: str | SoilClass | None) -> SoilClass | None:
+    """The :class:`SoilClass` a ``curve_prior`` names (None: the configured classes)."""
+    if prior is None or isinstance(prior, SoilClass):
+        return prior
+    cls = MACHINE_PRIORS.get(prior) or SOIL_CLASSES.get(prior)
+    if cls is None:
+        raise ValueError(f"unknown machine curve prior {prior!r} "
+                         f"(known: {', '.join([*MACHINE_PRIORS, *SOIL_CLASSES])})")
+    return cls
+
+
+class _WithClasses:
+    """An estimator configuration with its ``soil_classes`` replaced (everything else read through)."""
+
+    def __init__(self, cfg: Any, classes: tuple[SoilClass, ...]) -> None:
+        self._cfg = cfg
+        self.soil_classes = classes
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._cfg, name)
+
+
+def machine_curve_estimator(cfg: Any, prior: SoilClass | None) -> CurveEstimator:
+    """The machine's curve identification: the configuration's (:meth:`CurveEstimator.from_config`), with
+    the one class ``prior`` instead of the configured ``soil_classes`` when given."""
+    if prior is None:
+        return CurveEstimator.from_config(cfg)
+    return CurveEstimator.from_config(_WithClasses(cfg, (prior,)))
+
+
+@dataclasses.dataclass(frozen=True)
+class MachineCurveState(CurveState):
+    """A :class:`~.curve.CurveState` whose class-path curve is a·g(s) of ``prior``, also for a prior that
+    is not one of :data:`~tractionecu.model.mucurve.SOIL_CLASSES`."""
+
+    prior: SoilClass | None = None
+
+    @classmethod
+    def of(cls, cs: CurveState, prior: SoilClass) -> "MachineCurveState":
+        """``cs`` with its prior attached."""
+        return cls(**{f.name: getattr(cs, f.name) for f in dataclasses.fields(CurveState)}, prior=prior)
+
+    @cached_property
+    def curve(self) -> MuCurve | None:
+        if self.shape_curve is not None:
+            return self.shape_curve
+        if not self.a == self.a or self.prior is None or self.class_name != self.prior.name:
+            return CurveState.curve.func(self)          # type: ignore[attr-defined]
+        return MuCurve.from_class(self.prior, self.a, self.var_a if math.isfinite(self.var_a) else math.nan)
