@@ -471,6 +471,14 @@ def test_curve_prior_d497_is_the_brixius_slip_term_and_unknown_priors_are_refuse
     assert resolve_prior(None) is None
     with pytest.raises(ValueError, match="d497"):
         resolve_prior("loam")
+    from tractionecu.errors import ConfigError
+    from tractionecu.estimation.config import EstimatorConfig
+
+    est = MachineEstimator(mech_vehicle(), EstimatorConfig(machine_curve_prior="d497"))   # [estimator] key
+    assert est._curve.classes == [D497]
+    assert MachineEstimator(mech_vehicle())._curve.classes[0] is STUBBLE                  # default: soil_classes
+    with pytest.raises(ConfigError, match="machine_curve_prior"):
+        EstimatorConfig(machine_curve_prior="loam")
 
 
 def test_curve_prior_fits_the_machine_pairs_with_its_shape_and_reports_it() -> None:

@@ -116,6 +116,9 @@ class EstimatorConfig:
     curve_slip_corr_s: float = setting(0.5, "correlation time of the slip error for the class evidence [s]", 1e-3, 1e3)
     curve_shape: bool = setting(True, "identify the μ(s) shape per soil segment once its slips span curve_shape_min_span (False: the one-parameter class path only)")
     curve_shape_min_span: float = setting(0.04, "slip span of a soil segment's pairs the shape fit needs [-]", 0.005, 1.0)
+    machine_curve_prior: str = setting("", "machine-level estimator only (mechanical / power-split drivetrain): the one "
+                                           "μ(s) shape its (μ, s) pairs are fitted with: '' the soil_classes, 'd497' the "
+                                           "ASABE D497.7 slip term 1 − e^(−7.5 s) (estimation/machine_curve.py), or a class")
     curve_shape_load: bool = setting(False, "fit the μ(s) curve's load dependence (1 + q (F_z/F_z,ref − 1)) where light and heavy wheels overlap in slip (False: one curve for every load)")
     # reported uncertainty (estimation/uncertainty.py)
     systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
@@ -131,6 +134,9 @@ class EstimatorConfig:
         for c in self.soil_classes:
             if c not in SOIL_CLASSES:
                 raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
+        if self.machine_curve_prior not in ("", "d497", *SOIL_CLASSES):
+            raise ConfigError(f"estimator.machine_curve_prior: unknown {self.machine_curve_prior!r} "
+                              f"(known: '', d497, {', '.join(SOIL_CLASSES)})")
         if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
             raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
         if self.mu_min >= self.mu_max:

@@ -257,8 +257,8 @@ class MachineEstimator:
     front_load : whether the front-axle load is measured (default: ``[drivetrain] load_sensing``).
     machine_sensors : noise of the standard messages (:class:`MachineSensors`).
     curve_prior : the one shape a·g(s) the machine's μ(s) is fitted with (:mod:`.machine_curve`: ``"d497"``,
-        or a surface class name or :class:`~tractionecu.model.mucurve.SoilClass`); None: the configured
-        ``soil_classes``.
+        or a surface class name or :class:`~tractionecu.model.mucurve.SoilClass`); None: the configuration's
+        ``machine_curve_prior``, and when that is empty its ``soil_classes``.
 
     ``step(t, inputs, measurements)`` takes the keys of
     :data:`tractionecu.pipeline.signals.MACHINE_GROUPS` and the GNSS speed ``v``.
@@ -280,7 +280,7 @@ class MachineEstimator:
         self.sensors = sp = sensors or SensorSpec()
         self.ms = machine_sensors or MachineSensors()
         self.validity = validity or MachineValidity()
-        self._prior = resolve_prior(curve_prior)
+        self._prior = resolve_prior(curve_prior if curve_prior is not None else (cfg.machine_curve_prior or None))
         self.draft = bool(draft)
         self.front_load = (dt.load_sensing == "front-axle") if front_load is None else bool(front_load)
         self.m = vehicle.mass_kg
