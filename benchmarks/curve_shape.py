@@ -11,7 +11,11 @@ For each scenario and seed: simulate (``tractionecu simulate``), replay (``tract
 print, per soil, the scorecard's R² of the identified μ(s) against the truth's curve (the class
 curve for the paper truth model, the tabulated ``mu_curve`` of ``truth.toml`` for the physical one),
 the curve path most samples reported (``class:<name>`` or ``shape:<form>``) and the slip span of
-the soil's true slips (5–95 %).  Two rows per soil:
+the soil's true slips (5–95 %).  ``range R2``: the same R² over the soil's own slip range only (the 5–95 %
+interval of its true slips in work), where the curve rests on data; over [0, 0.4] the rest is the
+curve's extrapolation.  ``soil#``: the estimator's soil number most of the soil's valid estimates
+reported (soil segments whose slips at equal μ̂ do not differ are pooled into one soil,
+:class:`~tractionecu.estimation.curve.ShapeIdentifier`) and its share.  Two rows per soil:
 
 ``chain``
     the whole estimator: the curve fitted to the filter's own (μ̂, ŝ), as the scorecard scores it;
@@ -44,15 +48,19 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tractionecu.estimation.curve import CurveEstimator  # noqa: E402
-from tractionecu.evaluation.curve_score import identified_curve, true_curve  # noqa: E402
+from tractionecu.estimation.config import EstimatorConfig  # noqa: E402
+from tractionecu.evaluation.curve_score import identified_curve, r_squared_over, true_curve  # noqa: E402
 from tractionecu.config import G, load_vehicle  # noqa: E402
-from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared  # noqa: E402
+from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared, scorecard  # noqa: E402
+from tractionecu.pipeline.replay import replay  # noqa: E402
+from tractionecu.recording.reader import read_recording  # noqa: E402
 
 SLIP_SIGMA = 0.009
 SLIP_CORR_S = 0.5
@@ -95,6 +103,36 @@ def pairs_run(rec: Path, seed: int, shape: bool = True, load: bool = False) -> t
     return out, spent, float(tr.t[-1] - tr.t[0])
 
 
+def chain_run(rec: Path, load: bool = False) -> tuple[dict, dict[str, dict]]:
+    """The whole estimator on ``rec`` (replay in this process): its scorecard and, per soil, the R² over the
+    soil's own slip range (``range_r2``, :func:`slip_spans`) and the estimator's soil number (``soil_no``,
+    ``soil_share``)."""
+    soils_no: list[int] = []
+    res = replay(read_recording(rec), cfg=EstimatorConfig(curve_shape_load=load),
+                 on_estimate=lambda e: soils_no.append(-1 if e.curve_state is None else e.curve_state.soil))
+    a = res.arrays
+    tr = read_truth(rec / "truth.csv", rec / "truth.toml")
+    card = scorecard(a, tr)
+    k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    names = np.array(tr.soil_name, dtype=object)[k]
+    valid = np.asarray(a["valid"], dtype=bool) & np.isfinite(a["a"])
+    valid[:int(np.argmax(valid))] = False
+    ranges = slip_spans(rec, ranges=True)
+    sno = np.array(soils_no[:len(k)])
+    out = {}
+    for name in sorted(set(tr.soil_name)):
+        idx = np.flatnonzero(valid & (names == name))
+        if not idx.size:
+            continue
+        cur, _ = identified_curve(idx, a["a"], a["soil_class"], a.get("curve"), S_GRID)
+        lo, hi = ranges.get(name, (math.nan, math.nan))
+        cnt = collections.Counter(sno[idx].tolist())
+        no, n_no = cnt.most_common(1)[0]
+        out[name] = {"range_r2": r_squared_over(cur, true_curve(tr.soils[name], S_GRID), S_GRID, lo, hi),
+                     "slip_range": [lo, hi], "soil_no": int(no), "soil_share": n_no / idx.size}
+    return card, out
+
+
 def truth_loads(rec: Path) -> np.ndarray | None:
     """The truth's wheel loads fz_FL..fz_RR [N] (n, 4), None for a truth without them."""
     with open(rec / "truth.csv", encoding="utf-8") as fh:
@@ -123,15 +161,17 @@ def axle_r2(rec: Path, name: str, idx: np.ndarray, sts: list, veh) -> dict[str, 
     return out
 
 
-def slip_spans(rec: Path) -> dict[str, float]:
-    """5–95 % span of the true slips per soil while working (|μ| ≥ 0.15, v ≥ 0.5 m/s)."""
+def slip_spans(rec: Path, ranges: bool = False) -> dict[str, Any]:
+    """5–95 % span of the true slips per soil while working (|μ| ≥ 0.15, v ≥ 0.5 m/s); with ``ranges`` the
+    (5 %, 95 %) slips themselves."""
     tr = read_truth(rec / "truth.csv", rec / "truth.toml")
     out = {}
     names = np.array(tr.soil_name, dtype=object)
     for name in sorted(set(tr.soil_name)):
         m = (names == name)[:, None] & (np.abs(tr.mu) >= 0.15) & (np.abs(tr.v)[:, None] >= 0.5)
         s = np.abs(tr.slip[m])
-        out[name] = float(np.percentile(s, 95) - np.percentile(s, 5)) if s.size else math.nan
+        lo, hi = (float(np.percentile(s, 5)), float(np.percentile(s, 95))) if s.size else (math.nan, math.nan)
+        out[name] = (lo, hi) if ranges else hi - lo
     return out
 
 
@@ -145,26 +185,18 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="curve_shape_"))
     work.mkdir(parents=True, exist_ok=True)
-    extra = []
-    tag = ""
-    if args.load:
-        tag = "_load"
-        cfg = work / "load.toml"
-        cfg.write_text("[estimator]\ncurve_shape_load = true\n", encoding="utf-8")
-        extra = ["--config", str(cfg)]
     rows = []
     cost = {"curve_s_shape": 0.0, "curve_s_paper": 0.0, "run_s": 0.0}
-    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'chain path':20s} "
-          f"{'pairs R2':>9s} {'pairs path':20s} {'front':>6s} {'rear':>6s}")
+    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'range R2':>9s} {'soil#':>9s} "
+          f"{'chain path':20s} {'pairs R2':>9s} {'pairs path':20s} {'front':>6s} {'rear':>6s}")
     for scn in args.scenarios:
         for seed in args.seeds:
-            rec, run = work / f"rec_{scn}_{seed}", work / f"run_{scn}_{seed}{tag}"
+            rec = work / f"rec_{scn}_{seed}"
             py = [sys.executable, "-m", "tractionecu"]
             if not (rec / "truth.csv").exists():
                 subprocess.run(py + ["simulate", "--scenario", scn, "--seed", str(seed), "--out", str(rec)],
                                check=True, capture_output=True)
-            subprocess.run(py + ["replay", str(rec), "--out", str(run)] + extra, check=True, capture_output=True)
-            card = json.loads((run / "scorecard.json").read_text())
+            card, per_soil = chain_run(rec, load=args.load)
             spans = slip_spans(rec)
             pairs, spent, dur = pairs_run(rec, seed, load=args.load)
             _, spent0, _ = pairs_run(rec, seed, shape=False)
@@ -174,13 +206,16 @@ def main(argv: list[str] | None = None) -> int:
             for soil, r2 in card["r2_mu_curve"].items():
                 row = {"scenario": scn, "seed": seed, "soil": soil, "slip_span": spans.get(soil, math.nan),
                        "chain_r2": r2, "chain_path": card["curves"].get(soil, {}).get("curve_path", ""),
+                       **{f"chain_{k}": v for k, v in per_soil.get(soil, {}).items()},
                        "pairs_r2": pairs.get(soil, {}).get("r2", math.nan),
                        "pairs_path": pairs.get(soil, {}).get("path", ""),
                        "pairs_r2_front": pairs.get(soil, {}).get("r2_front", math.nan),
                        "pairs_r2_rear": pairs.get(soil, {}).get("r2_rear", math.nan),
                        "mu_mean_abs_rel_error": card.get("mu_mean_abs_rel_error", math.nan)}
                 rows.append(row)
-                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} {row['chain_path']:20s} "
+                sno = f"{row.get('chain_soil_no', -1)} ({row.get('chain_soil_share', math.nan) * 100:.0f}%)"
+                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} "
+                      f"{row.get('chain_range_r2', math.nan):9.4f} {sno:>9s} {row['chain_path']:20s} "
                       f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
                       f"{row['pairs_r2_rear']:6.3f}")
     steps = cost["run_s"] * 100.0

@@ -317,3 +317,68 @@ def test_a_load_aware_curve_is_scored_at_its_reference_load():
     assert info["curve_path"] == "shape:exp1+load"
     assert np.allclose(curve, 0.8 * -np.expm1(-7.5 * S_GRID))
     assert np.allclose(c.mu(S_GRID, np.full_like(S_GRID, 1.4 * FZ_REF)), 0.92 * curve)
+
+
+def _drive_range(ce, f, t0, seconds, rng, state, centre, amp):
+    """:func:`_drive` with the drawbar demand sweeping μ over centre ± (amp + 0.03)."""
+    ss = np.linspace(1e-4, 0.8, 8001)
+    fs = f(ss)
+    out = []
+    for k in range(int(seconds * 10)):
+        t = t0 + 0.1 * k
+        mu_t = centre + amp * math.sin(2 * math.pi * t / 17.0) + 0.03 * math.sin(2 * math.pi * t / 3.7)
+        s4 = np.interp(mu_t, fs, ss) * np.array([1.1, 1.1, 0.9, 0.9])
+        state[0] = state[0] * math.exp(-0.2) + math.sqrt(1 - math.exp(-0.4)) * 0.009 * rng.standard_normal()
+        out.append(ce.update(t, f(s4) + 0.003 * rng.standard_normal(4), s4 + state[0], np.full(4, 0.005),
+                             np.full(4, 0.009)))
+    return out
+
+
+def test_segments_of_one_soil_are_pooled():
+    """Passes that come back to a soil: the segment is told to be that soil again (same soil number), a
+    different soil gets a new number, and a segment too narrow alone is fitted with its soil's earlier
+    segments (regression: on physical-three-soils every crossing of firm stubble alone spanned < 0.04 and
+    stayed on the class path, while pooling it with the soft soil's crossings gave the wrong curve)."""
+    rng = np.random.default_rng(5)
+    ce = CurveEstimator(["stubble"], tau_s=3.0)
+    err = [0.0]
+    firm = lambda s: brixius(s, 60.0)  # noqa: E731
+    soft = lambda s: 0.62 * brixius(s, 60.0) / 0.878  # noqa: E731   (slip at equal μ far higher)
+    a1 = _drive_range(ce, firm, 0.0, 60.0, rng, err, 0.23, 0.06)
+    b1 = _drive_range(ce, soft, 60.0, 60.0, rng, err, 0.25, 0.1)
+    a2 = _drive_range(ce, firm, 120.0, 60.0, rng, err, 0.33, 0.03)
+    b2 = _drive_range(ce, soft, 180.0, 40.0, rng, err, 0.25, 0.1)
+    assert a1[-1].soil == 0 and b1[-1].soil == 1
+    assert a2[-1].segment > b1[-1].segment > a1[-1].segment
+    assert a2[-1].soil == 0 and b2[-1].soil == 1
+    # the second firm stretch alone is under the span; pooled with the first: the shape path, the right curve
+    sh = ce.shape
+    a2_own = _drive_range(sh_probe := CurveEstimator(["stubble"], tau_s=3.0), firm, 0.0, 60.0, rng, [0.0], 0.33, 0.03)
+    assert a2_own[-1].curve_path.startswith("class:") and a2_own[-1].slip_span < 0.04 and sh_probe.shape.soil == 0
+    assert a2[-1].curve_path.startswith("shape:") and a2[-1].slip_span >= 0.04
+    assert r_squared(a2[-1].curve(S_GRID), firm(S_GRID)) >= 0.98
+
+
+def test_shift_test_of_two_bin_sets():
+    rng = np.random.default_rng(3)
+    b1 = binned(brixius, 0.02, 0.1, 600, rng)
+    b2 = binned(brixius, 0.02, 0.1, 600, rng)
+    b3 = binned(lambda s: brixius(np.asarray(s) / 1.3), 0.02, 0.1, 600, rng)   # 30 % more slip at equal μ
+    d, sd, n = b1.shift_test(b2, 2.0)
+    assert n >= 3 and abs(d) <= 3 * sd
+    d3, sd3, n3 = b3.shift_test(b1, 2.0)
+    assert n3 >= 3 and d3 > 5 * sd3 and d3 > 0
+    assert PairBins().shift_test(b1, 2.0)[2] == 0
+
+
+def test_soil_numbers_survive_forgetting():
+    """Beyond ``max_soils`` the soil seen longest ago is forgotten; the others keep their numbers."""
+    from tractionecu.estimation.curve import ShapeIdentifier
+
+    sh = ShapeIdentifier([STUBBLE], max_soils=2)
+    rng = np.random.default_rng(4)
+    for j in range(3):                                   # three different soils, one after the other
+        sh.mature = binned(lambda s, j=j: brixius(np.asarray(s) / (1.0 + 0.5 * j)), 0.02, 0.1, 400, rng)
+        sh._t_last = float(j)
+        sh._new_segment(math.inf)
+    assert sh.soil_ids == [1, 2] and sh.soil == 3

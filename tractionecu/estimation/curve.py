@@ -90,7 +90,9 @@ class CurveState:
     segment: int = 0
     """Number of the current soil segment of the shape identification."""
     slip_span: float = math.nan
-    """Slip span of the current segment's binned pairs [-] (the shape path needs ``min_span``)."""
+    """Slip span of the current soil's binned pairs [-] (the shape path needs ``min_span``)."""
+    soil: int = 0
+    """Number of the soil the current segment is pooled with (:attr:`ShapeState.soil`)."""
 
     @cached_property
     def curve(self) -> MuCurve | None:
@@ -290,12 +292,12 @@ class CurveEstimator:
         if fit is not None and fit.shape_selected:
             c = fit.curve
             return CurveState(c.a, b, name, a, self._nll.copy(), self.n_used, c, math.nan, c.path, sh.segment,
-                              hi - lo if nb else math.nan)
+                              hi - lo if nb else math.nan, sh.soil)
         var_a = math.nan
         if fit is not None and fit.best_class.soil_class is self.classes[b]:   # the bins' interval, scaled to a
             var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
         return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, None, var_a, "class:" + name,
-                          sh.segment, hi - lo if nb else math.nan)
+                          sh.segment, hi - lo if nb else math.nan, sh.soil)
 
 
 # ============================================================================= shape beyond one parameter
@@ -319,7 +321,23 @@ class CurveEstimator:
 # pairs since the CUSUM last left zero (they were the new soil's).  Bins are compared with no
 # curve shape assumed, so off-class soils are segmented as well as class soils.  The segment
 # statistics are additive, so the take-over is exact; their total weight is capped
-# (``max_weight``) by rescaling, a slow forgetting.
+# (``max_weight``) by rescaling, a slow forgetting.  The allowance k = 0.5 is half the shift to be found
+# (Page's CUSUM): on physical-three-soils the slip at equal μ̂ of soft and firm stubble differs by
+# 0.014 (front) to 0.027 (rear) against the filter's scatter of 0.015 to 0.025 there, a shift of about one
+# standard deviation; with k = 0.75 the test never fired and the three soils were fitted as one.
+#
+# Soils (segments pooled).  A field is crossed again and again (every pass crosses every soil), so a
+# segment is often a soil seen before.  Each closed segment's fit bins are kept as a soil; the current
+# segment is compared with every soil (:meth:`PairBins.shift_test`: the mean difference of their bin
+# mean slips at equal μ̂, weighted by the inverse variances of the differences, over the bins both have)
+# and is that soil when the difference is within ``match_z`` = 3 standard errors over at least
+# ``match_min_bins`` common bins (the closest such soil), else a new soil.  At its close a segment's
+# bins join its soil.  The fit and its span are those of the segment's bins pooled with its soil's
+# (a crossing of a few tens of metres seldom shows enough of the curve alone: on physical-three-soils
+# no crossing of firm or mid stubble did).  Because a false alarm only splits a
+# soil into segments that are pooled again, the change test can afford the sensitivity above.  The soil
+# number (:attr:`CurveState.soil`) is reported with the curve.  At most ``max_soils`` soils are kept
+# (the one seen longest ago is forgotten).
 #
 # Fit (:func:`fit_curve`).  Over the bins with W ≥ ``min_bin_weight``: residuals in μ at the bin
 # means, with the effective variance var(μ̄) + μ'(s̄)² var(s̄) (first-order errors in
@@ -451,6 +469,37 @@ class PairBins:
         self.M1[k] += wm
         self.M2[k] += wm * mu
         self.Z1[k] += w * z
+
+    def merged(self, other: "PairBins") -> "PairBins":
+        """A new PairBins holding the pairs of both (same layout)."""
+        c = self.copy()
+        c.merge(other)
+        return c
+
+    def merge(self, other: "PairBins") -> None:
+        """Add the pairs of ``other`` (same layout) to these bins."""
+        for mine, theirs in zip((self.W, self.S1, self.S2, self.M1, self.M2, self.Z1),
+                                (other.W, other.S1, other.S2, other.M1, other.M2, other.Z1)):
+            mine[:] = [x + y for x, y in zip(mine, theirs)]
+
+    def shift_test(self, other: "PairBins", min_w: float, sigma_s_floor: float = 0.002) -> tuple[float, float, int]:
+        """Mean slip difference at equal μ̂ of these bins against ``other``: (D, σ_D, n) [-] over the n bins
+        with weight ≥ min_w in both, D = Σ (s̄ − s̄')/v / Σ 1/v with v = var s/W + var s'/W' of the two
+        bin means (floored at ``sigma_s_floor``²/W), σ_D = (Σ 1/v)^(−1/2)."""
+        num = den = 0.0
+        n = 0
+        for w1, a1, a2, w2, b1, b2 in zip(self.W, self.S1, self.S2, other.W, other.S1, other.S2):
+            if w1 < min_w or w2 < min_w:
+                continue
+            m1, m2 = a1 / w1, b1 / w2
+            floor = sigma_s_floor * sigma_s_floor
+            v = max(a2 / w1 - m1 * m1, floor) / w1 + max(b2 / w2 - m2 * m2, floor) / w2
+            num += (m1 - m2) / v
+            den += 1.0 / v
+            n += 1
+        if not n:
+            return math.nan, math.nan, 0
+        return num / den, 1.0 / math.sqrt(den), n
 
     def copy(self) -> "PairBins":
         c = PairBins(self.groups)
@@ -889,6 +938,9 @@ class ShapeState:
     """Bins of the current segment with enough weight."""
     n_fits: int
     """Fits done so far (all segments)."""
+    soil: int = 0
+    """Number of the soil the current segment is pooled with (segments whose slips at equal μ̂ do not differ
+    are one soil; a segment unlike every earlier one is a new soil, numbered in order of appearance)."""
 
 
 class ShapeIdentifier:
@@ -903,6 +955,10 @@ class ShapeIdentifier:
     fit_period_s : least time between two fits of one segment [s].
     slip_corr_s : correlation time of the slip error [s] (one sample per τ_s).
     cusum_k, cusum_h : CUSUM allowance and threshold of the change test [standardised units].
+    match_z : a segment is pooled with an earlier soil when its mean slip at equal μ̂ differs from that
+        soil's by at most this many standard errors (:meth:`PairBins.shift_test`) over at least
+        ``match_min_bins`` common bins.
+    max_soils : soils kept for the pooling (beyond it the one seen longest ago is forgotten).
     max_weight : total effective weight of a segment beyond which its bins are rescaled.
     history_s : the pairs of this long are kept for the take-over by a new segment [s].
     confirm_s : the fit uses the pairs older than this [s] (see :meth:`_maybe_fit`).
@@ -916,10 +972,14 @@ class ShapeIdentifier:
 
     def __init__(self, classes: Sequence[SoilClass], *, min_span: float = 0.04, min_bins: int = 6,
                  min_bin_weight: float = 2.0, fit_period_s: float = 10.0, slip_corr_s: float = 0.5,
-                 cusum_k: float = 0.75, cusum_h: float = 4.0, max_weight: float = 2000.0,
+                 cusum_k: float = 0.5, cusum_h: float = 4.0, max_weight: float = 2000.0,
                  history_s: float = 10.0, confirm_s: float = 5.0, bic_margin: float = 6.0,
-                 max_rel_sigma_a: float = 0.3, load: bool = False, fz_ref_n: float = math.nan):
+                 max_rel_sigma_a: float = 0.3, load: bool = False, fz_ref_n: float = math.nan,
+                 match_z: float = 3.0, match_min_bins: int = 3, max_soils: int = 16):
         self.classes = list(classes)
+        self.match_z = float(match_z)
+        self.match_min_bins = int(match_min_bins)
+        self.max_soils = int(max_soils)
         self.min_span = float(min_span)
         self.min_bins = int(min_bins)
         self.min_bin_weight = float(min_bin_weight)
@@ -952,9 +1012,59 @@ class ShapeIdentifier:
         """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well
         when the load term is on (else as the change test's bins: the paper path's data unchanged)."""
         self._young: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
+        self.soils: list[PairBins] = []
+        """The mature bins of every soil seen before the current segment (closed segments pooled)."""
+        self.soil_seen: list[float] = []
+        """Time each soil was last the current one [s] (the one seen longest ago is forgotten beyond ``max_soils``)."""
+        self.soil_ids: list[int] = []
+        """Number of each soil in :attr:`soils` (in order of appearance, kept when an older soil is forgotten)."""
+        self.match = -1
+        """Index in :attr:`soils` of the soil the current segment is pooled with (−1: a new soil)."""
+        self._next_id = 0
+        self._fit_match = -1
+        self._t_last = -math.inf
+
+    @property
+    def soil(self) -> int:
+        """Number of the current soil (:attr:`ShapeState.soil`)."""
+        return self.soil_ids[self.match] if self.match >= 0 else self._next_id
+
+    def _match(self) -> int:
+        """The earlier soil the current segment's mature bins do not differ from (smallest |D|/σ_D), −1 if none."""
+        best, best_z = -1, self.match_z
+        for j, sb in enumerate(self.soils):
+            d, sd, n = self.mature.shift_test(sb, self.min_bin_weight)
+            if n >= self.match_min_bins and abs(d) <= best_z * sd:
+                best, best_z = j, abs(d) / sd
+        return best
+
+    def _close_soil(self) -> None:
+        """The closing segment's mature pairs go to its soil (a new soil if it matched none and has
+        ``match_min_bins`` bins: a few seconds of data between two alarms are dropped)."""
+        m = self.mature
+        if self.soils:
+            self.match = self._match()
+        if self.match >= 0:
+            sb = self.soils[self.match]
+            sb.merge(m)
+            total = sb.total
+            if total > self.max_weight:
+                sb.scale(self.max_weight / total)
+            self.soil_seen[self.match] = self._t_last
+        elif m.span(self.min_bin_weight)[2] >= self.match_min_bins:
+            if len(self.soils) >= self.max_soils:
+                j = min(range(len(self.soils)), key=lambda i: self.soil_seen[i])
+                del self.soils[j], self.soil_seen[j], self.soil_ids[j]
+            self.soils.append(m)
+            self.soil_seen.append(self._t_last)
+            self.soil_ids.append(self._next_id)
+            self._next_id += 1
 
     def _new_segment(self, t_from: float) -> None:
         """Close the segment; the pairs at or after t_from move to the new one."""
+        self._close_soil()
+        self.match = -1
+        self._fit_match = -1
         moved = [e for e in self._hist if e[0] >= t_from]
         self.bins = PairBins()
         for _, pairs in moved:
@@ -979,6 +1089,7 @@ class ShapeIdentifier:
         n = len(mu)
         if n == 0:
             return
+        self._t_last = t
         zl = [0.0] * n if z is None else z
         discount = min(1.0, dt / self.slip_corr) if dt > 0 else 1.0
         bins = self.bins
@@ -1061,9 +1172,15 @@ class ShapeIdentifier:
         pairs older than ``confirm_s``: a soil change is found within a few seconds, and the new
         soil's first pairs must not reach the old soil's fit (they would widen its span with
         another curve)."""
-        bins = self.mature
+        if self.soils and max(self._cp, self._cn) <= 0.5 * self.h:
+            self.match = self._match()
+        pool = self.match                                   # the segment with its soil's earlier segments
+        bins = self.mature if pool < 0 else self.mature.merged(self.soils[pool])
         lo, hi, nb = bins.span(self.min_bin_weight)
         self._span = (lo, hi, nb)
+        if pool != self._fit_match:                         # other bins than the last fit's: that fit is not theirs
+            self.fit = None
+            self._w_fit = 0.0
         if nb < self.min_bins or not (hi - lo >= self.min_span):
             return
         if max(self._cp, self._cn) > 0.5 * self.h:          # a change may be under way
@@ -1071,6 +1188,7 @@ class ShapeIdentifier:
         total = bins.total
         if self.fit is not None and (t - self._t_fit < self.fit_period or total < 1.5 * self._w_fit):
             return
+        self._fit_match = pool
         self._t_fit = t
         self._w_fit = total
         self.fit = fit_curve(bins, self.classes, min_bin_weight=self.min_bin_weight,
@@ -1080,4 +1198,4 @@ class ShapeIdentifier:
 
     def state(self) -> ShapeState:
         lo, hi, nb = self._span
-        return ShapeState(self.segment, self.fit, (lo, hi), nb, self.n_fits)
+        return ShapeState(self.segment, self.fit, (lo, hi), nb, self.n_fits, self.soil)
