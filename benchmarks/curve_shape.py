@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     cost = {"curve_s_shape": 0.0, "curve_s_paper": 0.0, "run_s": 0.0}
-    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'chain R2':>9s} {'range R2':>9s} {'soil#':>9s} "
+    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'span':>6s} {'s 5-95%':>12s} {'chain R2':>9s} {'range R2':>9s} {'soil#':>9s} "
           f"{'chain path':20s} {'pairs R2':>9s} {'pairs path':20s} {'front':>6s} {'rear':>6s}")
     for scn in args.scenarios:
         for seed in args.seeds:
@@ -214,7 +214,8 @@ def main(argv: list[str] | None = None) -> int:
                        "mu_mean_abs_rel_error": card.get("mu_mean_abs_rel_error", math.nan)}
                 rows.append(row)
                 sno = f"{row.get('chain_soil_no', -1)} ({row.get('chain_soil_share', math.nan) * 100:.0f}%)"
-                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {r2:9.4f} "
+                lo, hi = row.get("chain_slip_range", (math.nan, math.nan))
+                print(f"{scn:22s} {seed:4d} {soil:16s} {row['slip_span']:6.3f} {f'{lo:.3f}-{hi:.3f}':>12s} {r2:9.4f} "
                       f"{row.get('chain_range_r2', math.nan):9.4f} {sno:>9s} {row['chain_path']:20s} "
                       f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
                       f"{row['pairs_r2_rear']:6.3f}")

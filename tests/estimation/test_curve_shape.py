@@ -382,3 +382,18 @@ def test_soil_numbers_survive_forgetting():
         sh._t_last = float(j)
         sh._new_segment(math.inf)
     assert sh.soil_ids == [1, 2] and sh.soil == 3
+
+
+def test_the_class_path_says_where_it_extrapolates():
+    """The class path's curve carries the slip range of its soil's data; past it (a peak the slips never
+    reached, an asymptote) it is the class shape, an extrapolation, and says so."""
+    rng = np.random.default_rng(2)
+    ce = CurveEstimator(["stubble"], tau_s=3.0)
+    for k in range(1500):
+        s4 = rng.uniform(0.03, 0.05) * np.ones(4)
+        st = ce.update(0.1 * k, brixius(s4) + 0.003 * rng.standard_normal(4), s4, np.full(4, 0.005),
+                       np.full(4, 0.005))
+    c = st.curve
+    assert c.form == "class" and 0.025 <= c.s_range[0] < c.s_range[1] <= 0.055
+    assert not c.extrapolated(0.04) and c.extrapolated(0.3).all() and c.extrapolated(-0.3)
+    assert MuCurve.from_class(STUBBLE, 0.7).extrapolated(np.array([0.04, 0.1])).all()   # range not known

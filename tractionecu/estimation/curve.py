@@ -93,6 +93,9 @@ class CurveState:
     """Slip span of the current soil's binned pairs [-] (the shape path needs ``min_span``)."""
     soil: int = 0
     """Number of the soil the current segment is pooled with (:attr:`ShapeState.soil`)."""
+    s_range: tuple[float, float] | None = None
+    """Range of the current soil's bin mean slips [-] (the class path's :attr:`MuCurve.s_range`; None
+    without the shape identification or before a bin has enough weight)."""
 
     @cached_property
     def curve(self) -> MuCurve | None:
@@ -103,7 +106,10 @@ class CurveState:
         if not self.a == self.a:
             return None
         cls = SOIL_CLASSES.get(self.class_name)
-        return None if cls is None else MuCurve.from_class(cls, self.a, self.var_a)
+        if cls is None:
+            return None
+        c = MuCurve.from_class(cls, self.a, self.var_a)
+        return c if self.s_range is None else dataclasses.replace(c, s_range=self.s_range)
 
 
 class CurveEstimator:
@@ -297,7 +303,7 @@ class CurveEstimator:
         if fit is not None and fit.best_class.soil_class is self.classes[b]:   # the bins' interval, scaled to a
             var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
         return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, None, var_a, "class:" + name,
-                          sh.segment, hi - lo if nb else math.nan, sh.soil)
+                          sh.segment, hi - lo if nb else math.nan, sh.soil, (lo, hi) if nb else None)
 
 
 # ============================================================================= shape beyond one parameter

@@ -210,7 +210,9 @@ class MuCurve:
     soil_class: SoilClass | None = None
     """The class supplying p, α1, α2 (form ``class`` only)."""
     s_range: tuple[float, float] = (math.nan, math.nan)
-    """Slip range [-] of the data the curve was fitted to (NaN for the class path)."""
+    """Slip range [-] of the data the curve rests on: the bin mean slips it was fitted to on the shape path,
+    those of the soil's binned pairs on the class path (NaN when not known).  Outside it the curve is an
+    extrapolation (:meth:`extrapolated`): the form's (or the class's) shape, not a measurement."""
     load_q: float = 0.0
     """Load sensitivity q of the curve's amplitude [-]: μ(s; F_z) = (1 + q (F_z/F_z,ref − 1)) μ(s)
     (the load influence on the friction coefficient of Pacejka 2006, eq. 4.E13, p_Dx2; q < 0: the
@@ -346,6 +348,14 @@ class MuCurve:
             tm[j] -= h
             out[..., j] = (self.eval_theta(tp, s) - self.eval_theta(tm, s)) / (2 * h)
         return out
+
+    def extrapolated(self, s: ArrayLike) -> NDArray[np.bool_]:
+        """Where |s| lies outside :attr:`s_range` (True everywhere when the range is not known)."""
+        x = np.abs(np.asarray(s, dtype=float))
+        lo, hi = self.s_range
+        if not (lo == lo and hi == hi):
+            return np.ones(x.shape, dtype=bool)
+        return (x < lo) | (x > hi)
 
     def mu_sigma(self, s: ArrayLike) -> NDArray[np.float64]:
         """Standard error of μ(s) [-] from ``cov`` (delta method; NaN when ``cov`` is unknown)."""
