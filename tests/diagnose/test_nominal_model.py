@@ -172,3 +172,31 @@ def test_slip_channel_fit_does_not_depend_on_the_previous_call():
     y1, p1 = used.parts({}, rows)
     assert np.sum((y1 - p1) ** 2) <= np.sum((y0 - p0) ** 2) * (1 + 1e-6)
     assert np.allclose(used.mu0, fresh.mu0, atol=1e-3)
+
+
+def test_reduced_diagnosis_reads_an_unphysical_a_as_a_over_the_power_share_at_the_wheels():
+    """An engine-level export where only 40 % of the engine power reaches the wheels (the rest drives the
+    PTO): the slip follows μ_engine by the curve with a replaced by a/φ, so a = 0.7 fits as about 1.75.
+    The report says the fit gives a/φ and which shares φ a physical a would mean (here it holds 0.4)."""
+    from tractionecu.diagnose.reduced import A_PLAUSIBLE, diagnose_reduced
+
+    rng = np.random.default_rng(5)
+    n = 900
+    t = np.arange(n, dtype=float)
+    veh = VehicleParams()
+    mg = veh.mass_kg * 9.81
+    a_true, share = 0.7, 0.4
+    mu_soil = np.clip(0.30 + 0.15 * np.sin(t / 37.0) + 0.08 * np.sin(t / 11.0), 0.02, 0.55)
+    grid = np.linspace(0, 0.6, 601)
+    s = np.interp(mu_soil / a_true, SOIL_CLASSES["stubble"].g(grid), grid)
+    vw = 2.0 + 0.8 * np.sin(t / 53.0) ** 2
+    vg = vw * (1 - s) + rng.normal(0, 0.02, n)
+    omega_e = np.full(n, 2 * math.pi * 30.0)
+    fr = Frame(t=t, t0_epoch=0.0, rate_hz=1.0, vehicle=veh, v_gps=vg, v_wheel_bus=vw,
+               engine_torque=mu_soil * mg * vw / share / omega_e, engine_speed=omega_e)
+    rep = diagnose_reduced(fr)
+    sm = rep["slip_model"]
+    assert sm["a"]["value"] > A_PLAUSIBLE[1] and not sm["plausible"]
+    lo, hi = sm["power_share_if_a_physical"]
+    assert lo <= share <= hi
+    assert "a/φ" in rep["statement"]

@@ -291,10 +291,21 @@ def diagnose_reduced(fr: Frame) -> dict:
         plaus.append("the fit ends on the bound of " + ", ".join(
             f"{words.get(k, k)} ({k} = {est[k][0]:.3g}, {side} bound)" for k, side in at_bound.items())
             + ": the model of these signals lacks a term (not an estimate; not named)")
+    power_share = None
     if slip_found and not (A_PLAUSIBLE[0] <= a_hat <= A_PLAUSIBLE[1]):
         plaus.append(f"a = {a_hat:.2f} is outside the physical range {A_PLAUSIBLE[0]}–{A_PLAUSIBLE[1]} of "
                      "agricultural soils: a term is missing (searched: zero-slip offset, auxiliary power; "
                      f"held-out scores {', '.join(f'{words[k]} {v:.1f}' for k, v in term_scores.items())})")
+        if a_hat > A_PLAUSIBLE[1]:
+            # F_h = φ T_e ω_e / v_w with φ the share of the engine power that reaches the wheels gives
+            # s = g⁻¹((μ − μ_0/φ)/(a/φ)): the fit returns a/φ, and no signal of the export tells φ from a.
+            power_share = [A_PLAUSIBLE[0] / a_hat, min(1.0, A_PLAUSIBLE[1] / a_hat)]
+            plaus.append(f"the fit gives a/φ, with φ the share of the engine power that reaches the wheels "
+                         "(F_h = φ T_e ω_e / v_w; the slip follows the traction ratio by the same curve with a "
+                         f"replaced by a/φ): for a soil's a of {A_PLAUSIBLE[0]}–{A_PLAUSIBLE[1]}, φ = "
+                         f"{power_share[0]:.2f}–{power_share[1]:.2f}, the rest going to the PTO, hydraulics or "
+                         "losses, which this export does not carry.  A PTO speed or power signal, or a draft "
+                         "measurement, would separate them")
     statement = (slip_txt + term_txt + ("  Implausible: " + "; ".join(plaus) + "." if plaus else "")
                  + "  No effect from the library can be tested with these signals (engine torque and "
                  "speed, one wheel-based speed, GNSS; no per-wheel data, no draft): see the candidates' reasons.")
@@ -321,6 +332,7 @@ def diagnose_reduced(fr: Frame) -> dict:
                                                    term_scores.get(k)} for k in names if k in words},
                        "term_scores": {words[k]: v for k, v in term_scores.items()},
                        "plausible": not plaus,
+                       "power_share_if_a_physical": power_share,
                        "at_bound": at_bound,
                        "formula": "v_g = v_w (1 + ε)(1 − g⁻¹(μ_soil/a)),  μ_soil = μ − μ_0 − P_aux/(v_w m g),  "
                                   "μ = T_e ω_e / (v_w m g)"},
