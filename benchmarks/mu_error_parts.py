@@ -16,7 +16,8 @@ total).  Printed:
 
 ``parts``
     work (implement in work, ``truth.csv`` ``work``) and not in work (headland turns, transport), the
-    latter split into straight and turning (|curvature| ≥ 0.001 1/m); valid and not valid steps; per
+    latter split into straight and turning (|curvature| ≥ 0.001 1/m; the paper truth writes no curvature,
+    its steps all count as straight); valid and not valid steps; per
     wheel; per soil in work.
 ``blocks``
     the mean absolute relative error in work after averaging the signed error over blocks of 10 ms to 2 s
@@ -61,10 +62,12 @@ STEP_S = 0.01
 
 
 def _truth_columns(rec_dir: Path, names: tuple[str, ...]) -> dict[str, np.ndarray]:
+    """The named ``truth.csv`` columns that the recording has (the paper truth writes no ``curvature``)."""
     head = (rec_dir / "truth.csv").read_text(encoding="utf-8").split("\n", 1)[0].split(",")
-    cols = np.loadtxt(rec_dir / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index(n) for n in names],
+    have = [n for n in names if n in head]
+    cols = np.loadtxt(rec_dir / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index(n) for n in have],
                       ndmin=2)
-    return {n: cols[:, j] for j, n in enumerate(names)}
+    return {n: cols[:, j] for j, n in enumerate(have)}
 
 
 def parts(rec_dir: Path) -> dict:
@@ -80,7 +83,8 @@ def parts(rec_dir: Path) -> dict:
     sl = slice(i0, None)
     mt, me = tr.mu[k][sl], a["mu"][sl]
     work = cols["work"][k][sl] > 0.5
-    turn = np.abs(cols["curvature"][k][sl]) >= 1e-3
+    # turning: |curvature| ≥ 0.001 1/m (a truth without the column: every step counted straight)
+    turn = np.abs(cols["curvature"][k][sl]) >= 1e-3 if "curvature" in cols else np.zeros(len(work), dtype=bool)
     big = np.abs(mt) >= 0.05
     rel = np.where(big, (me - mt) / np.maximum(np.abs(mt), 1e-12), np.nan)
     fin = np.isfinite(rel)
