@@ -397,3 +397,35 @@ def test_the_class_path_says_where_it_extrapolates():
     assert c.form == "class" and 0.025 <= c.s_range[0] < c.s_range[1] <= 0.055
     assert not c.extrapolated(0.04) and c.extrapolated(0.3).all() and c.extrapolated(-0.3)
     assert MuCurve.from_class(STUBBLE, 0.7).extrapolated(np.array([0.04, 0.1])).all()   # range not known
+
+
+def test_binning_by_an_independent_adhesion_removes_the_flattening():
+    """Pairs whose μ̂ error is correlated with their ŝ error (the filter's μ̂ and ŝ share its innovations;
+    corr −0.5 to −0.7 on physical-three-soils' rear wheels) binned by μ̂ give bin mean slips pulled to the
+    mean; binned by an adhesion with an independent error (drive torque over wheel load) they follow the
+    curve."""
+    from tractionecu.estimation.curve import ShapeIdentifier
+
+    rng = np.random.default_rng(8)
+    ss = np.linspace(1e-4, 0.8, 8001)
+    fs = brixius(ss, 60.0)
+    out = {}
+    for by_inst in (False, True):
+        sh = ShapeIdentifier([STUBBLE])
+        for k in range(6000):
+            mu_t = 0.3 + 0.018 * rng.standard_normal()                 # one axle's narrow μ spread
+            s_t = float(np.interp(mu_t, fs, ss))
+            e = rng.standard_normal(2)
+            e_mu = 0.008 * e[0]
+            e_s = 0.013 * (-0.7 * e[0] + math.sqrt(1 - 0.49) * e[1])   # corr(e_μ, e_s) = −0.7
+            inst = [mu_t * (1.0 + 0.01 * rng.standard_normal())] if by_inst else None
+            sh.update(0.5 * k, 0.5, [mu_t + e_mu], [s_t + e_s], [0.013], None, inst)
+        allb = sh.mature.copy()
+        for sb in sh.soils:                                              # (false alarms split the run)
+            allb.merge(sb)
+        s, m, _, _, W = allb.means(2.0)
+        slope = np.polyfit(m, s, 1, w=np.sqrt(W))[0]
+        out[by_inst] = slope
+    true_slope = 1.0 / float(np.interp(np.interp(0.3, fs, ss), ss[1:], np.diff(fs) / np.diff(ss)))
+    assert out[False] < 0.3 * true_slope                                  # flattened (to a tenth here)
+    assert abs(out[True] - true_slope) < 0.25 * true_slope

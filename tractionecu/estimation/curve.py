@@ -177,7 +177,7 @@ class CurveEstimator:
 
     def update(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64],
                sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None = None,
-               fz: NDArray[np.float64] | None = None) -> CurveState:
+               fz: NDArray[np.float64] | None = None, mu_bin: NDArray[np.float64] | None = None) -> CurveState:
         """Add the pairs of one instant t [s]: μ̂ (k,), ŝ (k,), the standard errors of μ̂ and ŝ (k,)
         and, optionally, the wheel loads F_z (k,) [N] (the shape identification then fits the
         curve's load dependence where the loads differ, with ``fz_ref_n`` as the reference)."""
@@ -188,7 +188,7 @@ class CurveEstimator:
         self._den *= lam
         self._nll *= math.exp(-dt / self.class_tau)
         if self.shape is not None:
-            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz)
+            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz, mu_bin)
         if len(self.classes) == 1:
             self._update_single(np.asarray(mu, dtype=float), np.asarray(s, dtype=float),
                                 np.asarray(sigma_mu, dtype=float))
@@ -223,9 +223,11 @@ class CurveEstimator:
         return self.state()
 
     def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
-                    sigma_s: NDArray[np.float64] | None, fz: NDArray[np.float64] | None = None) -> None:
+                    sigma_s: NDArray[np.float64] | None, fz: NDArray[np.float64] | None = None,
+                    mu_bin: NDArray[np.float64] | None = None) -> None:
         """The pairs the a fit accepts (same rules) go to the shape identification, with their
-        relative wheel loads z = F_z/F_z,ref − 1 when the loads and the reference are known."""
+        relative wheel loads z = F_z/F_z,ref − 1 when the loads and the reference are known, and their
+        binning adhesion (``mu_bin``, :meth:`ShapeIdentifier.update`) when given."""
         ml = mu.tolist()
         sl = s.tolist()
         n = len(sl)
@@ -235,16 +237,22 @@ class CurveEstimator:
             zl = [f / ref - 1.0 if f == f else 0.0 for f in np.asarray(fz, dtype=float).tolist()]
         else:
             zl = [0.0] * n
-        m_ok, s_ok, ss_ok, z_ok = [], [], [], []
+        bl = (np.asarray(mu_bin, dtype=float).tolist() if mu_bin is not None and np.shape(mu_bin) == (n,)
+              else None)
+        m_ok, s_ok, ss_ok, z_ok, b_ok = [], [], [], [], []
         min_mu, min_slip = self.min_mu, self.min_slip
-        for m, x, ss, zz in zip(ml, sl, ssl, zl):
+        for i, (m, x, ss, zz) in enumerate(zip(ml, sl, ssl, zl)):
             if m * x > 0 and abs(m) >= min_mu and abs(x) >= min_slip and abs(m) < math.inf and abs(x) < math.inf:
+                if bl is not None and not abs(bl[i]) < math.inf:
+                    continue                                   # no binning adhesion: the pair is skipped
                 m_ok.append(m)
                 s_ok.append(x)
                 ss_ok.append(ss)
                 z_ok.append(zz)
+                if bl is not None:
+                    b_ok.append(bl[i])
         if m_ok:
-            self.shape.update(t, dt, m_ok, s_ok, ss_ok, z_ok)  # type: ignore[union-attr]
+            self.shape.update(t, dt, m_ok, s_ok, ss_ok, z_ok, b_ok if bl is not None else None)  # type: ignore[union-attr]
 
     def _update_single(self, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64]) -> None:
         """The one-class update of :meth:`update` (no class evidence), with floats where the
@@ -1089,9 +1097,16 @@ class ShapeIdentifier:
         self._t_cp = self._t_cn = -math.inf
 
     def update(self, t: float, dt: float, mu: Sequence[float], s: Sequence[float], sigma_s: Sequence[float],
-               z: Sequence[float] | None = None) -> None:
+               z: Sequence[float] | None = None, mu_bin: Sequence[float] | None = None) -> None:
         """Add the accepted pairs (|μ̂|, |ŝ| of one instant t [s], Δt [s] since the last instant) and
-        their relative wheel loads z = F_z/F_z,ref − 1 [-] (None: all at the reference load)."""
+        their relative wheel loads z = F_z/F_z,ref − 1 [-] (None: all at the reference load).
+
+        ``mu_bin``: the adhesion [-] each pair is binned by, when not μ̂ itself (None: μ̂).  The bins
+        hold the means of ŝ and μ̂ given the binning variable; binned by μ̂, whose error is correlated
+        with the slip error (the filter's μ̂ and ŝ share its innovations), the bin mean slips are
+        pulled towards the axle's mean slip and the curve flattens where one axle's μ̂ spans little.
+        A variable with the same information on μ and an error independent of ŝ (the drive torque over
+        the wheel load, M/(r_d F_z)) gives bin means on the curve (grouping estimator, Wald 1940)."""
         n = len(mu)
         if n == 0:
             return
@@ -1109,9 +1124,10 @@ class ShapeIdentifier:
         M1 = bins.M1
         c0 = self.classes[0]
         p0, a10, a20 = c0.p, c0.alpha1, c0.alpha2
-        for m, x, ss, zz in zip(mu, s, sigma_s, zl):
+        bins_by = mu if mu_bin is None else mu_bin
+        for m, x, ss, zz, mb in zip(mu, s, sigma_s, zl, bins_by):
             m, x = abs(m), abs(x)
-            k = min(int(m / MU_BIN_WIDTH), last)
+            k = min(int(abs(mb) / MU_BIN_WIDTH), last)
             j = -1
             for d in _NEAR:                                   # the nearest bin with enough weight
                 if 0 <= k + d <= last and W[k + d] >= wmin:
