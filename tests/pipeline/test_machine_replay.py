@@ -206,3 +206,20 @@ def test_jd5055e_capture_with_a_mechanical_vehicle_replays_with_no_motion(tmp_pa
     e = _estimates(run)
     assert len(e["valid"]) > 0 and not e["valid"].any()
     assert np.all(e["status"].astype(np.int64) & MACHINE_LEVEL)
+
+
+def test_machine_curve_prior_from_the_configuration(mech40: Path, tmp_path: Path) -> None:
+    """``[estimator] machine_curve_prior = "d497"`` through ``replay --config``, map on: the machine's curve is
+    reported and scored on the D497 shape (estimation/machine_curve.py), μ and ρ_s as without it."""
+    cfg = tmp_path / "prior.toml"
+    cfg.write_text('[estimator]\nmachine_curve_prior = "d497"\n', encoding="utf-8")
+    run = tmp_path / "run-d497"
+    assert main(["replay", str(mech40), "--out", str(run), "--config", str(cfg)]) == 0
+    sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    ref = _replay_scorecard(mech40, tmp_path / "run-default")
+    paths = {c["curve_path"] for c in sc["curves"].values()}
+    assert paths == {"class:d497"}, sc["curves"]
+    assert {c["curve_path"] for c in ref["curves"].values()} == {"class:stubble"}
+    assert sc["mu_mean_abs_rel_error"] == ref["mu_mean_abs_rel_error"]
+    assert sc["rho_s_mean_abs_error"] == ref["rho_s_mean_abs_error"]
+    assert "class:d497" in (run / "estimates.csv").read_text(encoding="utf-8")
