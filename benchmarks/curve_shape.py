@@ -7,7 +7,8 @@ Run from the repository root::
 ``--load``: the curve's load dependence on (``[estimator] curve_shape_load = true`` for the replay,
 ``load=True`` for the pairs run; default off, as the estimator's default).
 
-For each scenario and seed: simulate (``tractionecu simulate``), replay (``tractionecu replay``) and
+For each scenario and seed: simulate (``tractionecu simulate``; a recording already in ``--keep DIR`` is
+reused), replay (in this process, as ``tractionecu replay`` does: :func:`chain_run`) and
 print, per soil, the scorecard's R² of the identified μ(s) against the truth's curve (the class
 curve for the paper truth model, the tabulated ``mu_curve`` of ``truth.toml`` for the physical one),
 the curve path most samples reported (``class:<name>`` or ``shape:<form>``) and the slip span of
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, required=True)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--scenarios", nargs="+", default=["soils-off-class", "physical-three-soils", "paper-three-soils"])
-    ap.add_argument("--keep", type=Path, default=None)
+    ap.add_argument("--keep", type=Path, default=None, help="keep (and reuse) the simulated recordings here")
     ap.add_argument("--load", action="store_true", help="the curve's load dependence on (chain and pairs)")
     args = ap.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="curve_shape_"))
