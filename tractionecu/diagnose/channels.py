@@ -73,7 +73,7 @@ def _p(eff: Effects, name: str, key: str, default: float) -> float:
     return float(eff[name][key]) if name in eff and key in eff[name] else default
 
 
-WHEEL_CACHE_BYTES = 96 * 2 ** 20
+WHEEL_CACHE_BYTES = 48 * 2 ** 20
 """Most memory the wheel-state memo holds [B] (a state is five (n, 4) arrays: 23 MB on a 4-hour recording).
 
 A fit evaluates each parameter vector once, on every channel it acts on, and the effects that leave
@@ -189,7 +189,8 @@ class Channel:
     t: NDArray[np.float64]
     tidx: NDArray[np.int64]
     """Time index of each row (rows sharing one are aggregated before HAC)."""
-    fold: NDArray[np.int64]
+    fold: NDArray[np.int8]
+    """Held-out fold (0 or 1) of each row."""
     nuisance: str = ""
     extra: dict = field(default_factory=dict)
 
@@ -206,6 +207,12 @@ class Channel:
 
     def freeze(self, on: bool) -> None:
         """Hold discrete nuisance choices at their last values (for derivatives)."""
+
+
+def _fold_of(feat: Features, idx: NDArray) -> NDArray[np.int8]:
+    """Held-out fold (0 or 1) of frame rows ``idx``, one byte per row (a per-wheel channel of a 4-hour
+    recording has over half a million rows)."""
+    return feat.fold[idx].astype(np.int8)
 
 
 def _onehot_scaled_fit(y: NDArray, x: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
@@ -316,6 +323,12 @@ class SpeedChannel(Channel):
 
 
 # --------------------------------------------------------------------------- GNSS speed
+SPLINE_MEMO = 6
+"""Row sets whose spline factors the GNSS-speed channel keeps (least recently used dropped first): a
+held-out score cycles through five (each fold's training and held-out rows, all rows); each factor
+holds its rows' basis, 8 MB on a 4-hour recording."""
+
+
 class GpsSpeedChannel(Channel):
     def __init__(self, feat: Features, wc: _WheelCache):
         fr = feat.frame
@@ -324,7 +337,7 @@ class GpsSpeedChannel(Channel):
         super().__init__("gps_speed", "m/s", "GNSS speed against the force-integrated speed",
                          frozenset({"gps_latency", "mass", "drivetrain", "wheel_radius", "torque_gain",
                                     "torque_offset", "draft_offset", "axle_load_offset", "clock_skew"}),
-                         fr.t[rows], rows.astype(np.int64), feat.fold[rows], "slow speed correction b(t), cubic spline")
+                         fr.t[rows], rows, _fold_of(feat, rows), "slow speed correction b(t), cubic spline")
         self.rows_idx = rows
         self.B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)[rows]
         self.y = feat.v_gps[rows]
@@ -335,11 +348,12 @@ class GpsSpeedChannel(Channel):
         """Least-squares fit of the spline nuisance to r on ``rows``: B (BᵀB)⁻¹ Bᵀ r (B is sparse, BᵀB
         banded: :class:`~.features.SplineFit`, linear in the recording's length)."""
         key = np.packbits(rows).tobytes()
-        q = self._qr.get(key)
+        q = self._qr.pop(key, None)
         if q is None:
-            if len(self._qr) > 8:
-                self._qr.clear()
-            q = self._qr[key] = SplineFit(self.B[np.flatnonzero(rows)], min_support=1e-6)
+            while len(self._qr) >= SPLINE_MEMO:
+                self._qr.pop(next(iter(self._qr)))       # the least recently used row set
+            q = SplineFit(self.B[np.flatnonzero(rows)], min_support=1e-6)
+        self._qr[key] = q
         return q.project(r)
 
     def v_model(self, eff: Effects) -> NDArray:
@@ -390,8 +404,8 @@ class FrontLoadChannel(Channel):
         self.feat = feat
         rows = np.nonzero(feat.valid & np.isfinite(fr.fzf))[0]
         super().__init__("front_load", "N", "front-axle load against the static split and the load transfer",
-                         frozenset({"mass", "axle_load_offset", "draft_offset"}), fr.t[rows], rows.astype(np.int64),
-                         feat.fold[rows], "load-transfer heights h_hitch, h_cg (nominal model)")
+                         frozenset({"mass", "axle_load_offset", "draft_offset"}), fr.t[rows], rows,
+                         _fold_of(feat, rows), "load-transfer heights h_hitch, h_cg (nominal model)")
         self.rows_idx = rows
         veh = fr.vehicle
         # The measured load and the regressors pass through the same moving average: the relation is
@@ -483,7 +497,7 @@ class DraftChannel(Channel):
         keep &= feat.valid & np.isfinite(fr.fdx) if fr.fdx is not None else False
         rows = np.nonzero(keep)[0]
         super().__init__("draft", "N", "draft in work against a speed-independent draft per work segment",
-                         frozenset({"draft_speed"}), fr.t[rows], rows.astype(np.int64), feat.fold[rows],
+                         frozenset({"draft_speed"}), fr.t[rows], rows, _fold_of(feat, rows),
                          "draft level D per work segment")
         self.rows_idx = rows
         self.y = fr.fdx[rows] if rows.size else np.zeros(0)
@@ -592,16 +606,16 @@ class WheelForceChannel(Channel):
               & np.all(np.isfinite(fr.hf_omega.reshape(fr.n, k, 4)), axis=1))
         ti, wi = np.nonzero(ok)
         super().__init__("wheel_force", "-", "per-wheel adhesion from torque against μ(s) at the raw slip",
-                         frozenset({"relaxation"}), fr.t[ti], ti.astype(np.int64), feat.fold[ti],
+                         frozenset({"relaxation"}), fr.t[ti], ti, _fold_of(feat, ti),
                          "soil class shape and curve parameter a per field cell")
-        self.ti, self.wi = ti, wi
-        self.cell = feat.cell[ti]
+        self.ti, self.wi = ti, wi.astype(np.int8)
+        self.cell = feat.cell[ti].astype(np.int32)
         self.ncell = feat.n_cells
         # Both sides high-passed (minus a WHEEL_FORCE_HP_S moving average): the slow error of the
         # ground speed, which dominates slip, cancels, and the fast dynamics remain.
         self.kw = max(3, int(round(WHEEL_FORCE_HP_S * fr.rate_hz)))
         self.y_hp = _highpass(np.nan_to_num(ws.mu), self.kw)[ti, wi]
-        v_hf = np.interp(fr.hf_t, fr.t, feat.v_ref)
+        v_hf = self._v_hf()
         # The raw-rate slip, HF_CHUNK_ROWS frame rows at a time (its temporaries are each as large as
         # the raw-rate wheel speeds: 46 MB at four hours).
         s_raw = np.empty(fr.hf_omega.shape)
@@ -620,14 +634,24 @@ class WheelForceChannel(Channel):
 
         ks = max(1, int(round(WHEEL_FORCE_SMOOTH_S / float(np.median(np.diff(fr.hf_t))))))
         self.s_hf = uniform_filter1d(s_raw, size=ks, axis=0, mode="nearest")
-        del s_raw
-        self.v_hf = v_hf
+        del s_raw, v_hf
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.fixed_class = False
         self._frozen = False
         self._g_plain: dict[str, NDArray] = {}
         """Per surface class, the high-passed bin means of g(s) at the rows without relaxation (they
         do not depend on the candidate)."""
+
+    def _v_hf(self) -> NDArray:
+        """The fused ground speed on the raw-rate grid [m/s] (recomputed where needed, not kept: as large
+        as one wheel's raw-rate samples)."""
+        return np.interp(self.feat.frame.hf_t, self.feat.frame.t, self.feat.v_ref)
+
+    def share_rows(self, other: Channel) -> None:
+        """Use ``other``'s row arrays (times, time index, wheel, fold) where they are the same rows."""
+        if (getattr(other, "ti", None) is not None and other.ti.size == self.ti.size
+                and np.array_equal(other.ti, self.ti) and np.array_equal(other.wi, self.wi)):
+            self.t, self.tidx, self.ti, self.wi, self.fold = other.t, other.tidx, other.ti, other.wi, other.fold
 
     def _g_rows(self, cls: SoilClass, s: NDArray) -> NDArray:
         """HP[⟨g(s)⟩] at every row: bin means of g over the raw-rate samples, HF_CHUNK_ROWS frame rows
@@ -654,7 +678,7 @@ class WheelForceChannel(Channel):
         s = self.s_hf
         relax = "relaxation" in eff
         if relax:
-            s = relaxed_by_distance(fr.hf_t, s, self.v_hf, eff["relaxation"]["sigma_m"])
+            s = relaxed_by_distance(fr.hf_t, s, self._v_hf(), eff["relaxation"]["sigma_m"])
         y = self.y_hp[rows]
         cell = self.cell[rows]
         best, best_sse = None, math.inf
@@ -740,14 +764,14 @@ class SlipChannel(Channel):
         super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
                          frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
                                     "axle_load_offset"}),
-                         fr.t[ti], ti.astype(np.int64), feat.fold[ti],
+                         fr.t[ti], ti, _fold_of(feat, ti),
                          "soil class shape and curve parameter a per field cell and axle")
-        self.ti, self.wi = ti, wi
+        self.ti, self.wi = ti, wi.astype(np.int8)
         # a per field cell *and axle*: the rear wheels run in the front wheels' ruts (multi-pass
         # soil) and carry another load, and real tyre–soil traction depends on both, so the axles'
         # adhesion levels differ on a healthy machine.  (A per-axle torque gain is therefore tested
         # by the force balance of the speed channels, not by the level of μ.)
-        self.cell = feat.cell[ti] * 2 + (wi >= 2)
+        self.cell = (feat.cell[ti] * 2 + (wi >= 2)).astype(np.int32)
         self.ncell = feat.n_cells * 2
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.a_cell = np.full(self.ncell, np.nan)
@@ -945,6 +969,7 @@ def build_channels(feat: Features) -> list[Channel]:
             slip_ch = out[-1]
             slip_ch.residual({}, np.ones(slip_ch.m, dtype=bool))
             wf.use_class(slip_ch.soil)
+            wf.share_rows(slip_ch)
             out.append(wf)
     if fr.has("fzf") and not fr.fzf_modelled:
         out.append(FrontLoadChannel(feat))
