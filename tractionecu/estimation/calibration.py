@@ -69,7 +69,7 @@ from dataclasses import dataclass
 from scipy.stats import t as _student_t
 
 from ..config import setting, validate
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import SOIL_CLASSES, curve_class
 
 AXLES = ("front", "rear")
 
@@ -260,7 +260,7 @@ class RadiusCalibration:
         cfg = self.cfg
         good = ok and self._sample_ok(v, omega, mu, accel)
         if good:
-            cls = SOIL_CLASSES.get(class_name) or SOIL_CLASSES["stubble"]
+            cls = curve_class(class_name) or SOIL_CLASSES["stubble"]
             aa = a if a > 0.0 else cls.a_typical
             mf, mr = 0.5 * (mu[0] + mu[1]), 0.5 * (mu[2] + mu[3])
             xf = slip_at(mf, aa, cls.p, cls.alpha1, cls.alpha2)

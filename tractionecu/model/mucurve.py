@@ -31,6 +31,9 @@ coefficient ranges; the typical ``a`` is the asymptotic gross traction ratio.
   per cent slip (p = 0.8, α1 = −40, α2 = −12), typical a = 0.90 (Pacejka 2006,
   ch. 1, dry road peak ≈ 0.9–1.0 for agricultural tyres, which are lower than
   car tyres).
+
+Curve shapes that are no surface class (:data:`CURVE_SHAPES`, e.g. ``d497``, the μ(s) prior of the
+machine-level estimator) live in a second registry; :func:`curve_class` looks a name up in both.
 """
 
 from __future__ import annotations
@@ -95,6 +98,47 @@ SOIL_CLASSES: dict[str, SoilClass] = {
                   source="Pacejka 2006 ch. 1"),
     )
 }
+
+
+CURVE_SHAPES: dict[str, SoilClass] = {
+    c.name: c
+    for c in (
+        SoilClass("d497", p=1.0, alpha1=-7.5, alpha2=-7.5, a_typical=0.80, rho_s_typical=0.06,
+                  source="ASABE D497.7 (Brixius 1987) gross traction ratio: slip term 1 - exp(-7.5 s); "
+                         "a = 0.88 (1 - exp(-0.1 B_n)), 0.80 at B_n = 25; typical rho_s as the paper's "
+                         "stubble class, so that the no-draft load split does not move with the prior"),
+    )
+}
+"""Curve shapes a·g(s) in eq. 14 form that are not surface classes, by name: the μ(s) priors of the
+machine-level estimator (:mod:`tractionecu.estimation.machine_curve`).  They are kept apart from
+:data:`SOIL_CLASSES`, the registry of surface classes that the simulator writes its truth against and that
+``estimator.soil_classes`` chooses from.  Look a class up by name with :func:`curve_class`, which knows both.
+
+- ``d497``: the slip term 1 − e^{−7.5 s} of the ASABE D497.7 / Brixius (1987) gross traction ratio
+  GT(s) = 0.88 (1 − e^{−0.1 B_n}) (1 − e^{−7.5 s}) + 0.04: eq. 14 with p = 1, α1 = α2 = −7.5."""
+
+CLASS_CODES: dict[str, int] = {"stubble": 200, "grassland": 201, "tilled": 202, "road": 203, "d497": 204}
+"""Fixed codes of every named curve class (:data:`SOIL_CLASSES` and :data:`CURVE_SHAPES`) for the bus's
+``SoilClassIndex`` when the class is not one of the configured ``estimator.soil_classes`` (whose index,
+below 200, it carries otherwise): :func:`class_index`.  A new class gets a new code; a code is never reused."""
+
+
+def curve_class(name: str) -> SoilClass | None:
+    """The class (eq. 14 shape p, α1, α2) of ``name``: a surface class (:data:`SOIL_CLASSES`) or a curve
+    shape that is none (:data:`CURVE_SHAPES`); None for an unknown name.  Every consumer that turns an
+    estimate's ``soil_class`` name into a shape looks it up here."""
+    return SOIL_CLASSES.get(name) or CURVE_SHAPES.get(name)
+
+
+def class_index(name: str, configured: "tuple[str, ...] | list[str]") -> int | None:
+    """The bus's ``SoilClassIndex`` of the class ``name`` (DBC TECU_EstSoil): its index in ``configured``
+    (``estimator.soil_classes``) when it is there, else its fixed code in :data:`CLASS_CODES` (200 + k), so
+    that a receiver mapping indices below 200 through the configured classes never reads another class;
+    None (not available) for a name that is neither."""
+    names = list(configured)
+    if name in names:
+        return names.index(name)
+    return CLASS_CODES.get(name)
 
 
 def mu_curve(s: ArrayLike, a: ArrayLike, p: float, alpha1: float, alpha2: float) -> NDArray[np.float64]:
