@@ -374,3 +374,49 @@ def test_relaxed_slip_kernel_moves_sigma_bar_by_pacejkas_first_order_law():
     fz = np.array([ff, ff, fr, fr])
     lr = np.clip(fz * 0.7 * c.dg(np.abs(sb0)) / 2.0e5, 0.05, 1.0)
     np.testing.assert_allclose(m.relaxed_slip, sb0 + 0.01 * 2.5 / lr * 0.01, rtol=1e-9)
+
+
+def test_carcass_ring_enters_R_when_the_wheel_rate_cannot_follow_it(run15):
+    """A declared carcass whose mode the 20 Hz wheel speeds cannot follow (term off): the mode's oscillation
+    in the samples is measurement noise for the random-walk μ (Estimator._ring_noise).  A 5.8 Hz ring of
+    0.1 rad/s added to the wheel speeds is found (a variance up to its A²/2: the part the filter's μ and its
+    adapted Q follow is not in the innovations) and taken into R_ω; the same data without the ring add
+    nothing beyond the sensor's R; without a declared carcass nothing is kept."""
+    from tractionecu.config import SensorSpec, replace
+
+    sp = replace(SensorSpec(), wheel_rate_hz=20.0, loadpin_rate_hz=10.0)
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    steps = _bus_20_10(run15.steps)
+    amp = 0.1
+
+    def ringing(steps):
+        out = []
+        for t, i, m in steps:
+            if "omega" in m:
+                m = dict(m, omega=np.asarray(m["omega"], dtype=float) + amp * math.sin(2 * math.pi * 5.8 * t))
+            out.append((t, i, m))
+        return out
+
+    r_sensor = []
+    est = Estimator(veh, sensors=sp)
+    for t, i, m in ringing(steps):
+        est.step(t, i, m)
+        if "omega" in m:
+            r_sensor.append(est._R_list(np.asarray(m["omega"]).tolist()))
+    assert est.model.cx == 0.0 and est._ring[4] >= est.cfg.carcass_ring_tau_s
+    ring = np.array(est._ring[:4])
+    assert (ring > 0.1 * amp ** 2 / 2).all() and (ring < 1.5 * amp ** 2 / 2).all()
+    assert (ring > 5.0 * np.array(r_sensor[-1])).all()        # the ring, not the sensor, sets R_ω
+
+    quiet = Estimator(veh, sensors=sp)
+    for t, i, m in steps:
+        quiet.step(t, i, m)
+        if "omega" in m:
+            rs = quiet._R_list(np.asarray(m["omega"]).tolist())
+    assert quiet._ring[4] >= quiet.cfg.carcass_ring_tau_s
+    assert max(quiet._ring[:4]) < max(rs)                     # nothing above the sensor's R
+
+    plain = Estimator(VEH, sensors=sp)
+    for t, i, m in ringing(steps):
+        plain.step(t, i, m)
+    assert plain._ring == [0.0] * 5

@@ -120,6 +120,11 @@ class EstimatorConfig:
                                            "μ(s) shape its (μ, s) pairs are fitted with: '' the soil_classes, 'd497' the "
                                            "ASABE D497.7 slip term 1 − e^(−7.5 s) (estimation/machine_curve.py), or a class")
     curve_shape_load: bool = setting(False, "fit the μ(s) curve's load dependence (1 + q (F_z/F_z,ref − 1)) where light and heavy wheels overlap in slip (False: one curve for every load)")
+    carcass_ring_tau_s: float = setting(2.0, "with a declared tyre carcass whose mode the wheel-speed rate cannot "
+                                              "follow (the carcass term off, Estimator._relax): time constant of the "
+                                              "innovation statistics that estimate the mode's variance in the "
+                                              "wheel-speed samples, which R_ω then takes in (Estimator._ring_noise; "
+                                              "0: off) [s]", 0.0, 600.0)
     # reported uncertainty (estimation/uncertainty.py)
     systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
                                                  "μ and ρ_s and the GNSS latency bound to the GNSS speed noise")

@@ -339,6 +339,7 @@ class Estimator:
         self._held: tuple[float, NDArray[np.float64]] | None = None
         self._win_reset()
         self._t_relax: float | None = None
+        self._ring = [0.0, 0.0, 0.0, 0.0, 0.0]   # the carcass mode's variance per wheel [rad²/s²], time seen [s]
         self._conv = False                # last convergence verdict (hysteresis, EstimatorConfig.conv_exit_factor)
         self._lost = False
         self._fuzzy = FuzzySupervisor(cfg.fuzzy)
@@ -491,6 +492,7 @@ class Estimator:
         self.t_init = t
         self._conv = False
         self._t_relax = None
+        self._ring = [0.0, 0.0, 0.0, 0.0, 0.0]
         self._win_reset()
         self._monitor.reset()
 
@@ -679,6 +681,8 @@ class Estimator:
         # ---- update
         updated = False
         wheel_out = ground_out = None
+        if r_om is not None and self._cx != 0.0 and cfg.carcass_ring_tau_s > 0.0 and not predict_only:
+            self._ring_noise(r_om, wl)
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
                 R = r_om if r_om is not None else self._R_list(wl)
@@ -867,6 +871,44 @@ class Estimator:
         p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
         relax_slips(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
                     a, p, al1, al2, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
+
+    def _ring_noise(self, r_om: list[float], wl: list[float]) -> None:
+        """The carcass mode in the wheel speeds as measurement noise, when the rate cannot follow it.
+
+        With a declared carcass the wheel rings on it (f_c, :meth:`_relax`).  While the wheel-speed period T
+        is too long for the carcass term (f_c T > ``CARCASS_MAX_FT``) the filter's μ is the paper's random
+        walk and the ring is not in the model; a period-mean sample then carries it, ≈ πf_cT late, and the
+        update would turn it into a μ that moves against the truth's (half a period late at 20 Hz).  The
+        ring is therefore taken as what it is for this model, a part of the measured speed it does not
+        describe: its variance per wheel, the mean excess of the squared innovation over the predicted
+        P_ωω (covariance matching on R, Mehra 1972), E[ν_i² − P_ii] over ``carcass_ring_tau_s``, replaces
+        R_ω,i where it is larger (the sensor's R stays the floor).  Updates outside the gate are left out
+        (they are faults, not the ring); nothing is added before one time constant of samples was seen.
+        ``r_om`` (R_ω of this sample, from the sensor figures) is changed in place."""
+        T = self._rates.period("omega")
+        if T * self._f_carcass <= CARCASS_MAX_FT:        # the carcass term follows the mode: it is modelled
+            return
+        ukf = self.ukf
+        x, P = ukf.x, ukf.P                                # predicted mean and covariance of this step
+        tau = self.cfg.carcass_ring_tau_s
+        ring = self._ring
+        ex = []
+        for i in range(4):
+            nu = wl[i] - float(x[i])
+            nu *= nu
+            pi = float(P[i, i])
+            if not nu <= self._gate * (pi + r_om[i]):
+                break
+            ex.append(nu - pi)
+        else:
+            g = T / tau if T < tau else 1.0
+            for i in range(4):
+                ring[i] += g * (ex[i] - ring[i])
+            ring[4] += T
+        if ring[4] >= tau:
+            for i in range(4):
+                if ring[i] > r_om[i]:
+                    r_om[i] = ring[i]
 
     def _declare_lost(self, t: float, since: float, status: int) -> Estimate:
         """Drop the filter (it restarts from the next measurements, :meth:`_init_filter`) and say so."""
