@@ -28,8 +28,12 @@ Priors
 
 The prior is chosen per estimator (:class:`~.machine.MachineEstimator` ``curve_prior``); a prior outside
 the registry of surface classes (:data:`~tractionecu.model.mucurve.SOIL_CLASSES`, which the simulator's
-truth files are written against) is carried by the reported curve (:class:`MachineCurveState`), so that
-scoring and consumers of ``Estimate.curve`` see its shape.
+truth files are written against) is one of the curve shapes of
+:data:`~tractionecu.model.mucurve.CURVE_SHAPES`: consumers look an estimate's ``soil_class`` up by name with
+:func:`~tractionecu.model.mucurve.curve_class`, which knows both registries, and the reported curve
+(:class:`MachineCurveState`) carries its shape too.  The estimate's ``soil_class_index`` (the bus's
+``SoilClassIndex``) is the prior's index in the configured ``soil_classes`` when it is one of them, else its
+fixed code 200 + k (:data:`~tractionecu.model.mucurve.CLASS_CODES`; d497: 204).
 """
 
 from __future__ import annotations
@@ -39,29 +43,27 @@ import math
 from functools import cached_property
 from typing import Any
 
-from ..model.mucurve import SOIL_CLASSES, MuCurve, SoilClass
+from ..model.mucurve import CURVE_SHAPES, SOIL_CLASSES, MuCurve, SoilClass, class_index, curve_class
 from .curve import CurveEstimator, CurveState
 
 __all__ = ["D497", "MACHINE_PRIORS", "MachineCurveState", "machine_curve_estimator", "resolve_prior"]
 
-D497 = SoilClass("d497", p=1.0, alpha1=-7.5, alpha2=-7.5, a_typical=0.80, rho_s_typical=0.06,
-                 source="ASABE D497.7 (Brixius 1987) gross traction ratio: slip term 1 - exp(-7.5 s); "
-                        "a = 0.88 (1 - exp(-0.1 B_n)), 0.80 at B_n = 25; typical rho_s as the paper's "
-                        "stubble class, so that the no-draft load split does not move with the prior")
-"""The D497 shape as an eq. 14 class (module doc)."""
+D497 = CURVE_SHAPES["d497"]
+"""The D497 shape as an eq. 14 class (module doc; defined in :data:`~tractionecu.model.mucurve.CURVE_SHAPES`)."""
 
-MACHINE_PRIORS: dict[str, SoilClass] = {D497.name: D497}
-"""Priors of the machine-level curve beyond the surface classes, by name."""
+MACHINE_PRIORS: dict[str, SoilClass] = CURVE_SHAPES
+"""Priors of the machine-level curve beyond the surface classes, by name (the registry of curve shapes that
+are not surface classes, :data:`~tractionecu.model.mucurve.CURVE_SHAPES`)."""
 
 
 def resolve_prior(prior: str | SoilClass | None) -> SoilClass | None:
     """The :class:`SoilClass` a ``curve_prior`` names (None: the configured classes)."""
     if prior is None or isinstance(prior, SoilClass):
         return prior
-    cls = MACHINE_PRIORS.get(prior) or SOIL_CLASSES.get(prior)
+    cls = curve_class(prior)
     if cls is None:
         raise ValueError(f"unknown machine curve prior {prior!r} "
-                         f"(known: {', '.join([*MACHINE_PRIORS, *SOIL_CLASSES])})")
+                         f"(known: {', '.join([*CURVE_SHAPES, *SOIL_CLASSES])})")
     return cls
 
 
@@ -76,18 +78,38 @@ class _WithClasses:
         return getattr(self._cfg, name)
 
 
+class _PriorCurveEstimator(CurveEstimator):
+    """The curve identification of one prior, whose states carry the prior's ``class_index`` as the bus
+    reads it (:func:`~tractionecu.model.mucurve.class_index`): its index in the configured ``soil_classes``
+    when it is one of them, else its fixed code (200 + k).  The index in the estimator's own one-class list
+    (0) would make a receiver read the first configured class (``stubble``)."""
+
+    bus_index: int = 0
+
+    def state(self) -> CurveState:
+        cs = super().state()
+        return cs if cs.class_index == self.bus_index else dataclasses.replace(cs, class_index=self.bus_index)
+
+
 def machine_curve_estimator(cfg: Any, prior: SoilClass | None) -> CurveEstimator:
     """The machine's curve identification: the configuration's (:meth:`CurveEstimator.from_config`), with
-    the one class ``prior`` instead of the configured ``soil_classes`` when given."""
+    the one class ``prior`` instead of the configured ``soil_classes`` when given (its states' ``class_index``
+    is then the prior's bus index, :class:`_PriorCurveEstimator`)."""
     if prior is None:
         return CurveEstimator.from_config(cfg)
-    return CurveEstimator.from_config(_WithClasses(cfg, (prior,)))
+    est = _PriorCurveEstimator.from_config(_WithClasses(cfg, (prior,)))
+    idx = class_index(prior.name, tuple(getattr(cfg, "soil_classes", ())))
+    if idx is None:
+        raise ValueError(f"machine curve prior {prior.name!r}: no bus code (model.mucurve.CLASS_CODES)")
+    est.bus_index = idx
+    return est
 
 
 @dataclasses.dataclass(frozen=True)
 class MachineCurveState(CurveState):
     """A :class:`~.curve.CurveState` whose class-path curve is a·g(s) of ``prior``, also for a prior that
-    is not one of :data:`~tractionecu.model.mucurve.SOIL_CLASSES`."""
+    is not one of :data:`~tractionecu.model.mucurve.SOIL_CLASSES`.  Its ``class_index`` is the prior's index
+    as the bus's ``SoilClassIndex`` reads it (:func:`~tractionecu.model.mucurve.class_index`)."""
 
     prior: SoilClass | None = None
 
@@ -102,4 +124,5 @@ class MachineCurveState(CurveState):
             return self.shape_curve
         if not self.a == self.a or self.prior is None or self.class_name != self.prior.name:
             return CurveState.curve.func(self)          # type: ignore[attr-defined]
-        return MuCurve.from_class(self.prior, self.a, self.var_a if math.isfinite(self.var_a) else math.nan)
+        c = MuCurve.from_class(self.prior, self.a, self.var_a if math.isfinite(self.var_a) else math.nan)
+        return c if self.s_range is None else dataclasses.replace(c, s_range=self.s_range)
