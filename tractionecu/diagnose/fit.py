@@ -146,9 +146,20 @@ class HeldOut:
     candidate: str
     sse: dict[str, float]
     n: dict[str, int]
-    resid: dict[str, NDArray[np.float64]]
-    """Held-out residuals per channel in row order (both folds)."""
+    resid: dict[str, NDArray[np.floating]]
+    """Held-out residuals per channel in row order (both folds): float64 for the null model, float32 for a
+    candidate (:data:`RESID_DTYPE`)."""
     fold_params: list[dict[str, float]] = field(default_factory=list)
+    n_eff: dict[str, float] = field(default_factory=dict)
+    """Effective sample size of each channel's held-out residual (:func:`~.hac.n_effective`), computed
+    from the float64 residual before it is stored (the held-out score uses it)."""
+
+
+RESID_DTYPE = np.float32
+"""How a candidate's held-out residuals are kept once its score inputs (sums of squares, effective sample
+sizes) are taken from the float64 values: a diagnosis keeps one set per candidate with some evidence and
+per stepwise trial, 6 MB each in float32 on a 4-hour recording (12 MB in float64).  Their later uses
+(whiteness, regimes, the report's statistics and figures) need no more than float32's 7 digits."""
 
 
 # --------------------------------------------------------------------------- problem
@@ -583,7 +594,13 @@ def held_out(problem: Problem, name, start: dict[str, NDArray] | None = None,
             resid[cname][rows] = r
             sse[cname] += float(np.sum(r * r))
             n[cname] += int(r.size)
-    return HeldOut(label, sse, n, resid, fold_params)
+    n_eff = {}
+    if label != "null":
+        for cname, ch in problem.channels.items():
+            ok = np.isfinite(resid[cname])
+            n_eff[cname] = n_effective(resid[cname][ok], ch.tidx[ok])
+            resid[cname] = resid[cname].astype(RESID_DTYPE)
+    return HeldOut(label, sse, n, resid, fold_params, n_eff)
 
 
 def score(problem: Problem, null: HeldOut, cand: HeldOut) -> tuple[float, dict[str, float]]:
@@ -596,7 +613,9 @@ def score(problem: Problem, null: HeldOut, cand: HeldOut) -> tuple[float, dict[s
             continue
         # The noise is what is left once the candidate explains its part: the effective sample
         # size comes from the candidate's held-out residual (equal to the null's when it explains nothing).
-        ok = np.isfinite(cand.resid[c])
-        neff = n_effective(cand.resid[c][ok], ch.tidx[ok])
+        neff = cand.n_eff.get(c)
+        if neff is None:
+            ok = np.isfinite(cand.resid[c])
+            neff = n_effective(cand.resid[c][ok], ch.tidx[ok])
         per[c] = 0.5 * neff * math.log(s0 / s1)
     return float(sum(per.values())), per
