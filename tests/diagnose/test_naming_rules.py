@@ -62,9 +62,10 @@ def _ho(name: str) -> HeldOut:
 
 
 def _diagnose(monkeypatch, scores: dict[str, float], chosen: list[str], joint: FitResult, steps: list[dict],
-              reaches_absence: frozenset[str] = frozenset()):
+              reaches_absence: frozenset[str] = frozenset(), rerun: tuple | None = None):
     """Run :func:`engine.diagnose` with the candidates' single-step held-out ``scores``, and the
-    augmentation's outcome (``chosen``, the joint fit, its ``steps``) given; everything that reads a
+    augmentation's outcome (``chosen``, the joint fit, its ``steps``; ``rerun`` the same three when the
+    augmentation is re-run without a withdrawn fault) given; everything that reads a
     recording or fits numerically is replaced, the verdict and naming logic run as in the engine."""
     frame = SimpleNamespace(source="synthetic", notes=[], fzf_modelled=False)
     feat = SimpleNamespace(notes=[], sensor_faults=[], frame=frame)
@@ -82,9 +83,14 @@ def _diagnose(monkeypatch, scores: dict[str, float], chosen: list[str], joint: F
     monkeypatch.setattr(engine, "_grade_check", lambda problem, feat, res: {})
     seen = {}
 
-    def stepwise(problem, results, best, null, consistent=None):
+    def stepwise(problem, results, best, null, consistent=None, exclude=()):
         seen["first"] = best.name
-        return list(chosen), joint, _ho("+".join(chosen)), [dict(s) for s in steps]
+        seen.setdefault("exclude", []).append(list(exclude))
+        if exclude and rerun is not None:
+            ch2, joint2, steps2 = rerun
+            return list(ch2), joint2, _ho("+".join(ch2)), [dict(s) for s in steps2]
+        kept = [c for c in chosen if c not in exclude]
+        return kept, joint, _ho("+".join(kept)), [dict(s) for s in steps]
 
     monkeypatch.setattr(engine, "_stepwise", stepwise)
     monkeypatch.setattr(engine, "_statement",
@@ -369,6 +375,41 @@ def test_a_fault_whose_reported_interval_reaches_its_absence_is_not_named(monkey
     assert (d.verdict, d.effect) == ("none", None)
     assert any(n.startswith("mass: held-out score 10.2") and "reaches the value at which it vanishes" in n
                for n in d.notes)
+
+
+def test_a_withdrawn_fault_is_left_out_of_a_rerun_augmentation(monkeypatch):
+    """A front mass entered at step 3 on the level of the front-axle load and kept the axle-load offset
+    (the same constant on the pin) out of the model; its reported interval reaches Δm = 0.  The
+    augmentation is re-run without it: the offset it blocked is added and named beside the GNSS latency,
+    and the mass stays in the report as withdrawn, not named."""
+    joint = _fit(_values("relaxation", "mass", "gps_latency"))
+    steps = [{"step": 1, "added": "relaxation", "score": 232.7, "against": "nominal model"},
+             {"step": 2, "added": "mass", "score": 96.7, "against": "relaxation"},
+             {"step": 3, "added": "gps_latency", "score": 60.7, "against": "relaxation+mass"}]
+    joint2 = _fit(_values("relaxation", "gps_latency", "axle_load_offset"))
+    steps2 = [{"step": 1, "added": "relaxation", "score": 232.7, "against": "nominal model"},
+              {"step": 2, "added": "gps_latency", "score": 150.0, "against": "relaxation"},
+              {"step": 3, "added": "axle_load_offset", "score": 72.0, "against": "relaxation+gps_latency"}]
+    d, seen = _diagnose(monkeypatch, {"relaxation": 232.7, "mass": 138.0, "gps_latency": 188.5,
+                                      "axle_load_offset": 72.0},
+                        ["relaxation", "mass", "gps_latency"], joint, steps, reaches_absence=frozenset({"mass"}),
+                        rerun=(["relaxation", "gps_latency", "axle_load_offset"], joint2, steps2))
+    assert seen["exclude"] == [[], ["mass"]]
+    assert (d.verdict, d.effect) == ("effect", "gps_latency")
+    assert _effect(d, "gps_latency")["named"] and _effect(d, "axle_load_offset")["named"]
+    m = _effect(d, "mass")
+    assert (m["named"], m["not_significant"], m["withdrawn"]) == (False, True, True)
+    assert any(s.get("withdrawn") == "mass" for s in d.steps)
+    assert any(n.startswith("mass: held-out score 96.7") and "re-run without it" in n for n in d.notes)
+
+
+def test_a_first_fault_whose_interval_reaches_absence_does_not_rerun(monkeypatch):
+    joint = _fit(_values("mass", "gps_latency"))
+    steps = [{"step": 1, "added": "mass", "score": 30.0, "against": "nominal model"},
+             {"step": 2, "added": "gps_latency", "score": 25.0, "against": "mass"}]
+    d, seen = _diagnose(monkeypatch, {"mass": 30.0, "gps_latency": 20.0}, ["mass", "gps_latency"], joint, steps,
+                        reaches_absence=frozenset({"mass"}))
+    assert seen["exclude"] == [[]]
 
 
 def test_the_verdict_moves_past_a_fault_whose_interval_reaches_absence(monkeypatch):

@@ -36,6 +36,7 @@ from .candidates import CANDIDATES, NOMINAL
 from .channels import MU0_NOMINAL, Channel, build_channels
 from .features import Features, compute
 from .fit import FitResult, HeldOut, Problem, fit, held_out, refine_intervals, restrict, score
+from .lifted import lifted_draft_channel, shape_check
 from .locate import ChangePoint, Regime, change_points, channel_stats, evidence, ljung_box_p, nis_coverage, noise_sigma, regimes
 
 DETECT_LLR = 10.0
@@ -222,7 +223,13 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     fr = source if isinstance(source, _data.Frame) else _data.load(source, vehicle)
     feat = compute(fr)
     channels = build_channels(feat)
+    lifted = lifted_draft_channel(feat)
+    if lifted is not None:
+        channels.append(lifted)
     problem = Problem(feat, channels)
+    # Does the draft sensor's zero (its reading with the implement lifted) follow the library's
+    # offset-and-drift line?  Another shape (a step) is outside the library: located, never named.
+    problem.lifted_shape = shape_check(lifted)
     notes = list(fr.notes) + list(feat.notes)
     testable = _testability(problem, feat)
     null = held_out(problem, None)
@@ -249,7 +256,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
             cr.reason = (f"fits on the {side} of its range: not a plausible size of this effect; the mismatch it "
                          "takes up is left to the search for a missing term (open world)")
             notes.append(f"{name}: {cr.reason}")
-        worse = _contradicted(per) or _unseparated(name, per)
+        worse = _contradicted(per) or _unseparated(name, per) or _other_shape(problem, name)
         if cr.detected and worse:
             cr.detected = False
             cr.reason = worse
@@ -265,6 +272,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     causes: list[str] = []
     consistent: dict[str, list[str]] = {}
     steps: list[dict] = []
+    withdrawn: list[dict] = []
     joint = None
     joint_ho = None
     if not detected:
@@ -320,6 +328,39 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
             verdict, effect = ("effect", faults[0]) if faults else ("none", None)
         # The reported fit's intervals: profile likelihood and block jackknife (fit.refine_intervals).
         refine_intervals(problem, joint)
+        # A fault added by a later step whose reported interval reaches its absence is withdrawn by the
+        # naming rule below; while it stays in the model it keeps the structure it took up from the
+        # candidate that explains it (a front mass taking up the level of the front-axle load blocked the
+        # axle-load offset).  The augmentation is re-run without it, as often as a fault is withdrawn.
+        excluded: list[str] = []
+        for _ in range(MAX_EFFECTS):
+            weak = [n for n in chosen[1:] if not _healthy(n, joint) and joint is not None
+                    and n in joint.ci95_by and not _excludes_null(joint, n)]
+            if not weak:
+                break
+            for n in weak:
+                iv = ", ".join(f"{k} [{_fmt(lo)}, {_fmt(hi)}]" for k, (lo, hi) in joint.ci95_by[n].items()
+                               if k != "front_share")
+                sc_n = next((s.get("score") for s in steps if s.get("added") == n), None) or 0.0
+                units = {q.name: q.unit for q in LIBRARY[n].params}
+                withdrawn.append({
+                    "name": n, "kind": "sensor_fault" if n in SENSOR_FAULTS else "effect", "named": False,
+                    "not_significant": True, "withdrawn": True, "score": sc_n, "formula": LIBRARY[n].formula,
+                    "plain": CANDIDATES[n].plain, "trades_off_with": [],
+                    "parameters": {k: {"value": v, "ci95": list(joint.ci95_by[n][k]) if k in joint.ci95_by[n] else None,
+                                       "unit": units.get(k, "")} for k, v in joint.effects[n].items()}})
+                notes.append(f"{n}: held-out score {sc_n:.1f}, but its 95 % interval ({iv}) reaches the value at "
+                             "which it vanishes: not named; the augmentation is re-run without it")
+                steps.append({"step": len(steps) + 1, "withdrawn": n,
+                              "why": f"its 95 % interval ({iv}) reaches the value at which it vanishes; the "
+                                     "augmentation is re-run without it"})
+            excluded += weak
+            chosen, joint, joint_ho, steps2 = _stepwise(problem, results, best, null, consistent, exclude=excluded)
+            steps += steps2
+            faults = [n for n in chosen if not _healthy(n, joint)]
+            if verdict == "effect":
+                verdict, effect = ("effect", faults[0]) if faults else ("none", None)
+            refine_intervals(problem, joint)
     # Locate: the channel that disagrees most (the winner's strongest channel, else the worst by LB).
     lead = None
     focus = detected[0] if detected else None
@@ -343,6 +384,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                   stats_after, cps, lead, regs, ev, gcheck, notes)
     d.joint, d.joint_heldout, d.steps = joint, joint_ho, steps
     d.effects = _effect_list(d, chosen, ambiguous)
+    d.effects += [w for w in withdrawn if not any(e["name"] == w["name"] for e in d.effects)]
     # A fault added by a step that another fault improved as much: ambiguous between them.
     amb_step = next((e for e in d.effects if e.get("ambiguous_with") and e["name"] == d.effect), None)
     if amb_step is not None:
@@ -423,6 +465,13 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     d.open_world = open_world(d)
     if d.open_world.get("statement"):
         d.statement += "  " + d.open_world["statement"]
+    sh = getattr(problem, "lifted_shape", None) or {}
+    if sh:
+        d.open_world["lifted_draft"] = sh
+    if sh.get("statement"):
+        d.open_world["structure_remains"] = True
+        d.statement += "  " + sh["statement"]
+        d.notes.append(sh["statement"])
     return d
 
 
@@ -497,6 +546,8 @@ def _healthy(name: str, f: FitResult | None) -> bool:
 def _white(problem: Problem, ho: HeldOut) -> bool:
     """Every channel's held-out residual is consistent with noise (whiteness and NIS coverage)."""
     for c, ch in problem.channels.items():
+        if ch.extra.get("data_check"):
+            continue   # a data check (the lifted draft), not a balance of the model
         r = ho.resid[c]
         ok = np.isfinite(r)
         if ok.sum() < 20:
@@ -528,6 +579,19 @@ def _unseparated(name: str, per_channel: dict[str, float]) -> str:
     return (f"no support where it is separable ({' and '.join(chans)}: {gain:+.1f} held out); its gain elsewhere "
             "is a term a force-scale error of the drive (torque-sensor gain, drivetrain efficiency) shares, so it "
             "is not named")
+
+
+def _other_shape(problem: Problem, name: str) -> str:
+    """Why a draft-sensor offset is not the library's b_0 + b_1 t, or '': its readings with the implement
+    lifted (the sensor's zero, :mod:`.lifted`) follow no straight line in time."""
+    sh = getattr(problem, "lifted_shape", None) or {}
+    if name != "draft_offset" or sh.get("linear", True):
+        return ""
+    a, b = sh["jump_between_s"]
+    return (f"the draft reading with the implement lifted does not follow b_0 + b_1 t (χ² = {sh['chi2']:.0f} on "
+            f"{sh['dof']} degrees of freedom; it moves from {sh['level_before_n'] / 1000:.2f} to "
+            f"{sh['level_after_n'] / 1000:.2f} kN between t = {a:.0f} and {b:.0f} s): another shape of the "
+            "sensor's error, outside the library, so it is not named")
 
 
 def _contradicted(per_channel: dict[str, float]) -> str:
@@ -563,7 +627,7 @@ def _implausible_bound(f: FitResult, name: str) -> str:
 
 
 def _stepwise(problem: Problem, results: list[CandidateResult], first: CandidateResult,
-              null: HeldOut, consistent: dict[str, list[str]] | None = None
+              null: HeldOut, consistent: dict[str, list[str]] | None = None, exclude: list[str] | tuple = ()
               ) -> tuple[list[str], FitResult, HeldOut, list[dict]]:
     """Forward stepwise augmentation of the nominal model (issue: several effects at once).
 
@@ -572,7 +636,8 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
     one on each fold), refit all chosen effects jointly on all data, and keep the addition only when
     its held-out score reaches :data:`DETECT_LLR` and its interval in the joint fit excludes the
     negligible band.  Stop when no addition qualifies, when every channel's residual is consistent
-    with noise (:func:`_white`) or after :data:`MAX_EFFECTS`.
+    with noise (:func:`_white`) or after :data:`MAX_EFFECTS`.  Faults in ``exclude`` (withdrawn because
+    their reported interval reached their absence) are not tried.
     """
     chosen = [first.name]
     cur_fit = first.fit
@@ -581,7 +646,7 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
     # The pool: candidates with some evidence of their own against the nominal model, best first
     # (at most POOL; an effect without any single-step evidence rarely earns a place later).
     pool = [r.name for r in results if r.testable and r.name != first.name and math.isfinite(r.score)
-            and r.score > POOL_MIN_SCORE][:POOL]
+            and r.score > POOL_MIN_SCORE and r.name not in exclude][:POOL]
     while len(chosen) < MAX_EFFECTS and pool:
         if _white(problem, cur_ho):
             steps.append({"step": len(chosen) + 1, "stopped": "every channel's residual is consistent with noise"})
@@ -625,7 +690,7 @@ def _stepwise(problem: Problem, results: list[CandidateResult], first: Candidate
                           f"the {side}: not a plausible size"})
             pool.remove(name)
             continue
-        worse = _contradicted(per) or _unseparated(name, per)
+        worse = _contradicted(per) or _unseparated(name, per) or _other_shape(problem, name)
         if worse and name not in CHARACTERISTIC:
             steps.append({"step": len(chosen) + 1, "stopped": f"best addition {name} (held-out {sc:.1f}): {worse}"})
             pool.remove(name)
