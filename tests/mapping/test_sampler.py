@@ -110,3 +110,35 @@ def test_held_or_averaged_slip_makes_no_pair_for_the_map(bit):
     assert len(got) == t.size
     assert all(np.isnan(g[3]["a"]) for g in got)
     assert all(np.isfinite(g[3]["rho_s"]) for g in got)
+
+
+def test_a_curve_shape_outside_the_surface_classes_maps_its_a_and_shape():
+    """The machine-level estimator's ``d497`` prior (model.mucurve.CURVE_SHAPES) is no surface class: its
+    a layer was NaN (the class was looked up in SOIL_CLASSES only); it is a = μ/g_d497(s), online and offline."""
+    from tractionecu.model.mucurve import CURVE_SHAPES
+
+    d497 = CURVE_SHAPES["d497"]
+    rng = np.random.default_rng(3)
+    n = 300
+    t = 0.1 * np.arange(n)
+    s_true = np.full(n, 0.06)
+    slip = s_true[:, None] + rng.normal(0, 0.002, (n, 4))
+    mu = d497.mu(s_true, 0.8)[:, None] + rng.normal(0, 0.003, (n, 4))
+    var_mu, v, rho, cls = np.full((n, 4), 1e-5), np.full(n, 2.5), np.full(n, 0.06), ["d497"] * n
+    off = centred_map_values(t, mu, slip, var_mu, v, rho, cls, half_window_s=2.0)
+    assert np.isfinite(off["a"]).all() and np.abs(off["a"] - 0.8).max() < 0.03
+    assert set(off["p"]) == {1.0} and set(off["alpha1"]) == set(off["alpha2"]) == {-7.5}
+    smp = CentredSampler(half_window_s=2.0)
+    got = []
+    for k in range(n):
+        P = np.zeros(10)
+        P[5:9] = var_mu[k]
+        est = SimpleNamespace(mu=mu[k], slip=slip[k], P_diag=P, v=v[k], rho_s=rho[k], valid=True, status=0,
+                              soil_class="d497")
+        got += smp.push(float(t[k]), 47.0, 8.0, 4, 0.8, est)
+    got += smp.drain()
+    for key in ("a", "p", "alpha1", "alpha2"):
+        assert np.array([g[3][key] for g in got]) == pytest.approx(off[key], rel=1e-9)
+    # a name in neither registry still maps no a (and no shape), as before
+    none = centred_map_values(t, mu, slip, var_mu, v, rho, ["loam"] * n, half_window_s=2.0)
+    assert np.isnan(none["a"]).all() and np.isnan(none["p"]).all()

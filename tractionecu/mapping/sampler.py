@@ -9,8 +9,9 @@ with the ratio-of-sums form of :mod:`tractionecu.estimation.curve`:
     â(t_j) = Σ_k K_jk Σ_i w_ki μ̂_ki  /  Σ_k K_jk Σ_i w_ki g(ŝ_ki),   w = 1/σ_μ²,
     K_jk = max(0, 1 − |t_k − t_j| / H)   (triangular kernel, half width H),
 
-using the shape g of the class chosen at t_j.  The triangular kernel blurs a
-boundary less than a box of the same noise reduction.  Online, a sample is emitted
+using the shape g of the class chosen at t_j (a surface class or a curve shape that is none, such as
+the machine-level estimator's ``d497`` prior: :func:`~tractionecu.model.mucurve.curve_class`).  The
+triangular kernel blurs a boundary less than a box of the same noise reduction.  Online, a sample is emitted
 H seconds late, once its window is complete; offline (replay) the same window
 is applied to the whole run.  ρ_s and μ are averaged over the same window.
 
@@ -30,7 +31,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import curve_class
 from .store import STATUS_FILTER_LOST
 
 DEFAULT_HALF_WINDOW_S = 10.0
@@ -88,8 +89,9 @@ def centred_map_values(t: NDArray[np.float64], mu: NDArray[np.float64], slip: ND
     rho_ok = np.isfinite(rho)
     num_k = (w * np.nan_to_num(mu)).sum(axis=1)
     slip0 = np.nan_to_num(slip)
-    uniq = [c for c in np.unique(names) if c in SOIL_CLASSES]
-    den_k = {c: (w * SOIL_CLASSES[c].g(slip0)).sum(axis=1) for c in uniq}
+    shapes = {c: curve_class(str(c)) for c in np.unique(names)}
+    uniq = [c for c, cls in shapes.items() if cls is not None]
+    den_k = {c: (w * shapes[c].g(slip0)).sum(axis=1) for c in uniq}
     # Kernel sums by shifting: K samples each side cover the window (K from the densest stretch).
     lo = np.searchsorted(t, t - half_window_s, side="left")
     hi = np.searchsorted(t, t + half_window_s, side="right")
@@ -110,7 +112,7 @@ def centred_map_values(t: NDArray[np.float64], mu: NDArray[np.float64], slip: ND
         rsum += np.where(rho_ok[jj], kern * np.where(rho_ok[jj], rho[jj], 0.0), 0.0)
         rw += np.where(rho_ok[jj], kern, 0.0)
     for c in uniq:
-        cls = SOIL_CLASSES[c]
+        cls = shapes[c]
         sel = names == c
         d = den[c][sel]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -205,7 +207,7 @@ class CentredSampler:
         return out
 
     def _values(self, s: _Pending) -> dict[str, float]:
-        cls = SOIL_CLASSES.get(s.soil_class)
+        cls = curve_class(s.soil_class)
         num = den = rho = 0.0
         nr = 0.0
         for (tk, w, mu, slip, r) in self._hist:
