@@ -10,6 +10,12 @@ TECU_EstSoil        65314    ``SoilRollingResistance`` = ρ_s [-],
                              ``SoilClassIndex``
 ==================  =======  ================================================
 
+``SoilClassIndex`` is the class's index in the configured ``estimator.soil_classes`` (below 200), or,
+for a class that is not one of them, its fixed code 200 + k of
+:data:`~tractionecu.model.mucurve.CLASS_CODES` (the machine-level estimator's ``machine_curve_prior``:
+``d497`` is 204, a surface class outside the configured list 200-203), so that a receiver mapping the
+index through the configured classes never reads another class (:func:`soil_class_index`).
+
 A NaN (not yet estimated) goes out as the DBC's "not available" code;
 values beyond the DBC range are clipped (and counted by the codec).  Before
 the first estimate, :func:`no_estimate_frames` sends every value as not
@@ -22,6 +28,7 @@ import math
 from typing import Any
 
 from ..bus.dbc import WHEELS, Codec
+from ..model.mucurve import CLASS_CODES, CURVE_SHAPES
 
 MESSAGES = ("TECU_EstAdhesion", "TECU_EstSlip", "TECU_EstSoil")
 
@@ -46,11 +53,24 @@ def _f(x: Any) -> float:
     return v
 
 
+def soil_class_index(est: Any) -> float:
+    """``SoilClassIndex`` of an ``Estimate`` (module doc; NaN: not available).
+
+    The estimate's ``soil_class_index`` is its class's index in the configured ``soil_classes``; a class
+    that is a curve shape and no surface class (:data:`~tractionecu.model.mucurve.CURVE_SHAPES`) is never one
+    of them, so it goes out as its code in :data:`~tractionecu.model.mucurve.CLASS_CODES` whatever index
+    the estimate carries."""
+    name = str(getattr(est, "soil_class", ""))
+    if name in CURVE_SHAPES:
+        return float(CLASS_CODES[name])
+    idx = _f(getattr(est, "soil_class_index", None))
+    return idx if math.isfinite(idx) else math.nan
+
+
 def estimate_values(est: Any) -> dict[str, dict[str, float]]:
     """Signal values of the three messages for an ``Estimate``."""
     mu = [_f(x) for x in est.mu]
     slip = [_f(x) for x in est.slip]
-    idx = getattr(est, "soil_class_index", None)
     return {
         "TECU_EstAdhesion": {f"Adhesion_{w}": mu[i] for i, w in enumerate(WHEELS)},
         "TECU_EstSlip": {f"Slip_{w}": slip[i] for i, w in enumerate(WHEELS)},
@@ -59,7 +79,7 @@ def estimate_values(est: Any) -> dict[str, dict[str, float]]:
             "CurveParamA": _f(est.a),
             "EstimateStatus": float(int(est.status) & 0xFFFF),
             "EstimateStatusExt": float((int(est.status) >> 16) & 0xFF),
-            "SoilClassIndex": math.nan if idx is None or not math.isfinite(_f(idx)) else float(idx),
+            "SoilClassIndex": soil_class_index(est),
         },
     }
 

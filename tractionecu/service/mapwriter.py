@@ -33,7 +33,7 @@ from typing import Any
 
 from ..mapping.sampler import CentredSampler
 from ..mapping.tiles import MANIFEST_NAME
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import curve_class
 from .config import MapConfig
 from .gps import GpsSample
 from .heap import release_free_heap
@@ -53,7 +53,7 @@ def layer_values(est: Any) -> dict[str, float]:
     a = float(est.a)
     if math.isfinite(a):
         out["a"] = a
-        cls = SOIL_CLASSES.get(getattr(est, "soil_class", ""))
+        cls = curve_class(str(getattr(est, "soil_class", "")))
         if cls is not None:
             out["p"], out["alpha1"], out["alpha2"] = cls.p, cls.alpha1, cls.alpha2
     return out
