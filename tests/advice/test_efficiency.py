@@ -176,3 +176,24 @@ def test_the_identified_mucurve_of_any_form_is_used() -> None:
     # a shape whose covariance is not known: no interval, so no s*
     est = SimpleNamespace(curve=MuCurve("eq14", theta, np.full((4, 4), np.nan), "shape:eq14"), soil_class="x", a=0.7)
     assert math.isinf(eff.optimum_with_interval(eff.curve_of(est), 0.07, 0.015, 0.0)[2])
+
+
+def test_a_curve_shape_outside_the_surface_classes_has_its_curve_and_optimum() -> None:
+    """An estimate of the machine-level estimator's ``d497`` prior without a reported curve: its class shape
+    comes from model.mucurve.curve_class (it gave no curve, so no η(s) and no s*, with SOIL_CLASSES only)."""
+    from tractionecu.model.mucurve import CURVE_SHAPES
+
+    d497 = CURVE_SHAPES["d497"]
+    got = eff.curve_of(SimpleNamespace(a=0.8, soil_class="d497"), sigma_a=0.01)
+    assert got is not None and (got.p, got.alpha1, got.alpha2, got.class_name) == (1.0, -7.5, -7.5, "d497")
+    s = np.linspace(0.0, 0.4, 41)
+    assert np.allclose(got.mu(s), d497.mu(s, 0.8))
+    s_star, e_star = eff.true_optimum(0.8, 0.06, 0.015, "d497")
+    # η(s) = (0.8 g(s) - ρ_s)/(0.8 g(s) + ρ_t)(1 - s) on a fine grid: the same maximum
+    fine = np.linspace(0.001, 0.5, 50000)
+    mu = d497.mu(fine, 0.8)
+    eta = (mu - 0.06) / (mu + 0.015) * (1 - fine)
+    assert s_star == pytest.approx(fine[np.argmax(eta)], abs=2e-4) and e_star == pytest.approx(eta.max(), abs=1e-6)
+    assert eff.curve_of(SimpleNamespace(a=0.8, soil_class="loam")) is None
+    with pytest.raises(KeyError, match="loam"):
+        eff.true_optimum(0.8, 0.06, 0.015, "loam")

@@ -42,7 +42,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import curve_class
 
 G = 9.80665
 
@@ -143,7 +143,7 @@ def curve_of(est: Any, sigma_a: float = math.nan) -> CurveParams | None:
     a :class:`~tractionecu.model.mucurve.MuCurve` of any form, evaluated by
     its ``eval_theta`` with ``cov`` over its ``names``; or any object with
     ``a, p, alpha1, alpha2`` and optionally ``cov`` over ``names``); else the
-    estimate's class shape (:data:`SOIL_CLASSES`) with its ``a`` and
+    estimate's class shape (:func:`~tractionecu.model.mucurve.curve_class`) with its ``a`` and
     ``sigma_a``.  A covariance not known yet (NaN) leaves σ(a) to
     :func:`sigma_a_from_estimate` when only a is identified, and makes the
     interval unknown (s* not given) for a fitted shape.
@@ -169,7 +169,7 @@ def curve_of(est: Any, sigma_a: float = math.nan) -> CurveParams | None:
         return CurveParams(a, _f(c.p), _f(c.alpha1), _f(c.alpha2), _f(getattr(c, "sigma_a", sigma_a)), cov,
                            names, name)
     a = _f(getattr(est, "a", math.nan))
-    cls = SOIL_CLASSES.get(str(getattr(est, "soil_class", "")))
+    cls = curve_class(str(getattr(est, "soil_class", "")))
     if cls is None or not (math.isfinite(a) and a > 0):
         return None
     return CurveParams(a, cls.p, cls.alpha1, cls.alpha2, sigma_a, None, ("a",), cls.name)
@@ -478,7 +478,9 @@ def efficiency_config_for(vehicle: Any, **kw: Any) -> EfficiencyConfig:
 
 def true_optimum(a: float, rho_s: float, rho_t: float, soil_class: str) -> tuple[float, float]:
     """``(s*, η*)`` of a true curve (a simulation's truth file) [-]."""
-    cls = SOIL_CLASSES[soil_class]
+    cls = curve_class(soil_class)
+    if cls is None:
+        raise KeyError(f"curve class {soil_class!r}: neither a surface class nor a known curve shape")
     return optimum(CurveParams(a, cls.p, cls.alpha1, cls.alpha2), rho_s, rho_t)
 
 
