@@ -33,7 +33,7 @@ from typing import Any, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import SOIL_CLASSES, curve_class
 
 
 def true_curve(info: dict[str, Any], s_grid: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -70,8 +70,8 @@ def identified_curve(idx: NDArray[np.int64], a_e: NDArray[np.float64], cls_e: Se
         cl = idx if curves is None else np.array([j for j in il if curves[j] is None or
                                                   not curves[j].path.startswith("shape:")], dtype=np.int64)
         a_bar = float(np.mean(a_e[cl if cl.size else idx]))
-        cls = SOIL_CLASSES.get(cls_name)
-        if cls is None and curves is not None:    # a shape outside the registry, carried by its curve
+        cls = curve_class(cls_name)
+        if cls is None and curves is not None:    # a shape in neither registry, carried by its curve
             cls = next((curves[j].soil_class for j in il if curves[j] is not None
                         and getattr(curves[j], "soil_class", None) is not None
                         and curves[j].soil_class.name == cls_name), None)
