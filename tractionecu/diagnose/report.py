@@ -241,7 +241,10 @@ def to_markdown(rep: dict) -> str:
                     txt += f" (at the {p['at_bound']} bound)"
                 ps.append(txt + (f" {p['unit']}" if p.get("unit") else ""))
             tr = ", ".join(f"{t['with']} (r = {t['correlation']:+.2f})" for t in e.get("trades_off_with") or [])
-            kind = e["kind"] + (" (ambiguous)" if e.get("ambiguous") else "")
+            kind = (e["kind"] + (" (ambiguous)" if e.get("ambiguous") else "")
+                    + (" (not named: its 95 % interval reaches its absence"
+                       + ("; the augmentation was re-run without it)" if e.get("withdrawn") else ")")
+                       if e.get("not_significant") else ""))
             L.append(f"| {k} | {e['name']} | {kind} | {'; '.join(ps)} | {tr or '—'} |")
         L.append("")
     ow = rep.get("open_world") or {}
