@@ -223,3 +223,39 @@ def test_machine_curve_prior_from_the_configuration(mech40: Path, tmp_path: Path
     assert sc["mu_mean_abs_rel_error"] == ref["mu_mean_abs_rel_error"]
     assert sc["rho_s_mean_abs_error"] == ref["rho_s_mean_abs_error"]
     assert "class:d497" in (run / "estimates.csv").read_text(encoding="utf-8")
+    # the map's a layer is a = mu/g_d497(s) wherever mu is mapped (it was NaN, and no epoch was mapped)
+    from tractionecu.mapping.store import MapStore
+
+    store = MapStore.open(run / "map")
+    ext = store.extent(["mu"])
+    mu, a, p = (store.grid(n, ext) for n in ("mu", "a", "p"))
+    has = mu.count > 0
+    assert has.sum() > 50 and np.all(a.count[has] > 0) and np.isfinite(a.mean[has]).all()
+    assert 0.5 < float(np.median(a.mean[has])) < 1.0                      # an asymptotic adhesion
+    assert np.allclose(p.mean[has], 1.0)                                  # the D497 shape: p = 1
+
+
+def test_machine_curve_prior_on_the_bus(mech40: Path) -> None:
+    """The broadcast of a replay's estimates with the d497 prior: SoilClassIndex is d497's code (204), which a
+    receiver cannot map through the configured soil_classes; it was 0, which reads as soil_classes[0], stubble."""
+    from tractionecu.bus.dbc import default_codec
+    from tractionecu.estimation.config import EstimatorConfig
+    from tractionecu.model.mucurve import CLASS_CODES
+    from tractionecu.pipeline.replay import replay_streamed
+    from tractionecu.service.broadcast import estimate_frames
+
+    codec = default_codec()
+    sent: list[tuple[str, float]] = []
+    n = [0]
+
+    def on_estimate(e) -> None:
+        n[0] += 1
+        if n[0] % 100 == 0:                            # one estimate a second (100 Hz steps) to the bus
+            for can_id, data in estimate_frames(codec, e, sa=0x90, priority=6):
+                name, vals = codec.decode(can_id, data)
+                if name == "TECU_EstSoil":
+                    sent.append((e.soil_class, vals["SoilClassIndex"]))
+
+    replay_streamed(mech40, cfg=EstimatorConfig(machine_curve_prior="d497"), on_estimate=on_estimate)
+    assert len(sent) > 20 and {c for c, _ in sent} == {"d497"}
+    assert {int(i) for _, i in sent} == {CLASS_CODES["d497"]}
