@@ -26,6 +26,10 @@ else the documented defaults), never from the truth:
 
     R_ω,i = (σ_ω,abs + σ_ω,rel |ω_i|)² + q_ω²/12,   R_v = σ_gps,v².
 
+With a declared tyre carcass whose mode the wheel-speed rate cannot follow (the carcass term off,
+:meth:`Estimator._relax`), R_ω,i is the larger of that and the mode's variance in the samples, estimated
+from the innovations (:meth:`Estimator._ring_noise`).
+
 Process noise Q_k = Q_in,k + f_k · A_k · diag(q) · Δt (see :mod:`.supervisor`):
 
 * Q_in is the measured-input noise (same SensorSpec) mapped through the
