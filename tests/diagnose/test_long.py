@@ -206,3 +206,53 @@ def test_no_residual_spans_a_joint(joined):
         f = fit.fit(problem, "clock_skew")
         sc, _ = fit.score(problem, null, fit.held_out(problem, "clock_skew", x_start=f.x))
         assert sc < DETECT_LLR, (rec.name, sc, f.params)
+
+
+def test_per_row_arrays_are_compact_and_shared(drive):
+    """The per-wheel channels keep their fold in one byte and their wheel in one, the frame row index
+    once (not a copy as the time index), and the wheel-force channel uses the slip channel's row arrays
+    when its rows are the same; it keeps no raw-rate ground speed."""
+    from tractionecu.diagnose import channels, features
+
+    feat = features.compute(data.load(drive))
+    chs = {c.name: c for c in channels.build_channels(feat)}
+    slip, wf = chs["slip"], chs["wheel_force"]
+    for ch in (chs[c] for c in ("slip", "wheel_force", "gps_speed", "front_load", "draft") if c in chs):
+        assert ch.fold.dtype == np.int8 and set(np.unique(ch.fold)) <= {0, 1}
+        np.testing.assert_array_equal(ch.fold, feat.fold[ch.tidx])
+    assert slip.tidx is slip.ti and slip.wi.dtype == np.int8
+    same = wf.m == slip.m and np.array_equal(wf.ti, slip.ti) and np.array_equal(wf.wi, slip.wi)
+    assert (wf.t is slip.t and wf.ti is slip.ti and wf.wi is slip.wi and wf.fold is slip.fold) == same
+    if not same:          # rows the raw-rate wheel speeds do not cover: the channel's own (compact) arrays
+        assert wf.wi.dtype == np.int8 and wf.tidx is wf.ti
+    assert not hasattr(wf, "v_hf")
+    np.testing.assert_array_equal(slip.cell, feat.cell[slip.ti] * 2 + (slip.wi >= 2))
+
+
+def test_held_out_scores_do_not_depend_on_how_the_residuals_are_kept(drive, monkeypatch):
+    """A candidate's held-out residuals are kept in float32, its score from the float64 values: the
+    scores equal those with float64 residuals kept (each on freshly built channels, so that no warm
+    start differs), and the kept residuals are those values rounded."""
+    from tractionecu.diagnose import channels, features, fit
+
+    def run():
+        feat = features.compute(data.load(drive))
+        problem = fit.Problem(feat, channels.build_channels(feat))
+        null = fit.held_out(problem, None)
+        out = {}
+        for name in ("wheel_radius", "mass"):
+            ho = fit.held_out(problem, name)
+            out[name] = (fit.score(problem, null, ho), ho)
+        return null, out
+
+    null32, kept32 = run()
+    monkeypatch.setattr(fit, "RESID_DTYPE", np.float64)
+    _, kept64 = run()
+    assert all(r.dtype == np.float64 for r in null32.resid.values())
+    for name in kept32:
+        (s32, per32), ho32 = kept32[name]
+        (s64, per64), ho64 = kept64[name]
+        assert s32 == s64 and per32 == per64
+        for c, r in ho32.resid.items():
+            assert r.dtype == np.float32
+            np.testing.assert_array_equal(r, ho64.resid[c].astype(np.float32))
