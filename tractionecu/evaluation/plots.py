@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import SOIL_CLASSES, curve_class
 from ..model.vehicle import WHEELS
 from .scoring import S_GRID, Truth
 
@@ -57,7 +57,7 @@ def plot_run(out: Path, arrays: dict[str, Any], truth: Truth | None, sc: dict[st
             col = colors[j % len(colors)]
             ax.plot(S_GRID, SOIL_CLASSES[c["class_true"]].mu(S_GRID, c["a_true"]), color=col, lw=2.5, alpha=0.45,
                     label=f"{name} true (a={c['a_true']:.2f})")
-            ax.plot(S_GRID, SOIL_CLASSES[c["class_identified"]].mu(S_GRID, c["a_identified"]), color=col, lw=1.2,
+            ax.plot(S_GRID, curve_class(c["class_identified"]).mu(S_GRID, c["a_identified"]), color=col, lw=1.2,
                     ls="--", label=f"{name} identified (a={c['a_identified']:.3f}, R²={sc['r2_mu_curve'][name]:.4f})")
         ax.set_xlabel("slip s [-]")
         ax.set_ylabel("μ [-]")
