@@ -61,3 +61,17 @@ def test_sampler_maps_the_fitted_shape():
         out += smp.push(float(t[k]), LAT0, LON0, 4, 0.8, est)
     out += smp.drain()
     assert out[0][3]["p"] == STUBBLE.p and out[-1][3]["alpha2"] == SHAPE.alpha2 and out[-1][3]["a"] == SHAPE.a
+
+
+def test_a_curve_shape_outside_the_surface_classes_is_a_class_cell(tmp_path):
+    """Cells of the machine-level estimator's d497 prior (model.mucurve.CURVE_SHAPES) are on the class path:
+    ``class:d497``, not ``shape`` (they were, with the surface classes only)."""
+    from tractionecu.model.mucurve import CURVE_SHAPES
+
+    with MapStore(tmp_path / "m", LAT0, LON0, resolution_m=1.0) as store:
+        lat, lon = store.to_latlon(0.5, 0.5)
+        for k in range(3):
+            assert store.add(lat, lon, _values(MuCurve.from_class(CURVE_SHAPES["d497"], 0.8 + 0.01 * k)), float(k))
+        paths = store.curve_paths()
+        g = store.grid("p")
+    assert paths[int(math.floor((0.5 - g.y0) / g.res)), int(math.floor((0.5 - g.x0) / g.res))] == "class:d497"

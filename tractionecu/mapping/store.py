@@ -758,11 +758,11 @@ class MapStore:
 
         Derived from the ``p``, ``alpha1``, ``alpha2`` layers (means and variances), so maps
         written before the shape path read back as class cells.  ``classes`` maps names to
-        objects with ``p``, ``alpha1``, ``alpha2`` (default: the built-in surface classes); the
+        objects with ``p``, ``alpha1``, ``alpha2`` (default: the built-in surface classes and curve shapes); the
         grid is that of :meth:`grid` over ``extent`` (default: the cells with a ``p`` sample).
         """
-        from ..model.mucurve import SOIL_CLASSES
-        classes = SOIL_CLASSES if classes is None else classes
+        from ..model.mucurve import CURVE_SHAPES, SOIL_CLASSES
+        classes = {**SOIL_CLASSES, **CURVE_SHAPES} if classes is None else classes
         names = ("p", "alpha1", "alpha2")
         if any(n not in self._layer_index for n in names):
             raise KeyError(f"curve_paths needs the layers {names}; this map has {list(self.layers)}")
