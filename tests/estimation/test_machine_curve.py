@@ -48,3 +48,12 @@ def test_machine_estimates_with_the_d497_prior_carry_its_code_not_stubble_s_inde
     assert {(e.soil_class, e.soil_class_index) for e in tilled} == {("tilled", 1)}
     dflt = run(MachineEstimator(mech_vehicle()), bus[:5000])
     assert {(e.soil_class, e.soil_class_index) for e in dflt} == {("stubble", 0)}
+
+
+def test_a_prior_of_its_own_has_no_bus_index():
+    """A SoilClass given directly that is in neither registry: index -1 (the bus sends "not available")."""
+    from tractionecu.model.mucurve import SoilClass
+
+    own = SoilClass("own", p=1.0, alpha1=-6.0, alpha2=-6.0, a_typical=0.7, rho_s_typical=0.06)
+    ce = machine_curve_estimator(EstimatorConfig(), own)
+    assert ce.state().class_index == -1 and ce.state().class_name == "own"

@@ -1,5 +1,6 @@
 """The estimate frames carry every status bit: bits 0–15 in EstimateStatus, bits 16–23 in EstimateStatusExt."""
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -56,10 +57,13 @@ def test_soil_class_index_never_names_another_class(soil_class, index, sent):
         assert {c: n for n, c in CLASS_CODES.items()}[got] == soil_class
 
 
-def test_soil_class_index_not_available_without_an_index():
+@pytest.mark.parametrize("index", [None, math.nan, -1, 255])
+def test_soil_class_index_not_available_without_an_index(index):
+    """No index, or one of no class (-1: a machine prior given as a class of its own), is "not available",
+    never clipped into the range (-1 would go out as 0)."""
     codec = default_codec()
-    est = SimpleNamespace(mu=[0.5] * 4, slip=[0.05] * 4, rho_s=0.06, a=0.8, status=0, soil_class="stubble",
-                          soil_class_index=None)
+    est = SimpleNamespace(mu=[0.5] * 4, slip=[0.05] * 4, rho_s=0.06, a=0.8, status=0, soil_class="own",
+                          soil_class_index=index)
     assert np.isnan(_soil(estimate_frames(codec, est, sa=0x80, priority=6), codec)["SoilClassIndex"])
 
 

@@ -82,7 +82,8 @@ class _PriorCurveEstimator(CurveEstimator):
     """The curve identification of one prior, whose states carry the prior's ``class_index`` as the bus
     reads it (:func:`~tractionecu.model.mucurve.class_index`): its index in the configured ``soil_classes``
     when it is one of them, else its fixed code (200 + k).  The index in the estimator's own one-class list
-    (0) would make a receiver read the first configured class (``stubble``)."""
+    (0) would make a receiver read the first configured class (``stubble``).  A :class:`SoilClass` given
+    directly that is in neither registry has no code: its index is −1, which the bus sends as not available."""
 
     bus_index: int = 0
 
@@ -99,9 +100,7 @@ def machine_curve_estimator(cfg: Any, prior: SoilClass | None) -> CurveEstimator
         return CurveEstimator.from_config(cfg)
     est = _PriorCurveEstimator.from_config(_WithClasses(cfg, (prior,)))
     idx = class_index(prior.name, tuple(getattr(cfg, "soil_classes", ())))
-    if idx is None:
-        raise ValueError(f"machine curve prior {prior.name!r}: no bus code (model.mucurve.CLASS_CODES)")
-    est.bus_index = idx
+    est.bus_index = -1 if idx is None else idx        # -1: a class of its own (no code), sent as not available
     return est
 
 

@@ -64,7 +64,7 @@ def soil_class_index(est: Any) -> float:
     if name in CURVE_SHAPES:
         return float(CLASS_CODES[name])
     idx = _f(getattr(est, "soil_class_index", None))
-    return idx if math.isfinite(idx) else math.nan
+    return idx if 0 <= idx < 255 else math.nan        # NaN, or an index of no class (-1): not available
 
 
 def estimate_values(est: Any) -> dict[str, dict[str, float]]:
