@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 from ..config import from_mapping, load_toml, section, setting, to_toml, validate
 from ..errors import ConfigError
-from ..model.mucurve import SOIL_CLASSES
+from ..model.mucurve import CURVE_SHAPES, SOIL_CLASSES
 from ..model.vehicle import N_STATE
 from .calibration import CalibrationConfig
 from .supervisor import FuzzyConfig
@@ -139,9 +139,9 @@ class EstimatorConfig:
         for c in self.soil_classes:
             if c not in SOIL_CLASSES:
                 raise ConfigError(f"estimator.soil_classes: unknown class {c!r} (known: {', '.join(SOIL_CLASSES)})")
-        if self.machine_curve_prior not in ("", "d497", *SOIL_CLASSES):
+        if self.machine_curve_prior not in ("", *CURVE_SHAPES, *SOIL_CLASSES):
             raise ConfigError(f"estimator.machine_curve_prior: unknown {self.machine_curve_prior!r} "
-                              f"(known: '', d497, {', '.join(SOIL_CLASSES)})")
+                              f"(known: '', {', '.join([*CURVE_SHAPES, *SOIL_CLASSES])})")
         if self.alpha ** 2 * (N_STATE + self.kappa) <= 0:
             raise ConfigError("estimator.kappa: α²(n+κ) must be > 0")
         if self.mu_min >= self.mu_max:
