@@ -41,7 +41,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..errors import ConfigError
-from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
+from ..estimation.estimator import Estimate, EstimatorConfig
+from .replay import _Sink, _rows
 
 BLOCK = 4096
 """Estimates gathered before they are copied into arrays."""
@@ -56,7 +57,7 @@ _FIELDS = attrgetter(*SCALARS, "nis_dof", "status", "valid", "mu", "slip", "omeg
 __all__ = ["BLOCK", "BatchSink", "max_differences", "replay_batch", "replay_batch_rows"]
 
 
-class BatchSink:
+class BatchSink(_Sink):
     """Estimates of a replay, gathered into arrays block by block.
 
     ``keep_all``: every step's arrays are kept (:meth:`arrays`).  ``rate_hz`` (> 0): the first step at or
@@ -64,79 +65,38 @@ class BatchSink:
     than ``hold_s`` (the lost-filter window).  ``map_times``: the step at or after each of these times
     (GNSS epochs), and the first and last step, are kept for the map (:meth:`map_arrays`), as the step
     path's sink picks them.
+
+    The books (batches, a lost filter, the map's steps) are the step path's sink's
+    (:class:`~tractionecu.pipeline.replay._Sink`); this class changes how a block becomes arrays, keeps
+    pending blocks for the rate selection instead of writing them, and selects the rate rows as they age.
     """
 
     def __init__(self, *, keep_all: bool = True, rate_hz: float | None = None, hold_s: float = math.inf,
                  map_times: np.ndarray | None = None, block: int = BLOCK) -> None:
-        self.keep_all = keep_all
+        super().__init__(keep_all, None, hold_s, map_times)
         self.block = int(block)
         self.rate_hz = rate_hz
-        self.hold_s = hold_s
-        self.map_times = None if map_times is None else np.asarray(map_times, dtype=float) - 1e-9
-        self.map_k = 0
-        self.batch: list[Estimate] = []
-        self.done: list[dict[str, Any]] = []       # blocks kept whole
-        self.pending: list[dict[str, Any]] = []    # blocks not yet past hold_s (rate selection)
         self.rate_rows: list[dict[str, Any]] = []
-        self.map_rows: list[dict[str, Any]] = []
-        self.last: dict[str, Any] | None = None
-        self.rows = 0
-        self.t_first = self.t_last = math.nan
         self.steps_finite = self.steps_valid = 0
         self._bucket = -math.inf
         self._path: dict[int, str] = {}
 
     # ------------------------------------------------------------------ input
-    def keep(self, e: Estimate) -> None:
-        b = self.batch
-        b.append(e)
-        if len(b) == self.block:
-            self.flush()
-        ls = e.lost_since
-        if ls == ls:                                   # not NaN: the filter was declared lost
-            self.mark_lost(ls)
+    mark_lost = _Sink._mark_lost
+    flush = _Sink._flush
 
     def extend(self, es: list[Estimate]) -> None:
         """Many estimates in time order (as :meth:`keep` one by one)."""
         for e in es:
             self.keep(e)
 
-    def mark_lost(self, since: float) -> None:
-        """The estimates since ``since`` [s] came from a lost filter: not valid, FILTER_LOST set."""
-        self.flush()
-        for group in (self.done, self.pending, self.map_rows):
-            for b in reversed(group):
-                k = int(np.searchsorted(b["t"], since, side="left"))
-                b["valid"][k:] = False
-                b["status"][k:] |= FILTER_LOST
-                if k > 0:
-                    break
+    def _pends(self) -> bool:
+        return self.rate_hz is not None
 
-    def flush(self) -> None:
-        b = self.batch
-        if not b:
-            return
-        arr = self._to_arrays(b)
-        b.clear()
-        if self.keep_all:
-            self.done.append(arr)
-        if self.rate_hz is not None:
-            self.pending.append(arr)
-        if self.map_times is not None:
-            self._map_pick(arr)
-        self.last = arr
-        if not self.rows:
-            self.t_first = float(arr["t"][0])
-        self.t_last = float(arr["t"][-1])
-        self.rows += arr["t"].size
-        self._release(float(arr["t"][-1]) - self.hold_s)
+    def _age(self, upto: float) -> None:
+        self._release(upto)
 
-    def close(self) -> None:
-        self.flush()
-        if self.map_times is not None and self.last is not None:
-            last = _rows(self.last, np.array([self.last["t"].size - 1]))
-            if not self.map_rows or self.map_rows[-1]["t"][-1] != last["t"][0]:
-                self.map_rows.append(last)
+    def _end(self) -> None:
         self._release(math.inf)
 
     # ------------------------------------------------------------------ conversion
@@ -191,18 +151,6 @@ class BatchSink:
         arr["curve_path"] = cpath
         return arr
 
-    def _map_pick(self, arr: dict[str, Any]) -> None:
-        t = arr["t"]
-        mt = self.map_times
-        hi = int(np.searchsorted(mt, t[-1], side="right"))
-        pick = np.searchsorted(t, mt[self.map_k:hi], side="left")
-        self.map_k = hi
-        if self.rows == 0:
-            pick = np.concatenate([[0], pick])
-        pick = np.unique(pick)
-        if pick.size:
-            self.map_rows.append(_rows(arr, pick))
-
     def _release(self, upto: float) -> None:
         """Select the rate rows of the blocks older than ``upto`` [s] (no lost filter can reach them)."""
         while self.pending and float(self.pending[0]["t"][-1]) < upto:
@@ -232,10 +180,6 @@ class BatchSink:
 
     def map_arrays(self) -> dict[str, Any]:
         return _concat(self.map_rows)
-
-
-def _rows(arr: dict[str, Any], k: np.ndarray) -> dict[str, Any]:
-    return {name: (v[k] if isinstance(v, np.ndarray) else [v[i] for i in k.tolist()]) for name, v in arr.items()}
 
 
 def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:

@@ -370,7 +370,11 @@ class _Sink:
     """Estimates in batches of :data:`_BATCH`: kept whole (``keep_all``), written to ``estimates.csv`` as
     they age past ``hold_s`` (a lost filter marks the estimates since ``lost_since`` not valid, at most
     ``lost_after_s`` + ``max_gap_s`` back), and those the map needs (the step at or just after each GNSS
-    epoch ``map_times``, and the first and last step) kept for the map."""
+    epoch ``map_times``, and the first and last step) kept for the map.
+
+    The batch path's :class:`~tractionecu.pipeline.batch.BatchSink` keeps the same books: it replaces how
+    a batch becomes arrays (:meth:`_to_arrays`), whether batches wait in ``pending`` (:meth:`_pends`) and
+    what happens to them as they age (:meth:`_age`, :meth:`_end`)."""
 
     _SCALARS = ("rho_s", "a", "v", "nis", "adapt", "sigma_rho_s")
     _VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", N_STATE), ("sigma_mu", 4), ("radius_scale", 2),
@@ -379,6 +383,7 @@ class _Sink:
     def __init__(self, keep_all: bool, csv_fh: Any = None, hold_s: float = math.inf,
                  map_times: np.ndarray | None = None) -> None:
         self.keep_all = keep_all
+        self.block = _BATCH
         self.fh = csv_fh
         self.hold_s = hold_s
         self.map_times = None if map_times is None else np.asarray(map_times, dtype=float) - 1e-9
@@ -396,7 +401,7 @@ class _Sink:
 
     def keep(self, e: Estimate) -> None:
         self.batch.append(e)
-        if len(self.batch) == _BATCH:
+        if len(self.batch) == self.block:
             self._flush()
         if not math.isnan(e.lost_since):
             self._mark_lost(e.lost_since)
@@ -418,6 +423,31 @@ class _Sink:
         b = self.batch
         if not b:
             return
+        arr = self._to_arrays(b)
+        b.clear()
+        if self.keep_all:
+            self.done.append(arr)
+        if self._pends():
+            self.pending.append(arr)
+        if self.map_times is not None:
+            self._map_pick(arr)
+        self.last = arr
+        if not self.rows:
+            self.t_first = float(arr["t"][0])
+        self.t_last = float(arr["t"][-1])
+        self.rows += arr["t"].size
+        self._age(float(arr["t"][-1]) - self.hold_s)
+
+    def _pends(self) -> bool:
+        """Whether batches wait in ``pending`` until they are older than ``hold_s`` (to be written)."""
+        return self.fh is not None
+
+    def _age(self, upto: float) -> None:
+        """The pending batches older than ``upto`` [s] (no lost filter can reach them) go out."""
+        self._write(upto)
+
+    def _to_arrays(self, b: list[Estimate]) -> dict[str, Any]:
+        """One batch of estimates as arrays (keys of :class:`ReplayResult`)."""
         arr: dict[str, Any] = {"t": np.array([e.t for e in b], dtype=float)}
         for name in self._SCALARS:
             arr[name] = np.array([getattr(e, name) for e in b], dtype=float)
@@ -428,19 +458,7 @@ class _Sink:
         arr["valid"] = np.array([e.valid for e in b], dtype=bool)
         arr["soil_class"] = [e.soil_class for e in b]
         arr["curve"] = [e.curve for e in b]                  # identified μ(s) per step (estimation.curve)
-        b.clear()
-        if self.keep_all:
-            self.done.append(arr)
-        if self.fh is not None:
-            self.pending.append(arr)
-        if self.map_times is not None:
-            self._map_pick(arr)
-        self.last = arr
-        if not self.rows:
-            self.t_first = float(arr["t"][0])
-        self.t_last = float(arr["t"][-1])
-        self.rows += arr["t"].size
-        self._write(float(arr["t"][-1]) - self.hold_s)
+        return arr
 
     def _map_pick(self, arr: dict[str, Any]) -> None:
         t = arr["t"]
@@ -466,6 +484,10 @@ class _Sink:
             last = _rows(self.last, np.array([self.last["t"].size - 1]))
             if not self.map_rows or self.map_rows[-1]["t"][-1] != last["t"][0]:
                 self.map_rows.append(last)
+        self._end()
+
+    def _end(self) -> None:
+        """After the last batch: the pending ones go out whatever their age."""
         if self.fh is not None:
             self._write(math.inf)
             if self.rows == 0:
