@@ -134,13 +134,19 @@ def test_online_segments_and_paths():
     assert ce.shape.n_fits < 60                                          # bounded work
 
 
-def test_narrow_slip_span_keeps_the_paper_path():
+def _narrow_span_state():
+    """The state after 150 s of pairs whose slips span only 0.03-0.05 (too little for the shape fit)."""
     rng = np.random.default_rng(2)
     ce = CurveEstimator(["stubble"], tau_s=3.0)
     for k in range(1500):
         s4 = rng.uniform(0.03, 0.05) * np.ones(4)
         st = ce.update(0.1 * k, brixius(s4) + 0.003 * rng.standard_normal(4), s4, np.full(4, 0.005),
                        np.full(4, 0.005))
+    return st
+
+
+def test_narrow_slip_span_keeps_the_paper_path():
+    st = _narrow_span_state()
     assert st.curve_path == "class:stubble" and st.slip_span < 0.04 and st.shape_curve is None
     assert st.curve is not None and st.curve.form == "class" and st.curve.a == st.a
     assert CurveEstimator(["stubble"], shape=False).update(0.0, np.full(4, 0.4), np.full(4, 0.1),
@@ -387,12 +393,7 @@ def test_soil_numbers_survive_forgetting():
 def test_the_class_path_says_where_it_extrapolates():
     """The class path's curve carries the slip range of its soil's data; past it (a peak the slips never
     reached, an asymptote) it is the class shape, an extrapolation, and says so."""
-    rng = np.random.default_rng(2)
-    ce = CurveEstimator(["stubble"], tau_s=3.0)
-    for k in range(1500):
-        s4 = rng.uniform(0.03, 0.05) * np.ones(4)
-        st = ce.update(0.1 * k, brixius(s4) + 0.003 * rng.standard_normal(4), s4, np.full(4, 0.005),
-                       np.full(4, 0.005))
+    st = _narrow_span_state()
     c = st.curve
     assert c.form == "class" and 0.025 <= c.s_range[0] < c.s_range[1] <= 0.055
     assert not c.extrapolated(0.04) and c.extrapolated(0.3).all() and c.extrapolated(-0.3)
