@@ -36,6 +36,7 @@ from datetime import date, datetime, timedelta, timezone
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
+import numpy as np
 import pynmea2
 
 from ..counting import RejectCounter
@@ -609,3 +610,286 @@ def read_nmea(path: str | Path, stats: NmeaStats | None = None) -> Iterator[GpsF
         st.source = p.name
     with open(p, "r", encoding="ascii", errors="replace", newline=None) as fh:
         yield from assemble_epochs(iter_nmea(fh, st))
+
+
+# --------------------------------------------------------------------------- fast path
+# Why: a recording's GNSS log is ~30 sentences a second, and parse_line (pynmea2's regex and checksum,
+# then the field helpers) costs ~20 us a line: more than the whole CAN capture's decoding.  A batch replay
+# that should run >= 1000x real time cannot spend that.  The fast path below turns the sentences a
+# receiver writes every epoch into the same values with far less work, and hands every other line to
+# parse_line, so rejects keep their reasons and line numbers.
+#
+# Which lines it takes (fast_kinds, checked for a whole block of lines with numpy): '$', a talker of two
+# upper-case letters not starting with P, GGA/RMC/VTG/ZDA, a comma, the usual number of fields for that
+# sentence, then '*' and two hex digits that equal the XOR of the characters between '$' and '*', and
+# nothing but 0-9 A-Z '.' ',' '-' in between (no white space, no second '*' or '$', nothing non-ASCII),
+# at most MAX_FAST_LINE characters.  For such a line pynmea2.parse(line, check=True) is exactly: the
+# checksum holds, talker = line[1:3], sentence type = line[3:6], data = line[7:-3].split(',').  Only the
+# proprietary ('P...') and query ('..xxQ,') branches of its address pattern could differ, and both are
+# excluded.
+#
+# What it computes (_fast_gga, _fast_rmc, _fast_vtg, _fast_zda): the same field helpers' arithmetic
+# (float()/int() on the same field text, the same sums and products in the same order), with every check
+# of parse_line made as well or more strictly; where a check would fail or a conversion raises, the
+# line goes to parse_line, which rejects it with its reason.  So a line the fast path takes gives the
+# NmeaRecord parse_line gives, float for float; tests/gnss/test_nmea_fast.py checks that on simulated
+# and fixture logs and on corrupted lines.
+
+MAX_FAST_LINE = 100
+"""Longest line the fast path takes (NMEA 0183 allows 82 characters with CR LF)."""
+
+FAST_SENTENCES = ("GGA", "RMC", "VTG", "ZDA")
+"""Sentence types of the fast path; their accepted field counts are in :data:`_FAST_FIELDS`."""
+
+_FAST_FIELDS = {1: (14,), 2: (11, 12, 13), 3: (8, 9), 4: (6,)}
+"""Field counts after the address: GGA; RMC of NMEA 2.0 / 2.3 / 4.10; VTG without / with mode; ZDA."""
+
+_SAFE = np.zeros(256, dtype=bool)
+for _c in b"0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZ.,-":
+    _SAFE[_c] = True
+_HEX = np.full(256, -1, dtype=np.int16)
+for _k, _c in enumerate(b"0123456789ABCDEF"):
+    _HEX[_c] = _k
+for _k, _c in enumerate(b"abcdef"):
+    _HEX[_c] = 10 + _k
+_TYPE_CODE = {int.from_bytes(name.encode(), "big"): k + 1 for k, name in enumerate(FAST_SENTENCES)}
+
+
+class _Fallback(Exception):
+    """A fast-path line that parse_line must judge."""
+
+
+def fast_kinds(lines: list[str]) -> np.ndarray:
+    """Per line: 1..4 (GGA, RMC, VTG, ZDA) when the line is a sentence the fast path may take (block
+    comment above: address, field count, character set and checksum all checked), else 0."""
+    n = len(lines)
+    kind = np.zeros(n, dtype=np.int8)
+    if n == 0:
+        return kind
+    lens = np.fromiter(map(len, lines), dtype=np.int64, count=n)
+    buf = np.frombuffer("\n".join(lines).encode("ascii", "replace"), dtype=np.uint8)  # one byte a character
+    starts = np.zeros(n, dtype=np.int64)
+    np.cumsum(lens[:-1] + 1, out=starts[1:])
+    cand = np.flatnonzero((lens >= 10) & (lens <= MAX_FAST_LINE))
+    if cand.size == 0:
+        return kind
+    s = starts[cand]
+    e = s + lens[cand]
+    ok = (buf[s] == 0x24) & (buf[e - 3] == 0x2A) & (buf[s + 6] == 0x2C)
+    t1, t2 = buf[s + 1], buf[s + 2]
+    ok &= (t1 >= 0x41) & (t1 <= 0x5A) & (t1 != 0x50) & (t2 >= 0x41) & (t2 <= 0x5A)
+    code = (buf[s + 3].astype(np.int64) << 16) | (buf[s + 4].astype(np.int64) << 8) | buf[s + 5]
+    k = np.zeros(cand.size, dtype=np.int8)
+    for c, v in _TYPE_CODE.items():
+        k[code == c] = v
+    ok &= k > 0
+    h1, h2 = _HEX[buf[e - 2]], _HEX[buf[e - 1]]
+    ok &= (h1 >= 0) & (h2 >= 0)
+    unsafe = np.zeros(buf.size + 1, dtype=np.int32)
+    np.cumsum(~_SAFE[buf], out=unsafe[1:])
+    ok &= unsafe[e - 3] == unsafe[s + 1]
+    commas = np.zeros(buf.size + 1, dtype=np.int32)
+    np.cumsum(buf == 0x2C, out=commas[1:])
+    nfields = commas[e - 3] - commas[s + 1]          # commas in the body = fields after the address
+    good_count = np.zeros(cand.size, dtype=bool)
+    for kk, counts in _FAST_FIELDS.items():
+        for c in counts:
+            good_count |= (k == kk) & (nfields == c)
+    ok &= good_count
+    cx = np.zeros(buf.size + 1, dtype=np.uint8)
+    np.bitwise_xor.accumulate(buf, out=cx[1:])
+    ok &= (cx[e - 3] ^ cx[s + 1]) == ((h1 << 4) | h2)
+    kind[cand[ok]] = k[ok]
+    return kind
+
+
+def _ff(s: str) -> float | None:
+    """_f's value for a field that parse_line would accept; _Fallback where it would not."""
+    if not s:
+        return None
+    v = float(s)
+    if v != v or v == math.inf or v == -math.inf:
+        raise _Fallback
+    return v
+
+
+def _fi(s: str) -> int | None:
+    """_i's value where int() takes the text (else parse_line judges it)."""
+    return int(s, 10) if s else None
+
+
+def _ftod(s: str) -> float | None:
+    if not s:
+        return None
+    if len(s) < 6 or not s[:6].isdigit():
+        raise _Fallback
+    h, m = int(s[0:2]), int(s[2:4])
+    sec = float(s[4:])
+    if h > 23 or m > 59 or not 0 <= sec < 61:      # also NaN and inf
+        raise _Fallback
+    return h * 3600.0 + m * 60.0 + sec
+
+
+def _fcoord(value: str, hemi: str, deg_digits: int, pos: str, neg: str, limit: float) -> float | None:
+    if not value and not hemi:
+        return None
+    if not value or not hemi:
+        raise _Fallback
+    head = value.split(".", 1)[0] if "." in value else value
+    if len(head) != deg_digits + 2 or not head.isdigit():
+        raise _Fallback
+    deg = int(head[:deg_digits])
+    minutes = float(value[deg_digits:])
+    if not minutes < 60.0:                          # also NaN and inf
+        raise _Fallback
+    v = deg + minutes / 60.0
+    if v > limit:
+        raise _Fallback
+    if hemi == pos:
+        return v
+    if hemi == neg:
+        return -v
+    raise _Fallback
+
+
+_DATES: dict[str, date] = {}
+_MODE_QUALITY: dict[str, int | None] = {}
+
+
+def _fdate(s: str) -> date | None:
+    if not s:
+        return None
+    d = _DATES.get(s)
+    if d is None:
+        if len(s) != 6 or not s.isdigit():
+            raise _Fallback
+        dd, m, y = int(s[0:2]), int(s[2:4]), int(s[4:6])
+        try:
+            d = date(2000 + y if y < 80 else 1900 + y, m, dd)
+        except ValueError:
+            raise _Fallback from None
+        if len(_DATES) < 4096:
+            _DATES[s] = d
+    return d
+
+
+def _fmode_quality(mode: str) -> int | None:
+    q = _MODE_QUALITY.get(mode, -1)
+    if q == -1:
+        q = _quality_from_modes(mode)
+        if len(_MODE_QUALITY) < 256:
+            _MODE_QUALITY[mode] = q
+    return q
+
+
+def _fast_gga(line: str) -> tuple:
+    d = line[7:-3].split(",")
+    q = _fi(d[5])
+    if q is not None and not 0 <= q <= 8:
+        raise _Fallback
+    return ("GGA", line[1:3], _ftod(d[0]), None, _fcoord(d[1], d[2], 2, "N", "S", 90.0),
+            _fcoord(d[3], d[4], 3, "E", "W", 180.0), _ff(d[8]), _ff(d[10]), None, None, q, _fi(d[6]),
+            _ff(d[7]), None, None)
+
+
+def _fast_rmc(line: str) -> tuple:
+    d = line[7:-3].split(",")
+    status = d[1]
+    if status != "A" and status != "V":
+        raise _Fallback
+    kn = _ff(d[6])
+    mode = (d[11] if len(d) > 11 else "") or None
+    return ("RMC", line[1:3], _ftod(d[0]), _fdate(d[8]), _fcoord(d[2], d[3], 2, "N", "S", 90.0),
+            _fcoord(d[4], d[5], 3, "E", "W", 180.0), None, None, None if kn is None else kn * KNOT_MPS,
+            _ff(d[7]), None if mode is None else _fmode_quality(mode), None, None, status == "A", mode)
+
+
+def _fast_vtg(line: str) -> tuple:
+    d = line[7:-3].split(",")
+    kmh = _ff(d[6])
+    kn = _ff(d[4])
+    if kmh is not None:
+        spd = kmh / 3.6
+    elif kn is not None:
+        spd = kn * KNOT_MPS
+    else:
+        spd = None
+    mode = (d[8] if len(d) > 8 else "") or None
+    return ("VTG", line[1:3], None, None, None, None, None, None, spd, _ff(d[0]), None, None, None, None, mode)
+
+
+def _fast_zda(line: str) -> tuple:
+    d = line[7:-3].split(",")
+    day, month, year = _fi(d[1]), _fi(d[2]), _fi(d[3])
+    zdate = None
+    if day is not None and month is not None and year is not None:
+        try:
+            zdate = date(year, month, day)
+        except (ValueError, OverflowError):
+            raise _Fallback from None
+    return ("ZDA", line[1:3], _ftod(d[0]), zdate, None, None, None, None, None, None, None, None, None, None,
+            None)
+
+
+_FAST = (None, _fast_gga, _fast_rmc, _fast_vtg, _fast_zda)
+
+
+def fast_record(line: str, kind: int) -> tuple | None:
+    """The field values of parse_line's :class:`NmeaRecord` for ``line`` (``NmeaRecord(*values)``), for a
+    line of :func:`fast_kinds` ``kind`` 1..4; None where parse_line must judge the line."""
+    try:
+        return _FAST[kind](line)
+    except (_Fallback, ValueError):
+        return None
+
+
+def record_values(rec: NmeaRecord) -> tuple:
+    """An :class:`NmeaRecord`'s field values in field order (what :func:`fast_record` returns)."""
+    return (rec.sentence, rec.talker, rec.tod_s, rec.date, rec.lat_deg, rec.lon_deg, rec.alt_m, rec.geoid_sep_m,
+            rec.speed_mps, rec.course_deg, rec.fix_quality, rec.nsat, rec.hdop, rec.valid, rec.mode)
+
+
+def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Iterator[tuple[int, tuple]]:
+    """:func:`iter_nmea` over the text file ``fh`` (opened as :func:`read_nmea` opens it), yielding
+    ``(line number, record values)`` (:func:`record_values`), with the same counts in ``stats``: lines
+    the fast path takes are converted by it, every other line by :func:`parse_line`.  Reads
+    ``chunk_chars`` characters at a time."""
+    st = stats
+    lineno0 = 0
+    carry = ""
+    fast = _FAST
+    while True:
+        block = fh.read(chunk_chars)
+        if not block:
+            if not carry:
+                break
+            lines, carry = [carry], ""
+        else:
+            lines = (carry + block).split("\n")
+            carry = lines.pop()
+        st.lines += len(lines)
+        kinds = fast_kinds(lines).tolist()
+        for i, line in enumerate(lines):
+            k = kinds[i]
+            if k:
+                try:
+                    vals = fast[k](line)
+                except (_Fallback, ValueError):
+                    pass
+                else:
+                    st.accepted += 1
+                    yield lineno0 + i + 1, vals
+                    continue
+            try:
+                rec = parse_line(line)
+            except DecodeError as e:
+                st.reject(getattr(e, "reason", "garbage"), lineno0 + i + 1, line)
+                continue
+            if rec is None:
+                s = line.strip()
+                if s:
+                    st.ignored[sentence_label(s)] += 1
+                continue
+            st.accepted += 1
+            yield lineno0 + i + 1, record_values(rec)
+        lineno0 += len(lines)
