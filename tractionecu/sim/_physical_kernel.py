@@ -12,7 +12,9 @@ State vector x (17):
 ====  ==========================================================================
 
 Per-wheel inputs ``w`` (rows): 0 F_z [N], 1 r_e [m], 2 g_i = v_i/v (own ground speed over body speed),
-3 T_max, 4 law id, 5 s_shape, 6 1/B_n, 7 0.5/√B_n, 8 hub motor torque at the wheel side [N·m].
+3 T_max, 4 law id (0 Brixius, 1 peaked, 2 sigmoid,
+3 Janosi–Hanamoto of :mod:`.terramech`), 5 s_shape (law 3: j₀ = K/l), 6 soil resistance at zero slip 1/B_n (law 3: R_c/W),
+7 its growth with |slip| 0.5/√B_n (law 3: 0), 8 hub motor torque at the wheel side [N·m].
 Scalars ``p``: 0 mass [kg], 1 J_w, 2 ρ_t tyre, 3 longitudinal carcass stiffness c_x [N/m], 4 F_ext [N] (draft, grade, air; against the
 forward axis), 5 drive-line kind (0 hub, 1 mechanical), hub: 6 η, 7 drag, 8 k, 9 c, 10 J_m;
 mechanical: 6 node torque [N·m], 7 J_node, 8 k_r, 9 c_r, 10 k_f, 11 c_f, 12 lead, 13 MFWD (0/1).
@@ -41,6 +43,24 @@ N_STATE = 17
 
 
 @njit(cache=True)
+def janosi(x):
+    """Janosi–Hanamoto slip function over a contact patch, f(x) = 1 − (1 − e^{−x})/x, x = s/j₀ ≥ 0
+    (:mod:`tractionecu.sim.terramech`)."""
+    if x < 1e-8:
+        return 0.5 * x
+    return 1.0 + math.expm1(-x) / x
+
+
+@njit(cache=True)
+def janosi_slope(x):
+    """df/dx of :func:`janosi`: (1 − e^{−x} − x e^{−x}) / x², series 1/2 − x/3 + x²/8 near zero."""
+    if x < 1e-3:
+        return 0.5 - x / 3.0 + x * x / 8.0
+    e = math.exp(-x)
+    return (1.0 - e - x * e) / (x * x)
+
+
+@njit(cache=True)
 def shape(s, law, s_shape):
     """Normalised slip function f(s), odd in s (see :mod:`tractionecu.sim.tyre`)."""
     sa = abs(s)
@@ -49,6 +69,8 @@ def shape(s, law, s_shape):
     elif law == 1:
         b = math.tan(math.pi / (2.0 * PEAK_C)) / s_shape
         f = math.sin(PEAK_C * math.atan(b * sa))
+    elif law == 3:
+        f = janosi(sa / s_shape)
     else:
         f = 1.0 - math.exp(-((sa / s_shape) ** SIGMOID_K))
     return f if s >= 0.0 else -f
@@ -63,6 +85,8 @@ def shape_slope(s, law, s_shape):
     if law == 1:
         b = math.tan(math.pi / (2.0 * PEAK_C)) / s_shape
         return PEAK_C * math.cos(PEAK_C * math.atan(b * sa)) * b / (1.0 + (b * sa) ** 2)
+    if law == 3:
+        return janosi_slope(sa / s_shape) / s_shape
     u = sa / s_shape
     if u <= 0.0:
         return 0.0

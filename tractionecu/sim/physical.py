@@ -8,7 +8,9 @@ from the filter where real machines do:
 1. **Tyre–soil force** (:mod:`.tyre`): Brixius' mobility-number equations
    from the soil's cone index and the tyre's size and deflection, so μ(s)
    depends on the wheel load and ρ_s on slip; soils with a peaked or
-   sigmoid μ(s); the force builds up over a relaxation length.
+   sigmoid μ(s); the force builds up over a relaxation length.  Or, for soils given by their
+   bevameter parameters (:class:`.terramech.BekkerSoil`), Bekker's pressure–sinkage and
+   Janosi–Hanamoto's shear over the contact patch (:mod:`.terramech`): a μ(s) not of Brixius' family.
 2. **Load transfer from geometry**, every step: the drawbar pull along a
    line of pull (hitch height, hitch behind the rear axle, pull angle),
    acceleration at the centre of gravity, and grade; in turns the
@@ -68,6 +70,7 @@ import numpy as np
 from ..config import G, VehicleParams
 from ..model.mucurve import SOIL_CLASSES
 from . import _physical_kernel as K
+from . import terramech as tm
 from . import tyre as ty
 from .control import Shuttle
 from .drivetrain import RPM, DriveLineSpec
@@ -228,9 +231,15 @@ def simulate_physical(scn):
     if len(ps.soils) != len(fld.regions):
         raise ValueError(f"scenario {scn.name}: {len(ps.soils)} physical soils for {len(fld.regions)} field regions")
 
-    soil_ci = np.array([s.cone_index_pa for s in ps.soils])
-    soil_law = np.array([ty.LAW_ID[s.law] for s in ps.soils], dtype=float)
-    soil_shape = np.array([s.s_shape for s in ps.soils])
+    # Soils of the Bekker / Janosi–Hanamoto model (:mod:`.terramech`) instead of Brixius': all or none.
+    bekker = [isinstance(s, tm.BekkerSoil) for s in ps.soils]
+    if any(bekker) and not all(bekker):
+        raise ValueError(f"scenario {scn.name}: Brixius and Bekker soils in one field are not supported")
+    bekker = all(bekker) and len(ps.soils) > 0
+    if not bekker:
+        soil_ci = np.array([s.cone_index_pa for s in ps.soils])
+        soil_law = np.array([ty.LAW_ID[s.law] for s in ps.soils], dtype=float)
+        soil_shape = np.array([s.s_shape for s in ps.soils])
     soil_draft = np.array([s.draft_factor for s in ps.soils])
     reg_a = np.array([r.a for r in fld.regions])
 
@@ -370,16 +379,24 @@ def simulate_physical(scn):
         dlr = min(max(d_lat * (1 - share_f) / 2, -0.45 * fzr), 0.45 * fzr)
         fz = np.array([fzf / 2 - dlf, fzf / 2 + dlf, fzr / 2 - dlr, fzr / 2 + dlr])
         r = ty.rolling_radius(fz, veh.r0_m, tyre, veh.tyre_pressure_pa)
-        bn = ty.mobility_number(soil_ci[soil_w], fz, veh.tyre_width_m, veh.r0_m, tyre, veh.tyre_pressure_pa)
         g = wheel_speed_ratios(kappa, track, L)
         w[0] = fz
         w[1] = r
         w[2] = g
-        w[3] = 0.88 * (1.0 - np.exp(-0.1 * bn))
-        w[4] = soil_law[soil_w]
-        w[5] = soil_shape[soil_w]
-        w[6] = 1.0 / bn
-        w[7] = 0.5 / np.sqrt(bn)
+        if bekker:
+            for i in range(4):
+                tmax_i, j0_i, rho_c_i = ps.soils[soil_w[i]].terms(fz[i], veh.tyre_width_m, veh.r0_m, tyre,
+                                                                  veh.tyre_pressure_pa)
+                w[3, i], w[5, i], w[6, i] = tmax_i, j0_i, rho_c_i
+            w[4] = tm.LAW_JANOSI
+            w[7] = 0.0
+        else:
+            bn = ty.mobility_number(soil_ci[soil_w], fz, veh.tyre_width_m, veh.r0_m, tyre, veh.tyre_pressure_pa)
+            w[3] = 0.88 * (1.0 - np.exp(-0.1 * bn))
+            w[4] = soil_law[soil_w]
+            w[5] = soil_shape[soil_w]
+            w[6] = 1.0 / bn
+            w[7] = 0.5 / np.sqrt(bn)
         f_ext = fdx + m * G * math.sin(theta) + aero_k * v * abs(v)
         p[4] = f_ext
 

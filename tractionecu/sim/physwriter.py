@@ -460,7 +460,8 @@ def _write_truth(scn, tr, out: Path, b: SensorBiases) -> None:
         lines += ["[[soils]]", f'name = "{r.name}"', f'soil_class = "{r.soil_class}"', f"a = {r.a}", f"rho_s = {r.rho_s}",
                   "polygon = [" + ", ".join(f"[{x}, {y}]" for x, y in r.polygon) + "]",
                   "# a, soil_class: the filter's class that fits this soil's mu(s) best (s 0..0.3, static mean wheel load)",
-                  f"cone_index_pa = {s.cone_index_pa!r}", f'law = "{s.law}"', f"s_shape = {s.s_shape!r}",
+                  *(s.toml_lines() if hasattr(s, "toml_lines") else
+                    [f"cone_index_pa = {s.cone_index_pa!r}", f'law = "{s.law}"', f"s_shape = {s.s_shape!r}"]),
                   "mu_curve_s = " + toml_value([round(float(x), 4) for x in s_grid]),
                   "mu_curve = " + toml_value([round(float(x), 5) for x in mu_grid]),
                   "# the same under the static front and rear wheel loads (mu(s) depends on the load)",

@@ -33,6 +33,7 @@ from .physical import PhysicalSpec, physical_field
 from .plan import back_and_forth, circles, s_curves, straight
 from .simulator import ImplementSpec, Scenario
 from .terrain import Terrain
+from .terramech import WONG_AGRICULTURAL
 from .tyre import PhysSoil
 
 PAPER_SOILS = (
@@ -183,12 +184,12 @@ MECH_TRACTOR = VehicleParams(mass_kg=7200.0, wheel_mass_kg=180.0, rated_power_w=
 """A ≈ 100 kW MFWD tractor (6R / Maxxum class: 2.6 m wheelbase, 7.2 t with front ballast, 40/60)."""
 
 
-def _mechanical(name: str, seed: int, kw: dict, **phys) -> Scenario:
+def _mechanical(name: str, seed: int, kw: dict, soils=PHYSICAL_THREE_SOILS, **phys) -> Scenario:
     plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
     kw.setdefault("vehicle", MECH_TRACTOR)
     kw.setdefault("implement", ImplementSpec(draft_n=21000.0))
     phys.setdefault("axle_load_sensor", False)
-    return _physical(name, PHYSICAL_THREE_SOILS, plan, seed, kw, drivetrain=DriveLineSpec("mechanical"), **phys)
+    return _physical(name, soils, plan, seed, kw, drivetrain=DriveLineSpec("mechanical"), **phys)
 
 
 def mechanical_three_soils(seed: int = 0, **kw) -> Scenario:
@@ -235,6 +236,29 @@ def _scaled_engine(f: float):
                    inertia_kgm2=e.inertia_kgm2 * f)
 
 
+BEKKER_THREE_SOILS = (
+    WONG_AGRICULTURAL["upland-sandy-loam"](),
+    WONG_AGRICULTURAL["north-gower-clayey-loam"](PAPER_SOILS[1].polygon),
+    WONG_AGRICULTURAL["rubicon-sandy-loam"](PAPER_SOILS[2].polygon),
+)
+"""The paper's field with three farm soils given by their bevameter parameters (Wong's terrain values,
+:mod:`.terramech`): Upland sandy loam (firm), North Gower clayey loam (mid), Rubicon sandy loam (soft, loose);
+μ(s) from Janosi–Hanamoto's shear over the tyre's contact patch, ρ_s from Bekker's compaction resistance,
+not Brixius' equations.  Under the static rear wheel load: T_max 0.72 / 0.60 / 0.63, ρ_c 0.032 / 0.006 / 0.024."""
+
+
+def mechanical_bekker_soils(seed: int = 0, **kw) -> Scenario:
+    """``mechanical-three-soils`` (same tractor, implement, passes and bus) on soils whose tyre–soil physics is
+    Bekker / Janosi–Hanamoto instead of Brixius (:data:`BEKKER_THREE_SOILS`): a plant outside the ASABE D497
+    family, for the machine-level μ(s) prior."""
+    return _mechanical("mechanical-bekker-soils", seed, kw, soils=BEKKER_THREE_SOILS)
+
+
+def mechanical_bekker_no_gbsd(seed: int = 0, **kw) -> Scenario:
+    """``mechanical-bekker-soils`` without a ground-speed radar (ground speed from GNSS only)."""
+    return _mechanical("mechanical-bekker-no-gbsd", seed, kw, soils=BEKKER_THREE_SOILS, gbsd=False)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-three-soils": paper_three_soils,
     "paper-straight": paper_straight,
@@ -252,6 +276,8 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "mechanical-no-gbsd": mechanical_no_gbsd,
     "mechanical-no-draft": mechanical_no_draft,
     "ballast-needed": ballast_needed,
+    "mechanical-bekker-soils": mechanical_bekker_soils,
+    "mechanical-bekker-no-gbsd": mechanical_bekker_no_gbsd,
 }
 
 

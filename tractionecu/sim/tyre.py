@@ -180,6 +180,8 @@ def paper_mu(s: ArrayLike, soil: PhysSoil, fz: float, width_m: float, r0_m: floa
     declared tyre loss is taken off, so it is observable from torque (module doc of
     :mod:`tractionecu.sim.physical`).
     """
+    if not isinstance(soil, PhysSoil):   # a soil of another tyre–soil model (e.g. terramech.BekkerSoil)
+        return soil.paper_mu(s, fz, width_m, r0_m, tyre, pressure_pa, rho_t_declared)
     tmax, _, _ = soil_terms(soil, fz, width_m, r0_m, tyre, pressure_pa)
     return tmax * shape(s, LAW_ID[soil.law], soil.s_shape) + (tyre.rho_t - rho_t_declared)
 
@@ -187,5 +189,7 @@ def paper_mu(s: ArrayLike, soil: PhysSoil, fz: float, width_m: float, r0_m: floa
 def paper_rho_s(s: ArrayLike, soil: PhysSoil, fz: float, width_m: float, r0_m: float, tyre: TyreSpec,
                 pressure_pa: float, rho_t_declared: float) -> NDArray[np.float64]:
     """ρ_s(s) in the paper's split: MR − ρ_t,declared = 1/B_n + 0.5 s/√B_n + (ρ_t,tyre − ρ_t,declared) [-]."""
+    if not isinstance(soil, PhysSoil):   # a soil of another tyre–soil model (e.g. terramech.BekkerSoil)
+        return soil.paper_rho_s(s, fz, width_m, r0_m, tyre, pressure_pa, rho_t_declared)
     _, inv_bn, slope = soil_terms(soil, fz, width_m, r0_m, tyre, pressure_pa)
     return inv_bn + slope * np.abs(np.asarray(s, dtype=float)) + (tyre.rho_t - rho_t_declared)
