@@ -95,12 +95,29 @@ class FrameTable:
         return int(self.payload[i]).to_bytes(8, "little")[: int(self.dlc[i])]
 
 
+def _colmax(X: np.ndarray) -> np.ndarray:
+    """Row maxima of a 2-D array with few columns, one column at a time (about 3x faster than
+    ``X.max(axis=1)``, which reduces each short row separately)."""
+    m = X[:, 0].copy()
+    for j in range(1, X.shape[1]):
+        np.maximum(m, X[:, j], out=m)
+    return m
+
+
+def _colmin(X: np.ndarray) -> np.ndarray:
+    """Row minima, as :func:`_colmax`."""
+    m = X[:, 0].copy()
+    for j in range(1, X.shape[1]):
+        np.minimum(m, X[:, j], out=m)
+    return m
+
+
 def _canonical(lines: list[str], idx: np.ndarray, width: int):
     """Parse the lines ``lines[idx]`` (all of length ``width``) as canonical candump lines.
 
     Returns (ok mask, t, can_id, payload) for the rows, values valid where ok.
     """
-    cand = [lines[i] for i in idx]
+    cand = lines if idx.size == len(lines) else [lines[i] for i in idx]   # all lines: idx is 0..n-1
     raw = "".join(cand).encode("utf-8")
     if len(raw) != width * len(cand):                 # a non-ASCII character somewhere
         ascii_ok = np.fromiter((s.isascii() for s in cand), dtype=bool, count=len(cand))
@@ -111,12 +128,12 @@ def _canonical(lines: list[str], idx: np.ndarray, width: int):
           & (A[:, 20 + ch] == 0x20) & (A[:, 29 + ch] == 0x23))
     sec = A[:, 1:11] - np.uint8(0x30)                 # digits map to 0..9, anything else above 9
     usec = A[:, 12:18] - np.uint8(0x30)
-    ok &= (sec.max(axis=1) <= 9) & (usec.max(axis=1) <= 9)
+    ok &= (_colmax(sec) <= 9) & (_colmax(usec) <= 9)
     name = A[:, 20:20 + ch] - np.uint8(0x21)          # printable, no white space: 0x21..0x7E
-    ok &= name.max(axis=1) <= 0x7E - 0x21
+    ok &= _colmax(name) <= 0x7E - 0x21
     hid = _HEXVAL[A[:, 21 + ch:29 + ch]]
     hpl = _HEXVAL[A[:, 30 + ch:46 + ch]]
-    ok &= (hid.min(axis=1) >= 0) & (hpl.min(axis=1) >= 0)
+    ok &= (_colmin(hid) >= 0) & (_colmin(hpl) >= 0)
     n_us = (sec.astype(np.int64) @ _POW10) * 1_000_000 + usec.astype(np.int64) @ _POW10_6
     ok &= n_us < _MAX_EXACT
     can_id = hid.astype(np.int64) @ _POW16
