@@ -200,3 +200,34 @@ def test_reduced_diagnosis_reads_an_unphysical_a_as_a_over_the_power_share_at_th
     lo, hi = sm["power_share_if_a_physical"]
     assert lo <= share <= hi
     assert "a/φ" in rep["statement"]
+
+
+def test_every_term_that_changes_the_wheel_loads_acts_on_the_slip_channel():
+    """The slip channel forms μ = F_x/F_z and the loaded radius from the wheel loads, the rear ones being
+    the weight less the front pin's reading: a term that changes them (a mass the vehicle file lacks, an
+    axle-load offset) must be in the channel's effects, or a fit of it leaves the slip channel on loads
+    short by that much (a rolling-radius error beside a front mass took up Δm g on the rear)."""
+    from tractionecu.diagnose.channels import SLIP_EFFECTS, wheel_kwargs
+    from tractionecu.diagnose.features import wheel_state
+    from tractionecu.model.effects import LIBRARY
+
+    veh = VehicleParams()
+    n = 20
+    fr = Frame(t=np.arange(n) * 0.1, t0_epoch=0.0, rate_hz=10.0, vehicle=veh)
+    fr.omega = np.full((n, 4), 5.0)
+    fr.md = np.full((n, 4), 800.0)
+    fr.fzf = np.full(n, 0.4 * veh.mass_kg * 9.81)
+    base = wheel_state(fr, np.zeros((n, 4)), None)
+    changes_loads = set()
+    for name, d in LIBRARY.items():
+        # Every parameter away from its absence: the library default, or the range's upper end.
+        eff = {name: {p.name: (p.default if p.default not in (0.0, 1.0) else p.hi) for p in d.params}}
+        try:
+            kw = wheel_kwargs(eff, fr)
+        except KeyError:
+            continue
+        ws = wheel_state(fr, np.zeros((n, 4)), None, **kw)
+        if not np.allclose(ws.fz, base.fz):
+            changes_loads.add(name)
+    assert {"mass", "axle_load_offset"} <= changes_loads
+    assert changes_loads <= SLIP_EFFECTS

@@ -734,6 +734,16 @@ ASABE D497 rolling-resistance ratios on firm surfaces are 0.01–0.04, against a
 The range is that difference: a torque-sensor offset or a pressure loss beyond it still shows."""
 
 
+SLIP_EFFECTS = frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
+                          "axle_load_offset", "mass"})
+"""Effects and faults the slip channel's prediction depends on.  Every term that changes the wheel
+loads is one: the rear loads are the weight less the front pin's reading, F_z,rear = (m + Δm) g − F_zf
+(:func:`~.features.wheel_loads`), so a mass the vehicle file lacks (``mass``) changes them as an
+axle-load offset does, and with them the adhesion μ = F_x/F_z and the loaded radius (paper eq. 9) the
+slip is formed with.  Without ``mass`` here a fitted mass left the slip channel with rear loads short by
+Δm g, and the rolling-radius error beside it took up the difference."""
+
+
 class SlipChannel(Channel):
     """Per-wheel slip against the slip the μ(s) curve needs for the measured adhesion.
 
@@ -762,8 +772,7 @@ class SlipChannel(Channel):
               & np.isfinite(ws.mu) & (np.abs(ws.slip) < 0.5))
         ti, wi = np.nonzero(ok)
         super().__init__("slip", "m/s", "per-wheel slip against the slip the μ(s) curve needs",
-                         frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
-                                    "axle_load_offset"}),
+                         SLIP_EFFECTS,
                          fr.t[ti], ti, _fold_of(feat, ti),
                          "soil class shape and curve parameter a per field cell and axle")
         self.ti, self.wi = ti, wi.astype(np.int8)
