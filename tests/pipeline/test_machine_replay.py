@@ -259,3 +259,34 @@ def test_machine_curve_prior_on_the_bus(mech40: Path) -> None:
     replay_streamed(mech40, cfg=EstimatorConfig(machine_curve_prior="d497"), on_estimate=on_estimate)
     assert len(sent) > 20 and {c for c, _ in sent} == {"d497"}
     assert {int(i) for _, i in sent} == {CLASS_CODES["d497"]}
+
+
+def test_a_bekker_soil_recording_replays_and_scores_against_its_own_curve(tmp_path: Path) -> None:
+    """mechanical-bekker-soils (Bekker / Janosi-Hanamoto tyre-soil truth, no Brixius term) replays at machine
+    level, and its curve is scored against the soil's tabulated Janosi curve, not a class: d497's curve, fitted
+    at the same working point, extrapolates far above it (the prior is not the truth's family here)."""
+    rec = tmp_path / "rec"
+    _simulate("mechanical-bekker-soils", rec)
+    cards = {}
+    for prior in ("", "d497"):
+        cfg = tmp_path / f"prior{prior}.toml"
+        cfg.write_text(f'[estimator]\nmachine_curve_prior = "{prior}"\n', encoding="utf-8")
+        run = tmp_path / f"run{prior}"
+        assert main(["replay", str(rec), "--out", str(run), "--no-map", "--config", str(cfg)]) == 0
+        cards[prior] = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    default, d497 = cards[""], cards["d497"]
+    assert default["level"] == "machine" and default["mu_mean_abs_rel_error"] < 0.25
+    assert default["mu_mean_abs_rel_error"] == d497["mu_mean_abs_rel_error"]
+    soils = [n for n, c in default["curves"].items() if math.isfinite(default["r2_mu_curve"].get(n, math.nan))]
+    assert soils
+    import tomllib
+
+    from tractionecu.model.mucurve import curve_class
+    truth = {s["name"]: s for s in tomllib.loads((rec / "truth.toml").read_text(encoding="utf-8"))["soils"]}
+    for n in soils:
+        assert default["curves"][n]["curve_path"] == "class:stubble"
+        assert d497["curves"][n]["curve_path"] == "class:d497"
+        assert truth[n]["traction_model"] == "bekker-janosi-hanamoto" and truth[n]["mu_curve_s"][20] == 0.4
+        # at s = 0.4 the D497 curve through the working point lies > 0.2 above the soil's Janosi curve
+        over = d497["curves"][n]["a_identified"] * float(curve_class("d497").g(0.4)) - truth[n]["mu_curve"][20]
+        assert over > 0.2 and d497["r2_mu_curve"][n] < default["r2_mu_curve"][n]
