@@ -95,6 +95,36 @@ class FrameTable:
         return int(self.payload[i]).to_bytes(8, "little")[: int(self.dlc[i])]
 
 
+class _Uniform:
+    """A block of lines that all have one width ``w``, kept as its text (each line followed by LF) and that
+    text's ASCII bytes: ``lines[i]`` without splitting the block into strings, and the lines as the rows of
+    one byte matrix without joining them again (:func:`_canonical`).  What a capture that holds only
+    canonical frames of one interface is, block after block."""
+
+    def __init__(self, text: str, raw: bytes, w: int) -> None:
+        self.text, self.raw, self.w = text, raw, w
+        self.n = len(text) // (w + 1)
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> str:
+        a = i * (self.w + 1)
+        return self.text[a:a + self.w]
+
+    @staticmethod
+    def of(body: str) -> "_Uniform | None":
+        """The block ``body`` (whole lines, each ended by LF) as a :class:`_Uniform`, if its lines have one
+        width and it is ASCII; else None."""
+        w = body.find("\n")
+        if w < 0 or len(body) % (w + 1) or not body.isascii():
+            return None
+        raw = body.encode("ascii")
+        if not (np.frombuffer(raw, dtype=np.uint8)[w::w + 1] == 0x0A).all():
+            return None
+        return _Uniform(body, raw, w)
+
+
 def _colmax(X: np.ndarray) -> np.ndarray:
     """Row maxima of a 2-D array with few columns, one column at a time (about 3x faster than
     ``X.max(axis=1)``, which reduces each short row separately)."""
@@ -117,12 +147,15 @@ def _canonical(lines: list[str], idx: np.ndarray, width: int):
 
     Returns (ok mask, t, can_id, payload) for the rows, values valid where ok.
     """
-    cand = lines if idx.size == len(lines) else [lines[i] for i in idx]   # all lines: idx is 0..n-1
-    raw = "".join(cand).encode("utf-8")
-    if len(raw) != width * len(cand):                 # a non-ASCII character somewhere
-        ascii_ok = np.fromiter((s.isascii() for s in cand), dtype=bool, count=len(cand))
-        raw = "".join(s if a else "\x00" * width for s, a in zip(cand, ascii_ok)).encode("ascii")
-    A = np.frombuffer(raw, dtype=np.uint8).reshape(-1, width)
+    if isinstance(lines, _Uniform):                   # every line has this width: the rows of the block
+        A = np.frombuffer(lines.raw, dtype=np.uint8).reshape(-1, width + 1)[:, :width]
+    else:
+        cand = lines if idx.size == len(lines) else [lines[i] for i in idx]   # all lines: idx is 0..n-1
+        raw = "".join(cand).encode("utf-8")
+        if len(raw) != width * len(cand):             # a non-ASCII character somewhere
+            ascii_ok = np.fromiter((s.isascii() for s in cand), dtype=bool, count=len(cand))
+            raw = "".join(s if a else "\x00" * width for s, a in zip(cand, ascii_ok)).encode("ascii")
+        A = np.frombuffer(raw, dtype=np.uint8).reshape(-1, width)
     ch = width - 46                                   # interface name length
     ok = ((A[:, 0] == 0x28) & (A[:, 11] == 0x2E) & (A[:, 18] == 0x29) & (A[:, 19] == 0x20)
           & (A[:, 20 + ch] == 0x20) & (A[:, 29 + ch] == 0x23))
@@ -143,15 +176,20 @@ def _canonical(lines: list[str], idx: np.ndarray, width: int):
     return ok, n_us.astype(np.float64) / 1e6, can_id, payload
 
 
-def _scan_lines(lines: list[str], lineno0: int, state: dict, rs: ReadStats, parts: list) -> None:
+def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: ReadStats, parts: list) -> None:
     """Classify one chunk of lines (numbered from lineno0 + 1) into frames and rejects."""
     n = len(lines)
     rs.lines += n
-    lens = np.fromiter(map(len, lines), dtype=np.int64, count=n)
+    if isinstance(lines, _Uniform):                   # one width: all lines or none are candidates
+        lens = None
+        widths = [lines.w] if 47 <= lines.w <= 78 else []
+    else:
+        lens = np.fromiter(map(len, lines), dtype=np.int64, count=n)
+        widths = np.unique(lens[(lens >= 47) & (lens <= 78)]).tolist()
     fast = np.zeros(n, dtype=bool)
     f_idx, f_t, f_id, f_pl = [], [], [], []
-    for width in np.unique(lens[(lens >= 47) & (lens <= 78)]).tolist():
-        idx = np.flatnonzero(lens == width)
+    for width in widths:
+        idx = np.arange(n) if lens is None else np.flatnonzero(lens == width)
         ok, t, cid, pl = _canonical(lines, idx, width)
         if ok.any():
             idx = idx[ok]
@@ -177,14 +215,20 @@ def _scan_lines(lines: list[str], lineno0: int, state: dict, rs: ReadStats, part
         s_ext.append(frame.is_extended)
         s_dlc.append(len(frame.data))
         s_pl.append(int.from_bytes(frame.data, "little"))
-    idx = np.concatenate(f_idx + [np.asarray(s_idx, dtype=np.int64)])
-    t = np.concatenate(f_t + [np.asarray(s_t, dtype=np.float64)])
-    cid = np.concatenate(f_id + [np.asarray(s_id, dtype=np.int64)])
-    ext = np.concatenate([np.ones(sum(a.size for a in f_idx), dtype=bool), np.asarray(s_ext, dtype=bool)])
-    dlc = np.concatenate([np.full(sum(a.size for a in f_idx), 8, dtype=np.int64), np.asarray(s_dlc, dtype=np.int64)])
-    pl = np.concatenate(f_pl + [np.asarray(s_pl, dtype=np.uint64)])
-    order = np.argsort(idx, kind="stable")
-    idx, t, cid, ext, dlc, pl = idx[order], t[order], cid[order], ext[order], dlc[order], pl[order]
+    if len(f_idx) == 1 and not s_idx:                 # one width, no other frame: already in line order
+        idx, t, cid, pl = f_idx[0], f_t[0], f_id[0], f_pl[0]
+        ext = np.ones(idx.size, dtype=bool)
+        dlc = np.full(idx.size, 8, dtype=np.int64)
+    else:
+        idx = np.concatenate(f_idx + [np.asarray(s_idx, dtype=np.int64)])
+        t = np.concatenate(f_t + [np.asarray(s_t, dtype=np.float64)])
+        cid = np.concatenate(f_id + [np.asarray(s_id, dtype=np.int64)])
+        ext = np.concatenate([np.ones(sum(a.size for a in f_idx), dtype=bool), np.asarray(s_ext, dtype=bool)])
+        dlc = np.concatenate([np.full(sum(a.size for a in f_idx), 8, dtype=np.int64),
+                              np.asarray(s_dlc, dtype=np.int64)])
+        pl = np.concatenate(f_pl + [np.asarray(s_pl, dtype=np.uint64)])
+        order = np.argsort(idx, kind="stable")
+        idx, t, cid, ext, dlc, pl = idx[order], t[order], cid[order], ext[order], dlc[order], pl[order]
     # time going backwards: earlier than the last accepted frame = the running maximum before it
     if t.size:
         prev = np.maximum.accumulate(np.concatenate([[state["t_max"]], t]))[:-1]
@@ -219,8 +263,10 @@ def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUN
             block = fh.read(chunk_chars)
             if not block:
                 break
-            lines = (carry + block).split("\n")
-            carry = lines.pop()
+            buf = carry + block
+            cut = buf.rfind("\n") + 1
+            body, carry = buf[:cut], buf[cut:]
+            lines = _Uniform.of(body) or (body[:-1].split("\n") if body else [])
             _scan_lines(lines, lineno0, state, rs, parts)
             lineno0 += len(lines)
             yield FrameTable(*parts.pop())
@@ -268,7 +314,7 @@ def _signal_values(payload: np.ndarray, start: int, length: int, signed: bool, i
 
 
 def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, tp: Reassembler | None = None,
-                 claims: dict | None = None) -> tuple[dict, dict, dict]:
+                 claims: dict | None = None, want: set[str] | frozenset[str] | None = None) -> tuple[dict, dict, dict]:
     """Decode the frames of ``table`` as the per-frame reader does; fills ``stats``.
 
     Returns (messages, signals, claims): ``messages[name] = (lineno, t, sa)`` of
@@ -277,7 +323,8 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
 
     A table read in blocks is decoded block after block with the same ``tp``
     (multi-packet messages that span two blocks) and ``claims`` (added to);
-    ``stats.can_t_first``/``can_t_last`` are those of this table.
+    ``stats.can_t_first``/``can_t_last`` are those of this table.  ``want``: compute the values of these
+    signals only (the others are left out of ``signals``; messages, statistics and claims are unchanged).
     """
     n = len(table)
     if n:
@@ -320,7 +367,8 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
         vals = None
         if p not in NETWORK_MANAGEMENT_PGNS:
             pl = table.payload[rows]
-            vals = {s: _signal_values(pl, st, ln, sg, codec.signals[s]) for s, st, ln, sg in layout}
+            vals = {s: _signal_values(pl, st, ln, sg, codec.signals[s]) for s, st, ln, sg in layout
+                    if want is None or s in want}
         msg_parts.setdefault(info.name, []).append((rows, vals))
     # unknown PGNs and their sources, in order of first appearance
     for p in sorted(unknown_first, key=unknown_first.__getitem__):
@@ -353,7 +401,8 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
                 ex.append(int(table.lineno[i]))
             continue
         rows = np.array([i])
-        vals = None if p in NETWORK_MANAGEMENT_PGNS else {k: np.array([v], dtype=float) for k, v in values.items()}
+        vals = None if p in NETWORK_MANAGEMENT_PGNS else {k: np.array([v], dtype=float) for k, v in values.items()
+                                                          if want is None or k in want}
         msg_parts.setdefault(msg, []).append((rows, vals))
     # per message: rows in file order; messages in order of their first frame
     messages: dict[str, tuple] = {}

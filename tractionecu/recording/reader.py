@@ -83,7 +83,8 @@ __all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", 
 
 def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
                    signals: Mapping[str, tuple[str, float]] | None = None, gps: str | Path | None = None,
-                   clock: str = "auto", keep: Callable[[str, set[str]], bool] | None = None) -> Recording:
+                   clock: str = "auto", keep: Callable[[str, set[str]], bool] | None = None,
+                   reference: bool = False) -> Recording:
     """Read a recording directory (or a lone candump file) into a :class:`Recording`.
 
     ``dbc``: the owner's DBC files, added to ``codec``'s (default: the
@@ -95,6 +96,9 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     ``clock``: ``auto``, ``report`` or ``keep`` (module doc, "Clocks").
     ``keep(name, names seen)``: False keeps only a stub of that signal (its first and last time and
     first number): a survey of a long recording that the replay then streams (:mod:`.chunks`).
+    ``reference``: read the GNSS log sentence by sentence (:func:`.gps.read_gps_reference`) instead of
+    through the NMEA fast path; the same recording (``tests/recording/test_reader_fast.py``), for the
+    equality tests and ``benchmarks/decode.py``.
 
     Raises :class:`~tractionecu.errors.RecordingError` naming the file (and
     line) when the path is missing, ``can.log`` is missing, unreadable,
@@ -128,7 +132,7 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     if gps_path is not None and (gps is not None or gps_path.exists()):
         if not gps_path.is_file():
             raise RecordingError(f"{gps_path}: no such GNSS file")
-        track = read_gps(gps_path, can_t0, stats)
+        track = read_gps(gps_path, can_t0, stats, fast=not reference)
     else:
         stats.gps_alignment = f"no {GPS_FILE}"
     _reconcile_clocks(can_path, decoded, track, stats, clock)
@@ -153,24 +157,38 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
 
 def stream_signals(rec: Recording, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
                    signals: Mapping[str, tuple[str, float]] | None = None, names: Sequence[str] | None = None,
-                   ) -> Iterator[tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]]:
+                   reference: bool = False) -> Iterator[tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]]:
     """The CAN signals of ``rec`` read again block by block: ``(block, before)`` pairs, ``block`` mapping
     each signal (of ``names``, default all) to ``(t, value)`` with the clock offset ``rec`` found applied
     and owner mappings resolved as :func:`read_recording` does, ``before`` the block's last frame time
     (later blocks hold nothing earlier).  ``codec``, ``dbc`` and ``signals`` must be those ``rec`` was read
-    with.  Memory is that of one block (:mod:`.chunks`)."""
+    with.  Memory is that of one block (:mod:`.chunks`).
+
+    The survey (``rec``) already holds the capture's statistics, so the blocks are decoded without them
+    (:func:`.fastdecode.decode_table` alone, the values of the wanted signals and their mapping sources
+    only); ``reference`` decodes them as the survey does (:class:`.chunks.ChunkDecoder`, every signal), the
+    same blocks (``tests/recording/test_reader_fast.py``)."""
+    from ..bus.transport import Reassembler
     from .chunks import ChunkDecoder, open_tables
+    from .fastdecode import decode_table
 
     root, can_path, codec, mapping = _resolve(rec.path, codec, dbc, signals)
     rs = ReadStats(source=can_path.name)
     _fmt, blocks = open_tables(can_path, rs)
-    dec = ChunkDecoder(codec, RecordingStats())
+    scratch = RecordingStats()
+    dec = ChunkDecoder(codec, scratch)
+    tp, claims = Reassembler(), {}
     off = rec.stats.clock_offset_s
     want = None if names is None else set(names)
+    decode_want = None if want is None else want | {src for target, src, _ in mapping if target in want}
     for table in blocks:
         if not len(table):
             continue
-        got = dec.decode(table)
+        if reference:
+            got = dec.decode(table)
+        else:
+            got = {name: (t, v, sa) for name, (_lines, t, v, sa) in decode_table(
+                table, codec, scratch, MAX_EXAMPLES, tp=tp, claims=claims, want=decode_want)[1].items()}
         for target, src, scale in mapping:
             if src in got:
                 t, v, sa = got[src]

@@ -1,0 +1,192 @@
+"""The recording reader's fast paths against its reference paths, array for array.
+
+``read_recording`` (NMEA fast path, epochs assembled and aligned as lists) against
+``read_recording(reference=True)`` (sentence by sentence through parse_line, EpochAssembler, align_gps);
+``stream_signals`` (blocks decoded without statistics, wanted signals only) against
+``stream_signals(reference=True)`` (ChunkDecoder, every signal).  On simulated recordings of several
+scenarios (GNSS latency, a physical truth, reversing), one with GNSS outages and corrupted NMEA and candump
+lines, the fixtures in tests/data, and an owner-mapped capture.
+"""
+
+from __future__ import annotations
+
+import random
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tractionecu.bus.candump import format_line
+from tractionecu.gnss.nmea import checksum
+from tractionecu.pipeline.survey import survey_keep
+from tractionecu.recording import fastdecode
+from tractionecu.recording.containers import GPS_FIELDS
+from tractionecu.recording.reader import read_recording, stream_signals
+
+REPO = Path(__file__).resolve().parents[2]
+DATA = REPO / "tests" / "data"
+
+
+def _bits(a: np.ndarray) -> tuple:
+    return a.dtype.str, a.shape, a.tobytes()
+
+
+def assert_same_recording(a, b) -> None:
+    assert list(a.signals) == list(b.signals)
+    for name in a.signals:
+        x, y = a.signals[name], b.signals[name]
+        assert x.unit == y.unit and all(_bits(getattr(x, f)) == _bits(getattr(y, f)) for f in ("t", "value", "sa")), name
+    for f in ("t",) + GPS_FIELDS:
+        assert _bits(getattr(a.gps, f)) == _bits(getattr(b.gps, f)), f
+    assert repr(a.stats) == repr(b.stats)
+    assert a.signal_sources == b.signal_sources and a.units == b.units
+
+
+def assert_same_stream(rec, names) -> int:
+    ref = list(stream_signals(rec, names=names, reference=True))
+    new = list(stream_signals(rec, names=names))
+    assert len(ref) == len(new) > 0
+    for (ba, before_a), (bb, before_b) in zip(ref, new):
+        assert repr(before_a) == repr(before_b)
+        assert list(ba) == list(bb)
+        for name in ba:
+            assert all(_bits(x) == _bits(y) for x, y in zip(ba[name], bb[name])), name
+    return len(ref)
+
+
+def _simulate(out: Path, name: str, seed: int, effects: dict | None = None) -> Path:
+    from tractionecu.sim import scenarios
+    from tractionecu.sim.simulator import simulate
+    from tractionecu.sim.writer import write_recording
+
+    scn = scenarios.get(name, seed=seed, effects=effects or {}, duration_s=15.0)
+    write_recording(scn, simulate(scn), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory) -> dict[str, Path]:
+    from tractionecu.model.effects import parse_effect_arg
+
+    base = tmp_path_factory.mktemp("recs")
+    out = {
+        "paper-three-soils": _simulate(base / "p", "paper-three-soils", 0),
+        "paper-latency": _simulate(base / "l", "paper-three-soils", 4, dict([parse_effect_arg("gps_latency=0.15")])),
+        "headland-reverse": _simulate(base / "h", "headland-reverse", 1),
+        "biased-sensors": _simulate(base / "b", "biased-sensors", 2),
+        "physical-headland-reverse": _simulate(base / "ph", "physical-headland-reverse", 3),
+    }
+    # GNSS outages, a receiver without a fix, corrupted sentences; candump lines of the canonical width
+    # with bad hex, a bad time and a time going backwards, and a blank line
+    src = out["biased-sensors"]
+    d = base / "damaged"
+    shutil.copytree(src, d)
+    rng = random.Random(11)
+    nmea = (d / "gps.nmea").read_text().splitlines()
+    def resign(line: str, i: int, value: str) -> str:           # field i replaced, checksum recomputed
+        f = line[1:-3].split(",")
+        f[i] = value
+        body = ",".join(f)
+        return f"${body}*{checksum(body)}"
+
+    # the merge's precedence: VTG course and speed unlike RMC's, GGA without position or altitude, ZDA
+    # dates, RMC without a mode, sentences in another order
+    n = len(nmea)
+    for k in range(60, n // 2, 7):
+        typ = nmea[k][3:6]
+        if typ == "VTG":
+            nmea[k] = resign(resign(nmea[k], 1, f"{k % 360}.25"), 5, "")
+        elif typ == "GGA":
+            nmea[k] = resign(resign(resign(nmea[k], 2, ""), 3, ""), 9, "") if k % 2 else resign(nmea[k], 7, "")
+        elif typ == "RMC":
+            nmea[k] = resign(nmea[k], 12, "") if k % 2 else resign(nmea[k], 2, "V")
+    for k in range(n // 2, n // 2 + 80, 9):
+        tod = nmea[k].split(",")[1]
+        zda = f"GNZDA,{tod},10,07,2026,00,00"
+        nmea.insert(k, f"${zda}*{checksum(zda)}")
+    nmea[n // 2 + 100], nmea[n // 2 + 101] = nmea[n // 2 + 101], nmea[n // 2 + 100]
+    for _ in range(4):
+        a = rng.randrange(len(nmea) - 30)
+        del nmea[a:a + rng.randrange(3, 30)]
+    nofix = "GNGGA,,,,,,0,00,99.99,,,,,,"
+    nmea[40:40] = [f"${nofix}*{checksum(nofix)}", nmea[41][:-1] + "0", nmea[42].replace(",", ", ", 1), "junk",
+                   nmea[43].lower(), ""]
+    (d / "gps.nmea").write_text("\r\n".join(nmea) + "\r\n")
+    can = (d / "can.log").read_text().splitlines()
+    w = len(can[100])
+    can[100] = can[100][:-1] + "G"                    # bad hex, same width
+    can[200] = can[200][:3] + "x" + can[200][4:]      # bad time, same width
+    can[300] = can[290]                               # time going backwards, same width
+    can[400] = " " * w                                # blank, same width
+    can.insert(500, "")
+    (d / "can.log").write_text("\n".join(can) + "\n")
+    out["damaged"] = d
+    return out
+
+
+@pytest.mark.parametrize("chunk", [fastdecode.CHUNK_CHARS, 30_011])
+def test_read_recording_equals_reference(recordings, monkeypatch, chunk):
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", chunk)
+    for name, path in recordings.items():
+        new = read_recording(path)
+        assert len(new.gps) > 20, name
+        assert_same_recording(new, read_recording(path, reference=True))
+        assert_same_recording(read_recording(path, keep=survey_keep),
+                              read_recording(path, keep=survey_keep, reference=True))
+    st = read_recording(recordings["damaged"]).stats
+    assert st.files["gps.nmea"].total_rejected >= 3 and st.files["can.log"].total_rejected >= 3
+
+
+def test_stream_equals_reference(recordings, monkeypatch):
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", 30_011)      # several blocks
+    for name, path in recordings.items():
+        rec = read_recording(path, keep=survey_keep)
+        names = sorted(rec.signals)
+        assert assert_same_stream(rec, None) > 3, name
+        assert_same_stream(rec, names[::3])
+        assert_same_stream(rec, [n for n in names if n.startswith(("WheelSpeed", "DriveTorque"))])
+
+
+def test_fixtures_equal_reference(tmp_path):
+    for log in sorted((DATA / "candump").glob("*.log")):
+        assert_same_recording(read_recording(log), read_recording(log, reference=True))
+    # the mixed NMEA fixture beside a capture whose clock matches its dated epoch
+    d = tmp_path / "mixed"
+    d.mkdir()
+    shutil.copy(DATA / "nmea" / "mixed.nmea", d / "gps.nmea")
+    t0 = 1_039_426_045.0                                # 2002-12-09 09:27:25 UTC, the fixture's GGA
+    (d / "can.log").write_text("\n".join(format_line(t0 + 0.01 * k, "can0", 0x18FEF1FE, True, bytes(8))
+                                         for k in range(50)) + "\n")
+    for clock in ("keep", "report"):
+        assert_same_recording(read_recording(d, clock=clock), read_recording(d, clock=clock, reference=True))
+
+
+def test_owner_mapping_streams_equal_reference(tmp_path):
+    import struct
+
+    d = tmp_path / "rec"
+    d.mkdir()
+    t0 = 1_715_940_000.0
+    lines = []
+    for k in range(400):
+        t = t0 + 0.01 * k
+        lines.append(format_line(t, "can0", 0x18FF5527, True, struct.pack("<4H", 2865 + k, 2870, 2800, 2810)))
+        if k % 2 == 0:
+            lines.append(format_line(t + 0.001, "can0", 0x18FF5627, True,
+                                     bytes([k % 16, 128]) + struct.pack(">h", -1234 + k) + b"\xff" * 4))
+    (d / "can.log").write_text("\n".join(lines) + "\n")
+    (d / "vehicle.toml").write_text(
+        "[vehicle]\nmass_kg = 4000.0\n\n[signals]\n"
+        'WheelSpeed_FL = { signal = "DriveCtrl_3.WhlSpdFL", scale = 0.10471975511965977 }\n'
+        'DraftForce = { signal = "DriveCtrl_4.HitchDraft", scale = 1000 }\n')
+    dbc = [DATA / "dbc" / "owner_drivectrl.dbc"]
+    rec = read_recording(d, dbc=dbc, keep=survey_keep)
+    for names in (None, ["WheelSpeed_FL", "DraftForce"], ["WheelSpeed_FL"]):
+        ref = list(stream_signals(rec, dbc=dbc, names=names, reference=True))
+        new = list(stream_signals(rec, dbc=dbc, names=names))
+        assert [list(b) for b, _ in ref] == [list(b) for b, _ in new]
+        for (ba, _), (bb, _) in zip(ref, new):
+            for name in ba:
+                assert all(_bits(x) == _bits(y) for x, y in zip(ba[name], bb[name])), name
+    assert "WheelSpeed_FL" in new[0][0]
