@@ -23,10 +23,18 @@ A lost filter marks the estimates since its ``lost_since`` not valid with ``FILT
 path does; the rows are selected only once they are older than the window a lost filter may reach
 back (``lost_after_s`` + ``max_gap_s`` + 1 s).
 
-Contract: the estimates equal the step path's to 1e-9 in every column (``tests/estimation/test_batch.py``;
-with the same estimator stepped they are equal bit for bit).  The estimator loop itself is the step
-path's Python :meth:`Estimator.step`; it is not compiled over arrays (see README, "Fleet": what the
-batch path saves and what is left).
+The estimator loop: where :func:`tractionecu.estimation.compiled_loop.supported` covers the machine's
+estimator (the hub estimator, numba on, no feature a vehicle file switches on: a declared hub efficiency
+or drag, tyre carcass or two-inertia hub), each block's step arguments go to the compiled loop
+(:class:`~tractionecu.estimation.compiled_loop.CompiledLoop`) as one array and come back as the block's
+estimate arrays; it returns to Python only for the μ(s) curve, the radius calibration, the adaptation
+period's fuzzy factor and systematic uncertainty, the filter's (re)initialisation and the rare general
+update, calling the estimator's own objects.  Otherwise (the machine-level estimator, those features,
+an ``on_estimate`` callback, or ``compiled=False``) the loop is the step path's Python
+:meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
+
+Contract: the estimates equal the step path's to 1e-9 in every column (``tests/pipeline/test_batch.py``,
+``tests/estimation/test_compiled_loop.py``).
 """
 
 from __future__ import annotations
@@ -55,6 +63,15 @@ _FIELDS = attrgetter(*SCALARS, "nis_dof", "status", "valid", "mu", "slip", "omeg
                      "radius_scale", "radius_halfwidth", "radius_applied", "soil_class", "curve_state")
 
 __all__ = ["BLOCK", "BatchSink", "max_differences", "replay_batch", "replay_batch_rows"]
+
+
+class _Ready:
+    """A block already made into arrays (by the compiled loop), kept as one batch of the sink."""
+
+    __slots__ = ("arr",)
+
+    def __init__(self, arr: dict[str, Any]) -> None:
+        self.arr = arr
 
 
 class BatchSink(_Sink):
@@ -90,6 +107,27 @@ class BatchSink(_Sink):
         for e in es:
             self.keep(e)
 
+    def keep_arrays(self, arr: dict[str, Any]) -> None:
+        """A block of estimates as arrays (:meth:`CompiledLoop.arrays
+        <tractionecu.estimation.compiled_loop.CompiledLoop.arrays>`, with ``lost_since``): the same books as
+        :meth:`keep` of each estimate in turn (a batch ends on each step that declares the filter lost,
+        which then marks the lost period)."""
+        lost = arr.pop("lost_since")
+        n = lost.size
+        start = 0
+        for i in np.flatnonzero(~np.isnan(lost)).tolist():
+            self._keep_ready(arr, start, i + 1, n)
+            self._mark_lost(float(lost[i]))
+            start = i + 1
+        if start < n:
+            self._keep_ready(arr, start, n, n)
+
+    def _keep_ready(self, arr: dict[str, Any], start: int, stop: int, n: int) -> None:
+        self._flush()
+        part = arr if start == 0 and stop == n else _rows(arr, np.arange(start, stop))
+        self.batch.append(_Ready(part))      # type: ignore[arg-type]
+        self._flush()
+
     def _pends(self) -> bool:
         return self.rate_hz is not None
 
@@ -101,6 +139,8 @@ class BatchSink(_Sink):
 
     # ------------------------------------------------------------------ conversion
     def _to_arrays(self, b: list[Estimate]) -> dict[str, Any]:
+        if len(b) == 1 and type(b[0]) is _Ready:
+            return b[0].arr                        # type: ignore[attr-defined]
         n = len(b)
         rows = [_FIELDS(e) for e in b]
         cols = list(zip(*rows))
@@ -202,6 +242,9 @@ def _batch_run_class() -> type:
     from .replay import _Run
 
     class _BatchRun(_Run):
+        loop: Any = None
+        """The compiled loop (:class:`~tractionecu.estimation.compiled_loop.CompiledLoop`), or None."""
+
         def _step(self, grid: np.ndarray) -> None:
             n = grid.size
             if n == 0:
@@ -213,6 +256,13 @@ def _batch_run_class() -> type:
 
                 streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
                 streams.append((GNSS_COURSE, False, *self.course.at(grid)))
+            loop = self.loop
+            if loop is not None:
+                wall = time.perf_counter()
+                out = loop.step_block(loop.block_inputs(grid, streams))
+                self.loop_seconds += time.perf_counter() - wall
+                self.sink.keep_arrays(loop.arrays(out))
+                return
             wall = time.perf_counter()
             inputs: list[dict[str, Any]] = [{} for _ in range(n)]
             meas: list[dict[str, Any]] = [{} for _ in range(n)]
@@ -255,7 +305,8 @@ def _open(recording: Any) -> tuple[Any, bool]:
 
 def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: EstimatorConfig | None, sensors: Any,
          gate: Any, on_estimate: Callable[[Estimate], None] | None,
-         make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None) -> tuple[Any, Any, BatchSink]:
+         make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None,
+         compiled: bool | None = None) -> tuple[Any, Any, BatchSink]:
     from .gnss import GnssGate
     from .replay import MissingSignals, machine_of
     from .signals import required_missing
@@ -272,6 +323,11 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()
     run = _batch_run_class()(rec, rate_hz, vehicle, sensors or s0, cfg, gate or GnssGate(), sink, on_estimate)
+    run.loop_used = loop_choice(run.est, compiled, on_estimate)
+    if run.loop_used == "compiled":
+        from ..estimation.compiled_loop import CompiledLoop
+
+        run.loop = CompiledLoop(run.est)
     if streamed:
         names = {nm for grp in run.groups for nm in grp.names}
         for block, before in stream_signals(rec, names=sorted(names)):
@@ -282,23 +338,42 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     return rec, run, sink
 
 
+def loop_choice(est: Any, compiled: bool | None, on_estimate: Any = None) -> str:
+    """Which estimator loop batch replay runs: ``"compiled"``, or ``"python: <why>"`` (module doc).
+    ``compiled``: None the compiled loop where supported, False never, True where supported (the same)."""
+    if compiled is False:
+        return "python: compiled=False"
+    if on_estimate is not None:
+        return "python: an on_estimate callback needs the Estimate objects"
+    from ..estimation.compiled_loop import supported
+
+    ok, why = supported(est)
+    return "compiled" if ok else f"python: {why}"
+
+
+def _counters(run: Any) -> dict[str, int]:
+    return run.loop.counters if run.loop is not None else dict(run.est.counters)
+
+
 def replay_batch(recording: Any, *, rate_hz: float = 100.0, cfg: EstimatorConfig | None = None,
                  sensors: Any = None, gate: Any = None,
-                 on_estimate: Callable[[Estimate], None] | None = None) -> Any:
+                 on_estimate: Callable[[Estimate], None] | None = None, compiled: bool | None = None) -> Any:
     """The estimates of every step of ``recording`` (a path, streamed, or a
     :class:`~tractionecu.recording.reader.Recording`) as a :class:`~tractionecu.pipeline.replay.ReplayResult`
-    (the step path's :func:`~tractionecu.pipeline.replay.replay` keys, plus ``curve_path``)."""
+    (the step path's :func:`~tractionecu.pipeline.replay.replay` keys, plus ``curve_path``).  ``compiled``:
+    see :func:`loop_choice`; the result's ``loop`` attribute says which loop ran."""
     from .replay import ReplayResult
 
     rec, run, sink = _run(recording, BatchSink(keep_all=True), rate_hz=rate_hz, cfg=cfg, sensors=sensors,
-                          gate=gate, on_estimate=on_estimate)
-    return ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss,
-                        run.loop_seconds)
+                          gate=gate, on_estimate=on_estimate, compiled=compiled)
+    res = ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, _counters(run), run.gnss, run.loop_seconds)
+    res.loop = run.loop_used                  # type: ignore[attr-defined]
+    return res
 
 
 def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, estimate_rate_hz: float = 1.0,
                       cfg: EstimatorConfig | None = None, sensors: Any = None, gate: Any = None,
-                      map_rows: bool = True) -> dict[str, Any]:
+                      map_rows: bool = True, compiled: bool | None = None) -> dict[str, Any]:
     """Replay ``recording`` keeping only the estimates at ``estimate_rate_hz`` (the first step at or after
     each 1/rate boundary; 0: every step) and, with ``map_rows``, the map's steps (one per GNSS epoch, the
     ones :func:`~tractionecu.mapping.from_replay.write_replay_map` samples).
@@ -306,7 +381,8 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
     Returns ``recording`` (the :class:`~tractionecu.recording.reader.Recording`, a survey when streamed),
     ``rows`` (arrays at the rate), ``map`` (arrays of the map's steps), ``steps``, ``sim_seconds``,
     ``valid_steps`` and ``steps_finite`` (steps with a finite time), ``gps_mask``, ``counters``, ``gnss``,
-    ``loop_seconds``, ``radius_calibration`` (:meth:`Estimator.calibration_summary`).
+    ``loop_seconds``, ``radius_calibration`` (:meth:`Estimator.calibration_summary`) and ``loop`` (which
+    estimator loop ran, :func:`loop_choice`; ``compiled`` chooses as there).
     """
     if not estimate_rate_hz >= 0:
         raise ConfigError(f"estimate_rate_hz: must be >= 0, got {estimate_rate_hz}")
@@ -316,13 +392,14 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
                          map_times=rec.gps.t if map_rows and len(rec.gps) else None)
 
     rec, run, sink = _run(recording, None, rate_hz=rate_hz, cfg=cfg, sensors=sensors, gate=gate,
-                          on_estimate=None, make_sink=make)
+                          on_estimate=None, make_sink=make, compiled=compiled)
     est = run.est
     return {"recording": rec, "rows": sink.rate_arrays(), "map": sink.map_arrays(), "steps": sink.rows,
             "sim_seconds": sink.t_last - sink.t_first if sink.rows > 1 else 0.0,
             "valid_steps": sink.steps_valid, "steps_finite": sink.steps_finite, "gps_mask": run.gps_mask,
-            "counters": dict(est.counters), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
-            "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {}}
+            "counters": _counters(run), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
+            "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {},
+            "loop": run.loop_used}
 
 
 # ----------------------------------------------------------------------------- the contract

@@ -1,0 +1,498 @@
+"""The estimator's step compiled over a block of steps, for batch replay (where latency does not matter).
+
+:class:`CompiledLoop` runs :meth:`Estimator.step <.estimator.Estimator.step>` over the step arguments of a
+whole block (arrays, one row per step) and returns the block's estimates as arrays.  What it compiles
+(numba, :mod:`._loop_kernel`), in the step path's order and with its operations:
+
+* the input holds and their rejection, the bus-rate trackers and the timeouts (:mod:`.rates`), the
+  direction of travel and the GNSS course test, the curvature filter (:mod:`.kinematics`);
+* Q (its rebuild, the torque and curvature terms), the prediction with its sub-steps (the compiled
+  filter core :func:`._kernels.predict_model`), the first-order hold and the torque feed-forward;
+* the measurement update of contiguous outputs (:func:`._kernels.update_block`), covariance
+  matching's window, the divergence and dynamics monitors, the estimate's outputs
+  (:func:`._kernels.estimate_outputs`), convergence with its hysteresis, standstill, the held values,
+  the averaged slip's sums and candidate stretches, the status bits and the reported σ.
+
+It returns to Python at the events that need Python objects, and calls the SAME objects the step path
+calls (those of the :class:`~.estimator.Estimator` it was built from), so their results feed back
+identically:
+
+* the μ(s) curve at its updates (``curve_period_s``, :class:`~.curve.CurveEstimator`), and the
+  identified curve's slope when an averaged slip is weighed;
+* the radius calibration at GNSS epochs (:class:`~.calibration.RadiusCalibration`);
+* the adaptation period: the fuzzy factor (:class:`~.supervisor.FuzzySupervisor`), the systematic
+  uncertainty (:class:`~.uncertainty.SystematicUncertainty`), covariance matching's ratio;
+* the filter's initialisation (:meth:`Estimator._init_filter`), a prediction whose covariance needs
+  the Cholesky repair, a non-finite prediction (:meth:`Estimator._recover`) and an update that the
+  compiled block update leaves to the general path (a gated or non-finite component): these run on
+  the estimator's own :class:`~.ukf.UnscentedFilter`, its state set from the compiled one and read back.
+
+Coverage (:func:`supported`): the hub estimator (:class:`~.estimator.Estimator` itself) with numba on, on
+a vehicle without the features a vehicle file switches on (a declared hub efficiency or drag, a tyre
+carcass, a two-inertia hub).  Anything else (the machine-level estimator, those features, numba off) is
+not covered: :func:`supported` says why, and batch replay runs the step path's Python estimator instead.
+
+Contract: every estimate column equal to the step path's to 1e-9 (``tests/estimation/test_compiled_loop.py``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import EstimatorError
+from ..model.vehicle import IX_MU, IX_V, JIT, wheel_speed_factor_slopes
+from . import _kernels
+
+__all__ = ["CompiledLoop", "supported"]
+
+_OUT_NAMES = ("t", "rho_s", "v", "nis", "adapt", "sigma_rho_s")
+
+
+def supported(est: Any) -> tuple[bool, str]:
+    """(whether :class:`CompiledLoop` covers this estimator, why not)."""
+    from .estimator import Estimator
+
+    if not JIT:
+        return False, "numba is off (TRACTIONECU_JIT=0 or not installed)"
+    if type(est) is not Estimator:
+        return False, f"{type(est).__name__} is not the hub estimator the compiled loop ports"
+    if getattr(est, "_eta", 1.0) != 1.0 or getattr(est, "_drag", 0.0) != 0.0:
+        return False, "the vehicle declares a hub efficiency or drag (drivetrain)"
+    if est.model.cx != 0.0 or getattr(est, "_cx", 0.0) != 0.0:
+        return False, "the vehicle declares a tyre carcass (tyre_carcass_stiffness_npm)"
+    if getattr(est, "_hub", None) is not None or getattr(est.model, "hub", None) is not None:
+        return False, "the vehicle declares a two-inertia hub"
+    if est.ukf is not None or est.counters["steps"]:
+        return False, "the estimator has already been stepped (the compiled loop starts from a reset one)"
+    return True, ""
+
+
+class CompiledLoop:
+    """The compiled step of ``est`` (module doc); ``est`` must be fresh (reset) and :func:`supported`.
+
+    :meth:`step_block` takes the step arguments of a block (:meth:`block_inputs`) and returns its estimates
+    as an array (columns ``_loop_kernel.OUT_*``); :meth:`arrays` turns that into the batch sink's arrays.
+    ``est`` keeps serving as the home of the Python objects (curve, calibration, supervisor, uncertainty,
+    the filter object of the general paths); its own step state is not kept up to date.
+    """
+
+    def __init__(self, est: Any) -> None:
+        from . import _loop_kernel as K
+        from .ukf import UnscentedFilter
+
+        ok, why = supported(est)
+        if not ok:
+            raise ValueError(f"compiled loop: not supported: {why}")
+        self.K = K
+        self.est = est
+        cfg = est.cfg
+        self.cfg = cfg
+        F = np.zeros(K.F_SIZE)
+        I = np.zeros(K.I_SIZE, dtype=np.int64)
+        o = K.F_OFF
+        veh = est.vehicle
+        const = {
+            "c_max_gap": cfg.max_gap_s, "c_max_step": cfg.max_step_s, "c_standstill": cfg.standstill_speed_mps,
+            "c_dir_min": cfg.direction_min_speed_mps, "c_gps_timeout": cfg.gps_timeout_s,
+            "c_wabs": est._w_abs, "c_wrel": est._w_rel, "c_wq2": est._w_q2, "c_rv": est._r_v,
+            "c_tqabs": est._tq_abs, "c_tqrel": est._tq_rel, "c_tqq2": est._tq_q2, "c_fzvar": est._fz_var,
+            "c_fdvar": est._fd_var, "c_weight": est._weight, "c_J": est.J, "c_m": est.m, "c_hb": est._hb,
+            "c_wb": veh.wheelbase_m, "c_rho_t": veh.rho_t, "c_gate": est._gate,
+            "c_cmu": cfg.conv_sigma_mu ** 2, "c_crho": cfg.conv_sigma_rho ** 2,
+            "c_exit2": cfg.conv_exit_factor * cfg.conv_exit_factor, "c_conv_min": cfg.conv_min_s,
+            "c_curve_period": cfg.curve_period_s, "c_curve_minspd": cfg.curve_min_speed_mps,
+            "c_slip_max": cfg.slip_sigma_max, "c_avg_max": cfg.slip_avg_max_m, "c_avg_corr": cfg.slip_avg_corr_s,
+            "c_adapt_period": cfg.adapt_period_s, "c_dyn_tau": est._dyn.tau,
+            "c_lost_after": est._monitor.lost_after_s, "c_mon_rho_max": est._monitor.rho_max,
+            "c_mon_minspd": est._monitor.min_speed, "c_rate_k": est._rates.k,
+            "c_rate_maxint": next(iter(est._rates.trackers.values())).max_interval_s,
+            "c_kin_b": est._kin.b, "c_kin_csig": est._kin.course_sigma, "c_kin_minspd": est._kin.min_speed,
+            "c_kin_varbeta": est._kin.var_beta, "c_tanpull": est.model.tan_pull,
+        }
+        for name, val in const.items():
+            F[o[name]] = val
+        F[o["c_mon_bound"]:o["c_mon_bound"] + 9] = est._monitor._bound
+        probe = UnscentedFilter(est.model.step, np.zeros(10), np.eye(10), range(5), alpha=cfg.alpha, beta=cfg.beta,
+                                kappa=cfg.kappa)
+        F[o["c_w"]:o["c_w"] + 43] = probe._w
+        F[o["c_kc"]:o["c_kc"] + 16] = est.model._kc
+        F[o["c_lo"]:o["c_lo"] + 10] = est._lo
+        F[o["c_hi"]:o["c_hi"] + 10] = est._hi
+        F[o["c_qtune"]:o["c_qtune"] + 10] = est._q_tune
+        # the reset estimator's state
+        F[o["u"]:o["u"] + 7] = est._u
+        F[o["A"]:o["A"] + 10] = est._A
+        scal = {"t": math.nan, "t_init": math.nan, "kapvar": est._kappa_var, "md_sum": est._md_sum,
+                "t_omega": est._t_omega, "t_v": est._t_v, "t_upd_w": est._t_upd_w, "t_upd_v": est._t_upd_v,
+                "last_vmeas": math.nan, "dir": est._dir, "dir_bus": est._dir_bus, "t_dir_bus": est._t_dir_bus,
+                "f": est._f, "Qdt": est._Qdt, "tq_gain": est._tq_gain, "adapt_mu": est._adapt_mu,
+                "t_adapt": est._t_adapt, "t_curve": est._t_curve, "r_lat": est._r_lat, "kf": est._kf,
+                "kr": est._kr, "last_nis": math.nan}
+        for name, val in scal.items():
+            F[o[name]] = val
+        F[o["tin"]:o["tin"] + 3] = [est._t_in[key] for key in ("Md", "Fzf", "Fdx")]
+        F[o["dm_var"]:o["dm_var"] + 4] = est._dm_var
+        F[o["rad"]:o["rad"] + 6] = np.concatenate(est._rad)
+        dyn = est._dyn
+        F[o["dyn"]:o["dyn"] + 7] = [0.0, dyn._v, dyn._m, dyn.accel, dyn.torque_rate, dyn._dt, dyn._k]
+        F[o["mon"]:o["mon"] + 4] = math.nan
+        kin = est._kin
+        F[o["kin"]:o["kin"] + 12] = [kin.h, kin.P[0], kin.P[1], kin.P[2], kin.beta, kin.kappa_w, kin.var_w,
+                                     kin._k_raw, kin._var_raw, kin.v, kin._t, kin._tw]
+        keys = ("Md", "Fzf", "Fdx", "omega", "v")
+        for j, key in enumerate(keys):
+            tr = est._rates.trackers[key]
+            F[o["rates"] + 6 * j:o["rates"] + 6 * j + 6] = [tr.period, tr._last, tr._gap_s, tr.nominal_s,
+                                                              est._rates.floors_s[key], est._rates.timeout_s[key]]
+        io = K.I_OFF
+        I[io["cm_M"]] = cfg.adapt_window
+        I[io["r_window"]] = cfg.rate_window
+        I[io["f_cal"]] = est._cal is not None
+        I[io["f_adapt"]] = bool(cfg.adaptation)
+        I[io["f_input_noise"]] = bool(cfg.input_noise)
+        self.F, self.I = F, I
+        self.CM = np.zeros((2 * cfg.adapt_window, 10))
+        self.RB = np.zeros((10, cfg.rate_window))
+        self.WIN = np.zeros((16384, 19))
+        self.EV = np.zeros(1 + 16 * K.N_CAND_COLS)
+        self.states: list[Any] = [est._curve_state]
+        self._cal_blocks = 0
+        self._handlers = {K.EV_INIT: self._ev_init, K.EV_PREDICT: self._ev_predict, K.EV_RECOVER: self._ev_recover,
+                          K.EV_UPDATE: self._ev_update, K.EV_ADAPT: self._ev_adapt, K.EV_CURVE: self._ev_curve,
+                          K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull}
+        self.events = {name: 0 for name in ("init", "predict", "recover", "update", "adapt", "curve", "slipwin",
+                                            "cal", "winfull")}
+        self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
+                          K.EV_ADAPT: "adapt", K.EV_CURVE: "curve", K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal",
+                          K.EV_WINFULL: "winfull"}
+        # views of the state (numpy views into F: written by the compiled code, read here)
+        self._x = F[o["x"]:o["x"] + 10]
+        self._P = F[o["P"]:o["P"] + 100].reshape(10, 10)
+        self._u = F[o["u"]:o["u"] + 7]
+
+    # ------------------------------------------------------------------ inputs
+    @staticmethod
+    def block_inputs(t: np.ndarray, streams: list[tuple[str, bool, Any, list[bool]]]) -> np.ndarray:
+        """The step arguments of a block as one array (n, N_IN) from replay's streams (key, is_input, values,
+        new): a stream's columns are filled where it has a new sample (its flag column 1), else the flag is 0."""
+        from . import _loop_kernel as K
+
+        n = t.size
+        IN = np.zeros((n, K.N_IN))
+        IN[:, K.IN_T] = t
+        cols = {"Md": (K.IN_HMD, K.IN_MD, 4), "Fzf": (K.IN_HFZF, K.IN_FZF, 1), "Fdx": (K.IN_HFDX, K.IN_FDX, 1),
+                "omega": (K.IN_HOM, K.IN_OM, 4), "dir": (K.IN_HDIR, K.IN_DIR, 1), "v": (K.IN_HV, K.IN_V, 1),
+                "course": (K.IN_HCRS, K.IN_CRS, 1)}
+        for key, _is_input, vals, new in streams:
+            spec = cols.get(key)
+            if spec is None:
+                raise ValueError(f"compiled loop: unknown step argument {key!r}")
+            h, c, m = spec
+            nw = np.asarray(new, dtype=bool)
+            if not nw.any():
+                continue
+            IN[nw, h] = 1.0
+            if m == 4:
+                IN[nw, c:c + 4] = np.asarray(vals, dtype=float)[nw]
+            else:
+                IN[nw, c] = np.asarray(vals, dtype=float)[nw]
+        return IN
+
+    # ------------------------------------------------------------------ the loop
+    def step_block(self, IN: np.ndarray) -> np.ndarray:
+        """Step every row of ``IN`` (:meth:`block_inputs`); the estimates (n, N_OUT)."""
+        K = self.K
+        n = IN.shape[0]
+        OUT = np.empty((n, K.N_OUT))
+        I = self.I
+        I[K.I_K] = 0
+        I[K.I_STAGE] = K.ST_BEGIN
+        run = K.run
+        F, EV, CM, RB = self.F, self.EV, self.CM, self.RB
+        handlers, names, events = self._handlers, self._ev_names, self.events
+        while True:
+            ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n)
+            if ev == K.EV_DONE:
+                return OUT
+            events[names[ev]] += 1
+            handlers[ev](IN, OUT)
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """The estimator's counters (Estimator.counters)."""
+        K = self.K
+        out = {name: int(self.I[K.I_COUNTERS + j]) for j, name in enumerate(K.COUNTERS)}
+        out["chol_repairs"] = int(self.I[K.I_CHOL_REPAIRS])
+        return out
+
+    def arrays(self, OUT: np.ndarray) -> dict[str, Any]:
+        """The batch sink's arrays of a block (:class:`~tractionecu.pipeline.batch.BatchSink`), and ``lost_since``."""
+        K = self.K
+        n = OUT.shape[0]
+        arr: dict[str, Any] = {"t": OUT[:, K.OUT_T].copy()}
+        arr["rho_s"] = OUT[:, K.OUT_RHO].copy()
+        arr["v"] = OUT[:, K.OUT_V].copy()
+        arr["nis"] = OUT[:, K.OUT_NIS].copy()
+        arr["adapt"] = OUT[:, K.OUT_ADAPT].copy()
+        arr["nis_dof"] = OUT[:, K.OUT_DOF].astype(np.int64)
+        arr["status"] = OUT[:, K.OUT_STATUS].astype(np.int64)
+        arr["valid"] = OUT[:, K.OUT_VALID] != 0.0
+        arr["mu"] = OUT[:, K.OUT_MU:K.OUT_MU + 4].copy()
+        arr["slip"] = OUT[:, K.OUT_SLIP:K.OUT_SLIP + 4].copy()
+        arr["omega"] = OUT[:, K.OUT_OM:K.OUT_OM + 4].copy()
+        arr["P_diag"] = OUT[:, K.OUT_P:K.OUT_P + 10].copy()
+        arr["radius_scale"] = OUT[:, K.OUT_RAD:K.OUT_RAD + 2].copy()
+        arr["radius_halfwidth"] = OUT[:, K.OUT_RAD + 2:K.OUT_RAD + 4].copy()
+        arr["radius_applied"] = OUT[:, K.OUT_RAD + 4:K.OUT_RAD + 6].copy()
+        arr["sigma_mu"] = OUT[:, K.OUT_SIGMU:K.OUT_SIGMU + 4].copy()
+        arr["sigma_rho_s"] = OUT[:, K.OUT_SIGRHO].copy()
+        ver = OUT[:, K.OUT_CS].astype(np.int64)
+        hasx = OUT[:, K.OUT_HASX] != 0.0
+        states = self.states
+        a = np.full(n, math.nan)
+        cls: list[str] = []
+        curves: list[Any] = []
+        paths: list[str] = []
+        cache: dict[tuple[int, bool], tuple[float, str, Any, str]] = {}
+        for i, (v, h) in enumerate(zip(ver.tolist(), hasx.tolist())):
+            ent = cache.get((v, h))
+            if ent is None:
+                cs = states[v]
+                c = cs.curve if h else None
+                ent = (cs.a if h else math.nan, cs.class_name, c, c.path if c is not None else "")
+                cache[(v, h)] = ent
+            a[i] = ent[0]
+            cls.append(ent[1])
+            curves.append(ent[2])
+            paths.append(ent[3])
+        arr["a"] = a
+        arr["soil_class"] = cls
+        arr["curve"] = curves
+        arr["curve_path"] = paths
+        arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
+        return arr
+
+    # ------------------------------------------------------------------ events
+    def _sync_est(self) -> None:
+        """The estimator's attributes its _init_filter reads, from the compiled state."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        est._u[:] = self._u
+        est._last_v_meas = float(F[K.F_LAST_VMEAS]) if I[K.I_HAS_LASTV] else None
+        est._t_v = float(F[K.F_T_V])
+
+    def _new_filter(self, t: float) -> None:
+        """The compiled state of a filter just made by Estimator._init_filter (its x, P and resets)."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        self._x[:] = est.ukf.x
+        self._P[:, :] = est.ukf.P
+        I[K.I_UKF] = 1
+        F[K.F_T_INIT] = t
+        I[K.I_CONV] = 0
+        I[K.I_WIN_N] = 0
+        I[K.I_WIN_LO] = 0
+        F[K.F_MON:K.F_MON + 4] = math.nan
+        I[K.I_GATE_RUN:K.I_GATE_RUN + 5] = 0
+        I[K.I_GATE_RUN_ANY] = 0
+        I[K.I_CHOL_REPAIRS] = 0
+        I[K.I_LAST_DOF] = 0
+        F[K.F_LAST_NIS] = math.nan
+
+    def _ev_init(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        K = self.K
+        k = int(self.I[K.I_K])
+        t = float(self.F[K.F_L_T])
+        self._sync_est()
+        self.est._init_filter(t, np.asarray(IN[k, K.IN_OM:K.IN_OM + 4], dtype=float))
+        self._new_filter(t)
+
+    def _shadow(self) -> Any:
+        """The estimator's filter object with the compiled state."""
+        K, I = self.K, self.I
+        ukf = self.est.ukf
+        ukf.x = self._x.copy()
+        ukf.P = self._P.copy()
+        ukf._gate_run[:] = I[K.I_GATE_RUN:K.I_GATE_RUN + 5]
+        ukf._gate_run_any = bool(I[K.I_GATE_RUN_ANY])
+        ukf.chol_repairs = int(I[K.I_CHOL_REPAIRS])
+        return ukf
+
+    def _ev_predict(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        K, F, I = self.K, self.F, self.I
+        ukf = self._shadow()
+        h = float(F[K.F_L_H])
+        o = K.F_Q if I[K.I_F_INPUT_NOISE] else K.F_QB
+        Q = F[o:o + 100].reshape(10, 10).copy()
+        try:
+            ukf.predict(self._u.copy(), h, Q)
+        except EstimatorError:
+            self._ev_recover(IN, OUT)
+            return
+        self._x[:] = ukf.x
+        self._P[:, :] = ukf.P
+        I[K.I_REPAIRED_LAST] = 1 if ukf.repaired_last else 0
+        I[K.I_CHOL_REPAIRS] = ukf.chol_repairs
+        I[K.I_SUB] += 1
+        I[K.I_STAGE] = K.ST_PREDICT
+
+    def _ev_recover(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """Estimator._recover after a non-finite prediction (the sub-step loop ends)."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        t = float(F[K.F_L_T])
+        I[K.I_COUNTERS + K.C_RESETS] += 1
+        x = self._x.copy()
+        if not np.isfinite(x).all():
+            raise EstimatorError("compiled loop: non-finite filter mean and no finite one to restart from")
+        self._sync_est()
+        est.ukf = None
+        est._init_filter(t, x[:4])
+        est.ukf.x = x.copy()
+        self._new_filter(t)
+        I[K.I_STATUS] |= K.COV_REPAIRED
+        I[K.I_REPAIRED_LAST] = 0
+        I[K.I_STAGE] = K.ST_AFTER_PREDICT
+
+    def _ev_update(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """ukf.update on the estimator's filter (the general path: gating, non-finite components)."""
+        from .estimator import _SL_V, _SL_W, _SL_WV
+
+        K, F, I = self.K, self.F, self.I
+        ukf = self._shadow()
+        kind = int(I[K.I_UPD_KIND])
+        z = F[K.F_L_Z:K.F_L_Z + 5]
+        R = F[K.F_L_R:K.F_L_R + 5]
+        if kind == 3:
+            ukf.update(np.array(z.tolist()), _SL_WV, np.array(R.tolist()))
+        elif kind == 1:
+            ukf.update(np.array(z[:4].tolist()), _SL_W, np.array(R[:4].tolist()))
+        else:
+            ukf.update(np.array([float(z[0])]), _SL_V, np.array([float(R[0])]))
+        self._x[:] = ukf.x
+        self._P[:, :] = ukf.P
+        I[K.I_GATE_RUN:K.I_GATE_RUN + 5] = ukf._gate_run
+        I[K.I_GATE_RUN_ANY] = 1 if ukf._gate_run_any else 0
+        I[K.I_LAST_DOF] = ukf.last_dof
+        F[K.F_LAST_NIS] = ukf.last_nis
+        if ukf.last_dof and self.cfg.adaptation:
+            dx, ksk = ukf.correction()
+            F[K.F_DX:K.F_DX + 10] = dx
+            F[K.F_KSK:K.F_KSK + 10] = ksk
+        K.post_update(F, I, self.CM, int(ukf.last_gated), int(ukf.last_outside))
+
+    def _ev_adapt(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The adaptation period (Estimator.step): A_k, the fuzzy factor, the systematic uncertainty."""
+        K, F, I, est, cfg = self.K, self.F, self.I, self.est, self.cfg
+        o = K.F_A
+        if cfg.adaptation:
+            M = cfg.adapt_window
+            if I[K.I_CM_COUNT] < M:
+                A = np.ones(10)
+            else:
+                A = np.empty(10)
+                _kernels.cm_ratio(self.CM[:M], self.CM[M:], est._cm.a_min, est._cm.a_max, A)
+            F[o:o + 10] = A
+        if cfg.supervisor:
+            d = K.F_DYN
+            F[K.F_F] = est._fuzzy.factor(abs(float(F[d + 3])), abs(float(F[d + 4])))
+        F[K.F_ADAPT_MU] = float(F[K.F_F]) * float(F[o + 5:o + 9].mean())
+        unc = est._unc
+        if unc is None:
+            return
+        pd = self._P.diagonal()[5:10]
+        u = self._u
+        _, _, rdf, rdr = est.model.load_floats(float(u[4]), float(u[5]))
+        ur = est._cal.radius_sigma(unc.u_r) if est._cal is not None else (unc.u_r, unc.u_r)
+        vm, vr = unc.variances(u[:4].tolist(), float(u[4]), float(u[5]), rdf * float(F[K.F_KF]),
+                               rdr * float(F[K.F_KR]), *ur)
+        vm.append(vr)
+        sv = np.array(vm)
+        if not np.isfinite(sv).all():
+            sv[:] = 0.0
+        F[K.F_SYS_VAR:K.F_SYS_VAR + 5] = sv
+        I[K.I_HAS_SYS] = 1
+        I[K.I_SYS_FLAG] = 1 if bool((sv > pd).any()) else 0
+        F[K.F_R_LAT] = unc.gnss_latency_var(float(F[K.F_DYN + 3]))
+
+    def _ev_curve(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The μ(s) curve's update (Estimator._estimate), on the estimator's CurveEstimator."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        t = float(F[K.F_L_T])
+        buf = F[K.F_L_BUF:K.F_L_BUF + 26].copy()
+        mu, s, omega, pd, kw = buf[0:4], buf[4:8], buf[8:12], buf[12:22], buf[22:26]
+        u = self._u
+        kap = float(u[6])
+        v = float(F[K.F_L_V])
+        fz, rd, _ = est.model._load_terms(float(u[4]), float(u[5]))
+        veh = est.vehicle
+        dk = np.array(wheel_speed_factor_slopes(kap, veh.track_width_m, veh.wheelbase_m))
+        sig_vi = np.sqrt(pd[IX_V] * kw * kw + (v * dk) ** 2 * float(F[K.F_KAPVAR]))
+        sig_s = sig_vi / np.maximum(rd * np.abs(omega), 1e-3)
+        cs = est._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s, fz)
+        self.states.append(cs)
+        I[K.I_CS_VER] = len(self.states) - 1
+        I[K.I_HAS_CURVE] = 1 if cs.curve is not None else 0
+
+    def _ev_slipwin(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The averaged slip's choice (Estimator._slip_window): the identified curve's slope at each candidate."""
+        K, F, I = self.K, self.F, self.I
+        curve = self.states[int(I[K.I_CS_VER])].curve
+        EV = self.EV
+        nc = int(I[K.I_N_CAND])
+        ml = F[K.F_L_BUF:K.F_L_BUF + 4].tolist()
+        best = None
+        top_best = math.inf
+        for c in range(nc):
+            base = 1 + c * K.N_CAND_COLS
+            out = EV[base:base + 4].tolist()
+            sig = EV[base + 4:base + 8].tolist()
+            q = EV[base + 8:base + 12].tolist()
+            slope = np.abs(curve.dmu_ds(np.abs(np.array(out)))).tolist()
+            top = 0.0
+            for i in range(4):
+                lag = abs(ml[i] - q[i]) / slope[i] if slope[i] > 0.0 else math.inf
+                si = math.sqrt(sig[i] * sig[i] + lag * lag)
+                top = si if si > top else top
+            if top < top_best:
+                top_best, best = top, out
+        if best is not None and top_best <= self.cfg.slip_sigma_max:
+            F[K.F_L_S:K.F_L_S + 4] = best
+            I[K.I_AVG_FOUND] = 1
+
+    def _ev_cal(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """Estimator._calibrate: one GNSS epoch to the radius calibration; a new scale applied."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        k = int(I[K.I_K])
+        t = float(F[K.F_L_T])
+        cal = est._cal
+        u = self._u
+        _, _, rdf, rdr = est.model.load_floats(float(u[4]), float(u[5]))
+        cs = self.states[int(I[K.I_CS_VER])]
+        v_meas = float(F[K.F_L_VMEAS])
+        wl = F[K.F_L_WL:K.F_L_WL + 4].tolist()
+        if I[K.I_UPD_KIND] == 3:
+            wl.append(v_meas)
+        row = OUT[k]
+        cal.push(t, v_meas, wl, rdf, rdr, row[K.OUT_MU:K.OUT_MU + 4].tolist(), float(F[K.F_DYN + 3]),
+                 bool(row[K.OUT_VALID] != 0.0), cs.a, cs.class_name)
+        n = cal._axles[0].n
+        if n != self._cal_blocks:
+            self._cal_blocks = n
+            f, r = cal.state()
+            kf, kr = cal.applied
+            F[K.F_RAD:K.F_RAD + 6] = [f.scale, r.scale, f.halfwidth, r.halfwidth, kf, kr]
+            if kf != F[K.F_KF] or kr != F[K.F_KR]:
+                new_inv = np.array([1.0 / kf, 1.0 / kf, 1.0 / kr, 1.0 / kr])
+                old_inv = F[K.F_MD_INV:K.F_MD_INV + 4].copy() if I[K.I_HAS_MDINV] else np.ones(4)
+                u[:4] *= new_inv / old_inv
+                F[K.F_MD_INV:K.F_MD_INV + 4] = new_inv
+                I[K.I_HAS_MDINV] = 1
+                F[K.F_KF] = kf
+                F[K.F_KR] = kr
+
+    def _ev_winfull(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The averaged slip's buffer holds only reachable entries and is full: twice as large."""
+        w = np.zeros((2 * self.WIN.shape[0], self.WIN.shape[1]))
+        w[:self.WIN.shape[0]] = self.WIN
+        self.WIN = w
