@@ -445,7 +445,8 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
         return problem.stacked(cand, x, chans, rws)
 
     info: dict = {"method": "sandwich widened by the profile likelihood (HAC-scaled), united with the block "
-                            "jackknife where the blocks disagree",
+                            "jackknife where the blocks disagree; a GNSS delay's upper end extended by the "
+                            "drive-line samples' period (their age at the time stamp)",
                   "blocks": iv.JACKKNIFE_BLOCKS, "params": {}}
     try:
         pieces = _pieces(problem, cand, x_hat, chans, rows, lo, hi)
@@ -522,6 +523,11 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
         problem.sigma.clear()
         problem.sigma.update(saved)
     fr.ci95_wald_by = {en: dict(d) for en, d in fr.ci95_by.items()}
+    # The drive-line signals' sample period: how old a torque value may be at its time stamp
+    # (intervals.sample_age_extension).
+    hf_t = getattr(getattr(problem.feat, "frame", None), "hf_t", None)
+    age_s = float(np.median(np.diff(hf_t))) if hf_t is not None and hf_t.size > 2 else math.nan
+    info["sample_age_s"] = age_s
     for j, (nm, p) in enumerate(zip(fr.names, cand.fitted)):
         en, pn = nm.split(".", 1)
         x = float(x_hat[j])
@@ -542,6 +548,7 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
         if not (math.isfinite(lo_j) and math.isfinite(hi_j)):
             continue
         lo_j, hi_j = max(p.lo, min(lo_j, x)), min(p.hi, max(hi_j, x))
+        lo_j, hi_j = iv.sample_age_extension(en, pn, (lo_j, hi_j), age_s, p.hi)
         side = fr.at_bound.get(en, {}).get(pn, "")
         if side == "upper":
             hi_j = p.hi

@@ -53,6 +53,18 @@ one-degree-of-freedom estimate of the same spread, for the reported fit.  The in
 to the library range; one that spans nearly the whole range is reported *not identified*
 (:func:`.engine.identified`).
 
+The age of a bus signal's value (a delay the data cannot measure)
+-------------------------------------------------------------------
+A GNSS latency is measured against the drive-line signals' time base: the GNSS speed is compared
+with the speed integrated from the wheel torques, and the fit returns the delay between the two,
+τ̂ = τ − A, where A is how old a torque value already is when its frame is stamped.  A periodic
+CAN signal (J1939 / ISO 11783 PGNs every 10–100 ms) carries the value its sender computed at some
+point within its last cycle, so 0 ≤ A ≤ T_s, the signal's period, and nothing in the recording tells
+where (the logger stamps reception).  That is a type-B component (GUM, JCGM 100:2008, 4.3.7: bounds
+known, nothing else): the latency's interval is extended on its upper side by T_s,
+[lo, hi + T_s] (:func:`sample_age_extension`, :data:`SAMPLE_AGE_PARAMS`), with T_s the raw
+wheel-speed and torque period of the recording (10 ms at 100 Hz).  The estimate is not moved.
+
 In the diagnosis (:func:`.fit.refine_intervals`) the sandwich interval x̂ ± 1.96 √V_jj is kept
 inside the profile's: the profile only widens it.  A profile edge nearer than the sandwich's is
 what a steeper-than-quadratic cost gives, but also what a re-fit of the other parameters that
@@ -69,7 +81,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 __all__ = ["CHI2_1_95", "JACKKNIFE_BLOCKS", "Edge", "Interval", "hac_inflation", "profile_edge",
-           "profile_interval", "block_labels", "jackknife_se", "heterogeneous", "t_quantile", "union"]
+           "profile_interval", "block_labels", "jackknife_se", "heterogeneous", "t_quantile", "union",
+           "SAMPLE_AGE_PARAMS", "sample_age_extension"]
 
 CHI2_1_95 = 3.841458820694124
 """95 % quantile of χ² with one degree of freedom (1.959964²)."""
@@ -234,3 +247,20 @@ def union(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float]
     los = [v for v in (a[0], b[0]) if math.isfinite(v)]
     his = [v for v in (a[1], b[1]) if math.isfinite(v)]
     return (min(los) if los else math.nan, max(his) if his else math.nan)
+
+
+SAMPLE_AGE_PARAMS = frozenset({("gps_latency", "tau_s")})
+"""(effect, parameter) pairs that are a delay of the GNSS signals against the drive-line signals' time
+base: the age A ∈ [0, T_s] of a bus signal's value at its time stamp adds to them unseen (module doc)."""
+
+
+def sample_age_extension(effect: str, param: str, interval: tuple[float, float], period_s: float,
+                         upper_limit: float = math.inf) -> tuple[float, float]:
+    """The 95 % interval of ``effect.param`` with the type-B bound of the drive-line samples' age: for a
+    delay of the GNSS against the bus signals (:data:`SAMPLE_AGE_PARAMS`), τ = τ̂ + A with
+    0 ≤ A ≤ ``period_s`` [s], so the upper end moves up by the period (clipped to ``upper_limit``);
+    other parameters, and a period that is not a positive finite number, leave the interval as it is."""
+    lo, hi = interval
+    if (effect, param) not in SAMPLE_AGE_PARAMS or not (math.isfinite(period_s) and period_s > 0.0):
+        return lo, hi
+    return lo, min(upper_limit, hi + period_s)
