@@ -26,7 +26,9 @@ Per soil: ``R²`` is the scorecard's (identified curve against the truth's ``mu_
 s 0–0.4); ``range R²`` the same over the soil's own slips only (5–95 % of the truth's four wheel slips at
 the valid steps), where the curve rests on data.  ``ceiling`` lines: the best R² the prior's shape can
 reach on that soil with any level a (least squares of a·g(s) on the truth's table over 0–0.4), i.e. what
-a perfect estimate of a would give.
+a perfect estimate of a would give.  Last, the same ceiling on the Bekker soils for shear deformation
+moduli K from 0.6 to 6 cm (the scenario's K are assumptions from Wong's guidance, so the verdict's
+dependence on them is printed beside it).
 """
 
 from __future__ import annotations
@@ -172,9 +174,37 @@ def main(argv: list[str] | None = None) -> int:
             ce = [ceiling(s, cls) for s in tt["soils"]]
             rows.append(dict(truth=truth, prior=prior, ceiling=ce))
             print(f"  {prior:9s} {' / '.join(f'{x:6.3f}' for x in ce)}")
+    if "bekker" in a.truths:
+        rows += shear_modulus_sweep(a.priors, default_name)
     if a.json:
         a.json.write_text(json.dumps(rows, indent=1), encoding="utf-8")
     return 0
+
+
+def shear_modulus_sweep(priors: list[str], default_name: str) -> list[dict]:
+    """Shape ceiling of each prior on the Bekker soils for shear deformation moduli K across and beyond
+    Wong's range (0.6 cm clay at maximum compaction … 2.5 cm loose sand): the Janosi–Hanamoto curve's slip
+    scale is j0 = K/l, so K decides how fast μ(s) rises and which one-parameter shape can follow it."""
+    from dataclasses import replace
+
+    from tractionecu.config import G
+    from tractionecu.sim import scenarios, tyre as ty
+    veh, tyre = scenarios.MECH_TRACTOR, ty.TyreSpec()
+    print("\nceiling vs the shear deformation modulus K (Bekker soils, mu(s) at m g/4; "
+          f"priors {' / '.join(priors)}):")
+    rows = []
+    for soil in scenarios.BEKKER_THREE_SOILS:
+        for k_cm in (0.6, 1.0, 1.5, 2.5, 4.0, 6.0):
+            s2 = replace(soil, shear_k_m=k_cm / 100.0)
+            mu = ty.paper_mu(S_GRID, s2, veh.mass_kg * G / 4, veh.tyre_width_m, veh.r0_m, tyre,
+                             veh.tyre_pressure_pa, veh.rho_t)
+            info = {"mu_curve_s": list(S_GRID), "mu_curve": list(mu)}
+            ce = [ceiling(info, curve_class(default_name if p == "default" else p)) for p in priors]
+            rows.append(dict(soil=soil.name, shear_k_cm=k_cm, ceiling=dict(zip(priors, ce)),
+                             scenario_k=abs(k_cm / 100.0 - soil.shear_k_m) < 1e-9))
+            mark = " (scenario)" if rows[-1]["scenario_k"] else ""
+            print(f"  {soil.name:25s} K {k_cm:4.1f} cm  {' / '.join(f'{x:6.3f}' for x in ce)}{mark}")
+    return rows
 
 
 if __name__ == "__main__":
