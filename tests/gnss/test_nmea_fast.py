@@ -20,6 +20,7 @@ from tractionecu.gnss.nmea import (
     NmeaRecord,
     NmeaStats,
     checksum,
+    fast_block,
     fast_kinds,
     fast_record,
     iter_nmea,
@@ -64,10 +65,15 @@ def _reference(line: str) -> tuple[str | None, NmeaRecord | None]:
 
 
 def _check_lines(lines: list[str]) -> int:
-    """Every line the fast path converts equals parse_line's record; returns how many it converted."""
+    """Every line the fast path converts equals parse_line's record, and every line the block conversion
+    converts equals the line's fast_record; returns how many fast_record converted."""
     taken = 0
-    for line, k in zip(lines, fast_kinds(lines).tolist()):
+    block, kinds = fast_block(lines)
+    assert kinds.tolist() == fast_kinds(lines).tolist()
+    for line, k, b in zip(lines, kinds.tolist(), block):
         got = fast_record(line, k) if k else None
+        if b is not None:
+            assert got is not None and repr(b) == repr(got), line
         if got is None:
             continue
         taken += 1
@@ -94,6 +100,7 @@ def test_every_simulated_line_takes_the_fast_path_and_equals_parse_line(sim_line
     for name, lines in sim_lines.items():
         assert len(lines) > 100, name
         assert _check_lines(lines) == len(lines), name
+        assert all(v is not None for v in fast_block(lines)[0]), name     # and the block conversion
 
 
 def test_simulated_streams_equal_in_small_chunks(sim_lines, tmp_path):

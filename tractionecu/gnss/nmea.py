@@ -662,19 +662,26 @@ class _Fallback(Exception):
 def fast_kinds(lines: list[str]) -> np.ndarray:
     """Per line: 1..4 (GGA, RMC, VTG, ZDA) when the line is a sentence the fast path may take (block
     comment above: address, field count, character set and checksum all checked), else 0."""
+    return _screen(lines)[0]
+
+
+def _screen(lines: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(:func:`fast_kinds`, the block's bytes, each line's first and end offset in them)."""
     n = len(lines)
     kind = np.zeros(n, dtype=np.int8)
     if n == 0:
-        return kind
+        e = np.zeros(0, dtype=np.int64)
+        return kind, np.zeros(0, dtype=np.uint8), e, e
     lens = np.fromiter(map(len, lines), dtype=np.int64, count=n)
     buf = np.frombuffer("\n".join(lines).encode("ascii", "replace"), dtype=np.uint8)  # one byte a character
     starts = np.zeros(n, dtype=np.int64)
     np.cumsum(lens[:-1] + 1, out=starts[1:])
+    ends = starts + lens
     cand = np.flatnonzero((lens >= 10) & (lens <= MAX_FAST_LINE))
     if cand.size == 0:
-        return kind
+        return kind, buf, starts, ends
     s = starts[cand]
-    e = s + lens[cand]
+    e = ends[cand]
     ok = (buf[s] == 0x24) & (buf[e - 3] == 0x2A) & (buf[s + 6] == 0x2C)
     t1, t2 = buf[s + 1], buf[s + 2]
     ok &= (t1 >= 0x41) & (t1 <= 0x5A) & (t1 != 0x50) & (t2 >= 0x41) & (t2 <= 0x5A)
@@ -685,22 +692,20 @@ def fast_kinds(lines: list[str]) -> np.ndarray:
     ok &= k > 0
     h1, h2 = _HEX[buf[e - 2]], _HEX[buf[e - 1]]
     ok &= (h1 >= 0) & (h2 >= 0)
-    unsafe = np.zeros(buf.size + 1, dtype=np.int32)
-    np.cumsum(~_SAFE[buf], out=unsafe[1:])
-    ok &= unsafe[e - 3] == unsafe[s + 1]
-    commas = np.zeros(buf.size + 1, dtype=np.int32)
-    np.cumsum(buf == 0x2C, out=commas[1:])
-    nfields = commas[e - 3] - commas[s + 1]          # commas in the body = fields after the address
+    # per body (the characters between '$' and '*', at least 6 of them): unsafe characters, commas, XOR
+    bounds = np.empty(2 * cand.size, dtype=np.int64)
+    bounds[0::2] = s + 1
+    bounds[1::2] = e - 3
+    ok &= np.add.reduceat((~_SAFE[buf]).view(np.uint8), bounds, dtype=np.int64)[0::2] == 0
+    nfields = np.add.reduceat((buf == 0x2C).view(np.uint8), bounds, dtype=np.int64)[0::2]   # after the address
     good_count = np.zeros(cand.size, dtype=bool)
     for kk, counts in _FAST_FIELDS.items():
         for c in counts:
             good_count |= (k == kk) & (nfields == c)
     ok &= good_count
-    cx = np.zeros(buf.size + 1, dtype=np.uint8)
-    np.bitwise_xor.accumulate(buf, out=cx[1:])
-    ok &= (cx[e - 3] ^ cx[s + 1]) == ((h1 << 4) | h2)
+    ok &= np.bitwise_xor.reduceat(buf, bounds)[0::2] == ((h1 << 4) | h2)
     kind[cand[ok]] = k[ok]
-    return kind
+    return kind, buf, starts, ends
 
 
 def _ff(s: str) -> float | None:
@@ -849,6 +854,278 @@ def record_values(rec: NmeaRecord) -> tuple:
             rec.speed_mps, rec.course_deg, rec.fix_quality, rec.nsat, rec.hdop, rec.valid, rec.mode)
 
 
+# ---- the fast path over a block of lines at once (numpy): the same values as fast_record, or None
+_I10 = 10 ** np.arange(19, dtype=np.int64)
+_F10 = np.array([10.0 ** k for k in range(19)])        # exact: 10**k < 2**53 for k <= 15
+MAX_FAST_DIGITS = 15
+"""Digits of a number the block path converts: below 2**53, so ``N / 10**k`` is ``float()`` of the text."""
+
+
+def _dec(buf: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The fields ``buf[a:b]`` as numbers written ``-?d+(.d+)?`` with at most :data:`MAX_FAST_DIGITS` digits:
+    (ok, float value, integer digits N, decimals k).  The value is ``N / 10**k`` (negated after a '-'):
+    both exact doubles, so the division's correctly rounded quotient is the correctly rounded value of
+    the decimal, which is what ``float(text)`` returns.  ok is False for an empty field or another form."""
+    m = a.size
+    L = b - a
+    W = int(min(L.max(initial=0), MAX_FAST_DIGITS + 2))
+    if m == 0 or W <= 0:
+        z = np.zeros(m, dtype=np.int64)
+        return np.zeros(m, dtype=bool), z.astype(float), z, z
+    j = np.arange(W)
+    inside = j < L[:, None]
+    C = np.where(inside, buf[np.minimum(a[:, None] + j, buf.size - 1)], 0)
+    neg = C[:, 0] == 0x2D
+    dig = (C >= 0x30) & (C <= 0x39)
+    dot = C == 0x2E
+    form = dig | dot
+    form[:, 0] |= neg
+    ndot = dot.sum(axis=1)
+    ndig = dig.sum(axis=1)
+    dpos = np.where(ndot == 1, dot.argmax(axis=1), L)
+    ok = ((form == inside).all(axis=1) & (L <= W) & (ndot <= 1) & (ndig >= 1) & (ndig <= MAX_FAST_DIGITS)
+          & (dpos > neg) & ((ndot == 0) | (dpos < L - 1)))
+    k = np.where(ndot == 1, L - 1 - dpos, 0)
+    after = np.clip(ndig[:, None] - np.cumsum(dig, axis=1), 0, 18)      # digits after each position
+    N = np.where(dig, (C.astype(np.int64) - 0x30) * _I10[after], 0).sum(axis=1)
+    k = np.where(ok, k, 0)
+    v = N / _F10[k]
+    return ok, np.where(neg, -v, v), N, k
+
+
+def _digits(buf: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(is a digit, its value) of the characters at ``pos``."""
+    c = buf[pos].astype(np.int64) - 0x30
+    return (c >= 0) & (c <= 9), c
+
+
+class _Block:
+    """The fields of the lines of one sentence type and field count: their spans in the block's bytes."""
+
+    def __init__(self, buf: np.ndarray, commas: np.ndarray, s: np.ndarray, e: np.ndarray, nf: int) -> None:
+        self.buf = buf
+        first = np.searchsorted(commas, s + 6)          # the comma after the address
+        P = commas[first[:, None] + np.arange(nf)]      # the body's commas, one per field
+        self.a = P + 1
+        self.b = np.empty_like(P)
+        self.b[:, :-1] = P[:, 1:]
+        self.b[:, -1] = e - 3
+        self.m = s.size
+        self.ok = np.ones(self.m, dtype=bool)
+
+    def present(self, f: int) -> np.ndarray:
+        return self.b[:, f] > self.a[:, f]
+
+    def num(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        """(present, value) of a number field (_ff); an unusual form declines the line."""
+        pres = self.present(f)
+        ok, v, _N, _k = _dec(self.buf, self.a[:, f], self.b[:, f])
+        self.ok &= ok | ~pres
+        return pres, v
+
+    def int(self, f: int, max_digits: int = 4) -> tuple[np.ndarray, np.ndarray]:
+        """(present, value) of an unsigned integer field (_fi) of at most ``max_digits`` digits."""
+        pres = self.present(f)
+        ok, _v, N, k = _dec(self.buf, self.a[:, f], self.b[:, f])
+        neg = self.buf[np.minimum(self.a[:, f], self.buf.size - 1)] == 0x2D
+        self.ok &= (ok & (k == 0) & ~neg & (self.b[:, f] - self.a[:, f] <= max_digits)) | ~pres
+        return pres, N
+
+    def tod(self, f: int) -> tuple[np.ndarray, np.ndarray]:
+        """(present, time of day [s]) of a hhmmss[.s] field (_ftod)."""
+        a, b = self.a[:, f], self.b[:, f]
+        pres = b > a
+        top = self.buf.size - 1
+        ok = b - a >= 6
+        d = [_digits(self.buf, np.minimum(a + i, top)) for i in range(6)]
+        for isd, _ in d:
+            ok &= isd
+        h = d[0][1] * 10 + d[1][1]
+        mi = d[2][1] * 10 + d[3][1]
+        oks, sec, _N, _k = _dec(self.buf, np.minimum(a + 4, b), b)
+        ok &= oks & (h <= 23) & (mi <= 59) & (sec >= 0) & (sec < 61)
+        self.ok &= ok | ~pres
+        return pres, h * 3600.0 + mi * 60.0 + sec
+
+    def char(self, f: int) -> np.ndarray:
+        """The field's character code when it is one character long, else 0."""
+        one = self.b[:, f] - self.a[:, f] == 1
+        return np.where(one, self.buf[np.minimum(self.a[:, f], self.buf.size - 1)], 0)
+
+    def coord(self, f: int, deg_digits: int, pos: str, neg: str, limit: float) -> tuple[np.ndarray, np.ndarray]:
+        """(present, degrees) of a value and hemisphere field pair (_fcoord)."""
+        a, b = self.a[:, f], self.b[:, f]
+        pv = b > a
+        ph = self.present(f + 1)
+        hemi = self.char(f + 1)
+        top = self.buf.size - 1
+        ok = b - a >= deg_digits + 2
+        deg = np.zeros(self.m, dtype=np.int64)
+        for i in range(deg_digits + 2):
+            isd, c = _digits(self.buf, np.minimum(a + i, top))
+            ok &= isd
+            if i < deg_digits:
+                deg = deg * 10 + c
+        after = self.buf[np.minimum(a + deg_digits + 2, top)]
+        ok &= (b - a == deg_digits + 2) | (after == 0x2E)
+        okm, minutes, _N, _k = _dec(self.buf, np.minimum(a + deg_digits, b), b)
+        v = deg + minutes / 60.0
+        sgn_neg = hemi == ord(neg)
+        ok &= okm & (minutes >= 0) & (minutes < 60.0) & (v <= limit) & ((hemi == ord(pos)) | sgn_neg)
+        self.ok &= (ok & pv & ph) | (~pv & ~ph)
+        return pv, np.where(sgn_neg, -v, v)
+
+    def text(self, f: int, max_len: int = 2) -> list[str | None]:
+        """The field's text (None when empty), for fields of at most ``max_len`` letters A-Z."""
+        a, b = self.a[:, f], self.b[:, f]
+        L = b - a
+        top = self.buf.size - 1
+        code = L.copy()
+        for i in range(max_len):
+            c = np.where(i < L, self.buf[np.minimum(a + i, top)], 0).astype(np.int64)
+            self.ok &= (i >= L) | ((c >= 0x41) & (c <= 0x5A))
+            code = (code << 8) | c
+        self.ok &= L <= max_len
+        names = {}
+        for u in np.unique(code).tolist():
+            n = u >> (8 * max_len)
+            names[u] = None if n == 0 or n > max_len else bytes(
+                (u >> (8 * (max_len - 1 - i))) & 0xFF for i in range(n)).decode("ascii")
+        return [names[u] for u in code.tolist()]
+
+
+def _col(present: np.ndarray, values: np.ndarray) -> list:
+    """Python values, None where the field is empty."""
+    o = values.astype(object)
+    o[~present] = None
+    return o.tolist()
+
+
+def _talkers(buf: np.ndarray, s: np.ndarray) -> list[str]:
+    code = (buf[s + 1].astype(np.int64) << 8) | buf[s + 2]
+    names = {u: chr(u >> 8) + chr(u & 0xFF) for u in np.unique(code).tolist()}
+    return [names[u] for u in code.tolist()]
+
+
+def _block_gga(blk: _Block, talkers: list[str]) -> list:
+    pq, q = blk.int(5, 1)
+    blk.ok &= ~pq | (q <= 8)
+    pt, tod = blk.tod(0)
+    plat, lat = blk.coord(1, 2, "N", "S", 90.0)
+    plon, lon = blk.coord(3, 3, "E", "W", 180.0)
+    pa, alt = blk.num(8)
+    pg, geo = blk.num(10)
+    pn, nsat = blk.int(6)
+    ph, hdop = blk.num(7)
+    m = blk.m
+    return list(zip(["GGA"] * m, talkers, _col(pt, tod), [None] * m, _col(plat, lat), _col(plon, lon),
+                    _col(pa, alt), _col(pg, geo), [None] * m, [None] * m, _col(pq, q), _col(pn, nsat),
+                    _col(ph, hdop), [None] * m, [None] * m))
+
+
+def _block_rmc(blk: _Block, talkers: list[str], nf: int) -> list:
+    status = blk.char(1)
+    blk.ok &= (status == 0x41) | (status == 0x56)
+    pk, kn = blk.num(6)
+    pt, tod = blk.tod(0)
+    plat, lat = blk.coord(2, 2, "N", "S", 90.0)
+    plon, lon = blk.coord(4, 3, "E", "W", 180.0)
+    pc, course = blk.num(7)
+    m = blk.m
+    modes = blk.text(11) if nf > 11 else [None] * m
+    a, b = blk.a[:, 8], blk.b[:, 8]                       # date ddmmyy: 6 digits or empty
+    pd = b > a
+    dcode = np.zeros(m, dtype=np.int64)
+    okd = b - a == 6
+    for i in range(6):
+        isd, c = _digits(blk.buf, np.minimum(a + i, blk.buf.size - 1))
+        okd &= isd
+        dcode = dcode * 10 + c
+    blk.ok &= okd | ~pd
+    dates: dict[int, date | None] = {}
+    for u in np.unique(dcode[okd & blk.ok]).tolist():
+        try:
+            dates[u] = _fdate(f"{u:06d}")
+        except _Fallback:
+            dates[u] = None
+    bad_date = np.array([pd[i] and dates.get(u) is None for i, u in enumerate(dcode.tolist())], dtype=bool) \
+        if m else np.zeros(0, dtype=bool)
+    blk.ok &= ~bad_date
+    date_col = [dates.get(u) if p else None for u, p in zip(dcode.tolist(), pd.tolist())]
+    speed = _col(pk, kn * KNOT_MPS)
+    quality = [None if md is None else _fmode_quality(md) for md in modes]
+    return list(zip(["RMC"] * m, talkers, _col(pt, tod), date_col, _col(plat, lat), _col(plon, lon), [None] * m,
+                    [None] * m, speed, _col(pc, course), quality, [None] * m, [None] * m,
+                    (status == 0x41).tolist(), modes))
+
+
+def _block_vtg(blk: _Block, talkers: list[str], nf: int) -> list:
+    pkmh, kmh = blk.num(6)
+    pkn, kn = blk.num(4)
+    pc, course = blk.num(0)
+    m = blk.m
+    spd = np.where(pkmh, kmh / 3.6, kn * KNOT_MPS)
+    modes = blk.text(8) if nf > 8 else [None] * m
+    return list(zip(["VTG"] * m, talkers, [None] * m, [None] * m, [None] * m, [None] * m, [None] * m, [None] * m,
+                    _col(pkmh | pkn, spd), _col(pc, course), [None] * m, [None] * m, [None] * m, [None] * m,
+                    modes))
+
+
+def _block_zda(blk: _Block, talkers: list[str]) -> list:
+    pday, day = blk.int(1, 2)
+    pmon, mon = blk.int(2, 2)
+    pyr, yr = blk.int(3, 4)
+    pt, tod = blk.tod(0)
+    m = blk.m
+    full = pday & pmon & pyr
+    dates: list[date | None] = [None] * m
+    for i in np.flatnonzero(full & blk.ok).tolist():
+        try:
+            dates[i] = date(int(yr[i]), int(mon[i]), int(day[i]))
+        except ValueError:
+            blk.ok[i] = False
+    return list(zip(["ZDA"] * m, talkers, _col(pt, tod), dates, *([[None] * m] * 11)))
+
+
+def fast_block(lines: list[str]) -> tuple[list, np.ndarray]:
+    """(values, kinds) of a block of lines: ``values[i]`` what :func:`fast_record` gives for line i,
+    converted for all lines of one sentence type and field count at once, or None where the line is not a
+    fast-path line or is of a form the block conversion leaves to :func:`fast_record` (numbers with an
+    exponent, a trailing dot or more than :data:`MAX_FAST_DIGITS` digits, longer mode fields, ...)."""
+    kind, buf, starts, ends = _screen(lines)
+    out: list = [None] * len(lines)
+    if not kind.any():
+        return out, kind
+    commas = np.flatnonzero(buf == 0x2C)
+    comma_count = None
+    for k in range(1, 5):
+        rows = np.flatnonzero(kind == k)
+        if rows.size == 0:
+            continue
+        s, e = starts[rows], ends[rows]
+        if comma_count is None:
+            comma_count = np.searchsorted(commas, ends[kind > 0] - 3) - np.searchsorted(commas, starts[kind > 0] + 1)
+            nf_all = np.zeros(len(lines), dtype=np.int64)
+            nf_all[kind > 0] = comma_count
+        nfs = nf_all[rows]
+        for nf in np.unique(nfs).tolist():
+            sel = nfs == nf
+            r, blk = rows[sel], _Block(buf, commas, s[sel], e[sel], nf)
+            talkers = _talkers(buf, s[sel])
+            if k == 1:
+                vals = _block_gga(blk, talkers)
+            elif k == 2:
+                vals = _block_rmc(blk, talkers, nf)
+            elif k == 3:
+                vals = _block_vtg(blk, talkers, nf)
+            else:
+                vals = _block_zda(blk, talkers)
+            for i, v, good in zip(r.tolist(), vals, blk.ok.tolist()):
+                if good:
+                    out[i] = v
+    return out, kind
+
+
 def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Iterator[tuple[int, tuple]]:
     """:func:`iter_nmea` over the text file ``fh`` (opened as :func:`read_nmea` opens it), yielding
     ``(line number, record values)`` (:func:`record_values`), with the same counts in ``stats``: lines
@@ -868,18 +1145,19 @@ def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Ite
             lines = (carry + block).split("\n")
             carry = lines.pop()
         st.lines += len(lines)
-        kinds = fast_kinds(lines).tolist()
+        block_vals, kind = fast_block(lines)
+        kinds = kind.tolist()
         for i, line in enumerate(lines):
-            k = kinds[i]
-            if k:
+            vals = block_vals[i]
+            if vals is None and kinds[i]:
                 try:
-                    vals = fast[k](line)
+                    vals = fast[kinds[i]](line)
                 except (_Fallback, ValueError):
                     pass
-                else:
-                    st.accepted += 1
-                    yield lineno0 + i + 1, vals
-                    continue
+            if vals is not None:
+                st.accepted += 1
+                yield lineno0 + i + 1, vals
+                continue
             try:
                 rec = parse_line(line)
             except DecodeError as e:
