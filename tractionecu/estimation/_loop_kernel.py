@@ -100,7 +100,7 @@ F_NAMES = (
     ("c_curve_period", 1), ("c_curve_minspd", 1), ("c_slip_max", 1), ("c_avg_max", 1), ("c_avg_corr", 1),
     ("c_adapt_period", 1), ("c_dyn_tau", 1), ("c_lost_after", 1), ("c_mon_rho_max", 1), ("c_mon_minspd", 1),
     ("c_rate_k", 1), ("c_rate_maxint", 1), ("c_kin_b", 1), ("c_kin_csig", 1), ("c_kin_minspd", 1),
-    ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_r0", 1), ("c_kdef", 1), ("c_lim", 1), ("c_mon_bound", 9),
+    ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_eta", 1), ("c_drag", 1), ("c_mon_bound", 9),
     ("c_w", 43), ("c_kc", 16), ("c_lo", 10), ("c_hi", 10), ("c_qtune", 10),
     # filter
     ("x", 10), ("P", 100), ("u", 7), ("Qb", 100), ("A", 10), ("sig", 210), ("xn", 10), ("Pn", 100),
@@ -163,7 +163,7 @@ F_C_RHO_T: int; F_C_GATE: int; F_C_CMU: int; F_C_CRHO: int; F_C_EXIT2: int; F_C_
 F_C_CURVE_PERIOD: int; F_C_CURVE_MINSPD: int; F_C_SLIP_MAX: int; F_C_AVG_MAX: int; F_C_AVG_CORR: int  # noqa: E702
 F_C_ADAPT_PERIOD: int; F_C_DYN_TAU: int; F_C_LOST_AFTER: int; F_C_MON_RHO_MAX: int; F_C_MON_MINSPD: int  # noqa: E702
 F_C_RATE_K: int; F_C_RATE_MAXINT: int; F_C_KIN_B: int; F_C_KIN_CSIG: int; F_C_KIN_MINSPD: int  # noqa: E702
-F_C_KIN_VARBETA: int; F_C_TANPULL: int; F_C_R0: int; F_C_KDEF: int; F_C_LIM: int; F_C_MON_BOUND: int  # noqa: E702
+F_C_KIN_VARBETA: int; F_C_TANPULL: int; F_C_ETA: int; F_C_DRAG: int; F_C_MON_BOUND: int  # noqa: E702
 F_C_W: int; F_C_KC: int; F_C_LO: int; F_C_HI: int; F_C_QTUNE: int  # noqa: E702
 F_X: int; F_P: int; F_U: int; F_QB: int; F_A: int; F_SIG: int; F_XN: int; F_PN: int; F_Q: int  # noqa: E702
 F_WORK: int; F_SMALL: int; F_DX: int; F_KSK: int  # noqa: E702
@@ -488,12 +488,15 @@ def _stage_begin(F, I, RB, IN, k):                                        # prag
             for i in range(4):
                 F[F_L_OLD_MD + i] = u[i]
             F[F_L_TOLD_MD] = F[F_TIN]
-            if I[I_HAS_MDINV]:
-                for i in range(4):
-                    u[i] = IN[k, IN_MD + i] * F[F_MD_INV + i]
-            else:
-                for i in range(4):
-                    u[i] = IN[k, IN_MD + i]
+            eta = F[F_C_ETA]
+            drag = F[F_C_DRAG]
+            for i in range(4):
+                a = IN[k, IN_MD + i]
+                if eta != 1.0:               # motor to wheel torque (losses against the power flow)
+                    a = a * (eta if a * F[F_DIR] >= 0.0 else 1.0 / eta)
+                if drag != 0.0 and I[I_UKF]:
+                    a = a - drag * F[F_X + i]      # the hub's drag at the wheel speed
+                u[i] = a * F[F_MD_INV + i] if I[I_HAS_MDINV] else a
             F[F_MD_SUM] = sm
             F[F_TIN] = t
         else:

@@ -28,9 +28,9 @@ identically:
   the estimator's own :class:`~.ukf.UnscentedFilter`, its state set from the compiled one and read back.
 
 Coverage (:func:`supported`): the hub estimator (:class:`~.estimator.Estimator` itself) with numba on, on
-a vehicle without the features a vehicle file switches on (a declared hub efficiency or drag, a tyre
-carcass, a two-inertia hub).  Anything else (the machine-level estimator, those features, numba off) is
-not covered: :func:`supported` says why, and batch replay runs the step path's Python estimator instead.
+a vehicle without the features a vehicle file switches on that it does not port (a tyre carcass, a
+two-inertia hub; a declared hub efficiency and drag are ported).  Anything else (the machine-level
+estimator, those features, numba off) is not covered: :func:`supported` says why, and batch replay runs the step path's Python estimator instead.
 
 Contract: every estimate column equal to the step path's to 1e-9 (``tests/estimation/test_compiled_loop.py``).
 """
@@ -59,8 +59,6 @@ def supported(est: Any) -> tuple[bool, str]:
         return False, "numba is off (TRACTIONECU_JIT=0 or not installed)"
     if type(est) is not Estimator:
         return False, f"{type(est).__name__} is not the hub estimator the compiled loop ports"
-    if getattr(est, "_eta", 1.0) != 1.0 or getattr(est, "_drag", 0.0) != 0.0:
-        return False, "the vehicle declares a hub efficiency or drag (drivetrain)"
     if est.model.cx != 0.0 or getattr(est, "_cx", 0.0) != 0.0:
         return False, "the vehicle declares a tyre carcass (tyre_carcass_stiffness_npm)"
     if getattr(est, "_hub", None) is not None or getattr(est.model, "hub", None) is not None:
@@ -110,7 +108,8 @@ class CompiledLoop:
             "c_mon_minspd": est._monitor.min_speed, "c_rate_k": est._rates.k,
             "c_rate_maxint": next(iter(est._rates.trackers.values())).max_interval_s,
             "c_kin_b": est._kin.b, "c_kin_csig": est._kin.course_sigma, "c_kin_minspd": est._kin.min_speed,
-            "c_kin_varbeta": est._kin.var_beta, "c_tanpull": est.model.tan_pull,
+            "c_kin_varbeta": est._kin.var_beta, "c_tanpull": est.model.tan_pull, "c_eta": est._eta,
+            "c_drag": est._drag,
         }
         for name, val in const.items():
             F[o[name]] = val
@@ -200,6 +199,23 @@ class CompiledLoop:
             else:
                 IN[nw, c] = np.asarray(vals, dtype=float)[nw]
         return IN
+
+    @classmethod
+    def inputs_from_steps(cls, steps: list[tuple[float, dict[str, Any], dict[str, Any]]]) -> np.ndarray:
+        """:meth:`block_inputs` of steps given as the step path's arguments ``(t, inputs, measurements)``."""
+        keys = ("Md", "Fzf", "Fdx", "omega", "dir", "v", "course")
+        t = np.array([float(s[0]) for s in steps])
+        streams = []
+        for key in keys:
+            new = [key in (s[1] if key in ("Md", "Fzf", "Fdx") else s[2]) for s in steps]
+            m = 4 if key in ("Md", "omega") else 1
+            vals = np.full((len(steps), m), np.nan)
+            for i, s in enumerate(steps):
+                d = s[1] if key in ("Md", "Fzf", "Fdx") else s[2]
+                if key in d:
+                    vals[i] = np.asarray(d[key], dtype=float)
+            streams.append((key, False, vals if m == 4 else vals[:, 0], new))
+        return cls.block_inputs(t, streams)
 
     # ------------------------------------------------------------------ the loop
     def step_block(self, IN: np.ndarray) -> np.ndarray:
