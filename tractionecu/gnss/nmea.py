@@ -1,10 +1,11 @@
 """NMEA 0183 sentence formatting and strict parsing (GGA, RMC, VTG, GNS, ZDA).
 
-The writer, the parser and the epoch assembler stay in one module (over 500
-lines): they share the sentence table, the field formats and the
-mode/quality maps, and together they are the whole NMEA side of the GNSS
-contract, which the simulator writes and the recording reader and the
-service read.
+The writer, the parser, its fast path for recordings and the epoch
+assembler stay in one module (over 1,000 lines): they share the sentence
+table, the field formats and the mode/quality maps, the fast path is proven
+against the parser's own helpers, and together they are the whole NMEA side
+of the GNSS contract, which the simulator writes and the recording reader
+and the service read.
 
 Formatting follows what a u-blox ZED-F9P writes (NMEA 4.10 output): time
 ``hhmmss.ss``, latitude ``ddmm.mmmmm``, longitude ``dddmm.mmmmm``, two-digit
@@ -24,6 +25,36 @@ of other types (GSA, GSV, TXT, ...) return None.
 Units: time of day [s since 00:00 UTC], angles [deg] (WGS84 latitude and
 longitude, course over ground clockwise from true north), altitude above
 mean sea level [m], speed over ground [m/s].
+
+Fast path (recordings)
+----------------------
+Why: a recording's GNSS log holds about 30 sentences a second, and
+:func:`parse_line` (pynmea2's pattern and checksum, then the field helpers)
+costs about 20 µs a line, more than decoding the whole CAN capture; a batch
+replay meant to run 1,000x real time per core cannot spend that.
+:func:`iter_nmea_fast` (what :func:`tractionecu.recording.gps.read_gps`
+uses) gives the same records and counts in three tiers: :func:`fast_block`
+screens a block of lines with numpy (a ``$``, a two-letter talker not
+starting with ``P``, GGA/RMC/VTG/ZDA, the usual field count, only
+``0-9 A-Z . , -`` in the body and a checksum that holds; such a line is one
+that pynmea2 parses as a plain split at commas) and converts the sentences
+of one type together; a form it leaves (an exponent, a trailing dot, more
+than 15 digits, ...) goes to :func:`fast_record`, the same conversion line
+by line; every other line, and every line whose value a check of
+:func:`parse_line` would refuse, goes to :func:`parse_line`, so rejects keep
+their reasons, line numbers and texts.  pynmea2 stays the reference: the
+live service parses with :func:`parse_line`.
+
+How it is proven equal: each tier uses :func:`parse_line`'s arithmetic on
+the same field text (``float()``; in the block tier ``N / 10**k`` for a
+number of N's digits with k decimals, both exact doubles, whose correctly
+rounded quotient is ``float()``'s correctly rounded value), the same sums in
+the same order, and each of its checks at least as strictly.
+``tests/gnss/test_nmea_fast.py`` compares the tiers with :func:`parse_line`
+by ``repr`` (so -0.0 differs from 0.0) on simulated logs of several
+scenarios, the fixtures and thousands of seeded corruptions, and
+``tests/recording/test_reader_fast.py`` the tracks and statistics of whole
+recordings with the sentence-by-sentence reader.
 """
 
 from __future__ import annotations
@@ -613,27 +644,16 @@ def read_nmea(path: str | Path, stats: NmeaStats | None = None) -> Iterator[GpsF
 
 
 # --------------------------------------------------------------------------- fast path
-# Why: a recording's GNSS log is ~30 sentences a second, and parse_line (pynmea2's regex and checksum,
-# then the field helpers) costs ~20 us a line: more than the whole CAN capture's decoding.  A batch replay
-# that should run >= 1000x real time cannot spend that.  The fast path below turns the sentences a
-# receiver writes every epoch into the same values with far less work, and hands every other line to
-# parse_line, so rejects keep their reasons and line numbers.
-#
-# Which lines it takes (fast_kinds, checked for a whole block of lines with numpy): '$', a talker of two
-# upper-case letters not starting with P, GGA/RMC/VTG/ZDA, a comma, the usual number of fields for that
-# sentence, then '*' and two hex digits that equal the XOR of the characters between '$' and '*', and
-# nothing but 0-9 A-Z '.' ',' '-' in between (no white space, no second '*' or '$', nothing non-ASCII),
-# at most MAX_FAST_LINE characters.  For such a line pynmea2.parse(line, check=True) is exactly: the
-# checksum holds, talker = line[1:3], sentence type = line[3:6], data = line[7:-3].split(',').  Only the
-# proprietary ('P...') and query ('..xxQ,') branches of its address pattern could differ, and both are
-# excluded.
-#
-# What it computes (_fast_gga, _fast_rmc, _fast_vtg, _fast_zda): the same field helpers' arithmetic
-# (float()/int() on the same field text, the same sums and products in the same order), with every check
-# of parse_line made as well or more strictly; where a check would fail or a conversion raises, the
-# line goes to parse_line, which rejects it with its reason.  So a line the fast path takes gives the
-# NmeaRecord parse_line gives, float for float; tests/gnss/test_nmea_fast.py checks that on simulated
-# and fixture logs and on corrupted lines.
+# The fast path of the module doc ("Fast path (recordings)").  Details of the screen (_screen): '$', a
+# talker of two upper-case letters not starting with P, GGA/RMC/VTG/ZDA, a comma, the usual number of
+# fields for that sentence, then '*' and two hex digits that equal the XOR of the characters between '$'
+# and '*', nothing but 0-9 A-Z '.' ',' '-' in between (no white space, no second '*' or '$', nothing
+# non-ASCII), at most MAX_FAST_LINE characters.  For such a line pynmea2.parse(line, check=True) is
+# exactly: the checksum holds, talker = line[1:3], sentence type = line[3:6], data =
+# line[7:-3].split(','); of its address pattern only the proprietary ('P...') and query ('..xxQ,')
+# branches could differ, and both are excluded.  The conversions (_fast_gga ... _fast_zda line by line,
+# _block_gga ... _block_zda for a block) make every check of parse_line as well or more strictly; where
+# one would fail or a conversion raises, the line goes one tier down.
 
 MAX_FAST_LINE = 100
 """Longest line the fast path takes (NMEA 0183 allows 82 characters with CR LF)."""
