@@ -29,6 +29,18 @@ per soil:
     identification is measured apart from the filter's own μ and slip errors; with the truth's
     wheel loads ``fz_*`` (the hub estimator passes its own), so that the load dependence can be fitted.
 
+``exact`` (second table)
+    the same identification fed with the truth's per-wheel (μ, s) as they are, no error added, with the
+    load term off (the default) and on: what the identification reaches when the pairs are exact, with the
+    slips each soil's work covers and the truth's load dependence.  Beside it, per axle, the errors of the
+    chain's pairs against the truth in work (:func:`~tractionecu.evaluation.curve_score.pair_errors`): the
+    standard deviations of e_s and e_μ, their correlation, the correlation of e_s with the true slip and
+    the slope of ŝ on s (1 and 0 for the classical errors the fit assumes).
+
+Two definitions of the target are counted on the last lines, each stated: the issue's, R² over
+s ∈ [0, 0.4] (the scorecard's), and R² over each soil's own slip range (5–95 % of its true slips in work),
+where the curve rests on data.  Neither replaces the other.
+
 Scoring load: the truth's tabulated ``mu_curve`` is μ(s) at the static mean wheel load m g/4, and the
 identified curve is evaluated at the same load (its reference load m g/4 of ``vehicle.toml``; a curve
 without a load dependence is one curve for every load).  ``front``/``rear``: the same curve at the
@@ -59,7 +71,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tractionecu.estimation.curve import CurveEstimator  # noqa: E402
 from tractionecu.estimation.config import EstimatorConfig  # noqa: E402
-from tractionecu.evaluation.curve_score import identified_curve, r_squared_over, true_curve  # noqa: E402
+from tractionecu.estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN  # noqa: E402
+from tractionecu.evaluation.curve_score import identified_curve, pair_errors, r_squared_over, true_curve  # noqa: E402
 from tractionecu.config import G, load_vehicle  # noqa: E402
 from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared, scorecard  # noqa: E402
 from tractionecu.pipeline.replay import replay  # noqa: E402
@@ -71,8 +84,10 @@ SLIP_SIGMA = 0.009
 SLIP_CORR_S = 0.5
 
 
-def pairs_run(rec: Path, seed: int, shape: bool = True, load: bool = False) -> tuple[dict[str, dict], float, float]:
-    """The identification alone on the truth's pairs: per soil {r2, path}, curve seconds, run seconds."""
+def pairs_run(rec: Path, seed: int, shape: bool = True, load: bool = False,
+              exact: bool = False) -> tuple[dict[str, dict], float, float]:
+    """The identification alone on the truth's pairs: per soil {r2, range_r2, path}, curve seconds, run seconds.
+    ``exact``: the truth's pairs as they are (no slip or μ error added)."""
     tr = read_truth(rec / "truth.csv", rec / "truth.toml")
     fz = truth_loads(rec)
     veh = load_vehicle(rec / "vehicle.toml")
@@ -89,20 +104,24 @@ def pairs_run(rec: Path, seed: int, shape: bool = True, load: bool = False) -> t
         dt = 0.1 if tc == -math.inf else float(tr.t[i] - tc)
         tc = float(tr.t[i])
         e = e * math.exp(-dt / SLIP_CORR_S) + math.sqrt(1 - math.exp(-2 * dt / SLIP_CORR_S)) * SLIP_SIGMA * rng.standard_normal()
-        mu = tr.mu[i] + 0.003 * rng.standard_normal(4)
-        s = tr.slip[i] + e
+        mu = tr.mu[i] + (0.0 if exact else 0.003 * rng.standard_normal(4))
+        s = tr.slip[i] + (0.0 if exact else e)
         t0 = time.perf_counter()
         st = ce.update(tc, mu, s, np.full(4, 0.005), np.full(4, SLIP_SIGMA), None if fz is None else fz[i])
         spent += time.perf_counter() - t0
         states[tr.soil_name[i]].append(st)
     out = {}
+    ranges = slip_spans(rec, ranges=True)
     for name, sts in states.items():
         a = np.array([x.a for x in sts])
         idx = np.flatnonzero(np.isfinite(a))
         if not idx.size:
             continue
         cur, info = identified_curve(idx, a, [x.class_name for x in sts], [x.curve for x in sts], S_GRID)
-        out[name] = {"r2": r_squared(cur, true_curve(tr.soils[name], S_GRID)), "path": info["curve_path"],
+        y = true_curve(tr.soils[name], S_GRID)
+        lo, hi = ranges.get(name, (math.nan, math.nan))
+        out[name] = {"r2": r_squared(cur, y), "range_r2": r_squared_over(cur, y, S_GRID, lo, hi),
+                     "path": info["curve_path"],
                      "shape_share": float(np.mean([x.curve_path.startswith("shape:") for x in sts])),
                      **axle_r2(rec, name, idx, sts, veh)}
     return out, spent, float(tr.t[-1] - tr.t[0])
@@ -135,6 +154,16 @@ def chain_run(rec: Path, load: bool = False) -> tuple[dict, dict[str, dict]]:
         no, n_no = cnt.most_common(1)[0]
         out[name] = {"range_r2": r_squared_over(cur, true_curve(tr.soils[name], S_GRID), S_GRID, lo, hi),
                      "slip_range": [lo, hi], "soil_no": int(no), "soil_share": n_no / idx.size}
+        # the errors of the pairs the curve is fitted to, per axle: valid estimates whose slip is supported
+        # (neither held nor averaged: SLIP_UNCERTAIN, SLIP_AVERAGED), in work (|μ| ≥ 0.15 on every wheel)
+        held = (np.asarray(a["status"]) & (SLIP_UNCERTAIN | SLIP_AVERAGED)) != 0
+        work = idx[np.all(np.abs(tr.mu[k[idx]]) >= 0.15, axis=1) & (np.abs(tr.v[k[idx]]) >= 0.5) & ~held[idx]]
+        # (signed in the direction of the true force: a slip under traction that reads negative stays negative)
+        sgn = np.sign(tr.mu[k[work]])
+        for axle, cols in (("front", [0, 1]), ("rear", [2, 3])):
+            out[name][f"errors_{axle}"] = pair_errors(
+                (sgn * a["mu"][work])[:, cols], (sgn * a["slip"][work])[:, cols],
+                (sgn * tr.mu[k[work]])[:, cols], (sgn * tr.slip[k[work]])[:, cols])
     return card, out
 
 
@@ -205,6 +234,8 @@ def main(argv: list[str] | None = None) -> int:
             spans = slip_spans(rec)
             pairs, spent, dur = pairs_run(rec, seed, load=args.load)
             _, spent0, _ = pairs_run(rec, seed, shape=False)
+            exact, _, _ = pairs_run(rec, seed, load=args.load, exact=True)
+            exact_load, _, _ = pairs_run(rec, seed, load=True, exact=True)
             cost["curve_s_shape"] += spent
             cost["curve_s_paper"] += spent0
             cost["run_s"] += dur
@@ -216,11 +247,20 @@ def main(argv: list[str] | None = None) -> int:
                        "pairs_path": pairs.get(soil, {}).get("path", ""),
                        "pairs_r2_front": pairs.get(soil, {}).get("r2_front", math.nan),
                        "pairs_r2_rear": pairs.get(soil, {}).get("r2_rear", math.nan),
+                       "exact_r2": exact.get(soil, {}).get("r2", math.nan),
+                       "exact_range_r2": exact.get(soil, {}).get("range_r2", math.nan),
+                       "exact_path": exact.get(soil, {}).get("path", ""),
+                       "exact_load_r2": exact_load.get(soil, {}).get("r2", math.nan),
+                       "exact_load_range_r2": exact_load.get(soil, {}).get("range_r2", math.nan),
+                       "exact_load_path": exact_load.get(soil, {}).get("path", ""),
                        "mu_mean_abs_rel_error": card.get("mu_mean_abs_rel_error", math.nan)}
                 # issue 13's target: R² ≥ 0.98 where the soil's slip span is ≥ 0.04 (over [0, 0.4], the
                 # scorecard's figure; the range R² beside it says how much of that is extrapolation)
                 row["target_applies"] = bool(row["slip_span"] >= TARGET_SPAN)
                 row["target_met"] = bool(row["target_applies"] and r2 >= TARGET_R2)
+                # the same threshold over the soil's own slip range (5-95 % of its true slips): a second
+                # definition, reported beside the issue's, never instead of it
+                row["target_met_range"] = bool(row["target_applies"] and row.get("chain_range_r2", math.nan) >= TARGET_R2)
                 rows.append(row)
                 sno = f"{row.get('chain_soil_no', -1)} ({row.get('chain_soil_share', math.nan) * 100:.0f}%)"
                 lo, hi = row.get("chain_slip_range", (math.nan, math.nan))
@@ -228,10 +268,26 @@ def main(argv: list[str] | None = None) -> int:
                       f"{row.get('chain_range_r2', math.nan):9.4f} {sno:>9s} {row['chain_path']:20s} "
                       f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
                       f"{row['pairs_r2_rear']:6.3f}")
+    print("\nThe identification on the truth's exact per-wheel pairs (no slip or μ error; truth's soils split by the"
+          " estimator's change test as in the chain), load term off / on, R2 over [0, 0.4] and over the soil's slip range;"
+          "\nthe errors of the chain's pairs per axle in work: sd of e_s and e_mu, corr(e_mu, e_s), corr(e_s, s), gain of s-hat on s")
+    print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'exact R2':>9s} {'range':>7s} {'exact+load':>10s} {'range':>7s} "
+          f"{'exact path, load off / on':34s} {'axle':5s} {'sd e_s':>7s} {'sd e_mu':>7s} {'c(mu,s)':>7s} {'c(s,s)':>7s} {'s gain':>6s}")
+    for row in rows:
+        for axle in ("front", "rear"):
+            er = row.get(f"chain_errors_{axle}", {})
+            head = (f"{row['scenario']:22s} {row['seed']:4d} {row['soil']:16s} {row['exact_r2']:9.4f} {row['exact_range_r2']:7.4f} "
+                    f"{row['exact_load_r2']:10.4f} {row['exact_load_range_r2']:7.4f} "
+                    f"{row['exact_path'] + ' / ' + row['exact_load_path']:34s}" if axle == "front" else " " * 113)
+            print(f"{head} {axle:5s} {er.get('s_sd', math.nan):7.4f} {er.get('mu_sd', math.nan):7.4f} "
+                  f"{er.get('corr_mu_s', math.nan):+7.2f} {er.get('corr_s_true', math.nan):+7.2f} {er.get('s_gain', math.nan):6.2f}")
     app = [r for r in rows if r["target_applies"]]
     print(f"R2 >= {TARGET_R2} where the slip span >= {TARGET_SPAN}: {sum(r['target_met'] for r in app)} of {len(app)} "
           f"soil runs; not met: " + (", ".join(f"{r['scenario']}/{r['seed']}/{r['soil']} {r['chain_r2']:.3f}"
                                                 for r in app if not r["target_met"]) or "none"))
+    print(f"  over each soil's own slip range (5-95 % of its true slips): {sum(r['target_met_range'] for r in app)} of "
+          f"{len(app)}; on the truth's exact pairs, over [0, 0.4]: {sum(r['exact_r2'] >= TARGET_R2 for r in app)} of "
+          f"{len(app)} (load term on: {sum(r['exact_load_r2'] >= TARGET_R2 for r in app)})")
     steps = cost["run_s"] * 100.0
     figures = {"curve_us_per_step": cost["curve_s_shape"] / steps * 1e6,
                "curve_us_per_step_paper_path": cost["curve_s_paper"] / steps * 1e6, "rows": rows}

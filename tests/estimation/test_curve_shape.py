@@ -430,3 +430,43 @@ def test_binning_by_an_independent_adhesion_removes_the_flattening():
     true_slope = 1.0 / float(np.interp(np.interp(0.3, fs, ss), ss[1:], np.diff(fs) / np.diff(ss)))
     assert out[False] < 0.3 * true_slope                                  # flattened (to a tenth here)
     assert abs(out[True] - true_slope) < 0.25 * true_slope
+
+
+def test_pair_errors_measures_what_the_fit_assumes():
+    """pair_errors: classical errors (independent of the truth and of each other) read as corr 0 and gain 1;
+    the filter-like errors of physical-three-soils' rear wheels (ŝ over-reacting to the true slip, μ̂ error
+    correlated with ŝ error) read as the correlation and gain put in."""
+    from tractionecu.evaluation.curve_score import pair_errors
+
+    rng = np.random.default_rng(3)
+    n = 200_000
+    s_t = 0.07 + 0.014 * rng.standard_normal(n)
+    mu_t = 0.3 + 0.02 * rng.standard_normal(n)
+    e = rng.standard_normal((2, n))
+    cl = pair_errors(mu_t + 0.007 * e[0], s_t + 0.012 * e[1], mu_t, s_t)
+    assert cl["n"] == n
+    assert cl["mu_sd"] == pytest.approx(0.007, rel=0.01) and cl["s_sd"] == pytest.approx(0.012, rel=0.01)
+    assert abs(cl["corr_mu_s"]) < 0.01 and abs(cl["corr_s_true"]) < 0.01
+    assert cl["s_gain"] == pytest.approx(1.0, abs=0.01) and cl["mu_gain"] == pytest.approx(1.0, abs=0.01)
+    # ŝ = s + 0.3 (s − s̄) + noise: gain 1.3; e_μ built with corr −0.6 to the slip error
+    e_s = 0.3 * (s_t - 0.07) + 0.008 * e[1]
+    sd_es = math.sqrt((0.3 * 0.014) ** 2 + 0.008 ** 2)
+    e_mu = 0.007 * (-0.6 * e_s / sd_es + 0.8 * e[0])
+    fl = pair_errors(mu_t + e_mu + 0.005, s_t + e_s, mu_t, s_t)
+    assert fl["s_gain"] == pytest.approx(1.3, abs=0.01) and fl["mu_gain"] == pytest.approx(1.0, abs=0.01)
+    assert fl["corr_mu_s"] == pytest.approx(-0.6, abs=0.01)
+    assert fl["corr_s_true"] == pytest.approx(0.3 * 0.014 / sd_es, abs=0.01)
+    assert fl["mu_bias"] == pytest.approx(0.005, abs=1e-4)
+
+
+def test_pair_errors_drops_non_finite_pairs_and_rejects_unequal_lengths():
+    from tractionecu.evaluation.curve_score import pair_errors
+
+    mu = np.array([0.3, 0.31, np.nan, 0.33, 0.35])
+    s = np.array([0.05, 0.06, 0.07, np.inf, 0.09])
+    out = pair_errors(mu + 0.01, s, mu, s)
+    assert out["n"] == 3 and out["mu_bias"] == pytest.approx(0.01) and out["s_sd"] == 0.0
+    assert math.isnan(out["corr_mu_s"])                      # a constant error has no correlation
+    assert math.isnan(pair_errors(mu[:2], s[:2], mu[:2], s[:2])["mu_sd"])     # fewer than 3 pairs
+    with pytest.raises(ValueError, match="same length"):
+        pair_errors(mu, s[:4], mu, s)

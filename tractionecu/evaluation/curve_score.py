@@ -107,3 +107,41 @@ def r_squared_over(y_hat: NDArray[np.float64], y: NDArray[np.float64], s_grid: N
     d = y[m] - y[m].mean()
     ss = float((d * d).sum())
     return 1.0 - float((r * r).sum()) / ss if ss > 0 else float("nan")
+
+
+def pair_errors(mu_e: NDArray[np.float64], s_e: NDArray[np.float64], mu_t: NDArray[np.float64],
+                s_t: NDArray[np.float64]) -> dict[str, float]:
+    """Errors of estimated (μ̂, ŝ) pairs against the true (μ, s) of the same wheels and instants [-].
+
+    The curve is fitted to (μ̂, ŝ) as if each pair were the true point plus an error that is independent
+    of the true point (classical errors in variables, which binning by μ̂ and the fit's effective variance
+    assume).  These figures say how far that holds: the standard deviation and mean of e_μ = μ̂ − μ and
+    e_s = ŝ − s (``mu_sd``, ``mu_bias``, ``s_sd``, ``s_bias``), the correlation of the two errors
+    (``corr_mu_s``), the correlation of the slip error with the true slip (``corr_s_true``: 0 for a
+    classical error) and the least-squares slopes of ŝ on s and of μ̂ on μ (``s_gain``, ``mu_gain``: 1
+    for a classical error; above 1 the estimate over-reacts to the true variation, below 1 it attenuates
+    it).  Inputs are 1-D arrays of equal length; non-finite entries are dropped (``n`` counts the rest).
+    NaN figures with fewer than 3 pairs or a constant true value."""
+    arrs = [np.asarray(x, dtype=float).ravel() for x in (mu_e, s_e, mu_t, s_t)]
+    if len({a.size for a in arrs}) != 1:
+        raise ValueError("pair_errors: mu_e, s_e, mu_t and s_t must have the same length")
+    ok = np.all([np.isfinite(a) for a in arrs], axis=0)
+    me, se, mt, st = (a[ok] for a in arrs)
+    nan = float("nan")
+    out = {"n": float(me.size), "mu_sd": nan, "mu_bias": nan, "s_sd": nan, "s_bias": nan, "corr_mu_s": nan,
+           "corr_s_true": nan, "s_gain": nan, "mu_gain": nan}
+    if me.size < 3:
+        return out
+    em, es = me - mt, se - st
+
+    def corr(x: NDArray[np.float64], y: NDArray[np.float64]) -> float:
+        sx, sy = float(x.std()), float(y.std())
+        return float(np.mean((x - x.mean()) * (y - y.mean())) / (sx * sy)) if sx > 0 and sy > 0 else nan
+
+    def gain(est: NDArray[np.float64], true: NDArray[np.float64]) -> float:
+        v = float(true.var())
+        return float(np.mean((est - est.mean()) * (true - true.mean())) / v) if v > 0 else nan
+
+    out.update(mu_sd=float(em.std()), mu_bias=float(em.mean()), s_sd=float(es.std()), s_bias=float(es.mean()),
+               corr_mu_s=corr(em, es), corr_s_true=corr(es, st), s_gain=gain(se, st), mu_gain=gain(me, mt))
+    return out
