@@ -81,7 +81,7 @@ def test_state_after_every_step_equals_the_python_estimator():
     assert statuses & INPUT_REJECTED and statuses & MEAS_GATED and statuses & NOT_CONVERGED
     assert est.counters["gap_resets"] == 1 and est.counters["rejected_inputs"] >= 2
     assert loop.events["init"] == 2 and loop.events["update"] >= 3
-    assert loop.events["curve"] > 0 and loop.events["adapt"] > 0 and loop.events["cal"] > 0
+    assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and loop.events["cal"] > 0
 
 
 def _compare(path) -> tuple:

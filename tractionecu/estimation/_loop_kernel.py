@@ -60,11 +60,13 @@ EV_INIT = 101        # initialise the filter (Estimator._init_filter), then the 
 EV_PREDICT = 102     # predict sub-step on the Python filter (P not positive definite: its repair)
 EV_RECOVER = 103     # non-finite prediction: Estimator._recover
 EV_UPDATE = 104      # update on the Python filter (gated or non-finite components: the general path)
-EV_ADAPT = 105       # adaptation period: covariance matching, fuzzy factor, systematic uncertainty
+EV_ADAPT = 105       # (no longer returned: the adaptation period is compiled, see EV_FUZZY, EV_SYSTEMATIC)
 EV_CURVE = 106       # μ(s) curve update
 EV_SLIPWIN = 107     # averaged slip: the identified curve's slope at the candidate stretches
 EV_CAL = 108         # radius calibration at a GNSS epoch
 EV_WINFULL = 109     # the averaged slip's buffer is full: the driver enlarges it
+EV_FUZZY = 110       # the fuzzy supervisor's intensity of strengths not in the memo (FuzzySupervisor.intensity)
+EV_SYSTEMATIC = 111  # systematic uncertainty with a pull-angle tolerance (its math.hypot stays in Python)
 
 # ----------------------------------------------------------------------------- stages of a step
 ST_BEGIN = 0
@@ -80,6 +82,10 @@ ST_ESTIMATE3 = 9
 ST_CAL = 10
 ST_NONE = 11
 ST_END = 12
+ST_ADAPT = 13
+ST_ADAPT2 = 14
+MEMO = 64
+"""Entries of the fuzzy supervisor's memo (FuzzySupervisor keeps 64 too; a full memo starts again)."""
 
 # ----------------------------------------------------------------------------- columns of the block arrays
 IN_T, IN_HMD, IN_MD, IN_HFZF, IN_FZF, IN_HFDX, IN_FDX, IN_HOM, IN_OM, IN_HDIR, IN_DIR, IN_HV, IN_V, IN_HCRS, \
@@ -102,6 +108,11 @@ F_NAMES = (
     ("c_rate_k", 1), ("c_rate_maxint", 1), ("c_kin_b", 1), ("c_kin_csig", 1), ("c_kin_minspd", 1),
     ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_eta", 1), ("c_drag", 1), ("c_mon_bound", 9),
     ("c_w", 43), ("c_kc", 16), ("c_lo", 10), ("c_hi", 10), ("c_qtune", 10),
+    ("c_a_min", 1), ("c_a_max", 1),
+    # fuzzy supervisor: a1, a2, a3, m1, m2, m3, factor_min, log(f_max / f_min)
+    ("c_fz", 8),
+    # systematic uncertainty: u_g, u_eta, tan_pull, u_tan, u_m0, u_a0, u_ag, u_d0, u_dg, lat2_3, weight, mg
+    ("c_unc", 12),
     # filter
     ("x", 10), ("P", 100), ("u", 7), ("Qb", 100), ("A", 10), ("sig", 210), ("xn", 10), ("Pn", 100),
     ("Q", 100), ("work", 70), ("small", 55), ("dx", 10), ("ksk", 10),
@@ -110,7 +121,9 @@ F_NAMES = (
     ("t_upd_w", 1), ("t_upd_v", 1), ("last_vmeas", 1), ("dir", 1), ("dir_bus", 1), ("t_dir_bus", 1),
     ("f", 1), ("Qdt", 1), ("tq_gain", 1), ("adapt_mu", 1), ("t_adapt", 1), ("t_curve", 1), ("r_lat", 1),
     ("kf", 1), ("kr", 1), ("held_rho", 1), ("held_s", 4), ("win_dir", 1), ("dm_var", 4), ("md_inv", 4),
-    ("rad", 6), ("sys_var", 5), ("last_nis", 1),
+    ("rad", 6), ("sys_var", 5), ("last_nis", 1), ("ur", 2),
+    # the fuzzy supervisor's memo: (strength SMALL, MEDIUM, LARGE, intensity c) per entry
+    ("fz_memo", 256), ("fz_st", 3), ("fz_c", 1),
     # dynamics monitor: t, v, m, accel, torque_rate, dt, k
     ("dyn", 7),
     # divergence monitor: nis, wheel, ground, rho since (NaN: None)
@@ -133,7 +146,7 @@ I_NAMES = (
     ("r_nbuf", 5), ("r_nlong", 5), ("r_observed", 5), ("r_window", 1), ("kin_far", 1), ("kin_restarts", 1),
     ("counters", 9), ("has_curve", 1), ("cs_ver", 1), ("f_cal", 1), ("f_adapt", 1), ("f_input_noise", 1),
     ("repaired_last", 1), ("slip_ok", 1), ("conv_p", 1), ("qb_valid", 1), ("upd_kind", 1), ("init_done", 1),
-    ("n_cand", 1), ("avg_found", 1),
+    ("n_cand", 1), ("avg_found", 1), ("f_sup", 1), ("f_unc", 1), ("fz_n", 1), ("fz_rules", 9),
 )
 COUNTERS = ("steps", "updates", "gated", "rejected_inputs", "rejected_measurements", "chol_repairs", "resets",
             "gap_resets", "lost")
@@ -164,7 +177,8 @@ F_C_CURVE_PERIOD: int; F_C_CURVE_MINSPD: int; F_C_SLIP_MAX: int; F_C_AVG_MAX: in
 F_C_ADAPT_PERIOD: int; F_C_DYN_TAU: int; F_C_LOST_AFTER: int; F_C_MON_RHO_MAX: int; F_C_MON_MINSPD: int  # noqa: E702
 F_C_RATE_K: int; F_C_RATE_MAXINT: int; F_C_KIN_B: int; F_C_KIN_CSIG: int; F_C_KIN_MINSPD: int  # noqa: E702
 F_C_KIN_VARBETA: int; F_C_TANPULL: int; F_C_ETA: int; F_C_DRAG: int; F_C_MON_BOUND: int  # noqa: E702
-F_C_W: int; F_C_KC: int; F_C_LO: int; F_C_HI: int; F_C_QTUNE: int  # noqa: E702
+F_C_W: int; F_C_KC: int; F_C_LO: int; F_C_HI: int; F_C_QTUNE: int; F_C_A_MIN: int; F_C_A_MAX: int  # noqa: E702
+F_C_FZ: int; F_C_UNC: int; F_UR: int; F_FZ_MEMO: int; F_FZ_ST: int; F_FZ_C: int  # noqa: E702
 F_X: int; F_P: int; F_U: int; F_QB: int; F_A: int; F_SIG: int; F_XN: int; F_PN: int; F_Q: int  # noqa: E702
 F_WORK: int; F_SMALL: int; F_DX: int; F_KSK: int  # noqa: E702
 F_T: int; F_T_INIT: int; F_KAPVAR: int; F_MD_SUM: int; F_TIN: int; F_T_OMEGA: int; F_T_V: int  # noqa: E702
@@ -183,7 +197,8 @@ I_CM_I: int; I_CM_COUNT: int; I_CM_M: int; I_GATE_RUN: int; I_GATE_RUN_ANY: int;
 I_LAST_DOF: int; I_R_NBUF: int; I_R_NLONG: int; I_R_OBSERVED: int; I_R_WINDOW: int; I_KIN_FAR: int  # noqa: E702
 I_KIN_RESTARTS: int; I_COUNTERS: int; I_HAS_CURVE: int; I_CS_VER: int; I_F_CAL: int; I_F_ADAPT: int  # noqa: E702
 I_F_INPUT_NOISE: int; I_REPAIRED_LAST: int; I_SLIP_OK: int; I_CONV_P: int; I_QB_VALID: int  # noqa: E702
-I_UPD_KIND: int; I_INIT_DONE: int; I_N_CAND: int; I_AVG_FOUND: int  # noqa: E702
+I_UPD_KIND: int; I_INIT_DONE: int; I_N_CAND: int; I_AVG_FOUND: int; I_F_SUP: int; I_F_UNC: int  # noqa: E702
+I_FZ_N: int; I_FZ_RULES: int  # noqa: E702
 
 C_STEPS, C_UPDATES, C_GATED, C_REJ_IN, C_REJ_MEAS, C_CHOL, C_RESETS, C_GAP, C_LOST = range(9)
 K_MD, K_FZF, K_FDX, K_OMEGA, K_V = range(5)
@@ -876,8 +891,107 @@ def _stage_divergence(F, I, CM):                                          # prag
     if t - F[F_T_ADAPT] >= F[F_C_ADAPT_PERIOD]:
         F[F_T_ADAPT] = t
         I[I_QB_VALID] = 0
-        return EV_ADAPT
+        return ST_ADAPT
     return ST_ESTIMATE
+
+
+def _stage_adapt(F, I, CM):                                               # pragma: no cover - compiled
+    """The adaptation period (Estimator.step): A_k (CovarianceMatching.compute), the fuzzy supervisor's rule
+    strengths and its memo; EV_FUZZY for strengths not in the memo."""
+    if I[I_F_ADAPT]:
+        M = I[I_CM_M]
+        A = F[F_A:F_A + 10]
+        if I[I_CM_COUNT] < M:
+            A[:] = 1.0
+        else:
+            _kernels.cm_ratio(CM[:M], CM[M:], F[F_C_A_MIN], F[F_C_A_MAX], A)
+    if I[I_F_SUP] == 0:
+        return ST_ADAPT2
+    c = F_C_FZ
+    st = F[F_FZ_ST:F_FZ_ST + 3]
+    _kernels.fuzzy_strengths(abs(F[F_DYN + 3]), abs(F[F_DYN + 4]), F[c], F[c + 1], F[c + 2], F[c + 3], F[c + 4],
+                             F[c + 5], I[I_FZ_RULES:I_FZ_RULES + 9].reshape((3, 3)), st)
+    for j in range(I[I_FZ_N]):
+        o = F_FZ_MEMO + 4 * j
+        if F[o] == st[0] and F[o + 1] == st[1] and F[o + 2] == st[2]:
+            F[F_FZ_C] = F[o + 3]
+            return ST_ADAPT2
+    return EV_FUZZY
+
+
+def _stage_adapt2(F, I):                                                  # pragma: no cover - compiled
+    """The rest of the adaptation period: f_k, the μ adaptation, the systematic uncertainty (Estimator._systematic);
+    EV_SYSTEMATIC where that needs Python."""
+    if I[I_F_SUP]:
+        F[F_F] = F[F_C_FZ + 6] * math.exp(F[F_C_FZ + 7] * F[F_FZ_C])
+    A = F[F_A:F_A + 10]
+    mean = A[5]
+    mean += A[6]
+    mean += A[7]
+    mean += A[8]
+    F[F_ADAPT_MU] = F[F_F] * (mean / 4.0)
+    f_unc = I[I_F_UNC]
+    if f_unc == 0:
+        return ST_ESTIMATE
+    if f_unc == 2:
+        return EV_SYSTEMATIC
+    u = F[F_U:F_U + 7]
+    _, _, rdf, rdr = _load_floats(F, u[4], u[5])
+    _systematic(F, I, u, u[4], u[5], rdf * F[F_KF], rdr * F[F_KR], F[F_UR], F[F_UR + 1])
+    return ST_ESTIMATE
+
+
+def _systematic(F, I, md, fzf, fdx, rdf, rdr, ur_f, ur_r):                # pragma: no cover - compiled
+    """SystematicUncertainty.variances (without a pull-angle tolerance) and Estimator._systematic's use of them,
+    same operations."""
+    c = F_C_UNC
+    u_g, u_eta, tan_pull, u_m0, u_a0, u_ag, u_d0, u_dg = (F[c], F[c + 1], F[c + 2], F[c + 4], F[c + 5], F[c + 6],
+                                                          F[c + 7], F[c + 8])
+    weight = F[c + 10]
+    mg = F[c + 11]
+    ff = 0.5 * fzf
+    fr = 0.5 * (weight - fzf) if tan_pull == 0.0 else 0.5 * ((weight - fzf) + fdx * tan_pull)
+    u_fz = 0.5 * math.sqrt(u_a0 ** 2 + (u_ag * fzf) ** 2)
+    g2 = u_g * u_g
+    if u_eta != 0.0:
+        g2 += u_eta * u_eta
+    m02 = u_m0 * u_m0
+    sv = F[F_SYS_VAR:F_SYS_VAR + 5]
+    f_r0 = 0.0
+    f_r1 = 0.0
+    off2 = 0.0
+    for i in range(4):
+        front = i < 2
+        r = rdf if front else rdr
+        fz = ff if front else fr
+        ur = ur_f if front else ur_r
+        m_r = md[i] / r
+        cc = m_r / fz
+        lz = u_fz / fz
+        sv[i] = cc * cc * (g2 + ur * ur + lz * lz) + m02 / (r * fz) ** 2
+        if front:
+            f_r0 += abs(m_r)
+        else:
+            f_r1 += abs(m_r)
+        off2 += m02 / (r * r)
+    tot = f_r0 + f_r1
+    num = ((u_g * tot) ** 2 + (u_eta * tot) ** 2 + (ur_f * f_r0) ** 2 + (ur_r * f_r1) ** 2 + off2
+           + u_d0 ** 2 + (u_dg * fdx) ** 2)
+    sv[4] = num / (mg * mg)
+    fin = True
+    for i in range(5):
+        if not math.isfinite(sv[i]):
+            fin = False
+    if not fin:
+        sv[:] = 0.0
+    I[I_HAS_SYS] = 1
+    flag = 0
+    for i in range(5):
+        if sv[i] > F[F_P + (5 + i) * 11]:
+            flag = 1
+    I[I_SYS_FLAG] = flag
+    a = F[F_DYN + 3]
+    F[F_R_LAT] = F[c + 9] * a * a
 
 
 def _mon_update(F, t, wheel_out, ground_out, nis, dof, v_hat, v_wheel, rho):  # pragma: no cover - compiled
@@ -1265,10 +1379,18 @@ def run(F, I, IN, OUT, EV, CM, RB, WIN, n):                               # prag
         elif st == ST_POST_UPDATE:
             I[I_STAGE] = ST_DIVERGENCE       # (the driver did the bookkeeping of the general path)
         elif st == ST_DIVERGENCE:
-            nxt = _stage_divergence(F, I, CM)
-            if nxt == EV_ADAPT:
+            I[I_STAGE] = _stage_divergence(F, I, CM)
+        elif st == ST_ADAPT:
+            nxt = _stage_adapt(F, I, CM)
+            if nxt == EV_FUZZY:
+                I[I_STAGE] = ST_ADAPT2
+                return EV_FUZZY
+            I[I_STAGE] = nxt
+        elif st == ST_ADAPT2:
+            nxt = _stage_adapt2(F, I)
+            if nxt == EV_SYSTEMATIC:
                 I[I_STAGE] = ST_ESTIMATE
-                return EV_ADAPT
+                return EV_SYSTEMATIC
             I[I_STAGE] = nxt
         elif st == ST_ESTIMATE:
             nxt = _stage_estimate(F, I)
@@ -1323,6 +1445,9 @@ _stage_update = compiled(_stage_update)
 _mon_update = compiled(_mon_update)
 _dyn_update = compiled(_dyn_update)
 _stage_divergence = compiled(_stage_divergence)
+_stage_adapt = compiled(_stage_adapt)
+_systematic = compiled(_systematic)
+_stage_adapt2 = compiled(_stage_adapt2)
 _stage_estimate = compiled(_stage_estimate)
 _bisect_left = compiled(_bisect_left)
 _slip_window = compiled(_slip_window)

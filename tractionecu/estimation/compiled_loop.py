@@ -20,8 +20,10 @@ identically:
 * the μ(s) curve at its updates (``curve_period_s``, :class:`~.curve.CurveEstimator`), and the
   identified curve's slope when an averaged slip is weighed;
 * the radius calibration at GNSS epochs (:class:`~.calibration.RadiusCalibration`);
-* the adaptation period: the fuzzy factor (:class:`~.supervisor.FuzzySupervisor`), the systematic
-  uncertainty (:class:`~.uncertainty.SystematicUncertainty`), covariance matching's ratio;
+* the fuzzy supervisor's intensity for rule strengths not seen before (:class:`~.supervisor.FuzzySupervisor`;
+  the compiled loop keeps a memo of them, as the supervisor does), and the systematic uncertainty
+  (:class:`~.uncertainty.SystematicUncertainty`) only with a declared pull-angle tolerance (else it is
+  compiled, with covariance matching's ratio and the rest of the adaptation period);
 * the filter's initialisation (:meth:`Estimator._init_filter`), a prediction whose covariance needs
   the Cholesky repair, a non-finite prediction (:meth:`Estimator._recover`) and an update that the
   compiled block update leaves to the general path (a gated or non-finite component): these run on
@@ -111,8 +113,18 @@ class CompiledLoop:
             "c_kin_varbeta": est._kin.var_beta, "c_tanpull": est.model.tan_pull, "c_eta": est._eta,
             "c_drag": est._drag,
         }
+        fz = est._fuzzy
+        const.update({"c_a_min": est._cm.a_min, "c_a_max": est._cm.a_max})
         for name, val in const.items():
             F[o[name]] = val
+        fc = fz.cfg
+        F[o["c_fz"]:o["c_fz"] + 8] = [fc.accel_low_mps2, fc.accel_mid_mps2, fc.accel_high_mps2,
+                                      fc.torque_rate_low_nmps, fc.torque_rate_mid_nmps, fc.torque_rate_high_nmps,
+                                      fc.factor_min, fz._log_ratio]
+        unc = est._unc
+        if unc is not None:
+            F[o["c_unc"]:o["c_unc"] + 12] = [unc.u_g, unc.u_eta, unc.tan_pull, unc.u_tan, unc.u_m0, unc.u_a0,
+                                              unc.u_ag, unc.u_d0, unc.u_dg, unc.lat2_3, unc.weight, unc.mg]
         F[o["c_mon_bound"]:o["c_mon_bound"] + 9] = est._monitor._bound
         probe = UnscentedFilter(est.model.step, np.zeros(10), np.eye(10), range(5), alpha=cfg.alpha, beta=cfg.beta,
                                 kappa=cfg.kappa)
@@ -152,6 +164,12 @@ class CompiledLoop:
         I[io["f_cal"]] = est._cal is not None
         I[io["f_adapt"]] = bool(cfg.adaptation)
         I[io["f_input_noise"]] = bool(cfg.input_noise)
+        I[io["f_sup"]] = bool(cfg.supervisor)
+        # the systematic uncertainty compiled, or (with a pull-angle tolerance: math.hypot) in Python
+        I[io["f_unc"]] = 0 if unc is None else (2 if unc.u_tan != 0.0 else 1)
+        from .supervisor import RULES
+
+        I[io["fz_rules"]:io["fz_rules"] + 9] = np.asarray(RULES, dtype=np.int64).ravel()
         self.F, self.I = F, I
         self.CM = np.zeros((2 * cfg.adapt_window, 10))
         self.RB = np.zeros((10, cfg.rate_window))
@@ -159,14 +177,15 @@ class CompiledLoop:
         self.EV = np.zeros(1 + 16 * K.N_CAND_COLS)
         self.states: list[Any] = [est._curve_state]
         self._cal_blocks = 0
+        self._radius_sigma()
         self._handlers = {K.EV_INIT: self._ev_init, K.EV_PREDICT: self._ev_predict, K.EV_RECOVER: self._ev_recover,
-                          K.EV_UPDATE: self._ev_update, K.EV_ADAPT: self._ev_adapt, K.EV_CURVE: self._ev_curve,
+                          K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy, K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
                           K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull}
-        self.events = {name: 0 for name in ("init", "predict", "recover", "update", "adapt", "curve", "slipwin",
-                                            "cal", "winfull")}
         self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
-                          K.EV_ADAPT: "adapt", K.EV_CURVE: "curve", K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal",
-                          K.EV_WINFULL: "winfull"}
+                          K.EV_FUZZY: "fuzzy", K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",
+                          K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal", K.EV_WINFULL: "winfull"}
+        self.events = {name: 0 for name in self._ev_names.values()}
+        """Returns to Python per event (module doc)."""
         # views of the state (numpy views into F: written by the compiled code, read here)
         self._x = F[o["x"]:o["x"] + 10]
         self._P = F[o["P"]:o["P"] + 100].reshape(10, 10)
@@ -397,25 +416,34 @@ class CompiledLoop:
             F[K.F_KSK:K.F_KSK + 10] = ksk
         K.post_update(F, I, self.CM, int(ukf.last_gated), int(ukf.last_outside))
 
-    def _ev_adapt(self, IN: np.ndarray, OUT: np.ndarray) -> None:
-        """The adaptation period (Estimator.step): A_k, the fuzzy factor, the systematic uncertainty."""
-        K, F, I, est, cfg = self.K, self.F, self.I, self.est, self.cfg
-        o = K.F_A
-        if cfg.adaptation:
-            M = cfg.adapt_window
-            if I[K.I_CM_COUNT] < M:
-                A = np.ones(10)
-            else:
-                A = np.empty(10)
-                _kernels.cm_ratio(self.CM[:M], self.CM[M:], est._cm.a_min, est._cm.a_max, A)
-            F[o:o + 10] = A
-        if cfg.supervisor:
-            d = K.F_DYN
-            F[K.F_F] = est._fuzzy.factor(abs(float(F[d + 3])), abs(float(F[d + 4])))
-        F[K.F_ADAPT_MU] = float(F[K.F_F]) * float(F[o + 5:o + 9].mean())
+    def _radius_sigma(self) -> None:
+        """The radius's standard uncertainty per axle the systematic uncertainty uses (Estimator._systematic);
+        it changes only when the calibration takes a sample."""
+        est = self.est
         unc = est._unc
-        if unc is None:
-            return
+        if unc is not None:
+            ur = est._cal.radius_sigma(unc.u_r) if est._cal is not None else (unc.u_r, unc.u_r)
+            self.F[self.K.F_UR:self.K.F_UR + 2] = ur
+
+    def _ev_fuzzy(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The fuzzy supervisor's intensity for rule strengths not in the compiled memo, from the estimator's
+        own FuzzySupervisor (FuzzySupervisor.factor's argument: |dv/dt|, |dM/dt|)."""
+        K, F, I = self.K, self.F, self.I
+        d = K.F_DYN
+        c = self.est._fuzzy.intensity(abs(float(F[d + 3])), abs(float(F[d + 4])))
+        n = int(I[K.I_FZ_N])
+        if n >= K.MEMO:
+            n = 0
+        o = K.F_FZ_MEMO + 4 * n
+        F[o:o + 3] = F[K.F_FZ_ST:K.F_FZ_ST + 3]
+        F[o + 3] = c
+        I[K.I_FZ_N] = n + 1
+        F[K.F_FZ_C] = c
+
+    def _ev_systematic(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """Estimator._systematic on the estimator's SystematicUncertainty (a declared pull-angle tolerance)."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        unc = est._unc
         pd = self._P.diagonal()[5:10]
         u = self._u
         _, _, rdf, rdr = est.model.load_floats(float(u[4]), float(u[5]))
@@ -492,6 +520,7 @@ class CompiledLoop:
         row = OUT[k]
         cal.push(t, v_meas, wl, rdf, rdr, row[K.OUT_MU:K.OUT_MU + 4].tolist(), float(F[K.F_DYN + 3]),
                  bool(row[K.OUT_VALID] != 0.0), cs.a, cs.class_name)
+        self._radius_sigma()
         n = cal._axles[0].n
         if n != self._cal_blocks:
             self._cal_blocks = n
