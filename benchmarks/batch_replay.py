@@ -18,6 +18,13 @@ Real time per core = the recording's span / CPU seconds.  The equality line is t
 contract: the largest absolute difference over every estimate column between the two ``engine`` runs
 (target 1e-9).
 
+The batch path's estimator loop is the compiled one (:mod:`tractionecu.estimation.compiled_loop`) where it
+covers the machine, else the step path's Python estimator; the ``loop`` line says which ran and why.
+``where the time goes`` is one more, instrumented, batch run: the CPU time per step inside the compiled
+loop, in each return to Python (the μ(s) curve, the radius calibration, the fuzzy supervisor's new rule
+strengths, the general update, the filter's initialisation), and around it (the blocks' step arguments,
+the sink), and how often each return happened.
+
     python benchmarks/batch_replay.py [--duration 60] [--seed 0] [--repeat 3] [--work DIR] [--json OUT]
 """
 
@@ -91,7 +98,8 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
         except ImportError:
             pass
     out: dict[str, Any] = {"recording": str(path), "span_s": span, "steps": step_res.steps,
-                           "max_abs_diff": max(diff.values()), "diff_per_column": diff, "cases": {}}
+                           "max_abs_diff": max(diff.values()), "diff_per_column": diff, "cases": {},
+                           "loop": getattr(batch_res, "loop", "python")}
     for name, (fs, fb) in cases.items():
         best = {"step": (float("inf"), 0.0), "batch": (float("inf"), 0.0)}
         load0 = _load()
@@ -104,11 +112,54 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
         out["cases"][name]["load_before"] = load0
         out["cases"][name]["load_after"] = _load()
     shutil.rmtree(scratch, ignore_errors=True)
+    if out["loop"] == "compiled":
+        out["breakdown"] = breakdown(rec)
     try:
         out["filter_core_floor"] = filter_core_floor(rec, repeat)
     except ImportError:                                       # without numba there is no compiled core
         pass
     return out
+
+
+def breakdown(rec: Any) -> dict[str, Any]:
+    """CPU time per step of one instrumented :func:`~tractionecu.pipeline.batch.replay_batch` of ``rec``, split
+    into the compiled loop, each kind of return to Python (with its count) and the rest (module doc)."""
+    from tractionecu.estimation import compiled_loop as cl
+    from tractionecu.pipeline.batch import replay_batch
+
+    acc: dict[str, list[float]] = {}
+    names = ["step_block", "block_inputs", "arrays"] + [n for n in vars(cl.CompiledLoop) if n.startswith("_ev_")]
+    saved = {n: vars(cl.CompiledLoop)[n] for n in names}
+
+    def timed(name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def wrapper(*args: Any, **kw: Any) -> Any:
+            c0 = time.process_time()
+            try:
+                return fn(*args, **kw)
+            finally:
+                a = acc.setdefault(name, [0, 0.0])
+                a[0] += 1
+                a[1] += time.process_time() - c0
+        return wrapper
+
+    for n, f in saved.items():
+        fn = f.__func__ if isinstance(f, (staticmethod, classmethod)) else f
+        w = timed(n, fn)
+        setattr(cl.CompiledLoop, n, staticmethod(w) if isinstance(f, staticmethod) else w)
+    try:
+        c0 = time.process_time()
+        res = replay_batch(rec)
+        total = time.process_time() - c0
+    finally:
+        for n, f in saved.items():
+            setattr(cl.CompiledLoop, n, f)
+    steps = res.steps
+    events = {n[4:]: acc.get(n, [0, 0.0]) for n in names if n.startswith("_ev_")}
+    in_python = sum(v[1] for v in events.values())
+    loop = acc.get("step_block", [0, 0.0])[1]
+    return {"steps": steps, "total_us": 1e6 * total / steps, "compiled_us": 1e6 * (loop - in_python) / steps,
+            "events": {k: {"count": int(c), "us_per_step": 1e6 * t / steps} for k, (c, t) in events.items() if c},
+            "around_us": 1e6 * (total - loop) / steps}
 
 
 def filter_core_floor(rec: Any, repeat: int = 3) -> dict[str, Any]:
@@ -212,6 +263,14 @@ def report(m: dict[str, Any]) -> list[str]:
                      f"{s['wall_s']:.2f} s), batch {b['cpu_s']:.2f} s CPU ({b['x_per_core']:.0f}x; wall "
                      f"{b['wall_s']:.2f} s): batch / step {s['cpu_s'] / b['cpu_s']:.2f}; {c['load_before']} before, "
                      f"{c['load_after']} after")
+    lines.append(f"batch path's estimator loop: {m.get('loop', 'python')}")
+    bd = m.get("breakdown")
+    if bd:
+        ev = ", ".join(f"{k} {v['us_per_step']:.2f} ({v['count']} returns)" for k, v in
+                       sorted(bd["events"].items(), key=lambda kv: -kv[1]["us_per_step"]))
+        lines.append(f"where the time goes (one instrumented batch run, us CPU per step): {bd['total_us']:.2f} in "
+                     f"all = compiled loop {bd['compiled_us']:.2f} + returns to Python: {ev} + step arguments and "
+                     f"sink {bd['around_us']:.2f}")
     worst = max(m["diff_per_column"].items(), key=lambda kv: kv[1])
     where = f"column {worst[0]}" if worst[1] > 0 else "every column equal"
     lines.append(f"batch vs step estimates, {m['steps']} steps, {len(m['diff_per_column'])} columns: max |diff| "
@@ -222,10 +281,12 @@ def report(m: dict[str, Any]) -> list[str]:
                      f"in one compiled loop over this recording's {fl['predicts']} predicts and {fl['updates']} "
                      f"updates: {fl['cpu_s']:.3f} s CPU, {fl['us_per_step']:.2f} us per step = "
                      f"{fl['x_per_core']:.0f}x real time per core")
+    xe = m["cases"]["engine"]["batch"]["x_per_core"]
     x = m["cases"]["path"]["batch"]["x_per_core"]
     lines.append(f"batch replay >= {TARGET_X:.0f}x real time per core: {x:.0f}x from the recording's path "
                  f"({'met' if x >= TARGET_X else 'not met'}; step path {m['cases']['path']['step']['x_per_core']:.0f}x "
-                 f"in the same run)")
+                 f"in the same run), {xe:.0f}x from the decoded recording (engine; "
+                 f"{'met' if xe >= TARGET_X else 'not met'}; step path {m['cases']['engine']['step']['x_per_core']:.0f}x)")
     return lines
 
 
