@@ -242,3 +242,30 @@ def test_field_edge_values_same_as_parse_line():
     assert _check_lines(lines) > len(lines) // 3
     rec = NmeaRecord(*fast_record(lines[-1], 1))
     assert repr(rec.lat_deg) == "-0.0" and repr(rec.lon_deg) == "-0.0"
+
+
+def test_block_numbers_are_float_of_the_text():
+    """The block conversion's numbers (N / 10**k) are float() of the field, bit for bit, and it takes only
+    the plain decimal form."""
+    import re
+
+    import numpy as np
+
+    from tractionecu.gnss.nmea import _dec
+
+    rng = np.random.default_rng(5)
+    alphabet = np.frombuffer(b"0123456789.-E", dtype=np.uint8)
+    plain = re.compile(r"-?\d+(\.\d+)?")
+    for _ in range(40):
+        lens = rng.integers(0, 19, 400)
+        texts = [bytes(rng.choice(alphabet, n)).decode() for n in lens]
+        texts += ["0.1", "-0.0", "999999999999999", "9999999999999999", "0.000000000000001", "52.89599"]
+        buf = np.frombuffer(",".join(texts).encode(), dtype=np.uint8)
+        a = np.cumsum([0] + [len(t) + 1 for t in texts[:-1]])
+        b = a + np.array([len(t) for t in texts])
+        ok, v, _n, _k = _dec(buf, a, b)
+        for t, good, x in zip(texts, ok.tolist(), v.tolist()):
+            digits = sum(ch.isdigit() for ch in t)
+            assert good == (plain.fullmatch(t) is not None and digits <= 15), t
+            if good:
+                assert repr(x) == repr(float(t)), t

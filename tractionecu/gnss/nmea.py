@@ -875,7 +875,6 @@ def record_values(rec: NmeaRecord) -> tuple:
 
 
 # ---- the fast path over a block of lines at once (numpy): the same values as fast_record, or None
-_I10 = 10 ** np.arange(19, dtype=np.int64)
 _F10 = np.array([10.0 ** k for k in range(19)])        # exact: 10**k < 2**53 for k <= 15
 MAX_FAST_DIGITS = 15
 """Digits of a number the block path converts: below 2**53, so ``N / 10**k`` is ``float()`` of the text."""
@@ -885,29 +884,30 @@ def _dec(buf: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.
     """The fields ``buf[a:b]`` as numbers written ``-?d+(.d+)?`` with at most :data:`MAX_FAST_DIGITS` digits:
     (ok, float value, integer digits N, decimals k).  The value is ``N / 10**k`` (negated after a '-'):
     both exact doubles, so the division's correctly rounded quotient is the correctly rounded value of
-    the decimal, which is what ``float(text)`` returns.  ok is False for an empty field or another form."""
+    the decimal, which is what ``float(text)`` returns.  ok is False for an empty field or another form.
+    One character position at a time over all fields (few positions, many fields)."""
     m = a.size
     L = b - a
     W = int(min(L.max(initial=0), MAX_FAST_DIGITS + 2))
-    if m == 0 or W <= 0:
-        z = np.zeros(m, dtype=np.int64)
-        return np.zeros(m, dtype=bool), z.astype(float), z, z
-    j = np.arange(W)
-    inside = j < L[:, None]
-    C = np.where(inside, buf[np.minimum(a[:, None] + j, buf.size - 1)], 0)
-    neg = C[:, 0] == 0x2D
-    dig = (C >= 0x30) & (C <= 0x39)
-    dot = C == 0x2E
-    form = dig | dot
-    form[:, 0] |= neg
-    ndot = dot.sum(axis=1)
-    ndig = dig.sum(axis=1)
-    dpos = np.where(ndot == 1, dot.argmax(axis=1), L)
-    ok = ((form == inside).all(axis=1) & (L <= W) & (ndot <= 1) & (ndig >= 1) & (ndig <= MAX_FAST_DIGITS)
-          & (dpos > neg) & ((ndot == 0) | (dpos < L - 1)))
-    k = np.where(ndot == 1, L - 1 - dpos, 0)
-    after = np.clip(ndig[:, None] - np.cumsum(dig, axis=1), 0, 18)      # digits after each position
-    N = np.where(dig, (C.astype(np.int64) - 0x30) * _I10[after], 0).sum(axis=1)
+    top = buf.size - 1
+    N = np.zeros(m, dtype=np.int64)
+    ndig = np.zeros(m, dtype=np.int64)
+    k = np.zeros(m, dtype=np.int64)                     # digits after the dot
+    ndot = np.zeros(m, dtype=np.int64)
+    bad = L > W
+    neg = buf[np.minimum(a, top)] == 0x2D
+    for j in range(W):
+        inside = L > j
+        c = buf[np.minimum(a + j, top)].astype(np.int64) - 0x30
+        isd = (c >= 0) & (c <= 9) & inside
+        isdot = (c == 0x2E - 0x30) & inside
+        N = np.where(isd, N * 10 + c, N)
+        ndig += isd
+        k += isd & (ndot > 0)
+        bad |= inside & ~isd & ~isdot & (~neg if j == 0 else True)
+        bad |= isdot & (ndig == 0)                      # a digit before the dot
+        ndot += isdot
+    ok = ~bad & (ndot <= 1) & (ndig >= 1) & (ndig <= MAX_FAST_DIGITS) & ((ndot == 0) | (k >= 1))
     k = np.where(ok, k, 0)
     v = N / _F10[k]
     return ok, np.where(neg, -v, v), N, k
@@ -1068,9 +1068,8 @@ def _block_rmc(blk: _Block, talkers: list[str], nf: int) -> list:
             dates[u] = _fdate(f"{u:06d}")
         except _Fallback:
             dates[u] = None
-    bad_date = np.array([pd[i] and dates.get(u) is None for i, u in enumerate(dcode.tolist())], dtype=bool) \
-        if m else np.zeros(0, dtype=bool)
-    blk.ok &= ~bad_date
+    good = np.array([u for u, d in dates.items() if d is not None], dtype=np.int64)
+    blk.ok &= ~pd | np.isin(dcode, good)
     date_col = [dates.get(u) if p else None for u, p in zip(dcode.tolist(), pd.tolist())]
     speed = _col(pk, kn * KNOT_MPS)
     quality = [None if md is None else _fmode_quality(md) for md in modes]
