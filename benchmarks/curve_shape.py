@@ -268,8 +268,8 @@ def main(argv: list[str] | None = None) -> int:
                       f"{row.get('chain_range_r2', math.nan):9.4f} {sno:>9s} {row['chain_path']:20s} "
                       f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
                       f"{row['pairs_r2_rear']:6.3f}")
-    print("\nThe identification on the truth's exact per-wheel pairs (no slip or μ error; truth's soils split by the"
-          " estimator's change test as in the chain), load term off / on, R2 over [0, 0.4] and over the soil's slip range;"
+    print("\nThe identification on the truth's exact per-wheel pairs (no slip or μ error; soil segments from the"
+          " identification's own change test, as in the chain), load term off / on, R2 over [0, 0.4] and over the soil's slip range;"
           "\nthe errors of the chain's pairs per axle in work: sd of e_s and e_mu, corr(e_mu, e_s), corr(e_s, s), gain of s-hat on s")
     print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'exact R2':>9s} {'range':>7s} {'exact+load':>10s} {'range':>7s} "
           f"{'exact path, load off / on':34s} {'axle':5s} {'sd e_s':>7s} {'sd e_mu':>7s} {'c(mu,s)':>7s} {'c(s,s)':>7s} {'s gain':>6s}")
