@@ -16,7 +16,11 @@ Lines
     timestamp N·10⁻⁶ s with N the 16-digit integer is computed as N / 10⁶,
     which is the correctly rounded value of the decimal, like ``float()``.
     ``time_backwards`` is judged against the running maximum of the frames
-    before, which equals the last accepted time.
+    before, which equals the last accepted time.  A block whose lines all
+    have one width (a capture of one interface holding canonical frames
+    only) is not split into strings: its bytes are the rows of one matrix
+    (:class:`_Uniform`), and a line is cut out of the text only when the
+    per-line classifier must see it.
 
 Frames
     Frames of a DBC message whose signals are all little-endian integers

@@ -26,6 +26,14 @@ compensated here.
 
 The epoch arithmetic (date + time of day, the nearest date) is
 :mod:`tractionecu.gnss.utc`, the same the service uses for live epochs.
+
+Speed: :func:`read_gps` reads the log through the NMEA fast path
+(:func:`tractionecu.gnss.nmea.iter_nmea_fast`) and keeps the epochs as plain
+lists, merged and aligned by the rules above (:func:`_assemble`,
+:func:`_align_epochs`), several times faster than sentence by sentence;
+:func:`read_gps_reference` is the sentence-by-sentence reader (parse_line,
+:class:`~tractionecu.gnss.nmea.EpochAssembler`, :func:`align_gps`) it is
+tested and timed against (``benchmarks/decode.py``).
 """
 
 from __future__ import annotations
@@ -120,7 +128,7 @@ def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: b
     ``fast`` (default) reads through :func:`~tractionecu.gnss.nmea.iter_nmea_fast` and assembles and aligns
     the epochs as plain lists (:func:`_assemble`, :func:`_align_epochs`); ``fast=False`` is
     :func:`read_gps_reference`.  Both give the same track, statistics and counters
-    (``tests/recording/test_reader_fast_gps.py``)."""
+    (``tests/recording/test_reader_fast.py``)."""
     if not fast:
         return read_gps_reference(path, can_t0, stats)
     ns = NmeaStats(source=path.name)
