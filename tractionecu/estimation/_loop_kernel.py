@@ -106,7 +106,7 @@ F_NAMES = (
     ("c_curve_period", 1), ("c_curve_minspd", 1), ("c_slip_max", 1), ("c_avg_max", 1), ("c_avg_corr", 1),
     ("c_adapt_period", 1), ("c_dyn_tau", 1), ("c_lost_after", 1), ("c_mon_rho_max", 1), ("c_mon_minspd", 1),
     ("c_rate_k", 1), ("c_rate_maxint", 1), ("c_kin_b", 1), ("c_kin_csig", 1), ("c_kin_minspd", 1),
-    ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_eta", 1), ("c_drag", 1), ("c_mon_bound", 9),
+    ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_eta", 1), ("c_drag", 1), ("c_two", 1), ("c_mon_bound", 9),
     ("c_w", 43), ("c_kc", 16), ("c_lo", 10), ("c_hi", 10), ("c_qtune", 10),
     ("c_a_min", 1), ("c_a_max", 1),
     # fuzzy supervisor: a1, a2, a3, m1, m2, m3, factor_min, log(f_max / f_min)
@@ -136,6 +136,8 @@ F_NAMES = (
     ("l_t", 1), ("l_vmeas", 1), ("l_vwheel", 1), ("l_dt", 1), ("l_h", 1), ("l_old_md", 4), ("l_told_md", 1),
     ("l_old_fdx", 1), ("l_told_fdx", 1), ("l_rom", 4), ("l_wl", 4), ("l_z", 5), ("l_R", 5), ("l_buf", 26),
     ("l_v", 1), ("l_since", 1), ("l_s", 4), ("l_rho", 1),
+    # the curve update's arguments: σ of μ (4), σ of slip (4)
+    ("l_sig_mu", 4), ("l_sig_s", 4), ("c_track", 1),
 )
 I_NAMES = (
     ("stage", 1), ("k", 1), ("status", 1), ("predict_only", 1), ("has_om", 1), ("om_fin", 1), ("has_vmeas", 1),
@@ -176,7 +178,8 @@ F_C_RHO_T: int; F_C_GATE: int; F_C_CMU: int; F_C_CRHO: int; F_C_EXIT2: int; F_C_
 F_C_CURVE_PERIOD: int; F_C_CURVE_MINSPD: int; F_C_SLIP_MAX: int; F_C_AVG_MAX: int; F_C_AVG_CORR: int  # noqa: E702
 F_C_ADAPT_PERIOD: int; F_C_DYN_TAU: int; F_C_LOST_AFTER: int; F_C_MON_RHO_MAX: int; F_C_MON_MINSPD: int  # noqa: E702
 F_C_RATE_K: int; F_C_RATE_MAXINT: int; F_C_KIN_B: int; F_C_KIN_CSIG: int; F_C_KIN_MINSPD: int  # noqa: E702
-F_C_KIN_VARBETA: int; F_C_TANPULL: int; F_C_ETA: int; F_C_DRAG: int; F_C_MON_BOUND: int  # noqa: E702
+F_C_KIN_VARBETA: int; F_C_TANPULL: int; F_C_ETA: int; F_C_DRAG: int; F_C_TWO: int  # noqa: E702
+F_C_MON_BOUND: int  # noqa: E702
 F_C_W: int; F_C_KC: int; F_C_LO: int; F_C_HI: int; F_C_QTUNE: int; F_C_A_MIN: int; F_C_A_MAX: int  # noqa: E702
 F_C_FZ: int; F_C_UNC: int; F_UR: int; F_FZ_MEMO: int; F_FZ_ST: int; F_FZ_C: int  # noqa: E702
 F_X: int; F_P: int; F_U: int; F_QB: int; F_A: int; F_SIG: int; F_XN: int; F_PN: int; F_Q: int  # noqa: E702
@@ -188,7 +191,8 @@ F_KF: int; F_KR: int; F_HELD_RHO: int; F_HELD_S: int; F_WIN_DIR: int; F_DM_VAR: 
 F_RAD: int; F_SYS_VAR: int; F_LAST_NIS: int; F_DYN: int; F_MON: int; F_KIN: int; F_RATES: int  # noqa: E702
 F_L_T: int; F_L_VMEAS: int; F_L_VWHEEL: int; F_L_DT: int; F_L_H: int; F_L_OLD_MD: int  # noqa: E702
 F_L_TOLD_MD: int; F_L_OLD_FDX: int; F_L_TOLD_FDX: int; F_L_ROM: int; F_L_WL: int; F_L_Z: int; F_L_R: int  # noqa: E702
-F_L_BUF: int; F_L_V: int; F_L_SINCE: int; F_L_S: int; F_L_RHO: int  # noqa: E702
+F_L_BUF: int; F_L_V: int; F_L_SINCE: int; F_L_S: int; F_L_RHO: int; F_L_SIG_MU: int; F_L_SIG_S: int  # noqa: E702
+F_C_TRACK: int  # noqa: E702
 I_STAGE: int; I_K: int; I_STATUS: int; I_PREDICT_ONLY: int; I_HAS_OM: int; I_OM_FIN: int  # noqa: E702
 I_HAS_VMEAS: int; I_UPDATED: int; I_WHEEL_OUT: int; I_GROUND_OUT: int; I_N_SUB: int; I_SUB: int  # noqa: E702
 I_FOH_MD: int; I_FOH_FDX: int; I_UKF: int; I_LOST: int; I_CONV: int; I_HAS_HELD: int; I_WIN_N: int  # noqa: E702
@@ -230,6 +234,13 @@ def _load_floats(F, fzf, fdx):                                            # prag
 
 def _wrap(a):                                                             # pragma: no cover - compiled
     return a - _TWO_PI * math.floor((a + math.pi) / _TWO_PI)
+
+
+def _pow2(F, x):                                                          # pragma: no cover - compiled
+    """Python's ``x ** 2`` of a float: the C library's pow(x, 2.0), which differs from x·x in the last bit for
+    about one x in a thousand.  The exponent is read from F (2.0) so that the compiler cannot turn the call
+    into x·x."""
+    return math.pow(x, F[F_C_TWO])
 
 
 def _pymax(a, b):                                                         # pragma: no cover - compiled
@@ -351,7 +362,7 @@ def _kin_course(F, I, t, course_deg, speed, direction):                   # prag
         return
     _kin_predict(F, t)
     z = course_deg * _DEG2RAD + (math.pi if direction < 0 else 0.0)
-    r = (F[F_C_KIN_CSIG] / abs(speed)) ** 2
+    r = _pow2(F, F[F_C_KIN_CSIG] / abs(speed))
     vb = F[F_C_KIN_VARBETA]
     if F[o] != F[o]:
         F[o] = _wrap(z)
@@ -951,7 +962,7 @@ def _systematic(F, I, md, fzf, fdx, rdf, rdr, ur_f, ur_r):                # prag
     mg = F[c + 11]
     ff = 0.5 * fzf
     fr = 0.5 * (weight - fzf) if tan_pull == 0.0 else 0.5 * ((weight - fzf) + fdx * tan_pull)
-    u_fz = 0.5 * math.sqrt(u_a0 ** 2 + (u_ag * fzf) ** 2)
+    u_fz = 0.5 * math.sqrt(_pow2(F, u_a0) + _pow2(F, u_ag * fzf))
     g2 = u_g * u_g
     if u_eta != 0.0:
         g2 += u_eta * u_eta
@@ -968,15 +979,15 @@ def _systematic(F, I, md, fzf, fdx, rdf, rdr, ur_f, ur_r):                # prag
         m_r = md[i] / r
         cc = m_r / fz
         lz = u_fz / fz
-        sv[i] = cc * cc * (g2 + ur * ur + lz * lz) + m02 / (r * fz) ** 2
+        sv[i] = cc * cc * (g2 + ur * ur + lz * lz) + m02 / _pow2(F, r * fz)
         if front:
             f_r0 += abs(m_r)
         else:
             f_r1 += abs(m_r)
         off2 += m02 / (r * r)
     tot = f_r0 + f_r1
-    num = ((u_g * tot) ** 2 + (u_eta * tot) ** 2 + (ur_f * f_r0) ** 2 + (ur_r * f_r1) ** 2 + off2
-           + u_d0 ** 2 + (u_dg * fdx) ** 2)
+    num = (_pow2(F, u_g * tot) + _pow2(F, u_eta * tot) + _pow2(F, ur_f * f_r0) + _pow2(F, ur_r * f_r1) + off2
+           + _pow2(F, u_d0) + _pow2(F, u_dg * fdx))
     sv[4] = num / (mg * mg)
     fin = True
     for i in range(5):
@@ -1078,7 +1089,9 @@ def _stage_estimate(F, I):                                                # prag
         c_mu *= F[F_C_EXIT2]
         c_rho *= F[F_C_EXIT2]
     kap = F[F_U + 6]
-    _, _, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
+    _, _, rdf0, rdr0 = _load_floats(F, F[F_U + 4], F[F_U + 5])
+    rdf = rdf0
+    rdr = rdr0
     buf = F[F_L_BUF:F_L_BUF + 26]
     x = F[F_X:F_X + 10]
     code = _kernels.estimate_outputs(x, F[F_P:F_P + 100].reshape((10, 10)), rdf * F[F_KF], rdr * F[F_KR], c_mu,
@@ -1091,6 +1104,27 @@ def _stage_estimate(F, I):                                                # prag
     if (t - F[F_T_CURVE] >= F[F_C_CURVE_PERIOD] and abs(v) >= F[F_C_CURVE_MINSPD] and not I[I_LOST]
             and slip_ok):
         F[F_T_CURVE] = t
+        # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v (Estimator._estimate)
+        h = 0.5 * F[F_C_TRACK]
+        wb = F[F_C_WB]
+        left = 1.0 - h * kap
+        right = 1.0 + h * kap
+        lk = wb * kap
+        kfl = math.sqrt(left * left + lk * lk)
+        kfr = math.sqrt(right * right + lk * lk)
+        kv = F[F_KAPVAR]
+        for i in range(4):
+            dk = ((-h * left + wb * lk) / kfl if i == 0 else ((h * right + wb * lk) / kfr if i == 1 else
+                                                             (-h if i == 2 else h)))
+            kw = buf[22 + i]
+            vd = v * dk
+            sig_vi = math.sqrt(buf[16] * kw * kw + vd * vd * kv)
+            rd = rdf0 if i < 2 else rdr0
+            den = rd * abs(buf[8 + i])
+            if not den != den and den < 1e-3:
+                den = 1e-3
+            F[F_L_SIG_S + i] = sig_vi / den
+            F[F_L_SIG_MU + i] = math.sqrt(buf[17 + i])
         return EV_CURVE
     return ST_ESTIMATE2
 
@@ -1423,6 +1457,7 @@ def run(F, I, IN, OUT, EV, CM, RB, WIN, n):                               # prag
 _load_floats = compiled(_load_floats, inline=True)
 _wrap = compiled(_wrap, inline=True)
 _pymax = compiled(_pymax, inline=True)
+_pow2 = compiled(_pow2)
 _rate_median = compiled(_rate_median)
 _rate_push = compiled(_rate_push)
 _rate_refresh = compiled(_rate_refresh)

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import EstimatorError
-from ..model.vehicle import IX_MU, IX_V, JIT, wheel_speed_factor_slopes
+from ..model.vehicle import JIT
 from . import _kernels
 
 __all__ = ["CompiledLoop", "supported"]
@@ -111,7 +111,7 @@ class CompiledLoop:
             "c_rate_maxint": next(iter(est._rates.trackers.values())).max_interval_s,
             "c_kin_b": est._kin.b, "c_kin_csig": est._kin.course_sigma, "c_kin_minspd": est._kin.min_speed,
             "c_kin_varbeta": est._kin.var_beta, "c_tanpull": est.model.tan_pull, "c_eta": est._eta,
-            "c_drag": est._drag,
+            "c_drag": est._drag, "c_track": veh.track_width_m, "c_two": 2.0,
         }
         fz = est._fuzzy
         const.update({"c_a_min": est._cm.a_min, "c_a_max": est._cm.a_max})
@@ -286,27 +286,20 @@ class CompiledLoop:
         arr["sigma_rho_s"] = OUT[:, K.OUT_SIGRHO].copy()
         ver = OUT[:, K.OUT_CS].astype(np.int64)
         hasx = OUT[:, K.OUT_HASX] != 0.0
-        states = self.states
-        a = np.full(n, math.nan)
-        cls: list[str] = []
-        curves: list[Any] = []
-        paths: list[str] = []
-        cache: dict[tuple[int, bool], tuple[float, str, Any, str]] = {}
-        for i, (v, h) in enumerate(zip(ver.tolist(), hasx.tolist())):
-            ent = cache.get((v, h))
-            if ent is None:
-                cs = states[v]
-                c = cs.curve if h else None
-                ent = (cs.a if h else math.nan, cs.class_name, c, c.path if c is not None else "")
-                cache[(v, h)] = ent
-            a[i] = ent[0]
-            cls.append(ent[1])
-            curves.append(ent[2])
-            paths.append(ent[3])
-        arr["a"] = a
-        arr["soil_class"] = cls
-        arr["curve"] = curves
-        arr["curve_path"] = paths
+        # the curve state each step reports (a, class, curve, its path; a and the curve only with a filter)
+        key = ver * 2 + hasx
+        uniq, inv = np.unique(key, return_inverse=True)
+        ents = []
+        for kk in uniq.tolist():
+            cs = self.states[kk // 2]
+            c = cs.curve if kk % 2 else None
+            ents.append((cs.a if kk % 2 else math.nan, cs.class_name, c, c.path if c is not None else ""))
+        a_u, cls_u, c_u, p_u = zip(*ents)
+        arr["a"] = np.asarray(a_u, dtype=float)[inv]
+        il = inv.tolist()
+        arr["soil_class"] = [cls_u[i] for i in il]
+        arr["curve"] = [c_u[i] for i in il]
+        arr["curve_path"] = [p_u[i] for i in il]
         arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
         return arr
 
@@ -463,17 +456,12 @@ class CompiledLoop:
         """The μ(s) curve's update (Estimator._estimate), on the estimator's CurveEstimator."""
         K, F, I, est = self.K, self.F, self.I, self.est
         t = float(F[K.F_L_T])
-        buf = F[K.F_L_BUF:K.F_L_BUF + 26].copy()
-        mu, s, omega, pd, kw = buf[0:4], buf[4:8], buf[8:12], buf[12:22], buf[22:26]
+        b = K.F_L_BUF
         u = self._u
-        kap = float(u[6])
-        v = float(F[K.F_L_V])
-        fz, rd, _ = est.model._load_terms(float(u[4]), float(u[5]))
-        veh = est.vehicle
-        dk = np.array(wheel_speed_factor_slopes(kap, veh.track_width_m, veh.wheelbase_m))
-        sig_vi = np.sqrt(pd[IX_V] * kw * kw + (v * dk) ** 2 * float(F[K.F_KAPVAR]))
-        sig_s = sig_vi / np.maximum(rd * np.abs(omega), 1e-3)
-        cs = est._curve.update(t, mu, s, np.sqrt(pd[IX_MU]), sig_s, fz)
+        fz = est.model._load_terms(float(u[4]), float(u[5]))[0]
+        # μ, slip, σ_μ = √P_μμ and σ_s (computed compiled, as Estimator._estimate does) as fresh arrays
+        cs = est._curve.update(t, F[b:b + 4].copy(), F[b + 4:b + 8].copy(), F[K.F_L_SIG_MU:K.F_L_SIG_MU + 4].copy(),
+                               F[K.F_L_SIG_S:K.F_L_SIG_S + 4].copy(), fz)
         self.states.append(cs)
         I[K.I_CS_VER] = len(self.states) - 1
         I[K.I_HAS_CURVE] = 1 if cs.curve is not None else 0
