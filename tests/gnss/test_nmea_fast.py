@@ -269,3 +269,9 @@ def test_block_numbers_are_float_of_the_text():
             assert good == (plain.fullmatch(t) is not None and digits <= 15), t
             if good:
                 assert repr(x) == repr(float(t)), t
+
+
+def test_a_very_long_line_across_many_chunks(sim_lines, tmp_path):
+    lines = sim_lines["paper-three-soils"][:30]
+    data = "\n".join(lines[:10] + ["$GNGGA," + "7" * 300_000] + lines[10:]) + "\n" + "x" * 70_000
+    _streams(tmp_path, data.encode(), chunk_chars=4096)

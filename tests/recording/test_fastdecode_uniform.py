@@ -102,3 +102,16 @@ def test_a_block_with_lines_of_two_widths_is_not_uniform():
     assert fastdecode._Uniform.of("ab\ncde\nf\n") is None         # the length divides, the breaks do not
     assert fastdecode._Uniform.of("a\u00e9\ncd\n") is None
     assert fastdecode._Uniform.of("") is None
+
+
+def test_a_very_long_line_across_many_blocks(tmp_path, codec, monkeypatch):
+    lines = _lines(codec, 50)
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(lines[:40] + ["(" + "1" * 200_000] + lines[40:]) + "\n" + "#" * 30_000)
+    a, ra = _tables(path, 4096, True, monkeypatch)
+    b, rb = _tables(path, 4096, False, monkeypatch)
+    assert [len(t[0]) for t in a] == [len(t[0]) for t in b] and sum(len(t[0]) for t in a) == 100
+    assert vars(ra) == vars(rb) and ra.total_rejected == 2
+    sa, sb = RecordingStats(), RecordingStats()
+    _read_can(path, codec, sa), read_can_per_frame(path, codec, sb)
+    assert vars(sa.files["can.log"]) == vars(sb.files["can.log"])

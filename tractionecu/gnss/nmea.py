@@ -1152,17 +1152,21 @@ def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Ite
     ``chunk_chars`` characters at a time."""
     st = stats
     lineno0 = 0
-    carry = ""
+    carry: list[str] = []                  # the text after the last line break, in pieces
     fast = _FAST
     while True:
         block = fh.read(chunk_chars)
         if not block:
             if not carry:
                 break
-            lines, carry = [carry], ""
+            lines, carry = ["".join(carry)], []
         else:
-            lines = (carry + block).split("\n")
-            carry = lines.pop()
+            cut = block.rfind("\n") + 1
+            if not cut:
+                carry.append(block)
+                continue
+            lines = ("".join(carry) + block[:cut - 1]).split("\n")
+            carry = [block[cut:]] if cut < len(block) else []
         st.lines += len(lines)
         block_vals, kind = fast_block(lines)
         kinds = kind.tolist()

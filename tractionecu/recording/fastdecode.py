@@ -260,22 +260,26 @@ def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUN
     of one block, whatever the file's length.  OSError propagates."""
     state = {"t_max": -math.inf}
     lineno0 = 0
-    carry = ""
-    parts: list = []
+    carry: list[str] = []                  # the text after the last line break, in pieces (a long line
+    parts: list = []                       # is joined once, not once per block)
     with open(path, "r", encoding="utf-8", errors="replace", newline=None) as fh:
         while True:
             block = fh.read(chunk_chars)
             if not block:
                 break
-            buf = carry + block
-            cut = buf.rfind("\n") + 1
-            body, carry = buf[:cut], buf[cut:]
+            cut = block.rfind("\n") + 1
+            if cut:
+                body = "".join(carry) + block[:cut]
+                carry = [block[cut:]] if cut < len(block) else []
+            else:
+                body = ""
+                carry.append(block)
             lines = _Uniform.of(body) or (body[:-1].split("\n") if body else [])
             _scan_lines(lines, lineno0, state, rs, parts)
             lineno0 += len(lines)
             yield FrameTable(*parts.pop())
     if carry:
-        _scan_lines([carry], lineno0, state, rs, parts)
+        _scan_lines(["".join(carry)], lineno0, state, rs, parts)
         yield FrameTable(*parts.pop())
 
 
