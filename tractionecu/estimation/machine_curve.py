@@ -25,6 +25,13 @@ Priors
   eq. 14 with p = 1, α1 = α2 = −7.5.  **The project's physical truth (``tractionecu.sim.tyre``) uses
   Brixius' equations**, so R² figures with this prior on the simulated tractors measure the estimator
   against its truth's own family; a real tyre on a real soil departs from D497 by its own amount.
+  On soils of an independent tyre–soil model (Bekker sinkage, Janosi–Hanamoto shear over the contact
+  patch, :mod:`tractionecu.sim.terramech`; scenarios ``mechanical-bekker-soils`` / ``-no-gbsd``) it does
+  not hold: R² −14.2 to 0.32 over s 0–0.4, seeds 0 and 1 (``benchmarks/machine.py``), because the Janosi
+  curve with Wong's shear moduli K of farm soils (1–2.5 cm) rises much faster than 1 − e^{−7.5 s}: even
+  the best level a gives R² 0.26 / 0.66 / 0.92 there (D497's shape matches Janosi's only for K ≥ 4 cm).
+  The default stays the configured classes; no prior meets R² ≥ 0.95 on every soil of both truths, and the
+  machine's pairs, at one working point per soil, do not choose between shapes (README, issue 14).
 
 The prior is chosen per estimator (:class:`~.machine.MachineEstimator` ``curve_prior``); a prior outside
 the registry of surface classes (:data:`~tractionecu.model.mucurve.SOIL_CLASSES`, which the simulator's
