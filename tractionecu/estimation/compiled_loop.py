@@ -475,12 +475,13 @@ class CompiledLoop:
         ml = F[K.F_L_BUF:K.F_L_BUF + 4].tolist()
         best = None
         top_best = math.inf
+        cand = EV[1:1 + nc * K.N_CAND_COLS].reshape(nc, K.N_CAND_COLS)
+        # the slope at every candidate's slips in one call (elementwise: each row as the step path's call)
+        slopes = np.abs(curve.dmu_ds(np.abs(cand[:, :4]))).tolist()
         for c in range(nc):
-            base = 1 + c * K.N_CAND_COLS
-            out = EV[base:base + 4].tolist()
-            sig = EV[base + 4:base + 8].tolist()
-            q = EV[base + 8:base + 12].tolist()
-            slope = np.abs(curve.dmu_ds(np.abs(np.array(out)))).tolist()
+            row = cand[c].tolist()
+            out, sig, q = row[0:4], row[4:8], row[8:12]
+            slope = slopes[c]
             top = 0.0
             for i in range(4):
                 lag = abs(ml[i] - q[i]) / slope[i] if slope[i] > 0.0 else math.inf
