@@ -35,8 +35,9 @@ f rises as x/2 at small slip and approaches 1 as 1 − 1/x: a slower, algebraic 
 exponential saturates.  The wheel load enters through the patch: a heavier wheel has a longer patch, so
 its μ(s) rises more steeply (j₀ smaller) and reaches a lower T_max (c/p smaller); Brixius' load
 dependence is in the amplitude instead.  ρ_s = R_c / W does not grow with slip (no slip sinkage in this
-model) and falls with the load; the tyre's internal loss is the tyre's (:attr:`.tyre.TyreSpec.rho_t`),
-not the soil's, and is the same as on the Brixius soils.
+model); with the patch's p ∝ √W (δ ∝ W, l ∝ √δ) it goes with the load roughly as W^{(1−n)/(2n)}: up for n < 1, down
+for n > 1.  The tyre's internal loss is the tyre's (:attr:`.tyre.TyreSpec.rho_t`), not the soil's, and is
+the same as on the Brixius soils.
 
 Soil parameters
 ---------------
