@@ -391,6 +391,17 @@ class DrivetrainSpec:
                                   "per unit wheel speed c [N·m per rad/s] (oil churning, seals, bearings; the "
                                   "motor torque that turns a lifted wheel at a steady speed, over that speed): "
                                   "M_wheel = η M_motor − c ω; 0: not known, none taken off", 0.0, 1000.0)
+    hub_stiffness_nmprad: float = setting(0.0, "hub drive: torsional stiffness k between motor and wheel, at the "
+                                          "wheel [N·m/rad] (gear meshes, planet carrier, hub and rim: the "
+                                          "reduction's data sheet or a run-up test); > 0 with "
+                                          "hub_motor_inertia_kgm2: the hub estimator's two-inertia hub; 0: "
+                                          "not known, one lumped inertia", 0.0, 1e9)
+    hub_damping_nmsprad: float = setting(0.0, "hub drive: torsional damping c between motor and wheel, at the "
+                                         "wheel [N·m·s/rad]; used with hub_stiffness_nmprad", 0.0, 1e7)
+    hub_motor_inertia_kgm2: float = setting(0.0, "hub drive: the motor side's inertia (rotor and first stage) "
+                                            "reflected to the wheel, J_m [kg·m²] (rotor inertia from the motor's "
+                                            "data sheet times the ratio squared); the wheel side is "
+                                            "wheel_inertia_kgm2 − J_m; used with hub_stiffness_nmprad", 0.0, 5000.0)
     front_drive: str = setting("engaged", "MFWD clutch: engaged | disengaged (a disengaged front axle rolls) | "
                                "auto (from the bus: engaged while EBC2's front-axle speed keeps the coupling's "
                                "ratio to the rear wheels, rolling when it falls below it by the lead)")
@@ -474,6 +485,28 @@ class VehicleParams:
 
     def __post_init__(self) -> None:
         validate(self, "vehicle")
+        dt = self.drivetrain
+        if dt.hub_stiffness_nmprad > 0.0 or dt.hub_motor_inertia_kgm2 > 0.0 or dt.hub_damping_nmsprad > 0.0:
+            if dt.engine_driven:
+                raise ConfigError(f"drivetrain.hub_stiffness_nmprad: a two-inertia hub is declared for kind = "
+                                  f"{dt.kind!r}; it belongs to a hub drive (kind = 'hub')")
+            if not dt.hub_stiffness_nmprad > 0.0:
+                raise ConfigError("drivetrain.hub_stiffness_nmprad: must be > 0 when hub_motor_inertia_kgm2 or "
+                                  "hub_damping_nmsprad is given (the two-inertia hub needs its stiffness)")
+            if not 0.0 < dt.hub_motor_inertia_kgm2 < self.wheel_inertia_kgm2:
+                raise ConfigError(f"drivetrain.hub_motor_inertia_kgm2: {dt.hub_motor_inertia_kgm2!r} must lie "
+                                  f"between 0 and wheel_inertia_kgm2 ({self.wheel_inertia_kgm2!r}, motor and "
+                                  "wheel together), exclusive, when hub_stiffness_nmprad is given")
+
+    @property
+    def hub_two_inertia(self) -> tuple[float, float, float, float] | None:
+        """(k [N·m/rad], c [N·m·s/rad], J_m, J_w [kg·m²]) of a declared two-inertia hub (motor side J_m,
+        wheel side J_w = wheel_inertia_kgm2 − J_m), None when not declared."""
+        dt = self.drivetrain
+        if not dt.hub_stiffness_nmprad > 0.0 or dt.engine_driven:
+            return None
+        jm = dt.hub_motor_inertia_kgm2
+        return (dt.hub_stiffness_nmprad, dt.hub_damping_nmsprad, jm, self.wheel_inertia_kgm2 - jm)
 
     # ---- derived quantities -------------------------------------------------
     @property

@@ -16,7 +16,10 @@ covariance matching and the fuzzy supervisor (:mod:`.supervisor`, eqs.
 eq. 18); slip is eq. 6 with r_d from eqs. 9–10.  Beyond the paper, from the vehicle file: the reported
 motor torque reaches the wheel as η M − c ω (hub efficiency, ``drivetrain.hub_drag_nms``), and with a
 declared ``tyre_carcass_stiffness_npm`` μ follows slip through the carcass (:meth:`Estimator._relax`,
-model doc "Tyre carcass").
+model doc "Tyre carcass"); with a declared two-inertia hub as well (``drivetrain.hub_stiffness_nmprad``,
+``hub_damping_nmsprad``, ``hub_motor_inertia_kgm2``) the filter carries the motor speeds the pickup measures,
+the rim speeds and the hub twists, 18 states, while the carcass term is on (:meth:`Estimator._set_hub`, model
+doc "Two-inertia hub").
 
 Noise model
 -----------
@@ -72,8 +75,8 @@ from scipy.special import erfcinv
 from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
-from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_RHO, IX_V, N_INPUT, N_STATE, FilterModel,
-                             relax_slips, wheel_speed_factor_slopes)
+from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_RHO, IX_V, N_INPUT, N_STATE,
+                             N_STATE_HUB, FilterModel, relax_slips, wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -257,6 +260,22 @@ _AXLE_SGN = np.array([-0.5, -0.5, 0.5, 0.5])
 _SL_W = slice(0, 4)
 _SL_WV = slice(0, 5)
 _SL_V = slice(4, 5)
+_HUB_OUT = np.array([10, 11, 12, 13, 4, 5, 6, 7, 8, 9])
+"""States of the two-inertia hub model the estimate reports, in the paper's order (rim speeds for ω)."""
+
+
+def _curve_slope_params(cs: Any) -> tuple[float, float, float, float]:
+    """(a, p, α1, α2) of eq. 14 whose slope a·g'(s) is that of the identified μ(s) curve of ``cs`` (a
+    :class:`~.curve.CurveState`): its own parameters on the shape path (``exp1_offset`` c + (a − c)(1 − e^{α s})
+    as (a − c, 1, α, α), the same slope), the class's exponents with its a on the class path; a = NaN (the
+    default relaxation length) before a curve is identified."""
+    c = cs.curve
+    if c is None:
+        return math.nan, 0.0, -1.0, -1.0
+    if c.form == "exp1_offset":
+        th = c.theta
+        return float(th[1] - th[0]), 1.0, float(th[2]), float(th[2])
+    return float(c.a), float(c.p), float(c.alpha1), float(c.alpha2)
 
 
 class Estimator:
@@ -302,6 +321,11 @@ class Estimator:
         # The mode of the wheel on the carcass, f_c = √(r0² c_x / J)/2π, must be sampled finely enough (_relax).
         self._cx = self.model.cx
         self._f_carcass = math.sqrt(vehicle.r0_m ** 2 * self._cx / self.J) / (2.0 * math.pi)
+        # Two-inertia hub (model doc "Two-inertia hub"): (k, c, J_m, J_w) from the vehicle file, or None (the
+        # paper's one inertia per wheel).  Declared together with the carcass, the filter carries the rim speeds
+        # and hub twists too while the carcass term is on (_hub_wanted, _set_hub); _hub_on: it does now.
+        self._hub = self.model.hub if self._cx != 0.0 else None
+        self._hub_on = False
         # Hold periods (Q_in) and timeouts follow the periods observed on the bus (.rates);
         # the SensorSpec rates until enough samples were seen.
         self._rates = BusRates(
@@ -418,6 +442,96 @@ class Estimator:
             Q[IX_V, IX_V] += self._kappa_noise(dt)
         return Q
 
+    def _Q_hub(self, dt: float) -> NDArray[np.float64]:
+        """Process noise of the two-inertia hub model (18 states, model doc "Two-inertia hub") for dt [s].
+
+        The paper's terms, each where it acts in the two-mass model: the drive-torque noise on the motor
+        speeds (gain 1/J_m), the axle-load noise on the rim speeds through the ground force (gain
+        r_d (μ + ρ_t)/(2 J_w)) and on v, the draft noise on v; the model-error density q_ω on the motor and
+        on the rim speeds alike; the twist none (θ̇ = ω_m − ω_w exactly).  Rebuilt as :meth:`_Q`."""
+        if self._Qbase is None or abs(dt - self._Qdt) > 1e-6 * dt:
+            k_h, c_h, jm, jw = self._hub
+            period = self._rates.period
+            self._tq_gain = period("Md") * dt / (jm * jm)
+            n = N_STATE_HUB
+            q = self._q_tune * (self._f * dt)
+            q *= self._A
+            Q = np.zeros((n, n))
+            d = np.arange(N_STATE)
+            Q[d, d] = q
+            Q[d[:4] + 10, d[:4] + 10] = q[:4]
+            if self.cfg.input_noise and self.ukf is not None:
+                self._loads()
+                mu = self.ukf.x[IX_MU]
+                g = np.zeros(n)
+                g[IX_OMEGA_W] = _AXLE_SGN * self._rd * (mu + self.vehicle.rho_t) / jw
+                g[IX_V] = -float(_AXLE_SGN @ mu) / self.m
+                Q += np.outer(g, g) * (self._fz_var * period("Fzf") * dt)
+                Q[IX_V, IX_V] += self._fd_var * period("Fdx") * dt / (self.m * self.m)
+            self._Qbase = Q
+            self._Qdt = dt
+        Q = self._Qbase.copy()
+        if self.cfg.input_noise:
+            sm = self._tq_abs + self._tq_rel * np.abs(self._u[:4])
+            Q.flat[0:4 * (N_STATE_HUB + 1):N_STATE_HUB + 1] += (sm * sm + self._tq_q2) * self._tq_gain
+        kap = float(self._u[IU_KAPPA])
+        if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
+            Q[IX_V, IX_V] += self._kappa_noise(dt)
+        return Q
+
+    def _hub_wanted(self) -> bool:
+        """Whether the filter should carry the declared two-inertia hub: with the carcass term (the hub changes
+        the ring of motor and wheel on the carcass, which the wheel-speed rate must be able to follow, the
+        rule of :meth:`_relax`)."""
+        return self._hub is not None and self._rates.period("omega") * self._f_carcass <= CARCASS_MAX_FT
+
+    def _hub_states(self, omega: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Initial means and σ of the hub's states (rim speeds, twists) for motor speeds ω (4,): the rims at the
+        motor speeds, the twists carrying the drive torque (ω̇ = 0: M_h = M_d), their σ the sensor's R_ω and that
+        of the ground torque σ_μ0 r_d F_z through the stiffness."""
+        k_h = self._hub[0]
+        self._loads()
+        x = np.concatenate([omega, self._u[:4] / k_h])
+        sd = np.concatenate([np.sqrt(self._R_omega(omega)), self.cfg.sigma_mu0 * self._rd * self._fz / k_h])
+        return x, sd
+
+    def _new_filter(self, x0: NDArray[np.float64], P0: NDArray[np.float64]) -> UnscentedFilter:
+        """A filter of the paper's ten states or, with ``_hub_on``, of the two-inertia hub's 18."""
+        cfg = self.cfg
+        fx, lo, hi = self.model.step, self._lo, self._hi
+        if self._hub_on:
+            fx = self.model.step_hub
+            lo = np.concatenate([lo, np.full(N_STATE_HUB - N_STATE, -np.inf)])
+            hi = np.concatenate([hi, np.full(N_STATE_HUB - N_STATE, np.inf)])
+        return UnscentedFilter(fx, x0, P0, range(5), alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa, x_lo=lo,
+                               x_hi=hi, gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+
+    def _set_hub(self, on: bool) -> None:
+        """Switch the filter between the paper's ten states and the two-inertia hub's 18 (model doc), keeping
+        the ten: switched on, the hub's states start as in :meth:`_hub_states`, uncorrelated; switched off, they
+        are dropped.  Its process noise follows (:meth:`_Q_hub`)."""
+        self._hub_on = on
+        self._Qbase = None
+        if on:
+            self._Q = self._Q_hub           # type: ignore[method-assign]
+        else:
+            self.__dict__.pop("_Q", None)
+        ukf = self.ukf
+        if ukf is None or (ukf.n == N_STATE_HUB) == on:
+            return
+        if on:
+            xh, sd = self._hub_states(ukf.x[IX_OMEGA].copy())
+            x0 = np.concatenate([ukf.x, xh])
+            P0 = np.zeros((N_STATE_HUB, N_STATE_HUB))
+            P0[:N_STATE, :N_STATE] = ukf.P
+            i = np.arange(N_STATE, N_STATE_HUB)
+            P0[i, i] = sd * sd
+        else:
+            x0, P0 = ukf.x[:N_STATE].copy(), ukf.P[:N_STATE, :N_STATE].copy()
+        repairs = ukf.chol_repairs
+        self.ukf = self._new_filter(x0, P0)
+        self.ukf.chol_repairs = repairs
+
     def _kappa_noise(self, dt: float) -> float:
         """Variance added to v over dt [s] by the uncertainty of the curvature input (.kinematics).
 
@@ -490,9 +604,18 @@ class Estimator:
         rho0 = float(np.clip((float(mu0 @ fz) - self._u[5]) / (self.m * G), cfg.rho_min, cfg.rho_max))  # eq. 8, v̇ = 0
         x0 = np.concatenate([omega, [v0], mu0, [rho0]])
         sd = np.concatenate([np.sqrt(self._R_omega(omega)), [cfg.sigma_v0], [cfg.sigma_mu0] * 4, [cfg.sigma_rho0]])
-        self.ukf = UnscentedFilter(self.model.step, x0, np.diag(sd * sd), range(5), alpha=cfg.alpha, beta=cfg.beta,
-                                   kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi, gate_chi2=self._gate,
-                                   gate_max_consecutive=cfg.gate_max_consecutive)
+        if self._hub is None:
+            self.ukf = UnscentedFilter(self.model.step, x0, np.diag(sd * sd), range(5), alpha=cfg.alpha,
+                                       beta=cfg.beta, kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi,
+                                       gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+        else:                                   # the declared two-inertia hub, while it is followed (_set_hub)
+            self.ukf = None
+            self._set_hub(self._hub_wanted())
+            if self._hub_on:
+                xh, sdh = self._hub_states(omega)
+                x0 = np.concatenate([x0, xh])
+                sd = np.concatenate([sd, sdh])
+            self.ukf = self._new_filter(x0, np.diag(sd * sd))
         self.t_init = t
         self._conv = False
         self._t_relax = None
@@ -714,9 +837,14 @@ class Estimator:
                     self._t_upd_v = t
                 counters["updates"] += 1
                 if cfg.adaptation:
-                    self._cm.push(*ukf.correction())
+                    if not self._hub_on:
+                        self._cm.push(*ukf.correction())
+                    else:                       # the paper's ten states adapt; the hub's follow q_ω
+                        dxc, ksk = ukf.correction()
+                        self._cm.push(dxc[:N_STATE], ksk[:N_STATE])
         if self._cx != 0.0:
             self._relax(t, ukf.x)
+            ukf = self.ukf
         # ---- divergence: a filter that has lost the vehicle starts again from the measurements
         x = ukf.x
         xl = x.tolist()
@@ -833,6 +961,8 @@ class Estimator:
             x = ukf.x
             if i == 0:
                 x[:4] += d / self.J
+                if self._hub_on:                # over a sample period motor and rim move together
+                    x[IX_OMEGA_W] += d / self.J
                 dm = new - old
                 ev = self._dm_var
                 ev += 0.05 * (dm * dm - ev)
@@ -843,7 +973,8 @@ class Estimator:
                 g = w / (self._rd * self._fz)
                 x[5:9] += g * dm
                 # the sensor-noise part of the feed-forward: its variance into P_μμ
-                ukf.P.flat[5 * (N_STATE + 1):9 * (N_STATE + 1):N_STATE + 1] += g * g * nv
+                n = ukf.n
+                ukf.P.flat[5 * (n + 1):9 * (n + 1):n + 1] += g * g * nv
             else:
                 x[IX_V] -= d / self.m
 
@@ -857,12 +988,23 @@ class Estimator:
         The term is used only while the wheel speeds come often enough to follow the carcass mode: a wheel
         speed measured by period counting is the mean over its sample period T, which lags the mode f_c by
         π f_c T; the term is on while f_c T ≤ CARCASS_MAX_FT (a lag of at most 0.25 rad, 14°), else off (μ̇ = 0,
-        the paper's model)."""
+        the paper's model).
+
+        With a declared two-inertia hub (model doc "Two-inertia hub") the filter carries the hub while the
+        term is on (:meth:`_set_hub`), and then: the slips s_i that σ̄ relaxes towards are those of the motor
+        speeds x[0:4], where the pickup sits (the rim's differ from them by the hub's mode, ≈ 14–16 Hz, far
+        above the relaxation's |v|/L_r, and the rim speeds are not measured: relaxed towards them, a rim-speed
+        error was kept in σ̄ and held μ off by 2–4 % for tens of seconds); and the slope ∂μ/∂s is that of the
+        identified curve itself (:func:`_curve_slope_params`: on the shape path its own p, α1, α2), not the
+        class's exponents with the shape's a."""
         model = self.model
         on = self._rates.period("omega") * self._f_carcass <= CARCASS_MAX_FT
         if on != (model.cx != 0.0):
             model.set_carcass(on)
             self._t_relax = None
+        if self._hub is not None and on != self._hub_on:
+            self._set_hub(on)
+            x = self.ukf.x  # type: ignore[union-attr]
         if not on:
             return
         ff, fr, rdf, rdr = model.load_floats(float(self._u[4]), float(self._u[5]))
@@ -870,9 +1012,12 @@ class Estimator:
         self._t_relax = t
         init = t_prev is None
         cs = self._curve_state
-        cls = SOIL_CLASSES.get(cs.class_name)
-        a = cs.a if cls is not None else math.nan
-        p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
+        if self._hub_on:
+            a, p, al1, al2 = _curve_slope_params(cs)
+        else:
+            cls = SOIL_CLASSES.get(cs.class_name)
+            a = cs.a if cls is not None else math.nan
+            p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
         relax_slips(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
                     a, p, al1, al2, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
 
@@ -933,7 +1078,10 @@ class Estimator:
         self.ukf = None
         if x is not None:
             self._init_filter(t, x[:4])
-            self.ukf.x = x.copy()  # type: ignore[union-attr]
+            if self.ukf.n == x.shape[0]:  # type: ignore[union-attr]
+                self.ukf.x = x.copy()  # type: ignore[union-attr]
+            else:
+                self.ukf.x[:N_STATE] = x[:N_STATE]  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ output
     def _wheel_factors(self, kap: float) -> NDArray[np.float64]:
@@ -1142,11 +1290,16 @@ class Estimator:
             c_mu *= f2
             c_rho *= f2
         kap = float(self._u[IU_KAPPA])
+        P = ukf.P
+        if self._hub_on:
+            # the two-inertia hub: the wheels' speeds (ω, slip eq. 6) are the rims', the rest the paper's states
+            x = x[_HUB_OUT]
+            P = P[_HUB_OUT[:, None], _HUB_OUT]
         if JIT:
             # the numpy path below with _wheel_factors and _slip_supported in one compiled call (same operations)
             _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
             buf = np.empty(26)
-            code = _kernels.estimate_outputs(x, ukf.P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kap, self._hb,
+            code = _kernels.estimate_outputs(x, P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kap, self._hb,
                                              self.vehicle.wheelbase_m, self._kappa_var, cfg.slip_sigma_max, buf)
             mu, s, omega, pd, kw = buf[0:4], buf[4:8], buf[8:12], buf[12:22], buf[22:26]
             v = float(x[IX_V])
@@ -1157,7 +1310,7 @@ class Estimator:
             xl = x.tolist()
             v = xl[IX_V]
             s = np.array(self._slip(xl[:4], v, kw.tolist()))
-            pd = ukf.P.diagonal().copy()
+            pd = P.diagonal().copy()
             pl = pd.tolist()
             mu = x[IX_MU].copy()
             omega = x[:4].copy()

@@ -74,6 +74,29 @@ random walk; a slip change moves μ through the carcass spring r² c_x at
 once, so the filter predicts the wheel-on-carcass oscillation from the
 wheel speeds and the torque instead of following it from the innovations.
 c_x = 0 (the default) is the paper's model, unchanged bit for bit.
+
+Two-inertia hub (beyond the paper, whose wheel is one rigid inertia J_w in
+eq. 2): on a hub drive the motor drives the wheel through the planetary
+reduction, whose gear meshes, carrier, hub and rim are a torsional spring k
+with a damper c, and the wheel-speed pickup sits on the motor shaft.  With
+a declared ``drivetrain.hub_stiffness_nmprad`` (and the motor side's
+inertia J_m, the wheel side J_w = ``wheel_inertia_kgm2`` − J_m) the filter
+carries the standard two-mass drive-line model (e.g. Schröder 2009,
+"Elektrische Antriebe – Regelung von Antriebssystemen", ch. 18, the
+two-mass system; Ellis 2012, "Control System Design Guide", ch. 16,
+resonance of a compliant load), all quantities reflected to the wheel:
+
+    J_m ω̇_m,i = M_d,i − M_h,i                         motor side (M_d = η M − c_d ω_m)
+    J_w ω̇_w,i = M_h,i − r_d,i F_h,i − r_d,i ρ_t F_z,i sign(ω_w,i)    eq. 2 at the rim
+    θ̇_i = ω_m,i − ω_w,i,   M_h,i = k θ_i + c (ω_m,i − ω_w,i)
+
+State (18, :data:`N_STATE_HUB`): x[0:4] are the motor speeds ω_m,i (what the
+pickup measures, so the output y = (x[0:4], v) is unchanged), x[4:10] as in
+the paper, x[10:14] the rim speeds ω_w,i and x[14:18] the twists θ_i [rad].
+The carcass term's slip is the rim's.  J_m + J_w = J and k → ∞ give back
+eq. 2.  The hub's mode (≈ 14–16 Hz on the physical truth) is integrated
+with RK4 in sub-steps of at most 0.5/ω_max (:func:`hub_substeps`), well
+inside RK4's stability bound (ω h < 2.8).
 """
 
 from __future__ import annotations
@@ -131,6 +154,13 @@ IU_FDX = 5
 IU_KAPPA = 6
 N_INPUT = 7
 STATE_NAMES = ("omega_FL", "omega_FR", "omega_RL", "omega_RR", "v", "mu_FL", "mu_FR", "mu_RL", "mu_RR", "rho_s")
+IX_OMEGA_W = slice(10, 14)
+"""Rim speeds ω_w,i of the two-inertia hub (module doc "Two-inertia hub")."""
+IX_TWIST = slice(14, 18)
+"""Hub twists θ_i [rad] at the wheel side (module doc "Two-inertia hub")."""
+N_STATE_HUB = 18
+HUB_STEP_WH = 0.5
+"""Largest ω_max·h of one RK4 sub-step of the hub model [-] (:func:`hub_substeps`)."""
 
 
 def tyre_deflection(fz: ArrayLike, params: VehicleParams) -> NDArray[np.float64]:
@@ -247,6 +277,14 @@ class FilterModel:
         self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
                              0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull, self.cx,
                              0.0, 0.0, 0.0, 0.0, 0.0])
+        # Two-inertia hub (module doc): (k, c, J_m, J_w, ω_max) or None.
+        hub = getattr(params, "hub_two_inertia", None)
+        self.hub = hub
+        self._hc = np.zeros(5)
+        if hub is not None:
+            k_h, c_h, jm, jw = hub
+            self._hc[:4] = hub
+            self._hc[4] = hub_max_rate(k_h, c_h, jm, jw, params.r0_m, self.cx)
         self._fzf_key: tuple[float, float] | None = None
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -401,6 +439,55 @@ class FilterModel:
     def outputs(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """y = h(x) = (ω1..4, v)."""
         return x[..., :5]
+
+    def rhs_hub(self, x: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """dx/dt of the two-inertia hub model (module doc), x (..., 18), u (7,) or (6,); numpy."""
+        k_h, c_h, jm, jw = self.hub
+        fz, r_d = self.loads(u)
+        wm = x[..., IX_OMEGA]
+        ww = x[..., IX_OMEGA_W]
+        mh = k_h * x[..., IX_TWIST] + c_h * (wm - ww)
+        fh = x[..., IX_MU] * fz                                        # eq. 4
+        dx = np.zeros(x.shape)
+        dx[..., IX_OMEGA] = (u[..., IU_MD] - mh) / jm
+        dx[..., IX_OMEGA_W] = (mh - r_d * fh - r_d * self.rho_t * fz * np.sign(ww)) / jw    # eq. 2 at the rim
+        dx[..., IX_TWIST] = wm - ww
+        if u.shape[-1] > IU_KAPPA:
+            c = self.front_cosines(u[..., IU_KAPPA])
+            fx = fh[..., 0] * c[..., 0] + fh[..., 1] * c[..., 1] + fh[..., 2] + fh[..., 3]
+            kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
+        else:
+            fx = fh.sum(axis=-1)
+            kw = np.ones(4)
+        dx[..., IX_V] = (fx - u[..., IU_FDX] - x[..., IX_RHO] * self.m * G * np.sign(x[..., IX_V])) / self.m  # eq. 8
+        if self.cx != 0.0:
+            vi = kw * self._kc[15]
+            dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(ww, vi, r_d) - self._kc[11:15]) / fz
+        return dx
+
+    def step_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+        """RK4 over dt [s] in :func:`hub_substeps` sub-steps for the two-inertia hub states x (N, 18) (module
+        doc); compiled with numba (:func:`_rk4_hub`), else numpy (:meth:`rhs_hub`)."""
+        n = hub_substeps(float(self._hc[4]), dt)
+        if JIT and x.ndim == 2 and x.dtype == np.float64 and u.dtype == np.float64:
+            return _rk4_hub(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, self._hc, float(dt), n)
+        h = dt / n
+        y = np.array(x, dtype=float)
+        for _ in range(n):
+            y = rk4(lambda z: self.rhs_hub(z, u), y, h)
+        return y
+
+
+def hub_max_rate(k: float, c: float, jm: float, jw: float, r0: float, cx: float) -> float:
+    """An upper bound of the two-inertia hub's fastest rate [1/s]: the undamped natural frequencies are at
+    most √max(2k/J_m, (2k + r0² c_x)/J_w) (Gershgorin's bound on J⁻¹K, the carcass r0² c_x a spring to the
+    ground), the damped decay rate at most c (1/J_m + 1/J_w)."""
+    return max(math.sqrt(max(2.0 * k / jm, (2.0 * k + r0 * r0 * cx) / jw)), c * (1.0 / jm + 1.0 / jw))
+
+
+def hub_substeps(w_max: float, dt: float) -> int:
+    """Number of RK4 sub-steps over dt [s] so that w_max·h ≤ :data:`HUB_STEP_WH`."""
+    return max(1, int(math.ceil(w_max * dt / HUB_STEP_WH - 1e-9)))
 
 
 def rk4(f, x: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
@@ -637,6 +724,88 @@ def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ld
         kc[11 + i] = sb + (1.0 if g > 1.0 else g) * (s - sb)
 
 
+def _hub_deriv(y, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, d):  # pragma: no cover - compiled
+    """dx/dt of one two-inertia hub state y (18,) into d (18,) (FilterModel.rhs_hub, module doc)."""
+    k_h, c_h, jm, jw = hc[0], hc[1], hc[2], hc[3]
+    m = kc[6]
+    fx = 0.0
+    for i in range(4):
+        fz = ff if i < 2 else fr
+        rd = rdf if i < 2 else rdr
+        cz = cf if i < 2 else cr
+        wm = y[i]
+        ww = y[10 + i]
+        mh = k_h * y[14 + i] + c_h * (wm - ww)
+        fh = y[5 + i] * fz
+        d[i] = (u[i] - mh) / jm
+        d[10 + i] = ((mh - rd * fh) - cz * _sign(ww)) / jw
+        d[14 + i] = wm - ww
+        fx += fh * (cosl if i == 0 else (cosr if i == 1 else 1.0))
+        if kc[10] != 0.0:
+            d[5 + i] = _mudot(ww, kc[15], kw[i], rd, fz, kc[11 + i], kc[10])
+        else:
+            d[5 + i] = 0.0
+    d[4] = ((fx - u[5]) - y[9] * m * G * _sign(y[4])) / m
+    d[9] = 0.0
+
+
+def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover - compiled
+    """RK4 of the two-inertia hub model over dt in nsub equal sub-steps for every row of x (N, 18);
+    kc: FilterModel._kc (loads, carcass), hc = (k, c, J_m, J_w, ω_max)."""
+    w_n, k, lim, r0, rho_t = kc[0], kc[1], kc[2], kc[3], kc[4]
+    cosl = 1.0
+    cosr = 1.0
+    kw = np.ones(4)
+    if u.shape[0] > 6 and u[6] != 0.0:
+        hk = kc[7] * u[6]
+        lk = kc[8] * u[6]
+        left = 1.0 - hk
+        right = 1.0 + hk
+        kw[0] = math.sqrt(left * left + lk * lk)
+        kw[1] = math.sqrt(right * right + lk * lk)
+        kw[2] = left
+        kw[3] = right
+        cosl = left / kw[0]
+        cosr = right / kw[1]
+    fzf = u[4]
+    ff = 0.5 * fzf
+    fr = 0.5 * (w_n - fzf)
+    if kc[9] != 0.0:
+        fr = 0.5 * ((w_n - fzf) + u[5] * kc[9])
+    rdf = _radius(ff, r0, k, lim)
+    rdr = _radius(fr, r0, k, lim)
+    cf = rdf * rho_t * ff
+    cr = rdr * rho_t * fr
+    npt, n = x.shape
+    out = np.empty_like(x)
+    h = dt / nsub
+    k1 = np.empty(n)
+    k2 = np.empty(n)
+    k3 = np.empty(n)
+    k4 = np.empty(n)
+    y = np.empty(n)
+    yt = np.empty(n)
+    for p in range(npt):
+        for j in range(n):
+            y[j] = x[p, j]
+        for _ in range(nsub):
+            _hub_deriv(y, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k1)
+            for j in range(n):
+                yt[j] = y[j] + 0.5 * h * k1[j]
+            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k2)
+            for j in range(n):
+                yt[j] = y[j] + 0.5 * h * k2[j]
+            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k3)
+            for j in range(n):
+                yt[j] = y[j] + h * k3[j]
+            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k4)
+            for j in range(n):
+                y[j] = y[j] + h / 6.0 * (((k1[j] + 2.0 * k2[j]) + 2.0 * k3[j]) + k4[j])
+        for j in range(n):
+            out[p, j] = y[j]
+    return out
+
+
 _sign = compiled(_sign, inline=True)
 _rhs5 = compiled(_rhs5, inline=True)
 _radius = compiled(_radius, inline=True)
@@ -644,3 +813,5 @@ _mudot = compiled(_mudot, inline=True)
 _rk4_carcass = compiled(_rk4_carcass)
 relax_slips = compiled(relax_slips)
 _rk4_points = compiled(_rk4_points)
+_hub_deriv = compiled(_hub_deriv, inline=True)
+_rk4_hub = compiled(_rk4_hub)

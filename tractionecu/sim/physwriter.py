@@ -160,8 +160,9 @@ def _declared_hub(scn):
     (:data:`tractionecu.config.HUB_EFFICIENCY_TOL`), the line of pull and the rear wheels' calibrated rolling
     radius, each with an error drawn once per seed inside its tolerance (own stream: nothing else of the
     recording moves), never the truth's exact figure.  With ``PhysicalSpec.declared_exact`` it declares the
-    truth's figures without errors, and also the hub's drag, the motor-plus-wheel inertia and the tyre
-    carcass's longitudinal stiffness."""
+    truth's figures without errors, and also the hub's drag, the motor-plus-wheel inertia, the tyre
+    carcass's longitudinal stiffness and the hub's torsional stiffness, damping and motor-side inertia (the
+    two-inertia hub)."""
     veh = scn.vehicle
     ps = scn.physical
     rng = np.random.default_rng(scn.seed + 7_000_005)
@@ -172,7 +173,10 @@ def _declared_hub(scn):
         err = np.zeros(3)
         veh = dataclasses.replace(veh, wheel_inertia_kgm2=hub.motor_inertia_kgm2 + hub.wheel_inertia_kgm2,
                                   tyre_carcass_stiffness_npm=ps.tyre.carcass_stiffness_npm,
-                                  drivetrain=dataclasses.replace(veh.drivetrain, hub_drag_nms=hub.drag_nms))
+                                  drivetrain=dataclasses.replace(veh.drivetrain, hub_drag_nms=hub.drag_nms,
+                                                                 hub_stiffness_nmprad=hub.stiffness_nmprad,
+                                                                 hub_damping_nmsprad=hub.damping_nmsprad,
+                                                                 hub_motor_inertia_kgm2=hub.motor_inertia_kgm2))
     eta = min(1.0, ps.drivetrain.hub.efficiency * (1.0 + float(err[0])))
     fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
     r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
