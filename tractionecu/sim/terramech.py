@@ -42,8 +42,9 @@ the same as on the Brixius soils.
 Soil parameters
 ---------------
 n, k_c, k_φ, c and φ are published bevameter measurements of Canadian farm soils (Wong 2008 ch. 2 terrain-value
-table, after Wong 1989, *Terramechanics and Off-Road Vehicles*), transcribed here without the table at hand:
-check them against the edition you cite before quoting them elsewhere.  The shear
+table, after Wong 1989, *Terramechanics and Off-Road Vehicles*): Upland sandy loam at 51 % moisture, North
+Gower clayey loam at 46 %, Rubicon sandy loam at 43 %.  The values agree with an independent public
+transcription of the same table (a Project Chrono SCM soil-parameter listing citing Wong 2008).  The shear
 deformation modulus K is not in that table; Wong gives K ≈ 1 cm for firm sandy terrain, ≈ 2.5 cm for
 loose sand and ≈ 0.6 cm for clay at maximum compaction (2008, ch. 2).  The K of each soil below is taken
 from that guidance by the soil's state, before any estimator run (:data:`WONG_AGRICULTURAL`); they are
