@@ -154,6 +154,29 @@ COUNTERS = ("steps", "updates", "gated", "rejected_inputs", "rejected_measuremen
             "gap_resets", "lost")
 
 
+def _dep_tag() -> int:
+    """A number that changes with the source of the compiled code this module calls from other files
+    (:mod:`._kernels`, the filter model's RK4 in :mod:`tractionecu.model.vehicle`) and of the constants it
+    takes from :mod:`.kinematics` and :mod:`.rates`.
+
+    numba's on-disk cache keys a function by its own file and bytecode and by the values it closes over,
+    not by the functions it calls from other files, whose machine code the cached function carries: the
+    functions below that call those kernels close over this number, so an edit of the kernels recompiles
+    them instead of loading a stale copy (as :func:`._kernels._model_tag` does for ``predict_model``)."""
+    import hashlib
+    from pathlib import Path
+
+    here = Path(__file__).resolve().parent
+    files = (here / "_kernels.py", here.parent / "model" / "vehicle.py", here / "kinematics.py", here / "rates.py")
+    h = hashlib.sha256()
+    for f in files:
+        h.update(f.read_bytes())
+    return int(h.hexdigest()[:15], 16)
+
+
+_TAG = _dep_tag()
+
+
 def _offsets(names):
     out = {}
     o = 0
@@ -417,35 +440,40 @@ def _kin_course_direction(F, course_deg, speed):                          # prag
 
 
 # ----------------------------------------------------------------------------- noise
-def _rebuild_Q(F, I, dt):                                                 # pragma: no cover - compiled
-    J = F[F_C_J]
-    m = F[F_C_M]
-    F[F_TQ_GAIN] = F[F_RATES + 6 * K_MD] * dt / (J * J)
-    inputs = I[I_F_INPUT_NOISE] != 0 and I[I_UKF] != 0
-    g_v = 0.0
-    c_fz = 0.0
-    c_fd = 0.0
-    qt = F[F_C_QTUNE:F_C_QTUNE + 10]
-    x = qt
-    _, _, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
-    rd = np.empty(4)
-    rd[0] = rdf
-    rd[1] = rdf
-    rd[2] = rdr
-    rd[3] = rdr
-    if inputs:
-        x = F[F_X:F_X + 10]
-        dot = -0.5 * x[5]
-        dot += -0.5 * x[6]
-        dot += 0.5 * x[7]
-        dot += 0.5 * x[8]
-        g_v = -dot / m
-        c_fz = F[F_C_FZVAR] * F[F_RATES + 6 * K_FZF] * dt
-        c_fd = F[F_C_FDVAR] * F[F_RATES + 6 * K_FDX] * dt / (m * m)
-    Qb = F[F_QB:F_QB + 100].reshape((10, 10))
-    _kernels.process_noise(qt, F[F_F] * dt, F[F_A:F_A + 10], inputs, rd, x, F[F_C_RHO_T], J, g_v, c_fz, c_fd, Qb)
-    I[I_QB_VALID] = 1
-    F[F_QDT] = dt
+def _mk_rebuild_Q(tag):
+    """_rebuild_Q closed over the dependency tag (:func:`_dep_tag`)."""
+    def _rebuild_Q(F, I, dt):                                                 # pragma: no cover - compiled
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        J = F[F_C_J]
+        m = F[F_C_M]
+        F[F_TQ_GAIN] = F[F_RATES + 6 * K_MD] * dt / (J * J)
+        inputs = I[I_F_INPUT_NOISE] != 0 and I[I_UKF] != 0
+        g_v = 0.0
+        c_fz = 0.0
+        c_fd = 0.0
+        qt = F[F_C_QTUNE:F_C_QTUNE + 10]
+        x = qt
+        _, _, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
+        rd = np.empty(4)
+        rd[0] = rdf
+        rd[1] = rdf
+        rd[2] = rdr
+        rd[3] = rdr
+        if inputs:
+            x = F[F_X:F_X + 10]
+            dot = -0.5 * x[5]
+            dot += -0.5 * x[6]
+            dot += 0.5 * x[7]
+            dot += 0.5 * x[8]
+            g_v = -dot / m
+            c_fz = F[F_C_FZVAR] * F[F_RATES + 6 * K_FZF] * dt
+            c_fd = F[F_C_FDVAR] * F[F_RATES + 6 * K_FDX] * dt / (m * m)
+        Qb = F[F_QB:F_QB + 100].reshape((10, 10))
+        _kernels.process_noise(qt, F[F_F] * dt, F[F_A:F_A + 10], inputs, rd, x, F[F_C_RHO_T], J, g_v, c_fz, c_fd, Qb)
+        I[I_QB_VALID] = 1
+        F[F_QDT] = dt
+    return _rebuild_Q
 
 
 def _kappa_noise(F, dt):                                                  # pragma: no cover - compiled
@@ -466,19 +494,24 @@ def _kappa_noise(F, dt):                                                  # prag
     return g * g * F[F_KAPVAR] * BIAS_TAU_S * dt
 
 
-def _make_Q(F, I, h):                                                     # pragma: no cover - compiled
-    """Estimator._Q(h) into F's Q block (or the base itself without input noise); returns the matrix."""
-    if I[I_QB_VALID] == 0 or abs(h - F[F_QDT]) > 1e-6 * h:
-        _rebuild_Q(F, I, h)
-    Qb = F[F_QB:F_QB + 100].reshape((10, 10))
-    if I[I_F_INPUT_NOISE] == 0:
-        return Qb
-    Q = F[F_Q:F_Q + 100].reshape((10, 10))
-    _kernels.add_torque_noise(Qb, F[F_U:F_U + 7], F[F_C_TQABS], F[F_C_TQREL], F[F_C_TQQ2], F[F_TQ_GAIN], Q)
-    kap = F[F_U + 6]
-    if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and I[I_UKF] != 0:
-        Q[4, 4] += _kappa_noise(F, h)
-    return Q
+def _mk_make_Q(tag):
+    """_make_Q closed over the dependency tag (:func:`_dep_tag`)."""
+    def _make_Q(F, I, h):                                                     # pragma: no cover - compiled
+        """Estimator._Q(h) into F's Q block (or the base itself without input noise); returns the matrix."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        if I[I_QB_VALID] == 0 or abs(h - F[F_QDT]) > 1e-6 * h:
+            _rebuild_Q(F, I, h)
+        Qb = F[F_QB:F_QB + 100].reshape((10, 10))
+        if I[I_F_INPUT_NOISE] == 0:
+            return Qb
+        Q = F[F_Q:F_Q + 100].reshape((10, 10))
+        _kernels.add_torque_noise(Qb, F[F_U:F_U + 7], F[F_C_TQABS], F[F_C_TQREL], F[F_C_TQQ2], F[F_TQ_GAIN], Q)
+        kap = F[F_U + 6]
+        if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and I[I_UKF] != 0:
+            Q[4, 4] += _kappa_noise(F, h)
+        return Q
+    return _make_Q
 
 
 # ----------------------------------------------------------------------------- stages
@@ -689,29 +722,34 @@ def _stage_begin(F, I, RB, IN, k):                                        # prag
     return ST_UPDATE
 
 
-def _stage_predict(F, I):                                                 # pragma: no cover - compiled
-    """The sub-steps of the prediction (compiled predict_model); EV_PREDICT / EV_RECOVER otherwise."""
-    h = F[F_L_H]
-    n_sub = I[I_N_SUB]
-    x = F[F_X:F_X + 10]
-    P = F[F_P:F_P + 100].reshape((10, 10))
-    xn = F[F_XN:F_XN + 10]
-    Pn = F[F_PN:F_PN + 100].reshape((10, 10))
-    sig = F[F_SIG:F_SIG + 210].reshape((21, 10))
-    while I[I_SUB] < n_sub:
-        Q = _make_Q(F, I, h)
-        I[I_REPAIRED_LAST] = 0
-        code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43], F[F_C_KC:F_C_KC + 16],
-                                      sig, xn, Pn)
-        if code == 0:
-            x[:] = xn
-            P[:, :] = Pn
-            I[I_SUB] += 1
-            continue
-        if code == 1:
-            return EV_PREDICT          # the driver predicts this sub-step on the Python filter (its repair)
-        return EV_RECOVER
-    return ST_AFTER_PREDICT
+def _mk_stage_predict(tag):
+    """_stage_predict closed over the dependency tag (:func:`_dep_tag`)."""
+    def _stage_predict(F, I):                                                 # pragma: no cover - compiled
+        """The sub-steps of the prediction (compiled predict_model); EV_PREDICT / EV_RECOVER otherwise."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        h = F[F_L_H]
+        n_sub = I[I_N_SUB]
+        x = F[F_X:F_X + 10]
+        P = F[F_P:F_P + 100].reshape((10, 10))
+        xn = F[F_XN:F_XN + 10]
+        Pn = F[F_PN:F_PN + 100].reshape((10, 10))
+        sig = F[F_SIG:F_SIG + 210].reshape((21, 10))
+        while I[I_SUB] < n_sub:
+            Q = _make_Q(F, I, h)
+            I[I_REPAIRED_LAST] = 0
+            code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43], F[F_C_KC:F_C_KC + 16],
+                                          sig, xn, Pn)
+            if code == 0:
+                x[:] = xn
+                P[:, :] = Pn
+                I[I_SUB] += 1
+                continue
+            if code == 1:
+                return EV_PREDICT          # the driver predicts this sub-step on the Python filter (its repair)
+            return EV_RECOVER
+        return ST_AFTER_PREDICT
+    return _stage_predict
 
 
 def _foh(F, I, t, t_prev):                                                # pragma: no cover - compiled
@@ -771,109 +809,119 @@ def _stage_after_predict(F, I):                                           # prag
     return ST_UPDATE
 
 
-def _stage_update(F, I, CM):                                                  # pragma: no cover - compiled
-    """The measurement update (compiled update_block); EV_UPDATE for the general path."""
-    I[I_UPDATED] = 0
-    I[I_WHEEL_OUT] = -1
-    I[I_GROUND_OUT] = -1
-    has_om = I[I_HAS_OM] != 0
-    has_v = I[I_HAS_VMEAS] != 0
-    if I[I_PREDICT_ONLY] or not (has_om or has_v):
-        I[I_UPD_KIND] = 0
+def _mk_stage_update(tag):
+    """_stage_update closed over the dependency tag (:func:`_dep_tag`)."""
+    def _stage_update(F, I, CM):                                                  # pragma: no cover - compiled
+        """The measurement update (compiled update_block); EV_UPDATE for the general path."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        I[I_UPDATED] = 0
+        I[I_WHEEL_OUT] = -1
+        I[I_GROUND_OUT] = -1
+        has_om = I[I_HAS_OM] != 0
+        has_v = I[I_HAS_VMEAS] != 0
+        if I[I_PREDICT_ONLY] or not (has_om or has_v):
+            I[I_UPD_KIND] = 0
+            return ST_DIVERGENCE
+        om_fin = I[I_OM_FIN] != 0
+        if has_om and not om_fin:
+            # (the R of non-finite wheel speeds: _R_list of the values, NaN where they are)
+            for i in range(4):
+                s = F[F_C_WABS] + F[F_C_WREL] * abs(F[F_L_WL + i])
+                F[F_L_ROM + i] = s * s + F[F_C_WQ2]
+        rv = F[F_C_RV] + F[F_R_LAT]
+        if has_om and has_v:
+            kind = 3
+            m = 5
+            i0 = 0
+            for i in range(4):
+                F[F_L_Z + i] = F[F_L_WL + i]
+                F[F_L_R + i] = F[F_L_ROM + i]
+            F[F_L_Z + 4] = F[F_L_VMEAS]
+            F[F_L_R + 4] = rv
+        elif has_om:
+            kind = 1
+            m = 4
+            i0 = 0
+            for i in range(4):
+                F[F_L_Z + i] = F[F_L_WL + i]
+                F[F_L_R + i] = F[F_L_ROM + i]
+        else:
+            kind = 2
+            m = 1
+            i0 = 4
+            F[F_L_Z] = F[F_L_VMEAS]
+            F[F_L_R] = rv
+        I[I_UPD_KIND] = kind
+        x = F[F_X:F_X + 10]
+        P = F[F_P:F_P + 100].reshape((10, 10))
+        xn = F[F_XN:F_XN + 10]
+        Pn = F[F_PN:F_PN + 100].reshape((10, 10))
+        work = F[F_WORK:F_WORK + 10 * (m + 2)].reshape((10, m + 2))
+        small = F[F_SMALL:F_SMALL + (2 * m + 1) * m].reshape((2 * m + 1, m))
+        code, nis, _clamped = _kernels.update_block(x, P, F[F_L_Z:F_L_Z + m], F[F_L_R:F_L_R + m], i0, F[F_C_GATE],
+                                                    F[F_C_LO:F_C_LO + 10], F[F_C_HI:F_C_HI + 10], xn, Pn, work, small)
+        if code != 0:
+            return EV_UPDATE
+        if I[I_GATE_RUN_ANY]:
+            c0 = 4 if kind == 2 else 0
+            c1 = 4 if kind == 1 else 5
+            anyr = False
+            for j in range(5):
+                if c0 <= j < c1:
+                    I[I_GATE_RUN + j] = 0
+                if I[I_GATE_RUN + j] != 0:
+                    anyr = True
+            I[I_GATE_RUN_ANY] = 1 if anyr else 0
+        x[:] = xn
+        P[:, :] = Pn
+        F[F_LAST_NIS] = nis
+        I[I_LAST_DOF] = m
+        for i in range(10):
+            F[F_DX + i] = work[i, m]
+            F[F_KSK + i] = work[i, m + 1]
+        post_update(F, I, CM, 0, 0)
         return ST_DIVERGENCE
-    om_fin = I[I_OM_FIN] != 0
-    if has_om and not om_fin:
-        # (the R of non-finite wheel speeds: _R_list of the values, NaN where they are)
-        for i in range(4):
-            s = F[F_C_WABS] + F[F_C_WREL] * abs(F[F_L_WL + i])
-            F[F_L_ROM + i] = s * s + F[F_C_WQ2]
-    rv = F[F_C_RV] + F[F_R_LAT]
-    if has_om and has_v:
-        kind = 3
-        m = 5
-        i0 = 0
-        for i in range(4):
-            F[F_L_Z + i] = F[F_L_WL + i]
-            F[F_L_R + i] = F[F_L_ROM + i]
-        F[F_L_Z + 4] = F[F_L_VMEAS]
-        F[F_L_R + 4] = rv
-    elif has_om:
-        kind = 1
-        m = 4
-        i0 = 0
-        for i in range(4):
-            F[F_L_Z + i] = F[F_L_WL + i]
-            F[F_L_R + i] = F[F_L_ROM + i]
-    else:
-        kind = 2
-        m = 1
-        i0 = 4
-        F[F_L_Z] = F[F_L_VMEAS]
-        F[F_L_R] = rv
-    I[I_UPD_KIND] = kind
-    x = F[F_X:F_X + 10]
-    P = F[F_P:F_P + 100].reshape((10, 10))
-    xn = F[F_XN:F_XN + 10]
-    Pn = F[F_PN:F_PN + 100].reshape((10, 10))
-    work = F[F_WORK:F_WORK + 10 * (m + 2)].reshape((10, m + 2))
-    small = F[F_SMALL:F_SMALL + (2 * m + 1) * m].reshape((2 * m + 1, m))
-    code, nis, _clamped = _kernels.update_block(x, P, F[F_L_Z:F_L_Z + m], F[F_L_R:F_L_R + m], i0, F[F_C_GATE],
-                                                F[F_C_LO:F_C_LO + 10], F[F_C_HI:F_C_HI + 10], xn, Pn, work, small)
-    if code != 0:
-        return EV_UPDATE
-    if I[I_GATE_RUN_ANY]:
-        c0 = 4 if kind == 2 else 0
-        c1 = 4 if kind == 1 else 5
-        anyr = False
-        for j in range(5):
-            if c0 <= j < c1:
-                I[I_GATE_RUN + j] = 0
-            if I[I_GATE_RUN + j] != 0:
-                anyr = True
-        I[I_GATE_RUN_ANY] = 1 if anyr else 0
-    x[:] = xn
-    P[:, :] = Pn
-    F[F_LAST_NIS] = nis
-    I[I_LAST_DOF] = m
-    for i in range(10):
-        F[F_DX + i] = work[i, m]
-        F[F_KSK + i] = work[i, m + 1]
-    post_update(F, I, CM, 0, 0)
-    return ST_DIVERGENCE
+    return _stage_update
 
 
-def post_update(F, I, CM, gated, outside):                                # pragma: no cover - compiled
-    """After ukf.update (either path; the driver calls it after the general one): the gate bits, the
-    counters, covariance matching's window (CovarianceMatching.push of F's dx, ksk)."""
-    kind = I[I_UPD_KIND]
-    t = F[F_L_T]
-    if kind & 1:
-        I[I_WHEEL_OUT] = 1 if (outside & 0xF) != 0 else 0
-    if kind & 2:
-        I[I_GROUND_OUT] = 1 if (outside & 0x10) != 0 else 0
-    if gated:
-        I[I_STATUS] |= MEAS_GATED
-        nb = 0
-        g = gated
-        while g:
-            nb += g & 1
-            g >>= 1
-        I[I_COUNTERS + C_GATED] += nb
-    if I[I_LAST_DOF]:
-        I[I_UPDATED] = 1
+def _mkpost_update(tag):
+    """post_update closed over the dependency tag (:func:`_dep_tag`)."""
+    def post_update(F, I, CM, gated, outside):                                # pragma: no cover - compiled
+        """After ukf.update (either path; the driver calls it after the general one): the gate bits, the
+        counters, covariance matching's window (CovarianceMatching.push of F's dx, ksk)."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        kind = I[I_UPD_KIND]
+        t = F[F_L_T]
         if kind & 1:
-            F[F_T_UPD_W] = t
+            I[I_WHEEL_OUT] = 1 if (outside & 0xF) != 0 else 0
         if kind & 2:
-            F[F_T_UPD_V] = t
-        I[I_COUNTERS + C_UPDATES] += 1
-        if I[I_F_ADAPT]:
-            M = I[I_CM_M]
-            i = I[I_CM_I]
-            _kernels.cm_push(CM[:M], CM[M:], i, F[F_DX:F_DX + 10], F[F_KSK:F_KSK + 10])
-            i += 1
-            I[I_CM_I] = 0 if i == M else i
-            if I[I_CM_COUNT] < M:
-                I[I_CM_COUNT] += 1
+            I[I_GROUND_OUT] = 1 if (outside & 0x10) != 0 else 0
+        if gated:
+            I[I_STATUS] |= MEAS_GATED
+            nb = 0
+            g = gated
+            while g:
+                nb += g & 1
+                g >>= 1
+            I[I_COUNTERS + C_GATED] += nb
+        if I[I_LAST_DOF]:
+            I[I_UPDATED] = 1
+            if kind & 1:
+                F[F_T_UPD_W] = t
+            if kind & 2:
+                F[F_T_UPD_V] = t
+            I[I_COUNTERS + C_UPDATES] += 1
+            if I[I_F_ADAPT]:
+                M = I[I_CM_M]
+                i = I[I_CM_I]
+                _kernels.cm_push(CM[:M], CM[M:], i, F[F_DX:F_DX + 10], F[F_KSK:F_KSK + 10])
+                i += 1
+                I[I_CM_I] = 0 if i == M else i
+                if I[I_CM_COUNT] < M:
+                    I[I_CM_COUNT] += 1
+    return post_update
 
 
 def _stage_divergence(F, I, CM):                                          # pragma: no cover - compiled
@@ -906,28 +954,33 @@ def _stage_divergence(F, I, CM):                                          # prag
     return ST_ESTIMATE
 
 
-def _stage_adapt(F, I, CM):                                               # pragma: no cover - compiled
-    """The adaptation period (Estimator.step): A_k (CovarianceMatching.compute), the fuzzy supervisor's rule
-    strengths and its memo; EV_FUZZY for strengths not in the memo."""
-    if I[I_F_ADAPT]:
-        M = I[I_CM_M]
-        A = F[F_A:F_A + 10]
-        if I[I_CM_COUNT] < M:
-            A[:] = 1.0
-        else:
-            _kernels.cm_ratio(CM[:M], CM[M:], F[F_C_A_MIN], F[F_C_A_MAX], A)
-    if I[I_F_SUP] == 0:
-        return ST_ADAPT2
-    c = F_C_FZ
-    st = F[F_FZ_ST:F_FZ_ST + 3]
-    _kernels.fuzzy_strengths(abs(F[F_DYN + 3]), abs(F[F_DYN + 4]), F[c], F[c + 1], F[c + 2], F[c + 3], F[c + 4],
-                             F[c + 5], I[I_FZ_RULES:I_FZ_RULES + 9].reshape((3, 3)), st)
-    for j in range(I[I_FZ_N]):
-        o = F_FZ_MEMO + 4 * j
-        if F[o] == st[0] and F[o + 1] == st[1] and F[o + 2] == st[2]:
-            F[F_FZ_C] = F[o + 3]
+def _mk_stage_adapt(tag):
+    """_stage_adapt closed over the dependency tag (:func:`_dep_tag`)."""
+    def _stage_adapt(F, I, CM):                                               # pragma: no cover - compiled
+        """The adaptation period (Estimator.step): A_k (CovarianceMatching.compute), the fuzzy supervisor's rule
+        strengths and its memo; EV_FUZZY for strengths not in the memo."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        if I[I_F_ADAPT]:
+            M = I[I_CM_M]
+            A = F[F_A:F_A + 10]
+            if I[I_CM_COUNT] < M:
+                A[:] = 1.0
+            else:
+                _kernels.cm_ratio(CM[:M], CM[M:], F[F_C_A_MIN], F[F_C_A_MAX], A)
+        if I[I_F_SUP] == 0:
             return ST_ADAPT2
-    return EV_FUZZY
+        c = F_C_FZ
+        st = F[F_FZ_ST:F_FZ_ST + 3]
+        _kernels.fuzzy_strengths(abs(F[F_DYN + 3]), abs(F[F_DYN + 4]), F[c], F[c + 1], F[c + 2], F[c + 3], F[c + 4],
+                                 F[c + 5], I[I_FZ_RULES:I_FZ_RULES + 9].reshape((3, 3)), st)
+        for j in range(I[I_FZ_N]):
+            o = F_FZ_MEMO + 4 * j
+            if F[o] == st[0] and F[o + 1] == st[1] and F[o + 2] == st[2]:
+                F[F_FZ_C] = F[o + 3]
+                return ST_ADAPT2
+        return EV_FUZZY
+    return _stage_adapt
 
 
 def _stage_adapt2(F, I):                                                  # pragma: no cover - compiled
@@ -1078,55 +1131,60 @@ def _dyn_update(F, I, t, v, m_total):                                     # prag
     F[o + 2] = m_new
 
 
-def _stage_estimate(F, I):                                                # pragma: no cover - compiled
-    """Estimator._estimate up to the curve update: outputs, convergence and slip tests."""
-    t = F[F_L_T]
-    if I[I_LOST]:
-        I[I_STATUS] |= FILTER_LOST
-    c_mu = F[F_C_CMU]
-    c_rho = F[F_C_CRHO]
-    if I[I_CONV]:
-        c_mu *= F[F_C_EXIT2]
-        c_rho *= F[F_C_EXIT2]
-    kap = F[F_U + 6]
-    _, _, rdf0, rdr0 = _load_floats(F, F[F_U + 4], F[F_U + 5])
-    rdf = rdf0
-    rdr = rdr0
-    buf = F[F_L_BUF:F_L_BUF + 26]
-    x = F[F_X:F_X + 10]
-    code = _kernels.estimate_outputs(x, F[F_P:F_P + 100].reshape((10, 10)), rdf * F[F_KF], rdr * F[F_KR], c_mu,
-                                     c_rho, kap, F[F_C_HB], F[F_C_WB], F[F_KAPVAR], F[F_C_SLIP_MAX], buf)
-    v = x[4]
-    F[F_L_V] = v
-    I[I_CONV_P] = 1 if (code & 1) == 1 else 0
-    slip_ok = code >= 2
-    I[I_SLIP_OK] = 1 if slip_ok else 0
-    if (t - F[F_T_CURVE] >= F[F_C_CURVE_PERIOD] and abs(v) >= F[F_C_CURVE_MINSPD] and not I[I_LOST]
-            and slip_ok):
-        F[F_T_CURVE] = t
-        # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v (Estimator._estimate)
-        h = 0.5 * F[F_C_TRACK]
-        wb = F[F_C_WB]
-        left = 1.0 - h * kap
-        right = 1.0 + h * kap
-        lk = wb * kap
-        kfl = math.sqrt(left * left + lk * lk)
-        kfr = math.sqrt(right * right + lk * lk)
-        kv = F[F_KAPVAR]
-        for i in range(4):
-            dk = ((-h * left + wb * lk) / kfl if i == 0 else ((h * right + wb * lk) / kfr if i == 1 else
-                                                             (-h if i == 2 else h)))
-            kw = buf[22 + i]
-            vd = v * dk
-            sig_vi = math.sqrt(buf[16] * kw * kw + vd * vd * kv)
-            rd = rdf0 if i < 2 else rdr0
-            den = rd * abs(buf[8 + i])
-            if not den != den and den < 1e-3:
-                den = 1e-3
-            F[F_L_SIG_S + i] = sig_vi / den
-            F[F_L_SIG_MU + i] = math.sqrt(buf[17 + i])
-        return EV_CURVE
-    return ST_ESTIMATE2
+def _mk_stage_estimate(tag):
+    """_stage_estimate closed over the dependency tag (:func:`_dep_tag`)."""
+    def _stage_estimate(F, I):                                                # pragma: no cover - compiled
+        """Estimator._estimate up to the curve update: outputs, convergence and slip tests."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        t = F[F_L_T]
+        if I[I_LOST]:
+            I[I_STATUS] |= FILTER_LOST
+        c_mu = F[F_C_CMU]
+        c_rho = F[F_C_CRHO]
+        if I[I_CONV]:
+            c_mu *= F[F_C_EXIT2]
+            c_rho *= F[F_C_EXIT2]
+        kap = F[F_U + 6]
+        _, _, rdf0, rdr0 = _load_floats(F, F[F_U + 4], F[F_U + 5])
+        rdf = rdf0
+        rdr = rdr0
+        buf = F[F_L_BUF:F_L_BUF + 26]
+        x = F[F_X:F_X + 10]
+        code = _kernels.estimate_outputs(x, F[F_P:F_P + 100].reshape((10, 10)), rdf * F[F_KF], rdr * F[F_KR], c_mu,
+                                         c_rho, kap, F[F_C_HB], F[F_C_WB], F[F_KAPVAR], F[F_C_SLIP_MAX], buf)
+        v = x[4]
+        F[F_L_V] = v
+        I[I_CONV_P] = 1 if (code & 1) == 1 else 0
+        slip_ok = code >= 2
+        I[I_SLIP_OK] = 1 if slip_ok else 0
+        if (t - F[F_T_CURVE] >= F[F_C_CURVE_PERIOD] and abs(v) >= F[F_C_CURVE_MINSPD] and not I[I_LOST]
+                and slip_ok):
+            F[F_T_CURVE] = t
+            # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v (Estimator._estimate)
+            h = 0.5 * F[F_C_TRACK]
+            wb = F[F_C_WB]
+            left = 1.0 - h * kap
+            right = 1.0 + h * kap
+            lk = wb * kap
+            kfl = math.sqrt(left * left + lk * lk)
+            kfr = math.sqrt(right * right + lk * lk)
+            kv = F[F_KAPVAR]
+            for i in range(4):
+                dk = ((-h * left + wb * lk) / kfl if i == 0 else ((h * right + wb * lk) / kfr if i == 1 else
+                                                                 (-h if i == 2 else h)))
+                kw = buf[22 + i]
+                vd = v * dk
+                sig_vi = math.sqrt(buf[16] * kw * kw + vd * vd * kv)
+                rd = rdf0 if i < 2 else rdr0
+                den = rd * abs(buf[8 + i])
+                if not den != den and den < 1e-3:
+                    den = 1e-3
+                F[F_L_SIG_S + i] = sig_vi / den
+                F[F_L_SIG_MU + i] = math.sqrt(buf[17 + i])
+            return EV_CURVE
+        return ST_ESTIMATE2
+    return _stage_estimate
 
 
 def _bisect_left(WIN, lo, n, col, x):                                     # pragma: no cover - compiled
@@ -1378,80 +1436,85 @@ def _stage_none(F, I, OUT, k):                                            # prag
     return ST_END
 
 
-def run(F, I, IN, OUT, EV, CM, RB, WIN, n):                               # pragma: no cover - compiled
-    """Step the estimator from step I[I_K] (at stage I[I_STAGE]) until step n or an event (module doc).
+def _mkrun(tag):
+    """run closed over the dependency tag (:func:`_dep_tag`)."""
+    def run(F, I, IN, OUT, EV, CM, RB, WIN, n):                               # pragma: no cover - compiled
+        """Step the estimator from step I[I_K] (at stage I[I_STAGE]) until step n or an event (module doc).
 
-    Returns EV_DONE when every step up to n is done, else the event's code; the stage to resume at is
-    in I[I_STAGE] (the driver sets it when its handler decides)."""
-    while I[I_K] < n:
-        k = I[I_K]
-        st = I[I_STAGE]
-        if st == ST_BEGIN:
-            F[F_L_SINCE] = math.nan
-            nxt = _stage_begin(F, I, RB, IN, k)
-            if nxt == EV_INIT:
-                I[I_STAGE] = ST_AFTER_INIT
-                return EV_INIT
-            I[I_STAGE] = nxt
-        elif st == ST_AFTER_INIT:
-            F[F_T] = F[F_L_T]
-            I[I_STATUS] |= NOT_CONVERGED
-            I[I_STAGE] = ST_NONE
-        elif st == ST_PREDICT:
-            nxt = _stage_predict(F, I)
-            if nxt == EV_PREDICT or nxt == EV_RECOVER:
-                return nxt               # the driver sets the stage
-            I[I_STAGE] = nxt
-        elif st == ST_AFTER_PREDICT:
-            I[I_STAGE] = _stage_after_predict(F, I)
-        elif st == ST_UPDATE:
-            nxt = _stage_update(F, I, CM)
-            if nxt == EV_UPDATE:
-                I[I_STAGE] = ST_POST_UPDATE
-                return EV_UPDATE
-            I[I_STAGE] = nxt
-        elif st == ST_POST_UPDATE:
-            I[I_STAGE] = ST_DIVERGENCE       # (the driver did the bookkeeping of the general path)
-        elif st == ST_DIVERGENCE:
-            I[I_STAGE] = _stage_divergence(F, I, CM)
-        elif st == ST_ADAPT:
-            nxt = _stage_adapt(F, I, CM)
-            if nxt == EV_FUZZY:
-                I[I_STAGE] = ST_ADAPT2
-                return EV_FUZZY
-            I[I_STAGE] = nxt
-        elif st == ST_ADAPT2:
-            nxt = _stage_adapt2(F, I)
-            if nxt == EV_SYSTEMATIC:
-                I[I_STAGE] = ST_ESTIMATE
-                return EV_SYSTEMATIC
-            I[I_STAGE] = nxt
-        elif st == ST_ESTIMATE:
-            nxt = _stage_estimate(F, I)
-            if nxt == EV_CURVE:
-                I[I_STAGE] = ST_ESTIMATE2
-                return EV_CURVE
-            I[I_STAGE] = nxt
-        elif st == ST_ESTIMATE2:
-            nxt = _stage_estimate2(F, I, WIN, EV)
-            if nxt == EV_SLIPWIN:
-                I[I_STAGE] = ST_ESTIMATE3
-                return EV_SLIPWIN
-            if nxt == EV_WINFULL:
-                return EV_WINFULL            # the same stage again with a larger buffer
-            I[I_STAGE] = nxt
-        elif st == ST_ESTIMATE3:
-            nxt = _stage_estimate3(F, I, OUT, k)
-            if nxt == EV_CAL:
-                I[I_STAGE] = ST_END
-                return EV_CAL
-            I[I_STAGE] = nxt
-        elif st == ST_NONE:
-            I[I_STAGE] = _stage_none(F, I, OUT, k)
-        else:                                # ST_END
-            I[I_K] = k + 1
-            I[I_STAGE] = ST_BEGIN
-    return EV_DONE
+        Returns EV_DONE when every step up to n is done, else the event's code; the stage to resume at is
+        in I[I_STAGE] (the driver sets it when its handler decides)."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        while I[I_K] < n:
+            k = I[I_K]
+            st = I[I_STAGE]
+            if st == ST_BEGIN:
+                F[F_L_SINCE] = math.nan
+                nxt = _stage_begin(F, I, RB, IN, k)
+                if nxt == EV_INIT:
+                    I[I_STAGE] = ST_AFTER_INIT
+                    return EV_INIT
+                I[I_STAGE] = nxt
+            elif st == ST_AFTER_INIT:
+                F[F_T] = F[F_L_T]
+                I[I_STATUS] |= NOT_CONVERGED
+                I[I_STAGE] = ST_NONE
+            elif st == ST_PREDICT:
+                nxt = _stage_predict(F, I)
+                if nxt == EV_PREDICT or nxt == EV_RECOVER:
+                    return nxt               # the driver sets the stage
+                I[I_STAGE] = nxt
+            elif st == ST_AFTER_PREDICT:
+                I[I_STAGE] = _stage_after_predict(F, I)
+            elif st == ST_UPDATE:
+                nxt = _stage_update(F, I, CM)
+                if nxt == EV_UPDATE:
+                    I[I_STAGE] = ST_POST_UPDATE
+                    return EV_UPDATE
+                I[I_STAGE] = nxt
+            elif st == ST_POST_UPDATE:
+                I[I_STAGE] = ST_DIVERGENCE       # (the driver did the bookkeeping of the general path)
+            elif st == ST_DIVERGENCE:
+                I[I_STAGE] = _stage_divergence(F, I, CM)
+            elif st == ST_ADAPT:
+                nxt = _stage_adapt(F, I, CM)
+                if nxt == EV_FUZZY:
+                    I[I_STAGE] = ST_ADAPT2
+                    return EV_FUZZY
+                I[I_STAGE] = nxt
+            elif st == ST_ADAPT2:
+                nxt = _stage_adapt2(F, I)
+                if nxt == EV_SYSTEMATIC:
+                    I[I_STAGE] = ST_ESTIMATE
+                    return EV_SYSTEMATIC
+                I[I_STAGE] = nxt
+            elif st == ST_ESTIMATE:
+                nxt = _stage_estimate(F, I)
+                if nxt == EV_CURVE:
+                    I[I_STAGE] = ST_ESTIMATE2
+                    return EV_CURVE
+                I[I_STAGE] = nxt
+            elif st == ST_ESTIMATE2:
+                nxt = _stage_estimate2(F, I, WIN, EV)
+                if nxt == EV_SLIPWIN:
+                    I[I_STAGE] = ST_ESTIMATE3
+                    return EV_SLIPWIN
+                if nxt == EV_WINFULL:
+                    return EV_WINFULL            # the same stage again with a larger buffer
+                I[I_STAGE] = nxt
+            elif st == ST_ESTIMATE3:
+                nxt = _stage_estimate3(F, I, OUT, k)
+                if nxt == EV_CAL:
+                    I[I_STAGE] = ST_END
+                    return EV_CAL
+                I[I_STAGE] = nxt
+            elif st == ST_NONE:
+                I[I_STAGE] = _stage_none(F, I, OUT, k)
+            else:                                # ST_END
+                I[I_K] = k + 1
+                I[I_STAGE] = ST_BEGIN
+        return EV_DONE
+    return run
 
 
 _load_floats = compiled(_load_floats, inline=True)
@@ -1466,27 +1529,27 @@ _kin_wheels = compiled(_kin_wheels)
 _kin_standstill = compiled(_kin_standstill)
 _kin_course = compiled(_kin_course)
 _kin_course_direction = compiled(_kin_course_direction)
-_rebuild_Q = compiled(_rebuild_Q)
+_rebuild_Q = compiled(_mk_rebuild_Q(_TAG))
 _kappa_noise = compiled(_kappa_noise)
-_make_Q = compiled(_make_Q)
+_make_Q = compiled(_mk_make_Q(_TAG))
 _win_reset = compiled(_win_reset)
 _mon_reset = compiled(_mon_reset)
 _stage_begin = compiled(_stage_begin)
-_stage_predict = compiled(_stage_predict)
+_stage_predict = compiled(_mk_stage_predict(_TAG))
 _foh = compiled(_foh)
 _stage_after_predict = compiled(_stage_after_predict)
-post_update = compiled(post_update)
-_stage_update = compiled(_stage_update)
+post_update = compiled(_mkpost_update(_TAG))
+_stage_update = compiled(_mk_stage_update(_TAG))
 _mon_update = compiled(_mon_update)
 _dyn_update = compiled(_dyn_update)
 _stage_divergence = compiled(_stage_divergence)
-_stage_adapt = compiled(_stage_adapt)
+_stage_adapt = compiled(_mk_stage_adapt(_TAG))
 _systematic = compiled(_systematic)
 _stage_adapt2 = compiled(_stage_adapt2)
-_stage_estimate = compiled(_stage_estimate)
+_stage_estimate = compiled(_mk_stage_estimate(_TAG))
 _bisect_left = compiled(_bisect_left)
 _slip_window = compiled(_slip_window)
 _stage_estimate2 = compiled(_stage_estimate2)
 _stage_estimate3 = compiled(_stage_estimate3)
 _stage_none = compiled(_stage_none)
-run = compiled(run)
+run = compiled(_mkrun(_TAG))
