@@ -102,7 +102,7 @@ def recordings(tmp_path_factory) -> dict[str, Path]:
         elif typ == "RMC":
             nmea[k] = resign(nmea[k], 12, "") if k % 2 else resign(nmea[k], 2, "V")
     for k in range(n // 2, n // 2 + 80, 9):
-        tod = nmea[k].split(",")[1]
+        tod = next(x.split(",")[1] for x in nmea[k:] if x[3:6] in ("GGA", "RMC") and x.split(",")[1])
         zda = f"GNZDA,{tod},10,07,2026,00,00"
         nmea.insert(k, f"${zda}*{checksum(zda)}")
     nmea[n // 2 + 100], nmea[n // 2 + 101] = nmea[n // 2 + 101], nmea[n // 2 + 100]
@@ -110,8 +110,12 @@ def recordings(tmp_path_factory) -> dict[str, Path]:
         a = rng.randrange(len(nmea) - 30)
         del nmea[a:a + rng.randrange(3, 30)]
     nofix = "GNGGA,,,,,,0,00,99.99,,,,,,"
-    nmea[40:40] = [f"${nofix}*{checksum(nofix)}", nmea[41][:-1] + "0", nmea[42].replace(",", ", ", 1), "junk",
-                   nmea[43].lower(), ""]
+    nmea.insert(40, f"${nofix}*{checksum(nofix)}")
+    prec = base / "precedence"                       # every line well formed: the arrays' path
+    shutil.copytree(src, prec)
+    (prec / "gps.nmea").write_text("\n".join(nmea) + "\n")
+    out["precedence"] = prec
+    nmea[41:41] = [nmea[41][:-1] + "0", nmea[42].replace(",", ", ", 1), "junk", nmea[43].lower(), ""]
     (d / "gps.nmea").write_text("\r\n".join(nmea) + "\r\n")
     can = (d / "can.log").read_text().splitlines()
     w = len(can[100])
@@ -136,6 +140,77 @@ def test_read_recording_equals_reference(recordings, monkeypatch, chunk):
                               read_recording(path, keep=survey_keep, reference=True))
     st = read_recording(recordings["damaged"]).stats
     assert st.files["gps.nmea"].total_rejected >= 3 and st.files["can.log"].total_rejected >= 3
+
+
+def test_well_formed_logs_take_the_arrays_path(recordings):
+    from tractionecu.gnss.nmea import NmeaStats
+    from tractionecu.recording.gps import _read_columns
+
+    for name, path in recordings.items():
+        got = _read_columns(path / "gps.nmea", 1.7e9, NmeaStats())
+        assert (got is None) == (name == "damaged"), name
+
+
+def _gps_both(path: Path, can_t0):
+    from tractionecu.errors import RecordingError
+    from tractionecu.recording.containers import RecordingStats
+    from tractionecu.recording.gps import read_gps
+
+    out = []
+    for fast in (False, True):
+        st = RecordingStats()
+        try:
+            tr = read_gps(path, can_t0, st, fast=fast)
+            out.append(([_bits(getattr(tr, f)) for f in ("t",) + GPS_FIELDS], repr(st)))
+        except RecordingError as e:
+            out.append((str(e), repr(st)))
+    assert out[0] == out[1], path.read_text()[:300]
+
+
+def _sentence(body: str) -> str:
+    return f"${body}*{checksum(body)}"
+
+
+def test_gps_logs_edge_cases_equal_reference(tmp_path):
+    """Midnight with and without a date, the last representable date, duplicate and backward epochs, times
+    0.5 ms apart (the arrays' shortcut declines them), VTG before any time, sentences without a time, the
+    fuzz fixtures of the GNSS reader."""
+    import json
+
+    gga = "GNGGA,{t},4752.89616,N,11033.20303,W,2,16,0.90,861.2,M,0.0,M,,"
+    rmc = "GNRMC,{t},A,4752.89616,N,11033.20303,W,0.522,90.00,{d},,,A,V"
+    vtg = "GNVTG,12.50,T,,M,0.522,N,0.966,K,A"
+    cases = {
+        "gga across midnight": [gga.format(t=t) for t in ("235959.80", "235959.90", "000000.00", "000000.10")],
+        "rmc across midnight": [x for t in ("235959.90", "000000.00") for x in (gga.format(t=t), rmc.format(t=t, d="311299"))],
+        "date 9999-12-31 then midnight": ["GPZDA,235959.00,31,12,9999,00,00", gga.format(t="235959.00"),
+                                          gga.format(t="000000.00")],
+        "year 1 back a day": ["GNGGA,000000.00,,,,,0,00,,,M,,M,,", gga.format(t="235959.00"),
+                              "GPZDA,000000.00,01,01,0001,00,00"],
+        "duplicate and backwards": [gga.format(t=t) for t in ("080000.10", "080000.20", "080000.20", "080000.10",
+                                                                "080000.30")],
+        "duplicate epoch": [gga.format(t=t) for t in ("080000.10", "080000.20", "080000.10", "080000.20",
+                                                        "080000.30")],
+        "date arrives later": [gga.format(t="235959.80"), gga.format(t="235959.90"), gga.format(t="000000.00"),
+                               rmc.format(t="000000.10", d="010126"), gga.format(t="000000.20")],
+        "no fix: rmc V without mode": ["GNRMC,080000.10,V,,,,,,,100726,,,,V", "GNRMC,080000.20,V,,,,,,,100726,,,N,V",
+                                       gga.format(t="080000.30"), "GNRMC,080000.30,V,,,,,,,100726,,,,V"],
+        "half a millisecond": [gga.format(t=t) for t in ("080000.1000", "080000.1005", "080000.1010", "080000.20")],
+        "vtg first, untimed": [vtg, "GNGGA,,,,,,0,00,,,M,,M,,", gga.format(t="080000.10"), vtg,
+                               rmc.format(t="", d="100726"), rmc.format(t="080000.10", d="100726")],
+        "only vtg": [vtg, vtg],
+    }
+    for name, bodies in cases.items():
+        for can_t0 in (1_783_670_400.0, float("nan"), 1e300):
+            p = tmp_path / f"{len(name)}.nmea"
+            p.write_text("\n".join(_sentence(b) for b in bodies) + "\n")
+            _gps_both(p, can_t0)
+    for f in sorted((DATA / "fuzz").glob("*.json")):
+        case = json.loads(f.read_text()).get("case", {})
+        if isinstance(case, dict) and "lines" in case and "terms" in case:
+            p = tmp_path / (f.stem + ".nmea")
+            p.write_bytes("".join(a + b for a, b in zip(case["lines"], case["terms"])).encode("utf-8"))
+            _gps_both(p, case.get("can_t0", 1_783_670_400.0))
 
 
 def test_stream_equals_reference(recordings, monkeypatch):

@@ -42,8 +42,10 @@ of one type together; a form it leaves (an exponent, a trailing dot, more
 than 15 digits, ...) goes to :func:`fast_record`, the same conversion line
 by line; every other line, and every line whose value a check of
 :func:`parse_line` would refuse, goes to :func:`parse_line`, so rejects keep
-their reasons, line numbers and texts.  pynmea2 stays the reference: the
-live service parses with :func:`parse_line`.
+their reasons, line numbers and texts.  A block that the block conversion
+takes whole is also given as columns (:func:`fast_columns`), which the
+recording reader assembles into epochs as arrays.  pynmea2 stays the
+reference: the live service parses with :func:`parse_line`.
 
 How it is proven equal: each tier uses :func:`parse_line`'s arithmetic on
 the same field text (``float()``; in the block tier ``N / 10**k`` for a
@@ -1027,30 +1029,20 @@ def _talkers(buf: np.ndarray, s: np.ndarray) -> list[str]:
     return [names[u] for u in code.tolist()]
 
 
-def _block_gga(blk: _Block, talkers: list[str]) -> list:
+# A block's fields: {NmeaRecord field name: (present, values)} for numbers (and the RMC status as bools),
+# lists of Python values for the talker, dates and mode letters; fields not listed are None.
+def _block_gga(blk: _Block) -> dict:
     pq, q = blk.int(5, 1)
     blk.ok &= ~pq | (q <= 8)
-    pt, tod = blk.tod(0)
-    plat, lat = blk.coord(1, 2, "N", "S", 90.0)
-    plon, lon = blk.coord(3, 3, "E", "W", 180.0)
-    pa, alt = blk.num(8)
-    pg, geo = blk.num(10)
-    pn, nsat = blk.int(6)
-    ph, hdop = blk.num(7)
-    m = blk.m
-    return list(zip(["GGA"] * m, talkers, _col(pt, tod), [None] * m, _col(plat, lat), _col(plon, lon),
-                    _col(pa, alt), _col(pg, geo), [None] * m, [None] * m, _col(pq, q), _col(pn, nsat),
-                    _col(ph, hdop), [None] * m, [None] * m))
+    return {"tod_s": blk.tod(0), "lat_deg": blk.coord(1, 2, "N", "S", 90.0),
+            "lon_deg": blk.coord(3, 3, "E", "W", 180.0), "alt_m": blk.num(8), "geoid_sep_m": blk.num(10),
+            "fix_quality": (pq, q), "nsat": blk.int(6), "hdop": blk.num(7)}
 
 
-def _block_rmc(blk: _Block, talkers: list[str], nf: int) -> list:
+def _block_rmc(blk: _Block, nf: int) -> dict:
     status = blk.char(1)
     blk.ok &= (status == 0x41) | (status == 0x56)
     pk, kn = blk.num(6)
-    pt, tod = blk.tod(0)
-    plat, lat = blk.coord(2, 2, "N", "S", 90.0)
-    plon, lon = blk.coord(4, 3, "E", "W", 180.0)
-    pc, course = blk.num(7)
     m = blk.m
     modes = blk.text(11) if nf > 11 else [None] * m
     a, b = blk.a[:, 8], blk.b[:, 8]                       # date ddmmyy: 6 digits or empty
@@ -1070,40 +1062,67 @@ def _block_rmc(blk: _Block, talkers: list[str], nf: int) -> list:
             dates[u] = None
     good = np.array([u for u, d in dates.items() if d is not None], dtype=np.int64)
     blk.ok &= ~pd | np.isin(dcode, good)
-    date_col = [dates.get(u) if p else None for u, p in zip(dcode.tolist(), pd.tolist())]
-    speed = _col(pk, kn * KNOT_MPS)
-    quality = [None if md is None else _fmode_quality(md) for md in modes]
-    return list(zip(["RMC"] * m, talkers, _col(pt, tod), date_col, _col(plat, lat), _col(plon, lon), [None] * m,
-                    [None] * m, speed, _col(pc, course), quality, [None] * m, [None] * m,
-                    (status == 0x41).tolist(), modes))
+    return {"tod_s": blk.tod(0), "date": [dates.get(u) if p else None for u, p in zip(dcode.tolist(), pd.tolist())],
+            "lat_deg": blk.coord(2, 2, "N", "S", 90.0), "lon_deg": blk.coord(4, 3, "E", "W", 180.0),
+            "speed_mps": (pk, kn * KNOT_MPS), "course_deg": blk.num(7),
+            "fix_quality": [None if md is None else _fmode_quality(md) for md in modes],
+            "valid": (np.ones(m, dtype=bool), status == 0x41), "mode": modes}
 
 
-def _block_vtg(blk: _Block, talkers: list[str], nf: int) -> list:
+def _block_vtg(blk: _Block, nf: int) -> dict:
     pkmh, kmh = blk.num(6)
     pkn, kn = blk.num(4)
-    pc, course = blk.num(0)
-    m = blk.m
-    spd = np.where(pkmh, kmh / 3.6, kn * KNOT_MPS)
-    modes = blk.text(8) if nf > 8 else [None] * m
-    return list(zip(["VTG"] * m, talkers, [None] * m, [None] * m, [None] * m, [None] * m, [None] * m, [None] * m,
-                    _col(pkmh | pkn, spd), _col(pc, course), [None] * m, [None] * m, [None] * m, [None] * m,
-                    modes))
+    return {"speed_mps": (pkmh | pkn, np.where(pkmh, kmh / 3.6, kn * KNOT_MPS)), "course_deg": blk.num(0),
+            "mode": blk.text(8) if nf > 8 else [None] * blk.m}
 
 
-def _block_zda(blk: _Block, talkers: list[str]) -> list:
+def _block_zda(blk: _Block) -> dict:
     pday, day = blk.int(1, 2)
     pmon, mon = blk.int(2, 2)
     pyr, yr = blk.int(3, 4)
-    pt, tod = blk.tod(0)
-    m = blk.m
-    full = pday & pmon & pyr
-    dates: list[date | None] = [None] * m
-    for i in np.flatnonzero(full & blk.ok).tolist():
+    dates: list[date | None] = [None] * blk.m
+    for i in np.flatnonzero(pday & pmon & pyr & blk.ok).tolist():
         try:
             dates[i] = date(int(yr[i]), int(mon[i]), int(day[i]))
         except ValueError:
             blk.ok[i] = False
-    return list(zip(["ZDA"] * m, talkers, _col(pt, tod), dates, *([[None] * m] * 11)))
+    return {"tod_s": blk.tod(0), "date": dates}
+
+
+_RECORD_FIELDS = ("sentence", "talker", "tod_s", "date", "lat_deg", "lon_deg", "alt_m", "geoid_sep_m", "speed_mps",
+                  "course_deg", "fix_quality", "nsat", "hdop", "valid", "mode")
+""":class:`NmeaRecord`'s fields in order."""
+
+
+def _block_groups(lines: list[str]) -> tuple[np.ndarray, list[tuple[int, np.ndarray, list[str], _Block, dict]]]:
+    """(kinds, groups): per sentence type and field count of the fast-path lines, (kind, the lines' rows,
+    talkers, the block with its ok mask, the fields)."""
+    kind, buf, starts, ends = _screen(lines)
+    groups: list = []
+    if not kind.any():
+        return kind, groups
+    commas = np.flatnonzero(buf == 0x2C)
+    fast = kind > 0
+    nf_all = np.zeros(len(lines), dtype=np.int64)
+    nf_all[fast] = np.searchsorted(commas, ends[fast] - 3) - np.searchsorted(commas, starts[fast] + 1)
+    for k in range(1, 5):
+        rows = np.flatnonzero(kind == k)
+        if rows.size == 0:
+            continue
+        nfs = nf_all[rows]
+        for nf in np.unique(nfs).tolist():
+            r = rows[nfs == nf]
+            blk = _Block(buf, commas, starts[r], ends[r], nf)
+            if k == 1:
+                fields = _block_gga(blk)
+            elif k == 2:
+                fields = _block_rmc(blk, nf)
+            elif k == 3:
+                fields = _block_vtg(blk, nf)
+            else:
+                fields = _block_zda(blk)
+            groups.append((k, r, _talkers(buf, starts[r]), blk, fields))
+    return kind, groups
 
 
 def fast_block(lines: list[str]) -> tuple[list, np.ndarray]:
@@ -1111,38 +1130,83 @@ def fast_block(lines: list[str]) -> tuple[list, np.ndarray]:
     converted for all lines of one sentence type and field count at once, or None where the line is not a
     fast-path line or is of a form the block conversion leaves to :func:`fast_record` (numbers with an
     exponent, a trailing dot or more than :data:`MAX_FAST_DIGITS` digits, longer mode fields, ...)."""
-    kind, buf, starts, ends = _screen(lines)
+    kind, groups = _block_groups(lines)
     out: list = [None] * len(lines)
-    if not kind.any():
-        return out, kind
-    commas = np.flatnonzero(buf == 0x2C)
-    comma_count = None
-    for k in range(1, 5):
-        rows = np.flatnonzero(kind == k)
-        if rows.size == 0:
-            continue
-        s, e = starts[rows], ends[rows]
-        if comma_count is None:
-            comma_count = np.searchsorted(commas, ends[kind > 0] - 3) - np.searchsorted(commas, starts[kind > 0] + 1)
-            nf_all = np.zeros(len(lines), dtype=np.int64)
-            nf_all[kind > 0] = comma_count
-        nfs = nf_all[rows]
-        for nf in np.unique(nfs).tolist():
-            sel = nfs == nf
-            r, blk = rows[sel], _Block(buf, commas, s[sel], e[sel], nf)
-            talkers = _talkers(buf, s[sel])
-            if k == 1:
-                vals = _block_gga(blk, talkers)
-            elif k == 2:
-                vals = _block_rmc(blk, talkers, nf)
-            elif k == 3:
-                vals = _block_vtg(blk, talkers, nf)
+    for k, r, talkers, blk, fields in groups:
+        m = blk.m
+        cols = []
+        for name in _RECORD_FIELDS:
+            f = fields.get(name)
+            if name == "sentence":
+                cols.append([FAST_SENTENCES[k - 1]] * m)
+            elif name == "talker":
+                cols.append(talkers)
+            elif f is None:
+                cols.append([None] * m)
+            elif isinstance(f, tuple):
+                cols.append(_col(*f))
             else:
-                vals = _block_zda(blk, talkers)
-            for i, v, good in zip(r.tolist(), vals, blk.ok.tolist()):
-                if good:
-                    out[i] = v
+                cols.append(f)
+        for i, v, good in zip(r.tolist(), zip(*cols), blk.ok.tolist()):
+            if good:
+                out[i] = v
     return out, kind
+
+
+def fast_columns(lines: list[str]) -> dict[str, Any] | None:
+    """The records of a block of lines as columns in line order, when every line is converted by the block
+    conversion (:func:`fast_block`'s values, field by field); else None.
+
+    ``sentence``: 1..4 (GGA, RMC, VTG, ZDA); each number field ``(present, values)`` (``fix_quality`` and
+    ``nsat`` as int64, the others float64, ``valid`` bool); ``date`` a list of dates or None.  The talker,
+    the geoid separation and the mode letters, which no epoch keeps, are left out."""
+    n = len(lines)
+    kind, groups = _block_groups(lines)
+    if n == 0 or not kind.all() or not all(blk.ok.all() for _k, _r, _t, blk, _f in groups):
+        return None
+    out: dict[str, Any] = {"sentence": kind}
+    for name, dtype in (("tod_s", float), ("lat_deg", float), ("lon_deg", float), ("alt_m", float),
+                        ("speed_mps", float), ("course_deg", float), ("fix_quality", np.int64),
+                        ("nsat", np.int64), ("hdop", float), ("valid", bool)):
+        present = np.zeros(n, dtype=bool)
+        values = np.zeros(n, dtype=dtype)
+        for _k, r, _t, _blk, fields in groups:
+            f = fields.get(name)
+            if f is None:
+                continue
+            if isinstance(f, list):                        # the RMC's fix quality from its mode letters
+                p = np.array([q is not None for q in f], dtype=bool)
+                f = (p, np.array([0 if q is None else q for q in f], dtype=dtype))
+            present[r] = f[0]
+            values[r] = f[1]
+        out[name] = (present, values)
+    dates: list = [None] * n
+    for _k, r, _t, _blk, fields in groups:
+        if "date" in fields:
+            for i, d in zip(r.tolist(), fields["date"]):
+                dates[i] = d
+    out["date"] = dates
+    return out
+
+
+def iter_line_blocks(fh: Any, chunk_chars: int = 1 << 20) -> Iterator[list[str]]:
+    """The lines of the text file ``fh`` (without their line breaks) in blocks of about ``chunk_chars``
+    characters, whole lines, as iterating over the file gives them.  The text after the last line break is
+    kept in pieces and joined once, so a line longer than a block costs its length."""
+    carry: list[str] = []
+    while True:
+        block = fh.read(chunk_chars)
+        if not block:
+            if carry:
+                yield ["".join(carry)]
+            return
+        cut = block.rfind("\n") + 1
+        if not cut:
+            carry.append(block)
+            continue
+        lines = ("".join(carry) + block[:cut - 1]).split("\n")
+        carry = [block[cut:]] if cut < len(block) else []
+        yield lines
 
 
 def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Iterator[tuple[int, tuple]]:
@@ -1152,21 +1216,8 @@ def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Ite
     ``chunk_chars`` characters at a time."""
     st = stats
     lineno0 = 0
-    carry: list[str] = []                  # the text after the last line break, in pieces
     fast = _FAST
-    while True:
-        block = fh.read(chunk_chars)
-        if not block:
-            if not carry:
-                break
-            lines, carry = ["".join(carry)], []
-        else:
-            cut = block.rfind("\n") + 1
-            if not cut:
-                carry.append(block)
-                continue
-            lines = ("".join(carry) + block[:cut - 1]).split("\n")
-            carry = [block[cut:]] if cut < len(block) else []
+    for lines in iter_line_blocks(fh, chunk_chars):
         st.lines += len(lines)
         block_vals, kind = fast_block(lines)
         kinds = kind.tolist()

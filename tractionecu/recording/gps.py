@@ -27,13 +27,19 @@ compensated here.
 The epoch arithmetic (date + time of day, the nearest date) is
 :mod:`tractionecu.gnss.utc`, the same the service uses for live epochs.
 
-Speed: :func:`read_gps` reads the log through the NMEA fast path
-(:func:`tractionecu.gnss.nmea.iter_nmea_fast`) and keeps the epochs as plain
-lists, merged and aligned by the rules above (:func:`_assemble`,
-:func:`_align_epochs`), several times faster than sentence by sentence;
-:func:`read_gps_reference` is the sentence-by-sentence reader (parse_line,
-:class:`~tractionecu.gnss.nmea.EpochAssembler`, :func:`align_gps`) it is
-tested and timed against (``benchmarks/decode.py``).
+Speed: :func:`read_gps` reads the log through the NMEA fast path.  A log
+whose every line the block conversion takes (what a receiver writes, without
+damage) becomes columns (:func:`tractionecu.gnss.nmea.fast_columns`) whose
+epochs are assembled and aligned as arrays by the rules above
+(:func:`_track_of_columns`, :func:`_align_columns`: each epoch's field from
+the last sentence of the type that wins it, else the first that has it;
+dates as day ordinals); any other log goes record by record
+(:func:`tractionecu.gnss.nmea.iter_nmea_fast`, :func:`_assemble`,
+:func:`_align_epochs`).  :func:`read_gps_reference` is the
+sentence-by-sentence reader (parse_line,
+:class:`~tractionecu.gnss.nmea.EpochAssembler`, :func:`align_gps`) both are
+tested (``tests/recording/test_reader_fast.py``) and timed
+(``benchmarks/decode.py``) against.
 """
 
 from __future__ import annotations
@@ -47,7 +53,8 @@ from typing import Iterable
 import numpy as np
 
 from ..errors import RecordingError
-from ..gnss.nmea import EpochAssembler, GpsFix, NmeaStats, iter_nmea, iter_nmea_fast
+from ..gnss.nmea import (EpochAssembler, GpsFix, NmeaStats, fast_columns, iter_line_blocks, iter_nmea,
+                         iter_nmea_fast)
 from ..gnss.utc import add_days, nearest_date, utc_epoch
 from .containers import GPS_FIELDS, GpsTrack, RecordingStats
 
@@ -125,19 +132,35 @@ def align_gps(
 def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: bool = True) -> GpsTrack:
     """Read ``gps.nmea`` into an aligned :class:`GpsTrack`; counts go to ``stats.files[path.name]``.
 
-    ``fast`` (default) reads through :func:`~tractionecu.gnss.nmea.iter_nmea_fast` and assembles and aligns
-    the epochs as plain lists (:func:`_assemble`, :func:`_align_epochs`); ``fast=False`` is
-    :func:`read_gps_reference`.  Both give the same track, statistics and counters
+    ``fast`` (default): a log whose every line the block conversion of
+    :func:`~tractionecu.gnss.nmea.fast_columns` takes is assembled and aligned as arrays
+    (:func:`_read_columns`); any other log is read through :func:`~tractionecu.gnss.nmea.iter_nmea_fast`
+    and its epochs assembled and aligned as plain lists (:func:`_assemble`, :func:`_align_epochs`).
+    ``fast=False`` is :func:`read_gps_reference`.  Both give the same track, statistics and counters
     (``tests/recording/test_reader_fast.py``)."""
     if not fast:
         return read_gps_reference(path, can_t0, stats)
     ns = NmeaStats(source=path.name)
     stats.files[path.name] = ns
     try:
-        with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
-            epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
+        parts = _read_column_blocks(path)
+        if parts is None:
+            with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+                epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
     except OSError as e:
         raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
+    done = None if parts is None else _track_of_columns(parts, can_t0, ns)
+    if done is not None:
+        track, method = done
+        stats.gps_epochs = len(track)
+        stats.gps_alignment = method
+        return track
+    if parts is not None:                               # the arrays' shortcut declined: read by records
+        try:
+            with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+                epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
+        except OSError as e:
+            raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
     if ns.lines == 0:
         raise RecordingError(f"{path}: empty file")
     if orphans:
@@ -148,6 +171,154 @@ def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: b
     stats.gps_epochs = len(track)
     stats.gps_alignment = method
     return track
+
+
+_ORD_1970 = date(1970, 1, 1).toordinal()
+_ORD_MAX = date.max.toordinal()
+
+
+def _read_column_blocks(path: Path) -> list[dict] | None:
+    """The log's blocks as :func:`~tractionecu.gnss.nmea.fast_columns`, if the block conversion takes every
+    line (else None, as soon as a block has another line).  OSError propagates."""
+    parts = []
+    with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+        for lines in iter_line_blocks(fh):
+            cols = fast_columns(lines)
+            if cols is None:
+                return None
+            parts.append(cols)
+    return parts or None
+
+
+def _read_columns(path: Path, can_t0: float | None, ns: NmeaStats) -> tuple[GpsTrack, str] | None:
+    """:func:`_track_of_columns` of :func:`_read_column_blocks`, or None."""
+    parts = _read_column_blocks(path)
+    return None if parts is None else _track_of_columns(parts, can_t0, ns)
+
+
+def _track_of_columns(parts: list[dict], can_t0: float | None, ns: NmeaStats) -> tuple[GpsTrack, str] | None:
+    """The track of a log whose every line the block conversion took, assembled and aligned as arrays by
+    the rules of :class:`~tractionecu.gnss.nmea.EpochAssembler` and :func:`align_gps`, counts in ``ns``;
+    None (``ns`` untouched) where the arrays' shortcut does not hold (two timed sentences 0 to 1 ms apart).
+    Raises :class:`RecordingError` as :func:`align_gps` does."""
+    c = {k: (np.concatenate([p[k][0] for p in parts]), np.concatenate([p[k][1] for p in parts]))
+         for k in parts[0] if k not in ("sentence", "date")}
+    sent = np.concatenate([p["sentence"] for p in parts])
+    dates = [d for p in parts for d in p["date"]]
+    n = sent.size
+    # EpochAssembler: a timed sentence opens an epoch when its time differs from the open epoch's first
+    # by more than 1 ms.  When consecutive timed sentences differ by 0 or by more than 1 ms, the epoch's
+    # first time is its previous sentence's, and the starts are where that difference is over 1 ms.
+    has_tod, tod = c["tod_s"]
+    timed = np.flatnonzero(has_tod)
+    d = np.abs(np.diff(tod[timed]))
+    if ((d > 0) & (d <= 1e-3)).any():
+        return None
+    start = np.zeros(n, dtype=bool)
+    if timed.size:
+        start[timed[0]] = True
+        start[timed[1:][d > 1e-3]] = True
+    epoch_of = np.cumsum(start) - 1                 # the open epoch at each line
+    vtg = sent == 3
+    orphans = int((vtg & (epoch_of < 0)).sum())
+    untimed = int((~has_tod & ~vtg).sum())
+    members = np.flatnonzero(has_tod | (vtg & (epoch_of >= 0)))
+    n_ep = int(start.sum())
+    ns.lines += n
+    ns.accepted += n
+    if orphans:
+        ns.ignored["VTG before first timed sentence"] += orphans
+    if untimed:
+        ns.ignored["sentence without UTC time"] += untimed
+    if n_ep == 0:
+        return GpsTrack.empty(), "no GPS epochs"
+    ms = sent[members]
+    seg = np.flatnonzero(start[members])            # each epoch's first member (its opening sentence)
+    big = members.size
+    pos = np.arange(big)
+
+    def pick(name: str, priority: int) -> tuple[np.ndarray, np.ndarray]:
+        """_merge's rule per epoch: the last sentence of the priority type with the field, else the first
+        sentence with it; (which member, present)."""
+        p = c[name][0][members]
+        last = np.maximum.reduceat(np.where(p & (ms == priority), pos, -1), seg)
+        first = np.minimum.reduceat(np.where(p, pos, big), seg)
+        which = np.where(last >= 0, last, first)
+        return np.minimum(which, big - 1), which < big
+
+    def value(name: str, which: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        return np.where(ok, c[name][1][members][which], np.nan)
+
+    w_pos, ok_pos = pick("lat_deg", 1)
+    lat = value("lat_deg", w_pos, ok_pos)
+    lon = np.where(ok_pos & c["lon_deg"][0][members][w_pos], c["lon_deg"][1][members][w_pos], np.nan)
+    alt = value("alt_m", *pick("alt_m", 1))
+    speed = value("speed_mps", *pick("speed_mps", 3))
+    course = value("course_deg", *pick("course_deg", 3))
+    hdop = value("hdop", *pick("hdop", 1))
+    w_fq, ok_fq = pick("fix_quality", 1)
+    w_ns, ok_ns = pick("nsat", 1)
+    fq = np.where(ok_fq, c["fix_quality"][1][members][w_fq], -1)
+    nsat = np.where(ok_ns, c["nsat"][1][members][w_ns], -1)
+    pv = c["valid"][0][members]
+    w_v = np.maximum.reduceat(np.where(pv, pos, -1), seg)
+    valid = np.where(w_v >= 0, c["valid"][1][members][np.maximum(w_v, 0)].astype(np.int8), np.int8(-1))
+    has_date = np.array([dates[i] is not None for i in members.tolist()], dtype=bool)
+    w_d = np.maximum.reduceat(np.where(has_date, pos, -1), seg)
+    mem_list = members.tolist()
+    ep_date = [None if w < 0 else dates[mem_list[w]] for w in w_d.tolist()]
+    first = members[seg]
+    return _align_columns(tod[first], ep_date, first + 1, lat, lon, alt, speed, course, fq, nsat, hdop, valid,
+                          can_t0, ns)
+
+
+def _align_columns(tod: np.ndarray, ep_date: list, lineno: np.ndarray, lat, lon, alt, speed, course, fq, nsat, hdop,
+                   valid, can_t0: float | None, stats: NmeaStats) -> tuple[GpsTrack, str]:
+    """:func:`align_gps` on epoch arrays, with dates as day ordinals: the same track, method and rejects."""
+    n = tod.size
+    day_idx = np.zeros(n, dtype=np.int64)
+    if n > 1:
+        day_idx[1:] = np.cumsum(tod[1:] < tod[:-1] - 43200.0)
+    dated = np.array([x is not None for x in ep_date], dtype=bool)
+    if dated.any():
+        method = "UTC date from RMC/ZDA, time of day from the same epoch; midnight rollover by day counter"
+        i0 = int(np.argmax(dated))
+        ords = np.array([0 if x is None else x.toordinal() for x in ep_date], dtype=np.int64)
+        base = ords - day_idx                           # add_days(date, -day index) at each dated epoch
+        base_ok = (base >= 1) & (base <= _ORD_MAX)
+        anchor = np.maximum.accumulate(np.where(dated, np.arange(n), -1))
+        anchor[:i0] = i0                                # before the first dated epoch: its base
+        b_ok = base_ok[anchor]
+        o = base[anchor] + day_idx
+    else:
+        if can_t0 is None or not math.isfinite(can_t0):
+            raise RecordingError("GPS has no date (no RMC/ZDA) and there is no CAN time to take it from")
+        best = nearest_date(can_t0, float(tod[0]))
+        if best is None:
+            raise RecordingError(
+                f"GPS has no date (no RMC/ZDA) and the first CAN time {can_t0!r} s is not a calendar date")
+        method = (
+            f"no date in NMEA: UTC date {best.isoformat()} taken from the first CAN frame "
+            "(nearest of the day before/of/after); midnight rollover by day counter"
+        )
+        b_ok = np.ones(n, dtype=bool)
+        o = best.toordinal() + day_idx
+    has = b_ok & (o >= 1) & (o <= _ORD_MAX)
+    # utc_epoch: timegm(date) + time of day; timegm of a date is (its ordinal - 1970-01-01's) * 86400 [s]
+    t = np.where(has, (o - _ORD_1970) * 86400, 0).astype(np.float64) + tod
+    keep = has.copy()
+    prev = np.maximum.accumulate(np.where(has, t, -np.inf))
+    last = np.concatenate([[-np.inf], prev[:-1]])   # the latest epoch time kept before each epoch
+    back = has & (t <= last)
+    keep &= ~back
+    for i in np.flatnonzero(~keep).tolist():
+        stats.reject("date_out_of_range" if not has[i] else "time_backwards" if t[i] < last[i]
+                     else "duplicate_epoch", int(lineno[i]), "")
+    fq = np.where((fq < 0) & (valid == 0), 0, fq)
+    code = lambda a: np.where((a >= 0) & (a <= 32767), a, -1).astype(np.int16)   # noqa: E731
+    return GpsTrack(t=t[keep], lat=lat[keep], lon=lon[keep], alt=alt[keep], speed=speed[keep],
+                    course=course[keep], fix_quality=code(fq)[keep], hdop=hdop[keep], nsat=code(nsat)[keep],
+                    valid=valid[keep].astype(np.int8)), method
 
 
 # An epoch of the fast path: [tod_s, date, lat, lon, alt, speed, course, fix_quality, nsat, hdop, valid, lineno],
