@@ -76,7 +76,7 @@ from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_RHO, IX_V, N_INPUT, N_STATE,
-                             N_STATE_HUB, FilterModel, relax_slips, wheel_speed_factor_slopes)
+                             N_STATE_HUB, FilterModel, relax_slips, relax_slips_own, wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -264,18 +264,18 @@ _HUB_OUT = np.array([10, 11, 12, 13, 4, 5, 6, 7, 8, 9])
 """States of the two-inertia hub model the estimate reports, in the paper's order (rim speeds for ω)."""
 
 
-def _curve_slope_params(cs: Any) -> tuple[float, float, float, float]:
-    """(a, p, α1, α2) of eq. 14 whose slope a·g'(s) is that of the identified μ(s) curve of ``cs`` (a
+def _curve_slope_params(cs: Any) -> tuple[float, float, float, float, float]:
+    """(a, p, α1, α2, c0) such that c0 + a g(s), g of eq. 14, is the identified μ(s) curve of ``cs`` (a
     :class:`~.curve.CurveState`): its own parameters on the shape path (``exp1_offset`` c + (a − c)(1 − e^{α s})
-    as (a − c, 1, α, α), the same slope), the class's exponents with its a on the class path; a = NaN (the
-    default relaxation length) before a curve is identified."""
+    as (a − c, 1, α, α, c)), the class's exponents with its a on the class path (c0 = 0); a = NaN (the default
+    relaxation length) before a curve is identified."""
     c = cs.curve
     if c is None:
-        return math.nan, 0.0, -1.0, -1.0
+        return math.nan, 0.0, -1.0, -1.0, 0.0
     if c.form == "exp1_offset":
         th = c.theta
-        return float(th[1] - th[0]), 1.0, float(th[2]), float(th[2])
-    return float(c.a), float(c.p), float(c.alpha1), float(c.alpha2)
+        return float(th[1] - th[0]), 1.0, float(th[2]), float(th[2]), float(th[0])
+    return float(c.a), float(c.p), float(c.alpha1), float(c.alpha2), 0.0
 
 
 class Estimator:
@@ -996,7 +996,8 @@ class Estimator:
         above the relaxation's |v|/L_r, and the rim speeds are not measured: relaxed towards them, a rim-speed
         error was kept in σ̄ and held μ off by 2–4 % for tens of seconds); and the slope ∂μ/∂s is that of the
         identified curve itself (:func:`_curve_slope_params`: on the shape path its own p, α1, α2), not the
-        class's exponents with the shape's a."""
+        class's exponents with the shape's a, through each wheel's own μ (:func:`~tractionecu.model.vehicle.
+        relax_slips_own`: the curve is identified at the mean wheel load, the front wheels are a third lighter)."""
         model = self.model
         on = self._rates.period("omega") * self._f_carcass <= CARCASS_MAX_FT
         if on != (model.cx != 0.0):
@@ -1013,11 +1014,13 @@ class Estimator:
         init = t_prev is None
         cs = self._curve_state
         if self._hub_on:
-            a, p, al1, al2 = _curve_slope_params(cs)
-        else:
-            cls = SOIL_CLASSES.get(cs.class_name)
-            a = cs.a if cls is not None else math.nan
-            p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
+            a, p, al1, al2, c0 = _curve_slope_params(cs)
+            relax_slips_own(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
+                            a, p, al1, al2, c0, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
+            return
+        cls = SOIL_CLASSES.get(cs.class_name)
+        a = cs.a if cls is not None else math.nan
+        p, al1, al2 = (cls.p, cls.alpha1, cls.alpha2) if cls is not None else (0.0, -1.0, -1.0)
         relax_slips(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
                     a, p, al1, al2, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
 
