@@ -24,12 +24,12 @@ path does; the rows are selected only once they are older than the window a lost
 back (``lost_after_s`` + ``max_gap_s`` + 1 s).
 
 The estimator loop: where :func:`tractionecu.estimation.compiled_loop.supported` covers the machine's
-estimator (the hub estimator, numba on, no feature a vehicle file switches on: a declared hub efficiency
-or drag, tyre carcass or two-inertia hub), each block's step arguments go to the compiled loop
+estimator (the hub estimator, numba on, none of the features a vehicle file switches on that it does not
+port: a tyre carcass, a two-inertia hub), each block's step arguments go to the compiled loop
 (:class:`~tractionecu.estimation.compiled_loop.CompiledLoop`) as one array and come back as the block's
-estimate arrays; it returns to Python only for the μ(s) curve, the radius calibration, the adaptation
-period's fuzzy factor and systematic uncertainty, the filter's (re)initialisation and the rare general
-update, calling the estimator's own objects.  Otherwise (the machine-level estimator, those features,
+estimate arrays; it returns to Python only for the μ(s) curve (and its slope for an averaged slip), the
+radius calibration, the fuzzy supervisor's intensity of rule strengths not seen before, the filter's
+(re)initialisation and the rare general update, calling the estimator's own objects.  Otherwise (the machine-level estimator, those features,
 an ``on_estimate`` callback, or ``compiled=False``) the loop is the step path's Python
 :meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
 
