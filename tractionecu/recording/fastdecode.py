@@ -129,23 +129,6 @@ class _Uniform:
         return _Uniform(body, raw, w)
 
 
-def _colmax(X: np.ndarray) -> np.ndarray:
-    """Row maxima of a 2-D array with few columns, one column at a time (about 3x faster than
-    ``X.max(axis=1)``, which reduces each short row separately)."""
-    m = X[:, 0].copy()
-    for j in range(1, X.shape[1]):
-        np.maximum(m, X[:, j], out=m)
-    return m
-
-
-def _colmin(X: np.ndarray) -> np.ndarray:
-    """Row minima, as :func:`_colmax`."""
-    m = X[:, 0].copy()
-    for j in range(1, X.shape[1]):
-        np.minimum(m, X[:, j], out=m)
-    return m
-
-
 def _canonical(lines: list[str], idx: np.ndarray, width: int):
     """Parse the lines ``lines[idx]`` (all of length ``width``) as canonical candump lines.
 
@@ -161,22 +144,23 @@ def _canonical(lines: list[str], idx: np.ndarray, width: int):
             raw = "".join(s if a else "\x00" * width for s, a in zip(cand, ascii_ok)).encode("ascii")
         A = np.frombuffer(raw, dtype=np.uint8).reshape(-1, width)
     ch = width - 46                                   # interface name length
-    ok = ((A[:, 0] == 0x28) & (A[:, 11] == 0x2E) & (A[:, 18] == 0x29) & (A[:, 19] == 0x20)
-          & (A[:, 20 + ch] == 0x20) & (A[:, 29 + ch] == 0x23))
-    sec = A[:, 1:11] - np.uint8(0x30)                 # digits map to 0..9, anything else above 9
-    usec = A[:, 12:18] - np.uint8(0x30)
-    ok &= (_colmax(sec) <= 9) & (_colmax(usec) <= 9)
-    name = A[:, 20:20 + ch] - np.uint8(0x21)          # printable, no white space: 0x21..0x7E
-    ok &= _colmax(name) <= 0x7E - 0x21
-    hid = _HEXVAL[A[:, 21 + ch:29 + ch]]
-    hpl = _HEXVAL[A[:, 30 + ch:46 + ch]]
-    ok &= (_colmin(hid) >= 0) & (_colmin(hpl) >= 0)
-    n_us = (sec.astype(np.int64) @ _POW10) * 1_000_000 + usec.astype(np.int64) @ _POW10_6
+    A = np.ascontiguousarray(A.T)                     # one row per character position: the checks below
+    ok = ((A[0] == 0x28) & (A[11] == 0x2E) & (A[18] == 0x29) & (A[19] == 0x20)   # run along contiguous rows
+          & (A[20 + ch] == 0x20) & (A[29 + ch] == 0x23))
+    sec = A[1:11] - np.uint8(0x30)                    # digits map to 0..9, anything else above 9
+    usec = A[12:18] - np.uint8(0x30)
+    ok &= (sec.max(axis=0) <= 9) & (usec.max(axis=0) <= 9)
+    name = A[20:20 + ch] - np.uint8(0x21)             # printable, no white space: 0x21..0x7E
+    ok &= name.max(axis=0) <= 0x7E - 0x21
+    hid = _HEXVAL[A[21 + ch:29 + ch]]
+    hpl = _HEXVAL[A[30 + ch:46 + ch]]
+    ok &= (hid.min(axis=0) >= 0) & (hpl.min(axis=0) >= 0)
+    n_us = (_POW10 @ sec.astype(np.int64)) * 1_000_000 + _POW10_6 @ usec.astype(np.int64)
     ok &= n_us < _MAX_EXACT
-    can_id = hid.astype(np.int64) @ _POW16
+    can_id = _POW16 @ hid.astype(np.int64)
     ok &= can_id <= 0x1FFFFFFF                         # also excludes the error flag 0x20000000
-    byts = np.ascontiguousarray(((hpl[:, 0::2] << 4) | hpl[:, 1::2]).astype(np.uint8))
-    payload = byts.view("<u8").reshape(-1).astype(np.uint64)
+    byts = ((hpl[0::2] << 4) | hpl[1::2]).astype(np.uint8)          # row j: data byte j of every frame
+    payload = np.ascontiguousarray(byts.T).view("<u8").reshape(-1).astype(np.uint64)
     return ok, n_us.astype(np.float64) / 1e6, can_id, payload
 
 
