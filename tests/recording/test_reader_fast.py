@@ -77,13 +77,15 @@ def recordings(tmp_path_factory) -> dict[str, Path]:
         "biased-sensors": _simulate(base / "b", "biased-sensors", 2),
         "physical-headland-reverse": _simulate(base / "ph", "physical-headland-reverse", 3),
     }
-    # GNSS outages, a receiver without a fix, corrupted sentences; candump lines of the canonical width
-    # with bad hex, a bad time and a time going backwards, and a blank line
+    # "precedence": the merge's cases, GNSS outages and a receiver without a fix, every line well formed;
+    # "damaged": the same with corrupted sentences, and candump lines of the canonical width with bad hex,
+    # a bad time, a time going backwards and blanks
     src = out["biased-sensors"]
     d = base / "damaged"
     shutil.copytree(src, d)
     rng = random.Random(11)
     nmea = (d / "gps.nmea").read_text().splitlines()
+
     def resign(line: str, i: int, value: str) -> str:           # field i replaced, checksum recomputed
         f = line[1:-3].split(",")
         f[i] = value
