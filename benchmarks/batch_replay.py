@@ -286,7 +286,8 @@ def report(m: dict[str, Any]) -> list[str]:
     lines.append(f"batch replay >= {TARGET_X:.0f}x real time per core: {x:.0f}x from the recording's path "
                  f"({'met' if x >= TARGET_X else 'not met'}; step path {m['cases']['path']['step']['x_per_core']:.0f}x "
                  f"in the same run), {xe:.0f}x from the decoded recording (engine; "
-                 f"{'met' if xe >= TARGET_X else 'not met'}; step path {m['cases']['engine']['step']['x_per_core']:.0f}x)")
+                 f"{'met' if xe >= TARGET_X else 'not met'}; "
+                 f"step path {m['cases']['engine']['step']['x_per_core']:.0f}x)")
     return lines
 
 

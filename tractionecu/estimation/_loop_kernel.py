@@ -60,7 +60,6 @@ EV_INIT = 101        # initialise the filter (Estimator._init_filter), then the 
 EV_PREDICT = 102     # predict sub-step on the Python filter (P not positive definite: its repair)
 EV_RECOVER = 103     # non-finite prediction: Estimator._recover
 EV_UPDATE = 104      # update on the Python filter (gated or non-finite components: the general path)
-EV_ADAPT = 105       # (no longer returned: the adaptation period is compiled, see EV_FUZZY, EV_SYSTEMATIC)
 EV_CURVE = 106       # μ(s) curve update
 EV_SLIPWIN = 107     # averaged slip: the identified curve's slope at the candidate stretches
 EV_CAL = 108         # radius calibration at a GNSS epoch
@@ -1161,7 +1160,7 @@ def _mk_stage_estimate(tag):
         if (t - F[F_T_CURVE] >= F[F_C_CURVE_PERIOD] and abs(v) >= F[F_C_CURVE_MINSPD] and not I[I_LOST]
                 and slip_ok):
             F[F_T_CURVE] = t
-            # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v (Estimator._estimate)
+            # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6, the wheel's ground speed k_i(κ)·v (Estimator._estimate)
             h = 0.5 * F[F_C_TRACK]
             wb = F[F_C_WB]
             left = 1.0 - h * kap

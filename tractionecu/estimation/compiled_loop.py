@@ -32,7 +32,8 @@ identically:
 Coverage (:func:`supported`): the hub estimator (:class:`~.estimator.Estimator` itself) with numba on, on
 a vehicle without the features a vehicle file switches on that it does not port (a tyre carcass, a
 two-inertia hub; a declared hub efficiency and drag are ported).  Anything else (the machine-level
-estimator, those features, numba off) is not covered: :func:`supported` says why, and batch replay runs the step path's Python estimator instead.
+estimator, those features, numba off) is not covered: :func:`supported` says why, and batch replay runs
+the step path's Python estimator instead.
 
 Contract: every estimate column equal to the step path's to 1e-9 (``tests/estimation/test_compiled_loop.py``).
 """
@@ -179,7 +180,8 @@ class CompiledLoop:
         self._cal_blocks = 0
         self._radius_sigma()
         self._handlers = {K.EV_INIT: self._ev_init, K.EV_PREDICT: self._ev_predict, K.EV_RECOVER: self._ev_recover,
-                          K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy, K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
+                          K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy,
+                          K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
                           K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull}
         self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
                           K.EV_FUZZY: "fuzzy", K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",

@@ -29,9 +29,9 @@ port: a tyre carcass, a two-inertia hub), each block's step arguments go to the 
 (:class:`~tractionecu.estimation.compiled_loop.CompiledLoop`) as one array and come back as the block's
 estimate arrays; it returns to Python only for the μ(s) curve (and its slope for an averaged slip), the
 radius calibration, the fuzzy supervisor's intensity of rule strengths not seen before, the filter's
-(re)initialisation and the rare general update, calling the estimator's own objects.  Otherwise (the machine-level estimator, those features,
-an ``on_estimate`` callback, or ``compiled=False``) the loop is the step path's Python
-:meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
+(re)initialisation and the rare general update, calling the estimator's own objects.  Otherwise (the
+machine-level estimator, those features, an ``on_estimate`` callback, or ``compiled=False``) the loop is
+the step path's Python :meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
 
 Contract: the estimates equal the step path's to 1e-9 in every column (``tests/pipeline/test_batch.py``,
 ``tests/estimation/test_compiled_loop.py``).
