@@ -201,10 +201,14 @@ def _track_of_columns(parts: list[dict], can_t0: float | None, ns: NmeaStats) ->
     the rules of :class:`~tractionecu.gnss.nmea.EpochAssembler` and :func:`align_gps`, counts in ``ns``;
     None (``ns`` untouched) where the arrays' shortcut does not hold (two timed sentences 0 to 1 ms apart).
     Raises :class:`RecordingError` as :func:`align_gps` does."""
-    c = {k: (np.concatenate([p[k][0] for p in parts]), np.concatenate([p[k][1] for p in parts]))
-         for k in parts[0] if k not in ("sentence", "date")}
+    c: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for k in [k for k in parts[0] if k not in ("sentence", "date")]:     # one column at a time: the
+        c[k] = (np.concatenate([p[k][0] for p in parts]), np.concatenate([p[k][1] for p in parts]))
+        for p in parts:                                                  # blocks' copies go as it is made
+            del p[k]
     sent = np.concatenate([p["sentence"] for p in parts])
     dates = [d for p in parts for d in p["date"]]
+    parts.clear()
     n = sent.size
     # EpochAssembler: a timed sentence opens an epoch when its time differs from the open epoch's first
     # by more than 1 ms.  When consecutive timed sentences differ by 0 or by more than 1 ms, the epoch's
