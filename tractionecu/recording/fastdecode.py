@@ -402,13 +402,16 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
     firsts = {name: min(int(r[0]) for r, _ in parts) for name, parts in msg_parts.items()}
     for name in sorted(msg_parts, key=firsts.__getitem__):
         parts = msg_parts[name]
-        rows = np.concatenate([r for r, _ in parts])
-        order = np.argsort(rows, kind="stable")
-        rows = rows[order]
-        messages[name] = (table.lineno[rows], table.t[rows], sa[rows])
+        if len(parts) == 1:                             # one part: its rows are in file order already
+            rows, order = parts[0][0], None
+        else:
+            rows = np.concatenate([r for r, _ in parts])
+            order = np.argsort(rows, kind="stable")
+            rows = rows[order]
+        lines_r, t_r, sa_r = messages[name] = (table.lineno[rows], table.t[rows], sa[rows])
         if parts[0][1] is None:
             continue
-        for sig in parts[0][1]:
-            v = np.concatenate([vals[sig] for _, vals in parts])[order]
-            signals[sig] = (table.lineno[rows], table.t[rows], v, sa[rows])
+        for sig in parts[0][1]:                         # a message's signals share its line, time, source
+            v = parts[0][1][sig] if order is None else np.concatenate([vals[sig] for _, vals in parts])[order]
+            signals[sig] = (lines_r, t_r, v, sa_r)
     return messages, signals, claims
