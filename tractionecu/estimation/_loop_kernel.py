@@ -66,6 +66,7 @@ EV_CAL = 108         # radius calibration at a GNSS epoch
 EV_WINFULL = 109     # the averaged slip's buffer is full: the driver enlarges it
 EV_FUZZY = 110       # the fuzzy supervisor's intensity of strengths not in the memo (FuzzySupervisor.intensity)
 EV_SYSTEMATIC = 111  # systematic uncertainty with a pull-angle tolerance (its math.hypot stays in Python)
+EV_HASCURVE = 112    # whether the latest curve state has an identified curve (CurveState.curve), asked when needed
 
 # ----------------------------------------------------------------------------- stages of a step
 ST_BEGIN = 0
@@ -1200,7 +1201,7 @@ def _bisect_left(WIN, lo, n, col, x):                                     # prag
 
 def _slip_window(F, I, WIN, EV):                                          # pragma: no cover - compiled
     """Estimator._slip_window up to the curve's slope: returns -1 (no average), 0 (candidates in EV for the
-    driver) or EV_WINFULL."""
+    driver), EV_WINFULL or EV_HASCURVE (I[I_HAS_CURVE] -1: not known yet)."""
     t = F[F_L_T]
     v = F[F_L_V]
     buf = F[F_L_BUF:F_L_BUF + 26]
@@ -1231,6 +1232,8 @@ def _slip_window(F, I, WIN, EV):                                          # prag
         n = keep
         I[I_WIN_LO] = 0
         I[I_WIN_N] = n
+    if I[I_HAS_CURVE] < 0:
+        return EV_HASCURVE           # (nothing changed yet: the same stage runs again with the answer)
     _, _, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
     rdf *= F[F_KF]
     rdr *= F[F_KR]
@@ -1341,8 +1344,8 @@ def _stage_estimate2(F, I, WIN, EV):                                      # prag
         r = _slip_window(F, I, WIN, EV)
         if r == 0:
             return EV_SLIPWIN
-        if r == EV_WINFULL:
-            return EV_WINFULL
+        if r == EV_WINFULL or r == EV_HASCURVE:
+            return r
     return ST_ESTIMATE3
 
 
@@ -1498,8 +1501,8 @@ def _mkrun(tag):
                 if nxt == EV_SLIPWIN:
                     I[I_STAGE] = ST_ESTIMATE3
                     return EV_SLIPWIN
-                if nxt == EV_WINFULL:
-                    return EV_WINFULL            # the same stage again with a larger buffer
+                if nxt == EV_WINFULL or nxt == EV_HASCURVE:
+                    return nxt                   # the same stage again (a larger buffer, the curve's presence)
                 I[I_STAGE] = nxt
             elif st == ST_ESTIMATE3:
                 nxt = _stage_estimate3(F, I, OUT, k)

@@ -177,15 +177,18 @@ class CompiledLoop:
         self.WIN = np.zeros((16384, 19))
         self.EV = np.zeros(1 + 16 * K.N_CAND_COLS)
         self.states: list[Any] = [est._curve_state]
+        self._curves: dict[int, tuple[Any, str]] = {}
         self._cal_blocks = 0
         self._radius_sigma()
         self._handlers = {K.EV_INIT: self._ev_init, K.EV_PREDICT: self._ev_predict, K.EV_RECOVER: self._ev_recover,
                           K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy,
                           K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
-                          K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull}
+                          K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull,
+                          K.EV_HASCURVE: self._ev_hascurve}
         self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
                           K.EV_FUZZY: "fuzzy", K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",
-                          K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal", K.EV_WINFULL: "winfull"}
+                          K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal", K.EV_WINFULL: "winfull",
+                          K.EV_HASCURVE: "hascurve"}
         self.events = {name: 0 for name in self._ev_names.values()}
         """Returns to Python per event (module doc)."""
         # views of the state (numpy views into F: written by the compiled code, read here)
@@ -266,7 +269,8 @@ class CompiledLoop:
         return out
 
     def arrays(self, OUT: np.ndarray) -> dict[str, Any]:
-        """The batch sink's arrays of a block (:class:`~tractionecu.pipeline.batch.BatchSink`), and ``lost_since``."""
+        """The batch sink's arrays of a block (:class:`~tractionecu.pipeline.batch.BatchSink`), with ``lost_since``
+        and, for ``curve`` and ``curve_path``, ``curve_key`` (:meth:`resolve_curves`)."""
         K = self.K
         n = OUT.shape[0]
         arr: dict[str, Any] = {"t": OUT[:, K.OUT_T].copy()}
@@ -288,21 +292,40 @@ class CompiledLoop:
         arr["sigma_rho_s"] = OUT[:, K.OUT_SIGRHO].copy()
         ver = OUT[:, K.OUT_CS].astype(np.int64)
         hasx = OUT[:, K.OUT_HASX] != 0.0
-        # the curve state each step reports (a, class, curve, its path; a and the curve only with a filter)
+        # the curve state each step reports (a and class; a only with a filter); the identified curve and
+        # its path are left as the key of that state (curve_key) until resolve_curves: building a curve
+        # costs, and a consumer of selected rows needs it for those rows only
         key = ver * 2 + hasx
         uniq, inv = np.unique(key, return_inverse=True)
         ents = []
         for kk in uniq.tolist():
             cs = self.states[kk // 2]
-            c = cs.curve if kk % 2 else None
-            ents.append((cs.a if kk % 2 else math.nan, cs.class_name, c, c.path if c is not None else ""))
-        a_u, cls_u, c_u, p_u = zip(*ents)
+            ents.append((cs.a if kk % 2 else math.nan, cs.class_name))
+        a_u, cls_u = zip(*ents)
         arr["a"] = np.asarray(a_u, dtype=float)[inv]
-        il = inv.tolist()
-        arr["soil_class"] = [cls_u[i] for i in il]
-        arr["curve"] = [c_u[i] for i in il]
-        arr["curve_path"] = [p_u[i] for i in il]
+        arr["soil_class"] = [cls_u[i] for i in inv.tolist()]
+        arr["curve_key"] = key
         arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
+        return arr
+
+    def resolve_curves(self, arr: dict[str, Any]) -> dict[str, Any]:
+        """Replace ``curve_key`` (:meth:`arrays`) in ``arr`` by ``curve`` (the identified μ(s) of each step, None
+        without one or without a filter, as Estimate.curve) and ``curve_path``; returns ``arr``."""
+        key = arr.pop("curve_key", None)
+        if key is None:
+            return arr
+        cache = self._curves
+        curves = []
+        paths = []
+        for kk in np.asarray(key).tolist():
+            ent = cache.get(kk)
+            if ent is None:
+                c = self.states[kk // 2].curve if kk % 2 else None
+                ent = cache[kk] = (c, c.path if c is not None else "")
+            curves.append(ent[0])
+            paths.append(ent[1])
+        arr["curve"] = curves
+        arr["curve_path"] = paths
         return arr
 
     # ------------------------------------------------------------------ events
@@ -413,7 +436,8 @@ class CompiledLoop:
 
     def _radius_sigma(self) -> None:
         """The radius's standard uncertainty per axle the systematic uncertainty uses (Estimator._systematic);
-        it changes only when the calibration takes a sample."""
+        it changes only when the calibration accepts a block (RadiusCalibration.radius_sigma reads the axles'
+        applied flag and half-width, which only a block changes)."""
         est = self.est
         unc = est._unc
         if unc is not None:
@@ -466,7 +490,12 @@ class CompiledLoop:
                                F[K.F_L_SIG_S:K.F_L_SIG_S + 4].copy(), fz)
         self.states.append(cs)
         I[K.I_CS_VER] = len(self.states) - 1
-        I[K.I_HAS_CURVE] = 1 if cs.curve is not None else 0
+        I[K.I_HAS_CURVE] = -1            # asked for when an averaged slip needs it (CurveState.curve costs)
+
+    def _ev_hascurve(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """Whether the current curve state has an identified curve (the averaged slip needs one)."""
+        K, I = self.K, self.I
+        I[K.I_HAS_CURVE] = 1 if self.states[int(I[K.I_CS_VER])].curve is not None else 0
 
     def _ev_slipwin(self, IN: np.ndarray, OUT: np.ndarray) -> None:
         """The averaged slip's choice (Estimator._slip_window): the identified curve's slope at each candidate."""
@@ -511,10 +540,10 @@ class CompiledLoop:
         row = OUT[k]
         cal.push(t, v_meas, wl, rdf, rdr, row[K.OUT_MU:K.OUT_MU + 4].tolist(), float(F[K.F_DYN + 3]),
                  bool(row[K.OUT_VALID] != 0.0), cs.a, cs.class_name)
-        self._radius_sigma()
         n = cal._axles[0].n
-        if n != self._cal_blocks:
+        if n != self._cal_blocks:            # a block was accepted: the scales, and the radius's σ, may change
             self._cal_blocks = n
+            self._radius_sigma()
             f, r = cal.state()
             kf, kr = cal.applied
             F[K.F_RAD:K.F_RAD + 6] = [f.scale, r.scale, f.halfwidth, r.halfwidth, kf, kr]

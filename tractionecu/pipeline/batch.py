@@ -97,6 +97,10 @@ class BatchSink(_Sink):
         self.steps_finite = self.steps_valid = 0
         self._bucket = -math.inf
         self._path: dict[int, str] = {}
+        self.resolve: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+        """Resolves the compiled loop's ``curve_key`` column into ``curve`` and ``curve_path`` when the arrays
+        go out (:meth:`CompiledLoop.resolve_curves <tractionecu.estimation.compiled_loop.CompiledLoop.
+        resolve_curves>`), for the rows kept only."""
 
     # ------------------------------------------------------------------ input
     mark_lost = _Sink._mark_lost
@@ -213,13 +217,18 @@ class BatchSink(_Sink):
 
     # ------------------------------------------------------------------ output
     def arrays(self) -> dict[str, Any]:
-        return _concat(self.done)
+        return self._out(_concat(self.done))
 
     def rate_arrays(self) -> dict[str, Any]:
-        return _concat(self.rate_rows)
+        return self._out(_concat(self.rate_rows))
 
     def map_arrays(self) -> dict[str, Any]:
-        return _concat(self.map_rows)
+        return self._out(_concat(self.map_rows))
+
+    def _out(self, arr: dict[str, Any]) -> dict[str, Any]:
+        if "curve_key" in arr and self.resolve is not None:
+            self.resolve(arr)
+        return arr
 
 
 def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
@@ -328,6 +337,7 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
         from ..estimation.compiled_loop import CompiledLoop
 
         run.loop = CompiledLoop(run.est)
+        sink.resolve = run.loop.resolve_curves
     if streamed:
         names = {nm for grp in run.groups for nm in grp.names}
         for block, before in stream_signals(rec, names=sorted(names)):
