@@ -267,10 +267,12 @@ def _batch_run_class() -> type:
                 streams.append((GNSS_COURSE, False, *self.course.at(grid)))
             loop = self.loop
             if loop is not None:
-                wall = time.perf_counter()
-                out = loop.step_block(loop.block_inputs(grid, streams))
-                self.loop_seconds += time.perf_counter() - wall
-                self.sink.keep_arrays(loop.arrays(out))
+                args = loop.block_inputs(grid, streams)
+                for a in range(0, n, BLOCK):          # (a recording in memory is one grid: bounded arrays)
+                    wall = time.perf_counter()
+                    out = loop.step_block(args[a:a + BLOCK])
+                    self.loop_seconds += time.perf_counter() - wall
+                    self.sink.keep_arrays(loop.arrays(out))
                 return
             wall = time.perf_counter()
             inputs: list[dict[str, Any]] = [{} for _ in range(n)]
