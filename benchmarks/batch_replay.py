@@ -20,7 +20,7 @@ contract: the largest absolute difference over every estimate column between the
 
 The batch path's estimator loop is the compiled one (:mod:`tractionecu.estimation.compiled_loop`) where it
 covers the machine, else the step path's Python estimator; the ``loop`` line says which ran and why.
-``where the time goes`` is one more, instrumented, batch run: the CPU time per step inside the compiled
+``where the time goes`` is an instrumented batch run (the best of ``--repeat``): the CPU time per step in the compiled
 loop, in each return to Python (the μ(s) curve, the radius calibration, the fuzzy supervisor's new rule
 strengths, the general update, the filter's initialisation), and around it (the blocks' step arguments,
 the sink), and how often each return happened.
@@ -99,7 +99,7 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
             pass
     out: dict[str, Any] = {"recording": str(path), "span_s": span, "steps": step_res.steps,
                            "max_abs_diff": max(diff.values()), "diff_per_column": diff, "cases": {},
-                           "loop": getattr(batch_res, "loop", "python")}
+                           "loop": getattr(batch_res, "loop", "python"), "repeat": repeat}
     for name, (fs, fb) in cases.items():
         best = {"step": (float("inf"), 0.0), "batch": (float("inf"), 0.0)}
         load0 = _load()
@@ -113,7 +113,7 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
         out["cases"][name]["load_after"] = _load()
     shutil.rmtree(scratch, ignore_errors=True)
     if out["loop"] == "compiled":
-        out["breakdown"] = breakdown(rec)
+        out["breakdown"] = breakdown(rec, repeat)
     try:
         out["filter_core_floor"] = filter_core_floor(rec, repeat)
     except ImportError:                                       # without numba there is no compiled core
@@ -121,9 +121,19 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     return out
 
 
-def breakdown(rec: Any) -> dict[str, Any]:
-    """CPU time per step of one instrumented :func:`~tractionecu.pipeline.batch.replay_batch` of ``rec``, split
-    into the compiled loop, each kind of return to Python (with its count) and the rest (module doc)."""
+def breakdown(rec: Any, repeat: int = 3) -> dict[str, Any]:
+    """CPU time per step of an instrumented :func:`~tractionecu.pipeline.batch.replay_batch` of ``rec`` (the run
+    of smallest total of ``repeat``), split into the compiled loop, each kind of return to Python (with its
+    count) and the rest (module doc)."""
+    best: dict[str, Any] = {}
+    for _ in range(repeat):
+        b = _breakdown_once(rec)
+        if not best or b["total_us"] < best["total_us"]:
+            best = b
+    return best
+
+
+def _breakdown_once(rec: Any) -> dict[str, Any]:
     from tractionecu.estimation import compiled_loop as cl
     from tractionecu.pipeline.batch import replay_batch
 
@@ -268,7 +278,8 @@ def report(m: dict[str, Any]) -> list[str]:
     if bd:
         ev = ", ".join(f"{k} {v['us_per_step']:.2f} ({v['count']} returns)" for k, v in
                        sorted(bd["events"].items(), key=lambda kv: -kv[1]["us_per_step"]))
-        lines.append(f"where the time goes (one instrumented batch run, us CPU per step): {bd['total_us']:.2f} in "
+        lines.append(f"where the time goes (instrumented batch run, best of {m.get('repeat', 1)}, us CPU per step): "
+                     f"{bd['total_us']:.2f} in "
                      f"all = compiled loop {bd['compiled_us']:.2f} + returns to Python: {ev} + step arguments and "
                      f"sink {bd['around_us']:.2f}")
     worst = max(m["diff_per_column"].items(), key=lambda kv: kv[1])
