@@ -275,3 +275,18 @@ def test_a_very_long_line_across_many_chunks(sim_lines, tmp_path):
     lines = sim_lines["paper-three-soils"][:30]
     data = "\n".join(lines[:10] + ["$GNGGA," + "7" * 300_000] + lines[10:]) + "\n" + "x" * 70_000
     _streams(tmp_path, data.encode(), chunk_chars=4096)
+
+
+def test_coordinates_where_the_order_of_operations_shows():
+    """Minutes for which deg + m / 60 differs from deg + m * (1 / 60) in the last bit: the fast tiers must
+    compute parse_line's expression, not an equivalent one."""
+    rng = random.Random(3)
+    lines = []
+    while len(lines) < 40:
+        deg, m = rng.randrange(0, 90), round(rng.uniform(0, 59.99999), 5)
+        if deg + m / 60.0 == deg + m * (1 / 60.0):
+            continue
+        body = f"GNGGA,080000.10,{deg:02d}{m:08.5f},S,{deg + 1:03d}{m:08.5f},E,2,16,0.90,861.4,M,0.0,M,,"
+        lines.append(f"${body}*{checksum(body)}")
+    assert _check_lines(lines) == len(lines)
+    assert all(v is not None for v in fast_block(lines)[0])
