@@ -18,8 +18,8 @@ import pytest
 from tractionecu.config import VehicleParams
 from tractionecu.estimation import _loop_kernel as K
 from tractionecu.estimation.compiled_loop import CompiledLoop, supported
-from tractionecu.estimation.estimator import (INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED, SLIP_AVERAGED, STANDSTILL,
-                                              Estimator)
+from tractionecu.estimation.estimator import (FILTER_LOST, INPUT_REJECTED, MEAS_GATED, NOT_CONVERGED, SLIP_AVERAGED,
+                                              STANDSTILL, Estimator)
 from tractionecu.pipeline.batch import max_differences, replay_batch
 from tractionecu.pipeline.replay import replay
 from tractionecu.recording.reader import read_recording
@@ -145,3 +145,80 @@ def test_unsupported_configurations_run_the_python_estimator(make_recording):
     assert diff and max(diff.values()) <= TOL
     forced = replay_batch(rec, compiled=False)
     assert forced.loop == "python: compiled=False"
+
+
+def _run_both(steps: list, prepare=None) -> tuple:
+    """Step the Python estimator and the compiled loop on ``steps``; compare every step (as the test above);
+    ``prepare(k, est, loop)`` may change both states identically before step k."""
+    veh = VehicleParams()
+    est = Estimator(veh)
+    loop = CompiledLoop(Estimator(veh))
+    IN = CompiledLoop.inputs_from_steps(steps)
+    lost_since = []
+    for k, (t, inputs, meas) in enumerate(steps):
+        if prepare is not None:
+            prepare(k, est, loop)
+        e = est.step(t, inputs, meas)
+        row = loop.step_block(IN[k:k + 1])[0]
+        assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
+        for col, val in ((K.OUT_MU, e.mu), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip)):
+            got = row[col:col + len(val)]
+            assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
+            np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+        np.testing.assert_allclose(row[K.OUT_V], e.v, rtol=0.0, atol=TOL)
+        assert np.isnan(row[K.OUT_LOST]) == np.isnan(e.lost_since)
+        if not np.isnan(e.lost_since):
+            assert row[K.OUT_LOST] == e.lost_since
+            lost_since.append(e.lost_since)
+        if est.ukf is not None:
+            np.testing.assert_allclose(loop._x, est.ukf.x, rtol=1e-12, atol=0.0, err_msg=f"x at step {k}")
+    assert loop.counters == est.counters
+    return est, loop, lost_since
+
+
+def test_lost_filter_is_declared_and_restarted_as_the_python_estimator_does():
+    """Wheel speeds of the wrong sign for half a second (a wiring fault): wheels and vehicle travel opposite
+    ways, the divergence monitor declares the filter lost, and it restarts from the data."""
+    steps = [(t, dict(i), dict(m)) for t, i, m in synth_run(seed=5, duration=9.0).steps]
+    for k in range(500, 550):
+        steps[k][2]["omega"] = -np.asarray(steps[k][2]["omega"])
+    est, loop, lost = _run_both(steps)
+    assert est.counters["lost"] >= 1 and lost
+    assert loop.events["init"] >= 2
+    # the sinks mark the lost period's estimates alike (a whole block through keep_arrays)
+    from tractionecu.pipeline.batch import BatchSink
+    from tractionecu.pipeline.replay import _Sink
+
+    ref = _Sink(keep_all=True)
+    py = Estimator(VehicleParams())
+    for t, inputs, meas in steps:
+        ref.keep(py.step(t, inputs, meas))
+    ref.close()
+    comp = CompiledLoop(Estimator(VehicleParams()))
+    sink = BatchSink(keep_all=True)
+    sink.resolve = comp.resolve_curves
+    sink.keep_arrays(comp.arrays(comp.step_block(CompiledLoop.inputs_from_steps(steps))))
+    sink.close()
+    a, b = ref.arrays(), sink.arrays()
+    assert (a["status"] & FILTER_LOST).any() and not a["valid"][a["status"] & FILTER_LOST != 0].any()
+    diff = max_differences(a, b)
+    assert diff and max(diff.values()) <= TOL, diff
+
+
+def test_covariance_repair_and_non_finite_prediction_as_the_python_estimator():
+    """A covariance that is not positive definite (the filter's Cholesky repair) and a torque that makes
+    the prediction overflow (the restart from the last finite mean) go through the estimator's own filter."""
+    steps = [(t, dict(i), dict(m)) for t, i, m in synth_run(seed=6, duration=5.0).steps]
+    steps[400][1]["Md"] = np.array([1e307, 0.0, 0.0, 0.0])      # finite sum, the prediction overflows
+
+    def prepare(k, est, loop):
+        if k == 300:                                               # the same indefinite covariance in both
+            P = est.ukf.P.copy()
+            P[5, 6] = P[6, 5] = 2.0 * np.sqrt(P[5, 5] * P[6, 6])
+            est.ukf.P = P.copy()
+            loop._P[:, :] = P
+
+    est, loop, _ = _run_both(steps, prepare)
+    assert est.counters["chol_repairs"] >= 1 or loop.events["predict"] >= 1
+    assert loop.events["predict"] >= 1
+    assert est.counters["resets"] == 1 and loop.events["recover"] == 1
