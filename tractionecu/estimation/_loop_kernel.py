@@ -28,8 +28,7 @@ import numpy as np
 
 from ..model.vehicle import compiled
 from . import _kernels
-from .kinematics import (BETA0_VAR_FACTOR, BETA_MAX_SIGMAS, BIAS_DIST_M, BIAS_TAU_S, FAR_EPOCHS, SIGMA_H0,
-                         YAW_TAU_S)
+from .kinematics import BETA0_VAR_FACTOR, BETA_MAX_SIGMAS, BIAS_DIST_M, BIAS_TAU_S, FAR_EPOCHS, YAW_TAU_S
 from .rates import PERIOD_TOLERANCE
 
 # ----------------------------------------------------------------------------- status bits (estimator.py)

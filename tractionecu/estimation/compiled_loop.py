@@ -47,7 +47,6 @@ import numpy as np
 
 from ..errors import EstimatorError
 from ..model.vehicle import JIT
-from . import _kernels
 
 __all__ = ["CompiledLoop", "supported"]
 
@@ -301,9 +300,9 @@ class CompiledLoop:
         for kk in uniq.tolist():
             cs = self.states[kk // 2]
             ents.append((cs.a if kk % 2 else math.nan, cs.class_name))
-        a_u, cls_u = zip(*ents)
-        arr["a"] = np.asarray(a_u, dtype=float)[inv]
-        arr["soil_class"] = [cls_u[i] for i in inv.tolist()]
+        a_u = np.array([e[0] for e in ents] if n else [], dtype=float)
+        arr["a"] = a_u[inv] if n else np.empty(0)
+        arr["soil_class"] = [ents[i][1] for i in inv.tolist()]
         arr["curve_key"] = key
         arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
         return arr
