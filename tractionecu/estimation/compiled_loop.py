@@ -302,7 +302,9 @@ class CompiledLoop:
             ents.append((cs.a if kk % 2 else math.nan, cs.class_name))
         a_u = np.array([e[0] for e in ents] if n else [], dtype=float)
         arr["a"] = a_u[inv] if n else np.empty(0)
-        arr["soil_class"] = [ents[i][1] for i in inv.tolist()]
+        names = np.empty(len(ents), dtype=object)
+        names[:] = [e[1] for e in ents]
+        arr["soil_class"] = names[inv].tolist()
         arr["curve_key"] = key
         arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
         return arr
@@ -314,17 +316,18 @@ class CompiledLoop:
         if key is None:
             return arr
         cache = self._curves
-        curves = []
-        paths = []
-        for kk in np.asarray(key).tolist():
+        uniq, inv = np.unique(np.asarray(key, dtype=np.int64), return_inverse=True)
+        curves = np.empty(uniq.size, dtype=object)
+        paths = np.empty(uniq.size, dtype=object)
+        for j, kk in enumerate(uniq.tolist()):
             ent = cache.get(kk)
             if ent is None:
                 c = self.states[kk // 2].curve if kk % 2 else None
                 ent = cache[kk] = (c, c.path if c is not None else "")
-            curves.append(ent[0])
-            paths.append(ent[1])
-        arr["curve"] = curves
-        arr["curve_path"] = paths
+            curves[j] = ent[0]
+            paths[j] = ent[1]
+        arr["curve"] = curves[inv].tolist()
+        arr["curve_path"] = paths[inv].tolist()
         return arr
 
     # ------------------------------------------------------------------ events
