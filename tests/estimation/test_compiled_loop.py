@@ -84,10 +84,10 @@ def test_state_after_every_step_equals_the_python_estimator():
     assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and loop.events["cal"] > 0
 
 
-def _compare(path) -> tuple:
+def _compare(path, rate_hz: float = 100.0) -> tuple:
     rec = read_recording(path)
-    step = replay(rec)
-    batch = replay_batch(rec)
+    step = replay(rec, rate_hz=rate_hz)
+    batch = replay_batch(rec, rate_hz=rate_hz)
     assert batch.loop == "compiled"
     diff = max_differences(step.arrays, batch.arrays)
     bad = {k: v for k, v in diff.items() if not v <= TOL}
@@ -105,6 +105,13 @@ def test_paper_three_soils_every_column(make_recording):
     step, _ = _compare(make_recording("paper-three-soils", 0, 20.0))
     a = step.arrays
     assert a["valid"].sum() > 1000 and np.isfinite(a["a"]).any()
+
+
+def test_slow_replay_rate_with_sub_steps(make_recording):
+    """At 20 Hz a step spans 50 ms: the prediction is sub-stepped (max_step_s) with its own Q, and several
+    bus samples fall into one step (the latest is passed)."""
+    step, batch = _compare(make_recording("paper-three-soils", 0, 20.0), rate_hz=20.0)
+    assert step.arrays["valid"].sum() > 200
 
 
 def test_s_curves_with_declared_hub_efficiency(make_recording):
