@@ -163,9 +163,13 @@ class CurveEstimator:
         self.switch_min_delta = float(switch_min_delta)
         self.slip_corr = float(slip_corr_s)
         nc = len(cls)
-        self._num = np.zeros(nc)
-        self._den = np.zeros(nc)
-        self._nll = np.zeros(nc)
+        # per class: forgetting sums Σ w μ̂, Σ w g(ŝ) and the class evidence, as lists of floats (the same
+        # IEEE operations as the arrays they were; a list is cheaper at four pairs per update)
+        self._num = [0.0] * nc
+        self._den = [0.0] * nc
+        self._nll = [0.0] * nc
+        self._g0c = (cls[0].p, cls[0].alpha1, cls[0].alpha2, 1.0 - cls[0].p)     # g of the first class
+        self._path0 = "class:" + cls[0].name
         grid = np.linspace(0.0, 1.0, 4001)
         self._inv = [(c.g(grid), grid) for c in cls]     # g is increasing on [0, 1]: table for g⁻¹
         self._best = 0
@@ -184,9 +188,14 @@ class CurveEstimator:
         dt = 0.0 if self._t is None else max(t - self._t, 0.0)
         self._t = t
         lam = math.exp(-dt / self.tau)
-        self._num *= lam
-        self._den *= lam
-        self._nll *= math.exp(-dt / self.class_tau)
+        lam_c = math.exp(-dt / self.class_tau)
+        if (len(self._num) == 1 and mu_bin is None and type(mu) is np.ndarray and type(s) is np.ndarray
+                and type(sigma_mu) is np.ndarray and mu.dtype == _F64 and s.dtype == _F64
+                and sigma_mu.dtype == _F64 and mu.ndim == 1 and s.shape == mu.shape == sigma_mu.shape):
+            return self._update_one(t, dt, lam, lam_c, mu, s, sigma_mu, sigma_s, fz)
+        self._num = [x * lam for x in self._num]
+        self._den = [x * lam for x in self._den]
+        self._nll = [x * lam_c for x in self._nll]
         if self.shape is not None:
             self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz, mu_bin)
         if len(self.classes) == 1:
@@ -220,6 +229,82 @@ class CurveEstimator:
                 self._den[c] += float(wg.sum())                  # = Σ w g(ŝ)
                 used = max(used, int(good.sum()))
             self.n_used = used
+        return self.state()
+
+    def _update_one(self, t: float, dt: float, lam: float, lam_c: float, mu: NDArray[np.float64],
+                    s: NDArray[np.float64], sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None,
+                    fz: NDArray[np.float64] | None) -> CurveState:
+        """:meth:`update` with one class and float64 arrays of one shape (the estimators' call): the
+        selection of :meth:`_feed_shape` and :meth:`_update_single` in one pass over the wheels, with
+        the same operations in the same order (same floats, same decisions as the two apart)."""
+        self._num[0] *= lam
+        self._den[0] *= lam
+        self._nll[0] *= lam_c
+        ml = mu.tolist()
+        sl = s.tolist()
+        n = len(sl)
+        min_mu, min_slip = self.min_mu, self.min_slip
+        sh = self.shape
+        if sh is not None:
+            ssl = sigma_s.tolist() if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,) else None
+            ref = self.fz_ref_n
+            fzl = (np.asarray(fz, dtype=float).tolist() if fz is not None and ref > 0 and np.shape(fz) == (n,)
+                   else None)
+            m_ok: list[float] = []
+            s_ok: list[float] = []
+            ss_ok: list[float] = []
+            z_ok: list[float] = []
+        sel: list[int] = []
+        for i in range(n):
+            m = ml[i]
+            x = sl[i]
+            # |μ̂| ≥ min_mu, same sign, both finite (math.isfinite ⇔ |v| < inf once m x > 0 holds)
+            if m * x > 0 and abs(m) >= min_mu and abs(m) < math.inf and abs(x) < math.inf:
+                sel.append(i)
+                if sh is not None and abs(x) >= min_slip:
+                    m_ok.append(m)
+                    s_ok.append(x)
+                    ss_ok.append(0.0 if ssl is None else ssl[i])
+                    if fzl is None:
+                        z_ok.append(0.0)
+                    else:
+                        f = fzl[i]
+                        z_ok.append(f / ref - 1.0 if f == f else 0.0)
+        if sh is not None and m_ok:
+            sh.update(t, dt, m_ok, s_ok, ss_ok, z_ok, None)
+        self.n_used = 0
+        if sel:
+            # g(ŝ) of the class (SoilClass.g): the exponentials by np.exp over as many values as g takes
+            # (its results, which may differ from math.exp's in the last bit), the rest as floats in g's order
+            p, a1, a2, q = self._g0c
+            sa = [abs(sl[i]) for i in sel]
+            e1 = _np_exp(_np_array([a1 * v for v in sa])).tolist()
+            e2 = _np_exp(_np_array([a2 * v for v in sa])).tolist()
+            g = [(1.0 - p * x1 - q * x2) if sl[i] > 0 else -(1.0 - p * x1 - q * x2)
+                 for x1, x2, i in zip(e1, e2, sel)]
+            sig = sigma_mu.tolist()
+            wa: list[float] = []
+            wg: list[float] = []
+            for gi, i in zip(g, sel):
+                # solve_a_array's conditions (its error bound is not used here: max_rel_err = inf)
+                if not (abs(sl[i]) >= min_slip and abs(gi) > 1e-9):
+                    continue
+                a = ml[i] / gi
+                if not a > 0:
+                    continue
+                sm = sig[i]
+                sm = sm if (sm != sm or sm >= 1e-6) else 1e-6          # np.maximum(σ_μ, 1e-6), NaN kept
+                w = 1.0 / (sm * sm) * gi
+                wa.append(w * a)
+                wg.append(w)
+            if wg:
+                num, den = wa[0], wg[0]
+                for k in range(1, len(wg)):
+                    num += wa[k]
+                    den += wg[k]
+                self._num[0] += num       # = Σ w μ̂
+                self._den[0] += den       # = Σ w g(ŝ)
+                self.n_used = len(wg)
         return self.state()
 
     def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
@@ -290,28 +375,59 @@ class CurveEstimator:
 
     def state(self) -> CurveState:
         """The current identification (a, best class, per-class a and evidence)."""
-        a = np.array([n / d if d > 0 else math.nan for n, d in zip(self._num.tolist(), self._den.tolist())])
-        if len(self.classes) > 1:
+        al = [n / d if d > 0 else math.nan for n, d in zip(self._num, self._den)]
+        a = np.array(al)
+        if len(al) > 1:
             cand = int(np.argmin(self._nll))
             if cand != self._best and self._nll[self._best] - self._nll[cand] > self.switch_min_delta:
                 self._best = cand
         b = self._best
-        a_b = float(a[b])
-        name = self.classes[b].name
+        a_b = al[b]
+        cls = self.classes[b]
+        name = cls.name
+        path = self._path0 if b == 0 else "class:" + name
+        nll = np.array(self._nll)
         if self.shape is None:
-            return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, curve_path="class:" + name)
+            return _curve_state(a_b, b, name, a, nll, self.n_used, None, math.nan, path, 0, math.nan, 0, None)
         sh = self.shape
         lo, hi, nb = sh._span
         fit = sh.fit
+        soil = sh.soil_ids[sh.match] if sh.match >= 0 else sh._next_id     # ShapeIdentifier.soil
         if fit is not None and fit.shape_selected:
             c = fit.curve
-            return CurveState(c.a, b, name, a, self._nll.copy(), self.n_used, c, math.nan, c.path, sh.segment,
-                              hi - lo if nb else math.nan, sh.soil)
+            return _curve_state(c.a, b, name, a, nll, self.n_used, c, math.nan, c.path, sh.segment,
+                                hi - lo if nb else math.nan, soil, None)
         var_a = math.nan
-        if fit is not None and fit.best_class.soil_class is self.classes[b]:   # the bins' interval, scaled to a
+        if fit is not None and fit.best_class.soil_class is cls:   # the bins' interval, scaled to a
             var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
-        return CurveState(a_b, b, name, a, self._nll.copy(), self.n_used, None, var_a, "class:" + name,
-                          sh.segment, hi - lo if nb else math.nan, sh.soil, (lo, hi) if nb else None)
+        return _curve_state(a_b, b, name, a, nll, self.n_used, None, var_a, path,
+                            sh.segment, hi - lo if nb else math.nan, soil, (lo, hi) if nb else None)
+
+
+_F64 = np.dtype(np.float64)
+_np_exp = np.exp
+_np_array = np.array
+_CS_FIELDS = tuple(f.name for f in dataclasses.fields(CurveState))
+_new_object = object.__new__
+_set_attr = object.__setattr__
+
+
+def _curve_state(a: float, class_index: int, class_name: str, a_per_class: NDArray[np.float64],
+                 nll_per_class: NDArray[np.float64], n_used: int, shape_curve: MuCurve | None, var_a: float,
+                 curve_path: str, segment: int, slip_span: float, soil: int,
+                 s_range: tuple[float, float] | None) -> CurveState:
+    """``CurveState(...)`` with every field given, built without the frozen dataclass's per-field
+    ``__setattr__`` calls (one per update: a tenth of its cost); an equal object."""
+    st = _new_object(CurveState)
+    _set_attr(st, "__dict__", {"a": a, "class_index": class_index, "class_name": class_name,
+                               "a_per_class": a_per_class, "nll_per_class": nll_per_class, "n_used": n_used,
+                               "shape_curve": shape_curve, "var_a": var_a, "curve_path": curve_path,
+                               "segment": segment, "slip_span": slip_span, "soil": soil, "s_range": s_range})
+    return st
+
+
+assert _CS_FIELDS == ("a", "class_index", "class_name", "a_per_class", "nll_per_class", "n_used", "shape_curve",
+                      "var_a", "curve_path", "segment", "slip_span", "soil", "s_range"), _CS_FIELDS
 
 
 # ============================================================================= shape beyond one parameter
@@ -563,6 +679,10 @@ class PairBins:
         if not s:
             return math.nan, math.nan, 0
         return min(s), max(s), len(s)
+
+
+_NEAR_BINS = tuple(tuple(k + d for d in _NEAR if 0 <= k + d < PairBins.N_BINS) for k in range(PairBins.N_BINS))
+"""Per μ-bin k: the bins of :data:`_NEAR` around it that exist, in the order searched."""
 
 
 @dataclass(frozen=True)
@@ -1008,6 +1128,8 @@ class ShapeIdentifier:
         self.confirm_s = min(float(confirm_s), float(history_s))
         self.load = bool(load)
         self.fz_ref_n = float(fz_ref_n)
+        c0 = self.classes[0]
+        self._c0 = (c0.p, c0.alpha1, c0.alpha2, 1.0 - c0.p)   # the change test's class slope: p, α1, α2, 1 − p
         self.reset()
 
     def reset(self) -> None:
@@ -1122,30 +1244,28 @@ class ShapeIdentifier:
         nz = 0
         pairs = []
         M1 = bins.M1
-        c0 = self.classes[0]
-        p0, a10, a20 = c0.p, c0.alpha1, c0.alpha2
+        p0, a10, a20, q0 = self._c0
+        near = _NEAR_BINS
+        exp, sqrt = math.exp, math.sqrt
         bins_by = mu if mu_bin is None else mu_bin
         for m, x, ss, zz, mb in zip(mu, s, sigma_s, zl, bins_by):
             m, x = abs(m), abs(x)
             k = min(int(abs(mb) / MU_BIN_WIDTH), last)
-            j = -1
-            for d in _NEAR:                                   # the nearest bin with enough weight
-                if 0 <= k + d <= last and W[k + d] >= wmin:
-                    j = k + d
+            for j in near[k]:                                 # the nearest bin with enough weight
+                if W[j] >= wmin:
+                    wj = W[j]                                 # residual against that bin's mean slip,
+                    sj = S1[j] / wj                           # moved to μ̂ along the class slope
+                    mj = M1[j] / wj
+                    if j != k:
+                        e1, e2 = exp(a10 * sj), exp(a20 * sj)
+                        dg = -p0 * a10 * e1 - q0 * a20 * e2
+                        gj = 1.0 - p0 * e1 - q0 * e2
+                        if dg > 0 and gj > 0:
+                            sj += (m - mj) * gj / (mj * dg)  # ds/dμ = 1/(a g'(s)), a = μ̄/g(s̄)
+                    var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
+                    z_sum += (x - sj) / sqrt(var)
+                    nz += 1
                     break
-            if j >= 0:                                        # residual against that bin's mean slip,
-                wj = W[j]                                     # moved to μ̂ along the class slope
-                sj = S1[j] / wj
-                mj = M1[j] / wj
-                if j != k:
-                    e1, e2 = math.exp(a10 * sj), math.exp(a20 * sj)
-                    dg = -p0 * a10 * e1 - (1.0 - p0) * a20 * e2
-                    gj = 1.0 - p0 * e1 - (1.0 - p0) * e2
-                    if dg > 0 and gj > 0:
-                        sj += (m - mj) * gj / (mj * dg)      # ds/dμ = 1/(a g'(s)), a = μ̄/g(s̄)
-                var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
-                z_sum += (x - sj) / math.sqrt(var)
-                nz += 1
             pairs.append((k, w_pair, x, m, zz))
         if nz:
             z = z_sum / nz                                   # the wheels of one instant: one sample
@@ -1159,17 +1279,39 @@ class ShapeIdentifier:
             if cp > self.h or cn > self.h:
                 self._new_segment(self._t_cp if cp > self.h else self._t_cn)
                 bins = self.bins
-        for k, w, x, m, zz in pairs:
-            bins.add(k, w, x, m, zz)
+        W, S1, S2, M1, M2, Z1 = bins.W, bins.S1, bins.S2, bins.M1, bins.M2, bins.Z1
+        for k, w, x, m, zz in pairs:                          # PairBins.add, inline
+            W[k] += w
+            ws = w * x
+            S1[k] += ws
+            S2[k] += ws * x
+            wm = w * m
+            M1[k] += wm
+            M2[k] += wm * m
+            Z1[k] += w * zz
         hist = self._hist
         hist.append((t, pairs))
         while hist[0][0] < t - self.history_s:
             hist.popleft()
         young = self._young
         young.append((t, pairs))
-        while young and young[0][0] <= t - self.confirm_s:
-            for k, w, x, m, zz in young.popleft()[1]:
-                self.mature.add(PairBins.group_index(k, zz) if self.load else k, w, x, m, zz)
+        t_old = t - self.confirm_s
+        if young[0][0] <= t_old:
+            mat = self.mature
+            W, S1, S2, M1, M2, Z1 = mat.W, mat.S1, mat.S2, mat.M1, mat.M2, mat.Z1
+            load = self.load
+            while young and young[0][0] <= t_old:
+                for k, w, x, m, zz in young.popleft()[1]:
+                    if load:
+                        k = PairBins.group_index(k, zz)
+                    W[k] += w                                 # PairBins.add, inline
+                    ws = w * x
+                    S1[k] += ws
+                    S2[k] += ws * x
+                    wm = w * m
+                    M1[k] += wm
+                    M2[k] += wm * m
+                    Z1[k] += w * zz
         if t - self._t_check >= 1.0:
             self._t_check = t
             self._cap_weight()
