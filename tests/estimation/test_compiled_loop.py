@@ -84,11 +84,11 @@ def test_state_after_every_step_equals_the_python_estimator():
     assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and loop.events["cal"] > 0
 
 
-def _compare(path, rate_hz: float = 100.0) -> tuple:
+def _compare(path, rate_hz: float = 100.0, compiled: bool = True) -> tuple:
     rec = read_recording(path)
     step = replay(rec, rate_hz=rate_hz)
     batch = replay_batch(rec, rate_hz=rate_hz)
-    assert batch.loop == "compiled"
+    assert (batch.loop == "compiled") if compiled else batch.loop.startswith("python:")
     diff = max_differences(step.arrays, batch.arrays)
     bad = {k: v for k, v in diff.items() if not v <= TOL}
     assert not bad, f"columns differing by more than {TOL}: {bad}"
@@ -115,12 +115,17 @@ def test_slow_replay_rate_with_sub_steps(make_recording):
 
 
 def test_s_curves_with_declared_hub_efficiency(make_recording):
+    """S-curves on the physical machine: turns, gated wheel speeds, a declared hub efficiency (ported).  Should
+    its vehicle file declare a feature the loop does not port (a carcass, a two-inertia hub), batch replay
+    falls back, says so, and stays equal."""
     path = make_recording("s-curves-30m", 1, 20.0)
     rec = read_recording(path)
     from tractionecu.pipeline.replay import machine_of
 
-    assert machine_of(rec)[0].drivetrain.efficiency < 1.0          # the ported drivetrain losses are in play
-    step, _ = _compare(path)
+    veh, sensors = machine_of(rec)
+    assert veh.drivetrain.efficiency < 1.0                          # the ported drivetrain losses are in play
+    covered = supported(Estimator(veh, sensors=sensors))[0]
+    step, _ = _compare(path, compiled=covered)
     assert (step.arrays["status"] & MEAS_GATED).any()
 
 
