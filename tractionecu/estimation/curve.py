@@ -248,8 +248,12 @@ class CurveEstimator:
         if sh is not None:
             ssl = sigma_s.tolist() if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,) else None
             ref = self.fz_ref_n
-            fzl = (np.asarray(fz, dtype=float).tolist() if fz is not None and ref > 0 and np.shape(fz) == (n,)
-                   else None)
+            if fz is None or not ref > 0:
+                fzl = None
+            elif type(fz) is np.ndarray and fz.dtype == _F64:
+                fzl = fz.tolist() if fz.shape == (n,) else None
+            else:
+                fzl = np.asarray(fz, dtype=float).tolist() if np.shape(fz) == (n,) else None
             m_ok: list[float] = []
             s_ok: list[float] = []
             ss_ok: list[float] = []
@@ -274,14 +278,16 @@ class CurveEstimator:
             sh.update(t, dt, m_ok, s_ok, ss_ok, z_ok, None)
         self.n_used = 0
         if sel:
-            # g(ŝ) of the class (SoilClass.g): the exponentials by np.exp over as many values as g takes
-            # (its results, which may differ from math.exp's in the last bit), the rest as floats in g's order
+            # g(ŝ) of the class (SoilClass.g): the exponentials by np.exp (its results, which may differ
+            # from math.exp's in the last bit; one call for both exponents: np.exp is elementwise, the
+            # value of an element does not depend on the others, test_curve_speed), the rest as floats
+            # in g's order (sign(ŝ)·val: ±val, ŝ ≠ 0 here)
             p, a1, a2, q = self._g0c
             sa = [abs(sl[i]) for i in sel]
-            e1 = _np_exp(_np_array([a1 * v for v in sa])).tolist()
-            e2 = _np_exp(_np_array([a2 * v for v in sa])).tolist()
-            g = [(1.0 - p * x1 - q * x2) if sl[i] > 0 else -(1.0 - p * x1 - q * x2)
-                 for x1, x2, i in zip(e1, e2, sel)]
+            ns = len(sa)
+            e = _np_exp(_np_array([a1 * v for v in sa] + [a2 * v for v in sa])).tolist()
+            g = [(1.0 - p * e[r] - q * e[ns + r]) if sl[i] > 0 else -(1.0 - p * e[r] - q * e[ns + r])
+                 for r, i in enumerate(sel)]
             sig = sigma_mu.tolist()
             wa: list[float] = []
             wg: list[float] = []
