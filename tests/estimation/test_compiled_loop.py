@@ -234,3 +234,34 @@ def test_covariance_repair_and_non_finite_prediction_as_the_python_estimator():
     assert est.counters["chol_repairs"] >= 1 or loop.events["predict"] >= 1
     assert loop.events["predict"] >= 1
     assert est.counters["resets"] == 1 and loop.events["recover"] == 1
+
+
+@pytest.fixture(scope="module")
+def synth_steps() -> list:
+    return [(t, dict(i), dict(m)) for t, i, m in synth_run(seed=2, duration=6.0).steps]
+
+
+@pytest.mark.parametrize("change", [
+    {"adaptation": False}, {"supervisor": False}, {"input_noise": False}, {"systematic_uncertainty": False},
+    {"calibration": "off"}, {"slip_avg_max_m": 0.0}, {"gate_probability": 0.0}, {"lost_after_s": 0.0},
+    {"slip_sigma_max": 0.0}, {"max_step_s": 0.004}])
+def test_configuration_switches_as_the_python_estimator(synth_steps, change):
+    """The estimator's switches the compiled loop ports (adaptation, supervisor, input noise, systematic
+    uncertainty, calibration, averaged slip, gate, divergence monitor, slip bound, sub-steps): equal step by step."""
+    from tractionecu.estimation.estimator import EstimatorConfig
+
+    base = EstimatorConfig()
+    kw = {k: (dataclasses.replace(base.calibration, enabled=False) if v == "off" else v) for k, v in change.items()}
+    cfg = dataclasses.replace(base, **kw)
+    est = Estimator(VehicleParams(), cfg)
+    loop = CompiledLoop(Estimator(VehicleParams(), cfg))
+    IN = CompiledLoop.inputs_from_steps(synth_steps)
+    for k, (t, inputs, meas) in enumerate(synth_steps):
+        e = est.step(t, inputs, meas)
+        row = loop.step_block(IN[k:k + 1])[0]
+        assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
+        for col, val in ((K.OUT_MU, e.mu), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip), (K.OUT_SIGMU, e.sigma_mu)):
+            got = row[col:col + len(val)]
+            assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
+            np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+    assert loop.counters == est.counters
