@@ -488,8 +488,9 @@ class CompiledLoop:
         u = self._u
         fz = est.model._load_terms(float(u[4]), float(u[5]))[0]
         # μ, slip, σ_μ = √P_μμ and σ_s (computed compiled, as Estimator._estimate does) as fresh arrays
-        cs = est._curve.update(t, F[b:b + 4].copy(), F[b + 4:b + 8].copy(), F[K.F_L_SIG_MU:K.F_L_SIG_MU + 4].copy(),
-                               F[K.F_L_SIG_S:K.F_L_SIG_S + 4].copy(), fz)
+        ms = F[b:b + 8].copy()                     # μ, slip; then σ_μ, σ_s (adjacent in F)
+        sg = F[K.F_L_SIG_MU:K.F_L_SIG_MU + 8].copy()
+        cs = est._curve.update(t, ms[:4], ms[4:], sg[:4], sg[4:], fz)
         self.states.append(cs)
         I[K.I_CS_VER] = len(self.states) - 1
         I[K.I_HAS_CURVE] = -1            # asked for when an averaged slip needs it (CurveState.curve costs)
