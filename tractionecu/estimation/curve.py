@@ -56,7 +56,7 @@ import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any, Sequence
 
 import numpy as np
@@ -622,11 +622,21 @@ class PairBins:
         """Mean slip difference at equal μ̂ of these bins against ``other``: (D, σ_D, n) [-] over the n bins
         with weight ≥ min_w in both, D = Σ (s̄ − s̄')/v / Σ 1/v with v = var s/W + var s'/W' of the two
         bin means (floored at ``sigma_s_floor``²/W), σ_D = (Σ 1/v)^(−1/2)."""
+        return self._shift_test(other, min_w, sigma_s_floor, range(min(len(self.W), len(other.W))))
+
+    def _shift_test(self, other: "PairBins", min_w: float, sigma_s_floor: float, bins: Sequence[int]
+                    ) -> tuple[float, float, int]:
+        """:meth:`shift_test` over the given bins, ascending (those skipped for their weight may be left out:
+        :meth:`ShapeIdentifier._match` passes the bins of its own segment that have the weight, once for all soils)."""
         num = den = 0.0
         n = 0
-        for w1, a1, a2, w2, b1, b2 in zip(self.W, self.S1, self.S2, other.W, other.S1, other.S2):
+        W1, A1, A2, W2, B1, B2 = self.W, self.S1, self.S2, other.W, other.S1, other.S2
+        for k in bins:
+            w1 = W1[k]
+            w2 = W2[k]
             if w1 < min_w or w2 < min_w:
                 continue
+            a1, a2, b1, b2 = A1[k], A2[k], B1[k], B2[k]
             m1, m2 = a1 / w1, b1 / w2
             floor = sigma_s_floor * sigma_s_floor
             v = max(a2 / w1 - m1 * m1, floor) / w1 + max(b2 / w2 - m2 * m2, floor) / w2
@@ -1041,9 +1051,16 @@ def _fit_bins(s: NDArray[np.float64], mu: NDArray[np.float64], var_s: NDArray[np
         # (BIC alone is too lenient with a dozen bins, and eq. 14 contains every class)
         dof = max(n - m_f - extra, 1)
         F = ((sse_c - sse_f) / (m_f - 1)) / (sse_f / dof)
-        if f_best[1] + bic_margin < cls_best[1] and F > f_dist.ppf(1.0 - test_level, m_f - 1, dof):
+        if f_best[1] + bic_margin < cls_best[1] and F > _f_ppf(1.0 - test_level, m_f - 1, dof):
             chosen = f_best[0]
     return CurveFit(chosen, cls_best[0], {k: v[1] for k, v in result.items()}, n, s_range)
+
+
+@lru_cache(maxsize=256)
+def _f_ppf(q: float, dfn: int, dfd: int) -> float:
+    """Quantile q of the F distribution (dfn, dfd) (scipy's, kept: a fit asks for a few pairs of
+    degrees of freedom again and again, and scipy's call costs a fifth of a fit)."""
+    return f_dist.ppf(q, dfn, dfd)
 
 
 def _well_posed(c: MuCurve, max_rel_sigma_a: float) -> bool:
@@ -1174,8 +1191,11 @@ class ShapeIdentifier:
     def _match(self) -> int:
         """The earlier soil the current segment's mature bins do not differ from (smallest |D|/σ_D), −1 if none."""
         best, best_z = -1, self.match_z
+        mat, min_w = self.mature, self.min_bin_weight
+        nb = len(mat.W)
+        own = [k for k, w in enumerate(mat.W) if not w < min_w]   # the bins shift_test does not skip for W
         for j, sb in enumerate(self.soils):
-            d, sd, n = self.mature.shift_test(sb, self.min_bin_weight)
+            d, sd, n = (mat._shift_test(sb, min_w, 0.002, own) if len(sb.W) == nb else mat.shift_test(sb, min_w))
             if n >= self.match_min_bins and abs(d) <= best_z * sd:
                 best, best_z = j, abs(d) / sd
         return best
@@ -1345,8 +1365,18 @@ class ShapeIdentifier:
         if self.soils and max(self._cp, self._cn) <= 0.5 * self.h:
             self.match = self._match()
         pool = self.match                                   # the segment with its soil's earlier segments
-        bins = self.mature if pool < 0 else self.mature.merged(self.soils[pool])
-        lo, hi, nb = bins.span(self.min_bin_weight)
+        mat = self.mature
+        if pool < 0:
+            bins: PairBins | None = mat
+            W, S1 = mat.W, mat.S1
+        else:                                               # the merged bins' W and Σws (PairBins.merge's
+            sb = self.soils[pool]                           # sums); all six only when a fit needs them
+            bins = None
+            W = [x + y for x, y in zip(mat.W, sb.W)]
+            S1 = [x + y for x, y in zip(mat.S1, sb.S1)]
+        min_w = self.min_bin_weight
+        sm = [s1 / w for w, s1 in zip(W, S1) if w >= min_w]  # PairBins.span
+        lo, hi, nb = (min(sm), max(sm), len(sm)) if sm else (math.nan, math.nan, 0)
         self._span = (lo, hi, nb)
         if pool != self._fit_match:                         # other bins than the last fit's: that fit is not theirs
             self.fit = None
@@ -1355,9 +1385,11 @@ class ShapeIdentifier:
             return
         if max(self._cp, self._cn) > 0.5 * self.h:          # a change may be under way
             return
-        total = bins.total
+        total = sum(W)                                      # PairBins.total
         if self.fit is not None and (t - self._t_fit < self.fit_period or total < 1.5 * self._w_fit):
             return
+        if bins is None:
+            bins = mat.merged(self.soils[pool])
         self._fit_match = pool
         self._t_fit = t
         self._w_fit = total
