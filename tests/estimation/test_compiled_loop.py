@@ -265,3 +265,27 @@ def test_configuration_switches_as_the_python_estimator(synth_steps, change):
             assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
             np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
     assert loop.counters == est.counters
+
+
+def test_self_check_falls_back_when_the_loop_differs(monkeypatch):
+    """Batch replay trusts the compiled loop for a machine only after a short drive of it equals
+    Estimator.step; a loop that differs (here: one estimate perturbed) makes it run the Python estimator."""
+    from tractionecu.estimation import compiled_loop
+    from tractionecu.pipeline.batch import loop_choice
+
+    est = Estimator(VehicleParams())
+    monkeypatch.setattr(compiled_loop, "_CHECKED", {})
+    assert CompiledLoop.self_check(est) == (True, 0.0)
+    assert loop_choice(est, None) == "compiled"
+    orig = CompiledLoop.step_block
+
+    def perturbed(self, IN):
+        out = orig(self, IN)
+        out[-1, K.OUT_MU] += 1e-6
+        return out
+
+    monkeypatch.setattr(compiled_loop, "_CHECKED", {})
+    monkeypatch.setattr(CompiledLoop, "step_block", perturbed)
+    ok, diff = CompiledLoop.self_check(est)
+    assert not ok and diff > 1e-7
+    assert "self-check" in loop_choice(est, None)

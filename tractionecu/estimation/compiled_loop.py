@@ -70,6 +70,37 @@ def supported(est: Any) -> tuple[bool, str]:
     return True, ""
 
 
+def check_steps(vehicle: Any, seconds: float = 4.0, rate_hz: float = 100.0) -> list[tuple[float, dict, dict]]:
+    """A short, deterministic drive of ``vehicle`` as step arguments (:meth:`CompiledLoop.self_check`): start from
+    rest, 2.5 m/s with about 8 % slip, torques and draft that wobble, wheel speeds and torques every step, the
+    axle loads at half the rate, the GNSS speed and course at 10 Hz, and one turn of the curvature."""
+    r = float(vehicle.r0_m) * 0.97
+    fzf = float(vehicle.static_front_load_n())
+    m = float(vehicle.mass_kg)
+    steps = []
+    n = int(round(seconds * rate_hz))
+    for k in range(n):
+        t = 1000.0 + k / rate_hz
+        v = min(2.5, 0.5 + 1.5 * k / rate_hz)
+        w = v / r * (1.08 + 0.01 * math.sin(0.7 * k))
+        turn = 0.01 * math.sin(0.02 * k)
+        om = [w * (1.0 - turn), w * (1.0 + turn), w * (1.0 - turn) * 1.001, w * (1.0 + turn) * 0.999]
+        md = [0.11 * m * 9.81 / 4.0 * r * (1.0 + 0.05 * math.sin(0.3 * k + j)) for j in range(4)]
+        inputs: dict[str, Any] = {"Md": md}
+        if k % 2 == 0:
+            inputs["Fzf"] = fzf * (1.0 + 0.01 * math.sin(0.1 * k))
+            inputs["Fdx"] = 0.05 * m * 9.81 * (1.0 + 0.1 * math.sin(0.05 * k))
+        meas: dict[str, Any] = {"omega": om}
+        if k % 10 == 9:
+            meas["v"] = v * (1.0 + 0.002 * math.sin(1.3 * k))
+            meas["course"] = 90.0 + 20.0 * math.sin(0.01 * k)
+        steps.append((t, inputs, meas))
+    return steps
+
+
+_CHECKED: dict[str, tuple[bool, float]] = {}
+
+
 class CompiledLoop:
     """The compiled step of ``est`` (module doc); ``est`` must be fresh (reset) and :func:`supported`.
 
@@ -239,6 +270,48 @@ class CompiledLoop:
                     vals[i] = np.asarray(d[key], dtype=float)
             streams.append((key, False, vals if m == 4 else vals[:, 0], new))
         return cls.block_inputs(t, streams)
+
+    @staticmethod
+    def self_check(est: Any, tol: float = 1e-9) -> tuple[bool, float]:
+        """(equal, largest difference): a fresh Python estimator and a fresh compiled loop of ``est``'s vehicle,
+        configuration and sensors stepped over :func:`check_steps`, every estimate column compared (status
+        exactly).  Batch replay runs it once per machine and process before it trusts the compiled loop, so a
+        feature of the step path that the loop does not port (one a future vehicle file switches on) makes
+        batch replay fall back and say so instead of differing."""
+        from .estimator import Estimator
+
+        key = repr((est.vehicle, est.cfg, est.sensors))
+        hit = _CHECKED.get(key)
+        if hit is not None:
+            return hit
+        steps = check_steps(est.vehicle)
+        py = Estimator(est.vehicle, est.cfg, est.sensors)
+        loop = CompiledLoop(Estimator(est.vehicle, est.cfg, est.sensors))
+        K = loop.K
+        out = loop.step_block(loop.inputs_from_steps(steps))
+        worst = 0.0
+        for k, (t, inputs, meas) in enumerate(steps):
+            e = py.step(t, inputs, meas)
+            row = out[k]
+            if row[K.OUT_STATUS] != e.status:
+                worst = math.inf
+                break
+            for col, val in ((K.OUT_MU, e.mu), (K.OUT_SLIP, e.slip), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag),
+                             (K.OUT_SIGMU, e.sigma_mu)):
+                got = row[col:col + len(val)]
+                if not np.array_equal(np.isnan(got), np.isnan(val)):
+                    worst = math.inf
+                    break
+                d = np.abs(got - val)
+                d = d[~np.isnan(d)]
+                if d.size:
+                    worst = max(worst, float(d.max()))
+            for col, x in ((K.OUT_RHO, e.rho_s), (K.OUT_V, e.v), (K.OUT_ADAPT, e.adapt)):
+                if not (row[col] == x or (math.isnan(row[col]) and math.isnan(x))):
+                    worst = max(worst, abs(float(row[col]) - float(x)))
+        res = (worst <= tol, worst)
+        _CHECKED[key] = res
+        return res
 
     # ------------------------------------------------------------------ the loop
     def step_block(self, IN: np.ndarray) -> np.ndarray:

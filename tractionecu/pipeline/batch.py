@@ -30,8 +30,10 @@ port: a tyre carcass, a two-inertia hub), each block's step arguments go to the 
 estimate arrays; it returns to Python only for the μ(s) curve (and its slope for an averaged slip), the
 radius calibration, the fuzzy supervisor's intensity of rule strengths not seen before, the filter's
 (re)initialisation and the rare general update, calling the estimator's own objects.  Otherwise (the
-machine-level estimator, those features, an ``on_estimate`` callback, or ``compiled=False``) the loop is
-the step path's Python :meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
+machine-level estimator, those features, an ``on_estimate`` callback, ``compiled=False``, or a compiled loop
+that differs from ``Estimator.step`` on a short drive of the machine,
+:meth:`~tractionecu.estimation.compiled_loop.CompiledLoop.self_check`, run once per machine and process)
+the loop is the step path's Python :meth:`Estimator.step`, stepped on the same dicts.  ``loop`` in the results says which ran and why.
 
 Contract: the estimates equal the step path's to 1e-9 in every column (``tests/pipeline/test_batch.py``,
 ``tests/estimation/test_compiled_loop.py``).
@@ -357,10 +359,15 @@ def loop_choice(est: Any, compiled: bool | None, on_estimate: Any = None) -> str
         return "python: compiled=False"
     if on_estimate is not None:
         return "python: an on_estimate callback needs the Estimate objects"
-    from ..estimation.compiled_loop import supported
+    from ..estimation.compiled_loop import CompiledLoop, supported
 
     ok, why = supported(est)
-    return "compiled" if ok else f"python: {why}"
+    if not ok:
+        return f"python: {why}"
+    equal, diff = CompiledLoop.self_check(est)
+    if not equal:
+        return f"python: the compiled loop's self-check against Estimator.step differs by {diff:.3g} on this machine"
+    return "compiled"
 
 
 def _counters(run: Any) -> dict[str, int]:
