@@ -120,6 +120,8 @@ FAMILIES = (
     ("bus 20/10 Hz", "physical", "physical-three-soils", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
     ("straight", "physical", "physical-declared-exact", {}),
     ("bus 20/10 Hz", "physical", "physical-declared-exact", {"wheel_rate_hz": 20.0, "loadpin_rate_hz": 10.0}),
+    ("straight", "physical", "physical-hub-declared", {}),
+    ("S-curves 30 m", "physical", "s-curves-30m-hub-declared", {}),
 )
 """(family, truth model, scenario, SensorSpec changes) of the per-family rows.
 
@@ -128,7 +130,10 @@ declared hub efficiency, line of pull and rear radius are each off the truth by 
 tolerance (and that declares no hub drag): a datasheet-tolerance bias row of the declared figures.
 ``physical-declared-exact`` is the same simulated run (``can.log``, ``gps.nmea``, ``truth.csv`` byte for
 byte) on a vehicle file that declares the truth's own figures: the "datasheet noise" row.  Sensor biases
-inside their tolerances: ``biased-sensors`` (``benchmarks/uncertainty.py``)."""
+inside their tolerances: ``biased-sensors`` (``benchmarks/uncertainty.py``).  ``physical-hub-declared`` and
+``s-curves-30m-hub-declared`` are the runs of ``physical-three-soils`` and ``s-curves-30m`` (bus files byte for
+byte) on vehicle files that also declare the two-inertia hub and the tyre carcass, each figure off the truth
+inside its stated tolerance (``sim/physwriter.DECLARED_*_TOL_REL``): datasheet-tolerance rows with the hub."""
 
 
 def family_row(rec_dir: Path, scenario: str, seed: int, sensor_changes: dict) -> dict:

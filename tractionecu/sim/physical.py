@@ -134,6 +134,11 @@ class PhysicalSpec:
     rear wheels' rolling radius at their static load) instead of figures off by errors drawn inside their
     tolerances: only the truth's physics and the sensors' noise separate the declared machine from the simulated
     one (recording writer only; the simulated machine is the same)."""
+    declared_hub: bool = False
+    """The recording's ``vehicle.toml`` also declares the two-inertia hub (torsional stiffness, damping, motor-side
+    and wheel-side inertia) and the tyre carcass's longitudinal stiffness, each off the truth's figure by an error
+    drawn once per seed inside its stated tolerance (:func:`tractionecu.sim.physwriter._declared_hub`); recording
+    writer only, the simulated machine is the same."""
 
 
 def class_equivalent(soil: ty.PhysSoil, veh: VehicleParams, tyre: ty.TyreSpec,

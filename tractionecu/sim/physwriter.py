@@ -162,12 +162,15 @@ def _declared_hub(scn):
     recording moves), never the truth's exact figure.  With ``PhysicalSpec.declared_exact`` it declares the
     truth's figures without errors, and also the hub's drag, the motor-plus-wheel inertia, the tyre
     carcass's longitudinal stiffness and the hub's torsional stiffness, damping and motor-side inertia (the
-    two-inertia hub)."""
+    two-inertia hub).  With ``PhysicalSpec.declared_hub`` (and not ``declared_exact``) it declares the two-inertia
+    hub and the carcass off the truth by errors drawn inside their tolerances (:func:`_declared_two_inertia`)."""
     veh = scn.vehicle
     ps = scn.physical
     rng = np.random.default_rng(scn.seed + 7_000_005)
     err = rng.uniform(-1.0, 1.0, 3) * np.array([HUB_EFFICIENCY_TOL, DECLARED_PULL_ANGLE_TOL_DEG,
                                                  DECLARED_RADIUS_TOL_REL])
+    if ps.declared_hub and not ps.declared_exact:
+        veh = _declared_two_inertia(scn)
     if ps.declared_exact:
         hub = ps.drivetrain.hub
         err = np.zeros(3)
@@ -184,6 +187,52 @@ def _declared_hub(scn):
                              efficiency_tolerance=HUB_EFFICIENCY_TOL, rolling_radius_m=round(r_cal, 4))
     return dataclasses.replace(veh, drivetrain=dd, pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2),
                                pull_angle_tol_deg=DECLARED_PULL_ANGLE_TOL_DEG)
+
+
+DECLARED_HUB_STIFFNESS_TOL_REL = 0.20
+"""Tolerance of the hub reduction's declared torsional stiffness [-].  Planetary-gear catalogues give the
+torsional stiffness as one typical figure over the upper load range; at part load the mesh is softer (backlash
+and Hertzian contact make the stiffness rise with torque), and the wheel bearing and hub flange add compliance
+the gear's figure leaves out: ±20 %."""
+DECLARED_HUB_DAMPING_TOL_REL = 0.50
+"""Tolerance of the hub's declared torsional damping [-].  No data sheet states it; it follows from a modal
+damping ratio of a few per cent estimated for a gear train with oil churning and bearing losses, a figure known
+to no better than about a factor of 1.5 either way: ±50 %."""
+DECLARED_MOTOR_INERTIA_TOL_REL = 0.10
+"""Tolerance of the declared motor-side inertia, reflected to the wheel [-]: the rotor's inertia from the motor's
+data sheet (a few per cent) times the reduction ratio squared (exact), plus the first stage's carrier and sun,
+which are estimated: ±10 %."""
+DECLARED_WHEEL_INERTIA_TOL_REL = 0.20
+"""Tolerance of the declared wheel-side inertia (tyre, rim, hub output) [-]: tyre and rim masses from the makers'
+tables, the radius of gyration estimated (0.55–0.65 of r0 changes m k² by ±17 %), tread wear: ±20 %."""
+DECLARED_CARCASS_TOL_REL = 0.20
+"""Tolerance of the declared longitudinal carcass stiffness [-]: no maker publishes it for field tyres; it is taken
+from a test-rig figure or a similar tyre, and it changes with inflation pressure (field tyres run at 0.8–1.6 bar),
+wheel load and tread wear.  An engineering estimate for one declared figure: ±20 %."""
+
+
+def _declared_two_inertia(scn):
+    """The vehicle with the two-inertia hub and the tyre carcass declared, each figure off the truth's by an error
+    drawn once per seed, uniform inside its tolerance (own stream: nothing else of the recording moves; never the
+    truth's exact figure): the hub's torsional stiffness (:data:`DECLARED_HUB_STIFFNESS_TOL_REL`), its damping
+    (:data:`DECLARED_HUB_DAMPING_TOL_REL`), the motor-side inertia (:data:`DECLARED_MOTOR_INERTIA_TOL_REL`), the
+    wheel-side inertia (:data:`DECLARED_WHEEL_INERTIA_TOL_REL`; ``wheel_inertia_kgm2`` declares motor and wheel
+    side together) and the carcass's longitudinal stiffness (:data:`DECLARED_CARCASS_TOL_REL`).  The hub's drag is
+    left undeclared, as without the option."""
+    veh = scn.vehicle
+    ps = scn.physical
+    hub = ps.drivetrain.hub
+    rng = np.random.default_rng(scn.seed + 7_000_007)
+    e = 1.0 + rng.uniform(-1.0, 1.0, 5) * np.array([DECLARED_HUB_STIFFNESS_TOL_REL, DECLARED_HUB_DAMPING_TOL_REL,
+                                                     DECLARED_MOTOR_INERTIA_TOL_REL, DECLARED_WHEEL_INERTIA_TOL_REL,
+                                                     DECLARED_CARCASS_TOL_REL])
+    jm = round(hub.motor_inertia_kgm2 * float(e[2]), 3)
+    jw = round(hub.wheel_inertia_kgm2 * float(e[3]), 3)
+    dd = dataclasses.replace(veh.drivetrain, hub_stiffness_nmprad=round(hub.stiffness_nmprad * float(e[0]), 1),
+                             hub_damping_nmsprad=round(hub.damping_nmsprad * float(e[1]), 2),
+                             hub_motor_inertia_kgm2=jm)
+    return dataclasses.replace(veh, wheel_inertia_kgm2=round(jm + jw, 3), drivetrain=dd,
+                               tyre_carcass_stiffness_npm=round(ps.tyre.carcass_stiffness_npm * float(e[4]), 1))
 
 
 # ----------------------------------------------------------------------------- hub drive

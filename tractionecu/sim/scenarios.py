@@ -259,6 +259,24 @@ def mechanical_bekker_no_gbsd(seed: int = 0, **kw) -> Scenario:
     return _mechanical("mechanical-bekker-no-gbsd", seed, kw, soils=BEKKER_THREE_SOILS, gbsd=False)
 
 
+def physical_hub_declared(seed: int = 0, **kw) -> Scenario:
+    """``physical-three-soils`` (the same simulated run, byte for byte in ``can.log``, ``gps.nmea`` and
+    ``truth.csv``) with a ``vehicle.toml`` that also declares the two-inertia hub (torsional stiffness, damping,
+    motor- and wheel-side inertia) and the tyre carcass's longitudinal stiffness, each off the truth by an error
+    drawn per seed inside its stated tolerance (``physwriter.DECLARED_*_TOL_REL``: ±20 % stiffnesses and
+    wheel-side inertia, ±50 % damping, ±10 % motor-side inertia); efficiency, pull and radius off as in
+    ``physical-three-soils``."""
+    plan = back_and_forth(0.0, 0.0, 240.0, 4, 6.0, v_work=2.5, v_turn=1.2)
+    return _physical("physical-hub-declared", PHYSICAL_THREE_SOILS, plan, seed, kw, declared_hub=True)
+
+
+def s_curves_30m_hub_declared(seed: int = 0, **kw) -> Scenario:
+    """``s-curves-30m`` (the same simulated run) with the two-inertia hub and the tyre carcass declared inside
+    their tolerances, as ``physical-hub-declared``."""
+    plan = s_curves(0.0, 0.0, 240.0, 3, 12.0, radius=30.0, v_work=2.5, v_turn=1.2)
+    return _physical("s-curves-30m-hub-declared", PHYSICAL_THREE_SOILS, plan, seed, kw, declared_hub=True)
+
+
 SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "paper-three-soils": paper_three_soils,
     "paper-straight": paper_straight,
@@ -278,6 +296,8 @@ SCENARIOS: dict[str, Callable[..., Scenario]] = {
     "ballast-needed": ballast_needed,
     "mechanical-bekker-soils": mechanical_bekker_soils,
     "mechanical-bekker-no-gbsd": mechanical_bekker_no_gbsd,
+    "physical-hub-declared": physical_hub_declared,
+    "s-curves-30m-hub-declared": s_curves_30m_hub_declared,
 }
 
 
