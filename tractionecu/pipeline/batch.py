@@ -364,7 +364,10 @@ def loop_choice(est: Any, compiled: bool | None, on_estimate: Any = None) -> str
     ok, why = supported(est)
     if not ok:
         return f"python: {why}"
-    equal, diff = CompiledLoop.self_check(est)
+    try:
+        equal, diff = CompiledLoop.self_check(est)
+    except Exception as exc:               # noqa: BLE001 - any failure of the check means: do not trust the loop
+        return f"python: the compiled loop's self-check failed ({type(exc).__name__}: {exc})"
     if not equal:
         return f"python: the compiled loop's self-check against Estimator.step differs by {diff:.3g} on this machine"
     return "compiled"
