@@ -60,7 +60,7 @@ EV_PREDICT = 102     # predict sub-step on the Python filter (P not positive def
 EV_RECOVER = 103     # non-finite prediction: Estimator._recover
 EV_UPDATE = 104      # update on the Python filter (gated or non-finite components: the general path)
 EV_CURVE = 106       # μ(s) curve update
-EV_SLIPWIN = 107     # averaged slip: the identified curve's slope at the candidate stretches
+EV_SLIPWIN = 107     # averaged slip: the identified curve's slope at the candidate stretches (into EV)
 EV_CAL = 108         # radius calibration at a GNSS epoch
 EV_WINFULL = 109     # the averaged slip's buffer is full: the driver enlarges it
 EV_FUZZY = 110       # the fuzzy supervisor's intensity of strengths not in the memo (FuzzySupervisor.intensity)
@@ -83,6 +83,7 @@ ST_NONE = 11
 ST_END = 12
 ST_ADAPT = 13
 ST_ADAPT2 = 14
+ST_SLIPWIN2 = 15
 MEMO = 64
 """Entries of the fuzzy supervisor's memo (FuzzySupervisor keeps 64 too; a full memo starts again)."""
 
@@ -189,8 +190,9 @@ F_OFF, F_SIZE = _offsets(F_NAMES)
 I_OFF, I_SIZE = _offsets(I_NAMES)
 globals().update({"F_" + k.upper(): v for k, v in F_OFF.items()})
 globals().update({"I_" + k.upper(): v for k, v in I_OFF.items()})
-N_CAND_COLS = 13
-"""Columns of one averaged-slip candidate in EV: slip (4), σ (4), distance-weighted μ̄ (4), distance S."""
+N_CAND_COLS = 17
+"""Columns of one averaged-slip candidate in EV: slip (4), σ (4), distance-weighted μ̄ (4), distance S, and the
+identified curve's |dμ/ds| at the slips (4, filled by the driver)."""
 
 # (the names the compiled code below uses, spelled out for readers and linters)
 F_C_MAX_GAP: int; F_C_MAX_STEP: int; F_C_STANDSTILL: int; F_C_DIR_MIN: int; F_C_GPS_TIMEOUT: int  # noqa: E702
@@ -1348,6 +1350,32 @@ def _stage_estimate2(F, I, WIN, EV):                                      # prag
     return ST_ESTIMATE3
 
 
+def _stage_slipwin2(F, I, EV):                                            # pragma: no cover - compiled
+    """The rest of Estimator._slip_window with the curve's slopes (EV, from the driver): each candidate's σ with
+    the lag behind a changing μ, the smallest chosen if within slip_sigma_max (same operations)."""
+    nc = I[I_N_CAND]
+    best = -1
+    top_best = math.inf
+    for c in range(nc):
+        base = 1 + c * N_CAND_COLS
+        top = 0.0
+        for i in range(4):
+            slope = EV[base + 13 + i]
+            lag = abs(F[F_L_BUF + i] - EV[base + 8 + i]) / slope if slope > 0.0 else math.inf
+            sg = EV[base + 4 + i]
+            si = math.sqrt(sg * sg + lag * lag)
+            top = si if si > top else top
+        if top < top_best:
+            top_best = top
+            best = c
+    if best >= 0 and top_best <= F[F_C_SLIP_MAX]:
+        base = 1 + best * N_CAND_COLS
+        for i in range(4):
+            F[F_L_S + i] = EV[base + i]
+        I[I_AVG_FOUND] = 1
+    return ST_ESTIMATE3
+
+
 def _stage_estimate3(F, I, OUT, k):                                       # pragma: no cover - compiled
     """The rest of Estimator._estimate: held values, the estimate's row."""
     status = I[I_STATUS]
@@ -1498,11 +1526,13 @@ def _mkrun(tag):
             elif st == ST_ESTIMATE2:
                 nxt = _stage_estimate2(F, I, WIN, EV)
                 if nxt == EV_SLIPWIN:
-                    I[I_STAGE] = ST_ESTIMATE3
+                    I[I_STAGE] = ST_SLIPWIN2
                     return EV_SLIPWIN
                 if nxt == EV_WINFULL or nxt == EV_HASCURVE:
                     return nxt                   # the same stage again (a larger buffer, the curve's presence)
                 I[I_STAGE] = nxt
+            elif st == ST_SLIPWIN2:
+                I[I_STAGE] = _stage_slipwin2(F, I, EV)
             elif st == ST_ESTIMATE3:
                 nxt = _stage_estimate3(F, I, OUT, k)
                 if nxt == EV_CAL:
@@ -1551,6 +1581,7 @@ _stage_estimate = compiled(_mk_stage_estimate(_TAG))
 _bisect_left = compiled(_bisect_left)
 _slip_window = compiled(_slip_window)
 _stage_estimate2 = compiled(_stage_estimate2)
+_stage_slipwin2 = compiled(_stage_slipwin2)
 _stage_estimate3 = compiled(_stage_estimate3)
 _stage_none = compiled(_stage_none)
 run = compiled(_mkrun(_TAG))

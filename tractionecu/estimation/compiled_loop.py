@@ -574,31 +574,13 @@ class CompiledLoop:
         I[K.I_HAS_CURVE] = 1 if self.states[int(I[K.I_CS_VER])].curve is not None else 0
 
     def _ev_slipwin(self, IN: np.ndarray, OUT: np.ndarray) -> None:
-        """The averaged slip's choice (Estimator._slip_window): the identified curve's slope at each candidate."""
-        K, F, I = self.K, self.F, self.I
+        """The averaged slip (Estimator._slip_window): the identified curve's |dμ/ds| at every candidate stretch's
+        slips, in one dmu_ds call (elementwise the values of one call per stretch); the compiled loop chooses."""
+        K, I = self.K, self.I
         curve = self.states[int(I[K.I_CS_VER])].curve
-        EV = self.EV
         nc = int(I[K.I_N_CAND])
-        ml = F[K.F_L_BUF:K.F_L_BUF + 4].tolist()
-        best = None
-        top_best = math.inf
-        cand = EV[1:1 + nc * K.N_CAND_COLS].reshape(nc, K.N_CAND_COLS)
-        # the slope at every candidate's slips in one call (elementwise: each row as the step path's call)
-        slopes = np.abs(curve.dmu_ds(np.abs(cand[:, :4]))).tolist()
-        for c in range(nc):
-            row = cand[c].tolist()
-            out, sig, q = row[0:4], row[4:8], row[8:12]
-            slope = slopes[c]
-            top = 0.0
-            for i in range(4):
-                lag = abs(ml[i] - q[i]) / slope[i] if slope[i] > 0.0 else math.inf
-                si = math.sqrt(sig[i] * sig[i] + lag * lag)
-                top = si if si > top else top
-            if top < top_best:
-                top_best, best = top, out
-        if best is not None and top_best <= self.cfg.slip_sigma_max:
-            F[K.F_L_S:K.F_L_S + 4] = best
-            I[K.I_AVG_FOUND] = 1
+        cand = self.EV[1:1 + nc * K.N_CAND_COLS].reshape(nc, K.N_CAND_COLS)
+        cand[:, 13:17] = np.abs(curve.dmu_ds(np.abs(cand[:, :4])))
 
     def _ev_cal(self, IN: np.ndarray, OUT: np.ndarray) -> None:
         """Estimator._calibrate: one GNSS epoch to the radius calibration; a new scale applied."""
