@@ -231,3 +231,22 @@ def test_every_term_that_changes_the_wheel_loads_acts_on_the_slip_channel():
             changes_loads.add(name)
     assert {"mass", "axle_load_offset"} <= changes_loads
     assert changes_loads <= SLIP_EFFECTS
+
+
+def test_a_missing_raw_wheel_speed_is_interpolated_not_read_as_standstill():
+    """A raw window without a sample (time stamps on the windows' edges) is NaN; read as 0 rad/s it made
+    a slip of −0.9 that smoothing and the relaxation filter spread into valid rows (a relaxation length
+    of 1.05 m fitted for 0.6 m).  It is interpolated in time from its neighbours, per wheel."""
+    from tractionecu.diagnose.channels import fill_missing_raw
+
+    t = np.arange(10) * 0.01
+    x = np.column_stack([2.0 + t, 3.0 - t, np.full(10, np.nan), 1.0 + t])
+    x[4, 0] = np.nan
+    x[[0, 9], 3] = np.nan
+    out = fill_missing_raw(t, x)
+    assert out[4, 0] == pytest.approx(2.04)
+    assert out[0, 3] == pytest.approx(1.01) and out[9, 3] == pytest.approx(1.08)   # held at the ends
+    assert np.all(out[:, 2] == 0.0)                                                  # no sample at all
+    assert np.isnan(x[4, 0])                                                         # input unchanged
+    clean = np.ones((5, 4))
+    assert fill_missing_raw(t[:5], clean) is clean

@@ -582,6 +582,30 @@ def relaxed_by_distance(t: NDArray, s: NDArray, v: NDArray, sigma_m: float, dx: 
     return out
 
 
+def fill_missing_raw(t: NDArray, x: NDArray) -> NDArray:
+    """Raw-rate samples (n, k) with each column's missing values (NaN) interpolated linearly in time
+    from its neighbours (held at the ends; a column with no finite value becomes 0).
+
+    A raw window without a sample is not a wheel at standstill: read as 0 rad/s it gave a slip of
+    −0.9 that the smoothing and the relaxation filter then spread into the valid rows around it.
+    A window is empty when the logger's time stamps of a message fall on the windows' edges (the
+    frames of one message carry all four wheels, so the spike is common to them).  The rows with a
+    missing sample stay out of the channel; only their neighbours' regressor is repaired."""
+    bad = ~np.isfinite(x)
+    if not bad.any():
+        return x
+    out = np.array(x, dtype=float, copy=True)
+    for j in range(out.shape[1]):
+        m = bad[:, j]
+        if not m.any():
+            continue
+        if m.all():
+            out[:, j] = 0.0
+            continue
+        out[m, j] = np.interp(t[m], t[~m], out[~m, j])
+    return out
+
+
 class WheelForceChannel(Channel):
     """Per-wheel adhesion from the torque balance against the μ(s) curve at the raw wheel-speed rate.
 
@@ -624,7 +648,7 @@ class WheelForceChannel(Channel):
             hs = slice(a * k, b * k)
             r_hf = np.repeat(ws.r[a:b], k, axis=0)
             with np.errstate(divide="ignore", invalid="ignore"):
-                vw = np.abs(r_hf * np.nan_to_num(fr.hf_omega[hs]))
+                vw = np.abs(r_hf * fill_missing_raw(fr.hf_t[hs], fr.hf_omega[hs]))
                 va = np.abs(v_hf[hs])[:, None]
                 s = np.where(va <= vw, 1.0 - va / np.maximum(vw, 1e-6), -1.0 + vw / np.maximum(va, 1e-6))
             s_raw[hs] = np.clip(np.nan_to_num(s), -0.9, 0.9)
