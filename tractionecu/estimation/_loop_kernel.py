@@ -138,6 +138,9 @@ F_NAMES = (
     ("l_v", 1), ("l_since", 1), ("l_s", 4), ("l_rho", 1),
     # the curve update's arguments: σ of μ (4), σ of slip (4)
     ("l_sig_mu", 4), ("l_sig_s", 4), ("c_track", 1),
+    # FilterModel.load_floats of the step's held loads (F_z front, F_z rear, r_d front, r_d rear), for the curve
+    # update and the radius calibration in Python
+    ("l_load", 4),
 )
 I_NAMES = (
     ("stage", 1), ("k", 1), ("status", 1), ("predict_only", 1), ("has_om", 1), ("om_fin", 1), ("has_vmeas", 1),
@@ -216,7 +219,7 @@ F_RAD: int; F_SYS_VAR: int; F_LAST_NIS: int; F_DYN: int; F_MON: int; F_KIN: int;
 F_L_T: int; F_L_VMEAS: int; F_L_VWHEEL: int; F_L_DT: int; F_L_H: int; F_L_OLD_MD: int  # noqa: E702
 F_L_TOLD_MD: int; F_L_OLD_FDX: int; F_L_TOLD_FDX: int; F_L_ROM: int; F_L_WL: int; F_L_Z: int; F_L_R: int  # noqa: E702
 F_L_BUF: int; F_L_V: int; F_L_SINCE: int; F_L_S: int; F_L_RHO: int; F_L_SIG_MU: int; F_L_SIG_S: int  # noqa: E702
-F_C_TRACK: int  # noqa: E702
+F_C_TRACK: int; F_L_LOAD: int  # noqa: E702
 I_STAGE: int; I_K: int; I_STATUS: int; I_PREDICT_ONLY: int; I_HAS_OM: int; I_OM_FIN: int  # noqa: E702
 I_HAS_VMEAS: int; I_UPDATED: int; I_WHEEL_OUT: int; I_GROUND_OUT: int; I_N_SUB: int; I_SUB: int  # noqa: E702
 I_FOH_MD: int; I_FOH_FDX: int; I_UKF: int; I_LOST: int; I_CONV: int; I_HAS_HELD: int; I_WIN_N: int  # noqa: E702
@@ -1147,7 +1150,7 @@ def _mk_stage_estimate(tag):
             c_mu *= F[F_C_EXIT2]
             c_rho *= F[F_C_EXIT2]
         kap = F[F_U + 6]
-        _, _, rdf0, rdr0 = _load_floats(F, F[F_U + 4], F[F_U + 5])
+        ff0, fr0, rdf0, rdr0 = _load_floats(F, F[F_U + 4], F[F_U + 5])
         rdf = rdf0
         rdr = rdr0
         buf = F[F_L_BUF:F_L_BUF + 26]
@@ -1183,6 +1186,10 @@ def _mk_stage_estimate(tag):
                     den = 1e-3
                 F[F_L_SIG_S + i] = sig_vi / den
                 F[F_L_SIG_MU + i] = math.sqrt(buf[17 + i])
+            F[F_L_LOAD] = ff0
+            F[F_L_LOAD + 1] = fr0
+            F[F_L_LOAD + 2] = rdf0
+            F[F_L_LOAD + 3] = rdr0
             return EV_CURVE
         return ST_ESTIMATE2
     return _stage_estimate
@@ -1437,6 +1444,11 @@ def _stage_estimate3(F, I, OUT, k):                                       # prag
     row[OUT_HASX] = 1.0
     row[OUT_HASSYS] = 1.0 if has_sys else 0.0
     if I[I_F_CAL] and I[I_HAS_VMEAS] and I[I_HAS_OM]:
+        ff, fr, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
+        F[F_L_LOAD] = ff
+        F[F_L_LOAD + 1] = fr
+        F[F_L_LOAD + 2] = rdf
+        F[F_L_LOAD + 3] = rdr
         return EV_CAL
     return ST_END
 

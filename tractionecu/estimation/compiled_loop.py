@@ -558,8 +558,9 @@ class CompiledLoop:
         K, F, I, est = self.K, self.F, self.I, self.est
         t = float(F[K.F_L_T])
         b = K.F_L_BUF
-        u = self._u
-        fz = est.model._load_terms(float(u[4]), float(u[5]))[0]
+        # the wheel loads of the held F_zf, F_dx (FilterModel._load_terms' F_z, computed compiled with its operations)
+        ff, fr = F[K.F_L_LOAD:K.F_L_LOAD + 2].tolist()
+        fz = np.array([ff, ff, fr, fr])
         # μ, slip, σ_μ = √P_μμ and σ_s (computed compiled, as Estimator._estimate does) as fresh arrays
         ms = F[b:b + 8].copy()                     # μ, slip; then σ_μ, σ_s (adjacent in F)
         sg = F[K.F_L_SIG_MU:K.F_L_SIG_MU + 8].copy()
@@ -589,7 +590,7 @@ class CompiledLoop:
         t = float(F[K.F_L_T])
         cal = est._cal
         u = self._u
-        _, _, rdf, rdr = est.model.load_floats(float(u[4]), float(u[5]))
+        rdf, rdr = F[K.F_L_LOAD + 2:K.F_L_LOAD + 4].tolist()      # FilterModel.load_floats' r_d, computed compiled
         cs = self.states[int(I[K.I_CS_VER])]
         v_meas = float(F[K.F_L_VMEAS])
         wl = F[K.F_L_WL:K.F_L_WL + 4].tolist()

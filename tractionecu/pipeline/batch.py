@@ -270,11 +270,20 @@ def _batch_run_class() -> type:
             loop = self.loop
             if loop is not None:
                 args = loop.block_inputs(grid, streams)
+                gc_on = gc.isenabled()
                 for a in range(0, n, BLOCK):          # (a recording in memory is one grid: bounded arrays)
-                    wall = time.perf_counter()
-                    out = loop.step_block(args[a:a + BLOCK])
-                    self.loop_seconds += time.perf_counter() - wall
-                    self.sink.keep_arrays(loop.arrays(out))
+                    # the collector off within a block, as below (its passes over the curve updates' objects
+                    # and the block's arrays), on between blocks, so what cycles there are go block by block
+                    if gc_on:
+                        gc.disable()
+                    try:
+                        wall = time.perf_counter()
+                        out = loop.step_block(args[a:a + BLOCK])
+                        self.loop_seconds += time.perf_counter() - wall
+                        self.sink.keep_arrays(loop.arrays(out))
+                    finally:
+                        if gc_on:
+                            gc.enable()
                 return
             wall = time.perf_counter()
             inputs: list[dict[str, Any]] = [{} for _ in range(n)]
