@@ -345,23 +345,25 @@ class CompiledLoop:
         and, for ``curve`` and ``curve_path``, ``curve_key`` (:meth:`resolve_curves`)."""
         K = self.K
         n = OUT.shape[0]
-        arr: dict[str, Any] = {"t": OUT[:, K.OUT_T].copy()}
-        arr["rho_s"] = OUT[:, K.OUT_RHO].copy()
-        arr["v"] = OUT[:, K.OUT_V].copy()
-        arr["nis"] = OUT[:, K.OUT_NIS].copy()
-        arr["adapt"] = OUT[:, K.OUT_ADAPT].copy()
+        # the columns are views of OUT (a fresh array per block, written by nobody after): the sink copies what it
+        # keeps (its rows, its concatenation), so a copy here would be a second one
+        arr: dict[str, Any] = {"t": OUT[:, K.OUT_T]}
+        arr["rho_s"] = OUT[:, K.OUT_RHO]
+        arr["v"] = OUT[:, K.OUT_V]
+        arr["nis"] = OUT[:, K.OUT_NIS]
+        arr["adapt"] = OUT[:, K.OUT_ADAPT]
         arr["nis_dof"] = OUT[:, K.OUT_DOF].astype(np.int64)
         arr["status"] = OUT[:, K.OUT_STATUS].astype(np.int64)
         arr["valid"] = OUT[:, K.OUT_VALID] != 0.0
-        arr["mu"] = OUT[:, K.OUT_MU:K.OUT_MU + 4].copy()
-        arr["slip"] = OUT[:, K.OUT_SLIP:K.OUT_SLIP + 4].copy()
-        arr["omega"] = OUT[:, K.OUT_OM:K.OUT_OM + 4].copy()
-        arr["P_diag"] = OUT[:, K.OUT_P:K.OUT_P + 10].copy()
-        arr["radius_scale"] = OUT[:, K.OUT_RAD:K.OUT_RAD + 2].copy()
-        arr["radius_halfwidth"] = OUT[:, K.OUT_RAD + 2:K.OUT_RAD + 4].copy()
-        arr["radius_applied"] = OUT[:, K.OUT_RAD + 4:K.OUT_RAD + 6].copy()
-        arr["sigma_mu"] = OUT[:, K.OUT_SIGMU:K.OUT_SIGMU + 4].copy()
-        arr["sigma_rho_s"] = OUT[:, K.OUT_SIGRHO].copy()
+        arr["mu"] = OUT[:, K.OUT_MU:K.OUT_MU + 4]
+        arr["slip"] = OUT[:, K.OUT_SLIP:K.OUT_SLIP + 4]
+        arr["omega"] = OUT[:, K.OUT_OM:K.OUT_OM + 4]
+        arr["P_diag"] = OUT[:, K.OUT_P:K.OUT_P + 10]
+        arr["radius_scale"] = OUT[:, K.OUT_RAD:K.OUT_RAD + 2]
+        arr["radius_halfwidth"] = OUT[:, K.OUT_RAD + 2:K.OUT_RAD + 4]
+        arr["radius_applied"] = OUT[:, K.OUT_RAD + 4:K.OUT_RAD + 6]
+        arr["sigma_mu"] = OUT[:, K.OUT_SIGMU:K.OUT_SIGMU + 4]
+        arr["sigma_rho_s"] = OUT[:, K.OUT_SIGRHO]
         ver = OUT[:, K.OUT_CS].astype(np.int64)
         hasx = OUT[:, K.OUT_HASX] != 0.0
         # the curve state each step reports (a and class; a only with a filter); the identified curve and
@@ -379,7 +381,7 @@ class CompiledLoop:
         names[:] = [e[1] for e in ents]
         arr["soil_class"] = names[inv].tolist()
         arr["curve_key"] = key
-        arr["lost_since"] = OUT[:, K.OUT_LOST].copy()
+        arr["lost_since"] = OUT[:, K.OUT_LOST]
         return arr
 
     def resolve_curves(self, arr: dict[str, Any]) -> dict[str, Any]:

@@ -260,14 +260,15 @@ def _batch_run_class() -> type:
             n = grid.size
             if n == 0:
                 return
-            streams = [(grp.key, grp.key in self.inputs, *grp.at(grid)) for grp in self.groups]
+            loop = self.loop
+            lists = loop is None               # the compiled loop takes the streams as arrays
+            streams = [(grp.key, grp.key in self.inputs, *grp.at(grid, lists)) for grp in self.groups]
             if self.speed.t.size:
                 from .signals import GNSS_SPEED
                 from .steps import GNSS_COURSE
 
-                streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
-                streams.append((GNSS_COURSE, False, *self.course.at(grid)))
-            loop = self.loop
+                streams.append((GNSS_SPEED, False, *self.speed.at(grid, lists)))
+                streams.append((GNSS_COURSE, False, *self.course.at(grid, lists)))
             if loop is not None:
                 args = loop.block_inputs(grid, streams)
                 gc_on = gc.isenabled()

@@ -271,8 +271,9 @@ class _Group:
         self.t = np.concatenate([self.t, t]) if self.t.size else t
         self.v = [np.concatenate([a, b]) if a.size else b for a, b in zip(self.v, values)]
 
-    def at(self, grid: np.ndarray) -> tuple[Any, list[bool]]:
-        """(values, new) at the steps ``grid`` [s]; keeps only the samples still needed."""
+    def at(self, grid: np.ndarray, lists: bool = True) -> tuple[Any, Any]:
+        """(values, new) at the steps ``grid`` [s]; keeps only the samples still needed.  ``lists=False``:
+        a scalar group's values and ``new`` as arrays (the batch path), else as lists."""
         idx = np.searchsorted(self.t, grid, side="right") - 1
         g = idx + self.base
         g[idx < 0] = np.where(self.base > 0, self.base - 1, -1)
@@ -282,7 +283,7 @@ class _Group:
         if self.vector:
             vals: Any = np.column_stack([v[safe] for v in self.v]) if self.t.size else None
         else:
-            vals = self.v[0][safe].tolist() if self.t.size else None
+            vals = (self.v[0][safe].tolist() if lists else self.v[0][safe]) if self.t.size else None
         if grid.size:
             self.prev = int(g[-1])
             cut = max(int(idx[-1]), 0)
@@ -290,7 +291,7 @@ class _Group:
                 self.t = self.t[cut:]
                 self.v = [v[cut:] for v in self.v]
                 self.base += cut
-        return vals, new.tolist()
+        return vals, (new.tolist() if lists else new)
 
 
 class _Run:
