@@ -76,12 +76,16 @@ def test_state_after_every_step_equals_the_python_estimator():
             np.testing.assert_allclose(loop._P, est.ukf.P, rtol=1e-9, atol=1e-15, err_msg=f"P at step {k}")
         np.testing.assert_array_equal(loop._u, est._u)
         assert loop.F[K.F_F] == est._f and np.array_equal(loop.F[K.F_A:K.F_A + 10], est._A)
+        # the radius calibration's state (the epochs it rejects with no block open are screened compiled)
+        ca, cb = est._cal, loop.est._cal
+        assert (ca.rejected, ca.samples, ca._blk, ca.applied) == (cb.rejected, cb.samples, cb._blk, cb.applied)
+        assert np.array_equal([ca._period, ca._t_last, ca._t0], [cb._period, cb._t_last, cb._t0], equal_nan=True)
     assert loop.counters == est.counters
     # the rare paths were taken
     assert statuses & INPUT_REJECTED and statuses & MEAS_GATED and statuses & NOT_CONVERGED
     assert est.counters["gap_resets"] == 1 and est.counters["rejected_inputs"] >= 2
     assert loop.events["init"] == 2 and loop.events["update"] >= 3
-    assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and loop.events["cal"] > 0
+    assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and est._cal.rejected > 0
 
 
 def _compare(path, rate_hz: float = 100.0, compiled: bool = True) -> tuple:

@@ -141,6 +141,9 @@ F_NAMES = (
     # FilterModel.load_floats of the step's held loads (F_z front, F_z rear, r_d front, r_d rear), for the curve
     # update and the radius calibration in Python
     ("l_load", 4),
+    # the radius calibration's screen (RadiusCalibration._sample_ok): min_speed, max_accel, max_turn_rel, max_mu;
+    # its state as of the last epoch screened here: _period, _t_last, rejections not yet added to its count
+    ("c_cal", 4), ("cal", 3),
 )
 I_NAMES = (
     ("stage", 1), ("k", 1), ("status", 1), ("predict_only", 1), ("has_om", 1), ("om_fin", 1), ("has_vmeas", 1),
@@ -152,6 +155,8 @@ I_NAMES = (
     ("counters", 9), ("has_curve", 1), ("cs_ver", 1), ("f_cal", 1), ("f_adapt", 1), ("f_input_noise", 1),
     ("repaired_last", 1), ("slip_ok", 1), ("conv_p", 1), ("qb_valid", 1), ("upd_kind", 1), ("init_done", 1),
     ("n_cand", 1), ("avg_found", 1), ("f_sup", 1), ("f_unc", 1), ("fz_n", 1), ("fz_rules", 9),
+    # the radius calibration's open block holds samples (RadiusCalibration._blk[4] != 0, after the last push)
+    ("cal_open", 1),
 )
 COUNTERS = ("steps", "updates", "gated", "rejected_inputs", "rejected_measurements", "chol_repairs", "resets",
             "gap_resets", "lost")
@@ -219,7 +224,7 @@ F_RAD: int; F_SYS_VAR: int; F_LAST_NIS: int; F_DYN: int; F_MON: int; F_KIN: int;
 F_L_T: int; F_L_VMEAS: int; F_L_VWHEEL: int; F_L_DT: int; F_L_H: int; F_L_OLD_MD: int  # noqa: E702
 F_L_TOLD_MD: int; F_L_OLD_FDX: int; F_L_TOLD_FDX: int; F_L_ROM: int; F_L_WL: int; F_L_Z: int; F_L_R: int  # noqa: E702
 F_L_BUF: int; F_L_V: int; F_L_SINCE: int; F_L_S: int; F_L_RHO: int; F_L_SIG_MU: int; F_L_SIG_S: int  # noqa: E702
-F_C_TRACK: int; F_L_LOAD: int  # noqa: E702
+F_C_TRACK: int; F_L_LOAD: int; F_C_CAL: int; F_CAL: int  # noqa: E702
 I_STAGE: int; I_K: int; I_STATUS: int; I_PREDICT_ONLY: int; I_HAS_OM: int; I_OM_FIN: int  # noqa: E702
 I_HAS_VMEAS: int; I_UPDATED: int; I_WHEEL_OUT: int; I_GROUND_OUT: int; I_N_SUB: int; I_SUB: int  # noqa: E702
 I_FOH_MD: int; I_FOH_FDX: int; I_UKF: int; I_LOST: int; I_CONV: int; I_HAS_HELD: int; I_WIN_N: int  # noqa: E702
@@ -229,7 +234,7 @@ I_LAST_DOF: int; I_R_NBUF: int; I_R_NLONG: int; I_R_OBSERVED: int; I_R_WINDOW: i
 I_KIN_RESTARTS: int; I_COUNTERS: int; I_HAS_CURVE: int; I_CS_VER: int; I_F_CAL: int; I_F_ADAPT: int  # noqa: E702
 I_F_INPUT_NOISE: int; I_REPAIRED_LAST: int; I_SLIP_OK: int; I_CONV_P: int; I_QB_VALID: int  # noqa: E702
 I_UPD_KIND: int; I_INIT_DONE: int; I_N_CAND: int; I_AVG_FOUND: int; I_F_SUP: int; I_F_UNC: int  # noqa: E702
-I_FZ_N: int; I_FZ_RULES: int  # noqa: E702
+I_FZ_N: int; I_FZ_RULES: int; I_CAL_OPEN: int  # noqa: E702
 
 C_STEPS, C_UPDATES, C_GATED, C_REJ_IN, C_REJ_MEAS, C_CHOL, C_RESETS, C_GAP, C_LOST = range(9)
 K_MD, K_FZF, K_FDX, K_OMEGA, K_V = range(5)
@@ -239,6 +244,27 @@ _YAW_MAX_DT = 10.0 * YAW_TAU_S
 
 
 # ----------------------------------------------------------------------------- small helpers
+def _cal_rejects(F, row):                                                 # pragma: no cover - compiled
+    """Whether RadiusCalibration.push rejects this epoch before its slip test: not ``ok`` (the estimate not
+    valid) or not RadiusCalibration._sample_ok, same operations."""
+    if row[OUT_VALID] == 0.0:
+        return True
+    v = F[F_L_VMEAS]
+    c = F_C_CAL
+    if not (abs(v) >= F[c] and abs(F[F_DYN + 3]) <= F[c + 1]):
+        return True
+    sgn = 1.0 if v > 0.0 else -1.0
+    for i in (0, 2):
+        wl = F[F_L_WL + i] * sgn
+        wr = F[F_L_WL + i + 1] * sgn
+        mean = 0.5 * (wl + wr)
+        if not (wl > 0.0 and wr > 0.0) or abs(wl - wr) > F[c + 2] * mean:
+            return True
+        if not abs(0.5 * (row[OUT_MU + i] + row[OUT_MU + i + 1])) <= F[c + 3]:
+            return True
+    return False
+
+
 def _load_floats(F, fzf, fdx):                                            # pragma: no cover - compiled
     """FilterModel.load_floats: (F_z front, F_z rear, r_d front, r_d rear), same operations."""
     kc = F_C_KC
@@ -1444,6 +1470,19 @@ def _stage_estimate3(F, I, OUT, k):                                       # prag
     row[OUT_HASX] = 1.0
     row[OUT_HASSYS] = 1.0 if has_sys else 0.0
     if I[I_F_CAL] and I[I_HAS_VMEAS] and I[I_HAS_OM]:
+        if I[I_CAL_OPEN] == 0 and _cal_rejects(F, row):
+            # RadiusCalibration.push of an epoch it rejects while no block is open: the epoch period's
+            # smoothing, the count of rejections and the last epoch's time, nothing else (kept here, handed to
+            # the calibration before its next push and at the block's end)
+            tl = F[F_CAL + 1]
+            t = F[F_L_T]
+            if math.isfinite(tl) and t > tl:
+                dt = t - tl
+                per = F[F_CAL]
+                F[F_CAL] = dt if not per > 0.0 else 0.9 * per + 0.1 * dt
+            F[F_CAL + 2] += 1.0
+            F[F_CAL + 1] = t
+            return ST_END
         ff, fr, rdf, rdr = _load_floats(F, F[F_U + 4], F[F_U + 5])
         F[F_L_LOAD] = ff
         F[F_L_LOAD + 1] = fr
@@ -1561,6 +1600,7 @@ def _mkrun(tag):
 
 
 _load_floats = compiled(_load_floats, inline=True)
+_cal_rejects = compiled(_cal_rejects)
 _wrap = compiled(_wrap, inline=True)
 _pymax = compiled(_pymax, inline=True)
 _pow2 = compiled(_pow2)

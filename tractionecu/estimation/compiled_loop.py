@@ -193,6 +193,11 @@ class CompiledLoop:
         I[io["cm_M"]] = cfg.adapt_window
         I[io["r_window"]] = cfg.rate_window
         I[io["f_cal"]] = est._cal is not None
+        if est._cal is not None:
+            cc = est._cal.cfg
+            F[o["c_cal"]:o["c_cal"] + 4] = [cc.min_speed_mps, cc.max_accel_mps2, cc.max_turn_rel, cc.max_mu]
+            F[o["cal"]:o["cal"] + 3] = [est._cal._period, est._cal._t_last, 0.0]
+            I[io["cal_open"]] = est._cal._blk[4] != 0
         I[io["f_adapt"]] = bool(cfg.adaptation)
         I[io["f_input_noise"]] = bool(cfg.input_noise)
         I[io["f_sup"]] = bool(cfg.supervisor)
@@ -328,6 +333,7 @@ class CompiledLoop:
         while True:
             ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n)
             if ev == K.EV_DONE:
+                self._cal_sync()
                 return OUT
             events[names[ev]] += 1
             handlers[ev](IN, OUT)
@@ -599,8 +605,11 @@ class CompiledLoop:
         if I[K.I_UPD_KIND] == 3:
             wl.append(v_meas)
         row = OUT[k]
+        self._cal_sync()
         cal.push(t, v_meas, wl, rdf, rdr, row[K.OUT_MU:K.OUT_MU + 4].tolist(), float(F[K.F_DYN + 3]),
                  bool(row[K.OUT_VALID] != 0.0), cs.a, cs.class_name)
+        F[K.F_CAL:K.F_CAL + 2] = [cal._period, cal._t_last]
+        I[K.I_CAL_OPEN] = cal._blk[4] != 0
         n = cal._axles[0].n
         if n != self._cal_blocks:            # a block was accepted: the scales, and the radius's σ, may change
             self._cal_blocks = n
@@ -616,6 +625,18 @@ class CompiledLoop:
                 I[K.I_HAS_MDINV] = 1
                 F[K.F_KF] = kf
                 F[K.F_KR] = kr
+
+    def _cal_sync(self) -> None:
+        """The radius calibration's state after the epochs the compiled loop screened and it rejects while no
+        block is open (its epoch period, last epoch's time and count of rejections; ``_loop_kernel._cal_rejects``)."""
+        cal = self.est._cal
+        if cal is None:
+            return
+        K, F = self.K, self.F
+        cal._period, cal._t_last, pending = F[K.F_CAL:K.F_CAL + 3].tolist()
+        if pending:
+            cal.rejected += int(pending)
+            F[K.F_CAL + 2] = 0.0
 
     def _ev_winfull(self, IN: np.ndarray, OUT: np.ndarray) -> None:
         """The averaged slip's buffer holds only reachable entries and is full: twice as large."""
