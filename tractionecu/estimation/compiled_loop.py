@@ -252,11 +252,11 @@ class CompiledLoop:
             nw = np.asarray(new, dtype=bool)
             if not nw.any():
                 continue
-            IN[nw, h] = 1.0
+            IN[:, h] = nw
             if m == 4:
-                IN[nw, c:c + 4] = np.asarray(vals, dtype=float)[nw]
+                np.copyto(IN[:, c:c + 4], np.asarray(vals, dtype=float), where=nw[:, None])
             else:
-                IN[nw, c] = np.asarray(vals, dtype=float)[nw]
+                np.copyto(IN[:, c], np.asarray(vals, dtype=float), where=nw)
         return IN
 
     @classmethod
