@@ -680,11 +680,10 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma
     return out
 
 
-def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ldef, init):  # pragma: no cover
-    """Move the relaxed slips σ̄_i = kc[11:15] towards the slips s_i of the state x (Pacejka's first-order
-    relaxation, Estimator._relax): σ̄_i += min(1, dt |k_i v|/L_r,i)(s_i − σ̄_i), L_r,i = F_z,i a g'(|σ̄_i|)/c_x
-    of the class (p, α1, α2) within [lmin, lmax], ldef when a is NaN (no curve); init (or σ̄ NaN): σ̄ = s.
-    s_i is eq. 6 against k_i(κ) v as slip() computes it."""
+def _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, init, own):  # pragma: no cover
+    """The relaxation of :func:`relax_slips` (``own`` false) and :func:`relax_slips_own` (``own`` true: the
+    slope through each wheel's own μ level, c0 the curve's μ(0⁺)); one body, the operations of each as
+    documented there."""
     cx = kc[10]
     k0 = k1 = k2 = k3 = 1.0
     if kap != 0.0:
@@ -715,13 +714,32 @@ def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ld
             continue
         if a == a:
             sa = abs(sb)
-            dg = -p * al1 * math.exp(al1 * sa) - (1.0 - p) * al2 * math.exp(al2 * sa)
-            lr = (ff if i < 2 else fr) * a * dg / cx
+            e1 = math.exp(al1 * sa)
+            e2 = math.exp(al2 * sa)
+            dg = -p * al1 * e1 - (1.0 - p) * al2 * e2
+            if own:
+                mc = c0 + a * (p * (1.0 - e1) + (1.0 - p) * (1.0 - e2))
+                f = 1.0
+                if mc > 0.02:
+                    f = x[5 + i] / mc
+                    f = RELAX_SCALE_BOUNDS[0] if f < RELAX_SCALE_BOUNDS[0] else (
+                        RELAX_SCALE_BOUNDS[1] if f > RELAX_SCALE_BOUNDS[1] else f)
+                lr = (ff if i < 2 else fr) * f * a * dg / cx
+            else:
+                lr = (ff if i < 2 else fr) * a * dg / cx
             lr = lmin if lr < lmin else (lmax if lr > lmax else lr)
         else:
             lr = ldef
         g = dt * va / lr
         kc[11 + i] = sb + (1.0 if g > 1.0 else g) * (s - sb)
+
+
+def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ldef, init):  # pragma: no cover
+    """Move the relaxed slips σ̄_i = kc[11:15] towards the slips s_i of the state x (Pacejka's first-order
+    relaxation, Estimator._relax): σ̄_i += min(1, dt |k_i v|/L_r,i)(s_i − σ̄_i), L_r,i = F_z,i a g'(|σ̄_i|)/c_x
+    of the class (p, α1, α2) within [lmin, lmax], ldef when a is NaN (no curve); init (or σ̄ NaN): σ̄ = s.
+    s_i is eq. 6 against k_i(κ) v as slip() computes it."""
+    _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, 0.0, lmin, lmax, ldef, init, False)
 
 
 def _hub_deriv(y, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, d):  # pragma: no cover - compiled
@@ -817,58 +835,14 @@ def relax_slips_own(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, 
     the mean wheel load; a wheel at another load (the lighter front wheels) sits on the same shape at its own μ
     level, and so does its slip stiffness.  c0: the curve's μ(0⁺) (``exp1_offset``'s c, else 0); a, p, α1, α2 of
     eq. 14 such that c0 + a g(s) is the curve.  x[0:4] the speeds whose slips σ̄ relaxes towards."""
-    cx = kc[10]
-    k0 = k1 = k2 = k3 = 1.0
-    if kap != 0.0:
-        hk = kc[7] * kap
-        lk = kc[8] * kap
-        left = 1.0 - hk
-        right = 1.0 + hk
-        k0 = math.sqrt(left * left + lk * lk)
-        k1 = math.sqrt(right * right + lk * lk)
-        k2 = left
-        k3 = right
-    v = x[4]
-    kc[15] = v
-    for i in range(4):
-        k = k0 if i == 0 else (k1 if i == 1 else (k2 if i == 2 else k3))
-        rd = rdf if i < 2 else rdr
-        va = abs(k * v)
-        vw = abs(rd * x[i])
-        if vw < 1e-6 and va < 1e-6:
-            s = 0.0
-        elif va <= vw:
-            s = 1.0 - va / vw
-        else:
-            s = -1.0 + vw / va
-        sb = kc[11 + i]
-        if init or sb != sb:
-            kc[11 + i] = s
-            continue
-        if a == a:
-            sa = abs(sb)
-            e1 = math.exp(al1 * sa)
-            e2 = math.exp(al2 * sa)
-            dg = -p * al1 * e1 - (1.0 - p) * al2 * e2
-            mc = c0 + a * (p * (1.0 - e1) + (1.0 - p) * (1.0 - e2))
-            f = 1.0
-            if mc > 0.02:
-                f = x[5 + i] / mc
-                f = RELAX_SCALE_BOUNDS[0] if f < RELAX_SCALE_BOUNDS[0] else (
-                    RELAX_SCALE_BOUNDS[1] if f > RELAX_SCALE_BOUNDS[1] else f)
-            lr = (ff if i < 2 else fr) * f * a * dg / cx
-            lr = lmin if lr < lmin else (lmax if lr > lmax else lr)
-        else:
-            lr = ldef
-        g = dt * va / lr
-        kc[11 + i] = sb + (1.0 if g > 1.0 else g) * (s - sb)
-
+    _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, init, True)
 
 _sign = compiled(_sign, inline=True)
 _rhs5 = compiled(_rhs5, inline=True)
 _radius = compiled(_radius, inline=True)
 _mudot = compiled(_mudot, inline=True)
 _rk4_carcass = compiled(_rk4_carcass)
+_relax_slips = compiled(_relax_slips)
 relax_slips = compiled(relax_slips)
 relax_slips_own = compiled(relax_slips_own)
 _rk4_points = compiled(_rk4_points)
