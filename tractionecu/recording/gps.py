@@ -59,6 +59,47 @@ from ..gnss.utc import add_days, nearest_date, utc_epoch
 from .containers import GPS_FIELDS, GpsTrack, RecordingStats
 
 
+def _epoch_dates(tods: list[float], days: list[date | None], can_t0: float | None,
+                 add) -> tuple[list[date | None], str]:
+    """The UTC date of each epoch (module doc) from its time of day ``tods`` [s] and the date it carries
+    (``days``, None without RMC/ZDA), and the method's description: a day counter from the rollovers of the
+    time of day (back by more than 12 h), based on each dated epoch from the first one on, else on the date
+    nearest to the first CAN time ``can_t0``.  ``add(day, k)`` is :func:`~tractionecu.gnss.utc.add_days`
+    (or a memo of it); a date outside the calendar is None.  Raises :class:`RecordingError` when there is no
+    date at all."""
+    day_idx = []
+    d = 0
+    prev = None
+    for tod in tods:
+        if prev is not None and tod < prev - 43200.0:
+            d += 1
+        day_idx.append(d)
+        prev = tod
+    dated = [i for i, day in enumerate(days) if day is not None]
+    dates: list[date | None] = []
+    if dated:
+        i0 = dated[0]
+        base = add(days[i0], -day_idx[i0])
+        method = "UTC date from RMC/ZDA, time of day from the same epoch; midnight rollover by day counter"
+        for i, day in enumerate(days):
+            if day is not None and i >= i0:
+                base = add(day, -day_idx[i])
+            dates.append(add(base, day_idx[i]))
+    else:
+        if can_t0 is None or not math.isfinite(can_t0):
+            raise RecordingError("GPS has no date (no RMC/ZDA) and there is no CAN time to take it from")
+        best = nearest_date(can_t0, tods[0])
+        if best is None:
+            raise RecordingError(
+                f"GPS has no date (no RMC/ZDA) and the first CAN time {can_t0!r} s is not a calendar date")
+        method = (
+            f"no date in NMEA: UTC date {best.isoformat()} taken from the first CAN frame "
+            "(nearest of the day before/of/after); midnight rollover by day counter"
+        )
+        dates = [add(best, k) for k in day_idx]
+    return dates, method
+
+
 def align_gps(
     fixes: list[GpsFix], can_t0: float | None, stats: NmeaStats | None = None
 ) -> tuple[GpsTrack, str]:
@@ -69,36 +110,7 @@ def align_gps(
     """
     if not fixes:
         return GpsTrack.empty(), "no GPS epochs"
-    day_idx = []
-    d = 0
-    prev = None
-    for f in fixes:
-        if prev is not None and f.tod_s < prev - 43200.0:
-            d += 1
-        day_idx.append(d)
-        prev = f.tod_s
-    dated = [i for i, f in enumerate(fixes) if f.date is not None]
-    dates: list[date | None] = []
-    if dated:
-        i0 = dated[0]
-        base = add_days(fixes[i0].date, -day_idx[i0])
-        method = "UTC date from RMC/ZDA, time of day from the same epoch; midnight rollover by day counter"
-        for i, f in enumerate(fixes):
-            if f.date is not None and i >= i0:
-                base = add_days(f.date, -day_idx[i])
-            dates.append(add_days(base, day_idx[i]))
-    else:
-        if can_t0 is None or not math.isfinite(can_t0):
-            raise RecordingError("GPS has no date (no RMC/ZDA) and there is no CAN time to take it from")
-        best = nearest_date(can_t0, fixes[0].tod_s)
-        if best is None:
-            raise RecordingError(
-                f"GPS has no date (no RMC/ZDA) and the first CAN time {can_t0!r} s is not a calendar date")
-        method = (
-            f"no date in NMEA: UTC date {best.isoformat()} taken from the first CAN frame "
-            "(nearest of the day before/of/after); midnight rollover by day counter"
-        )
-        dates = [add_days(best, k) for k in day_idx]
+    dates, method = _epoch_dates([f.tod_s for f in fixes], [f.date for f in fixes], can_t0, add_days)
 
     cols: dict[str, list] = {k: [] for k in ("t",) + GPS_FIELDS}
     last_t = -math.inf
@@ -373,14 +385,6 @@ def _align_epochs(epochs: list[list], can_t0: float | None, stats: NmeaStats | N
     once per date; the same track, method text and rejects."""
     if not epochs:
         return GpsTrack.empty(), "no GPS epochs"
-    day_idx = []
-    d = 0
-    prev = None
-    for ep in epochs:
-        if prev is not None and ep[0] < prev - 43200.0:
-            d += 1
-        day_idx.append(d)
-        prev = ep[0]
     sums: dict = {}
 
     def add(day: date | None, k: int) -> date | None:
@@ -389,28 +393,7 @@ def _align_epochs(epochs: list[list], can_t0: float | None, stats: NmeaStats | N
             sums[key] = add_days(day, k)
         return sums[key]
 
-    dated = [i for i, ep in enumerate(epochs) if ep[1] is not None]
-    dates: list[date | None] = []
-    if dated:
-        i0 = dated[0]
-        base = add(epochs[i0][1], -day_idx[i0])
-        method = "UTC date from RMC/ZDA, time of day from the same epoch; midnight rollover by day counter"
-        for i, ep in enumerate(epochs):
-            if ep[1] is not None and i >= i0:
-                base = add(ep[1], -day_idx[i])
-            dates.append(add(base, day_idx[i]))
-    else:
-        if can_t0 is None or not math.isfinite(can_t0):
-            raise RecordingError("GPS has no date (no RMC/ZDA) and there is no CAN time to take it from")
-        best = nearest_date(can_t0, epochs[0][0])
-        if best is None:
-            raise RecordingError(
-                f"GPS has no date (no RMC/ZDA) and the first CAN time {can_t0!r} s is not a calendar date")
-        method = (
-            f"no date in NMEA: UTC date {best.isoformat()} taken from the first CAN frame "
-            "(nearest of the day before/of/after); midnight rollover by day counter"
-        )
-        dates = [add(best, k) for k in day_idx]
+    dates, method = _epoch_dates([ep[0] for ep in epochs], [ep[1] for ep in epochs], can_t0, add)
     midnight: dict = {}
     kept = []
     last_t = -math.inf
