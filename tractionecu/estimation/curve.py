@@ -289,28 +289,7 @@ class CurveEstimator:
             g = [(1.0 - p * e[r] - q * e[ns + r]) if sl[i] > 0 else -(1.0 - p * e[r] - q * e[ns + r])
                  for r, i in enumerate(sel)]
             sig = sigma_mu.tolist()
-            wa: list[float] = []
-            wg: list[float] = []
-            for gi, i in zip(g, sel):
-                # solve_a_array's conditions (its error bound is not used here: max_rel_err = inf)
-                if not (abs(sl[i]) >= min_slip and abs(gi) > 1e-9):
-                    continue
-                a = ml[i] / gi
-                if not a > 0:
-                    continue
-                sm = sig[i]
-                sm = sm if (sm != sm or sm >= 1e-6) else 1e-6          # np.maximum(σ_μ, 1e-6), NaN kept
-                w = 1.0 / (sm * sm) * gi
-                wa.append(w * a)
-                wg.append(w)
-            if wg:
-                num, den = wa[0], wg[0]
-                for k in range(1, len(wg)):
-                    num += wa[k]
-                    den += wg[k]
-                self._num[0] += num       # = Σ w μ̂
-                self._den[0] += den       # = Σ w g(ŝ)
-                self.n_used = len(wg)
+            self._add_a_sums(g, sel, ml, sl, [sig[i] for i in sel])
         return self.state()
 
     def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
@@ -356,11 +335,19 @@ class CurveEstimator:
             return
         g = self.classes[0].g(s[sel]).tolist()
         sig = np.broadcast_to(sigma_mu, s.shape)[sel].tolist()
+        self._add_a_sums(g, sel, ml, sl, sig)
+
+    def _add_a_sums(self, g: list[float], sel: list[int], ml: list[float], sl: list[float],
+                    sig: list[float]) -> None:
+        """Add the one class's weighted pairs to its sums (Σ w μ̂, Σ w g(ŝ)) and set ``n_used``: the wheels
+        ``sel`` with their g(ŝ) ``g`` and σ_μ ``sig`` (aligned with ``sel``), μ̂ ``ml`` and ŝ ``sl`` (per
+        wheel); solve_a_array's conditions, weights and summation order."""
         wa: list[float] = []
         wg: list[float] = []
+        min_slip = self.min_slip
         for gi, i, sm in zip(g, sel, sig):
             # solve_a_array's conditions (its error bound is not used here: max_rel_err = inf)
-            if not (abs(sl[i]) >= self.min_slip and abs(gi) > 1e-9):
+            if not (abs(sl[i]) >= min_slip and abs(gi) > 1e-9):
                 continue
             a = ml[i] / gi
             if not a > 0:
