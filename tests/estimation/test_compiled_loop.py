@@ -29,6 +29,15 @@ from est_synth import synth_run
 TOL = 1e-9
 
 
+def _assert_vectors(row, k: int, pairs) -> None:
+    """The compiled loop's output ``row`` of step ``k`` holds each (column, Python estimate's vector) of
+    ``pairs``: the same NaN pattern, the values within TOL."""
+    for col, val in pairs:
+        got = row[col:col + len(val)]
+        assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
+        np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+
+
 def _steps_with_rare_paths() -> list:
     """8 s of the synthetic truth loop with the rare paths of a step put in (module doc)."""
     steps = [(t, dict(i), dict(m)) for t, i, m in synth_run(seed=3, duration=8.0).steps]
@@ -61,11 +70,8 @@ def test_state_after_every_step_equals_the_python_estimator():
         statuses |= e.status
         assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
         assert bool(row[K.OUT_VALID]) == e.valid
-        for col, val in ((K.OUT_MU, e.mu), (K.OUT_SLIP, e.slip), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag),
-                         (K.OUT_SIGMU, e.sigma_mu)):
-            got = row[col:col + len(val)]
-            assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
-            np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+        _assert_vectors(row, k, ((K.OUT_MU, e.mu), (K.OUT_SLIP, e.slip), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag),
+                                 (K.OUT_SIGMU, e.sigma_mu)))
         for col, val in ((K.OUT_RHO, e.rho_s), (K.OUT_V, e.v), (K.OUT_NIS, e.nis), (K.OUT_ADAPT, e.adapt),
                          (K.OUT_SIGRHO, e.sigma_rho_s)):
             np.testing.assert_allclose(row[col], val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
@@ -177,10 +183,7 @@ def _run_both(steps: list, prepare=None) -> tuple:
         e = est.step(t, inputs, meas)
         row = loop.step_block(IN[k:k + 1])[0]
         assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
-        for col, val in ((K.OUT_MU, e.mu), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip)):
-            got = row[col:col + len(val)]
-            assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
-            np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+        _assert_vectors(row, k, ((K.OUT_MU, e.mu), (K.OUT_OM, e.omega), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip)))
         np.testing.assert_allclose(row[K.OUT_V], e.v, rtol=0.0, atol=TOL)
         assert np.isnan(row[K.OUT_LOST]) == np.isnan(e.lost_since)
         if not np.isnan(e.lost_since):
@@ -264,10 +267,8 @@ def test_configuration_switches_as_the_python_estimator(synth_steps, change):
         e = est.step(t, inputs, meas)
         row = loop.step_block(IN[k:k + 1])[0]
         assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
-        for col, val in ((K.OUT_MU, e.mu), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip), (K.OUT_SIGMU, e.sigma_mu)):
-            got = row[col:col + len(val)]
-            assert np.array_equal(np.isnan(got), np.isnan(val)), f"NaN pattern at step {k}"
-            np.testing.assert_allclose(got, val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+        _assert_vectors(row, k, ((K.OUT_MU, e.mu), (K.OUT_P, e.P_diag), (K.OUT_SLIP, e.slip),
+                                 (K.OUT_SIGMU, e.sigma_mu)))
     assert loop.counters == est.counters
 
 
