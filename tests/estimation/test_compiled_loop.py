@@ -294,3 +294,13 @@ def test_self_check_falls_back_when_the_loop_differs(monkeypatch):
     ok, diff = CompiledLoop.self_check(est)
     assert not ok and diff > 1e-7
     assert "self-check" in loop_choice(est, None)
+
+
+def test_kernel_constants_are_the_estimators():
+    """The compiled loop's copies of the estimator's status bits and curvature bounds (_loop_kernel's module
+    comment says why they are copies) equal estimator.py's."""
+    from tractionecu.estimation import estimator as E
+    names = ("WHEEL_TIMEOUT", "GPS_TIMEOUT", "TORQUE_TIMEOUT", "AXLE_TIMEOUT", "DRAFT_TIMEOUT", "NOT_CONVERGED",
+             "INPUT_REJECTED", "MEAS_GATED", "COV_REPAIRED", "FILTER_LOST", "STANDSTILL", "UNVERIFIED",
+             "MACHINE_UNSUPPORTED", "SLIP_UNCERTAIN", "SLIP_AVERAGED", "INVALID_MASK", "KAPPA_NOISE_MIN", "KAPPA_MAX")
+    assert {n: getattr(K, n) for n in names} == {n: getattr(E, n) for n in names}

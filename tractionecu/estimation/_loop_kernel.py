@@ -32,6 +32,9 @@ from .kinematics import BETA0_VAR_FACTOR, BETA_MAX_SIGMAS, BIAS_DIST_M, BIAS_TAU
 from .rates import PERIOD_TOLERANCE
 
 # ----------------------------------------------------------------------------- status bits (estimator.py)
+# Copies of estimator.py's values, not imports: numba freezes a global into the machine code it caches and keys
+# that cache by this file only, so an import would keep an old value after an edit there.  The test
+# test_kernel_constants_are_the_estimators holds each copy to estimator.py's.
 WHEEL_TIMEOUT = 0x01
 GPS_TIMEOUT = 0x02
 TORQUE_TIMEOUT = 0x04
