@@ -65,9 +65,29 @@ def test_batch_equals_step_path_on_an_engine_driven_tractor(make_recording):
 
 
 def test_batch_streamed_from_the_path_equals_step_path(three_soils, step_result):
-    """Given the recording's path, the batch path decodes the capture block by block (as replay_to_dir)."""
-    batch = replay_batch(three_soils)
-    _assert_equal(step_result.arrays, batch.arrays)
+    """Given the recording's path, the batch path decodes the capture once (the survey holds the decoded
+    blocks of the replay's signals), or, over the bound or with none (``hold_bytes=0``), a survey and then
+    block by block again (as replay_to_dir): the same estimates bit for bit, equal to the step path's."""
+    once = replay_batch(three_soils)
+    assert once.decode.startswith("one pass:"), once.decode
+    streamed = replay_batch(three_soils, hold_bytes=0)
+    assert streamed.decode.startswith("streamed:") and "bound 0" in streamed.decode
+    over = replay_batch(three_soils, hold_bytes=20_000)
+    assert over.decode.startswith("streamed:") and "passed the bound" in over.decode
+    for res in (once, streamed, over):
+        _assert_equal(step_result.arrays, res.arrays)
+        assert res.counters == step_result.counters and np.array_equal(res.gps_mask, step_result.gps_mask)
+    d = max_differences(once.arrays, streamed.arrays)
+    assert "curve_path" in d and max(d.values()) == 0.0
+    rows = [replay_batch_rows(three_soils, hold_bytes=b) for b in (None, 0)]
+    assert rows[0]["decode"].startswith("one pass:") and rows[1]["decode"].startswith("streamed:")
+    for key in ("rows", "map"):
+        d = max_differences(rows[0][key], rows[1][key])
+        assert d and max(d.values()) == 0.0, key
+    for key in ("steps", "sim_seconds", "valid_steps", "steps_finite", "counters", "gnss", "loop"):
+        assert rows[0][key] == rows[1][key], key
+    assert repr(rows[0]["radius_calibration"]) == repr(rows[1]["radius_calibration"])
+    assert np.array_equal(rows[0]["gps_mask"], rows[1]["gps_mask"])
 
 
 def test_batch_rows_are_the_step_paths_rows_at_the_rate_and_the_maps(three_soils, step_result, tmp_path):

@@ -3,7 +3,8 @@
 ``read_recording`` (NMEA fast path, epochs assembled and aligned as lists) against
 ``read_recording(reference=True)`` (sentence by sentence through parse_line, EpochAssembler, align_gps);
 ``stream_signals`` (blocks decoded without statistics, wanted signals only) against
-``stream_signals(reference=True)`` (ChunkDecoder, every signal).  On simulated recordings of several
+``stream_signals(reference=True)`` (ChunkDecoder, every signal); ``held_signals`` (the blocks a survey held
+for batch replay's one pass) against ``stream_signals``.  On simulated recordings of several
 scenarios (GNSS latency, a physical truth, reversing), one with GNSS outages and corrupted NMEA and candump
 lines, the fixtures in tests/data, and an owner-mapped capture.
 """
@@ -19,10 +20,10 @@ import pytest
 
 from tractionecu.bus.candump import format_line
 from tractionecu.gnss.nmea import checksum
-from tractionecu.pipeline.survey import survey_keep
+from tractionecu.pipeline.survey import REPLAY_SIGNALS, survey_keep
 from tractionecu.recording import fastdecode
 from tractionecu.recording.containers import GPS_FIELDS
-from tractionecu.recording.reader import read_recording, stream_signals
+from tractionecu.recording.reader import HeldBlocks, held_signals, read_recording, stream_signals
 
 REPO = Path(__file__).resolve().parents[2]
 DATA = REPO / "tests" / "data"
@@ -46,6 +47,25 @@ def assert_same_recording(a, b) -> None:
 def assert_same_stream(rec, names) -> int:
     ref = list(stream_signals(rec, names=names, reference=True))
     new = list(stream_signals(rec, names=names))
+    assert len(ref) == len(new) > 0
+    for (ba, before_a), (bb, before_b) in zip(ref, new):
+        assert repr(before_a) == repr(before_b)
+        assert list(ba) == list(bb)
+        for name in ba:
+            assert all(_bits(x) == _bits(y) for x, y in zip(ba[name], bb[name])), name
+    return len(ref)
+
+
+def assert_held_is_stream(path: Path, names, hold_names=REPLAY_SIGNALS, **kw) -> int:
+    """A survey holding ``hold_names`` equals one without; its held blocks equal ``stream_signals``' blocks of
+    ``names`` (key order, ``before`` and every array's bits)."""
+    hold = HeldBlocks(hold_names)
+    rec = read_recording(path, keep=survey_keep, hold=hold, **kw)
+    assert_same_recording(rec, read_recording(path, keep=survey_keep, **kw))
+    assert hold.blocks is not None and not hold.over and hold.nbytes > 0
+    new = list(held_signals(rec, hold, names))
+    ref = list(stream_signals(rec, names=names, **kw))
+    assert hold.blocks is None                                  # one pass: handed out and let go
     assert len(ref) == len(new) > 0
     for (ba, before_a), (bb, before_b) in zip(ref, new):
         assert repr(before_a) == repr(before_b)
@@ -225,6 +245,47 @@ def test_stream_equals_reference(recordings, monkeypatch):
         assert_same_stream(rec, [n for n in names if n.startswith(("WheelSpeed", "DriveTorque"))])
 
 
+def test_held_blocks_equal_the_stream(recordings, monkeypatch):
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", 30_011)      # several blocks
+    for name, path in recordings.items():
+        rec = read_recording(path, keep=survey_keep)
+        names = sorted(REPLAY_SIGNALS & set(rec.signals))
+        assert len(names) >= 6, name
+        assert assert_held_is_stream(path, names) > 3, name
+        assert_held_is_stream(path, names[::3])
+        wheels = [n for n in names if n.startswith("WheelSpeed")]
+        assert_held_is_stream(path, wheels, hold_names=[*wheels, "FrontAxleLoad"])
+
+
+def test_held_blocks_take_the_clock_offset_as_the_stream(recordings, tmp_path):
+    """A CAN capture whose clock starts at 0: the survey finds the offset to the GNSS clock, and the held
+    blocks carry it as the stream's do."""
+    src = recordings["paper-three-soils"]
+    d = tmp_path / "shifted"
+    shutil.copytree(src, d)
+    lines = (src / "can.log").read_text().splitlines()
+    t0 = float(lines[0][1:lines[0].index(")")])
+    (d / "can.log").write_text("\n".join(f"({float(ln[1:ln.index(')')]) - t0:017.6f}){ln[ln.index(')') + 1:]}"
+                                         for ln in lines) + "\n")
+    rec = read_recording(d, keep=survey_keep)
+    assert abs(rec.stats.clock_offset_s - t0) < 1.0
+    assert assert_held_is_stream(d, sorted(REPLAY_SIGNALS & set(rec.signals))) >= 1
+
+
+def test_held_blocks_over_their_bound_are_dropped(recordings):
+    path = recordings["paper-three-soils"]
+    hold = HeldBlocks(REPLAY_SIGNALS, max_bytes=50_000)
+    rec = read_recording(path, keep=survey_keep, hold=hold)
+    assert hold.over and hold.blocks is None and hold.nbytes > 50_000
+    assert_same_recording(rec, read_recording(path, keep=survey_keep))   # the survey is whole all the same
+    with pytest.raises(ValueError, match="dropped"):
+        next(held_signals(rec, hold))
+    ok = HeldBlocks(["WheelSpeed_FL"])
+    rec = read_recording(path, keep=survey_keep, hold=ok)
+    with pytest.raises(ValueError, match="not held: DriveTorque_FL"):
+        next(held_signals(rec, ok, ["WheelSpeed_FL", "DriveTorque_FL"]))
+
+
 def test_fixtures_equal_reference(tmp_path):
     for log in sorted((DATA / "candump").glob("*.log")):
         assert_same_recording(read_recording(log), read_recording(log, reference=True))
@@ -267,3 +328,6 @@ def test_owner_mapping_streams_equal_reference(tmp_path):
             for name in ba:
                 assert all(_bits(x) == _bits(y) for x, y in zip(ba[name], bb[name])), name
     assert "WheelSpeed_FL" in new[0][0]
+    # held by the survey: the mapped signals (and their owner sources) as the stream gives them
+    for names in (["WheelSpeed_FL", "DraftForce"], ["DraftForce"]):
+        assert assert_held_is_stream(d, names, dbc=dbc) >= 1

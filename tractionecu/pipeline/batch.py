@@ -317,25 +317,42 @@ def _batch_run_class() -> type:
     return _BatchRun
 
 
-def _open(recording: Any) -> tuple[Any, bool]:
-    from .survey import survey_keep
-    from ..recording.reader import Recording, read_recording
+def _open(recording: Any, hold_bytes: int | None = None) -> tuple[Any, bool, Any]:
+    """(recording, streamed, held blocks or None): a :class:`~tractionecu.recording.reader.Recording` as it
+    is; a path surveyed (:func:`~tractionecu.pipeline.survey.survey_keep`) with the blocks of the replay's
+    signals held for the one pass (module doc, "Decoding"), unless they pass ``hold_bytes`` (default
+    :data:`~tractionecu.recording.reader.HOLD_MAX_BYTES`; 0: never hold)."""
+    from .survey import REPLAY_SIGNALS, survey_keep
+    from ..recording.reader import HOLD_MAX_BYTES, HeldBlocks, Recording, read_recording
 
     if isinstance(recording, Recording):
-        return recording, False
-    return read_recording(recording, keep=survey_keep), True
+        return recording, False, None
+    bound = HOLD_MAX_BYTES if hold_bytes is None else int(hold_bytes)
+    hold = HeldBlocks(REPLAY_SIGNALS, bound) if bound > 0 else None
+    return read_recording(recording, keep=survey_keep, hold=hold), True, hold
+
+
+def _decode_note(hold: Any, used: bool) -> str:
+    """``decode`` of the results: how the capture's signals reached the loop (module doc, "Decoding")."""
+    if used:
+        return (f"one pass: {hold.nbytes / 2**20:.1f} MiB of decoded blocks held by the survey "
+                f"(bound {hold.max_bytes / 2**20:g} MiB)")
+    why = ("no blocks held (bound 0)" if hold is None else
+           f"the decoded blocks passed the bound of {hold.max_bytes / 2**20:g} MiB" if hold.over else
+           "a signal the replay uses was not held")
+    return f"streamed: the capture decoded again block by block ({why})"
 
 
 def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: EstimatorConfig | None, sensors: Any,
          gate: Any, on_estimate: Callable[[Estimate], None] | None,
          make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None,
-         compiled: bool | None = None) -> tuple[Any, Any, BatchSink]:
+         compiled: bool | None = None, hold_bytes: int | None = None) -> tuple[Any, Any, BatchSink]:
     from .gnss import GnssGate
     from .replay import MissingSignals, machine_of
     from .signals import required_missing
-    from ..recording.reader import read_recording, stream_signals
+    from ..recording.reader import held_signals, read_recording, stream_signals
 
-    rec, streamed = _open(recording)
+    rec, streamed, hold = _open(recording, hold_bytes)
     vehicle, s0 = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
@@ -352,9 +369,14 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
 
         run.loop = CompiledLoop(run.est)
         sink.resolve = run.loop.resolve_curves
+    run.decode = "in memory: the recording given decoded"
     if streamed:
-        names = {nm for grp in run.groups for nm in grp.names}
-        for block, before in stream_signals(rec, names=sorted(names)):
+        names = sorted({nm for grp in run.groups for nm in grp.names})
+        one = hold is not None and hold.blocks is not None and set(names) <= hold.names
+        run.decode = _decode_note(hold, one)
+        blocks = held_signals(rec, hold, names) if one else stream_signals(rec, names=names)
+        hold = None                            # the held blocks go as they are fed
+        for block, before in blocks:
             run.feed(block, before)
     else:
         run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
@@ -389,23 +411,28 @@ def _counters(run: Any) -> dict[str, int]:
 
 def replay_batch(recording: Any, *, rate_hz: float = 100.0, cfg: EstimatorConfig | None = None,
                  sensors: Any = None, gate: Any = None,
-                 on_estimate: Callable[[Estimate], None] | None = None, compiled: bool | None = None) -> Any:
-    """The estimates of every step of ``recording`` (a path, streamed, or a
+                 on_estimate: Callable[[Estimate], None] | None = None, compiled: bool | None = None,
+                 hold_bytes: int | None = None) -> Any:
+    """The estimates of every step of ``recording`` (a path, decoded once or streamed, or a
     :class:`~tractionecu.recording.reader.Recording`) as a :class:`~tractionecu.pipeline.replay.ReplayResult`
     (the step path's :func:`~tractionecu.pipeline.replay.replay` keys, plus ``curve_path``).  ``compiled``:
-    see :func:`loop_choice`; the result's ``loop`` attribute says which loop ran."""
+    see :func:`loop_choice`; the result's ``loop`` attribute says which loop ran.  ``hold_bytes``: the bound
+    of the decoded blocks held for one pass (module doc, "Decoding"); the result's ``decode`` says how the
+    capture was decoded."""
     from .replay import ReplayResult
 
     rec, run, sink = _run(recording, BatchSink(keep_all=True), rate_hz=rate_hz, cfg=cfg, sensors=sensors,
-                          gate=gate, on_estimate=on_estimate, compiled=compiled)
+                          gate=gate, on_estimate=on_estimate, compiled=compiled, hold_bytes=hold_bytes)
     res = ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, _counters(run), run.gnss, run.loop_seconds)
     res.loop = run.loop_used                  # type: ignore[attr-defined]
+    res.decode = run.decode                   # type: ignore[attr-defined]
     return res
 
 
 def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, estimate_rate_hz: float = 1.0,
                       cfg: EstimatorConfig | None = None, sensors: Any = None, gate: Any = None,
-                      map_rows: bool = True, compiled: bool | None = None) -> dict[str, Any]:
+                      map_rows: bool = True, compiled: bool | None = None,
+                      hold_bytes: int | None = None) -> dict[str, Any]:
     """Replay ``recording`` keeping only the estimates at ``estimate_rate_hz`` (the first step at or after
     each 1/rate boundary; 0: every step) and, with ``map_rows``, the map's steps (one per GNSS epoch, the
     ones :func:`~tractionecu.mapping.from_replay.write_replay_map` samples).
@@ -413,8 +440,9 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
     Returns ``recording`` (the :class:`~tractionecu.recording.reader.Recording`, a survey when streamed),
     ``rows`` (arrays at the rate), ``map`` (arrays of the map's steps), ``steps``, ``sim_seconds``,
     ``valid_steps`` and ``steps_finite`` (steps with a finite time), ``gps_mask``, ``counters``, ``gnss``,
-    ``loop_seconds``, ``radius_calibration`` (:meth:`Estimator.calibration_summary`) and ``loop`` (which
-    estimator loop ran, :func:`loop_choice`; ``compiled`` chooses as there).
+    ``loop_seconds``, ``radius_calibration`` (:meth:`Estimator.calibration_summary`), ``loop`` (which
+    estimator loop ran, :func:`loop_choice`; ``compiled`` chooses as there) and ``decode`` (how the capture was
+    decoded: once, its blocks held by the survey up to ``hold_bytes``, or streamed; module doc, "Decoding").
     """
     if not estimate_rate_hz >= 0:
         raise ConfigError(f"estimate_rate_hz: must be >= 0, got {estimate_rate_hz}")
@@ -424,14 +452,14 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
                          map_times=rec.gps.t if map_rows and len(rec.gps) else None)
 
     rec, run, sink = _run(recording, None, rate_hz=rate_hz, cfg=cfg, sensors=sensors, gate=gate,
-                          on_estimate=None, make_sink=make, compiled=compiled)
+                          on_estimate=None, make_sink=make, compiled=compiled, hold_bytes=hold_bytes)
     est = run.est
     return {"recording": rec, "rows": sink.rate_arrays(), "map": sink.map_arrays(), "steps": sink.rows,
             "sim_seconds": sink.t_last - sink.t_first if sink.rows > 1 else 0.0,
             "valid_steps": sink.steps_valid, "steps_finite": sink.steps_finite, "gps_mask": run.gps_mask,
             "counters": _counters(run), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
             "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {},
-            "loop": run.loop_used}
+            "loop": run.loop_used, "decode": run.decode}
 
 
 # ----------------------------------------------------------------------------- the contract

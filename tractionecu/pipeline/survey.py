@@ -11,7 +11,8 @@ from __future__ import annotations
 
 from ..recording.clock import SPEED_SIGNALS as CLOCK_SPEEDS
 from ..recording.clock import WHEEL_SIGNALS as CLOCK_WHEELS
-from .signals import ENGINE_IDLE_SPEED, ENGINE_SPEED, PARKING_BRAKE, SELECTED_GEAR, SPEED_SIGNALS
+from .signals import (ENGINE_IDLE_SPEED, ENGINE_SPEED, HUB_GROUPS, MACHINE_GROUPS, PARKING_BRAKE, SELECTED_GEAR,
+                      SPEED_SIGNALS)
 
 SURVEY_FULL = frozenset({*CLOCK_SPEEDS, *SPEED_SIGNALS, ENGINE_IDLE_SPEED, SELECTED_GEAR, PARKING_BRAKE})
 """Signals a survey keeps whole: ground- and wheel-based speeds (10 Hz messages; the clock offset and the
@@ -22,6 +23,12 @@ to them."""
 INSPECT_FULL = SURVEY_FULL | {ENGINE_SPEED}
 """What ``inspect`` keeps whole: the survey's signals and the engine speed (its range and median in the
 motion report)."""
+
+
+REPLAY_SIGNALS = frozenset(nm for g in (HUB_GROUPS, MACHINE_GROUPS) for names in g.groups.values() for nm in names)
+"""Every bus signal either estimator's replay steps on (:data:`~.signals.HUB_GROUPS`,
+:data:`~.signals.MACHINE_GROUPS`): what batch replay's survey holds decoded for its one pass
+(:class:`~tractionecu.recording.reader.HeldBlocks`)."""
 
 
 def survey_keep(name: str, seen: set[str]) -> bool:

@@ -65,7 +65,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Callable, Iterator, Mapping, Sequence
+from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 
@@ -78,13 +78,14 @@ from .containers import (CAN_FILE, GAP_FACTOR, GPS_FILE, TRUTH_CSV, TRUTH_TOML, 
                          GpsTrack, MessageStats, Recording, RecordingStats, Series, Table)
 from .gps import read_gps
 
-__all__ = ["GpsTrack", "MessageStats", "Recording", "RecordingStats", "Series", "Table", "read_recording"]
+__all__ = ["GpsTrack", "HeldBlocks", "MessageStats", "Recording", "RecordingStats", "Series", "Table", "held_signals",
+           "read_recording", "stream_signals"]
 
 
 def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequence[str | Path] = (),
                    signals: Mapping[str, tuple[str, float]] | None = None, gps: str | Path | None = None,
                    clock: str = "auto", keep: Callable[[str, set[str]], bool] | None = None,
-                   reference: bool = False) -> Recording:
+                   reference: bool = False, hold: "HeldBlocks | None" = None) -> Recording:
     """Read a recording directory (or a lone candump file) into a :class:`Recording`.
 
     ``dbc``: the owner's DBC files, added to ``codec``'s (default: the
@@ -99,6 +100,9 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     ``reference``: read the GNSS log sentence by sentence (:func:`.gps.read_gps_reference`) instead of
     through the NMEA fast path; the same recording (``tests/recording/test_reader_fast.py``), for the
     equality tests and ``benchmarks/decode.py``.
+    ``hold``: keep the decoded blocks of ``hold.names`` beside the survey, up to ``hold.max_bytes``, so that
+    one later pass over them (:func:`held_signals`) replaces :func:`stream_signals`' second reading of the
+    capture (:class:`HeldBlocks`).
 
     Raises :class:`~tractionecu.errors.RecordingError` naming the file (and
     line) when the path is missing, ``can.log`` is missing, unreadable,
@@ -114,7 +118,9 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
         raise RecordingError(f"{p}: no such recording")
     root, can_path, codec, mapping = _resolve(p, codec, dbc, signals)
     stats = RecordingStats()
-    decoded = _read_can(can_path, codec, stats, keep)
+    if hold is not None:
+        hold.mapping = list(mapping)
+    decoded = _read_can(can_path, codec, stats, keep, hold)
     sources = {name: codec.signals[name].message for name in decoded}
     for target, src, scale in mapping:
         s = decoded.get(src)
@@ -195,6 +201,76 @@ def stream_signals(rec: Recording, codec: Codec | None = None, *, dbc: Sequence[
                 got[target] = (t, v * scale, sa)
         yield ({name: (t + off, v) for name, (t, v, _sa) in got.items() if want is None or name in want},
                float(table.t[-1]) + off)
+
+
+HOLD_MAX_BYTES = 256 << 20
+"""Default bound [bytes] of the decoded blocks a survey holds for one later pass (:class:`HeldBlocks`): about
+8 h of ``paper-three-soils``' estimator signals.  A capture whose held blocks would pass it is read again
+block by block (:func:`stream_signals`), so memory stays bounded whatever the recording's length."""
+
+
+class HeldBlocks:
+    """The decoded CAN blocks of some signals, kept by a survey (``read_recording(..., hold=)``) for one later
+    pass in place of :func:`stream_signals`' second reading and decoding of the capture.
+
+    ``names``: the signals to hold (the owner-mapped sources of those among them are held too).
+    ``max_bytes``: the bound on the held arrays' bytes; the first block that would pass it drops every held
+    block (``blocks`` becomes None, ``over`` True), and the caller streams instead.  Each held block is the
+    block of frames :func:`stream_signals` would decode (:mod:`.chunks`): the values of
+    :meth:`.chunks.ChunkDecoder.decode`, which equal :func:`.fastdecode.decode_table`'s for the wanted
+    signals (``tests/recording/test_reader_fast.py``), and the block's last frame time.
+    """
+
+    def __init__(self, names: Iterable[str], max_bytes: int = HOLD_MAX_BYTES) -> None:
+        self.names = frozenset(names)
+        self.max_bytes = int(max_bytes)
+        self.blocks: list | None = []
+        """(name -> (t, value), last frame time [s]) per block, CAN clock (no offset), before any mapping."""
+        self.nbytes = 0
+        self.over = False
+        self.mapping: list = []
+        """The resolved ``[signals]`` mapping the survey used (:func:`read_recording`)."""
+
+    def add(self, got: Mapping[str, tuple[np.ndarray, np.ndarray, np.ndarray]], t_last: float,
+            names: frozenset[str]) -> None:
+        """One decoded block (``ChunkDecoder.decode``'s dict); ``names``: the signals held, mapped sources too."""
+        if self.blocks is None:
+            return
+        block = {name: (t, v) for name, (t, v, _sa) in got.items() if name in names}
+        seen: set[int] = set()                 # the signals of one message share their time array
+        for t, v in block.values():
+            self.nbytes += v.nbytes + (0 if id(t) in seen else t.nbytes)
+            seen.add(id(t))
+        if self.nbytes > self.max_bytes:
+            self.blocks, self.over = None, True
+            return
+        self.blocks.append((block, t_last))
+
+
+def held_signals(rec: Recording, hold: HeldBlocks, names: Sequence[str] | None = None
+                 ) -> Iterator[tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]]:
+    """:func:`stream_signals` of ``rec`` from the blocks its survey held (``hold``, filled by
+    ``read_recording(..., hold=hold)``), without reading the capture again: the same ``(block, before)`` pairs,
+    array for array (``tests/recording/test_reader_fast.py``).  ``names`` (default: those held) must be
+    held.  Each block is let go once handed out, so one pass is possible."""
+    if hold.blocks is None:
+        raise ValueError("the survey's held blocks were dropped (over their bound): stream the capture instead")
+    want = set(hold.names if names is None else names)
+    if not want <= hold.names:
+        raise ValueError(f"not held: {', '.join(sorted(want - hold.names))}")
+    decode_want = want | {src for target, src, _ in hold.mapping if target in want}
+    off = rec.stats.clock_offset_s
+    blocks = hold.blocks
+    for i in range(len(blocks)):
+        block, t_last = blocks[i]
+        blocks[i] = None
+        got = {name: tv for name, tv in block.items() if name in decode_want}
+        for target, src, scale in hold.mapping:
+            if src in got:
+                t, v = got[src]
+                got[target] = (t, v * scale)
+        yield {name: (t + off, v) for name, (t, v) in got.items() if name in want}, t_last + off
+    hold.blocks = None
 
 
 def _resolve(p: Path, codec: Codec | None, dbc: Sequence[str | Path],
@@ -281,13 +357,15 @@ def _when(t: float) -> str:
 
 # --------------------------------------------------------------------------- CAN
 def _read_can(path: Path, codec: Codec, stats: RecordingStats,
-              keep: Callable[[str, set[str]], bool] | None = None) -> dict[str, Series]:
+              keep: Callable[[str, set[str]], bool] | None = None, hold: HeldBlocks | None = None
+              ) -> dict[str, Series]:
     """Read and decode the CAN capture block by block (:mod:`.chunks`, :mod:`.fastdecode`), whatever its
     format (:mod:`.formats`).
 
     For candump ``-L``: the same signals, statistics and counters as :func:`read_can_per_frame`.
     ``keep(name, names seen so far)`` False makes a signal a stub (:func:`_stub`): its first and last time
     and its first number, enough to tell it present, for a survey that must not hold a long recording.
+    ``hold``: the blocks to keep beside (:class:`HeldBlocks`).
     """
     from .chunks import ChunkDecoder, open_tables
 
@@ -297,8 +375,12 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats,
     dec = ChunkDecoder(codec, stats)
     parts: dict[str, list] = {}
     stubs: dict[str, list] = {}
+    held = None if hold is None else hold.names | {src for target, src, _ in hold.mapping if target in hold.names}
     for table in blocks:
-        for name, (t, v, sa) in dec.decode(table).items():
+        got = dec.decode(table)
+        if held is not None and len(table):
+            hold.add(got, float(table.t[-1]), held)
+        for name, (t, v, sa) in got.items():
             if keep is not None and not keep(name, parts.keys() | stubs.keys()):
                 st = stubs.get(name)
                 if st is None:
