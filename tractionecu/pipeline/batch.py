@@ -5,8 +5,8 @@ and measurements, one :meth:`Estimator.step <tractionecu.estimation.estimator.Es
 :class:`~tractionecu.estimation.estimator.Estimate`, and ``estimates.csv`` written row by row.  The
 batch path runs the same estimator over the same step arguments and keeps its results as arrays:
 
-* the capture is decoded block by block as replay decodes it (a survey, then
-  :func:`~tractionecu.recording.reader.stream_signals`), and the step arguments of a whole block are
+* the capture is decoded once (module doc, "Decoding"), in the blocks replay decodes it in, and the step
+  arguments of a whole block are
   assembled at once: the grid and each signal group's new samples come from replay's own stream
   (:class:`~tractionecu.pipeline.replay._Run`, so the arguments are those of the step path, float for
   float), and the dicts of every step of the block are filled stream by stream;
@@ -18,6 +18,18 @@ batch path runs the same estimator over the same step arguments and keeps its re
   :class:`~tractionecu.pipeline.replay.ReplayResult`), :func:`replay_batch_rows` keeps only the steps
   a consumer asks for (the first step at or after each 1/``rate`` boundary, and the map's steps, one
   per GNSS epoch), so memory does not grow with the recording's length but for those.
+
+Decoding: given a recording's path, the survey (``read_recording(keep=survey_keep)``, the recording's
+statistics and the few signals kept whole) holds the decoded blocks of the signals a replay steps on
+(:data:`~tractionecu.pipeline.survey.REPLAY_SIGNALS`, :class:`~tractionecu.recording.reader.HeldBlocks`),
+and the run is fed from them (:func:`~tractionecu.recording.reader.held_signals`): the capture is read and
+decoded once.  The held arrays are bounded (``hold_bytes``, default
+:data:`~tractionecu.recording.reader.HOLD_MAX_BYTES`, 256 MiB, about 7 h of ``paper-three-soils``): a longer
+recording drops them at the bound and is read again block by block
+(:func:`~tractionecu.recording.reader.stream_signals`, as replay does), so a worker's memory stays bounded
+whatever the recording's length.  Both give the same blocks, array for array, so the same estimates; the
+results' ``decode`` says which ran.  A :class:`~tractionecu.recording.reader.Recording` already decoded is
+fed whole.
 
 A lost filter marks the estimates since its ``lost_since`` not valid with ``FILTER_LOST``, as the step
 path does; the rows are selected only once they are older than the window a lost filter may reach
