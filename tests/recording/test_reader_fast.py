@@ -257,6 +257,33 @@ def test_held_blocks_equal_the_stream(recordings, monkeypatch):
         assert_held_is_stream(path, wheels, hold_names=[*wheels, "FrontAxleLoad"])
 
 
+@pytest.mark.parametrize("chunk", [fastdecode.CHUNK_CHARS, 30_011])
+def test_survey_stubs_are_the_full_reads_signals(recordings, monkeypatch, chunk):
+    """A survey (``keep=survey_keep``, values of a stub no longer computed once its first number is known)
+    against the full read: the same statistics, the kept signals bit for bit, and each stub's first and last
+    time and first number those of the whole signal."""
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", chunk)
+    stubs = 0
+    for name, path in recordings.items():
+        full = read_recording(path)
+        for hold in (None, HeldBlocks(REPLAY_SIGNALS)):
+            sv = read_recording(path, keep=survey_keep, hold=hold)
+            assert repr(sv.stats) == repr(full.stats), name
+            assert list(sv.signals) == list(full.signals) and sv.signal_sources == full.signal_sources
+            for sig, s in sv.signals.items():
+                f = full.signals[sig]
+                if not (len(s) == 2 and (s.sa == -1).all()):        # kept whole (a stub's sources are -1)
+                    assert all(_bits(getattr(s, k)) == _bits(getattr(f, k)) for k in ("t", "value", "sa")), sig
+                    continue
+                stubs += 1
+                ok = np.flatnonzero(np.isfinite(f.value))
+                first = f.value[ok[0]] if ok.size else np.nan
+                assert _bits(s.t) == _bits(np.array([f.t[0], f.t[-1]])), (name, sig)
+                assert _bits(s.value) == _bits(np.array([first, np.nan])), (name, sig)
+                assert s.unit == f.unit and not (f.sa == -1).any()
+    assert stubs > 20
+
+
 def test_held_blocks_take_the_clock_offset_as_the_stream(recordings, tmp_path):
     """A CAN capture whose clock starts at 0: the survey finds the offset to the GNSS clock, and the held
     blocks carry it as the stream's do."""

@@ -78,12 +78,18 @@ class ChunkDecoder:
         self.t_prev = math.nan
         self.first = math.nan
         self.frames = 0
+        self.messages: dict = {}
 
-    def decode(self, table: FrameTable) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The signals of one block: name -> (t, value, sa), in the order of their message's first frame."""
+    def decode(self, table: FrameTable, want: set[str] | frozenset[str] | None = None
+               ) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The signals of one block: name -> (t, value, sa), in the order of their message's first frame.
+        ``want``: only these signals (:func:`.fastdecode.decode_table`; the statistics are the same);
+        ``messages`` holds the block's frames per message, name -> (lineno, t, sa)."""
         st = self.stats
         n = len(table)
-        messages, signals, _ = decode_table(table, self.codec, st, MAX_EXAMPLES, tp=self.tp, claims=self.claims)
+        messages, signals, _ = decode_table(table, self.codec, st, MAX_EXAMPLES, tp=self.tp, claims=self.claims,
+                                            want=want)
+        self.messages = messages
         if n:
             if not math.isfinite(self.first):
                 self.first = float(table.t[0])
@@ -117,10 +123,14 @@ class ChunkDecoder:
 def _add_times(ms: MessageStats, arr: np.ndarray, sa: np.ndarray) -> None:
     """Count one block's frames of a message: sources in order of first appearance, first and last time,
     longest interval and gaps (against the last frame of the blocks before)."""
-    vals, first, counts = np.unique(sa, return_index=True, return_counts=True)
-    for k in np.argsort(first, kind="stable").tolist():
-        key = int(vals[k])
-        ms.sources[key] = ms.sources.get(key, 0) + int(counts[k])
+    if sa.size and (sa == sa[0]).all():                 # one source (the common case): no sort
+        key = int(sa[0])
+        ms.sources[key] = ms.sources.get(key, 0) + int(sa.size)
+    else:
+        vals, first, counts = np.unique(sa, return_index=True, return_counts=True)
+        for k in np.argsort(first, kind="stable").tolist():
+            key = int(vals[k])
+            ms.sources[key] = ms.sources.get(key, 0) + int(counts[k])
     had = ms.count
     ms.count += int(arr.size)
     if not had:

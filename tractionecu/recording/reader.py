@@ -96,7 +96,9 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     single capture file ``<name>.nmea`` or ``gps.nmea`` beside it).
     ``clock``: ``auto``, ``report`` or ``keep`` (module doc, "Clocks").
     ``keep(name, names seen)``: False keeps only a stub of that signal (its first and last time and
-    first number): a survey of a long recording that the replay then streams (:mod:`.chunks`).
+    first number): a survey of a long recording that the replay then streams (:mod:`.chunks`).  Once False
+    for a name, ``keep`` must stay False for it (as the survey's do): a stub whose first number is known is not
+    asked again, and its values are no longer computed (only its message's times).
     ``reference``: read the GNSS log sentence by sentence (:func:`.gps.read_gps_reference`) instead of
     through the NMEA fast path; the same recording (``tests/recording/test_reader_fast.py``), for the
     equality tests and ``benchmarks/decode.py``.
@@ -376,10 +378,18 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats,
     parts: dict[str, list] = {}
     stubs: dict[str, list] = {}
     held = None if hold is None else hold.names | {src for target, src, _ in hold.mapping if target in hold.names}
+    # a stub whose first number is known needs only its message's times: its values are not computed
+    # (``keep`` once False for a name stays False: the survey's keeps only grow what they see)
+    done: list[str] = []
+    want = None
     for table in blocks:
-        got = dec.decode(table)
+        got = dec.decode(table, want)
         if held is not None and len(table):
             hold.add(got, float(table.t[-1]), held)
+        for name in done:
+            msg = dec.messages.get(codec.signals[name].message)
+            if msg is not None:
+                _stub_add(stubs[name], msg[1], None)
         for name, (t, v, sa) in got.items():
             if keep is not None and not keep(name, parts.keys() | stubs.keys()):
                 st = stubs.get(name)
@@ -387,8 +397,12 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats,
                     st = stubs[name] = _stub_of(parts.get(name, []))
                     parts[name] = []             # keeps the order of first appearance
                 _stub_add(st, t, v)
+                if not math.isnan(st[2]) and (held is None or name not in held):
+                    done.append(name)
                 continue
             parts.setdefault(name, []).append((t, v, sa))
+        if done and (want is None or len(done) != len(codec.signals) - len(want)):
+            want = frozenset(codec.signals).difference(done)
     dec.finish()
     check_frames(path, rs, stats.can_format)
     out = {}
@@ -411,13 +425,15 @@ def _stub_of(parts: list) -> list:
     return st
 
 
-def _stub_add(st: list, t: np.ndarray, v: np.ndarray) -> None:
+def _stub_add(st: list, t: np.ndarray, v: np.ndarray | None) -> None:
+    """A stub's first and last time and first number, with one block's samples (``v`` None: the first number
+    is known already)."""
     if not t.size:
         return
     if math.isnan(st[0]):
         st[0] = float(t[0])
     st[1] = float(t[-1])
-    if math.isnan(st[2]):
+    if math.isnan(st[2]) and v is not None:
         ok = np.flatnonzero(np.isfinite(v))
         if ok.size:
             st[2] = float(v[ok[0]])
