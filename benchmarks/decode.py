@@ -13,7 +13,11 @@ beside):
   (:func:`~tractionecu.recording.reader.stream_signals` for the estimator's input signals), reference paths
   (the GNSS log sentence by sentence, every block decoded by ChunkDecoder with its statistics and every
   signal) against the fast paths;
-* ``NMEA``: :func:`tractionecu.recording.gps.read_gps` with ``fast=False`` against ``fast=True``.
+* ``NMEA``: :func:`tractionecu.recording.gps.read_gps` with ``fast=False`` against ``fast=True``;
+* ``batch decoding``: the batch path's decoding of a recording's path, survey + stream (fast paths, what it
+  did before) against one pass (the survey holding the decoded blocks of the replay's signals,
+  :class:`~tractionecu.recording.reader.HeldBlocks`, then :func:`~tractionecu.recording.reader.held_signals`;
+  what :mod:`tractionecu.pipeline.batch` does for a recording under the bound).
 
 The candump scan (:mod:`tractionecu.recording.fastdecode`) is shared by both paths, so its own speed-up is
 in both columns; the figures of the code before it are in the notes of the change.  A step is one of the
@@ -87,10 +91,10 @@ def measure(path: Path, repeat: int = 5) -> list[dict[str, Any]]:
     """The cases of the module doc on the recording directory ``path``."""
     from tractionecu.pipeline.replay import machine_of, recording_grid
     from tractionecu.pipeline.select import groups_for
-    from tractionecu.pipeline.survey import survey_keep
+    from tractionecu.pipeline.survey import REPLAY_SIGNALS, survey_keep
     from tractionecu.recording.containers import RecordingStats
     from tractionecu.recording.gps import read_gps
-    from tractionecu.recording.reader import read_recording, stream_signals
+    from tractionecu.recording.reader import HeldBlocks, held_signals, read_recording, stream_signals
 
     rec = read_recording(path)
     vehicle, _sensors = machine_of(rec)
@@ -106,6 +110,11 @@ def measure(path: Path, repeat: int = 5) -> list[dict[str, Any]]:
             return survey, list(stream_signals(survey, names=inputs, reference=reference))
         return run
 
+    def one_pass() -> Any:
+        hold = HeldBlocks(REPLAY_SIGNALS)
+        survey = read_recording(path, keep=survey_keep, hold=hold)
+        return survey, list(held_signals(survey, hold, inputs))
+
     def nmea(fast: bool) -> Callable[[], Any]:
         return lambda: read_gps(path / "gps.nmea", rec.stats.can_t_first, RecordingStats(), fast=fast)
 
@@ -114,6 +123,8 @@ def measure(path: Path, repeat: int = 5) -> list[dict[str, Any]]:
         ("survey + stream", survey_stream(True), survey_stream(False),
          lambda r: (_recording_arrays(r[0]), r[1])),
         ("NMEA", nmea(False), nmea(True), lambda tr: [getattr(tr, f) for f in vars(tr)]),
+        ("batch decoding: survey + stream against one pass", survey_stream(False), one_pass,
+         lambda r: (_recording_arrays(r[0]), r[1])),
     ]
     out = []
     for name, old, new, arrays in cases:
