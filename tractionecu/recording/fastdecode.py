@@ -51,10 +51,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -277,9 +278,22 @@ def scan_candump(path: str | Path, rs: ReadStats) -> FrameTable:
 
 
 # --------------------------------------------------------------------------- decoding
+_LAYOUTS: "weakref.WeakKeyDictionary[Codec, dict[str, Any]]" = weakref.WeakKeyDictionary()
+""":func:`_vector_layout` per codec and message, found once (a codec's messages do not change)."""
+
+
 def _vector_layout(codec: Codec, name: str) -> list[tuple[str, int, int, bool]] | None:
     """[(signal, start bit, length, signed)] in the order Codec.decode returns them, if every signal of
     the message is a little-endian integer (and the message is not multiplexed); else None."""
+    known = _LAYOUTS.get(codec)
+    if known is None:
+        known = _LAYOUTS[codec] = {}
+    if name not in known:
+        known[name] = _find_layout(codec, name)
+    return known[name]
+
+
+def _find_layout(codec: Codec, name: str) -> list[tuple[str, int, int, bool]] | None:
     msg = codec._cmsg[name]  # type: ignore[attr-defined]
     if msg.length > 8 or msg.is_multiplexed():
         return None
