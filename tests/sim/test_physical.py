@@ -121,12 +121,15 @@ def test_outer_wheels_faster_by_the_geometric_ratio_in_a_circle(circle_run):
     r = ty.rolling_radius(tr.fz[k], scn.vehicle.r0_m, ty.TyreSpec(), scn.vehicle.tyre_pressure_pa)
     om = (r[:, 3] * tr.omega[k, 3]) / (r[:, 2] * tr.omega[k, 2])
     assert np.median(om) == pytest.approx(ratio, rel=0.005)
-    # Lateral load transfer: the outer (right) wheels carry m v² κ h_cg / w more, shared by the axles
-    # (the loads of a step are set from the speed at its start, the previous sample).
+    # Lateral load transfer: the axles' outer-minus-inner load differences times half the track balance the
+    # roll moment m v² κ h_cg (statics of the rigid body), shared by the axles as their loads (the loads of a
+    # step are set from the speed at its start, the previous sample).
     m, h = scn.vehicle.mass_kg, scn.vehicle.cg_height_m
-    hand = m * tr.v[k - 1] ** 2 / 30.0 * h / w
-    got = (tr.fz[k, 1] - tr.fz[k, 0]) + (tr.fz[k, 3] - tr.fz[k, 2])
+    hand = m * tr.v[k - 1] ** 2 / 30.0 * h
+    got = ((tr.fz[k, 1] - tr.fz[k, 0]) + (tr.fz[k, 3] - tr.fz[k, 2])) * w / 2
     assert np.allclose(got, hand, rtol=1e-6)
+    share_f = (tr.fz[k, 0] + tr.fz[k, 1]) / tr.fz[k].sum(axis=1)
+    assert np.allclose((tr.fz[k, 1] - tr.fz[k, 0]) * w / 2, share_f * hand, rtol=1e-6)
     # Slip is against each wheel's own ground speed: it stays near the straight-line value on both sides.
     assert abs(np.median(tr.slip[k, 3]) - np.median(tr.slip[k, 2])) < 0.01
 

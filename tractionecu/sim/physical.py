@@ -378,10 +378,13 @@ def simulate_physical(scn):
         fzr = max(fzr, 200.0)
         # Lateral load transfer in a turn: centripetal acceleration v² κ at the CG height, shared by the
         # axles as their loads; the outer wheels gain what the inner lose (κ > 0: left turn, right wheels outer).
+        # Statics of the rigid body: the axles' outer-minus-inner differences 2 δ_axle times half the track
+        # balance the roll moment, Σ_axles δ_axle · track = m v² κ h_cg, so each axle's outer wheel gains its
+        # share of d_lat = m v² κ h_cg / track (not half of it).
         d_lat = m * v * v * kappa * veh.cg_height_m / track if ps.lateral_load_transfer else 0.0
         share_f = fzf / (fzf + fzr)
-        dlf = min(max(d_lat * share_f / 2, -0.45 * fzf), 0.45 * fzf)
-        dlr = min(max(d_lat * (1 - share_f) / 2, -0.45 * fzr), 0.45 * fzr)
+        dlf = min(max(d_lat * share_f, -0.45 * fzf), 0.45 * fzf)
+        dlr = min(max(d_lat * (1 - share_f), -0.45 * fzr), 0.45 * fzr)
         fz = np.array([fzf / 2 - dlf, fzf / 2 + dlf, fzr / 2 - dlr, fzr / 2 + dlr])
         r = ty.rolling_radius(fz, veh.r0_m, tyre, veh.tyre_pressure_pa)
         g = wheel_speed_ratios(kappa, track, L)
