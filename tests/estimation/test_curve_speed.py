@@ -1,15 +1,15 @@
-"""The faster μ(s) curve update gives the same floats and decisions as before it was made faster.
+"""The μ(s) curve update is pinned float for float.
 
-:meth:`CurveEstimator.update` (one pass over the wheels, the sums as floats, the change test's bins
-searched and filled inline, the state built without the frozen dataclass's setattr calls) must equal the
-update it replaced bit for bit.  End to end: short seeded recordings of five scenarios are simulated and
-replayed on the step path; every estimate column, every curve state the updates returned (a, class,
-per-class a and evidence, pairs used, var a, path, segment, soil, slip span and range, the fitted shape's
-parameters and covariance) and the update inputs are hashed (exact bytes of every float) and compared with
-the hashes made by the update as it was before (``tests/data/curve_speed/README.md`` says how).
+:meth:`CurveEstimator.update` with one class runs compiled (:mod:`tractionecu.estimation._curve_kernel`: the
+forgetting, the wheels' pairs, g(ŝ), the a sums, the shape identification's change test, binning and history),
+the same function for the step path and for batch replay's compiled loop.  End to end: short seeded recordings of
+five scenarios are simulated and replayed on the step path; every estimate column, every curve state the updates
+returned (a, class, per-class a and evidence, pairs used, var a, path, segment, soil, slip span and range, the
+fitted shape's parameters and covariance) and the update inputs are hashed (exact bytes of every float) and
+compared with ``tests/data/curve_speed/reference.json`` (the README there says how it was made and checked).
 
-If only the ``inputs`` hash differs, the estimator upstream of the curve changed, not the curve: the
-reference hashes must then be made again from the code before the change (README there).
+If only the ``inputs`` hash differs, the estimator upstream of the curve changed, not the curve: the reference
+hashes must then be made again (README there).
 """
 
 from __future__ import annotations
@@ -177,15 +177,31 @@ def test_curve_state_is_the_dataclass() -> None:
     assert dataclasses.replace(cs, class_index=7).class_index == 7
 
 
-def test_np_exp_elementwise() -> None:
-    """The one-class pass takes g's exponentials of both exponents from one np.exp call over 2n values
-    where :meth:`SoilClass.g` makes two calls over n: the same floats only if np.exp's value of an element
-    does not depend on the array around it (its SIMD loops and their tails), checked here on seeded
-    values of the range the curve update meets (α s from about −40 to 0), for every split of 2..8 values."""
-    rng = np.random.default_rng(11)
-    x = -rng.uniform(0.0, 1.0, 40000) * rng.choice([0.1, 1.0, 5.0, 40.0], 40000)
-    for n in range(1, 5):
-        blocks = x[: x.size // (2 * n) * (2 * n)].reshape(-1, 2, n)
-        for b in blocks[:2000]:
-            both = np.exp(np.array(b.ravel().tolist())).tolist()
-            assert both == np.exp(b[0].copy()).tolist() + np.exp(b[1].copy()).tolist()
+def test_kernel_constants_are_the_curve_modules() -> None:
+    """numba freezes a global's value into the machine code it caches, keyed by the kernel's own file: the compiled
+    update's copies of curve.py's bin layout (width, count, load groups, the change test's search order) must be
+    curve.py's."""
+    from tractionecu.estimation import _curve_kernel as CK
+
+    assert CK.MU_BIN_WIDTH == curve_mod.MU_BIN_WIDTH and CK.N_BINS == curve_mod.PairBins.N_BINS
+    assert (CK.LOAD_EDGE_LO, CK.LOAD_EDGE_HI) == curve_mod.LOAD_EDGES and CK.NEAR == curve_mod._NEAR
+
+
+def test_history_ring_grows_without_changing_a_float() -> None:
+    """The shape identification's history (the pairs of the last ``history_s``, for a new segment's take-over) is a
+    ring that grows when an instant does not fit (high update rates, many pairs): 40 s at 100 Hz with soil changes,
+    against the same run on a ring made large enough at the start, every state and the bins equal."""
+    rng = np.random.default_rng(5)
+    a = curve_mod.CurveEstimator(fz_ref_n=20000.0)
+    b = curve_mod.CurveEstimator(fz_ref_n=20000.0)
+    b.shape._HT = np.zeros((8192, 3))
+    b.shape._HP = np.zeros((8192 * 4, 5))
+    for i in range(4000):
+        soil = 1.0 + 0.6 * ((i // 1000) % 2)
+        s = np.abs(rng.normal(0.05 * soil, 0.02, 4))
+        mu = 0.8 * (1.0 - np.exp(-12.0 * s / soil)) + rng.normal(0.0, 0.01, 4)
+        args = (0.01 * i, mu, s, np.full(4, 0.02), np.full(4, 0.01), np.array([15000.0, 15000.0, 26000.0, 26000.0]))
+        assert _state_text(a.update(*args)) == _state_text(b.update(*args)), i
+    assert a.shape._HT.shape[0] > 256 and a.shape.segment == b.shape.segment >= 1
+    assert _canon(a.shape.bins.arrays()) == _canon(b.shape.bins.arrays())
+    assert _canon(a.shape.mature.arrays()) == _canon(b.shape.mature.arrays())

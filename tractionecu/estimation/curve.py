@@ -54,7 +54,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections import deque
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 from typing import Any, Sequence
@@ -64,6 +63,7 @@ from numpy.typing import NDArray
 from scipy.stats import f as f_dist
 
 from ..model.mucurve import CURVE_FORMS, SOIL_CLASSES, MuCurve, SoilClass, solve_a_array
+from . import _curve_kernel as CK
 
 
 @dataclass(frozen=True)
@@ -163,21 +163,61 @@ class CurveEstimator:
         self.switch_min_delta = float(switch_min_delta)
         self.slip_corr = float(slip_corr_s)
         nc = len(cls)
-        # per class: forgetting sums Σ w μ̂, Σ w g(ŝ) and the class evidence, as lists of floats (the same
-        # IEEE operations as the arrays they were; a list is cheaper at four pairs per update)
-        self._num = [0.0] * nc
-        self._den = [0.0] * nc
-        self._nll = [0.0] * nc
+        self.fz_ref_n = float(fz_ref_n)
+        # the state the compiled update (:mod:`._curve_kernel`) shares: last time, constants, and per class the
+        # forgetting sums Σ w μ̂, Σ w g(ŝ) and the class evidence (views of it: _num, _den, _nll)
+        C = self._C = np.zeros(CK.C_SIZE + 3 * nc)
+        C[[CK.C_TAU, CK.C_CTAU, CK.C_MINMU, CK.C_MINSLIP, CK.C_REF]] = (self.tau, self.class_tau, self.min_mu,
+                                                                        self.min_slip, self.fz_ref_n)
+        C[[CK.C_P, CK.C_A1, CK.C_A2, CK.C_Q]] = (cls[0].p, cls[0].alpha1, cls[0].alpha2, 1.0 - cls[0].p)
         self._g0c = (cls[0].p, cls[0].alpha1, cls[0].alpha2, 1.0 - cls[0].p)     # g of the first class
         self._path0 = "class:" + cls[0].name
         grid = np.linspace(0.0, 1.0, 4001)
         self._inv = [(c.g(grid), grid) for c in cls]     # g is increasing on [0, 1]: table for g⁻¹
         self._best = 0
-        self._t: float | None = None
-        self.n_used = 0
-        self.fz_ref_n = float(fz_ref_n)
         kw = {"fz_ref_n": self.fz_ref_n, "load": bool(load), **(shape_kw or {})}
         self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **kw) if shape else None)
+        self._SC = np.empty((4, 8))                      # the kernel's scratch for the shape's pairs
+        self._none = np.empty(0)
+
+    # per class Σ w μ̂, Σ w g(ŝ) and the class evidence: views of the shared state (properties, so that a copy
+    # of the estimator keeps them in its own state)
+    @property
+    def _num(self) -> NDArray[np.float64]:
+        return self._C[CK.C_NUM:CK.C_NUM + len(self.classes)]
+
+    @_num.setter
+    def _num(self, v: Any) -> None:
+        self._C[CK.C_NUM:CK.C_NUM + len(self.classes)] = v
+
+    @property
+    def _den(self) -> NDArray[np.float64]:
+        nc = len(self.classes)
+        return self._C[CK.C_NUM + nc:CK.C_NUM + 2 * nc]
+
+    @_den.setter
+    def _den(self, v: Any) -> None:
+        nc = len(self.classes)
+        self._C[CK.C_NUM + nc:CK.C_NUM + 2 * nc] = v
+
+    @property
+    def _nll(self) -> NDArray[np.float64]:
+        nc = len(self.classes)
+        return self._C[CK.C_NUM + 2 * nc:CK.C_NUM + 3 * nc]
+
+    @_nll.setter
+    def _nll(self, v: Any) -> None:
+        nc = len(self.classes)
+        self._C[CK.C_NUM + 2 * nc:CK.C_NUM + 3 * nc] = v
+
+    @property
+    def n_used(self) -> int:
+        """Number of (μ, s) pairs accepted on the last update."""
+        return int(self._C[CK.C_NUSED])
+
+    @n_used.setter
+    def n_used(self, n: int) -> None:
+        self._C[CK.C_NUSED] = n
 
     def update(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64],
                sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None = None,
@@ -185,17 +225,19 @@ class CurveEstimator:
         """Add the pairs of one instant t [s]: μ̂ (k,), ŝ (k,), the standard errors of μ̂ and ŝ (k,)
         and, optionally, the wheel loads F_z (k,) [N] (the shape identification then fits the
         curve's load dependence where the loads differ, with ``fz_ref_n`` as the reference)."""
-        dt = 0.0 if self._t is None else max(t - self._t, 0.0)
-        self._t = t
-        lam = math.exp(-dt / self.tau)
-        lam_c = math.exp(-dt / self.class_tau)
-        if (len(self._num) == 1 and mu_bin is None and type(mu) is np.ndarray and type(s) is np.ndarray
+        if (len(self.classes) == 1 and mu_bin is None and type(mu) is np.ndarray and type(s) is np.ndarray
                 and type(sigma_mu) is np.ndarray and mu.dtype == _F64 and s.dtype == _F64
                 and sigma_mu.dtype == _F64 and mu.ndim == 1 and s.shape == mu.shape == sigma_mu.shape):
-            return self._update_one(t, dt, lam, lam_c, mu, s, sigma_mu, sigma_s, fz)
-        self._num = [x * lam for x in self._num]
-        self._den = [x * lam for x in self._den]
-        self._nll = [x * lam_c for x in self._nll]
+            return self._update_one(t, mu, s, sigma_mu, sigma_s, fz)
+        C = self._C
+        dt = 0.0 if not C[CK.C_HAS_T] else max(t - float(C[CK.C_T]), 0.0)
+        C[CK.C_T] = t
+        C[CK.C_HAS_T] = 1.0
+        lam = math.exp(-dt / self.tau)
+        lam_c = math.exp(-dt / self.class_tau)
+        self._num = self._num * lam
+        self._den = self._den * lam
+        self._nll = self._nll * lam_c
         if self.shape is not None:
             self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz, mu_bin)
         if len(self.classes) == 1:
@@ -231,65 +273,36 @@ class CurveEstimator:
             self.n_used = used
         return self.state()
 
-    def _update_one(self, t: float, dt: float, lam: float, lam_c: float, mu: NDArray[np.float64],
-                    s: NDArray[np.float64], sigma_mu: NDArray[np.float64], sigma_s: NDArray[np.float64] | None,
-                    fz: NDArray[np.float64] | None) -> CurveState:
-        """:meth:`update` with one class and float64 arrays of one shape (the estimators' call): the
-        selection of :meth:`_feed_shape` and :meth:`_update_single` in one pass over the wheels, with
-        the same operations in the same order (same floats, same decisions as the two apart)."""
-        self._num[0] *= lam
-        self._den[0] *= lam
-        self._nll[0] *= lam_c
-        ml = mu.tolist()
-        sl = s.tolist()
-        n = len(sl)
-        min_mu, min_slip = self.min_mu, self.min_slip
+    def _update_one(self, t: float, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64],
+                    sigma_s: NDArray[np.float64] | None, fz: NDArray[np.float64] | None) -> CurveState:
+        """:meth:`update` with one class and float64 arrays of one shape (the estimators' call), compiled
+        (:func:`._curve_kernel.ce_update`: the forgetting, the pairs' choice, g(ŝ), the a sums and the shape
+        identification's pairs); the soil segment's close and the once-a-second span and fit here."""
+        n = mu.shape[0]
+        ss = (np.ascontiguousarray(sigma_s, dtype=float) if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,)
+              else None)
+        if fz is None or not self.fz_ref_n > 0:
+            fzv = None
+        else:
+            fzv = fz if (type(fz) is np.ndarray and fz.dtype == _F64) else np.asarray(fz, dtype=float)
+            if fzv.shape != (n,):
+                fzv = None
+        none = self._none
         sh = self.shape
-        if sh is not None:
-            ssl = sigma_s.tolist() if isinstance(sigma_s, np.ndarray) and sigma_s.shape == (n,) else None
-            ref = self.fz_ref_n
-            if fz is None or not ref > 0:
-                fzl = None
-            elif type(fz) is np.ndarray and fz.dtype == _F64:
-                fzl = fz.tolist() if fz.shape == (n,) else None
-            else:
-                fzl = np.asarray(fz, dtype=float).tolist() if np.shape(fz) == (n,) else None
-            m_ok: list[float] = []
-            s_ok: list[float] = []
-            ss_ok: list[float] = []
-            z_ok: list[float] = []
-        sel: list[int] = []
-        for i in range(n):
-            m = ml[i]
-            x = sl[i]
-            # |μ̂| ≥ min_mu, same sign, both finite (math.isfinite ⇔ |v| < inf once m x > 0 holds)
-            if m * x > 0 and abs(m) >= min_mu and abs(m) < math.inf and abs(x) < math.inf:
-                sel.append(i)
-                if sh is not None and abs(x) >= min_slip:
-                    m_ok.append(m)
-                    s_ok.append(x)
-                    ss_ok.append(0.0 if ssl is None else ssl[i])
-                    if fzl is None:
-                        z_ok.append(0.0)
-                    else:
-                        f = fzl[i]
-                        z_ok.append(f / ref - 1.0 if f == f else 0.0)
-        if sh is not None and m_ok:
-            sh.update(t, dt, m_ok, s_ok, ss_ok, z_ok, None)
-        self.n_used = 0
-        if sel:
-            # g(ŝ) of the class (SoilClass.g): the exponentials by np.exp (its results, which may differ
-            # from math.exp's in the last bit; one call for both exponents: np.exp is elementwise, the
-            # value of an element does not depend on the others, test_curve_speed), the rest as floats
-            # in g's order (sign(ŝ)·val: ±val, ŝ ≠ 0 here)
-            p, a1, a2, q = self._g0c
-            sa = [abs(sl[i]) for i in sel]
-            ns = len(sa)
-            e = _np_exp(_np_array([a1 * v for v in sa] + [a2 * v for v in sa])).tolist()
-            g = [(1.0 - p * e[r] - q * e[ns + r]) if sl[i] > 0 else -(1.0 - p * e[r] - q * e[ns + r])
-                 for r, i in enumerate(sel)]
-            sig = sigma_mu.tolist()
-            self._add_a_sums(g, sel, ml, sl, [sig[i] for i in sel])
+        t = float(t)
+        if sh is None:
+            _ce_update(self._C, _NO_S, _NO_SI, _NO_B, _NO_B, _NO_HT, _NO_HP, _NO_HP, self._SC, t, mu, s, sigma_mu,
+                       none if ss is None else ss, none if fzv is None else fzv, False, ss is not None,
+                       fzv is not None)
+            return self.state()
+        while True:
+            r = _ce_update(self._C, sh._S, sh._SI, sh._B, sh._MT, sh._HT, sh._HP, sh._PD, sh._SC, t, mu, s, sigma_mu,
+                           none if ss is None else ss, none if fzv is None else fzv, True, ss is not None,
+                           fzv is not None)
+            if r != CK.GROW:
+                break
+            sh._grow(n)
+        sh._after(r, t)
         return self.state()
 
     def _feed_shape(self, t: float, dt: float, mu: NDArray[np.float64], s: NDArray[np.float64],
@@ -333,7 +346,15 @@ class CurveEstimator:
         self.n_used = 0
         if not sel:
             return
-        g = self.classes[0].g(s[sel]).tolist()
+        # g(ŝ) of the class (SoilClass.g) with the C library's exp, as the compiled update
+        # (:func:`._curve_kernel.ce_update`) computes it
+        p, a1, a2, q = self._g0c
+        g = []
+        for i in sel:
+            x = sl[i]
+            sa = abs(x)
+            v = 1.0 - p * math.exp(a1 * sa) - q * math.exp(a2 * sa)
+            g.append(v if x > 0 else -v)
         sig = np.broadcast_to(sigma_mu, s.shape)[sel].tolist()
         self._add_a_sums(g, sel, ml, sl, sig)
 
@@ -368,38 +389,58 @@ class CurveEstimator:
 
     def state(self) -> CurveState:
         """The current identification (a, best class, per-class a and evidence)."""
-        al = [n / d if d > 0 else math.nan for n, d in zip(self._num, self._den)]
-        a = np.array(al)
-        if len(al) > 1:
-            cand = int(np.argmin(self._nll))
-            if cand != self._best and self._nll[self._best] - self._nll[cand] > self.switch_min_delta:
+        nc = len(self.classes)
+        cl = self._C.tolist()
+        o = CK.C_NUM
+        nll = cl[o + 2 * nc:o + 3 * nc]
+        if nc > 1:
+            cand = int(np.argmin(nll))
+            if cand != self._best and nll[self._best] - nll[cand] > self.switch_min_delta:
                 self._best = cand
+        return self._state_of(cl[o:o + nc], cl[o + nc:o + 2 * nc], nll, int(cl[CK.C_NUSED]), self._shape_info())
+
+    def _shape_info(self) -> tuple[Any, ...] | None:
+        """What a state takes from the shape identification (its span, fit, soil and segment), None without it;
+        it changes only at a segment's close and at the once-a-second check."""
+        sh = self.shape
+        if sh is None:
+            return None
+        return (sh._span, sh.fit, sh.soil_ids[sh.match] if sh.match >= 0 else sh._next_id, sh.segment)
+
+    def _state_of(self, num: list[float], den: list[float], nll_l: list[float], n_used: int,
+                  info: tuple[Any, ...] | None) -> CurveState:
+        """The state of the per-class sums Σ w μ̂ ``num``, Σ w g(ŝ) ``den``, the evidence ``nll_l``, the pairs
+        used and the shape identification's :meth:`_shape_info` (as :meth:`state` makes it then)."""
+        al = [n / d if d > 0 else math.nan for n, d in zip(num, den)]
+        a = np.array(al)
         b = self._best
         a_b = al[b]
         cls = self.classes[b]
         name = cls.name
         path = self._path0 if b == 0 else "class:" + name
-        nll = np.array(self._nll)
-        if self.shape is None:
-            return _curve_state(a_b, b, name, a, nll, self.n_used, None, math.nan, path, 0, math.nan, 0, None)
-        sh = self.shape
-        lo, hi, nb = sh._span
-        fit = sh.fit
-        soil = sh.soil_ids[sh.match] if sh.match >= 0 else sh._next_id     # ShapeIdentifier.soil
+        nll = np.array(nll_l)
+        if info is None:
+            return _curve_state(a_b, b, name, a, nll, n_used, None, math.nan, path, 0, math.nan, 0, None)
+        (lo, hi, nb), fit, soil, segment = info
         if fit is not None and fit.shape_selected:
             c = fit.curve
-            return _curve_state(c.a, b, name, a, nll, self.n_used, c, math.nan, c.path, sh.segment,
+            return _curve_state(c.a, b, name, a, nll, n_used, c, math.nan, c.path, segment,
                                 hi - lo if nb else math.nan, soil, None)
         var_a = math.nan
         if fit is not None and fit.best_class.soil_class is cls:   # the bins' interval, scaled to a
             var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
-        return _curve_state(a_b, b, name, a, nll, self.n_used, None, var_a, path,
-                            sh.segment, hi - lo if nb else math.nan, soil, (lo, hi) if nb else None)
+        return _curve_state(a_b, b, name, a, nll, n_used, None, var_a, path,
+                            segment, hi - lo if nb else math.nan, soil, (lo, hi) if nb else None)
 
 
 _F64 = np.dtype(np.float64)
-_np_exp = np.exp
-_np_array = np.array
+_ce_update = CK.ce_update
+_shape_post = CK.shape_post
+_NO_S = np.zeros(CK.S_SIZE)
+_NO_SI = np.zeros(CK.SI_SIZE, dtype=np.int64)
+_NO_B = np.zeros((6, 1))
+_NO_HT = np.zeros((1, 3))
+_NO_HP = np.zeros((1, 5))
 _CS_FIELDS = tuple(f.name for f in dataclasses.fields(CurveState))
 _new_object = object.__new__
 _set_attr = object.__setattr__
@@ -633,6 +674,14 @@ class PairBins:
         if not n:
             return math.nan, math.nan, 0
         return num / den, 1.0 / math.sqrt(den), n
+
+    @classmethod
+    def _of(cls, A: NDArray[np.float64], groups: bool) -> "PairBins":
+        """Bins holding the rows of A (W, Σws, Σws², Σwμ, Σwμ², Σwz) as lists of floats."""
+        c = cls.__new__(cls)
+        c.groups = bool(groups)
+        c.W, c.S1, c.S2, c.M1, c.M2, c.Z1 = A.tolist()
+        return c
 
     def copy(self) -> "PairBins":
         c = PairBins(self.groups)
@@ -1143,21 +1192,29 @@ class ShapeIdentifier:
         self.reset()
 
     def reset(self) -> None:
-        self.bins = PairBins()
+        # the state the compiled update (:mod:`._curve_kernel`) works on: constants, CUSUM sums and times (S),
+        # the history ring's positions (SI), the segment's bins (B), the fit's bins (MT), the history of the
+        # last ``history_s`` (HT: instants, HP: pairs; the young pairs are the newest of them), the instant's
+        # pairs (PD) and the kernel's scratch (SC)
+        S = self._S = np.zeros(CK.S_SIZE)
+        S[[CK.S_SLIPCORR, CK.S_WMIN, CK.S_K, CK.S_H, CK.S_MAXW, CK.S_HIST, CK.S_CONFIRM]] = (
+            self.slip_corr, self.min_bin_weight, self.k, self.h, self.max_weight, self.history_s, self.confirm_s)
+        S[[CK.S_P, CK.S_A1, CK.S_A2, CK.S_Q]] = self._c0
+        S[CK.S_TWO] = 2.0
+        S[[CK.S_TCP, CK.S_TCN, CK.S_TCHECK, CK.S_TLAST]] = -math.inf   # (each CUSUM side's time it last left 0)
+        self._SI = np.zeros(CK.SI_SIZE, dtype=np.int64)
+        self._SI[CK.SI_LOAD] = int(self.load)
+        self._B = np.zeros((6, PairBins.N_BINS))
+        self._MT = np.zeros((6, PairBins.N_BINS * (PairBins.N_GROUPS if self.load else 1)))
+        self._HT = np.zeros((256, 3))
+        self._HP = np.zeros((1024, 5))
+        self._PD = np.zeros((8, 5))
+        self._SC = np.zeros((4, 8))
         self.segment = 0
         self.fit: CurveFit | None = None
         self.n_fits = 0
         self._t_fit = -math.inf
-        self._t_check = -math.inf
-        self._w_fit = 0.0
         self._span: tuple[float, float, int] = (math.nan, math.nan, 0)
-        self._cp = self._cn = 0.0
-        self._t_cp = self._t_cn = -math.inf          # time each CUSUM side last left zero
-        self._hist: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
-        self.mature = PairBins(groups=self.load)
-        """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well
-        when the load term is on (else as the change test's bins: the paper path's data unchanged)."""
-        self._young: deque[tuple[float, list[tuple[int, float, float, float, float]]]] = deque()
         self.soils: list[PairBins] = []
         """The mature bins of every soil seen before the current segment (closed segments pooled)."""
         self.soil_seen: list[float] = []
@@ -1175,10 +1232,75 @@ class ShapeIdentifier:
         """Number of the current soil (:attr:`ShapeState.soil`)."""
         return self.soil_ids[self.match] if self.match >= 0 else self._next_id
 
-    def _match(self) -> int:
-        """The earlier soil the current segment's mature bins do not differ from (smallest |D|/σ_D), −1 if none."""
+    @property
+    def bins(self) -> PairBins:
+        """The current segment's bins (a copy of the compiled state's; the change test's reference)."""
+        return PairBins._of(self._B, False)
+
+    @bins.setter
+    def bins(self, b: PairBins) -> None:
+        self._B[:] = b.arrays()
+
+    @property
+    def mature(self) -> PairBins:
+        """The segment's pairs older than ``confirm_s`` (the fit's data), binned by load group as well when the
+        load term is on (else as the change test's bins: the paper path's data unchanged); a copy of the compiled
+        state's."""
+        return PairBins._of(self._MT, self.load)
+
+    @mature.setter
+    def mature(self, b: PairBins) -> None:
+        self._MT[:] = b.arrays()
+
+    def _scalar(i: int, doc: str) -> property:             # type: ignore[misc]  # (a class-body helper)
+        return property(lambda self: float(self._S[i]), lambda self, v: self._S.__setitem__(i, v), doc=doc)
+
+    _cp = _scalar(CK.S_CP, "CUSUM sum of the positive side")
+    _cn = _scalar(CK.S_CN, "CUSUM sum of the negative side")
+    _t_cp = _scalar(CK.S_TCP, "time the positive side last left zero [s]")
+    _t_cn = _scalar(CK.S_TCN, "time the negative side last left zero [s]")
+    _t_check = _scalar(CK.S_TCHECK, "time of the last once-a-second check [s]")
+    _t_last = _scalar(CK.S_TLAST, "time of the last instant with pairs [s]")
+    _w_fit = _scalar(CK.S_WFIT, "the segment's total weight at its last fit")
+    del _scalar
+
+    def _grow(self, n: int) -> None:
+        """Room in the history ring for one more instant of n pairs (the positions renumbered from 0)."""
+        HT, HP, SI = self._HT, self._HP, self._SI
+        cap, capp = HT.shape[0], HP.shape[0]
+        hh, tail = int(SI[CK.SI_HHEAD]), int(SI[CK.SI_TAIL])
+        p0 = int(HT[hh % cap, 1]) if tail > hh else int(SI[CK.SI_PTAIL])
+        used_p = int(SI[CK.SI_PTAIL]) - p0
+        HT2 = np.zeros((max(2 * cap, tail - hh + 2), 3))
+        HP2 = np.zeros((max(2 * capp, used_p + 2 * n), 5))
+        for j, r in enumerate(range(hh, tail)):
+            HT2[j] = HT[r % cap]
+            HT2[j, 1] -= p0
+        for j in range(used_p):
+            HP2[j] = HP[(p0 + j) % capp]
+        SI[CK.SI_YHEAD] -= hh
+        SI[CK.SI_HHEAD] = 0
+        SI[CK.SI_TAIL] = tail - hh
+        SI[CK.SI_PTAIL] = used_p
+        self._HT, self._HP = HT2, HP2
+        if n > self._PD.shape[0]:
+            self._PD = np.zeros((n, 5))
+            self._SC = np.zeros((4, n))
+
+    def _after(self, r: int, t: float) -> None:
+        """The compiled update's Python part: on an alarm the segment's close and the pairs' binning, on the
+        once-a-second check the span and fit."""
+        if r == CK.ALARM:
+            self._new_segment(float(self._S[CK.S_T_FROM]))
+            r = _shape_post(self._S, self._SI, self._B, self._MT, self._HT, self._HP, self._PD)
+        if r == CK.CHECK:
+            self._maybe_fit(t)
+
+    def _match(self, mat: PairBins | None = None) -> int:
+        """The earlier soil the current segment's mature bins (``mat``, None: :attr:`mature`) do not differ from
+        (smallest |D|/σ_D), −1 if none."""
         best, best_z = -1, self.match_z
-        mat, min_w = self.mature, self.min_bin_weight
+        mat, min_w = (self.mature if mat is None else mat), self.min_bin_weight
         nb = len(mat.W)
         own = [k for k, w in enumerate(mat.W) if not w < min_w]   # the bins shift_test does not skip for W
         for j, sb in enumerate(self.soils):
@@ -1214,22 +1336,11 @@ class ShapeIdentifier:
         self._close_soil()
         self.match = -1
         self._fit_match = -1
-        moved = [e for e in self._hist if e[0] >= t_from]
-        self.bins = PairBins()
-        for _, pairs in moved:
-            for k, w, s, m, zz in pairs:
-                self.bins.add(k, w, s, m, zz)
-        self._hist = deque(moved)
-        self.mature = PairBins(groups=self.load)
-        self._young = deque(moved)
+        CK.new_segment(self._S, self._SI, self._B, self._MT, self._HT, self._HP, float(t_from))
         self.segment += 1
         self.fit = None
         self._t_fit = -math.inf
-        self._t_check = -math.inf
-        self._w_fit = 0.0
         self._span = (math.nan, math.nan, 0)
-        self._cp = self._cn = 0.0
-        self._t_cp = self._t_cn = -math.inf
 
     def update(self, t: float, dt: float, mu: Sequence[float], s: Sequence[float], sigma_s: Sequence[float],
                z: Sequence[float] | None = None, mu_bin: Sequence[float] | None = None) -> None:
@@ -1245,102 +1356,20 @@ class ShapeIdentifier:
         n = len(mu)
         if n == 0:
             return
-        self._t_last = t
-        zl = [0.0] * n if z is None else z
-        discount = min(1.0, dt / self.slip_corr) if dt > 0 else 1.0
-        bins = self.bins
-        W, S1, S2 = bins.W, bins.S1, bins.S2
-        wmin = self.min_bin_weight
-        last = PairBins.N_BINS - 1
-        w_pair = discount / n
-        z_sum = 0.0
-        nz = 0
-        pairs = []
-        M1 = bins.M1
-        p0, a10, a20, q0 = self._c0
-        near = _NEAR_BINS
-        exp, sqrt = math.exp, math.sqrt
-        bins_by = mu if mu_bin is None else mu_bin
-        for m, x, ss, zz, mb in zip(mu, s, sigma_s, zl, bins_by):
-            m, x = abs(m), abs(x)
-            k = min(int(abs(mb) / MU_BIN_WIDTH), last)
-            for j in near[k]:                                 # the nearest bin with enough weight
-                if W[j] >= wmin:
-                    wj = W[j]                                 # residual against that bin's mean slip,
-                    sj = S1[j] / wj                           # moved to μ̂ along the class slope
-                    mj = M1[j] / wj
-                    if j != k:
-                        e1, e2 = exp(a10 * sj), exp(a20 * sj)
-                        dg = -p0 * a10 * e1 - q0 * a20 * e2
-                        gj = 1.0 - p0 * e1 - q0 * e2
-                        if dg > 0 and gj > 0:
-                            sj += (m - mj) * gj / (mj * dg)  # ds/dμ = 1/(a g'(s)), a = μ̄/g(s̄)
-                    var = max(S2[j] / wj - (S1[j] / wj) ** 2, ss * ss if ss == ss else 0.0, 1e-6) * (1.0 + 1.0 / wj)
-                    z_sum += (x - sj) / sqrt(var)
-                    nz += 1
-                    break
-            pairs.append((k, w_pair, x, m, zz))
-        if nz:
-            z = z_sum / nz                                   # the wheels of one instant: one sample
-            cp = max(0.0, self._cp + discount * (z - self.k))
-            cn = max(0.0, self._cn + discount * (-z - self.k))
-            if cp > 0 and self._cp == 0:
-                self._t_cp = t
-            if cn > 0 and self._cn == 0:
-                self._t_cn = t
-            self._cp, self._cn = cp, cn
-            if cp > self.h or cn > self.h:
-                self._new_segment(self._t_cp if cp > self.h else self._t_cn)
-                bins = self.bins
-        W, S1, S2, M1, M2, Z1 = bins.W, bins.S1, bins.S2, bins.M1, bins.M2, bins.Z1
-        for k, w, x, m, zz in pairs:                          # PairBins.add, inline
-            W[k] += w
-            ws = w * x
-            S1[k] += ws
-            S2[k] += ws * x
-            wm = w * m
-            M1[k] += wm
-            M2[k] += wm * m
-            Z1[k] += w * zz
-        hist = self._hist
-        hist.append((t, pairs))
-        while hist[0][0] < t - self.history_s:
-            hist.popleft()
-        young = self._young
-        young.append((t, pairs))
-        t_old = t - self.confirm_s
-        if young[0][0] <= t_old:
-            mat = self.mature
-            W, S1, S2, M1, M2, Z1 = mat.W, mat.S1, mat.S2, mat.M1, mat.M2, mat.Z1
-            load = self.load
-            while young and young[0][0] <= t_old:
-                for k, w, x, m, zz in young.popleft()[1]:
-                    if load:
-                        k = PairBins.group_index(k, zz)
-                    W[k] += w                                 # PairBins.add, inline
-                    ws = w * x
-                    S1[k] += ws
-                    S2[k] += ws * x
-                    wm = w * m
-                    M1[k] += wm
-                    M2[k] += wm * m
-                    Z1[k] += w * zz
-        if t - self._t_check >= 1.0:
-            self._t_check = t
-            self._cap_weight()
-            self._maybe_fit(t)
-
-    def _cap_weight(self) -> None:
-        """Rescale the segment's bins (and the history with them) beyond ``max_weight``."""
-        total = self.bins.total
-        if total > self.max_weight:
-            f = self.max_weight / total
-            self.bins.scale(f)
-            self.mature.scale(f)
-            for _, ps in self._hist:                      # (the young pairs are the same lists)
-                for i, (k, w, x, m, zz) in enumerate(ps):
-                    ps[i] = (k, w * f, x, m, zz)
-            self._w_fit *= f
+        m = np.array(mu, dtype=float)
+        mb = m if mu_bin is None else np.array(mu_bin, dtype=float)
+        if not np.isfinite(mb).all():
+            raise ValueError("the binning adhesion of a pair is not finite")
+        args = (float(t), float(dt), m, np.array(s, dtype=float), np.array(sigma_s, dtype=float),
+                np.zeros(n) if z is None else np.array(z, dtype=float), mb, n)
+        while True:
+            r = CK.shape_pre(self._S, self._SI, self._B, self._HT, self._HP, self._PD, *args)
+            if r != CK.GROW:
+                break
+            self._grow(n)
+        if r == CK.ALARM:
+            self._new_segment(float(self._S[CK.S_T_FROM]))
+        self._after(_shape_post(self._S, self._SI, self._B, self._MT, self._HT, self._HP, self._PD), float(t))
 
     def _maybe_fit(self, t: float) -> None:
         """Once a second: the span; a fit when it suffices, the change test is quiet (both CUSUM
@@ -1349,10 +1378,10 @@ class ShapeIdentifier:
         pairs older than ``confirm_s``: a soil change is found within a few seconds, and the new
         soil's first pairs must not reach the old soil's fit (they would widen its span with
         another curve)."""
-        if self.soils and max(self._cp, self._cn) <= 0.5 * self.h:
-            self.match = self._match()
-        pool = self.match                                   # the segment with its soil's earlier segments
         mat = self.mature
+        if self.soils and max(self._cp, self._cn) <= 0.5 * self.h:
+            self.match = self._match(mat)
+        pool = self.match                                   # the segment with its soil's earlier segments
         if pool < 0:
             bins: PairBins | None = mat
             W, S1 = mat.W, mat.S1
