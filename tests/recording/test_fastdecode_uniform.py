@@ -115,3 +115,51 @@ def test_a_very_long_line_across_many_blocks(tmp_path, codec, monkeypatch):
     sa, sb = RecordingStats(), RecordingStats()
     _read_can(path, codec, sa), read_can_per_frame(path, codec, sb)
     assert vars(sa.files["can.log"]) == vars(sb.files["can.log"])
+
+
+def _corrupted(rng: random.Random, n: int, iface: str) -> list[str]:
+    """Canonical lines of one interface name, about half of them with one to three bytes replaced by
+    characters near the layout's (digits, hex letters in both cases, brackets, dot, blank, hash, control
+    and edge-of-printable characters), and edge values: the largest times, the 2^53 µs limit, the error flag."""
+    chars = "0123456789abcdefABCDEFgG()#. -+:\x00\x1f\x20\x21\x7e\x7f"
+    out = []
+    for _ in range(n):
+        line = format_line(rng.choice([0.0, 1e9, T0]) + rng.random() * 1e4, iface, rng.randrange(1 << 29), True,
+                           bytes(rng.randrange(256) for _ in range(8)))
+        b = list(line)
+        for _ in range(rng.choice([0, 0, 0, 1, 2, 3])):
+            b[rng.randrange(len(b))] = rng.choice(chars)
+        out.append("".join(b))
+    tail = f" {iface} "
+    out += [f"(9999999999.999999){tail}1FFFFFFF#0011223344556677", f"(9007199254.740992){tail}00000001#0011223344556677",
+            f"(9007199254.740991){tail}1FFFFFFF#ffffffffffffffff", f"(0000000000.000000){tail}20000000#0011223344556677",
+            f"(0000000000.000001){tail}1fffffff#FFFFFFFFFFFFFFFF"]
+    return out
+
+
+@pytest.mark.parametrize("iface", ["can0", "v", "vcan_with_a_long_name_of_32_char"])
+def test_compiled_line_check_equals_numpy(iface):
+    """The compiled check and conversion of canonical lines (fastdecode._canonical_rows, numba) against the
+    numpy one (_canonical_np) and the kernel's own Python body: the same lines accepted, and their time,
+    identifier and data bit for bit; on split lines and on a one-width block's rows (LF kept)."""
+    if not fastdecode.use_compiled():
+        pytest.skip("numba is not installed")
+    rng = random.Random(len(iface))
+    lines = _corrupted(rng, 4000, iface)
+    width = len(lines[0])
+    assert 47 <= width <= 78 and all(len(x) == width for x in lines)
+    uniform = fastdecode._Uniform.of("\n".join(lines) + "\n")
+    assert uniform is not None
+    for block in (lines, uniform):
+        A = fastdecode._line_matrix(block, np.arange(len(lines)), width)
+        ref = fastdecode._canonical_np(A, width)
+        outs = [fastdecode._canonical_rows(A, width, fastdecode._HEXVAL),
+                fastdecode._canonical_rows_py(A[:600], width, fastdecode._HEXVAL)]
+        for out in outs:
+            m = out[0].size
+            ok = ref[0][:m]
+            assert np.array_equal(out[0], ok)
+            assert 0.2 * m < ok.sum() < m
+            assert ref[1][:m][ok].tobytes() == out[1][ok].tobytes()
+            assert np.array_equal(ref[2][:m][ok], out[2][ok]) and np.array_equal(ref[3][:m][ok], out[3][ok])
+    assert ref[0][-5:].tolist() == [False, False, True, False, True]

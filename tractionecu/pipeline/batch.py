@@ -339,6 +339,9 @@ def _open(recording: Any, hold_bytes: int | None = None) -> tuple[Any, bool, Any
 
     if isinstance(recording, Recording):
         return recording, False, None
+    from ..recording import fastdecode
+
+    fastdecode.use_compiled()                  # the candump lines checked compiled (numba: the loop loads it anyway)
     bound = HOLD_MAX_BYTES if hold_bytes is None else int(hold_bytes)
     hold = HeldBlocks(REPLAY_SIGNALS, bound) if bound > 0 else None
     return read_recording(recording, keep=survey_keep, hold=hold), True, hold
