@@ -109,7 +109,9 @@ class CurveState:
         if cls is None:
             return None
         c = MuCurve.from_class(cls, self.a, self.var_a)
-        return c if self.s_range is None else dataclasses.replace(c, s_range=self.s_range)
+        if self.s_range is not None:           # dataclasses.replace(c, s_range=...) on the fresh object: the same
+            _set_attr(c, "s_range", self.s_range)   # fields, without a second construction
+        return c
 
 
 class CurveEstimator:
