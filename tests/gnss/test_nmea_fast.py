@@ -308,3 +308,44 @@ def test_times_of_day_where_the_order_of_operations_shows():
             lines.append(f"${body}*{checksum(body)}")
     assert _check_lines(lines) == len(lines)
     assert all(v is not None for v in fast_block(lines)[0])
+
+
+def test_compiled_numbers_equal_the_numpy_form():
+    """The compiled field conversion (nmea._compiled_dec, numba) against the numpy form (_dec_np) and the
+    kernel's own Python body: ok, value, N and k bit for bit, declined fields too (their N, k = 0, the sign
+    of the value), on random texts, numbers, over-long digit runs, empty fields and the buffer's last field."""
+    import numba  # noqa: F401 - the compiled form is loaded once numba is
+
+    import numpy as np
+
+    from tractionecu.gnss import nmea
+
+    dec = nmea._compiled_dec()
+    assert dec is not None
+    rng = random.Random(9)
+    alphabet = "0123456789.-+eE ,*NSX"
+    texts: list[str] = []
+    for _ in range(6000):
+        r = rng.random()
+        if r < 0.4:
+            texts.append(f"{rng.uniform(-1e4, 1e4):.{rng.randrange(0, 9)}f}")
+        elif r < 0.7:
+            texts.append("".join(rng.choice(alphabet) for _ in range(rng.randrange(0, 22))))
+        else:
+            texts.append("".join(rng.choice("0123456789") for _ in range(rng.randrange(0, 22)))
+                         + rng.choice(["", ".", ".5", "-", "..1"]))
+    texts += ["", "-", "-0", "-0.0", ".5", "5.", "1.2.3", "-.5", "00", "9" * 15, "9" * 16, "1" * 17 + ".5", "-"]
+    buf = np.frombuffer(",".join(texts).encode(), dtype=np.uint8)
+    a = np.cumsum([0] + [len(t) + 1 for t in texts[:-1]]).astype(np.int64)
+    b = a + np.array([len(t) for t in texts], dtype=np.int64)
+    declined = 0
+    for sl in (slice(None), slice(0, 1), slice(1000, 1400), slice(len(texts) - 20, None)):
+        ref = nmea._dec_np(buf, a[sl], b[sl])
+        outs = [dec(buf, a[sl].copy(), b[sl].copy(), nmea._F10), nmea._dec(buf, a[sl], b[sl]),
+                nmea._dec_fields_py(buf, a[sl][:500], b[sl][:500], nmea._F10)]
+        for out in outs:
+            m = out[0].size
+            for x, y in zip(ref, out):
+                assert x[:m].dtype == y.dtype and x[:m].tobytes() == y.tobytes()
+        declined += int((~ref[0]).sum())
+    assert 0 < declined < len(texts)

@@ -45,7 +45,10 @@ by line; every other line, and every line whose value a check of
 their reasons, line numbers and texts.  A block that the block conversion
 takes whole is also given as columns (:func:`fast_columns`), which the
 recording reader assembles into epochs as arrays.  pynmea2 stays the
-reference: the live service parses with :func:`parse_line`.
+reference: the live service parses with :func:`parse_line`.  Once numba is
+loaded in the process (batch replay), the block tier's number fields are
+converted by a compiled kernel (:func:`_dec`), the numpy form's checks and
+arithmetic field by field, equal to it bit for bit.
 
 How it is proven equal: each tier uses :func:`parse_line`'s arithmetic on
 the same field text (``float()``; in the block tier ``N / 10**k`` for a
@@ -63,6 +66,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from datetime import date, datetime, timedelta, timezone
@@ -887,7 +891,80 @@ def _dec(buf: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.
     (ok, float value, integer digits N, decimals k).  The value is ``N / 10**k`` (negated after a '-'):
     both exact doubles, so the division's correctly rounded quotient is the correctly rounded value of
     the decimal, which is what ``float(text)`` returns.  ok is False for an empty field or another form.
-    One character position at a time over all fields (few positions, many fields)."""
+    Compiled (:func:`_dec_fields_py` with numba) once numba is loaded in the process, else
+    :func:`_dec_np`: the same four arrays, bit for bit, whatever the fields (``tests/gnss/test_nmea_fast.py``)."""
+    fn = _compiled_dec()
+    if fn is not None and a.size:
+        return fn(buf, np.ascontiguousarray(a, dtype=np.int64), np.ascontiguousarray(b, dtype=np.int64), _F10)
+    return _dec_np(buf, a, b)
+
+
+def _dec_fields_py(buf: np.ndarray, a: np.ndarray, b: np.ndarray, f10: np.ndarray):
+    """:func:`_dec_np` field by field (compiled with numba by :func:`_compiled_dec`): the same checks and the
+    same arithmetic, also for the fields it declines (N of the digits read, k = 0, the sign)."""
+    m = a.size
+    top = buf.size - 1
+    cap = MAX_FAST_DIGITS + 2
+    W = 0
+    for i in range(m):
+        W = max(W, b[i] - a[i])
+    W = min(W, cap)
+    ok = np.zeros(m, dtype=np.bool_)
+    val = np.zeros(m, dtype=np.float64)
+    Ns = np.zeros(m, dtype=np.int64)
+    ks = np.zeros(m, dtype=np.int64)
+    for i in range(m):
+        L = b[i] - a[i]
+        N = 0
+        ndig = 0
+        k = 0
+        ndot = 0
+        bad = L > W
+        neg = buf[min(a[i], top)] == 0x2D
+        for j in range(min(L, W)):
+            c = np.int64(buf[min(a[i] + j, top)]) - 0x30
+            isd = 0 <= c <= 9
+            isdot = c == 0x2E - 0x30
+            if isd:
+                N = N * 10 + c
+                ndig += 1
+                if ndot > 0:
+                    k += 1
+            elif not isdot and not (j == 0 and neg):
+                bad = True
+            if isdot:
+                if ndig == 0:                           # a digit before the dot
+                    bad = True
+                ndot += 1
+        good = not bad and ndot <= 1 and 1 <= ndig <= MAX_FAST_DIGITS and (ndot == 0 or k >= 1)
+        if not good:
+            k = 0
+        v = N / f10[k]
+        ok[i] = good
+        val[i] = -v if neg else v
+        Ns[i] = N
+        ks[i] = k
+    return ok, val, Ns, ks
+
+
+_dec_fields = None
+""":func:`_dec_fields_py` compiled, once :func:`_compiled_dec` has loaded it."""
+
+
+def _compiled_dec():
+    """The compiled field conversion, loaded on first use once numba is imported in this process (by the
+    estimator's kernels, or batch replay); None before, so reading a log alone does not pay numba's start-up."""
+    global _dec_fields
+    if _dec_fields is None and "numba" in sys.modules:
+        import numba
+
+        _dec_fields = numba.njit(cache=True, nogil=True)(_dec_fields_py)
+    return _dec_fields
+
+
+def _dec_np(buf: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_dec` in numpy, one character position at a time over all fields (few positions, many
+    fields): the reference of the compiled form and the path until numba is loaded."""
     m = a.size
     L = b - a
     W = int(min(L.max(initial=0), MAX_FAST_DIGITS + 2))
