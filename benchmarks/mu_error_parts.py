@@ -17,7 +17,8 @@ total).  Printed:
 ``parts``
     work (implement in work, ``truth.csv`` ``work``) and not in work (headland turns, transport), the
     latter split into straight and turning (|curvature| ≥ 0.001 1/m; the paper truth writes no curvature,
-    its steps all count as straight); valid and not valid steps; per
+    its steps all count as straight); the turning steps (in work or not) on the turn's outer and on its inner
+    wheels, which the lateral load transfer loads and unloads; valid and not valid steps; per
     wheel; per soil in work.
 ``blocks``
     the mean absolute relative error in work after averaging the signed error over blocks of 10 ms to 2 s
@@ -92,12 +93,14 @@ def parts(rec_dir: Path) -> dict:
     out: dict = {"mu_err": float(sc["mu_mean_abs_rel_error"]), "mu_bias": float(sc["mu_mean_rel_bias"]),
                  "valid_work": float(valid[sl][work].mean()) if work.any() else float("nan")}
 
-    def part(mask_steps: np.ndarray, wheel: int | None = None) -> dict:
+    def part(mask_steps: np.ndarray, wheel: int | None = None, wheels: np.ndarray | None = None) -> dict:
         m = np.broadcast_to(mask_steps[:, None], rel.shape) & fin
         if wheel is not None:
             keep = np.zeros(4, dtype=bool)
             keep[wheel] = True
             m = m & keep
+        if wheels is not None:
+            m = m & wheels
         e = rel[m]
         return {"share": float(m.sum() / n), "own": float(np.abs(e).mean()) if e.size else float("nan"),
                 "signed": float(e.mean()) if e.size else float("nan"), "contribution": float(np.abs(e).sum() / n)}
@@ -106,6 +109,14 @@ def parts(rec_dir: Path) -> dict:
     v = valid[sl]
     out["parts"] = {"work": part(work), "not in work": part(~work), "not in work, straight": part(~work & ~turn),
                     "not in work, turning": part(~work & turn), "valid": part(v), "not valid": part(~v)}
+    if "curvature" in cols:
+        # the turn's outer wheels (κ > 0, a left turn: the right wheels FR, RR) and inner wheels, where the
+        # lateral load transfer moves the loads (README "Turns"); turning steps in and out of work
+        left = (cols["curvature"][k][sl] > 0.0)[:, None]
+        right_w = np.array([False, True, False, True])[None, :]
+        outer = np.where(left, right_w, ~right_w)
+        out["parts"]["turning, outer wheels"] = part(turn, wheels=outer)
+        out["parts"]["turning, inner wheels"] = part(turn, wheels=~outer)
     for i, w in enumerate(("FL", "FR", "RL", "RR")):
         out["parts"][f"wheel {w}"] = part(ones, i)
         out["parts"][f"wheel {w} in work"] = part(work, i)

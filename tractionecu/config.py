@@ -73,6 +73,17 @@ defaults are assumptions, each with its source:
   examples of 75–90 kW have 2.4–2.6 m wheelbase).
 - ``static_front_fraction = 0.40``: ballasting recommendation 40/60 front/rear
   for MFWD tractors in draft work (ASABE EP496 / manufacturers' ballast guides).
+- ``front_roll_share = 0.25``: most tractors' front axle pivots about a
+  longitudinal pin (oscillating front axle), so it carries no roll moment about
+  the pin; the only left–right load difference at the front comes from its
+  lateral tyre force F_yf acting at the pin height h_p below the pin: with
+  the outer front wheel at F_zf/2 + δ_f and the inner at F_zf/2 − δ_f, the
+  moments about the pin give δ_f b = F_yf h_p.  In a steady turn F_yf ≈ m a_y × the front axle's
+  static load share, so the front's part of the roll moment m a_y h_cg is
+  (static front share) × h_p/h_cg ≈ 0.4 × 0.6 m / 1.0 m ≈ 0.25 (pin at about
+  the front wheel centre's height); the rear axle, rigidly in the chassis,
+  takes the rest (model doc "Lateral load transfer" in
+  :mod:`tractionecu.model.vehicle`).
 - ``cd_area_m2 = 4.5``: C_d ≈ 0.9 × frontal area ≈ 5 m²; about 17 N at
   2.5 m/s, matching the physics notes' "≈ 20 N, negligible in the field".
 """
@@ -472,6 +483,11 @@ class VehicleParams:
     hitch_height_m: float = setting(0.5, "drawbar / hitch height h_hitch [m]", 0.0, 2.0)
     static_front_fraction: float = setting(0.40, "static share of weight on the front axle [-]", 0.05, 0.95)
     track_width_m: float = setting(1.8, "track width, wheel centre to wheel centre [m]", 0.5, 5.0)
+    front_roll_share: float = setting(0.25, "share of the roll moment m a_y h_cg of a turn that the front axle's "
+                                      "left–right load difference carries [-] (the rear axle carries the rest): "
+                                      "0.25 for a pivoting (oscillating) front axle, which takes only its lateral "
+                                      "force times the pivot height; a suspended or rigid chassis shares it by "
+                                      "its axles' roll stiffness (model doc \"Lateral load transfer\")", 0.0, 1.0)
     cd_area_m2: float = setting(4.5, "drag area C_d·A [m²]", 0.0, 50.0)
     max_wheel_torque_nm: float = setting(9000.0, "torque limit of one wheel drive [N·m]", 10.0, 1e5)
     pull_angle_deg: float = setting(0.0, "line of pull above the horizontal at the hitch β [deg]: the draft adds "

@@ -54,7 +54,7 @@ def test_compiled_step_in_a_turn_is_bitwise_rk4():
     rng = np.random.default_rng(3)
     for k in range(40):
         x, u = _turn_states(rng, k)
-        fz, r_d = model.loads(u)
+        fz, r_d = model.loads(u, x[:, 4])               # each state's loads at its own speed, held over the step
         ref = rk4(lambda y: model.rhs(y, u, fz, r_d), x, 0.01)
         assert np.array_equal(model.step(x, u, 0.01), ref)
 
@@ -65,9 +65,9 @@ def test_curvature_enters_the_longitudinal_balance():
     x = np.array([3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06])
     u0 = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 15000.0])
     u1 = np.append(u0, 1 / 30.0)
-    d0, d1 = model.rhs(x, u0), model.rhs(x, u1)
+    fz, r_d = model.loads(u0)                            # the axle split: the steering term alone
+    d0, d1 = model.rhs(x, u0), model.rhs(x, u1, fz, r_d)
     c = model.front_cosines(1 / 30.0)
-    fz, _ = model.loads(u0)
     assert d1[4] - d0[4] == pytest.approx(-(0.3 * fz[0] * ((1 - c[0]) + (1 - c[1]))) / VEH.mass_kg, rel=1e-9)
     np.testing.assert_array_equal(d1[:4], d0[:4])
     np.testing.assert_array_equal(model.rhs(x, np.append(u0, 0.0)), d0)      # κ = 0 is the paper's model

@@ -57,14 +57,18 @@ def test_bad_declarations_are_clear_errors(tmp_path, keys, names):
 
 
 # ----------------------------------------------------------------------------- kernel
-def reference_rhs(model: V.FilterModel, u: np.ndarray):
+def reference_rhs(model: V.FilterModel, u: np.ndarray, v0: float = 0.0):
     """The two-mass drive line (Schröder 2009 ch. 18) with the paper's eqs. 2, 4, 8 and the carcass term, written
-    out here from the equations, not from the model's code: states (ω_m ×4, v, μ ×4, ρ_s, ω_w ×4, θ ×4)."""
+    out here from the equations, not from the model's code: states (ω_m ×4, v, μ ×4, ρ_s, ω_w ×4, θ ×4).  The
+    wheel loads carry the lateral load transfer at the speed v0 of the step's start (held over the step):
+    ∓ λ_f m v0² κ h_cg/b at the front, ∓ (1 − λ_f) m v0² κ h_cg/b at the rear, radii by eq. 9."""
     p = model.params
-    ff, fr, rdf, rdr = model.load_floats(float(u[4]), float(u[5]))
-    fz = np.array([ff, ff, fr, fr])
-    rd = np.array([rdf, rdf, rdr, rdr])
+    ff, fr, _, _ = model.load_floats(float(u[4]), float(u[5]))
     kap = float(u[6])
+    moment = p.mass_kg * v0 * v0 * kap * p.cg_height_m / p.track_width_m
+    df, dr = p.front_roll_share * moment, (1.0 - p.front_roll_share) * moment
+    fz = np.array([ff - df, ff + df, fr - dr, fr + dr])
+    rd = V.rolling_radius(fz, p)
     b2, L = 0.5 * p.track_width_m, p.wheelbase_m
     kw = np.array([math.hypot(1 - b2 * kap, L * kap), math.hypot(1 + b2 * kap, L * kap), 1 - b2 * kap, 1 + b2 * kap])
     cos = np.array([(1 - b2 * kap) / kw[0], (1 + b2 * kap) / kw[1], 1.0, 1.0])
@@ -97,13 +101,14 @@ def test_hub_kernel_matches_an_independent_integration(kappa):
                      3.32, 3.30, 3.42, 3.40, 0.016, 0.017, 0.022, 0.021])
     x = base + rng.normal(0.0, 1.0, (5, 18)) * np.r_[[0.02] * 4, 0.01, [0.005] * 4, 0.001, [0.02] * 4, [1e-3] * 4]
     u = np.array([2500.0, 2600.0, 3300.0, 3200.0, 24000.0, 10000.0, kappa])
-    f = reference_rhs(model, u)
-    ref = np.array([solve_ivp(f, (0.0, 0.05), xp, method="DOP853", rtol=1e-12, atol=1e-14).y[:, -1] for xp in x])
     err = []
     for dt in (0.01, 0.005):                 # 3 and 2 RK4 sub-steps per step (hub_substeps)
         y = x.copy()
+        ref = x.copy()
         for _ in range(round(0.05 / dt)):
             y = model.step_hub(y, u, dt)
+            ref = np.array([solve_ivp(reference_rhs(model, u, xp[4]), (0.0, dt), xp, method="DOP853", rtol=1e-12,
+                                      atol=1e-14).y[:, -1] for xp in ref])
         err.append(np.abs(y - ref).max())
     # the same solution to RK4's truncation error, which falls with the sub-step's 4th power
     h1, h2 = 0.01 / V.hub_substeps(model._hc[4], 0.01), 0.005 / V.hub_substeps(model._hc[4], 0.005)

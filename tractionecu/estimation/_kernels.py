@@ -116,7 +116,8 @@ def _model_tag() -> int:
     """
     src = "".join(inspect.getsource(getattr(f, "py_func", f))
                   for f in (_vehicle._sign, _vehicle._rhs5, _vehicle._radius, _vehicle._rk4_points,
-                            _vehicle._mudot, _vehicle._rk4_carcass))
+                            _vehicle._mudot, _vehicle._rk4_carcass, _vehicle._lat_shift, _vehicle._lateral_on,
+                            _vehicle._wheel_terms))
     return int(hashlib.sha256(src.encode("utf-8")).hexdigest()[:15], 16)
 
 
@@ -245,6 +246,61 @@ def add_torque_noise(Qb, u, a, r, q2, gain, Q):             # pragma: no cover -
     for i in range(4):
         sm = a + r * abs(u[i])
         Q[i, i] += (sm * sm + q2) * gain
+
+
+def add_kappa_noise(Q, x, u, kc, J, iw, c):                 # pragma: no cover - compiled
+    """Q += g gᵀ·c, the process noise of the curvature input's uncertainty (Estimator._Q; c = σ_κ² τ Δt):
+    g_v = ∂v̇/∂κ (row 4) and g_i = ∂ω̇_i/∂κ of the wheel speeds (rows iw..iw+3, J their inertia) of the state x
+    under u, kc = FilterModel._kc.
+
+    In eq. 8 κ moves the front forces' direction, F_h cos δ (∂cos δ/∂κ, model doc "Kinematics in turns"), and
+    through the lateral load transfer each wheel's load, ∂F_z,i/∂κ = ∓λ m v² h_cg/b (zero where the transfer is
+    at its limit; model doc "Lateral load transfer"); in eq. 2 the load moves the wheel's ground and rolling-
+    resistance torque r_d (μ_i + ρ_t sign ω_i) F_z,i, whose radius follows the load (eq. 9:
+    ∂(r_d F_z)/∂F_z = 2 r_d − r0)."""
+    kap = u[6]
+    hb, L, m, rho_t = kc[7], kc[8], kc[6], kc[4]
+    fzf = u[4]
+    ff = 0.5 * fzf
+    fr = 0.5 * (kc[0] - fzf)
+    if kc[9] != 0.0:
+        fr = 0.5 * ((kc[0] - fzf) + u[5] * kc[9])
+    rdf = _vehicle._radius(ff, kc[3], kc[1], kc[2])
+    rdr = _vehicle._radius(fr, kc[3], kc[1], kc[2])
+    lat = _vehicle._lateral_on(kc, kap)
+    lw = np.empty(12)
+    _vehicle._wheel_terms(kc, lat, x[4], kap, ff, fr, rdf, rdr, lw)
+    v2 = x[4] * x[4]
+    df = np.zeros(4)
+    if lat:
+        for j in (0, 2):
+            ca = kc[16] if j == 0 else kc[17]
+            half = ff if j == 0 else fr
+            d = ca * (v2 * kap)
+            if d < 0.9 * half and d > -0.9 * half:
+                df[j] = -ca * v2
+                df[j + 1] = ca * v2
+    d = L * kap
+    a0 = 1.0 - hb * kap
+    a1 = 1.0 + hb * kap
+    n0 = a0 * a0 + d * d
+    n1 = a1 * a1 + d * d
+    dc0 = d * (-hb * d - a0 * L) / (n0 * math.sqrt(n0))
+    dc1 = d * (hb * d - a1 * L) / (n1 * math.sqrt(n1))
+    gv = x[5] * lw[0] * dc0 + x[6] * lw[1] * dc1
+    if lat:
+        gv += x[5] * (a0 / math.sqrt(n0)) * df[0] + x[6] * (a1 / math.sqrt(n1)) * df[1] + x[7] * df[2] + x[8] * df[3]
+    g = np.zeros(5)
+    for i in range(4):
+        w = x[iw + i]
+        sg = 1.0 if w > 0.0 else (-1.0 if w < 0.0 else 0.0)
+        g[i] = -((2.0 * lw[4 + i] - kc[3]) * (x[5 + i] + rho_t * sg) * df[i]) / J
+    g[4] = gv / m
+    for a in range(5):
+        ia = iw + a if a < 4 else 4
+        for b in range(5):
+            ib = iw + b if b < 4 else 4
+            Q[ia, ib] += (g[a] * g[b]) * c
 
 
 def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out):  # pragma: no cover - compiled
@@ -448,6 +504,7 @@ mean_cov = compiled(mean_cov)
 predict_model = compiled(_make_predict_model(_model_tag()))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
+add_kappa_noise = compiled(add_kappa_noise)
 estimate_outputs = compiled(estimate_outputs)
 process_noise = compiled(process_noise)
 cm_push = compiled(cm_push)

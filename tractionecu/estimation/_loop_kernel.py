@@ -110,7 +110,7 @@ F_NAMES = (
     ("c_adapt_period", 1), ("c_dyn_tau", 1), ("c_lost_after", 1), ("c_mon_rho_max", 1), ("c_mon_minspd", 1),
     ("c_rate_k", 1), ("c_rate_maxint", 1), ("c_kin_b", 1), ("c_kin_csig", 1), ("c_kin_minspd", 1),
     ("c_kin_varbeta", 1), ("c_tanpull", 1), ("c_eta", 1), ("c_drag", 1), ("c_two", 1), ("c_mon_bound", 9),
-    ("c_w", 43), ("c_kc", 16), ("c_lo", 10), ("c_hi", 10), ("c_qtune", 10),
+    ("c_w", 43), ("c_kc", 18), ("c_lo", 10), ("c_hi", 10), ("c_qtune", 10),
     ("c_a_min", 1), ("c_a_max", 1),
     # fuzzy supervisor: a1, a2, a3, m1, m2, m3, factor_min, log(f_max / f_min)
     ("c_fz", 8),
@@ -509,24 +509,6 @@ def _mk_rebuild_Q(tag):
     return _rebuild_Q
 
 
-def _kappa_noise(F, dt):                                                  # pragma: no cover - compiled
-    kap = F[F_U + 6]
-    hb = F[F_C_HB]
-    L = F[F_C_WB]
-    d = L * kap
-    fzf = 0.5 * F[F_U + 4]
-    g = 0.0
-    for j in range(2):
-        i = 5 + j
-        a = 1.0 - hb * kap if j == 0 else 1.0 + hb * kap
-        sgn = -1.0 if j == 0 else 1.0
-        n2 = a * a + d * d
-        dc = d * (sgn * hb * d - a * L) / (n2 * math.sqrt(n2))
-        g += F[F_X + i] * fzf * dc
-    g /= F[F_C_M]
-    return g * g * F[F_KAPVAR] * BIAS_TAU_S * dt
-
-
 def _mk_make_Q(tag):
     """_make_Q closed over the dependency tag (:func:`_dep_tag`)."""
     def _make_Q(F, I, h):                                                     # pragma: no cover - compiled
@@ -542,7 +524,8 @@ def _mk_make_Q(tag):
         _kernels.add_torque_noise(Qb, F[F_U:F_U + 7], F[F_C_TQABS], F[F_C_TQREL], F[F_C_TQQ2], F[F_TQ_GAIN], Q)
         kap = F[F_U + 6]
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and I[I_UKF] != 0:
-            Q[4, 4] += _kappa_noise(F, h)
+            _kernels.add_kappa_noise(Q, F[F_X:F_X + 10], F[F_U:F_U + 7], F[F_C_KC:F_C_KC + 18], F[F_C_J], 0,
+                                     F[F_KAPVAR] * BIAS_TAU_S * h)
         return Q
     return _make_Q
 
@@ -771,7 +754,7 @@ def _mk_stage_predict(tag):
         while I[I_SUB] < n_sub:
             Q = _make_Q(F, I, h)
             I[I_REPAIRED_LAST] = 0
-            code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43], F[F_C_KC:F_C_KC + 16],
+            code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43], F[F_C_KC:F_C_KC + 18],
                                           sig, xn, Pn)
             if code == 0:
                 x[:] = xn
@@ -1616,7 +1599,6 @@ _kin_standstill = compiled(_kin_standstill)
 _kin_course = compiled(_kin_course)
 _kin_course_direction = compiled(_kin_course_direction)
 _rebuild_Q = compiled(_mk_rebuild_Q(_TAG))
-_kappa_noise = compiled(_kappa_noise)
 _make_Q = compiled(_mk_make_Q(_TAG))
 _win_reset = compiled(_win_reset)
 _mon_reset = compiled(_mon_reset)

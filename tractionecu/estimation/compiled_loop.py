@@ -160,7 +160,7 @@ class CompiledLoop:
         probe = UnscentedFilter(est.model.step, np.zeros(10), np.eye(10), range(5), alpha=cfg.alpha, beta=cfg.beta,
                                 kappa=cfg.kappa)
         F[o["c_w"]:o["c_w"] + 43] = probe._w
-        F[o["c_kc"]:o["c_kc"] + 16] = est.model._kc
+        F[o["c_kc"]:o["c_kc"] + 18] = est.model._kc
         F[o["c_lo"]:o["c_lo"] + 10] = est._lo
         F[o["c_hi"]:o["c_hi"] + 10] = est._hi
         F[o["c_qtune"]:o["c_qtune"] + 10] = est._q_tune

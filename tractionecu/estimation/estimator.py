@@ -240,7 +240,10 @@ class Estimate:
 _INPUT_KEYS = ("Md", "Fzf", "Fdx")
 KAPPA_NOISE_MIN = 0.003
 """Below this path curvature [1/m] (radius above 330 m) the curvature's term in Q is left out: it grows with
-κ², and there it is below 0.1 % of the model-error term q_v (Estimator._kappa_noise)."""
+κ², and there it is below 0.1 % of the model-error term q_v (:func:`._kernels.add_kappa_noise`: the curvature
+error is mostly the slowly varying bias of the wheel curvature, correlated over ``BIAS_TAU_S``, so its spectral
+density is taken as σ_κ²·BIAS_TAU_S; it moves v̇ through the front forces' direction and, with the lateral load
+transfer, every wheel's load)."""
 KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
 curvature input is limited to ±this, and so is its standard deviation when it is not known."""
@@ -439,7 +442,8 @@ class Estimator:
             Q.flat[0:4 * (N_STATE + 1):N_STATE + 1] += (sm * sm + self._tq_q2) * self._tq_gain
         kap = float(self._u[IU_KAPPA])
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
-            Q[IX_V, IX_V] += self._kappa_noise(dt)
+            _kernels.add_kappa_noise(Q, self.ukf.x, self._u, self.model._kc, self.J, 0,
+                                     self._kappa_var * BIAS_TAU_S * dt)
         return Q
 
     def _Q_hub(self, dt: float) -> NDArray[np.float64]:
@@ -476,7 +480,9 @@ class Estimator:
             Q.flat[0:4 * (N_STATE_HUB + 1):N_STATE_HUB + 1] += (sm * sm + self._tq_q2) * self._tq_gain
         kap = float(self._u[IU_KAPPA])
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
-            Q[IX_V, IX_V] += self._kappa_noise(dt)
+            # the load's part acts at the rims (eq. 2 at the rim): rows 10–13, J_w
+            _kernels.add_kappa_noise(Q, self.ukf.x, self._u, self.model._kc, self._hub[3], IX_OMEGA_W.start,
+                                     self._kappa_var * BIAS_TAU_S * dt)
         return Q
 
     def _hub_wanted(self) -> bool:
@@ -531,28 +537,6 @@ class Estimator:
         repairs = ukf.chol_repairs
         self.ukf = self._new_filter(x0, P0)
         self.ukf.chol_repairs = repairs
-
-    def _kappa_noise(self, dt: float) -> float:
-        """Variance added to v over dt [s] by the uncertainty of the curvature input (.kinematics).
-
-        ∂v̇/∂κ = (F_h,FL ∂cos δ_FL/∂κ + F_h,FR ∂cos δ_FR/∂κ)/m (model doc, "Kinematics
-        in turns"), with cos δ = a/√(a² + d²), a = 1 ∓ κb/2, d = κL.  The
-        curvature error is mostly the slowly varying bias of the wheel
-        curvature, correlated over ``BIAS_TAU_S``: its spectral density is taken
-        as σ_κ²·BIAS_TAU_S.
-        """
-        kap = float(self._u[IU_KAPPA])
-        hb, L = self._hb, self.vehicle.wheelbase_m
-        d = L * kap
-        mu = self.ukf.x  # type: ignore[union-attr]
-        fzf = 0.5 * float(self._u[4])
-        g = 0.0
-        for i, a, sgn in ((5, 1.0 - hb * kap, -1.0), (6, 1.0 + hb * kap, 1.0)):
-            n2 = a * a + d * d
-            dc = d * (sgn * hb * d - a * L) / (n2 * math.sqrt(n2))
-            g += float(mu[i]) * fzf * dc
-        g /= self.m
-        return g * g * self._kappa_var * BIAS_TAU_S * dt
 
     def _rebuild_Q(self, dt: float) -> None:
         J = self.J

@@ -40,6 +40,28 @@ parameters"; β the line of pull above the horizontal at the hitch,
 F_dx tan β that the ground takes through the rear axle, ASABE D497.7 4.1.4;
 β = 0, the paper's horizontal pull, gives (m g − F_zf)/2).
 
+Lateral load transfer (beyond the paper, which drives straight): in a turn
+the centripetal acceleration a_y = v²κ acts at the centre of gravity, h_cg
+above the ground, and the roll moment m a_y h_cg moves load from the inner
+to the outer wheels.  Each axle's left–right difference carries its share:
+
+    F_z,FL/FR = F_zf/2 ∓ δ_f,   F_z,RL/RR = F_zr/2 ∓ δ_r,
+    δ_f = λ_f m v²κ h_cg / b,   δ_r = (1 − λ_f) m v²κ h_cg / b
+
+(κ > 0 a left turn: the right wheels are outer), so that the moments about
+the vehicle's centre line, (δ_f + δ_r) b, balance m a_y h_cg (a rigid
+body in a steady turn; roll of the body on its tyres and springs moves the
+centre of gravity by a few centimetres and is left out).  λ_f is the
+declared ``front_roll_share`` (default 0.25: a pivoting front axle carries
+only its lateral force times the pivot height, :mod:`tractionecu.config`); a
+chassis with springs or a rigid front axle shares the moment by the axles'
+roll stiffness.  Each δ is limited to 0.9 of the wheel's axle share (the
+inner wheel lifting off is outside the model).  Each wheel's rolling radius
+follows its own load through eq. 9.  v is each state's own speed at the
+start of the step (the loads are held over a step, as the axle loads are);
+a_y at the rear-axle centre stands for the centre of gravity's (they differ
+by the wheelbase's part of the yaw acceleration, zero in a steady turn).
+
 Declared drivetrain (beyond the paper, whose motors act on the wheels
 without losses): the estimator maps the reported motor torque to the wheel
 torque M_d = η M_motor (M_motor/η braking), η the declared
@@ -274,9 +296,13 @@ class FilterModel:
         # Tyre carcass (module doc "Tyre carcass"): c_x, the relaxed slips σ̄_i and the speed v̄ they are taken
         # against (kc[10], kc[11:15], kc[15]).
         self.cx = float(getattr(params, "tyre_carcass_stiffness_npm", 0.0))
+        # Lateral load transfer (module doc): δ_f, δ_r per unit lateral acceleration, λ_f m h_cg/b and
+        # (1 − λ_f) m h_cg/b [N/(m/s²)] (kc[16], kc[17]).
+        lat = self.m * params.cg_height_m / params.track_width_m
+        lam = float(getattr(params, "front_roll_share", 0.0))
         self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
                              0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull, self.cx,
-                             0.0, 0.0, 0.0, 0.0, 0.0])
+                             0.0, 0.0, 0.0, 0.0, 0.0, lam * lat, (1.0 - lam) * lat])
         # Two-inertia hub (module doc): (k, c, J_m, J_w, ω_max) or None.
         hub = getattr(params, "hub_two_inertia", None)
         self.hub = hub
@@ -289,20 +315,42 @@ class FilterModel:
         self._floats = (math.nan,) * 4
         self._consts: tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None = None
 
-    def loads(self, u: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(F_z (..., 4) [N], r_d (..., 4) [m]) from the inputs (rear: + F_dx tan β / 2 each, module doc)."""
+    def loads(self, u: NDArray[np.float64], v: ArrayLike | None = None
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(F_z (..., 4) [N], r_d (..., 4) [m]) from the inputs (rear: + F_dx tan β / 2 each, module doc) and,
+        given the speed v [m/s] (..., ) and a curvature input, the lateral load transfer (module doc)."""
         fz = wheel_loads(u[..., IU_FZF], self.params)
         if self.tan_pull != 0.0:          # same operations as load_floats()
             fr = 0.5 * ((self.params.weight_n - u[..., IU_FZF]) + u[..., IU_FDX] * self.tan_pull)
             fz[..., 2] = fr
             fz[..., 3] = fr
+        if v is not None and u.shape[-1] > IU_KAPPA:
+            fz = self.lateral_loads(fz, v, u[..., IU_KAPPA])
         return fz, rolling_radius(fz, self.params)
+
+    def lateral_loads(self, fz: NDArray[np.float64], v: ArrayLike, kappa: ArrayLike) -> NDArray[np.float64]:
+        """Wheel loads (..., 4) [N] of axle-split loads ``fz`` with the lateral load transfer at speed v [m/s] and
+        path curvature κ [1/m] (module doc; the operations of the compiled :func:`_lat_shift`)."""
+        kap = np.asarray(kappa, dtype=float)
+        v = np.asarray(v, dtype=float)
+        if not np.any(kap != 0.0):
+            return fz
+        a = (v * v) * kap
+        out = np.array(np.broadcast_to(fz, np.broadcast_shapes(fz.shape, a.shape + (4,))), dtype=float)
+        for j, c in ((0, self._kc[16]), (2, self._kc[17])):
+            half = out[..., j]
+            lim = 0.9 * half
+            d = np.minimum(np.maximum(c * a, -lim), lim)
+            out[..., j + 1] = half + d
+            out[..., j] = half - d
+        return out
 
     def rhs(self, x: NDArray[np.float64], u: NDArray[np.float64], fz: NDArray[np.float64] | None = None,
             r_d: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
-        """dx/dt for states x (..., 10) under input u (6,) or (..., 6)."""
+        """dx/dt for states x (..., 10) under input u (6,) or (..., 6); the loads, when not given, with the lateral
+        load transfer at the states' own speeds."""
         if fz is None or r_d is None:
-            fz, r_d = self.loads(u)
+            fz, r_d = self.loads(u, x[..., IX_V])
         omega = x[..., IX_OMEGA]
         v = x[..., IX_V]
         mu = x[..., IX_MU]
@@ -399,7 +447,7 @@ class FilterModel:
         :data:`JIT`) the four stages run compiled, in the same operation order.
         """
         if u.ndim != 1 or x.ndim > 2 or x.shape[-1] != N_STATE:
-            fz, r_d = self.loads(u)
+            fz, r_d = self.loads(u, x[..., IX_V])
             return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
         if JIT and x.dtype == np.float64 and u.dtype == np.float64 and u.shape[0] in (N_INPUT - 1, N_INPUT):
             # Compiled RK4 (all four stages, same operation order as rk4(rhs)).
@@ -408,7 +456,7 @@ class FilterModel:
                                    self._kc, float(dt))[0]
             return _rk4_points(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, float(dt))
         if (u.shape[0] > IU_KAPPA and u[IU_KAPPA] != 0.0) or self.cx != 0.0:   # in a turn, or μ̇ ≠ 0: general
-            fz, r_d = self.loads(u)
+            fz, r_d = self.loads(u, x[..., IX_V])
             return rk4(lambda y: self.rhs(y, u, fz, r_d), x, dt)
         fz, r_d, c = self._load_terms(float(u[IU_FZF]), float(u[IU_FDX]))
         k = np.empty(x.shape[:-1] + (5,))
@@ -440,10 +488,13 @@ class FilterModel:
         """y = h(x) = (ω1..4, v)."""
         return x[..., :5]
 
-    def rhs_hub(self, x: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.float64]:
-        """dx/dt of the two-inertia hub model (module doc), x (..., 18), u (7,) or (6,); numpy."""
+    def rhs_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], fz: NDArray[np.float64] | None = None,
+                r_d: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+        """dx/dt of the two-inertia hub model (module doc), x (..., 18), u (7,) or (6,); numpy.  The loads, when
+        not given, with the lateral load transfer at the states' own speeds."""
         k_h, c_h, jm, jw = self.hub
-        fz, r_d = self.loads(u)
+        if fz is None or r_d is None:
+            fz, r_d = self.loads(u, x[..., IX_V])
         wm = x[..., IX_OMEGA]
         ww = x[..., IX_OMEGA_W]
         mh = k_h * x[..., IX_TWIST] + c_h * (wm - ww)
@@ -473,8 +524,9 @@ class FilterModel:
             return _rk4_hub(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, self._hc, float(dt), n)
         h = dt / n
         y = np.array(x, dtype=float)
+        fz, r_d = self.loads(u, y[..., IX_V])          # held over the step (module doc)
         for _ in range(n):
-            y = rk4(lambda z: self.rhs_hub(z, u), y, h)
+            y = rk4(lambda z: self.rhs_hub(z, u, fz, r_d), y, h)
         return y
 
 
@@ -510,26 +562,67 @@ def _sign(a: float) -> float:
     return a
 
 
-def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, ff, fr, rdf, rdr, cf, cr, J, m, c0, c1):  # pragma: no cover - compiled
+def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, lw, J, m, c0, c1):  # pragma: no cover - compiled
     """(ω̇1..4, v̇) of one state, with FilterModel.rhs's operation order.
 
-    ff, fr: front / rear wheel load [N]; rdf, rdr: their rolling radii [m];
-    cf, cr: r_d ρ_t F_z of a front / rear wheel; c0, c1: cos δ of the front
-    wheels (1 on a straight path).
+    lw: the wheels' (F_z (4) [N], r_d (4) [m], r_d ρ_t F_z (4)) (:func:`_wheel_terms`); c0, c1: cos δ of the
+    front wheels (1 on a straight path).
     """
-    fh0 = mu0 * ff
-    fh1 = mu1 * ff
-    fh2 = mu2 * fr
-    fh3 = mu3 * fr
+    fh0 = mu0 * lw[0]
+    fh1 = mu1 * lw[1]
+    fh2 = mu2 * lw[2]
+    fh3 = mu3 * lw[3]
     if c0 == 1.0 and c1 == 1.0:
         fx = ((fh0 + fh1) + fh2) + fh3
     else:
         fx = ((fh0 * c0 + fh1 * c1) + fh2) + fh3
-    return (((u[0] - rdf * fh0) - cf * _sign(w0)) / J,
-            ((u[1] - rdf * fh1) - cf * _sign(w1)) / J,
-            ((u[2] - rdr * fh2) - cr * _sign(w2)) / J,
-            ((u[3] - rdr * fh3) - cr * _sign(w3)) / J,
+    return (((u[0] - lw[4] * fh0) - lw[8] * _sign(w0)) / J,
+            ((u[1] - lw[5] * fh1) - lw[9] * _sign(w1)) / J,
+            ((u[2] - lw[6] * fh2) - lw[10] * _sign(w2)) / J,
+            ((u[3] - lw[7] * fh3) - lw[11] * _sign(w3)) / J,
             ((fx - u[5]) - rho * m * G * _sign(v)) / m)
+
+
+def _lat_shift(c, v, kap, half):                             # pragma: no cover - compiled
+    """δ of one axle (module doc "Lateral load transfer"): c (v² κ) within ±0.9 of the wheel's share ``half``."""
+    d = c * ((v * v) * kap)
+    lim = 0.9 * half
+    if d > lim:
+        d = lim
+    elif d < -lim:
+        d = -lim
+    return d
+
+
+def _lateral_on(kc, kap):                                    # pragma: no cover - compiled
+    """Whether the lateral load transfer moves the loads at curvature ``kap`` (kc[16], kc[17] declared)."""
+    return kap != 0.0 and kc.shape[0] > 17 and (kc[16] != 0.0 or kc[17] != 0.0)
+
+
+def _wheel_terms(kc, lat, v, kap, ff, fr, rdf, rdr, lw):    # pragma: no cover - compiled
+    """lw (12,) = (F_z (4) [N], r_d (4) [m], r_d ρ_t F_z (4)) of the wheels FL, FR, RL, RR: the axle split
+    (ff, fr, their radii rdf, rdr) and, with ``lat``, the lateral load transfer at speed v and curvature kap
+    (module doc), each radius from its own load (eq. 9, :func:`_radius`)."""
+    if lat:
+        df = _lat_shift(kc[16], v, kap, ff)
+        dr = _lat_shift(kc[17], v, kap, fr)
+        lw[0] = ff - df
+        lw[1] = ff + df
+        lw[2] = fr - dr
+        lw[3] = fr + dr
+        for i in range(4):
+            lw[4 + i] = _radius(lw[i], kc[3], kc[1], kc[2])
+    else:
+        lw[0] = ff
+        lw[1] = ff
+        lw[2] = fr
+        lw[3] = fr
+        lw[4] = rdf
+        lw[5] = rdf
+        lw[6] = rdr
+        lw[7] = rdr
+    for i in range(4):
+        lw[8 + i] = lw[4 + i] * kc[4] * lw[i]
 
 
 def _radius(fz, r0, k, lim):                                  # pragma: no cover - compiled
@@ -545,9 +638,10 @@ def _radius(fz, r0, k, lim):                                  # pragma: no cover
 def _rk4_points(x, u, kc, dt):                              # pragma: no cover - compiled
     """Classical RK4 over dt for every row of x (N, 10), as rk4(FilterModel.rhs) computes it.
 
-    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m, b/2, L, tan β) (see FilterModel._kc).  The
-    stage states of μ and ρ_s are x + h·0 (their derivative is zero), as in rk4().
-    u[6], when given, is the path curvature κ (module doc).
+    kc = (m g, k of eq. 9, 0.3 r0, r0, ρ_t, J, m, b/2, L, tan β, carcass (6), lateral transfer (2)) (see
+    FilterModel._kc).  The stage states of μ and ρ_s are x + h·0 (their derivative is zero), as in rk4().
+    u[6], when given, is the path curvature κ (module doc); in a turn each row's loads carry the lateral
+    load transfer at that row's v, held over the step.
     """
     w_n, k, lim, r0, rho_t, J, m = kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6]
     cosl = 1.0
@@ -564,10 +658,12 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
         fr = 0.5 * ((w_n - fzf) + u[5] * kc[9])
     rdf = _radius(ff, r0, k, lim)
     rdr = _radius(fr, r0, k, lim)
-    cf = rdf * rho_t * ff
-    cr = rdr * rho_t * fr
+    kap = u[6] if u.shape[0] > 6 else 0.0
+    lat = _lateral_on(kc, kap)
     if kc.shape[0] > 10 and kc[10] != 0.0:      # the carcass: μ̇ ≠ 0 (model doc "Tyre carcass")
-        return _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr)
+        return _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, cosl, cosr)
+    lw = np.empty(12)
+    _wheel_terms(kc, False, 0.0, kap, ff, fr, rdf, rdr, lw)
     npt = x.shape[0]
     out = np.empty_like(x)
     h = 0.5 * dt
@@ -578,14 +674,16 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     for p in range(npt):
         x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
-        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
+        if lat:                                  # the loads at this state's speed (module doc)
+            _wheel_terms(kc, True, x4, kap, ff, fr, rdf, rdr, lw)
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, cosl, cosr)
         h0, h1, h2, h3, hr = m0 + zh, m1 + zh, m2 + zh, m3 + zh, r + zh
         b0, b1, b2, b3, b4 = _rhs5(x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4,
-                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
+                                   h0, h1, h2, h3, hr, u, lw, J, m, cosl, cosr)
         c0, c1, c2, c3, c4 = _rhs5(x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4,
-                                   h0, h1, h2, h3, hr, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
+                                   h0, h1, h2, h3, hr, u, lw, J, m, cosl, cosr)
         d0, d1, d2, d3, d4 = _rhs5(x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4,
-                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
+                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, lw, J, m, cosl, cosr)
         out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
         out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
         out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
@@ -613,10 +711,12 @@ def _mudot(w, v, k, rd, fz, sb, cx):                         # pragma: no cover 
     return ((cx * va) * (s - sb)) / fz
 
 
-def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma: no cover - compiled
+def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, cosl, cosr):   # pragma: no cover - compiled
     """_rk4_points with the carcass term of μ̇ (kc[10] = c_x ≠ 0, kc[11:15] = σ̄): the four RK4 stages of
     ω, v and μ, as rk4(FilterModel.rhs) computes them; ρ_s as in _rk4_points."""
     J, m, cx = kc[5], kc[6], kc[10]
+    lw = np.empty(12)
+    _wheel_terms(kc, False, 0.0, kap, ff, fr, rdf, rdr, lw)
     s0, s1, s2, s3, vb = kc[11], kc[12], kc[13], kc[14], kc[15]
     k0 = k1 = k2 = k3 = 1.0
     if u.shape[0] > 6 and u[6] != 0.0:           # wheel_speed_factors()
@@ -638,35 +738,37 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, cf, cr, cosl, cosr):   # pragma
     for p in range(npt):
         x0, x1, x2, x3, x4 = x[p, 0], x[p, 1], x[p, 2], x[p, 3], x[p, 4]
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
-        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, ff, fr, rdf, rdr, cf, cr, J, m, cosl, cosr)
-        e0 = _mudot(x0, vb, k0, rdf, ff, s0, cx)
-        e1 = _mudot(x1, vb, k1, rdf, ff, s1, cx)
-        e2 = _mudot(x2, vb, k2, rdr, fr, s2, cx)
-        e3 = _mudot(x3, vb, k3, rdr, fr, s3, cx)
+        if lat:                                  # the loads at this state's speed (module doc)
+            _wheel_terms(kc, True, x4, kap, ff, fr, rdf, rdr, lw)
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, cosl, cosr)
+        e0 = _mudot(x0, vb, k0, lw[4], lw[0], s0, cx)
+        e1 = _mudot(x1, vb, k1, lw[5], lw[1], s1, cx)
+        e2 = _mudot(x2, vb, k2, lw[6], lw[2], s2, cx)
+        e3 = _mudot(x3, vb, k3, lw[7], lw[3], s3, cx)
         y0, y1, y2, y3, y4 = x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4
         n0, n1, n2, n3 = m0 + h * e0, m1 + h * e1, m2 + h * e2, m3 + h * e3
-        b0, b1, b2, b3, b4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
+        b0, b1, b2, b3, b4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, lw, J, m,
                                    cosl, cosr)
-        f0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
-        f1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
-        f2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
-        f3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
+        f0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
+        f1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
+        f2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
+        f3 = _mudot(y3, vb, k3, lw[7], lw[3], s3, cx)
         y0, y1, y2, y3, y4 = x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4
         n0, n1, n2, n3 = m0 + h * f0, m1 + h * f1, m2 + h * f2, m3 + h * f3
-        c0, c1, c2, c3, c4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, ff, fr, rdf, rdr, cf, cr, J, m,
+        c0, c1, c2, c3, c4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, lw, J, m,
                                    cosl, cosr)
-        g0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
-        g1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
-        g2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
-        g3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
+        g0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
+        g1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
+        g2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
+        g3 = _mudot(y3, vb, k3, lw[7], lw[3], s3, cx)
         y0, y1, y2, y3, y4 = x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4
         n0, n1, n2, n3 = m0 + dt * g0, m1 + dt * g1, m2 + dt * g2, m3 + dt * g3
-        d0, d1, d2, d3, d4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zd, u, ff, fr, rdf, rdr, cf, cr, J, m,
+        d0, d1, d2, d3, d4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zd, u, lw, J, m,
                                    cosl, cosr)
-        q0 = _mudot(y0, vb, k0, rdf, ff, s0, cx)
-        q1 = _mudot(y1, vb, k1, rdf, ff, s1, cx)
-        q2 = _mudot(y2, vb, k2, rdr, fr, s2, cx)
-        q3 = _mudot(y3, vb, k3, rdr, fr, s3, cx)
+        q0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
+        q1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
+        q2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
+        q3 = _mudot(y3, vb, k3, lw[7], lw[3], s3, cx)
         out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
         out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
         out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
@@ -697,9 +799,11 @@ def _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lma
         k3 = right
     v = x[4]
     kc[15] = v
+    lw = np.empty(12)
+    _wheel_terms(kc, _lateral_on(kc, kap), v, kap, ff, fr, rdf, rdr, lw)
     for i in range(4):
         k = k0 if i == 0 else (k1 if i == 1 else (k2 if i == 2 else k3))
-        rd = rdf if i < 2 else rdr
+        rd = lw[4 + i]
         va = abs(k * v)
         vw = abs(rd * x[i])
         if vw < 1e-6 and va < 1e-6:
@@ -724,9 +828,9 @@ def _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lma
                     f = x[5 + i] / mc
                     f = RELAX_SCALE_BOUNDS[0] if f < RELAX_SCALE_BOUNDS[0] else (
                         RELAX_SCALE_BOUNDS[1] if f > RELAX_SCALE_BOUNDS[1] else f)
-                lr = (ff if i < 2 else fr) * f * a * dg / cx
+                lr = lw[i] * f * a * dg / cx
             else:
-                lr = (ff if i < 2 else fr) * a * dg / cx
+                lr = lw[i] * a * dg / cx
             lr = lmin if lr < lmin else (lmax if lr > lmax else lr)
         else:
             lr = ldef
@@ -738,19 +842,21 @@ def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ld
     """Move the relaxed slips σ̄_i = kc[11:15] towards the slips s_i of the state x (Pacejka's first-order
     relaxation, Estimator._relax): σ̄_i += min(1, dt |k_i v|/L_r,i)(s_i − σ̄_i), L_r,i = F_z,i a g'(|σ̄_i|)/c_x
     of the class (p, α1, α2) within [lmin, lmax], ldef when a is NaN (no curve); init (or σ̄ NaN): σ̄ = s.
-    s_i is eq. 6 against k_i(κ) v as slip() computes it."""
+    s_i is eq. 6 against k_i(κ) v as slip() computes it; F_z,i and r_d,i carry the lateral load transfer at the
+    state's v (module doc; ff, fr, rdf, rdr: the axle split)."""
     _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, 0.0, lmin, lmax, ldef, init, False)
 
 
-def _hub_deriv(y, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, d):  # pragma: no cover - compiled
-    """dx/dt of one two-inertia hub state y (18,) into d (18,) (FilterModel.rhs_hub, module doc)."""
+def _hub_deriv(y, u, kc, hc, lw, cosl, cosr, kw, d):  # pragma: no cover - compiled
+    """dx/dt of one two-inertia hub state y (18,) into d (18,) (FilterModel.rhs_hub, module doc); lw the wheels'
+    loads, radii and rolling-resistance torques (:func:`_wheel_terms`)."""
     k_h, c_h, jm, jw = hc[0], hc[1], hc[2], hc[3]
     m = kc[6]
     fx = 0.0
     for i in range(4):
-        fz = ff if i < 2 else fr
-        rd = rdf if i < 2 else rdr
-        cz = cf if i < 2 else cr
+        fz = lw[i]
+        rd = lw[4 + i]
+        cz = lw[8 + i]
         wm = y[i]
         ww = y[10 + i]
         mh = k_h * y[14 + i] + c_h * (wm - ww)
@@ -792,8 +898,10 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
         fr = 0.5 * ((w_n - fzf) + u[5] * kc[9])
     rdf = _radius(ff, r0, k, lim)
     rdr = _radius(fr, r0, k, lim)
-    cf = rdf * rho_t * ff
-    cr = rdr * rho_t * fr
+    kap = u[6] if u.shape[0] > 6 else 0.0
+    lat = _lateral_on(kc, kap)
+    lw = np.empty(12)
+    _wheel_terms(kc, False, 0.0, kap, ff, fr, rdf, rdr, lw)
     npt, n = x.shape
     out = np.empty_like(x)
     h = dt / nsub
@@ -806,17 +914,19 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
     for p in range(npt):
         for j in range(n):
             y[j] = x[p, j]
+        if lat:                                  # the loads at this state's speed, held over the step
+            _wheel_terms(kc, True, y[4], kap, ff, fr, rdf, rdr, lw)
         for _ in range(nsub):
-            _hub_deriv(y, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k1)
+            _hub_deriv(y, u, kc, hc, lw, cosl, cosr, kw, k1)
             for j in range(n):
                 yt[j] = y[j] + 0.5 * h * k1[j]
-            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k2)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k2)
             for j in range(n):
                 yt[j] = y[j] + 0.5 * h * k2[j]
-            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k3)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k3)
             for j in range(n):
                 yt[j] = y[j] + h * k3[j]
-            _hub_deriv(yt, u, kc, hc, ff, fr, rdf, rdr, cf, cr, cosl, cosr, kw, k4)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k4)
             for j in range(n):
                 y[j] = y[j] + h / 6.0 * (((k1[j] + 2.0 * k2[j]) + 2.0 * k3[j]) + k4[j])
         for j in range(n):
@@ -841,6 +951,9 @@ _sign = compiled(_sign, inline=True)
 _rhs5 = compiled(_rhs5, inline=True)
 _radius = compiled(_radius, inline=True)
 _mudot = compiled(_mudot, inline=True)
+_lat_shift = compiled(_lat_shift, inline=True)
+_lateral_on = compiled(_lateral_on, inline=True)
+_wheel_terms = compiled(_wheel_terms, inline=True)
 _rk4_carcass = compiled(_rk4_carcass)
 _relax_slips = compiled(_relax_slips)
 relax_slips = compiled(relax_slips)

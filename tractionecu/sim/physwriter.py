@@ -118,11 +118,32 @@ def write_physical_recording(scn, tr, out: str | Path, codec: Codec | None = Non
 
 
 def _declared_vehicle(scn):
-    """The vehicle as its owner declares it; a mechanical tractor's [drivetrain] from its spec sheet."""
+    """The vehicle as its owner declares it; a mechanical tractor's [drivetrain] from its spec sheet; the roll
+    moment's front share from the chassis's construction (:func:`_declared_roll_share`)."""
     veh = scn.vehicle
-    ps = scn.physical
     if not any(f.name == "drivetrain" for f in dataclasses.fields(veh)):
         return veh
+    veh = _declared_drivetrain(scn)
+    return dataclasses.replace(veh, front_roll_share=_declared_roll_share(scn))
+
+
+def _declared_roll_share(scn) -> float:
+    """The share of a turn's roll moment that the simulated machine's front axle carries, as its owner states
+    it from the chassis's construction.  This machine's chassis shares the moment between its axles in
+    proportion to their loads (:mod:`tractionecu.sim.physical`: the lateral load transfer is "shared by the
+    axles as their loads", as springs sized for equal ride frequencies front and rear make the axles' roll
+    stiffness proportional to their loads), so the owner declares the front axle's share of the static load, at
+    rest with the implement raised as in a headland turn (one figure: in work the draft moves a few per cent
+    of the load rearwards)."""
+    veh = scn.vehicle
+    fzf, fzr = axle_loads(veh, scn.physical.hitch, veh.mass_kg, 0.0, 0.0, 0.0)
+    return round(fzf / (fzf + fzr), 4)
+
+
+def _declared_drivetrain(scn):
+    """The vehicle with its [drivetrain] (and the figures that go with it) as its owner declares them."""
+    veh = scn.vehicle
+    ps = scn.physical
     if ps.drivetrain.kind != "mechanical":
         return _declared_hub(scn)
     md = ps.drivetrain.mech
