@@ -103,15 +103,21 @@ class CurveState:
         shape path, a·g_class(s) with var(a) on the class path; None until a is identified."""
         if self.shape_curve is not None:
             return self.shape_curve
-        if not self.a == self.a:
-            return None
-        cls = SOIL_CLASSES.get(self.class_name)
-        if cls is None:
-            return None
-        c = MuCurve.from_class(cls, self.a, self.var_a)
-        if self.s_range is not None:           # dataclasses.replace(c, s_range=...) on the fresh object: the same
-            _set_attr(c, "s_range", self.s_range)   # fields, without a second construction
-        return c
+        return _class_curve(self.class_name, self.a, self.var_a, self.s_range)
+
+
+def _class_curve(class_name: str, a: float, var_a: float, s_range: tuple[float, float] | None) -> MuCurve | None:
+    """:attr:`CurveState.curve` on the class path: a·g_class(s) with var(a) and the soil's slip range; None until a
+    is identified or for a class that is not one of SOIL_CLASSES."""
+    if not a == a:
+        return None
+    cls = SOIL_CLASSES.get(class_name)
+    if cls is None:
+        return None
+    c = MuCurve.from_class(cls, a, var_a)
+    if s_range is not None:                # dataclasses.replace(c, s_range=...) on the fresh object: the same
+        _set_attr(c, "s_range", s_range)   # fields, without a second construction
+    return c
 
 
 class CurveEstimator:
@@ -408,6 +414,22 @@ class CurveEstimator:
         if sh is None:
             return None
         return (sh._span, sh.fit, sh.soil_ids[sh.match] if sh.match >= 0 else sh._next_id, sh.segment)
+
+    def _curve_of(self, num: float, den: float, info: tuple[Any, ...] | None) -> MuCurve | None:
+        """The identified curve of a one-class estimator's state (``_state_of([num], [den], ...).curve``) without
+        making the state."""
+        if info is not None:
+            (lo, hi, nb), fit, _, _ = info
+            if fit is not None and fit.shape_selected:
+                return fit.curve
+        a_b = num / den if den > 0 else math.nan
+        cls = self.classes[0]
+        if info is None:
+            return _class_curve(cls.name, a_b, math.nan, None)
+        var_a = math.nan
+        if fit is not None and fit.best_class.soil_class is cls:
+            var_a = float(fit.best_class.cov[0, 0]) * (a_b / fit.best_class.a) ** 2
+        return _class_curve(cls.name, a_b, var_a, (lo, hi) if nb else None)
 
     def _state_of(self, num: list[float], den: list[float], nll_l: list[float], n_used: int,
                   info: tuple[Any, ...] | None) -> CurveState:
