@@ -75,6 +75,11 @@ def test_state_after_every_step_equals_the_python_estimator():
         for col, val in ((K.OUT_RHO, e.rho_s), (K.OUT_V, e.v), (K.OUT_NIS, e.nis), (K.OUT_ADAPT, e.adapt),
                          (K.OUT_SIGRHO, e.sigma_rho_s)):
             np.testing.assert_allclose(row[col], val, rtol=0.0, atol=TOL, err_msg=f"step {k}")
+        # the curve state the step reports (made from the compiled curve update's records) is the step path's
+        cs, ref = loop.states[int(row[K.OUT_CS])], est._curve_state
+        assert (cs.n_used, cs.segment, cs.curve_path) == (ref.n_used, ref.segment, ref.curve_path), f"step {k}"
+        assert np.array_equal([cs.a, *cs.a_per_class, *cs.nll_per_class], [ref.a, *ref.a_per_class,
+                                                                            *ref.nll_per_class], equal_nan=True)
         # the filter's state itself, and the held inputs
         assert (est.ukf is None) == (loop.I[K.I_UKF] == 0)
         if est.ukf is not None:
@@ -91,7 +96,38 @@ def test_state_after_every_step_equals_the_python_estimator():
     assert statuses & INPUT_REJECTED and statuses & MEAS_GATED and statuses & NOT_CONVERGED
     assert est.counters["gap_resets"] == 1 and est.counters["rejected_inputs"] >= 2
     assert loop.events["init"] == 2 and loop.events["update"] >= 3
-    assert loop.events["curve"] > 0 and loop.events["fuzzy"] > 0 and est._cal.rejected > 0
+    # the curve updated compiled within the loop (no return to Python for it), the supervisor's new strengths
+    assert loop.I[K.I_CS_VER] > 0 and loop.events["curve"] == 0 and loop.events["fuzzy"] > 0 and est._cal.rejected > 0
+
+
+def test_curve_update_in_the_loop_with_full_records_and_history():
+    """The μ(s) curve's update runs compiled in the loop, on the estimator's own curve state; it returns to Python
+    for the once-a-second span and fit, and, having changed nothing, when its records or the shape
+    identification's history ring are full (they grow, and Python does that update).  Records and ring start
+    tiny here; every step's curve state equals the step path's."""
+    steps = [(t, dict(i), dict(m)) for t, i, m in synth_run(seed=7, duration=30.0).steps]
+    veh = VehicleParams()
+    est = Estimator(veh)
+    loop = CompiledLoop(Estimator(veh))
+    sh = loop.est._curve.shape
+    loop.states.CR = np.zeros((2, 5))
+    sh._HT, sh._HP = np.zeros((2, 3)), np.zeros((4, 5))
+    loop._cv = loop._curve_arrays()
+    refs = []
+    for t, inputs, meas in steps:
+        est.step(t, inputs, meas)
+        refs.append(est._curve_state)
+    IN = CompiledLoop.inputs_from_steps(steps)
+    out = np.concatenate([loop.step_block(IN[k:k + 700]) for k in range(0, len(steps), 700)])
+    for k, ref in enumerate(refs):
+        cs = loop.states[int(out[k, K.OUT_CS])]
+        assert (cs.n_used, cs.segment, cs.curve_path, cs.s_range) == (ref.n_used, ref.segment, ref.curve_path,
+                                                                       ref.s_range), f"step {k}"
+        assert np.array_equal([cs.a, cs.var_a, cs.slip_span, *cs.nll_per_class],
+                              [ref.a, ref.var_a, ref.slip_span, *ref.nll_per_class], equal_nan=True), f"step {k}"
+    n_upd = int(loop.I[K.I_CS_VER])
+    assert n_upd > 100 and loop.states.CR.shape[0] > n_upd and sh._HT.shape[0] > 2
+    assert 0 < loop.events["curvefit"] < n_upd and loop.events["curve"] == 0
 
 
 def _compare(path, rate_hz: float = 100.0, compiled: bool = True) -> tuple:
@@ -115,6 +151,21 @@ def test_paper_three_soils_every_column(make_recording):
     step, _ = _compare(make_recording("paper-three-soils", 0, 20.0))
     a = step.arrays
     assert a["valid"].sum() > 1000 and np.isfinite(a["a"]).any()
+
+
+def test_soil_segments_close_within_the_loop(make_recording):
+    """90 s of paper-three-soils (two soil segments close there: test_curve_speed's reference pins the count): the
+    change test fires within the compiled curve update, the segment closes in Python and the pairs go on in the
+    loop; every column and every step's identified curve (path, parameters, covariance, slip range) equal the step
+    path's."""
+    step, batch = _compare(make_recording("paper-three-soils", 0, 90.0))
+
+    def text(c):
+        return None if c is None else (c.path, c.theta, np.asarray(c.cov).tobytes(), c.s_range)
+
+    got = [text(c) for c in batch.arrays["curve"]]
+    assert got == [text(c) for c in step.arrays["curve"]]
+    assert len({g[3] for g in got if g is not None}) > 10          # the soil's slip range moved on
 
 
 def test_slow_replay_rate_with_sub_steps(make_recording):

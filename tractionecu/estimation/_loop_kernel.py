@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from ..model.vehicle import compiled
-from . import _kernels
+from . import _curve_kernel, _kernels
 from .kinematics import BETA0_VAR_FACTOR, BETA_MAX_SIGMAS, BIAS_DIST_M, BIAS_TAU_S, FAR_EPOCHS, YAW_TAU_S
 from .rates import PERIOD_TOLERANCE
 
@@ -69,6 +69,9 @@ EV_WINFULL = 109     # the averaged slip's buffer is full: the driver enlarges i
 EV_FUZZY = 110       # the fuzzy supervisor's intensity of strengths not in the memo (FuzzySupervisor.intensity)
 EV_SYSTEMATIC = 111  # systematic uncertainty with a pull-angle tolerance (its math.hypot stays in Python)
 EV_HASCURVE = 112    # whether the latest curve state has an identified curve (CurveState.curve), asked when needed
+EV_CURVEJ = 113      # the compiled μ(s) curve update needs Python: a soil segment's close, the once-a-second span and
+                     # fit, or more room (I[I_CURVE_R]: _curve_kernel's ALARM, CHECK, GROW, or CURVE_REC_FULL)
+CURVE_REC_FULL = 4   # (I[I_CURVE_R]) the curve records (CR) are full: nothing was changed
 
 # ----------------------------------------------------------------------------- stages of a step
 ST_BEGIN = 0
@@ -160,6 +163,9 @@ I_NAMES = (
     ("n_cand", 1), ("avg_found", 1), ("f_sup", 1), ("f_unc", 1), ("fz_n", 1), ("fz_rules", 9),
     # the radius calibration's open block holds samples (RadiusCalibration._blk[4] != 0, after the last push)
     ("cal_open", 1),
+    # the curve update compiled (_curve_kernel.ce_update, in the loop: 1) or in Python (0); with the shape
+    # identification; the kernel's code when it returns EV_CURVEJ; the current shape-information snapshot
+    ("curve_jit", 1), ("curve_shape", 1), ("curve_r", 1), ("curve_info", 1),
 )
 COUNTERS = ("steps", "updates", "gated", "rejected_inputs", "rejected_measurements", "chol_repairs", "resets",
             "gap_resets", "lost")
@@ -178,7 +184,8 @@ def _dep_tag() -> int:
     from pathlib import Path
 
     here = Path(__file__).resolve().parent
-    files = (here / "_kernels.py", here.parent / "model" / "vehicle.py", here / "kinematics.py", here / "rates.py")
+    files = (here / "_kernels.py", here.parent / "model" / "vehicle.py", here / "kinematics.py", here / "rates.py",
+             here / "_curve_kernel.py")
     h = hashlib.sha256()
     for f in files:
         h.update(f.read_bytes())
@@ -238,6 +245,7 @@ I_KIN_RESTARTS: int; I_COUNTERS: int; I_HAS_CURVE: int; I_CS_VER: int; I_F_CAL: 
 I_F_INPUT_NOISE: int; I_REPAIRED_LAST: int; I_SLIP_OK: int; I_CONV_P: int; I_QB_VALID: int  # noqa: E702
 I_UPD_KIND: int; I_INIT_DONE: int; I_N_CAND: int; I_AVG_FOUND: int; I_F_SUP: int; I_F_UNC: int  # noqa: E702
 I_FZ_N: int; I_FZ_RULES: int; I_CAL_OPEN: int  # noqa: E702
+I_CURVE_JIT: int; I_CURVE_SHAPE: int; I_CURVE_R: int; I_CURVE_INFO: int  # noqa: E702
 
 C_STEPS, C_UPDATES, C_GATED, C_REJ_IN, C_REJ_MEAS, C_CHOL, C_RESETS, C_GAP, C_LOST = range(9)
 K_MD, K_FZF, K_FDX, K_OMEGA, K_V = range(5)
@@ -1207,6 +1215,44 @@ def _mk_stage_estimate(tag):
     return _stage_estimate
 
 
+def _mk_curve_jit(tag):
+    """_curve_jit closed over the dependency tag (:func:`_dep_tag`)."""
+    def _curve_jit(F, I, CV):                                                  # pragma: no cover - compiled
+        """The μ(s) curve's update in the loop (CompiledLoop._ev_curve's call of CurveEstimator.update: μ̂, ŝ, σ_μ,
+        σ_s and the wheel loads F_z front, front, rear, rear) by the same compiled update the step path calls
+        (:func:`._curve_kernel.ce_update`) on the estimator's own state (CV: C, S, SI, B, MT, HT, HP, PD, SC and the
+        curve records CR: per version Σ w μ̂, Σ w g(ŝ), evidence, pairs used, shape-information snapshot).  True when
+        done (the new version recorded), False when Python must finish it (I[I_CURVE_R])."""
+        if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
+            raise AssertionError("dependency tag")
+        C, S, SI, B, MT, HT, HP, PD, SC, CR = CV
+        v = I[I_CS_VER] + 1
+        if v >= CR.shape[0]:
+            I[I_CURVE_R] = CURVE_REC_FULL
+            return False
+        b = F_L_BUF
+        fz = np.empty(4)
+        fz[0] = F[F_L_LOAD]
+        fz[1] = F[F_L_LOAD]
+        fz[2] = F[F_L_LOAD + 1]
+        fz[3] = F[F_L_LOAD + 1]
+        r = _curve_kernel.ce_update(C, S, SI, B, MT, HT, HP, PD, SC, F[F_L_T], F[b:b + 4], F[b + 4:b + 8],
+                                    F[F_L_SIG_MU:F_L_SIG_MU + 4], F[F_L_SIG_S:F_L_SIG_S + 4], fz,
+                                    I[I_CURVE_SHAPE] != 0, True, True)
+        if r != _curve_kernel.DONE:
+            I[I_CURVE_R] = r
+            return False
+        CR[v, 0] = C[_curve_kernel.C_NUM]
+        CR[v, 1] = C[_curve_kernel.C_NUM + 1]
+        CR[v, 2] = C[_curve_kernel.C_NUM + 2]
+        CR[v, 3] = C[_curve_kernel.C_NUSED]
+        CR[v, 4] = I[I_CURVE_INFO]
+        I[I_CS_VER] = v
+        I[I_HAS_CURVE] = -1          # asked for when an averaged slip needs it
+        return True
+    return _curve_jit
+
+
 def _bisect_left(WIN, lo, n, col, x):                                     # pragma: no cover - compiled
     a = 0
     b = n
@@ -1504,8 +1550,9 @@ def _stage_none(F, I, OUT, k):                                            # prag
 
 def _mkrun(tag):
     """run closed over the dependency tag (:func:`_dep_tag`)."""
-    def run(F, I, IN, OUT, EV, CM, RB, WIN, n):                               # pragma: no cover - compiled
+    def run(F, I, IN, OUT, EV, CM, RB, WIN, n, CV):                           # pragma: no cover - compiled
         """Step the estimator from step I[I_K] (at stage I[I_STAGE]) until step n or an event (module doc).
+        ``CV``: the compiled curve update's state (:func:`_curve_jit`; with I[I_CURVE_JIT] 0 it is not used).
 
         Returns EV_DONE when every step up to n is done, else the event's code; the stage to resume at is
         in I[I_STAGE] (the driver sets it when its handler decides)."""
@@ -1558,7 +1605,11 @@ def _mkrun(tag):
                 nxt = _stage_estimate(F, I)
                 if nxt == EV_CURVE:
                     I[I_STAGE] = ST_ESTIMATE2
-                    return EV_CURVE
+                    if I[I_CURVE_JIT] == 0:
+                        return EV_CURVE
+                    if not _curve_jit(F, I, CV):
+                        return EV_CURVEJ
+                    continue
                 I[I_STAGE] = nxt
             elif st == ST_ESTIMATE2:
                 nxt = _stage_estimate2(F, I, WIN, EV)
@@ -1615,6 +1666,7 @@ _stage_adapt = compiled(_mk_stage_adapt(_TAG))
 _systematic = compiled(_systematic)
 _stage_adapt2 = compiled(_stage_adapt2)
 _stage_estimate = compiled(_mk_stage_estimate(_TAG))
+_curve_jit = compiled(_mk_curve_jit(_TAG))
 _bisect_left = compiled(_bisect_left)
 _slip_window = compiled(_slip_window)
 _stage_estimate2 = compiled(_stage_estimate2)

@@ -17,8 +17,13 @@ It returns to Python at the events that need Python objects, and calls the SAME 
 calls (those of the :class:`~.estimator.Estimator` it was built from), so their results feed back
 identically:
 
-* the μ(s) curve at its updates (``curve_period_s``, :class:`~.curve.CurveEstimator`), and the
-  identified curve's slope when an averaged slip is weighed;
+* the μ(s) curve's update (``curve_period_s``) only in part: the one-class update (the a sums and the shape
+  identification's pairs) runs compiled inside the loop, by the function the step path's
+  :class:`~.curve.CurveEstimator` calls (:func:`._curve_kernel.ce_update`, on that estimator's own arrays); Python
+  finishes it at a soil segment's close and at the once-a-second span, soil match and fit, and makes the curve states
+  on demand from the loop's records (:class:`_CurveStates`); a curve identification of another kind (several
+  classes, a subclass) is updated in Python at every update.  The identified curve's slope when an averaged slip is
+  weighed stays in Python;
 * the radius calibration at GNSS epochs (:class:`~.calibration.RadiusCalibration`);
 * the fuzzy supervisor's intensity for rule strengths not seen before (:class:`~.supervisor.FuzzySupervisor`;
   the compiled loop keeps a memo of them, as the supervisor does), and the systematic uncertainty
@@ -99,6 +104,62 @@ def check_steps(vehicle: Any, seconds: float = 4.0, rate_hz: float = 100.0) -> l
 
 
 _CHECKED: dict[str, tuple[bool, float]] = {}
+
+
+class _CurveStates:
+    """The curve states of the compiled curve update, by version (``I[I_CS_VER]``), made on demand from its records
+    (``CR``: Σ w μ̂, Σ w g(ŝ), class evidence, pairs used, snapshot of the shape information) by
+    :meth:`CurveEstimator._state_of <.curve.CurveEstimator._state_of>`, the function that makes the step path's
+    states; version 0 is the estimator's state when the loop began."""
+
+    def __init__(self, first: Any, ce: Any) -> None:
+        self.ce = ce
+        self.CR = np.zeros((4096, 5))
+        self.class_name = ce.classes[0].name
+        self._cache: dict[int, Any] = {0: first}
+        self._a0 = first.a
+        self.infos: list[Any] = [ce._shape_info()]
+
+    def grow(self) -> None:
+        """Twice the records' room."""
+        CR = np.zeros((2 * self.CR.shape[0], 5))
+        CR[:self.CR.shape[0]] = self.CR
+        self.CR = CR
+
+    def record(self, I: np.ndarray, K: Any) -> int:
+        """Record the curve estimator's state after an update finished in Python (a new snapshot of its shape
+        information, which such an update changes); returns the new version."""
+        from . import _curve_kernel as CK
+
+        self.infos.append(self.ce._shape_info())
+        I[K.I_CURVE_INFO] = len(self.infos) - 1
+        v = int(I[K.I_CS_VER]) + 1
+        C = self.ce._C
+        self.CR[v] = (C[CK.C_NUM], C[CK.C_NUM + 1], C[CK.C_NUM + 2], C[CK.C_NUSED], I[K.I_CURVE_INFO])
+        return v
+
+    def a_of(self, v: int) -> float:
+        """The state's a (:attr:`CurveState.a <.curve.CurveState.a>`) without making the state."""
+        if v == 0:
+            return self._a0
+        n, d = self.CR[v, :2].tolist()
+        return n / d if d > 0 else math.nan
+
+    def curve_of(self, v: int) -> Any:
+        """The state's identified curve (:attr:`CurveState.curve <.curve.CurveState.curve>`), without making the
+        state when it was not made."""
+        cs = self._cache.get(v)
+        if cs is not None:
+            return cs.curve
+        num, den, _, _, iv = self.CR[v].tolist()
+        return self.ce._curve_of(num, den, self.infos[int(iv)])
+
+    def __getitem__(self, v: int) -> Any:
+        cs = self._cache.get(v)
+        if cs is None:
+            num, den, nll, nu, iv = self.CR[v].tolist()
+            cs = self._cache[v] = self.ce._state_of([num], [den], [nll], int(nu), self.infos[int(iv)])
+        return cs
 
 
 class CompiledLoop:
@@ -211,7 +272,17 @@ class CompiledLoop:
         self.RB = np.zeros((10, cfg.rate_window))
         self.WIN = np.zeros((16384, 19))
         self.EV = np.zeros(1 + 16 * K.N_CAND_COLS)
-        self.states: list[Any] = [est._curve_state]
+        # the curve update compiled in the loop (_curve_kernel.ce_update, the step path's own) where the estimator's
+        # curve identification is the plain one-class CurveEstimator; its states are then made on demand from the
+        # loop's records (_CurveStates), else they are the Python update's (a list)
+        from .curve import CurveEstimator
+
+        ce = est._curve
+        self._jit = type(ce) is CurveEstimator and len(ce.classes) == 1
+        self.states: Any = _CurveStates(est._curve_state, ce) if self._jit else [est._curve_state]
+        I[io["curve_jit"]] = int(self._jit)
+        I[io["curve_shape"]] = int(ce.shape is not None)
+        self._cv = self._curve_arrays()
         self._curves: dict[int, tuple[Any, str]] = {}
         self._cal_blocks = 0
         self._radius_sigma()
@@ -219,11 +290,11 @@ class CompiledLoop:
                           K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy,
                           K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
                           K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull,
-                          K.EV_HASCURVE: self._ev_hascurve}
+                          K.EV_HASCURVE: self._ev_hascurve, K.EV_CURVEJ: self._ev_curvefit}
         self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
                           K.EV_FUZZY: "fuzzy", K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",
                           K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal", K.EV_WINFULL: "winfull",
-                          K.EV_HASCURVE: "hascurve"}
+                          K.EV_HASCURVE: "hascurve", K.EV_CURVEJ: "curvefit"}
         self.events = {name: 0 for name in self._ev_names.values()}
         """Returns to Python per event (module doc)."""
         # views of the state (numpy views into F: written by the compiled code, read here)
@@ -331,7 +402,7 @@ class CompiledLoop:
         F, EV, CM, RB = self.F, self.EV, self.CM, self.RB
         handlers, names, events = self._handlers, self._ev_names, self.events
         while True:
-            ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n)
+            ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n, self._cv)
             if ev == K.EV_DONE:
                 self._cal_sync()
                 return OUT
@@ -378,9 +449,14 @@ class CompiledLoop:
         key = ver * 2 + hasx
         uniq, inv = np.unique(key, return_inverse=True)
         ents = []
-        for kk in uniq.tolist():
-            cs = self.states[kk // 2]
-            ents.append((cs.a if kk % 2 else math.nan, cs.class_name))
+        states = self.states
+        if self._jit:                    # a and the class from the records, without making the states
+            for kk in uniq.tolist():
+                ents.append((states.a_of(kk // 2) if kk % 2 else math.nan, states.class_name))
+        else:
+            for kk in uniq.tolist():
+                cs = states[kk // 2]
+                ents.append((cs.a if kk % 2 else math.nan, cs.class_name))
         a_u = np.array([e[0] for e in ents] if n else [], dtype=float)
         arr["a"] = a_u[inv] if n else np.empty(0)
         names = np.empty(len(ents), dtype=object)
@@ -403,7 +479,8 @@ class CompiledLoop:
         for j, kk in enumerate(uniq.tolist()):
             ent = cache.get(kk)
             if ent is None:
-                c = self.states[kk // 2].curve if kk % 2 else None
+                v = kk // 2
+                c = None if not kk % 2 else (self.states.curve_of(v) if self._jit else self.states[v].curve)
                 ent = cache[kk] = (c, c.path if c is not None else "")
             curves[j] = ent[0]
             paths[j] = ent[1]
@@ -576,6 +653,45 @@ class CompiledLoop:
         self.states.append(cs)
         I[K.I_CS_VER] = len(self.states) - 1
         I[K.I_HAS_CURVE] = -1            # asked for when an averaged slip needs it (CurveState.curve costs)
+
+    def _curve_arrays(self) -> tuple[np.ndarray, ...]:
+        """The compiled curve update's state (``_loop_kernel._curve_jit``'s CV): the estimator's CurveEstimator's
+        and ShapeIdentifier's own arrays (placeholders without them) and the records."""
+        ce = self.est._curve
+        if not self._jit:
+            z1, z2 = np.zeros(1), np.zeros((1, 1))
+            return (z1, z1, np.zeros(1, dtype=np.int64), z2, z2, z2, z2, z2, z2, z2)
+        sh = ce.shape
+        if sh is None:
+            from .curve import _NO_B, _NO_HP, _NO_HT, _NO_S, _NO_SI
+            return (ce._C, _NO_S, _NO_SI, _NO_B, _NO_B, _NO_HT, _NO_HP, _NO_HP, ce._SC, self.states.CR)
+        return (ce._C, sh._S, sh._SI, sh._B, sh._MT, sh._HT, sh._HP, sh._PD, sh._SC, self.states.CR)
+
+    def _ev_curvefit(self, IN: np.ndarray, OUT: np.ndarray) -> None:
+        """The compiled curve update's Python part (``_loop_kernel._curve_jit``): a soil segment's close and the
+        once-a-second span and fit (ShapeIdentifier._after), or, when the history or the records were full (nothing
+        done), more room and the whole update by CurveEstimator.update; then the new version's record."""
+        K, F, I, est = self.K, self.F, self.I, self.est
+        from . import _curve_kernel as CK
+
+        ce = est._curve
+        r = int(I[K.I_CURVE_R])
+        t = float(F[K.F_L_T])
+        states = self.states
+        if r == K.CURVE_REC_FULL or r == CK.GROW:
+            if r == K.CURVE_REC_FULL:
+                states.grow()
+            b = K.F_L_BUF
+            ff, fr = F[K.F_L_LOAD:K.F_L_LOAD + 2].tolist()
+            ms = F[b:b + 8].copy()
+            sg = F[K.F_L_SIG_MU:K.F_L_SIG_MU + 8].copy()
+            ce.update(t, ms[:4], ms[4:], sg[:4], sg[4:], np.array([ff, ff, fr, fr]))
+        else:
+            ce.shape._after(r, t)
+        v = states.record(I, K)
+        I[K.I_CS_VER] = v
+        I[K.I_HAS_CURVE] = -1
+        self._cv = self._curve_arrays()
 
     def _ev_hascurve(self, IN: np.ndarray, OUT: np.ndarray) -> None:
         """Whether the current curve state has an identified curve (the averaged slip needs one)."""
