@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from ..model.vehicle import compiled
 
 MU_BIN_WIDTH = 0.02          # curve.MU_BIN_WIDTH (copies: numba freezes globals; test_curve_speed holds them equal)
