@@ -34,7 +34,9 @@ from __future__ import annotations
 
 import math
 
-from ..model.vehicle import compiled
+import numpy as np
+
+from ..model.vehicle import JIT, compiled
 
 MU_BIN_WIDTH = 0.02          # curve.MU_BIN_WIDTH (copies: numba freezes globals; test_curve_speed holds them equal)
 N_BINS = 75                  # curve.PairBins.N_BINS
@@ -359,3 +361,32 @@ _add = compiled(_add)
 new_segment = compiled(new_segment)
 shape_post = compiled(shape_post)
 ce_update = compiled(ce_update)
+
+
+_warm = False
+
+
+def warm_up() -> None:
+    """Compile the update now (or load it from numba's on-disk cache) instead of at the first curve update, which
+    on the step path comes seconds into a real-time loop (the service steps a throwaway estimator before its loop,
+    and a CurveEstimator calls this when it is made).  Afterwards it returns at once; without numba it does nothing."""
+    global _warm
+    if _warm or not JIT:
+        return
+    _warm = True
+    C = np.zeros(C_SIZE + 3)
+    C[C_TAU], C[C_CTAU], C[C_MINMU], C[C_MINSLIP], C[C_REF] = 5.0, 30.0, 0.15, 0.005, 20000.0
+    C[C_P], C[C_A1], C[C_A2], C[C_Q] = 0.5, -10.0, -20.0, 0.5
+    S = np.zeros(S_SIZE)
+    S[S_SLIPCORR], S[S_WMIN], S[S_K], S[S_H], S[S_MAXW], S[S_HIST], S[S_CONFIRM] = 0.5, 2.0, 0.5, 4.0, 2000.0, 10.0, 5.0
+    S[S_P], S[S_A1], S[S_A2], S[S_Q], S[S_TWO] = 0.5, -10.0, -20.0, 0.5, 2.0
+    SI = np.zeros(SI_SIZE, dtype=np.int64)
+    B, MT = np.zeros((6, N_BINS)), np.zeros((6, N_BINS))
+    HT, HP, PD, SC = np.zeros((8, 3)), np.zeros((32, 5)), np.zeros((4, 5)), np.zeros((4, 4))
+    mu, s, sg = np.full(4, 0.4), np.full(4, 0.05), np.full(4, 0.02)
+    for k in range(3):
+        ce_update(C, S, SI, B, MT, HT, HP, PD, SC, 0.1 * k, mu, s, sg, sg, mu, True, True, True)
+    ce_update(C, S, SI, B, MT, HT, HP, PD, SC, 1.0, mu, s, sg, sg, mu, False, False, False)
+    shape_pre(S, SI, B, HT, HP, PD, 2.0, 0.1, mu, s, sg, sg, mu, 4)
+    shape_post(S, SI, B, MT, HT, HP, PD)
+    new_segment(S, SI, B, MT, HT, HP, 0.0)

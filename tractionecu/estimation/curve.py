@@ -187,6 +187,7 @@ class CurveEstimator:
         self.shape = (ShapeIdentifier(cls, slip_corr_s=slip_corr_s, **kw) if shape else None)
         self._SC = np.empty((4, 8))                      # the kernel's scratch for the shape's pairs
         self._none = np.empty(0)
+        CK.warm_up()                                     # compiled (or loaded) now, not at the first update
 
     # per class Σ w μ̂, Σ w g(ŝ) and the class evidence: views of the shared state (properties, so that a copy
     # of the estimator keeps them in its own state)
