@@ -229,9 +229,14 @@ def test_s_curve_transitions_leave_no_bias():
 # ----------------------------------------------------------------------------- the estimator in a turn
 def _turning(run, kappa: float, course: bool = True):
     """The synthetic straight run bent round a circle of curvature κ: each wheel's speed scaled by its
-    ground-speed factor (same slip per wheel), the GNSS course turning at v κ."""
+    ground-speed factor (same slip per wheel) and by its axle's rolling radius over its own, the lateral load
+    transfer's (δ_f, δ_r = λ_f, 1 − λ_f of m v² κ h_cg/b moved to the outer wheels, eq. 9), the GNSS course
+    turning at v κ."""
+    from tractionecu.model.vehicle import rolling_radius
+
     k = wheel_speed_factors(kappa, B, L)
     out = []
+    fzf = VEH.static_front_load_n()
     psi = 0.0
     t_prev = 0.0
     vi = 0
@@ -241,7 +246,13 @@ def _turning(run, kappa: float, course: bool = True):
         psi += run.v[vi] * kappa * (t - t_prev)
         t_prev = t
         m = dict(meas)
-        m["omega"] = np.asarray(meas["omega"]) * k
+        fzf = inputs.get("Fzf", fzf)                                  # the held front-axle load
+        ff, fr = 0.5 * fzf, 0.5 * (VEH.weight_n - fzf)
+        moment = VEH.mass_kg * run.v[vi] ** 2 * kappa * VEH.cg_height_m / B
+        df, dr = VEH.front_roll_share * moment, (1.0 - VEH.front_roll_share) * moment
+        axle = rolling_radius(np.array([ff, ff, fr, fr]), VEH)
+        own = rolling_radius(np.array([ff - df, ff + df, fr - dr, fr + dr]), VEH)
+        m["omega"] = np.asarray(meas["omega"]) * k * (axle / own)
         if course and "v" in meas:
             m["course"] = (90.0 - math.degrees(psi)) % 360.0
         out.append((t, inputs, m))

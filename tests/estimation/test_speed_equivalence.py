@@ -201,7 +201,9 @@ def test_estimate_outputs_kernel_equals_numpy_methods():
         est.model._fzf_key = None
         ff, fr, rdf, rdr = est.model.load_floats(float(est._u[4]), float(est._u[5]))
         buf = np.empty(26)
-        code = _kernels.estimate_outputs(x, P, rdf, rdr, 1e-4, 1e-4, kap, hb, wb, kv, est.cfg.slip_sigma_max, buf)
+        est._u[6] = kap                         # the curvature input: the lateral load transfer moves the radii
+        code = _kernels.estimate_outputs(x, P, rdf, rdr, 1e-4, 1e-4, kap, hb, wb, kv, est.cfg.slip_sigma_max, buf,
+                                         est.model._kc, est._u)
         kw = np.ones(4) if kap == 0.0 else est._wheel_factors(kap)
         assert _same(buf[22:26], kw), k
         assert _same(buf[4:8], np.array(est._slip(x[:4].tolist(), float(x[4]), kw.tolist()))), k

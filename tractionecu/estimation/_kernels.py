@@ -303,10 +303,11 @@ def add_kappa_noise(Q, x, u, kc, J, iw, c):                 # pragma: no cover -
             Q[ia, ib] += (g[a] * g[b]) * c
 
 
-def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out):  # pragma: no cover - compiled
+def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out, kc, u):  # pragma: no cover - compiled
     """out (26,) = [μ (4), slip (4, eq. 6 as model.vehicle.slip), ω (4), diag P (10), k (4)] of the state x,
     k the wheels' ground speeds over v at path curvature ``kap`` (Estimator._wheel_factors: half track ``hb``,
-    wheelbase ``wb``), slip i that of ω_i against k_i·v.  Returns bit 0: every P_μμ < c_mu and P_ρρ < c_rho
+    wheelbase ``wb``), slip i that of ω_i against k_i·v, each wheel rolling on its own radius (rdf, rdr of the
+    axle loads, and the lateral load transfer: :func:`~tractionecu.model.vehicle.wheel_radii` with kc, u).  Returns bit 0: every P_μμ < c_mu and P_ρρ < c_rho
     (not for NaN); bit 1: every wheel's slip σ within ``bound`` (Estimator._slip_supported, with the
     curvature variance ``kv``).  The same operations as those two methods and the numpy path."""
     h = hb * kap
@@ -317,10 +318,12 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out): 
     out[23] = math.sqrt(right * right + lk * lk)
     out[24] = left
     out[25] = right
+    rw = np.empty(4)
+    _vehicle.wheel_radii(kc, u, x[4], kap, rdf, rdr, rw)
     for i in range(4):
         va = abs(x[4] * out[22 + i])
         w = x[i]
-        vw = abs((rdf if i < 2 else rdr) * w)
+        vw = abs(rw[i] * w)
         if vw < 1e-6 and va < 1e-6:
             s = 0.0
         elif va <= vw:
@@ -360,7 +363,7 @@ def estimate_outputs(x, P, rdf, rdr, c_mu, c_rho, kap, hb, wb, kv, bound, out): 
         for i in range(4):
             dk = d0 if i == 0 else (d1 if i == 1 else (d2 if i == 2 else d3))
             ki = out[22 + i]
-            vw = (rdf if i < 2 else rdr) * x[i]
+            vw = rw[i] * x[i]
             vi = v * dk
             if not pv * ki * ki + vi * vi * kv <= lim * vw * vw:        # (NaN: not supported either)
                 ok = False
@@ -550,7 +553,8 @@ def warm_up() -> None:
         update_block(x, P, x[:m].copy(), np.full(m, 1e-4), 0, math.inf, lo, hi, np.empty(n), np.empty((n, n)),
                      np.empty((n, m + 2)), np.empty((2 * m + 1, m)))
     add_torque_noise(P, u, 1.0, 0.01, 0.1, 1e-6, np.empty((n, n)))
-    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, 0.01, 0.9, 2.5, 1e-6, 0.0125, np.empty(26))
+    estimate_outputs(x, P, 0.78, 0.78, 1e-4, 1e-4, 0.01, 0.9, 2.5, 1e-6, 0.0125, np.empty(26), kc, u)
+    add_kappa_noise(np.zeros((n, n)), x, u, kc, 2.0, 0, 1e-6)
     process_noise(x, 0.01, x, True, x[:4], x, 0.01, 2.0, 0.1, 1e-6, 1e-6, np.empty((n, n)))
     process_noise(x, 0.01, x, False, x[:4], x, 0.01, 2.0, 0.0, 0.0, 0.0, np.empty((n, n)))
     emp = np.zeros((4, n))

@@ -1176,7 +1176,8 @@ def _mk_stage_estimate(tag):
         buf = F[F_L_BUF:F_L_BUF + 26]
         x = F[F_X:F_X + 10]
         code = _kernels.estimate_outputs(x, F[F_P:F_P + 100].reshape((10, 10)), rdf * F[F_KF], rdr * F[F_KR], c_mu,
-                                         c_rho, kap, F[F_C_HB], F[F_C_WB], F[F_KAPVAR], F[F_C_SLIP_MAX], buf)
+                                         c_rho, kap, F[F_C_HB], F[F_C_WB], F[F_KAPVAR], F[F_C_SLIP_MAX], buf,
+                                         F[F_C_KC:F_C_KC + 18], F[F_U:F_U + 7])
         v = x[4]
         F[F_L_V] = v
         I[I_CONV_P] = 1 if (code & 1) == 1 else 0

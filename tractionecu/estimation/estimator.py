@@ -76,7 +76,8 @@ from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_RHO, IX_V, N_INPUT, N_STATE,
-                             N_STATE_HUB, FilterModel, relax_slips, relax_slips_own, wheel_speed_factor_slopes)
+                             N_STATE_HUB, FilterModel, relax_slips, relax_slips_own, wheel_radii,
+                             wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -1079,14 +1080,21 @@ class Estimator:
         left, right = 1.0 - h, 1.0 + h
         return np.array([math.sqrt(left * left + lk * lk), math.sqrt(right * right + lk * lk), left, right])
 
+    def _wheel_radii(self, v: float) -> list[float]:
+        """Each wheel's rolling radius [m] for the reported slip: the held axle loads' (eq. 9, times the radius
+        calibration's scale) with the lateral load transfer at speed v [m/s] and the curvature input
+        (:func:`~tractionecu.model.vehicle.wheel_radii`, as ``_kernels.estimate_outputs``)."""
+        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
+        out = np.empty(4)
+        wheel_radii(self.model._kc, self._u, v, float(self._u[IU_KAPPA]), rdf * self._kf, rdr * self._kr, out)
+        return out.tolist()
+
     def _slip(self, w: list[float], v: float, k: list[float]) -> list[float]:
         """Slip per wheel (eq. 6, :func:`~tractionecu.model.vehicle.slip`) from floats, same operations,
-        each wheel against its own ground speed k_i·v (``k``: :meth:`_wheel_factors`)."""
-        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
-        rdf *= self._kf
-        rdr *= self._kr
+        each wheel against its own ground speed k_i·v (``k``: :meth:`_wheel_factors`), on its own radius
+        (:meth:`_wheel_radii`)."""
         out = []
-        for x, rd, ki in zip(w, (rdf, rdf, rdr, rdr), k):
+        for x, rd, ki in zip(w, self._wheel_radii(v), k):
             va = abs(v * ki)
             vw = abs(rd * x)
             if vw < 1e-6 and va < 1e-6:
@@ -1110,15 +1118,13 @@ class Estimator:
         bound = self.cfg.slip_sigma_max
         if not bound > 0.0:
             return True
-        _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
-        rdf *= self._kf
-        rdr *= self._kr
+        rds = self._wheel_radii(v)
         pv = float(pd[IX_V])
         kv = self._kappa_var
         hb = self._hb
         dks = wheel_speed_factor_slopes(kap, 2.0 * hb, self.vehicle.wheelbase_m) if kv > 0.0 else (0.0,) * 4
         lim = bound * bound
-        for ki, dk, w, rd in zip(kw.tolist(), dks, omega.tolist(), (rdf, rdf, rdr, rdr)):
+        for ki, dk, w, rd in zip(kw.tolist(), dks, omega.tolist(), rds):
             vw = rd * w
             vi = v * dk
             if not pv * ki * ki + vi * vi * kv <= lim * vw * vw:        # (NaN: not supported either)
@@ -1287,7 +1293,8 @@ class Estimator:
             _, _, rdf, rdr = self.model.load_floats(float(self._u[4]), float(self._u[5]))
             buf = np.empty(26)
             code = _kernels.estimate_outputs(x, P, rdf * self._kf, rdr * self._kr, c_mu, c_rho, kap, self._hb,
-                                             self.vehicle.wheelbase_m, self._kappa_var, cfg.slip_sigma_max, buf)
+                                             self.vehicle.wheelbase_m, self._kappa_var, cfg.slip_sigma_max, buf,
+                                             self.model._kc, self._u)
             mu, s, omega, pd, kw = buf[0:4], buf[4:8], buf[8:12], buf[12:22], buf[22:26]
             v = float(x[IX_V])
             conv_p = (code & 1) == 1

@@ -599,6 +599,32 @@ def _lateral_on(kc, kap):                                    # pragma: no cover 
     return kap != 0.0 and kc.shape[0] > 17 and (kc[16] != 0.0 or kc[17] != 0.0)
 
 
+def wheel_radii(kc, u, v, kap, rdf, rdr, out):               # pragma: no cover - compiled
+    """out (4,) = each wheel's rolling radius [m] with the lateral load transfer at speed v and curvature kap
+    (module doc), from the axle radii ``rdf``, ``rdr`` as the caller scales them (a calibration's factor): r_d,i ×
+    its axle's r_d/r_d(axle load) of eq. 9; [rdf, rdf, rdr, rdr] exactly when the transfer does not act.
+    kc: FilterModel._kc, u the inputs (F_zf u[4], F_dx u[5]) as in :func:`_rk4_points`."""
+    if not _lateral_on(kc, kap):
+        out[0] = rdf
+        out[1] = rdf
+        out[2] = rdr
+        out[3] = rdr
+        return
+    fzf = u[4]
+    ff = 0.5 * fzf
+    fr = 0.5 * (kc[0] - fzf)
+    if kc[9] != 0.0:
+        fr = 0.5 * ((kc[0] - fzf) + u[5] * kc[9])
+    r0f = _radius(ff, kc[3], kc[1], kc[2])
+    r0r = _radius(fr, kc[3], kc[1], kc[2])
+    lw = np.empty(12)
+    _wheel_terms(kc, True, v, kap, ff, fr, r0f, r0r, lw)
+    out[0] = rdf * (lw[4] / r0f)
+    out[1] = rdf * (lw[5] / r0f)
+    out[2] = rdr * (lw[6] / r0r)
+    out[3] = rdr * (lw[7] / r0r)
+
+
 def _wheel_terms(kc, lat, v, kap, ff, fr, rdf, rdr, lw):    # pragma: no cover - compiled
     """lw (12,) = (F_z (4) [N], r_d (4) [m], r_d ρ_t F_z (4)) of the wheels FL, FR, RL, RR: the axle split
     (ff, fr, their radii rdf, rdr) and, with ``lat``, the lateral load transfer at speed v and curvature kap
@@ -954,6 +980,7 @@ _mudot = compiled(_mudot, inline=True)
 _lat_shift = compiled(_lat_shift, inline=True)
 _lateral_on = compiled(_lateral_on, inline=True)
 _wheel_terms = compiled(_wheel_terms, inline=True)
+wheel_radii = compiled(wheel_radii)
 _rk4_carcass = compiled(_rk4_carcass)
 _relax_slips = compiled(_relax_slips)
 relax_slips = compiled(relax_slips)
