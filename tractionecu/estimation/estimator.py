@@ -481,8 +481,10 @@ class Estimator:
             Q.flat[0:4 * (N_STATE_HUB + 1):N_STATE_HUB + 1] += (sm * sm + self._tq_q2) * self._tq_gain
         kap = float(self._u[IU_KAPPA])
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and self.ukf is not None:
-            # the load's part acts at the rims (eq. 2 at the rim): rows 10–13, J_w
-            _kernels.add_kappa_noise(Q, self.ukf.x, self._u, self.model._kc, self._hub[3], IX_OMEGA_W.start,
+            # v's term only (J = ∞: no wheel rows): the load's part would act at the rims, which no sensor
+            # measures, and as white noise for an error correlated over 10 s it lets the rims' speeds wander
+            # left against right (s-curves-30m-hub-declared: slip_lr 0.0038 without it, 0.0076 with it)
+            _kernels.add_kappa_noise(Q, self.ukf.x, self._u, self.model._kc, math.inf, IX_OMEGA_W.start,
                                      self._kappa_var * BIAS_TAU_S * dt)
         return Q
 
