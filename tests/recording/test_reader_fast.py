@@ -47,6 +47,11 @@ def assert_same_recording(a, b) -> None:
 def assert_same_stream(rec, names) -> int:
     ref = list(stream_signals(rec, names=names, reference=True))
     new = list(stream_signals(rec, names=names))
+    return assert_same_blocks(ref, new)
+
+
+def assert_same_blocks(ref, new) -> int:
+    """Two lists of (blocks, before) equal: as many, ``before`` alike, key order and every array's bits."""
     assert len(ref) == len(new) > 0
     for (ba, before_a), (bb, before_b) in zip(ref, new):
         assert repr(before_a) == repr(before_b)
@@ -66,13 +71,7 @@ def assert_held_is_stream(path: Path, names, hold_names=REPLAY_SIGNALS, **kw) ->
     new = list(held_signals(rec, hold, names))
     ref = list(stream_signals(rec, names=names, **kw))
     assert hold.blocks is None                                  # one pass: handed out and let go
-    assert len(ref) == len(new) > 0
-    for (ba, before_a), (bb, before_b) in zip(ref, new):
-        assert repr(before_a) == repr(before_b)
-        assert list(ba) == list(bb)
-        for name in ba:
-            assert all(_bits(x) == _bits(y) for x, y in zip(ba[name], bb[name])), name
-    return len(ref)
+    return assert_same_blocks(ref, new)
 
 
 def _simulate(out: Path, name: str, seed: int, effects: dict | None = None) -> Path:
