@@ -209,64 +209,6 @@ class _Windows:
         return out
 
 
-RAW_GAP_PERIODS = 1.5
-"""Longest interval between two raw samples [raw sample periods] that the raw-rate grid interpolates
-across; a longer one (a frame lost, a sensor that stopped sending) leaves its grid points missing."""
-
-
-class _RawGrid:
-    """Raw-rate samples read at fixed grid times by linear interpolation between the two samples around
-    each time, fed block by block (every column's samples in time order).
-
-    The raw-rate grid (``k`` points per frame bin, spaced by the raw sample period) and the samples
-    run on different clocks: the grid on the GNSS epochs, the samples on the sender's, with reception
-    jitter on top.  A window of one period around each grid point then held one sample only while the
-    samples' phase stayed away from the windows' edges; where it drifted onto them, jitter put
-    successive samples into the same window and left its neighbour empty (87 empty windows in one
-    20-minute recording).  Interpolation needs no phase: each grid time between two samples gets a
-    value, from the samples about it, whatever their phase.  A grid time gets none only when the
-    samples about it are more than :data:`RAW_GAP_PERIODS` apart (a frame really lost) or when it lies
-    outside the samples."""
-
-    def __init__(self, t: NDArray[np.float64], raw_dt: float, width: int) -> None:
-        self.t = t
-        self.max_gap = RAW_GAP_PERIODS * raw_dt
-        self.val = np.full((t.size, width), np.nan)
-        self.last: list[tuple[float, float] | None] = [None] * width
-
-    def add(self, t: NDArray[np.float64], v: NDArray[np.float64], col: int = 0) -> None:
-        ok = np.isfinite(v)
-        st, sv = np.asarray(t, dtype=float)[ok], np.asarray(v, dtype=float)[ok]
-        if st.size == 0:
-            return
-        prev = self.last[col]
-        if prev is not None:
-            st = np.concatenate([[prev[0]], st])
-            sv = np.concatenate([[prev[1]], sv])
-        self.last[col] = (float(st[-1]), float(sv[-1]))
-        # Grid times in (first, last] of this block's samples (the first one is the previous block's
-        # last sample, whose own grid times that block filled); [first, last] for the very first block.
-        a = int(np.searchsorted(self.t, st[0], side="right" if prev is not None else "left"))
-        b = int(np.searchsorted(self.t, st[-1], side="right"))
-        if b <= a:
-            return
-        tg = self.t[a:b]
-        j = np.clip(np.searchsorted(st, tg, side="left"), 1, st.size - 1) if st.size > 1 else np.zeros(tg.size, int)
-        if st.size == 1:
-            self.val[a:b, col] = np.where(tg == st[0], sv[0], np.nan)
-            return
-        t0, t1 = st[j - 1], st[j]
-        gap = t1 - t0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            w = np.where(gap > 0, (tg - t0) / np.where(gap > 0, gap, 1.0), 1.0)
-        out = sv[j - 1] + w * (sv[j] - sv[j - 1])
-        self.val[a:b, col] = np.where(gap <= self.max_gap, out, np.nan)
-
-    def mean(self) -> NDArray[np.float64]:
-        """(grid times, width) values, NaN where none (the name of :meth:`_Windows.mean`)."""
-        return self.val
-
-
 def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float | None = None,
                          blocks: Iterable[Mapping[str, tuple[NDArray, NDArray]]] | None = None) -> Frame:
     """Resample a :class:`Recording` onto a regular grid (see module doc).
@@ -315,8 +257,8 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
 
     def start_fine() -> None:
         # Values at the bin edges from the raw samples nearest each edge (about ±1.5 sample periods),
-        # and the raw wheel speeds on a uniform grid of the raw period (interpolated between the samples
-        # about each grid time, :class:`_RawGrid`), for dynamics faster than the frame rate (tyre relaxation).
+        # and the raw wheel speeds on a uniform grid of the raw period (bin means), for dynamics
+        # faster than the frame rate (tyre relaxation).
         nonlocal raw_dt
         tw = np.concatenate(seen) if seen else np.zeros(0)
         raw_dt = float(np.median(np.diff(tw))) if tw.size > 2 else period
@@ -326,7 +268,8 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         fine["edge"] = _Windows(grid, edges - eh, edges + eh, 1, period, width=8)
         k = int(round(period / raw_dt))
         hf_grid = (grid[:, None] + (np.arange(k) - (k - 1) / 2.0)[None, :] * raw_dt).ravel()
-        fine["hf"] = _RawGrid(hf_grid, raw_dt, width=4)
+        fine["hf"] = _Windows(grid, hf_grid - raw_dt / 2, hf_grid + raw_dt / 2, k, period, width=4)
+        fine["hf"].t = hf_grid
 
     def feed(block: Mapping[str, tuple[NDArray, NDArray]]) -> None:
         nonlocal t_first
