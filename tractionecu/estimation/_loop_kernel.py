@@ -532,8 +532,8 @@ def _mk_make_Q(tag):
         _kernels.add_torque_noise(Qb, F[F_U:F_U + 7], F[F_C_TQABS], F[F_C_TQREL], F[F_C_TQQ2], F[F_TQ_GAIN], Q)
         kap = F[F_U + 6]
         if (kap > KAPPA_NOISE_MIN or kap < -KAPPA_NOISE_MIN) and I[I_UKF] != 0:
-            _kernels.add_kappa_noise(Q, F[F_X:F_X + 10], F[F_U:F_U + 7], F[F_C_KC:F_C_KC + 18], F[F_C_J], 0,
-                                     F[F_KAPVAR] * BIAS_TAU_S * h)
+            _kernels.add_kappa_noise(Q, F[F_X:F_X + 10], F[F_U:F_U + 7], F[F_C_KC:F_C_KC + 18], math.inf, 0,
+                                     F[F_KAPVAR] * BIAS_TAU_S * h)   # v's term only (Estimator._Q)
         return Q
     return _make_Q
 
