@@ -178,7 +178,6 @@ class CurveEstimator:
         C[[CK.C_TAU, CK.C_CTAU, CK.C_MINMU, CK.C_MINSLIP, CK.C_REF]] = (self.tau, self.class_tau, self.min_mu,
                                                                         self.min_slip, self.fz_ref_n)
         C[[CK.C_P, CK.C_A1, CK.C_A2, CK.C_Q]] = (cls[0].p, cls[0].alpha1, cls[0].alpha2, 1.0 - cls[0].p)
-        self._g0c = (cls[0].p, cls[0].alpha1, cls[0].alpha2, 1.0 - cls[0].p)     # g of the first class
         self._path0 = "class:" + cls[0].name
         grid = np.linspace(0.0, 1.0, 4001)
         self._inv = [(c.g(grid), grid) for c in cls]     # g is increasing on [0, 1]: table for g⁻¹
@@ -240,6 +239,17 @@ class CurveEstimator:
             return self._update_one(t, mu, s, sigma_mu, sigma_s, fz)
         C = self._C
         dt = 0.0 if not C[CK.C_HAS_T] else max(t - float(C[CK.C_T]), 0.0)
+        if self.shape is not None:
+            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz, mu_bin)
+        if len(self.classes) == 1:
+            # the one-class forgetting and a sums of the compiled update, without its shape part (fed above,
+            # with the binning adhesion the kernel does not take)
+            s1 = np.ascontiguousarray(s, dtype=float)
+            _ce_update(C, _NO_S, _NO_SI, _NO_B, _NO_B, _NO_HT, _NO_HP, _NO_HP, self._SC, float(t),
+                       np.ascontiguousarray(mu, dtype=float), s1,
+                       np.ascontiguousarray(np.broadcast_to(np.asarray(sigma_mu, dtype=float), s1.shape)),
+                       self._none, self._none, False, False, False)
+            return self.state()
         C[CK.C_T] = t
         C[CK.C_HAS_T] = 1.0
         lam = math.exp(-dt / self.tau)
@@ -247,12 +257,6 @@ class CurveEstimator:
         self._num = self._num * lam
         self._den = self._den * lam
         self._nll = self._nll * lam_c
-        if self.shape is not None:
-            self._feed_shape(t, dt, np.asarray(mu, dtype=float), np.asarray(s, dtype=float), sigma_s, fz, mu_bin)
-        if len(self.classes) == 1:
-            self._update_single(np.asarray(mu, dtype=float), np.asarray(s, dtype=float),
-                                np.asarray(sigma_mu, dtype=float))
-            return self.state()
         ok = np.isfinite(mu) & np.isfinite(s) & (np.abs(mu) >= self.min_mu) & (mu * s > 0)
         self.n_used = 0
         if ok.any():
@@ -345,56 +349,6 @@ class CurveEstimator:
                     b_ok.append(bl[i])
         if m_ok:
             self.shape.update(t, dt, m_ok, s_ok, ss_ok, z_ok, b_ok if bl is not None else None)  # type: ignore[union-attr]
-
-    def _update_single(self, mu: NDArray[np.float64], s: NDArray[np.float64], sigma_mu: NDArray[np.float64]) -> None:
-        """The one-class update of :meth:`update` (no class evidence), with floats where the
-        multi-class code uses arrays: same pairs, same operations and summation order."""
-        ml, sl = mu.tolist(), s.tolist()
-        sel = [i for i, (m, x) in enumerate(zip(ml, sl))
-               if math.isfinite(m) and math.isfinite(x) and abs(m) >= self.min_mu and m * x > 0]
-        self.n_used = 0
-        if not sel:
-            return
-        # g(ŝ) of the class (SoilClass.g) with the C library's exp, as the compiled update
-        # (:func:`._curve_kernel.ce_update`) computes it
-        p, a1, a2, q = self._g0c
-        g = []
-        for i in sel:
-            x = sl[i]
-            sa = abs(x)
-            v = 1.0 - p * math.exp(a1 * sa) - q * math.exp(a2 * sa)
-            g.append(v if x > 0 else -v)
-        sig = np.broadcast_to(sigma_mu, s.shape)[sel].tolist()
-        self._add_a_sums(g, sel, ml, sl, sig)
-
-    def _add_a_sums(self, g: list[float], sel: list[int], ml: list[float], sl: list[float],
-                    sig: list[float]) -> None:
-        """Add the one class's weighted pairs to its sums (Σ w μ̂, Σ w g(ŝ)) and set ``n_used``: the wheels
-        ``sel`` with their g(ŝ) ``g`` and σ_μ ``sig`` (aligned with ``sel``), μ̂ ``ml`` and ŝ ``sl`` (per
-        wheel); solve_a_array's conditions, weights and summation order."""
-        wa: list[float] = []
-        wg: list[float] = []
-        min_slip = self.min_slip
-        for gi, i, sm in zip(g, sel, sig):
-            # solve_a_array's conditions (its error bound is not used here: max_rel_err = inf)
-            if not (abs(sl[i]) >= min_slip and abs(gi) > 1e-9):
-                continue
-            a = ml[i] / gi
-            if not a > 0:
-                continue
-            sm = sm if (sm != sm or sm >= 1e-6) else 1e-6          # np.maximum(σ_μ, 1e-6), NaN kept
-            w = 1.0 / (sm * sm) * gi
-            wa.append(w * a)
-            wg.append(w)
-        if not wg:
-            return
-        num, den = wa[0], wg[0]
-        for k in range(1, len(wg)):
-            num += wa[k]
-            den += wg[k]
-        self._num[0] += num       # = Σ w μ̂
-        self._den[0] += den       # = Σ w g(ŝ)
-        self.n_used = len(wg)
 
     def state(self) -> CurveState:
         """The current identification (a, best class, per-class a and evidence)."""
