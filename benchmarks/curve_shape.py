@@ -2,10 +2,10 @@
 
 Run from the repository root::
 
-    python benchmarks/curve_shape.py --json OUT.json [--seeds 0 1] [--scenarios soils-off-class ...] [--keep DIR] [--load]
+    python benchmarks/curve_shape.py --json OUT.json [--seeds 0 1] [--scenarios soils-off-class ...] [--keep DIR] [--load | --no-load]
 
-``--load``: the curve's load dependence on (``[estimator] curve_shape_load = true`` for the replay,
-``load=True`` for the pairs run; default off, as the estimator's default).
+``--load`` / ``--no-load``: the curve's load dependence on or off (``[estimator] curve_shape_load`` for the
+replay, ``load`` for the pairs run); without either, the estimator's default (``EstimatorConfig``).
 
 For each scenario and seed: simulate (``tractionecu simulate``; a recording already in ``--keep DIR`` is
 reused), replay (in this process, as ``tractionecu replay`` does: :func:`chain_run`) and
@@ -31,7 +31,7 @@ per soil:
 
 ``exact`` (second table)
     the same identification fed with the truth's per-wheel (μ, s) as they are, no error added, with the
-    load term off (the default) and on: what the identification reaches when the pairs are exact, with the
+    load term as the run's and on: what the identification reaches when the pairs are exact, with the
     slips each soil's work covers and the truth's load dependence.  Beside it, per axle, the errors of the
     chain's pairs against the truth in work (:func:`~tractionecu.evaluation.curve_score.pair_errors`): the
     standard deviations of e_s and e_μ, their correlation, the correlation of e_s with the true slip and
@@ -215,8 +215,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--scenarios", nargs="+", default=["soils-off-class", "physical-three-soils", "paper-three-soils"])
     ap.add_argument("--keep", type=Path, default=None, help="keep (and reuse) the simulated recordings here")
-    ap.add_argument("--load", action="store_true", help="the curve's load dependence on (chain and pairs)")
+    ap.add_argument("--load", action=argparse.BooleanOptionalAction, default=None,
+                    help="the curve's load dependence on / off (chain and pairs; default: the estimator's default)")
     args = ap.parse_args(argv)
+    load = EstimatorConfig().curve_shape_load if args.load is None else bool(args.load)
+    print(f"curve load term: {'on' if load else 'off'}")
     work = args.keep or Path(tempfile.mkdtemp(prefix="curve_shape_"))
     work.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -230,11 +233,11 @@ def main(argv: list[str] | None = None) -> int:
             if not (rec / "truth.csv").exists():
                 subprocess.run(py + ["simulate", "--scenario", scn, "--seed", str(seed), "--out", str(rec)],
                                check=True, capture_output=True)
-            card, per_soil = chain_run(rec, load=args.load)
+            card, per_soil = chain_run(rec, load=load)
             spans = slip_spans(rec)
-            pairs, spent, dur = pairs_run(rec, seed, load=args.load)
+            pairs, spent, dur = pairs_run(rec, seed, load=load)
             _, spent0, _ = pairs_run(rec, seed, shape=False)
-            exact, _, _ = pairs_run(rec, seed, load=args.load, exact=True)
+            exact, _, _ = pairs_run(rec, seed, load=load, exact=True)
             exact_load, _, _ = pairs_run(rec, seed, load=True, exact=True)
             cost["curve_s_shape"] += spent
             cost["curve_s_paper"] += spent0
@@ -269,10 +272,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"{row['pairs_r2']:9.4f} {row['pairs_path']:20s} {row['pairs_r2_front']:6.3f} "
                       f"{row['pairs_r2_rear']:6.3f}")
     print("\nThe identification on the truth's exact per-wheel pairs (no slip or μ error; soil segments from the"
-          " identification's own change test, as in the chain), load term off / on, R2 over [0, 0.4] and over the soil's slip range;"
+          " identification's own change test, as in the chain), load term as the run's / on, R2 over [0, 0.4] and over the soil's slip range;"
           "\nthe errors of the chain's pairs per axle in work: sd of e_s and e_mu, corr(e_mu, e_s), corr(e_s, s), gain of s-hat on s")
     print(f"{'scenario':22s} {'seed':>4s} {'soil':16s} {'exact R2':>9s} {'range':>7s} {'exact+load':>10s} {'range':>7s} "
-          f"{'exact path, load off / on':34s} {'axle':5s} {'sd e_s':>7s} {'sd e_mu':>7s} {'c(mu,s)':>7s} {'c(s,s)':>7s} {'s gain':>6s}")
+          f"{'exact path, run / load on':34s} {'axle':5s} {'sd e_s':>7s} {'sd e_mu':>7s} {'c(mu,s)':>7s} {'c(s,s)':>7s} {'s gain':>6s}")
     for row in rows:
         for axle in ("front", "rear"):
             er = row.get(f"chain_errors_{axle}", {})
@@ -290,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{len(app)} (load term on: {sum(r['exact_load_r2'] >= TARGET_R2 for r in app)})")
     steps = cost["run_s"] * 100.0
     figures = {"curve_us_per_step": cost["curve_s_shape"] / steps * 1e6,
-               "curve_us_per_step_paper_path": cost["curve_s_paper"] / steps * 1e6, "rows": rows}
+               "curve_us_per_step_paper_path": cost["curve_s_paper"] / steps * 1e6, "load": load, "rows": rows}
     print(f"curve_us_per_step {figures['curve_us_per_step']:.2f} (paper path only: "
           f"{figures['curve_us_per_step_paper_path']:.2f})")
     args.json.write_text(json.dumps(figures, indent=2) + "\n", encoding="utf-8")
