@@ -3,6 +3,10 @@
 Run from the repository root::
 
     python benchmarks/diagnose_suite.py --json OUT.json [--fast] [--jobs 2] [--workdir DIR] [--reuse]
+    python benchmarks/diagnose_suite.py --json OUT.json --realistic --workdir DIR --simulate-only
+
+``--simulate-only`` writes the recordings into ``--workdir`` and diagnoses nothing, so that a
+later ``--reuse`` run re-diagnoses the same recordings after a change of the diagnosis.
 
 Each case of :func:`tractionecu.evaluation.suite.cases` is simulated and written as a
 recording directory (``can.log``, ``gps.nmea``, ``vehicle.toml``; the truth files are
@@ -50,13 +54,15 @@ from tractionecu.diagnose.engine import diagnose  # noqa: E402
 from tractionecu.evaluation.suite import all_cases, cases, fast_cases, score_case, summarize, write_case  # noqa: E402
 
 
-def run_case(name: str, workdir: str, reuse: bool) -> dict:
+def run_case(name: str, workdir: str, reuse: bool, simulate_only: bool = False) -> dict:
     case = next(c for c in all_cases() if c.name == name)
     rec = Path(workdir) / name
     t0 = time.perf_counter()
     if not (reuse and (rec / "can.log").is_file()):
         write_case(case, rec)
     t1 = time.perf_counter()
+    if simulate_only:
+        return {"case": name, "simulate_s": round(t1 - t0, 2)}
     try:
         d = diagnose(rec)
     except Exception as exc:  # a crash is a result of the suite: counted as wrong, with its message
@@ -110,7 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="parallel processes (default: %(default)s)")
     ap.add_argument("--workdir", default=None, help="keep the recordings here (default: a temporary directory)")
     ap.add_argument("--reuse", action="store_true", help="diagnose recordings already in --workdir")
+    ap.add_argument("--simulate-only", action="store_true",
+                    help="only write the recordings into --workdir (diagnose them later with --reuse)")
     args = ap.parse_args(argv)
+    if args.simulate_only and args.workdir is None:
+        ap.error("--simulate-only needs --workdir")
     sel = fast_cases() if args.fast else cases()
     if args.realistic:
         sel = [c for c in cases() if c.truth_model != "paper" or c.name.startswith("multi_")]
@@ -125,6 +135,18 @@ def main(argv: list[str] | None = None) -> int:
     Path(workdir).mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     names = [c.name for c in sel]
+    if args.simulate_only:
+        if args.jobs > 1:
+            with ProcessPoolExecutor(max_workers=args.jobs) as ex:
+                sims = list(ex.map(run_case, names, [workdir] * len(names), [args.reuse] * len(names),
+                                   [True] * len(names)))
+        else:
+            sims = [run_case(n, workdir, args.reuse, True) for n in names]
+        for r in sims:
+            print(f"{r['case']:28s} simulated in {r['simulate_s']} s", flush=True)
+        Path(args.json).write_text(json.dumps({"simulated": sims, "wall_s": round(time.perf_counter() - t0, 1)},
+                                              indent=2), encoding="utf-8")
+        return 0
     if args.jobs > 1:
         from concurrent.futures import as_completed
 

@@ -52,6 +52,7 @@ from numpy.typing import NDArray
 from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
+from ..model.vehicle import wheel_speed_factors
 from .features import Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
 from .hac import hac_meat
 
@@ -103,7 +104,7 @@ class _WheelCache:
         if v is None:
             f = self.feat
             ws = self.get({})
-            v = fused_speed(f.frame, np.nansum(ws.fh, axis=1), f.valid, tau)
+            v = fused_speed(f.frame, ws.fx_sum, f.valid, tau)
             self._put(key, v)
         return v
 
@@ -296,7 +297,7 @@ class SpeedChannel(Channel):
         ws = self.wc.get(eff)
         dm = _p(eff, "mass", "delta_kg", 0.0)
         m = fr.vehicle.mass_kg + dm
-        force = np.nansum(ws.fh, axis=1) - draft_of(eff, fr)
+        force = ws.fx_sum - draft_of(eff, fr)
         y = self._win_mean(force) - fr.vehicle.mass_kg * self.dv / self.dt_win
         f = dm * self.dv_ref / self.dt_win
         if "grade" in eff:
@@ -360,7 +361,7 @@ class GpsSpeedChannel(Channel):
         fr = self.feat.frame
         ws = self.wc.get(eff)
         m = fr.vehicle.mass_kg + _p(eff, "mass", "delta_kg", 0.0)
-        force = np.nansum(ws.fh, axis=1) - draft_of(eff, fr)
+        force = ws.fx_sum - draft_of(eff, fr)
         if "grade" in eff:
             force = force - eff["grade"]["scale"] * fx.grade_force(m, self.theta)
         if "aero" in eff and self.feat.v_ref is not None:
@@ -643,6 +644,10 @@ class WheelForceChannel(Channel):
         # The raw-rate slip, HF_CHUNK_ROWS frame rows at a time (its temporaries are each as large as
         # the raw-rate wheel speeds: 46 MB at four hours).
         s_raw = np.empty(fr.hf_omega.shape)
+        # In a turn each wheel's ground speed is k_i(κ)·v (model doc "Kinematics in turns"), κ held over a bin.
+        kfac = None
+        if fr.kappa is not None and np.any(fr.kappa != 0.0):
+            kfac = wheel_speed_factors(fr.kappa, fr.vehicle.track_width_m, fr.vehicle.wheelbase_m)
         for a in range(0, fr.n, HF_CHUNK_ROWS):
             b = min(a + HF_CHUNK_ROWS, fr.n)
             hs = slice(a * k, b * k)
@@ -650,6 +655,8 @@ class WheelForceChannel(Channel):
             with np.errstate(divide="ignore", invalid="ignore"):
                 vw = np.abs(r_hf * fill_missing_raw(fr.hf_t[hs], fr.hf_omega[hs]))
                 va = np.abs(v_hf[hs])[:, None]
+                if kfac is not None:
+                    va = va * np.repeat(kfac[a:b], k, axis=0)
                 s = np.where(va <= vw, 1.0 - va / np.maximum(vw, 1e-6), -1.0 + vw / np.maximum(va, 1e-6))
             s_raw[hs] = np.clip(np.nan_to_num(s), -0.9, 0.9)
         # Zero-phase smoothing over WHEEL_FORCE_SMOOTH_S of the raw slip (sensor noise): a causal

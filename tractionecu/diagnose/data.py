@@ -84,6 +84,13 @@ class Frame:
     """Engine torque [N·m] (CSV exports)."""
     engine_speed: NDArray[np.float64] | None = None
     """Engine speed [rad/s] (CSV exports)."""
+    kappa: NDArray[np.float64] | None = None
+    """Path curvature of the rear-axle centre [1/m], positive in a left turn, 0 where straight or unknown
+    (:func:`~.features.path_curvature`; set by :func:`~.features.compute`)."""
+    kappa_known: NDArray[np.bool_] | None = None
+    """Where the curvature is defined (rear wheels turning); False at standstill or without wheel speeds."""
+    lat_accel: NDArray[np.float64] | None = None
+    """Lateral acceleration v² κ [m/s²] of the lateral load transfer (0 where κ is)."""
     fzf_modelled: bool = False
     """The front-axle load is modelled (static split minus load transfer from the vehicle file's
     hitch and centre-of-gravity heights), not measured."""

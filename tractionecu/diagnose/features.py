@@ -3,7 +3,11 @@
 Everything is computed from recorded signals and the nominal vehicle file:
 
 - wheel loads from the measured front-axle load (paper section 3.1):
-  F_z,front = F_zf/2,  F_z,rear = (m g − F_zf)/2;
+  F_z,front = F_zf/2,  F_z,rear = (m g − F_zf)/2, and in a turn the lateral load
+  transfer of the estimator's model (:func:`lateral_load_transfer`);
+- the path curvature κ(t) of the rear-axle centre (:func:`path_curvature`) and each
+  wheel's ground speed k_i(κ)·v, against which its slip is taken (model doc
+  "Kinematics in turns");
 - rolling radius r_d(F_z) (paper eq. 9);
 - the per-wheel horizontal force from the torque balance (paper eq. 2),
   F_h,i = (M_i − J ω̇_i)/r_i − ρ_t F_z,i sgn ω_i, and μ_i = F_h,i / F_z,i;
@@ -33,7 +37,7 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from ..config import G
-from ..model.vehicle import rolling_radius, wheel_loads
+from ..model.vehicle import rolling_radius, wheel_loads, wheel_speed_factors
 from .data import Frame
 
 SPLINE_KNOT_S = 3.0
@@ -97,6 +101,168 @@ class Features:
         return self.frame.n
 
 
+# --------------------------------------------------------------------------- turns
+TURN_COURSE_M = 5.0
+"""Distance travelled [m] over which the GNSS course's change gives the course curvature that confirms a
+turn (:func:`path_curvature`)."""
+TURN_MARGIN_S = 1.0
+"""A confirmed turn is widened by this much on either side [s] (the course's window and a GNSS latency
+lag the wheels)."""
+
+
+def turn_threshold(track_m: float) -> float:
+    """Smallest curvature [1/m] taken as a turn: a rear slip difference of
+    ``BETA_MAX_SIGMAS × SLIP_DIFF_MAX`` (the estimator's bound of a slip difference,
+    :mod:`tractionecu.estimation.kinematics`) over the track width reads as this curvature in the
+    wheel-speed ratio, so below it the wheels cannot tell a turn from a slip difference."""
+    from ..estimation.kinematics import BETA_MAX_SIGMAS, SLIP_DIFF_MAX
+
+    return BETA_MAX_SIGMAS * SLIP_DIFF_MAX / track_m
+
+
+def course_curvature(fr: Frame) -> NDArray[np.float64]:
+    """|dψ/ds| [1/m] of the GNSS course over :data:`TURN_COURSE_M` of travel (NaN where the course or the
+    speed is missing, or the machine stands: then nothing is travelled).
+
+    The course changes by the same rate as the body's heading forwards and in reverse (it is turned by
+    180°), so its rate over the distance is |κ| either way; the sign is not used.  Differentiating over a
+    distance rather than a time keeps the course noise (σ_χ ≈ σ_v/|v| per epoch) from growing at low
+    speed: 0.03 rad over 5 m is 0.006 1/m."""
+    out = np.full(fr.n, np.nan)
+    if fr.heading is None or fr.v_gps is None:
+        return out
+    ok = np.isfinite(fr.heading) & np.isfinite(fr.v_gps)
+    if ok.sum() < 3:
+        return out
+    idx = np.flatnonzero(ok)
+    speed = np.abs(fr.v_gps[idx])
+    s = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(fr.t[idx]))])
+    psi = np.unwrap(fr.heading[idx])
+    half = 0.5 * TURN_COURSE_M
+    lo = np.interp(s - half, s, psi)
+    hi = np.interp(s + half, s, psi)
+    span = np.clip(s + half, s[0], s[-1]) - np.clip(s - half, s[0], s[-1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        k = np.where(span >= 0.5 * TURN_COURSE_M, np.abs(hi - lo) / span, np.nan)
+    k[speed <= MOVING_MPS] = np.nan
+    out[idx] = k
+    return out
+
+
+def path_curvature(fr: Frame) -> tuple[NDArray[np.float64], NDArray[np.bool_], NDArray[np.bool_]]:
+    """Path curvature κ(t) of the rear-axle centre [1/m] (positive in a left turn, κ = ψ̇/v for either sign of
+    v: model doc "Kinematics in turns"), whether it is known, and where it is a turn.
+
+    Returns (κ, known, turn); κ = 0 where not a turn or not known.
+
+    Choice of source.  The value is the rear wheels' speed ratio, κ_w = (2/b)(ω_RR − ω_RL)/(ω_RR + ω_RL)
+    (b the track width), which holds for either sign of travel; the GNSS course only decides *where* the
+    machine turns.  Why:
+
+    - the slip of each wheel is taken against its own ground speed k_i(κ)·v, and the rear wheels measure
+      those ground speeds directly (the estimator's curvature is the wheels' too, corrected by the course
+      only within a plausible slip difference, :mod:`tractionecu.estimation.kinematics`);
+    - precision: on the physical truth's 3-m headland turns (κ = 0.335 1/m) κ_w of the 10-Hz bin means is
+      off by 0.004 1/m RMS, a course differentiated between epochs by 0.06;
+    - the wheel ratio also reads a rear slip (or radius) difference Δs as curvature, κ_w ≈ κ + Δs/b, and
+      on a straight pass that bias would make the two rear slips equal.  So κ is used only where the
+      course confirms a turn: its curvature over :data:`TURN_COURSE_M` of travel
+      (:func:`course_curvature`) at least :func:`turn_threshold` (a rear slip difference of 0.03), widened
+      by :data:`TURN_MARGIN_S`.  Where the course is missing (no GNSS, standstill) the wheels decide with
+      the same threshold;
+    - a truth whose wheels do not follow the path (the paper's straight-line model driven round a
+      headland: its wheels all roll at v while the course turns) keeps κ_w ≈ 0 there, as the recording
+      has it, instead of the course's turn.
+
+    At standstill (rear wheels' mean speed below :data:`MOVING_MPS` on the nominal radius) or without rear
+    wheel speeds κ is undefined: 0, and ``known`` is False.
+    """
+    n = fr.n
+    kappa = np.zeros(n)
+    known = np.zeros(n, dtype=bool)
+    turn = np.zeros(n, dtype=bool)
+    if fr.omega is None:
+        return kappa, known, turn
+    veh = fr.vehicle
+    b = veh.track_width_m
+    wl, wr = fr.omega[:, 2], fr.omega[:, 3]
+    tot = wl + wr
+    known = np.isfinite(wl) & np.isfinite(wr) & (0.5 * np.abs(tot) * veh.r0_m > MOVING_MPS)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kw = np.where(known, (2.0 / b) * (wr - wl) / np.where(known, tot, 1.0), 0.0)
+    k_min = turn_threshold(b)
+    kc = course_curvature(fr)
+    have_course = np.isfinite(kc)
+    turn = np.where(have_course, np.nan_to_num(kc) >= k_min, np.abs(kw) >= k_min)
+    m = int(math.ceil(TURN_MARGIN_S * fr.rate_hz))
+    if m > 0 and turn.any():
+        from scipy.ndimage import binary_dilation
+
+        turn = binary_dilation(turn, structure=np.ones(2 * m + 1, dtype=bool))
+    turn &= known
+    if turn.any() and fr.fzf is not None:
+        kw = _radius_corrected(fr, kw, turn)
+    kappa[turn] = kw[turn]
+    return kappa, known, turn
+
+
+def _radius_corrected(fr: Frame, kw: NDArray[np.float64], turn: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """κ_w from the rear wheels' circumferential speeds r_i ω_i rather than their angular speeds: in a turn
+    the outer wheel carries more load, rolls on a smaller radius (eq. 9) and turns faster, which the plain
+    ratio reads as 2–3 % more curvature at a_y ≈ 0.8 m/s².  The radii follow the loads, which follow κ, so
+    the ratio is iterated (a contraction of a few per cent: converged to 1e-10 within 6 steps); rows
+    without a load keep the plain ratio."""
+    veh = fr.vehicle
+    b = veh.track_width_m
+    fz0 = wheel_loads(fr.fzf, veh)
+    v2 = turn_speed(fr) ** 2
+    wl, wr = fr.omega[:, 2], fr.omega[:, 3]
+    k = np.where(turn, kw, 0.0)
+    for _ in range(8):
+        r = rolling_radius(lateral_load_transfer(fz0, v2 * k, veh, veh.mass_kg), veh)
+        cl, cr = r[:, 2] * wl, r[:, 3] * wr
+        with np.errstate(divide="ignore", invalid="ignore"):
+            k_new = np.where(turn, (2.0 / b) * (cr - cl) / (cr + cl), 0.0)
+        k_new = np.where(np.isfinite(k_new), k_new, kw)
+        done = float(np.max(np.abs(k_new - k))) < 1e-10
+        k = k_new
+        if done:
+            break
+    return k
+
+
+def lateral_load_transfer(fz: NDArray[np.float64], a_lat: NDArray[np.float64], veh,
+                          mass_kg: float) -> NDArray[np.float64]:
+    """Wheel loads (n, 4) [N] of axle-split loads ``fz`` with the lateral load transfer of a turn (the
+    estimator's model, doc "Lateral load transfer" in :mod:`tractionecu.model.vehicle`):
+
+        F_z,FL/FR = F_zf/2 ∓ δ_f,   F_z,RL/RR = F_zr/2 ∓ δ_r,
+        δ_f = λ_f m a_y h_cg / b,   δ_r = (1 − λ_f) m a_y h_cg / b,   a_y = v² κ,
+
+    each δ within ±0.9 of the wheel's axle share; λ_f is the vehicle file's ``front_roll_share``, m
+    the mass (with a fitted mass effect), h_cg the centre-of-gravity height and b the track width."""
+    lam = float(getattr(veh, "front_roll_share", 0.25))
+    c = mass_kg * veh.cg_height_m / veh.track_width_m * np.asarray(a_lat, dtype=float)
+    out = np.array(fz, dtype=float)
+    for j, share in ((0, lam), (2, 1.0 - lam)):
+        half = out[:, j]
+        lim = 0.9 * half
+        d = np.minimum(np.maximum(share * c, -lim), lim)
+        out[:, j + 1] = half + d
+        out[:, j] = half - d
+    return out
+
+
+def turn_speed(fr: Frame) -> NDArray[np.float64]:
+    """Speed [m/s] for the lateral acceleration v² κ: the GNSS speed, the rear wheels' mean circumferential
+    speed on the nominal radius where it is missing (0 where neither is known)."""
+    v = np.full(fr.n, np.nan) if fr.v_gps is None else np.abs(fr.v_gps).astype(float)
+    if fr.omega is not None:
+        vw = 0.5 * np.abs(fr.omega[:, 2] + fr.omega[:, 3]) * fr.vehicle.r0_m
+        v = np.where(np.isfinite(v), v, vw)
+    return np.nan_to_num(v)
+
+
 # --------------------------------------------------------------------------- wheel physics
 @dataclass
 class WheelState:
@@ -107,6 +273,10 @@ class WheelState:
     fh: NDArray[np.float64]
     mu: NDArray[np.float64]
     slip: NDArray[np.float64] | None
+    fx_sum: NDArray[np.float64] | None = None
+    """Σ_i F_h,i cos δ_i (n,) [N]: the wheels' forces along the body (eq. 8), a front wheel's at its steer
+    angle δ_i to the body axis in a turn, cos δ_FL,FR = (1 ∓ κb/2)/k_FL,FR (model doc "Kinematics in turns");
+    Σ F_h,i on a straight (NaN wheels count 0)."""
 
 
 def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64] | None, *,
@@ -114,6 +284,11 @@ def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64
                 gain: tuple[float, float] = (0.0, 0.0), offset_nm: tuple[float, float] = (0.0, 0.0),
                 fzf_offset: NDArray[np.float64] | float = 0.0, rho_t_factor: float = 1.0) -> WheelState:
     """Wheel loads, radii, forces, μ and slip for the recorded inputs.
+
+    In a turn (``fr.kappa`` non-zero, :func:`path_curvature`) the loads carry the lateral load
+    transfer at ``fr.lat_accel`` = v² κ (:func:`lateral_load_transfer`, with the mass Δm included) and each
+    wheel's slip is taken against its own ground speed k_i(κ)·v (:func:`~tractionecu.model.vehicle.wheel_speed_factors`,
+    rear 1 ∓ κb/2, front √((1 ∓ κb/2)² + (κL)²)); where κ = 0 both are the straight-line model's.
 
     ``delta_m`` [kg] adds mass (the rear wheels carry what the front pin does
     not see: F_z,rear = ((m + Δm) g − F_zf)/2); ``eps_r`` scales the rolling
@@ -130,6 +305,9 @@ def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64
     if np.any(np.asarray(fzf_offset) != 0.0):
         fzf = fzf - fzf_offset
     fz = wheel_loads(fzf, veh, weight_n=(veh.mass_kg + delta_m) * G)
+    turning = fr.kappa is not None and bool(np.any(fr.kappa != 0.0))
+    if turning and fr.lat_accel is not None:
+        fz = lateral_load_transfer(fz, fr.lat_accel, veh, veh.mass_kg + delta_m)
     r = rolling_radius(fz, veh)
     if eps_r != 0.0:
         r = fx.wheel_radius_true(r, eps_r)
@@ -141,14 +319,23 @@ def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64
     if eta != 1.0 or loss_nm != 0.0:
         md = fx.drivetrain_torque(md, fr.omega, eta, loss_nm)
     fh = (md - veh.wheel_inertia_kgm2 * omega_dot) / r - veh.rho_t * rho_t_factor * fz * np.sign(fr.omega)
+    if turning:
+        h = 0.5 * veh.track_width_m * fr.kappa
+        kf = wheel_speed_factors(fr.kappa, veh.track_width_m, veh.wheelbase_m)
+        cos_d = np.stack([(1.0 - h) / kf[:, 0], (1.0 + h) / kf[:, 1], np.ones(fr.n), np.ones(fr.n)], axis=1)
+        fx_sum = np.nansum(fh * cos_d, axis=1)
+    else:
+        fx_sum = np.nansum(fh, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         mu = fh / fz
         slip = None
         if v is not None:
             vw = np.abs(r * fr.omega)
             va = np.abs(v)[:, None]
+            if turning:
+                va = va * wheel_speed_factors(fr.kappa, veh.track_width_m, veh.wheelbase_m)
             slip = np.where(va <= vw, 1.0 - va / vw, -1.0 + vw / va)
-    return WheelState(fz, r, fh, mu, slip)
+    return WheelState(fz, r, fh, mu, slip, fx_sum)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -716,6 +903,16 @@ def compute(fr: Frame) -> Features:
         notes.append(f"{brk.size} break(s) in the recording (the logger off for {BREAK_GAP_S:g} s or more, or the "
                      f"track restarting elsewhere) at t = " + ", ".join(f"{x:.1f}" for x in fr.break_t[:5])
                      + (" ..." if brk.size > 5 else "") + " s: nothing is fitted or compared across them")
+    if have_wheels:
+        kappa, known, turn = path_curvature(fr)
+        fr.kappa = kappa
+        fr.kappa_known = known
+        fr.lat_accel = turn_speed(fr) ** 2 * kappa
+        if turn.any():
+            notes.append(f"turns (wheel-speed curvature, confirmed by the GNSS course) on {turn.mean():.1%} of the "
+                         f"recording, |κ| up to {np.max(np.abs(kappa)):.3g} 1/m: wheel loads with the lateral load "
+                         f"transfer (front roll share {getattr(fr.vehicle, 'front_roll_share', 0.25):g}) and each "
+                         "wheel's slip against its own ground speed")
     omega_dot = None
     if have_wheels:
         omega_dot = fr.omega_dot if fr.omega_dot is not None else smooth_derivative(np.nan_to_num(fr.omega), fr.dt)
@@ -723,7 +920,7 @@ def compute(fr: Frame) -> Features:
     v_ref = accel = None
     if have_wheels and v_gps is not None:
         ws = wheel_state(fr, omega_dot, None)
-        fh_sum = np.nansum(ws.fh, axis=1)
+        fh_sum = ws.fx_sum
         v_ref = fused_speed(fr, fh_sum, valid)
         # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m, plus the slope of the slow
         # correction b = v_ref − v_int (resistances the balance does not know).
