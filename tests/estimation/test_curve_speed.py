@@ -205,3 +205,20 @@ def test_history_ring_grows_without_changing_a_float() -> None:
     assert a.shape._HT.shape[0] > 256 and a.shape.segment == b.shape.segment >= 1
     assert _canon(a.shape.bins.arrays()) == _canon(b.shape.bins.arrays())
     assert _canon(a.shape.mature.arrays()) == _canon(b.shape.mature.arrays())
+
+
+def test_batch_reports_the_shape_paths_a(make_recording) -> None:
+    """Batch replay's ``a`` column is each step's :attr:`CurveState.a`, on the shape path the fitted shape's a, as
+    on the step path (regression: the compiled loop's records gave the class's Σ w μ̂ / Σ w g(ŝ) there)."""
+    from tractionecu.pipeline.batch import replay_batch
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.recording.reader import read_recording
+
+    rec = read_recording(make_recording("soils-off-class", 0, 120.0))
+    step, batch = replay(rec), replay_batch(rec)
+    paths = [c.path if c is not None else "" for c in step.arrays["curve"]]
+    shape = np.array([p.startswith("shape:") for p in paths])
+    assert shape.sum() > 1000 and batch.arrays["curve_path"] == paths
+    a_step, a_batch = np.asarray(step.arrays["a"]), np.asarray(batch.arrays["a"])
+    assert np.array_equal(a_step, a_batch, equal_nan=True)
+    assert np.array_equal(a_step[shape], [c.a for c, s in zip(step.arrays["curve"], shape) if s])

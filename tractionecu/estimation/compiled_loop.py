@@ -139,10 +139,14 @@ class _CurveStates:
         return v
 
     def a_of(self, v: int) -> float:
-        """The state's a (:attr:`CurveState.a <.curve.CurveState.a>`) without making the state."""
+        """The state's a (:attr:`CurveState.a <.curve.CurveState.a>`: the fitted shape's on the shape path) without
+        making the state."""
         if v == 0:
             return self._a0
-        n, d = self.CR[v, :2].tolist()
+        n, d, _, _, iv = self.CR[v].tolist()
+        info = self.infos[int(iv)]
+        if info is not None and info[1] is not None and info[1].shape_selected:
+            return info[1].curve.a
         return n / d if d > 0 else math.nan
 
     def curve_of(self, v: int) -> Any:
