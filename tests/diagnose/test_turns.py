@@ -173,7 +173,8 @@ def test_a_fitted_mass_shifts_with_the_turn():
     assert ws.fz[i, 3] == pytest.approx(fr_ + 0.6 * d_all, rel=1e-9)
 
 
-def test_front_forces_enter_the_speed_equation_at_their_steer_angle():
+def test_the_wheels_drive_v_by_the_virtual_work_of_their_forces():
+    """m v̇ = Σ k_i F_h,i − ...: wheel i moves k_i(κ) v, so its force does k_i F_h,i of work per unit of v."""
     kappa, v = _path()
     fr = _with_turns(_frame(kappa, v))
     veh = fr.vehicle
@@ -181,8 +182,8 @@ def test_front_forces_enter_the_speed_equation_at_their_steer_angle():
     i = 280
     h = 0.5 * veh.track_width_m * fr.kappa[i]
     lk = veh.wheelbase_m * fr.kappa[i]
-    cos_fl, cos_fr = (1 - h) / np.hypot(1 - h, lk), (1 + h) / np.hypot(1 + h, lk)
-    want = ws.fh[i, 0] * cos_fl + ws.fh[i, 1] * cos_fr + ws.fh[i, 2] + ws.fh[i, 3]
+    k = (np.hypot(1 - h, lk), np.hypot(1 + h, lk), 1 - h, 1 + h)
+    want = sum(k[j] * ws.fh[i, j] for j in range(4))
     assert ws.fx_sum[i] == pytest.approx(want, rel=1e-12)
-    assert cos_fl < 0.95                                    # a real steer angle at κ = 0.2, L = 2.5 m
+    assert abs(want - np.sum(ws.fh[i])) > 0.05 * abs(np.sum(ws.fh[i]))   # the turn weighs the forces differently
     assert np.array_equal(ws.fx_sum[:150], np.nansum(ws.fh[:150], axis=1))   # straight: the plain sum
