@@ -309,14 +309,14 @@ def test_estimator_passes_the_loads_to_the_bins():
     assert all(z == 0.0 for z in ce2.shape.bins.Z1)
 
 
-def test_load_term_is_opt_in_and_configurable():
+def test_load_term_is_on_by_default_and_configurable():
     from tractionecu.config import G, VehicleParams
     from tractionecu.estimation.estimator import Estimator, EstimatorConfig
 
     veh = VehicleParams()
     est = Estimator(veh)
-    assert est._curve.shape.load is False and est._curve.fz_ref_n == pytest.approx(veh.mass_kg * G / 4)
-    assert Estimator(veh, EstimatorConfig(curve_shape_load=True))._curve.shape.load is True
+    assert est._curve.shape.load is True and est._curve.fz_ref_n == pytest.approx(veh.mass_kg * G / 4)
+    assert Estimator(veh, EstimatorConfig(curve_shape_load=False))._curve.shape.load is False
 
 
 def test_loads_change_nothing_while_the_load_term_is_off():

@@ -119,7 +119,7 @@ class EstimatorConfig:
     machine_curve_prior: str = setting("", "machine-level estimator only (mechanical / power-split drivetrain): the one "
                                            "μ(s) shape its (μ, s) pairs are fitted with: '' the soil_classes, 'd497' the "
                                            "ASABE D497.7 slip term 1 − e^(−7.5 s) (estimation/machine_curve.py), or a class")
-    curve_shape_load: bool = setting(False, "fit the μ(s) curve's load dependence (1 + q (F_z/F_z,ref − 1)) where light and heavy wheels overlap in slip (False: one curve for every load)")
+    curve_shape_load: bool = setting(True, "fit the μ(s) curve's load dependence (1 + q (F_z/F_z,ref − 1)) on the fit's load groups where the wheels' loads differ, kept where q is significant and pays by BIC (False: one curve for every load)")
     carcass_ring_tau_s: float = setting(2.0, "with a declared tyre carcass whose mode the wheel-speed rate cannot "
                                               "follow (the carcass term off, Estimator._relax): time constant of the "
                                               "innovation statistics that estimate the mode's variance in the "
