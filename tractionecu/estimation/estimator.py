@@ -75,7 +75,7 @@ from scipy.special import erfcinv
 from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
-from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_RHO, IX_V, N_INPUT, N_STATE,
+from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_RHO, IX_TWIST, IX_V, N_INPUT, N_STATE,
                              N_STATE_HUB, FilterModel, relax_slips, relax_slips_own, wheel_radii,
                              wheel_speed_factor_slopes)
 from . import _kernels
@@ -371,6 +371,7 @@ class Estimator:
         self._held: tuple[float, NDArray[np.float64]] | None = None
         self._win_reset()
         self._t_relax: float | None = None
+        self._twist_relax: tuple[float, NDArray[np.float64]] | None = None   # (t, θ̂ (4,)) of the last _relax
         self._ring = [0.0, 0.0, 0.0, 0.0, 0.0]   # the carcass mode's variance per wheel [rad²/s²], time seen [s]
         self._conv = False                # last convergence verdict (hysteresis, EstimatorConfig.conv_exit_factor)
         self._lost = False
@@ -983,10 +984,18 @@ class Estimator:
         the paper's model).
 
         With a declared two-inertia hub (model doc "Two-inertia hub") the filter carries the hub while the
-        term is on (:meth:`_set_hub`), and then: the slips s_i that σ̄ relaxes towards are those of the motor
-        speeds x[0:4], where the pickup sits (the rim's differ from them by the hub's mode, ≈ 14–16 Hz, far
-        above the relaxation's |v|/L_r, and the rim speeds are not measured: relaxed towards them, a rim-speed
-        error was kept in σ̄ and held μ off by 2–4 % for tens of seconds); and the slope ∂μ/∂s is that of the
+        term is on (:meth:`_set_hub`), and then: the slips s_i that σ̄ relaxes towards are those of the rims'
+        speeds over the step, ω_m − Δθ̂/Δt (ω_m the motor speeds x[0:4], where the pickup sits; Δθ̂ the change
+        of the filter's mean twists x[14:18] since the last relaxation; the first relaxation of a filter takes
+        the motor speeds).  The force builds up on the rim's slip, which differs from the motor's by the twist
+        rate, ω_w = ω_m − θ̇; below the hub's mode the twist follows the torque, θ ≈ r_d F_z μ/k, and its rate
+        is not small (at 2 Hz on a front wheel r_d θ̇/v ≈ 0.2 δμ against the force slip's δμ/(∂μ/∂s) ≈ 0.3 δμ).
+        Relaxed towards the motor's slips, σ̄ took it up (1.15–1.37× the truth's force slip at 1–5.5 Hz, 0.25
+        rad ahead), closed the gap s − σ̄ that drives μ̇ too early, and the front wheels' μ followed the truth's
+        at 0.77–0.90× (physical-declared-exact).  Not the rim-speed states x[10:14] themselves: they are not
+        measured, and their difference to the motor's had a persistent part that the twist's corrections
+        absorbed (relaxed towards them, σ̄ kept it and held μ off by 2–4 % for tens of seconds); the twist is
+        held by the hub's spring, so its change has none.  And the slope ∂μ/∂s is that of the
         identified curve itself (:func:`_curve_slope_params`: on the shape path its own p, α1, α2), not the
         class's exponents with the shape's a, through each wheel's own μ (:func:`~tractionecu.model.vehicle.
         relax_slips_own`: the curve is identified at the mean wheel load, the front wheels are a third lighter)."""
@@ -1007,7 +1016,14 @@ class Estimator:
         cs = self._curve_state
         if self._hub_on:
             a, p, al1, al2, c0 = _curve_slope_params(cs)
-            relax_slips_own(x, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
+            th = x[IX_TWIST].copy()
+            tw = self._twist_relax
+            self._twist_relax = (t, th)
+            xs = x
+            if not init and tw is not None and tw[0] == t_prev and t > t_prev:
+                xs = x[:N_STATE].copy()         # the rims' speeds over the step, ω_m − Δθ̂/Δt (docstring)
+                xs[IX_OMEGA] -= (th - tw[1]) / (t - t_prev)
+            relax_slips_own(xs, model._kc, float(self._u[IU_KAPPA]), 0.0 if init else t - t_prev, ff, fr, rdf, rdr,
                             a, p, al1, al2, c0, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, init)
             return
         cls = SOIL_CLASSES.get(cs.class_name)
