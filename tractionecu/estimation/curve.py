@@ -575,7 +575,7 @@ class PairBins:
     its mean load z̄ goes with its mean slip s̄ (to first order, (1 + q z̄) μ(s̄) is the bin's mean).
     """
 
-    __slots__ = ("W", "S1", "S2", "M1", "M2", "Z1", "groups")
+    __slots__ = ("W", "S1", "S2", "M1", "M2", "Z1", "groups", "_one")
     N_BINS = int(round(MU_BIN_MAX / MU_BIN_WIDTH))
     N_GROUPS = 3
 
@@ -589,6 +589,7 @@ class PairBins:
         self.M1 = [0.0] * n
         self.M2 = [0.0] * n
         self.Z1 = [0.0] * n
+        self._one: PairBins | None = None
 
     @classmethod
     def index(cls, mu: float) -> int:
@@ -604,6 +605,7 @@ class PairBins:
 
     def add(self, k: int, w: float, s: float, mu: float, z: float = 0.0) -> None:
         """Add (w < 0: remove) one pair of weight w in bin k (relative load z [-])."""
+        self._one = None
         self.W[k] += w
         ws = w * s
         self.S1[k] += ws
@@ -621,6 +623,7 @@ class PairBins:
 
     def merge(self, other: "PairBins") -> None:
         """Add the pairs of ``other`` (same layout) to these bins."""
+        self._one = None
         for mine, theirs in zip((self.W, self.S1, self.S2, self.M1, self.M2, self.Z1),
                                 (other.W, other.S1, other.S2, other.M1, other.M2, other.Z1)):
             mine[:] = [x + y for x, y in zip(mine, theirs)]
@@ -659,20 +662,20 @@ class PairBins:
         """Bins holding the rows of A (W, Σws, Σws², Σwμ, Σwμ², Σwz) as lists of floats."""
         c = cls.__new__(cls)
         c.groups = bool(groups)
+        c._one = None
         c.W, c.S1, c.S2, c.M1, c.M2, c.Z1 = A.tolist()
         return c
 
     def pooled(self) -> "PairBins":
         """The bins with their load groups added up (N_BINS bins; ``self`` when the bins have no groups): the
-        bins a fit without the load term, the change test and the soils' match use."""
+        bins a fit without the load term, the change test and the soils' match use.  Read only: it is kept until
+        these bins change (:meth:`add`, :meth:`merge`, :meth:`scale`; a soil's bins change only when a segment
+        joins them, and are matched every second)."""
         if not self.groups:
             return self
-        n = self.N_BINS
-        c = PairBins(False)
-        for mine, theirs in zip((c.W, c.S1, c.S2, c.M1, c.M2, c.Z1),
-                                (self.W, self.S1, self.S2, self.M1, self.M2, self.Z1)):
-            mine[:] = [theirs[k] + theirs[n + k] + theirs[2 * n + k] for k in range(n)]
-        return c
+        if self._one is None:
+            self._one = PairBins._of(_pool_groups(self.arrays()), False)
+        return self._one
 
     def copy(self) -> "PairBins":
         c = PairBins(self.groups)
@@ -680,6 +683,7 @@ class PairBins:
         return c
 
     def scale(self, f: float) -> None:
+        self._one = None
         for arr in (self.W, self.S1, self.S2, self.M1, self.M2, self.Z1):
             arr[:] = [x * f for x in arr]
 
@@ -722,6 +726,12 @@ class PairBins:
         if not s:
             return math.nan, math.nan, 0
         return min(s), max(s), len(s)
+
+
+def _pool_groups(A: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Rows (6, N_GROUPS · N_BINS) of grouped bins added up per μ-bin, (6, N_BINS): (g0 + g1) + g2."""
+    n = PairBins.N_BINS
+    return np.add(np.add(A[:, :n], A[:, n:2 * n]), A[:, 2 * n:3 * n])
 
 
 _NEAR_BINS = tuple(tuple(k + d for d in _NEAR if 0 <= k + d < PairBins.N_BINS) for k in range(PairBins.N_BINS))
@@ -937,14 +947,13 @@ def fit_curve(bins: PairBins, classes: Sequence[SoilClass], *, min_bin_weight: f
     if not math.sqrt(float(np.average((z - zm) ** 2, weights=W))) >= LOAD_MIN_SPREAD:
         return fit0
     fit = _fit_bins(s, mu, var_s, var_m, z, classes, **kw)
-    ref = fit0 if one is bins else _fit_bins(s, mu, var_s, var_m, None, classes, **kw)
     c = fit.curve
     # the load term must be significant and pay for its parameter: BIC lower by bic_margin than the
-    # one-curve selection on the same bins
-    if (c.load_q != 0.0 and abs(c.load_q) >= load_z * c.load_q_sigma
-            and fit.bic[_bic_key(c)] + bic_margin < ref.bic[_bic_key(ref.curve)]):
-        return fit
-    return fit0
+    # one-curve selection on the same bins (made only for a significant q)
+    if not (c.load_q != 0.0 and abs(c.load_q) >= load_z * c.load_q_sigma):
+        return fit0
+    ref = fit0 if one is bins else _fit_bins(s, mu, var_s, var_m, None, classes, **kw)
+    return fit if fit.bic[_bic_key(c)] + bic_margin < ref.bic[_bic_key(ref.curve)] else fit0
 
 
 def _bic_key(c: MuCurve) -> str:
@@ -1288,10 +1297,10 @@ class ShapeIdentifier:
             self._maybe_fit(t)
 
     def _match(self, mat: PairBins | None = None) -> int:
-        """The earlier soil the current segment's mature bins (``mat``, None: :attr:`mature`) do not differ from
-        (smallest |D|/σ_D), −1 if none."""
+        """The earlier soil the current segment's mature bins (``mat``, None: :attr:`mature`; their load groups
+        added up) do not differ from (smallest |D|/σ_D), −1 if none."""
         best, best_z = -1, self.match_z
-        mat, min_w = (self.mature if mat is None else mat).pooled(), self.min_bin_weight
+        mat, min_w = (self._mature_one() if mat is None else mat.pooled()), self.min_bin_weight
         nb = len(mat.W)
         own = [k for k, w in enumerate(mat.W) if not w < min_w]   # the bins shift_test does not skip for W
         for j, sb in enumerate(self.soils):
@@ -1300,6 +1309,10 @@ class ShapeIdentifier:
             if n >= self.match_min_bins and abs(d) <= best_z * sd:
                 best, best_z = j, abs(d) / sd
         return best
+
+    def _mature_one(self) -> PairBins:
+        """:attr:`mature` with its load groups added up (:meth:`PairBins.pooled`), from the compiled state's rows."""
+        return PairBins._of(_pool_groups(self._MT), False) if self.load else self.mature
 
     def _close_soil(self) -> None:
         """The closing segment's mature pairs go to its soil (a new soil if it matched none and has
@@ -1370,17 +1383,14 @@ class ShapeIdentifier:
         pairs older than ``confirm_s``: a soil change is found within a few seconds, and the new
         soil's first pairs must not reach the old soil's fit (they would widen its span with
         another curve)."""
-        mat = self.mature
+        one = self._mature_one()                            # (match and span: the load groups added up)
         if self.soils and max(self._cp, self._cn) <= 0.5 * self.h:
-            self.match = self._match(mat)
+            self.match = self._match(one)
         pool = self.match                                   # the segment with its soil's earlier segments
-        one = mat.pooled()                                  # (the span over the load groups added up)
         if pool < 0:
-            bins: PairBins | None = mat
             W, S1 = one.W, one.S1
         else:                                               # the merged bins' W and Σws (PairBins.merge's
             sb = self.soils[pool].pooled()                  # sums); all six only when a fit needs them
-            bins = None
             W = [x + y for x, y in zip(one.W, sb.W)]
             S1 = [x + y for x, y in zip(one.S1, sb.S1)]
         min_w = self.min_bin_weight
@@ -1397,8 +1407,8 @@ class ShapeIdentifier:
         total = sum(W)                                      # PairBins.total
         if self.fit is not None and (t - self._t_fit < self.fit_period or total < 1.5 * self._w_fit):
             return
-        if bins is None:
-            bins = mat.merged(self.soils[pool])
+        mat = one if not self.load else self.mature         # (the fit's bins: per load group with the load term)
+        bins = mat if pool < 0 else mat.merged(self.soils[pool])
         self._fit_match = pool
         self._t_fit = t
         self._w_fit = total
