@@ -291,6 +291,16 @@ def test_one_curve_selection_is_made_on_the_pooled_groups():
     assert sum(one.W) == pytest.approx(sum(g.W)) and sum(one.S1) == pytest.approx(sum(g.S1))
     a, b = fit_curve(g, [STUBBLE], fz_ref_n=FZ_REF).curve, fit_curve(one, [STUBBLE], load=False).curve
     assert not a.load_aware and a.path == b.path and a.theta == b.theta
+    # kept until the bins change: add, merge and scale make it anew
+    assert g.pooled() is one
+    k = PairBins.group_index(PairBins.index(0.4), 0.3)
+    g.add(k, 2.0, 0.1, 0.4, 0.3)
+    assert g.pooled() is not one and g.pooled().W[PairBins.index(0.4)] == pytest.approx(one.W[PairBins.index(0.4)] + 2.0)
+    w0 = sum(g.pooled().W)
+    g.merge(g.copy())
+    assert sum(g.pooled().W) == pytest.approx(2 * w0)
+    g.scale(0.5)
+    assert sum(g.pooled().W) == pytest.approx(w0)
 
 
 def test_estimator_passes_the_loads_to_the_bins():
