@@ -552,7 +552,7 @@ weight is in the covariance, so the interval of a says how much is prior."""
 LOAD_EDGES = (-0.12, 0.12)
 """Edges of the load groups in relative wheel load z = F_z/F_z,ref − 1 [-] of the fit's bins: a hub-drive
 tractor at work has its front wheels near z ≈ −0.35 and its rear wheels near +0.4 (draft load transfer);
-binned apart, the light and the heavy wheels' curves are seen side by side where their slips overlap."""
+binned apart, each group's bins show its own curve, and the load term ties the two together (section comment)."""
 LOAD_MIN_SPREAD = 0.1
 """Weighted standard deviation of the bins' z̄ [-] below which the load sensitivity q is not fitted
 (the loads do not differ enough to separate it from the curve)."""
