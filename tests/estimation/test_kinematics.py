@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from est_synth import synth_run
 
-from tractionecu.config import G, VehicleParams
+from tractionecu.config import VehicleParams
 from tractionecu.estimation.estimator import INVALID_MASK, SLIP_UNCERTAIN, STANDSTILL, Estimator, EstimatorConfig
 from tractionecu.estimation.kinematics import SLIP_DIFF_MAX, CurvatureFilter
 from tractionecu.model.vehicle import (FilterModel, JIT, rk4, wheel_speed_factor_slopes, wheel_speed_factors)
@@ -59,62 +59,18 @@ def test_compiled_step_in_a_turn_is_bitwise_rk4():
         assert np.array_equal(model.step(x, u, 0.01), ref)
 
 
-def _newton_euler_vdot(fl, fz, kappa, v, m, fdx, track, wheelbase):
-    """v̇ of the rear-axle centre of a rigid body (a point mass m there, no yaw inertia) on a circle of
-    curvature κ, its wheels rolling without side slip: the planar Newton–Euler equations with the lateral tyre
-    forces as unknowns (the front pair's and the rear axle's), solved together with v̇; and the null space's
-    v̇ component (the three lateral lines of action meet at the turn's centre, so one self-balanced set of
-    lateral forces exists; it must not move v̇).  ``fl`` the longitudinal forces along each wheel's heading
-    (FL, FR, RL, RR), the draft along the body."""
-    pos = np.array([[wheelbase, track / 2], [wheelbase, -track / 2], [0.0, track / 2], [0.0, -track / 2]])
-    vel = np.stack([1.0 - kappa * pos[:, 1], kappa * pos[:, 0]], axis=1)        # per unit v, body axes
-    e = vel / np.linalg.norm(vel, axis=1)[:, None]
-    n = np.stack([-e[:, 1], e[:, 0]], axis=1)
-    fx = (fl * e[:, 0]).sum() - fdx
-    fy = (fl * e[:, 1]).sum()
-    mz = (pos[:, 0] * fl * e[:, 1] - pos[:, 1] * fl * e[:, 0]).sum()
-    def mom(i):
-        return pos[i, 0] * n[i, 1] - pos[i, 1] * n[i, 0]
-    # unknowns (Y_FL, Y_FR, Y_rear, v̇); x, y forces and the moment about the point mass
-    A = np.array([[n[0, 0], n[1, 0], 0.0, -m],
-                  [n[0, 1], n[1, 1], 1.0, 0.0],
-                  [mom(0), mom(1), 0.0, 0.0]])
-    b = np.array([-fx, m * kappa * v * v - fy, -mz])
-    sol = np.linalg.lstsq(A, b, rcond=None)[0]
-    null = np.linalg.svd(A)[2][-1]
-    return sol[3], null[3], np.abs(A @ sol - b).max()
-
-
-@pytest.mark.parametrize("kappa", [1 / 30.0, -1 / 8.0, 1 / 3.0])
-def test_eq_8_in_a_turn_is_the_rigid_bodys_newton_euler(kappa):
-    """In a turn v̇ of the model (eq. 8 with each wheel's force and soil resistance weighted by its ground-speed
-    factor k_i, model doc "Kinematics in turns") is the v̇ the planar Newton–Euler equations of the rigid body
-    give, its wheels rolling without side slip, where the model is exact (the mass at the rear-axle centre, no
-    yaw inertia); the former balance along the body with the front forces at their steer angle is not."""
+def test_curvature_enters_the_longitudinal_balance():
+    """Front forces act along the steered wheels: v̇ is lower in a turn by Σ F_h,front (1 − cos δ)/m."""
     model = FilterModel(VEH)
-    x = np.array([3.0, 3.1, 2.9, 3.2, 1.8, .32, .30, .36, .34, .06])
-    u = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 15000.0, kappa])
-    fz, r_d = model.loads(u, x[4])                        # with the turn's lateral load transfer at v
-    dv = model.rhs(x, u, fz, r_d)[4]
-    fl = (x[5:9] - x[9]) * fz                              # μ_i F_z,i less the soil's ρ_s F_z,i, along each wheel
-    ref, null_v, resid = _newton_euler_vdot(fl, fz, kappa, x[4], VEH.mass_kg, u[5], VEH.track_width_m,
-                                            VEH.wheelbase_m)
-    assert resid < 1e-6 and abs(null_v) < 1e-12            # solvable, and v̇ fixed whatever the lateral split
-    assert dv == pytest.approx(ref, rel=1e-9, abs=1e-12)
-    k = wheel_speed_factors(kappa, VEH.track_width_m, VEH.wheelbase_m)
-    cos_d = np.array([k[2] / k[0], k[3] / k[1], 1.0, 1.0])  # the former model's along-body balance
-    old = ((x[5:9] * fz * cos_d).sum() - u[5] - x[9] * VEH.mass_kg * G) / VEH.mass_kg
-    assert abs(old - ref) > 1e-3 * abs(kappa) * abs(kappa) * VEH.wheelbase_m ** 2
-
-
-def test_curvature_zero_is_the_paper_model():
-    """κ = 0 given as the seventh input is the paper's eq. 8 bit for bit (the model's and the compiled step)."""
-    model = FilterModel(VEH)
-    x = np.array([[3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06]])
+    x = np.array([3, 3, 3, 3, 2.3, .3, .3, .3, .3, .06])
     u0 = np.array([3000.0, 3000.0, 4000.0, 4000.0, 24000.0, 15000.0])
-    u1 = np.append(u0, 0.0)
-    np.testing.assert_array_equal(model.rhs(x, u1), model.rhs(x, u0))
-    np.testing.assert_array_equal(model.step(x, u1, 0.01), model.step(x, u0, 0.01))
+    u1 = np.append(u0, 1 / 30.0)
+    fz, r_d = model.loads(u0)                            # the axle split: the steering term alone
+    d0, d1 = model.rhs(x, u0), model.rhs(x, u1, fz, r_d)
+    c = model.front_cosines(1 / 30.0)
+    assert d1[4] - d0[4] == pytest.approx(-(0.3 * fz[0] * ((1 - c[0]) + (1 - c[1]))) / VEH.mass_kg, rel=1e-9)
+    np.testing.assert_array_equal(d1[:4], d0[:4])
+    np.testing.assert_array_equal(model.rhs(x, np.append(u0, 0.0)), d0)      # κ = 0 is the paper's model
 
 
 # ----------------------------------------------------------------------------- curvature filter

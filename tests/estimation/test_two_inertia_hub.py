@@ -71,6 +71,7 @@ def reference_rhs(model: V.FilterModel, u: np.ndarray, v0: float = 0.0):
     rd = V.rolling_radius(fz, p)
     b2, L = 0.5 * p.track_width_m, p.wheelbase_m
     kw = np.array([math.hypot(1 - b2 * kap, L * kap), math.hypot(1 + b2 * kap, L * kap), 1 - b2 * kap, 1 + b2 * kap])
+    cos = np.array([(1 - b2 * kap) / kw[0], (1 + b2 * kap) / kw[1], 1.0, 1.0])
     cx, sbar, vbar = p.tyre_carcass_stiffness_npm, model._kc[11:15].copy(), model._kc[15]
 
     def f(_t, y):
@@ -81,8 +82,7 @@ def reference_rhs(model: V.FilterModel, u: np.ndarray, v0: float = 0.0):
         d[0:4] = (u[0:4] - mh) / J_M                          # motor side
         d[10:14] = (mh - rd * fh - rd * p.rho_t * fz * np.sign(ww)) / J_W     # eq. 2 at the rim
         d[14:18] = wm - ww
-        # eq. 8 in a turn: each wheel's force and soil resistance weighted by its ground-speed factor (virtual work)
-        d[4] = (np.sum(fh * kw) - u[5] - rho * (p.mass_kg * G + np.sum((kw - 1.0) * fz)) * np.sign(v)) / p.mass_kg
+        d[4] = (np.sum(fh * cos) - u[5] - rho * p.mass_kg * G * np.sign(v)) / p.mass_kg   # eq. 8
         vi = np.abs(kw * vbar)
         vw = np.abs(rd * ww)
         s = np.where(vi <= vw, 1.0 - vi / vw, -1.0 + vw / vi)  # eq. 6 against the wheel's ground speed

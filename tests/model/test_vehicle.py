@@ -8,7 +8,7 @@ import pytest
 from tractionecu.config import G, VehicleParams, load_vehicle, save_vehicle
 from tractionecu.errors import ConfigError
 from tractionecu.model.vehicle import (FilterModel, rolling_radius, slip, traction_efficiency, tyre_deflection,
-                                       wheel_loads, wheel_speed_factors)
+                                       wheel_loads)
 
 P = VehicleParams()
 
@@ -144,10 +144,9 @@ def test_the_turns_loads_move_the_wheel_dynamics_as_eq_2_says():
     mu = x[0, 5:9]
     np.testing.assert_allclose(d[0, :4], (u[:4] - rd[0] * mu * fz[0] - rd[0] * veh.rho_t * fz[0]) / veh.wheel_inertia_kgm2,
                                rtol=1e-12)
-    k = wheel_speed_factors(u[6], veh.track_width_m, veh.wheelbase_m)
-    fx = mu[0] * fz[0, 0] * k[0] + mu[1] * fz[0, 1] * k[1] + mu[2] * fz[0, 2] * k[2] + mu[3] * fz[0, 3] * k[3]
-    res = x[0, 9] * (veh.mass_kg * G + ((k - 1.0) * fz[0]).sum())
-    assert d[0, 4] == pytest.approx((fx - u[5] - res) / veh.mass_kg, rel=1e-12)
+    c = model.front_cosines(u[6])
+    fx = mu[0] * fz[0, 0] * c[0] + mu[1] * fz[0, 1] * c[1] + mu[2] * fz[0, 2] + mu[3] * fz[0, 3]
+    assert d[0, 4] == pytest.approx((fx - u[5] - x[0, 9] * veh.mass_kg * G) / veh.mass_kg, rel=1e-12)
     from tractionecu.model.vehicle import rk4
     np.testing.assert_array_equal(model.step(x, u, 0.01), rk4(lambda y: model.rhs(y, u, fz, rd), x, 0.01))
 

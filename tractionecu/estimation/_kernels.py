@@ -253,11 +253,9 @@ def add_kappa_noise(Q, x, u, kc, J, iw, c):                 # pragma: no cover -
     g_v = ∂v̇/∂κ (row 4) and g_i = ∂ω̇_i/∂κ of the wheel speeds (rows iw..iw+3, J their inertia) of the state x
     under u, kc = FilterModel._kc.
 
-    In eq. 8 in a turn, m v̇ = Σ k_i F_h,i − F_dx − ρ_s (m g + Σ (k_i − 1) F_z,i) (model doc "Kinematics in
-    turns"), κ moves each wheel's weight k_i (∂k_i/∂κ, model.vehicle.wheel_speed_factor_slopes) and, through the
-    lateral load transfer, each wheel's load, ∂F_z,i/∂κ = ∓λ m v² h_cg/b (zero where the transfer is at its
-    limit; model doc "Lateral load transfer"): g_v m = Σ (μ_i − ρ_s sgn v)(k_i' F_z,i + k_i F_z,i')
-    + ρ_s sgn v Σ F_z,i'; in eq. 2 the load moves the wheel's ground and rolling-
+    In eq. 8 κ moves the front forces' direction, F_h cos δ (∂cos δ/∂κ, model doc "Kinematics in turns"), and
+    through the lateral load transfer each wheel's load, ∂F_z,i/∂κ = ∓λ m v² h_cg/b (zero where the transfer is
+    at its limit; model doc "Lateral load transfer"); in eq. 2 the load moves the wheel's ground and rolling-
     resistance torque r_d (μ_i + ρ_t sign ω_i) F_z,i, whose radius follows the load (eq. 9:
     ∂(r_d F_z)/∂F_z = 2 r_d − r0)."""
     kap = u[6]
@@ -285,16 +283,13 @@ def add_kappa_noise(Q, x, u, kc, J, iw, c):                 # pragma: no cover -
     d = L * kap
     a0 = 1.0 - hb * kap
     a1 = 1.0 + hb * kap
-    k0 = math.sqrt(a0 * a0 + d * d)
-    k1 = math.sqrt(a1 * a1 + d * d)
-    kw = (k0, k1, a0, a1)
-    dk = ((-hb * a0 + L * d) / k0, (hb * a1 + L * d) / k1, -hb, hb)     # wheel_speed_factor_slopes()
-    sv = 1.0 if x[4] > 0.0 else (-1.0 if x[4] < 0.0 else 0.0)
-    gv = 0.0
-    for i in range(4):
-        gv += (x[5 + i] - x[9] * sv) * (dk[i] * lw[i] + (kw[i] * df[i] if lat else 0.0))
+    n0 = a0 * a0 + d * d
+    n1 = a1 * a1 + d * d
+    dc0 = d * (-hb * d - a0 * L) / (n0 * math.sqrt(n0))
+    dc1 = d * (hb * d - a1 * L) / (n1 * math.sqrt(n1))
+    gv = x[5] * lw[0] * dc0 + x[6] * lw[1] * dc1
     if lat:
-        gv += x[9] * sv * (df[0] + df[1] + df[2] + df[3])
+        gv += x[5] * (a0 / math.sqrt(n0)) * df[0] + x[6] * (a1 / math.sqrt(n1)) * df[1] + x[7] * df[2] + x[8] * df[3]
     g = np.zeros(5)
     for i in range(4):
         w = x[iw + i]

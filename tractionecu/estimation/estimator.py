@@ -243,10 +243,8 @@ KAPPA_NOISE_MIN = 0.003
 """Below this path curvature [1/m] (radius above 330 m) the curvature's term in Q is left out: it grows with
 κ², and there it is below 0.1 % of the model-error term q_v (:func:`._kernels.add_kappa_noise`: the curvature
 error is mostly the slowly varying bias of the wheel curvature, correlated over ``BIAS_TAU_S``, so its spectral
-density is taken as σ_κ²·BIAS_TAU_S; it moves v̇ through each wheel's weight k_i(κ) in eq. 8 (model doc
-"Kinematics in turns") and, with the lateral load transfer, every wheel's load).  The weights' part does not
-vanish at κ = 0 (∂v̇/∂κ there is b/2 times the wheels' right-less-left force difference over m); the threshold
-was set when eq. 8 carried the front forces' direction, whose part grows with κ², and is kept."""
+density is taken as σ_κ²·BIAS_TAU_S; it moves v̇ through the front forces' direction and, with the lateral load
+transfer, every wheel's load)."""
 KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
 curvature input is limited to ±this, and so is its standard deviation when it is not known."""

@@ -10,7 +10,7 @@ Equations (paper numbering)
 (5)  κ = μ − ρ_s                                                 net traction ratio
 (6)  two-branch slip, s ∈ [−1, 1]
 (7)  η = κ/(κ + ρ)·(1 − s), ρ = ρ_s + ρ_t                       traction efficiency
-(8)  m v̇ = Σ F_h,i − F_dx − ρ_s m g                             longitudinal dynamics (turns: below)
+(8)  m v̇ = Σ F_h,i − F_dx − ρ_s m g                             longitudinal dynamics
 (9)  r_d = r0 − Δr,  Δr = F_z / (2π p_t √(b_t r0 / 2))          (Guskov 1988, p_t in Pa)
 
 Kinematics in turns (beyond the paper, which drives straight)
@@ -25,44 +25,12 @@ wheelbase, front wheels steered to roll without side slip):
 
     k_RL,RR = 1 ∓ κb/2,     k_FL,FR = √((1 ∓ κb/2)² + (κL)²)
 
-Eq. 8 in a turn (Kane's equation, or d'Alembert's principle with the
-rear-axle centre's path distance as the one generalised coordinate, its
-rate v the one generalised speed).  With κ given (the steering is a
-prescribed constraint) a point at (x, y) of the body (x forward from the
-rear-axle centre, y to the left) moves at v (1 − κy, κx) in body axes, so
-its partial velocity ∂v_P/∂v is (1 − κy, κx), and a wheel's contact point
-moves k_i v along the wheel's own heading.  Generalised active force: a
-wheel's longitudinal force F_h,i acts along its heading and does the work
-F_h,i k_i per unit v; its lateral force is normal to that heading and does
-none (a constraint force of the no-side-slip kinematics); the soil's
-resistance ρ_s F_z,i acts against each wheel's travel, ρ_s F_z,i k_i; the
-draft F_dx acts along the body at the hitch (partial velocity (1, κ x_h)),
-F_dx.  Generalised inertia force of the rigid body (centre of gravity at
-(x_g, 0), yaw inertia I_z about it, yaw rate ψ̇ = κv): the centre of
-gravity's acceleration in body axes is (v̇ − κ²v² x_g, x_g(κ̇v + κv̇) + κv²);
-dotted with (1, κ x_g) the centripetal terms cancel exactly, and with the yaw
-term I_z ψ̈ κ the sum is M(κ) v̇ + κκ̇ I_R v, M(κ) = m + κ² I_R,
-I_R = I_z + m x_g² the yaw inertia about the rear-axle centre.  So
-
-    M(κ) v̇ + κκ̇ I_R v = Σ k_i F_h,i − F_dx − ρ_s Σ k_i F_z,i.
-
-The model's form (:func:`turn_forces`):
-
-    m v̇ = Σ k_i F_h,i − F_dx − ρ_s (m g + Σ (k_i − 1) F_z,i)
-
-(ρ_s m g is the paper's Σ ρ_s F_z,i of a straight path; the turn adds each
-wheel's extra travel, so that at κ = 0 the equation is eq. 8 exactly).
-Approximation: VehicleParams declares no yaw inertia, so M(κ) = m and the
-κκ̇ I_R v term are left out.  Their size: I_R/m ≈ x_g² + (L² + b²)/12
-(a uniform box; x_g the static front share times L) ≈ 2 m² for the default
-tractor, so κ² I_R/m is 0.2 % on a 30 m radius and ≈ 20 % on a 3 m headland
-turn, where the filter's speed equation is, to that extent, too light.
-The former form, the forces' components along the body (Σ F_h,i cos δ_i,
-cos δ_FL,FR = (1 ∓ κb/2)/k_i) dropped the front lateral forces' and the
-centripetal acceleration's body-axis components, equal only to first order
-in κ (k_i and cos δ_i differ at O(κ²), the front wheels' travel by κ²L²/2).
-κ is the model's input u[6]; without it (six inputs) κ = 0, the paper's
-straight-line model.
+and a front wheel's longitudinal force acts along the wheel, at the steer
+angle δ_i to the body axis, cos δ_i = (1 ∓ κb/2)/k_i: eq. 8 becomes
+m v̇ = Σ F_h,i cos δ_i − F_dx − ρ_s m g.  (The along-body components of the
+front lateral force and of the centripetal acceleration of the centre of
+mass cancel to first order in κ and are left out.)  κ is the model's input
+u[6]; without it (six inputs) κ = 0, the paper's straight-line model.
 
 Vertical loads come from the measured front-axle load F_zf: each front wheel
 carries F_zf/2 and each rear wheel (m g + F_dx tan β − F_zf)/2 (paper section
@@ -282,22 +250,6 @@ def wheel_speed_factor_slopes(kappa: float, track_m: float, wheelbase_m: float) 
     return ((-h * left + wheelbase_m * lk) / kfl, (h * right + wheelbase_m * lk) / kfr, -h, h)
 
 
-def turn_forces(fh: ArrayLike, fz: ArrayLike, kw: ArrayLike, rho_s: ArrayLike, m: float
-                ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(Σ k_i F_h,i [N], ρ_s (m g + Σ (k_i − 1) F_z,i) [N]) of eq. 8 in a turn (module doc "Kinematics in
-    turns"): the wheels' forces ``fh`` and loads ``fz`` (..., 4) weighted by their ground-speed factors ``kw``
-    (..., 4) (:func:`wheel_speed_factors`), the generalised forces on the speed v of the rear-axle centre; the
-    operations of the compiled step (:func:`_rhs5`).  At κ = 0 (k_i = 1) they are Σ F_h,i and ρ_s m g."""
-    fh = np.asarray(fh, dtype=float)
-    fz = np.asarray(fz, dtype=float)
-    kw = np.asarray(kw, dtype=float)
-    rho_s = np.asarray(rho_s, dtype=float)
-    fx = fh[..., 0] * kw[..., 0] + fh[..., 1] * kw[..., 1] + fh[..., 2] * kw[..., 2] + fh[..., 3] * kw[..., 3]
-    dw = ((kw[..., 0] - 1.0) * fz[..., 0] + (kw[..., 1] - 1.0) * fz[..., 1] + (kw[..., 2] - 1.0) * fz[..., 2]
-          + (kw[..., 3] - 1.0) * fz[..., 3])
-    return fx, rho_s * m * G + rho_s * dw
-
-
 def slip(omega: ArrayLike, v: ArrayLike, r_d: ArrayLike, eps: float = 1e-6) -> NDArray[np.float64]:
     """Two-branch slip (paper eq. 6) in [−1, 1].
 
@@ -406,18 +358,20 @@ class FilterModel:
         md = u[..., IU_MD]
         fh = mu * fz                                                   # eq. 4
         domega = (md - r_d * fh - r_d * self.rho_t * fz * np.sign(omega)) / self.J   # eq. 2
-        if u.shape[-1] > IU_KAPPA:                                     # eq. 8 in a turn (module doc)
-            kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
-            fx, res = turn_forces(fh, fz, kw, rho_s, self.m)
+        if u.shape[-1] > IU_KAPPA:                                     # front forces along the steered wheels
+            c = self.front_cosines(u[..., IU_KAPPA])
+            fx = fh[..., 0] * c[..., 0] + fh[..., 1] * c[..., 1] + fh[..., 2] + fh[..., 3]
         else:
-            kw = np.ones(4)
             fx = fh.sum(axis=-1)
-            res = rho_s * self.m * G
-        dv = (fx - u[..., IU_FDX] - res * np.sign(v)) / self.m  # eq. 8
+        dv = (fx - u[..., IU_FDX] - rho_s * self.m * G * np.sign(v)) / self.m  # eq. 8
         dx = np.zeros(np.broadcast_shapes(x.shape, u.shape[:-1] + (N_STATE,)))
         dx[..., IX_OMEGA] = domega
         dx[..., IX_V] = dv
         if self.cx != 0.0:                                             # the carcass (module doc)
+            if u.shape[-1] > IU_KAPPA:
+                kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
+            else:
+                kw = np.ones(4)
             vi = kw * self._kc[15]
             dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(omega, vi, r_d) - self._kc[11:15]) / fz
         return dx
@@ -438,6 +392,14 @@ class FilterModel:
         self._kc[11:15] = sbar
         if v_ref is not None:
             self._kc[15] = v_ref
+
+    def front_cosines(self, kappa: ArrayLike) -> NDArray[np.float64]:
+        """cos δ of the front wheels FL, FR (..., 2) at path curvature κ [1/m] (module doc); 1 at κ = 0."""
+        k = np.asarray(kappa, dtype=float)
+        h = 0.5 * self.params.track_width_m * k
+        lk = self.params.wheelbase_m * k
+        left, right = 1.0 - h, 1.0 + h
+        return np.stack([left / np.sqrt(left * left + lk * lk), right / np.sqrt(right * right + lk * lk)], axis=-1)
 
     def load_floats(self, fzf: float, fdx: float = 0.0) -> tuple[float, float, float, float]:
         """(F_z front, F_z rear [N], r_d front, r_d rear [m]) of one front-axle load F_zf [N] and draft
@@ -541,14 +503,14 @@ class FilterModel:
         dx[..., IX_OMEGA] = (u[..., IU_MD] - mh) / jm
         dx[..., IX_OMEGA_W] = (mh - r_d * fh - r_d * self.rho_t * fz * np.sign(ww)) / jw    # eq. 2 at the rim
         dx[..., IX_TWIST] = wm - ww
-        if u.shape[-1] > IU_KAPPA:                                     # eq. 8 in a turn (module doc)
+        if u.shape[-1] > IU_KAPPA:
+            c = self.front_cosines(u[..., IU_KAPPA])
+            fx = fh[..., 0] * c[..., 0] + fh[..., 1] * c[..., 1] + fh[..., 2] + fh[..., 3]
             kw = wheel_speed_factors(u[..., IU_KAPPA], self.params.track_width_m, self.params.wheelbase_m)
-            fx, res = turn_forces(fh, fz, kw, x[..., IX_RHO], self.m)
         else:
             fx = fh.sum(axis=-1)
             kw = np.ones(4)
-            res = x[..., IX_RHO] * self.m * G
-        dx[..., IX_V] = (fx - u[..., IU_FDX] - res * np.sign(x[..., IX_V])) / self.m  # eq. 8
+        dx[..., IX_V] = (fx - u[..., IU_FDX] - x[..., IX_RHO] * self.m * G * np.sign(x[..., IX_V])) / self.m  # eq. 8
         if self.cx != 0.0:
             vi = kw * self._kc[15]
             dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(ww, vi, r_d) - self._kc[11:15]) / fz
@@ -600,29 +562,25 @@ def _sign(a: float) -> float:
     return a
 
 
-def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, lw, J, m, k0, k1, k2, k3):  # pragma: no cover - compiled
+def _rhs5(w0, w1, w2, w3, v, mu0, mu1, mu2, mu3, rho, u, lw, J, m, c0, c1):  # pragma: no cover - compiled
     """(ω̇1..4, v̇) of one state, with FilterModel.rhs's operation order.
 
-    lw: the wheels' (F_z (4) [N], r_d (4) [m], r_d ρ_t F_z (4)) (:func:`_wheel_terms`); k0..k3: the wheels'
-    ground-speed factors k_i(κ) (:func:`wheel_speed_factors`; 1 on a straight path), their weights in eq. 8
-    (module doc "Kinematics in turns", :func:`turn_forces`).
+    lw: the wheels' (F_z (4) [N], r_d (4) [m], r_d ρ_t F_z (4)) (:func:`_wheel_terms`); c0, c1: cos δ of the
+    front wheels (1 on a straight path).
     """
     fh0 = mu0 * lw[0]
     fh1 = mu1 * lw[1]
     fh2 = mu2 * lw[2]
     fh3 = mu3 * lw[3]
-    if k0 == 1.0 and k1 == 1.0 and k2 == 1.0 and k3 == 1.0:
+    if c0 == 1.0 and c1 == 1.0:
         fx = ((fh0 + fh1) + fh2) + fh3
-        res = rho * m * G
     else:
-        fx = ((fh0 * k0 + fh1 * k1) + fh2 * k2) + fh3 * k3
-        dw = (((k0 - 1.0) * lw[0] + (k1 - 1.0) * lw[1]) + (k2 - 1.0) * lw[2]) + (k3 - 1.0) * lw[3]
-        res = rho * m * G + rho * dw
+        fx = ((fh0 * c0 + fh1 * c1) + fh2) + fh3
     return (((u[0] - lw[4] * fh0) - lw[8] * _sign(w0)) / J,
             ((u[1] - lw[5] * fh1) - lw[9] * _sign(w1)) / J,
             ((u[2] - lw[6] * fh2) - lw[10] * _sign(w2)) / J,
             ((u[3] - lw[7] * fh3) - lw[11] * _sign(w3)) / J,
-            ((fx - u[5]) - res * _sign(v)) / m)
+            ((fx - u[5]) - rho * m * G * _sign(v)) / m)
 
 
 def _lat_shift(c, v, kap, half):                             # pragma: no cover - compiled
@@ -712,16 +670,13 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     load transfer at that row's v, held over the step.
     """
     w_n, k, lim, r0, rho_t, J, m = kc[0], kc[1], kc[2], kc[3], kc[4], kc[5], kc[6]
-    k0 = k1 = k2 = k3 = 1.0
-    if u.shape[0] > 6 and u[6] != 0.0:           # wheel_speed_factors(): the weights of eq. 8 in a turn
+    cosl = 1.0
+    cosr = 1.0
+    if u.shape[0] > 6 and u[6] != 0.0:
         hk = kc[7] * u[6]
         lk = kc[8] * u[6]
-        left = 1.0 - hk
-        right = 1.0 + hk
-        k0 = math.sqrt(left * left + lk * lk)
-        k1 = math.sqrt(right * right + lk * lk)
-        k2 = left
-        k3 = right
+        cosl = (1.0 - hk) / math.sqrt((1.0 - hk) * (1.0 - hk) + lk * lk)
+        cosr = (1.0 + hk) / math.sqrt((1.0 + hk) * (1.0 + hk) + lk * lk)
     fzf = u[4]
     ff = 0.5 * fzf                     # wheel_loads()
     fr = 0.5 * (w_n - fzf)
@@ -732,7 +687,7 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
     kap = u[6] if u.shape[0] > 6 else 0.0
     lat = _lateral_on(kc, kap)
     if kc.shape[0] > 10 and kc[10] != 0.0:      # the carcass: μ̇ ≠ 0 (model doc "Tyre carcass")
-        return _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3)
+        return _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, cosl, cosr)
     lw = np.empty(12)
     _wheel_terms(kc, False, 0.0, kap, ff, fr, rdf, rdr, lw)
     npt = x.shape[0]
@@ -747,14 +702,14 @@ def _rk4_points(x, u, kc, dt):                              # pragma: no cover -
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
         if lat:                                  # the loads at this state's speed (module doc)
             _wheel_terms(kc, True, x4, kap, ff, fr, rdf, rdr, lw)
-        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, k0, k1, k2, k3)
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, cosl, cosr)
         h0, h1, h2, h3, hr = m0 + zh, m1 + zh, m2 + zh, m3 + zh, r + zh
         b0, b1, b2, b3, b4 = _rhs5(x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4,
-                                   h0, h1, h2, h3, hr, u, lw, J, m, k0, k1, k2, k3)
+                                   h0, h1, h2, h3, hr, u, lw, J, m, cosl, cosr)
         c0, c1, c2, c3, c4 = _rhs5(x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4,
-                                   h0, h1, h2, h3, hr, u, lw, J, m, k0, k1, k2, k3)
+                                   h0, h1, h2, h3, hr, u, lw, J, m, cosl, cosr)
         d0, d1, d2, d3, d4 = _rhs5(x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4,
-                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, lw, J, m, k0, k1, k2, k3)
+                                   m0 + zd, m1 + zd, m2 + zd, m3 + zd, r + zd, u, lw, J, m, cosl, cosr)
         out[p, 0] = x0 + w * (((a0 + 2.0 * b0) + 2.0 * c0) + d0)
         out[p, 1] = x1 + w * (((a1 + 2.0 * b1) + 2.0 * c1) + d1)
         out[p, 2] = x2 + w * (((a2 + 2.0 * b2) + 2.0 * c2) + d2)
@@ -782,14 +737,23 @@ def _mudot(w, v, k, rd, fz, sb, cx):                         # pragma: no cover 
     return ((cx * va) * (s - sb)) / fz
 
 
-def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3):   # pragma: no cover - compiled
+def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, cosl, cosr):   # pragma: no cover - compiled
     """_rk4_points with the carcass term of μ̇ (kc[10] = c_x ≠ 0, kc[11:15] = σ̄): the four RK4 stages of
-    ω, v and μ, as rk4(FilterModel.rhs) computes them; ρ_s as in _rk4_points.  k0..k3: the wheels' ground-speed
-    factors (wheel_speed_factors(), 1 on a straight path)."""
+    ω, v and μ, as rk4(FilterModel.rhs) computes them; ρ_s as in _rk4_points."""
     J, m, cx = kc[5], kc[6], kc[10]
     lw = np.empty(12)
     _wheel_terms(kc, False, 0.0, kap, ff, fr, rdf, rdr, lw)
     s0, s1, s2, s3, vb = kc[11], kc[12], kc[13], kc[14], kc[15]
+    k0 = k1 = k2 = k3 = 1.0
+    if u.shape[0] > 6 and u[6] != 0.0:           # wheel_speed_factors()
+        hk = kc[7] * u[6]
+        lk = kc[8] * u[6]
+        left = 1.0 - hk
+        right = 1.0 + hk
+        k0 = math.sqrt(left * left + lk * lk)
+        k1 = math.sqrt(right * right + lk * lk)
+        k2 = left
+        k3 = right
     npt = x.shape[0]
     out = np.empty_like(x)
     h = 0.5 * dt
@@ -802,7 +766,7 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3):   # 
         m0, m1, m2, m3, r = x[p, 5], x[p, 6], x[p, 7], x[p, 8], x[p, 9]
         if lat:                                  # the loads at this state's speed (module doc)
             _wheel_terms(kc, True, x4, kap, ff, fr, rdf, rdr, lw)
-        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, k0, k1, k2, k3)
+        a0, a1, a2, a3, a4 = _rhs5(x0, x1, x2, x3, x4, m0, m1, m2, m3, r, u, lw, J, m, cosl, cosr)
         e0 = _mudot(x0, vb, k0, lw[4], lw[0], s0, cx)
         e1 = _mudot(x1, vb, k1, lw[5], lw[1], s1, cx)
         e2 = _mudot(x2, vb, k2, lw[6], lw[2], s2, cx)
@@ -810,7 +774,7 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3):   # 
         y0, y1, y2, y3, y4 = x0 + h * a0, x1 + h * a1, x2 + h * a2, x3 + h * a3, x4 + h * a4
         n0, n1, n2, n3 = m0 + h * e0, m1 + h * e1, m2 + h * e2, m3 + h * e3
         b0, b1, b2, b3, b4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, lw, J, m,
-                                   k0, k1, k2, k3)
+                                   cosl, cosr)
         f0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
         f1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
         f2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
@@ -818,7 +782,7 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3):   # 
         y0, y1, y2, y3, y4 = x0 + h * b0, x1 + h * b1, x2 + h * b2, x3 + h * b3, x4 + h * b4
         n0, n1, n2, n3 = m0 + h * f0, m1 + h * f1, m2 + h * f2, m3 + h * f3
         c0, c1, c2, c3, c4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zh, u, lw, J, m,
-                                   k0, k1, k2, k3)
+                                   cosl, cosr)
         g0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
         g1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
         g2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
@@ -826,7 +790,7 @@ def _rk4_carcass(x, u, kc, dt, ff, fr, rdf, rdr, lat, kap, k0, k1, k2, k3):   # 
         y0, y1, y2, y3, y4 = x0 + dt * c0, x1 + dt * c1, x2 + dt * c2, x3 + dt * c3, x4 + dt * c4
         n0, n1, n2, n3 = m0 + dt * g0, m1 + dt * g1, m2 + dt * g2, m3 + dt * g3
         d0, d1, d2, d3, d4 = _rhs5(y0, y1, y2, y3, y4, n0, n1, n2, n3, r + zd, u, lw, J, m,
-                                   k0, k1, k2, k3)
+                                   cosl, cosr)
         q0 = _mudot(y0, vb, k0, lw[4], lw[0], s0, cx)
         q1 = _mudot(y1, vb, k1, lw[5], lw[1], s1, cx)
         q2 = _mudot(y2, vb, k2, lw[6], lw[2], s2, cx)
@@ -909,14 +873,12 @@ def relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, lmin, lmax, ld
     _relax_slips(x, kc, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, 0.0, lmin, lmax, ldef, init, False)
 
 
-def _hub_deriv(y, u, kc, hc, lw, turn, kw, d):  # pragma: no cover - compiled
+def _hub_deriv(y, u, kc, hc, lw, cosl, cosr, kw, d):  # pragma: no cover - compiled
     """dx/dt of one two-inertia hub state y (18,) into d (18,) (FilterModel.rhs_hub, module doc); lw the wheels'
-    loads, radii and rolling-resistance torques (:func:`_wheel_terms`); kw (4,) the wheels' ground-speed factors,
-    with ``turn`` their weights in eq. 8 (module doc "Kinematics in turns", :func:`turn_forces`)."""
+    loads, radii and rolling-resistance torques (:func:`_wheel_terms`)."""
     k_h, c_h, jm, jw = hc[0], hc[1], hc[2], hc[3]
     m = kc[6]
     fx = 0.0
-    dw = 0.0
     for i in range(4):
         fz = lw[i]
         rd = lw[4 + i]
@@ -928,19 +890,12 @@ def _hub_deriv(y, u, kc, hc, lw, turn, kw, d):  # pragma: no cover - compiled
         d[i] = (u[i] - mh) / jm
         d[10 + i] = ((mh - rd * fh) - cz * _sign(ww)) / jw
         d[14 + i] = wm - ww
-        if turn:
-            fx += fh * kw[i]
-            dw += (kw[i] - 1.0) * fz
-        else:
-            fx += fh
+        fx += fh * (cosl if i == 0 else (cosr if i == 1 else 1.0))
         if kc[10] != 0.0:
             d[5 + i] = _mudot(ww, kc[15], kw[i], rd, fz, kc[11 + i], kc[10])
         else:
             d[5 + i] = 0.0
-    res = y[9] * m * G
-    if turn:
-        res = res + y[9] * dw
-    d[4] = ((fx - u[5]) - res * _sign(y[4])) / m
+    d[4] = ((fx - u[5]) - y[9] * m * G * _sign(y[4])) / m
     d[9] = 0.0
 
 
@@ -948,7 +903,8 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
     """RK4 of the two-inertia hub model over dt in nsub equal sub-steps for every row of x (N, 18);
     kc: FilterModel._kc (loads, carcass), hc = (k, c, J_m, J_w, ω_max)."""
     w_n, k, lim, r0, rho_t = kc[0], kc[1], kc[2], kc[3], kc[4]
-    turn = False
+    cosl = 1.0
+    cosr = 1.0
     kw = np.ones(4)
     if u.shape[0] > 6 and u[6] != 0.0:
         hk = kc[7] * u[6]
@@ -959,7 +915,8 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
         kw[1] = math.sqrt(right * right + lk * lk)
         kw[2] = left
         kw[3] = right
-        turn = True
+        cosl = left / kw[0]
+        cosr = right / kw[1]
     fzf = u[4]
     ff = 0.5 * fzf
     fr = 0.5 * (w_n - fzf)
@@ -986,16 +943,16 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
         if lat:                                  # the loads at this state's speed, held over the step
             _wheel_terms(kc, True, y[4], kap, ff, fr, rdf, rdr, lw)
         for _ in range(nsub):
-            _hub_deriv(y, u, kc, hc, lw, turn, kw, k1)
+            _hub_deriv(y, u, kc, hc, lw, cosl, cosr, kw, k1)
             for j in range(n):
                 yt[j] = y[j] + 0.5 * h * k1[j]
-            _hub_deriv(yt, u, kc, hc, lw, turn, kw, k2)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k2)
             for j in range(n):
                 yt[j] = y[j] + 0.5 * h * k2[j]
-            _hub_deriv(yt, u, kc, hc, lw, turn, kw, k3)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k3)
             for j in range(n):
                 yt[j] = y[j] + h * k3[j]
-            _hub_deriv(yt, u, kc, hc, lw, turn, kw, k4)
+            _hub_deriv(yt, u, kc, hc, lw, cosl, cosr, kw, k4)
             for j in range(n):
                 y[j] = y[j] + h / 6.0 * (((k1[j] + 2.0 * k2[j]) + 2.0 * k3[j]) + k4[j])
         for j in range(n):
