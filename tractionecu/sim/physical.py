@@ -211,6 +211,31 @@ def _path_curvature(plan) -> np.ndarray:
     return np.clip(k, -1.0, 1.0) * plan.direction
 
 
+def _steering_curvature(plan, nk: int) -> np.ndarray:
+    """The path curvature (:func:`_path_curvature`) smoothed over ``nk`` samples (one wheelbase): a steering
+    system cannot step the steering angle while the machine rolls.  Within each stretch of one direction of
+    travel only, its heading's gradient taken inside the stretch: at a cusp the machine stands, and the
+    steering turns there, so the arc before a cusp keeps its curvature to the end and the leg after it starts
+    with its own.  A window (or a central difference) across the cusp gives the wheels a yaw rate v κ that
+    the plan's positions and heading (the GNSS course) do not have: half an arc's curvature over half a
+    wheelbase on each side, with the sign of travel flipped after the cusp, a heading disagreement of
+    κ L / 4 (0.07 rad after a 9 m quarter circle with L = 2.5 m).  Without a cusp: the plain smoothing."""
+    d = plan.direction
+    cut = np.flatnonzero(d[1:] != d[:-1]) + 1
+    if not len(cut):
+        k = _path_curvature(plan)
+        return np.convolve(np.pad(k, (nk // 2, nk - 1 - nk // 2), mode="edge"), np.ones(nk) / nk, mode="valid")
+    psi = np.unwrap(plan.heading)
+    out = np.zeros(len(psi))
+    for i0, i1 in zip(np.r_[0, cut], np.r_[cut, len(psi)]):
+        if i1 - i0 < 2:
+            continue                     # a one-sample stretch: no arc, the steering stands at 0
+        k = np.clip(np.gradient(psi[i0:i1], DS), -1.0, 1.0) * d[i0:i1]
+        out[i0:i1] = np.convolve(np.pad(k, (nk // 2, nk - 1 - nk // 2), mode="edge"), np.ones(nk) / nk,
+                                 mode="valid")
+    return out
+
+
 def simulate_physical(scn):
     """Run the physical truth model; deterministic for a given ``scn.seed``.  Returns a TruthTrace."""
     ps: PhysicalSpec = scn.physical
@@ -269,10 +294,7 @@ def simulate_physical(scn):
     wy_p = plan.y[:, None] + off_fwd * sh_p[:, None] + off_lat * ch_p[:, None]
     soil_w_p = fld.soil_index(wx_p, wy_p)
     soil_c_p = fld.soil_index(plan.x, plan.y)
-    kappa_p = _path_curvature(plan)
-    # Smooth the curvature over one wheelbase: a steering system cannot step the steering angle.
-    nk = max(1, int(round(L / DS)))
-    kappa_p = np.convolve(np.pad(kappa_p, (nk // 2, nk - 1 - nk // 2), mode="edge"), np.ones(nk) / nk, mode="valid")
+    kappa_p = _steering_curvature(plan, max(1, int(round(L / DS))))
     theta_p = np.asarray(fld.grade(plan.x, plan.y, plan.heading), dtype=float)
     alt_p = np.asarray(fld.elevation(plan.x, plan.y), dtype=float)
     n_path = len(plan.s)
