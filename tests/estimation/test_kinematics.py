@@ -538,3 +538,33 @@ def test_a_heading_that_refuses_the_course_starts_again():
     _course_turns_wheels_do_not(cf, legs, rng)
     k_end, _ = cf.curvature(2.5, 0.2)
     assert abs(k_end) < 0.003
+
+
+def test_straight_reverse_reads_no_curvature(make_recording, monkeypatch):
+    """physical-headland-reverse: on the straight 12 m leg back after a three-point turn's quarter circle the
+    curvature filter reads a straight path.  With the truth's steering smoothed across the cusp (its wheels'
+    yaw 0.1 rad off its course over the turn) the filter took the disagreement up as a rear slip difference
+    and read 0.006 1/m (1.5-4 σ_κ) on the straight leg, ±0.005 of left/right slip."""
+    from tractionecu.evaluation.scoring import read_truth
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.recording.reader import read_recording
+
+    seen: list[tuple[float, float]] = []
+    orig = CurvatureFilter.curvature
+
+    def curvature(self, v, min_speed_mps):
+        out = orig(self, v, min_speed_mps)
+        seen.append((self._t, out[0]))
+        return out
+
+    monkeypatch.setattr(CurvatureFilter, "curvature", curvature)
+    rec_dir = make_recording("physical-headland-reverse", 0, 135.0)
+    replay(read_recording(rec_dir))
+    tr = read_truth(rec_dir / "truth.csv")
+    t, kap = np.array(seen).T
+    k = np.clip(np.searchsorted(tr.t, t + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    head = (rec_dir / "truth.csv").read_text(encoding="utf-8").split("\n", 1)[0].split(",")
+    kt = np.loadtxt(rec_dir / "truth.csv", delimiter=",", skiprows=1, usecols=[head.index("curvature")])[k]
+    leg = (tr.v[k] < -0.8) & (kt == 0.0)
+    assert leg.sum() > 500
+    assert np.mean(np.abs(kap[leg])) < 0.002          # 0.0060 1/m with the cusp's yaw in the truth
