@@ -355,3 +355,10 @@ def test_kernel_constants_are_the_estimators():
              "INPUT_REJECTED", "MEAS_GATED", "COV_REPAIRED", "FILTER_LOST", "STANDSTILL", "UNVERIFIED",
              "MACHINE_UNSUPPORTED", "SLIP_UNCERTAIN", "SLIP_AVERAGED", "INVALID_MASK", "KAPPA_NOISE_MIN", "KAPPA_MAX")
     assert {n: getattr(K, n) for n in names} == {n: getattr(E, n) for n in names}
+
+
+def test_steady_travel_time_is_the_step_paths():
+    """The averaged slip's steadiness time is one figure in the step path and the compiled loop."""
+    from tractionecu.estimation import _loop_kernel
+    from tractionecu.estimation import estimator as est_mod
+    assert _loop_kernel.SLIP_STEADY_S == est_mod.SLIP_STEADY_S

@@ -568,3 +568,23 @@ def test_straight_reverse_reads_no_curvature(make_recording, monkeypatch):
     leg = (tr.v[k] < -0.8) & (kt == 0.0)
     assert leg.sum() > 500
     assert np.mean(np.abs(kap[leg])) < 0.002          # 0.0060 1/m with the cusp's yaw in the truth
+
+
+def test_reversing_slip_is_averaged_only_in_steady_travel(make_recording):
+    """physical-headland-reverse: a slip averaged over the last metres stands for the slip now only while the
+    wheels roll steadily.  Where a leg starts or stops the truth's slip swings by 0.03-0.05 within a second
+    while μ hardly moves, so the lag term does not see it (the averaged slips there were off by 0.018)."""
+    from tractionecu.estimation.estimator import SLIP_AVERAGED
+    from tractionecu.evaluation.scoring import read_truth
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.recording.reader import read_recording
+
+    rec_dir = make_recording("physical-headland-reverse", 0, 135.0)
+    a = replay(read_recording(rec_dir)).arrays
+    tr = read_truth(rec_dir / "truth.csv")
+    k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+    avg = a["valid"] & ((a["status"] & SLIP_AVERAGED) != 0) & (tr.v[k] < -0.5)
+    assert avg.sum() > 50
+    accel = np.abs(np.gradient(tr.v, tr.t))[k]
+    assert np.sum(avg & (accel > 0.05)) <= 0.02 * avg.sum()
+    assert np.mean(np.abs(a["slip"][avg] - tr.slip[k][avg])) < 0.006

@@ -1254,6 +1254,10 @@ def _mk_curve_jit(tag):
     return _curve_jit
 
 
+SLIP_STEADY_S = 1.0
+"""Estimator's SLIP_STEADY_S (:mod:`.estimator`): the averaged slip's steadiness time [s]."""
+
+
 def _bisect_left(WIN, lo, n, col, x):                                     # pragma: no cover - compiled
     a = 0
     b = n
@@ -1341,6 +1345,17 @@ def _slip_window(F, I, WIN, EV):                                          # prag
     kv = F[F_KAPVAR]
     bound = F[F_C_SLIP_MAX]
     cn = lo + n - 1
+    # steady travel only: each wheel's rolled speed now against its mean over the last SLIP_STEADY_S (same
+    # operations as the step path)
+    jq = _bisect_left(WIN, lo, n, 0, t - SLIP_STEADY_S)
+    if jq > n - 2:
+        jq = n - 2
+    tq = t - WIN[lo + jq, 0]
+    for i in range(4):
+        rd = rdf if i < 2 else rdr
+        rq = (WIN[cn, 7 + i] - WIN[lo + jq, 7 + i]) / tq
+        if not (rq > 0.0 and abs(abs(rd * buf[8 + i]) - rq) <= bound * rq):
+            return -1
     length = F[F_C_AVG_MAX]
     lastj = -1
     nc = 0
