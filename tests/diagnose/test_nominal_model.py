@@ -250,3 +250,46 @@ def test_a_missing_raw_wheel_speed_is_interpolated_not_read_as_standstill():
     assert np.isnan(x[4, 0])                                                         # input unchanged
     clean = np.ones((5, 4))
     assert fill_missing_raw(t[:5], clean) is clean
+
+
+def test_the_nominal_wheel_torque_goes_through_the_hub_drives_declared_efficiency_and_drag():
+    """The estimator drives its wheels with η M (M/η braking) less the declared drag c ω; the diagnosis's
+    nominal model takes the same wheel torque.  Left at the motor torque, a machine declaring η = 0.934 read
+    its wheel forces 7 % high, a pull-dependent error that the speed equation put into the mass's
+    acceleration regressor.  A fitted drivetrain effect's η replaces the declared one; a machine declaring
+    η = 1 and no drag, and an engine-driven one, keep the recorded torque bit for bit."""
+    import dataclasses
+
+    from tractionecu.diagnose.channels import wheel_kwargs
+    from tractionecu.diagnose.features import declared_wheel_torque, wheel_state
+
+    base = VehicleParams()
+    hub = dataclasses.replace(base, drivetrain=dataclasses.replace(base.drivetrain, efficiency=0.9, hub_drag_nms=4.0))
+    md = np.array([[800.0, -600.0, 0.0, 500.0]])
+    om = np.array([[5.0, 5.0, 5.0, -5.0]])
+    out = declared_wheel_torque(md, om, hub)
+    assert out[0, 0] == pytest.approx(0.9 * 800.0 - 20.0)          # driving: η M − c ω
+    assert out[0, 1] == pytest.approx(-600.0 / 0.9 - 20.0)         # braking: M/η − c ω
+    assert out[0, 2] == pytest.approx(-20.0)
+    assert out[0, 3] == pytest.approx(500.0 / 0.9 + 20.0)          # reversing while braking
+    assert declared_wheel_torque(md, om, base) is md
+    mech = dataclasses.replace(base, drivetrain=dataclasses.replace(base.drivetrain, kind="mechanical", efficiency=0.88,
+                                                                            final_drive_ratio=20.0))
+    assert declared_wheel_torque(md, om, mech) is md
+
+    n = 20
+    frames = []
+    for veh in (base, hub):
+        fr = Frame(t=np.arange(n) * 0.1, t0_epoch=0.0, rate_hz=10.0, vehicle=veh)
+        fr.omega = np.full((n, 4), 5.0)
+        fr.md = np.full((n, 4), 800.0)
+        fr.fzf = np.full(n, 0.4 * veh.mass_kg * 9.81)
+        frames.append(fr)
+    ws0, ws1 = (wheel_state(fr, np.zeros((n, 4)), None) for fr in frames)
+    r = ws0.r
+    assert np.allclose(ws1.fh - ws0.fh, (0.9 * 800.0 - 20.0 - 800.0) / r)
+    # The drivetrain effect: its η replaces the declared one (absolute), its loss replaces the drag.
+    kw = wheel_kwargs({"drivetrain": {"eta": 0.95, "loss_nm": 0.0}}, frames[1])
+    ws2 = wheel_state(frames[1], np.zeros((n, 4)), None, **kw)
+    assert np.allclose(ws2.fh, wheel_state(frames[0], np.zeros((n, 4)), None, **kw).fh)
+    assert np.allclose(ws2.fh - ws0.fh, (0.95 - 1.0) * 800.0 / r)

@@ -53,7 +53,8 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state, WheelState
+from .features import (Features, SplineFit, cumtrapz0, declared_wheel_torque, fused_speed, spline_basis, SPLINE_KNOT_S,
+                       wheel_state, WheelState)
 from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
@@ -844,7 +845,8 @@ class SlipChannel(Channel):
     def _mu_dot(self, ws: WheelState) -> NDArray:
         """dμ/dt averaged over each bin [1/s]: difference of μ at the bin edges.
 
-        At an edge, μ = (M_edge − J (ω̄_k − ω̄_{k−1})/Δ)/(r F_z) − ρ_t sgn ω with the
+        At an edge, μ = (M_edge − J (ω̄_k − ω̄_{k−1})/Δ)/(r F_z) − ρ_t sgn ω (M_edge through the hub's
+        declared efficiency and drag, as the bin means: :func:`~.features.declared_wheel_torque`) with the
         torque sampled at the edge and the wheel acceleration from the bin means on
         either side; without edge data, the central difference of the bin means.
         """
@@ -858,7 +860,8 @@ class SlipChannel(Channel):
         rf = ws.r * ws.fz
         rf_e = np.concatenate([rf[:1], 0.5 * (rf[1:] + rf[:-1]), rf[-1:]])
         sg = np.sign(np.concatenate([om[:1], om]))
-        mu_e = (np.nan_to_num(fr.md_edge) - veh.wheel_inertia_kgm2 * wd) / rf_e - veh.rho_t * sg
+        md_e = declared_wheel_torque(np.nan_to_num(fr.md_edge), np.concatenate([om[:1], om]), veh)
+        mu_e = (md_e - veh.wheel_inertia_kgm2 * wd) / rf_e - veh.rho_t * sg
         return np.diff(mu_e, axis=0) / fr.dt
 
     def _predict(self, inv: _CurveInverse, mu: NDArray, k: NDArray, lead: NDArray | None, a: NDArray) -> NDArray:
