@@ -362,3 +362,28 @@ def test_steady_travel_time_is_the_step_paths():
     from tractionecu.estimation import _loop_kernel
     from tractionecu.estimation import estimator as est_mod
     assert _loop_kernel.SLIP_STEADY_S == est_mod.SLIP_STEADY_S
+
+
+def test_slip_at_the_clipped_curvature_as_the_python_estimator():
+    """A 3 m circle after a straight (the curvature input clipped at KAPPA_MAX): the slip flagged not supported
+    and held in the compiled loop as in the step path, step by step."""
+    from test_kinematics import _turning
+
+    from tractionecu.estimation.estimator import KAPPA_MAX, SLIP_UNCERTAIN
+
+    run = synth_run(seed=2, duration=14.0)
+    steps = _turning(run, 1 / 3.0, t_from=6.0)
+    est = Estimator(VehicleParams())
+    loop = CompiledLoop(Estimator(VehicleParams()))
+    IN = CompiledLoop.inputs_from_steps(steps)
+    clipped = 0
+    for k, (t, inputs, meas) in enumerate(steps):
+        e = est.step(t, inputs, meas)
+        row = loop.step_block(IN[k:k + 1])[0]
+        assert row[K.OUT_STATUS] == e.status, f"status at step {k}"
+        _assert_vectors(row, k, ((K.OUT_MU, e.mu), (K.OUT_SLIP, e.slip), (K.OUT_P, e.P_diag)))
+        if abs(e.kappa) >= KAPPA_MAX:
+            clipped += 1
+            assert e.status & SLIP_UNCERTAIN
+    assert clipped > 300
+    assert loop.counters == est.counters

@@ -16,7 +16,8 @@ import pytest
 from est_synth import synth_run
 
 from tractionecu.config import VehicleParams
-from tractionecu.estimation.estimator import INVALID_MASK, SLIP_UNCERTAIN, STANDSTILL, Estimator, EstimatorConfig
+from tractionecu.estimation.estimator import (INVALID_MASK, KAPPA_MAX, SLIP_AVERAGED, SLIP_UNCERTAIN, STANDSTILL,
+                                              Estimator, EstimatorConfig)
 from tractionecu.estimation.kinematics import SLIP_DIFF_MAX, CurvatureFilter
 from tractionecu.model.vehicle import (FilterModel, JIT, rk4, wheel_speed_factor_slopes, wheel_speed_factors)
 
@@ -227,20 +228,21 @@ def test_s_curve_transitions_leave_no_bias():
 
 
 # ----------------------------------------------------------------------------- the estimator in a turn
-def _turning(run, kappa: float, course: bool = True):
-    """The synthetic straight run bent round a circle of curvature κ: each wheel's speed scaled by its
-    ground-speed factor (same slip per wheel) and by its axle's rolling radius over its own, the lateral load
-    transfer's (δ_f, δ_r = λ_f, 1 − λ_f of m v² κ h_cg/b moved to the outer wheels, eq. 9), the GNSS course
-    turning at v κ."""
+def _turning(run, kappa_turn: float, course: bool = True, t_from: float = 0.0):
+    """The synthetic straight run bent round a circle of curvature κ (from ``t_from`` [s] on, straight before):
+    each wheel's speed scaled by its ground-speed factor (same slip per wheel) and by its axle's rolling radius
+    over its own, the lateral load transfer's (δ_f, δ_r = λ_f, 1 − λ_f of m v² κ h_cg/b moved to the outer
+    wheels, eq. 9), the GNSS course turning at v κ."""
     from tractionecu.model.vehicle import rolling_radius
 
-    k = wheel_speed_factors(kappa, B, L)
     out = []
     fzf = VEH.static_front_load_n()
     psi = 0.0
     t_prev = 0.0
     vi = 0
     for t, inputs, meas in run.steps:
+        kappa = kappa_turn if t >= t_from else 0.0
+        k = wheel_speed_factors(kappa, B, L)
         while vi + 1 < len(run.t) and run.t[vi + 1] <= t:
             vi += 1
         psi += run.v[vi] * kappa * (t - t_prev)
@@ -285,6 +287,37 @@ def test_per_wheel_slip_in_a_turn(run20):
     assert (turn <= 1.05 * straight + 3e-4).all()
     flat, _ = slip_error(_turning(run20, kappa), no_curvature=True)
     assert (flat > straight + 0.01).all()
+
+
+def test_slip_not_supported_where_the_curvature_is_clipped(run20):
+    """Round a 3 m circle (κ = 0.33 1/m: a headland turn between passes 6 m apart) the curvature input is
+    clipped at KAPPA_MAX, the wheels' ground speeds k_i(κ)·v of eq. 6 are not known, and a slip taken with the
+    clipped κ is off by about 0.1 on the front wheels: every step at the clip is flagged SLIP_UNCERTAIN (never
+    SLIP_AVERAGED) and holds the last supported slip of the straight before.  Round a 30 m circle nothing is
+    clipped and the slip is reported as on the straight."""
+    n0 = int(10.0 / 0.01)
+
+    def run(steps):
+        est = Estimator(VEH)
+        return [est.step(*s) for s in steps]
+
+    tight = run(_turning(run20, 1 / 3.0, t_from=10.0))
+    kap = np.array([e.kappa for e in tight])
+    st = np.array([e.status for e in tight])
+    slip = np.array([e.slip for e in tight])
+    clipped = np.abs(kap) >= KAPPA_MAX
+    assert not clipped[:n0].any() and clipped[n0:].mean() > 0.8
+    assert (st[clipped] & SLIP_UNCERTAIN).all()
+    assert not (st[clipped] & SLIP_AVERAGED).any()
+    first = int(np.flatnonzero(clipped)[0])
+    end = first + int(np.argmin(clipped[first:])) if not clipped[first:].all() else len(clipped)
+    last = int(np.flatnonzero((st[:first] & SLIP_UNCERTAIN) == 0)[-1])
+    assert end - first > 500 and first - last < 300
+    assert (slip[first:end] == slip[last]).all()                   # the last supported slip, held
+    for steps in (run20.steps, _turning(run20, 1 / 30.0)):
+        wide = run(steps)
+        assert max(abs(e.kappa) for e in wide) < KAPPA_MAX
+        assert not any(e.status & SLIP_UNCERTAIN for e in wide[n0:])
 
 
 def test_s_curves_physical_left_right_slip_difference(make_recording):

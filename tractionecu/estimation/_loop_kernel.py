@@ -1422,7 +1422,7 @@ def _stage_estimate2(F, I, WIN, EV):                                      # prag
     I[I_AVG_FOUND] = 0
     if abs(v) < F[F_C_STANDSTILL]:
         return ST_ESTIMATE3
-    if I[I_SLIP_OK] == 0 and F[F_C_AVG_MAX] > 0.0:
+    if I[I_SLIP_OK] == 0 and F[F_C_AVG_MAX] > 0.0 and -KAPPA_MAX < F[F_U + 6] < KAPPA_MAX:
         r = _slip_window(F, I, WIN, EV)
         if r == 0:
             return EV_SLIPWIN
@@ -1472,7 +1472,16 @@ def _stage_estimate3(F, I, OUT, k):                                       # prag
         if I[I_WIN_N]:
             _win_reset(I)
     else:
-        if not slip_ok:
+        # the curvature input at its clip: the slip is not known (Estimator._estimate)
+        clipped = not -KAPPA_MAX < F[F_U + 6] < KAPPA_MAX
+        if clipped:
+            status |= SLIP_UNCERTAIN
+            if I[I_HAS_HELD]:
+                for i in range(4):
+                    F[F_L_S + i] = F[F_HELD_S + i]
+            if I[I_WIN_N]:
+                _win_reset(I)
+        elif not slip_ok:
             if I[I_AVG_FOUND]:
                 status |= SLIP_AVERAGED
             else:
@@ -1482,7 +1491,7 @@ def _stage_estimate3(F, I, OUT, k):                                       # prag
                         F[F_L_S + i] = F[F_HELD_S + i]
         elif I[I_WIN_N]:
             _win_reset(I)
-        if conv and (slip_ok or I[I_HAS_HELD]):
+        if conv and ((slip_ok and not clipped) or I[I_HAS_HELD]):
             I[I_HAS_HELD] = 1
             F[F_HELD_RHO] = F[F_L_RHO]
             for i in range(4):

@@ -124,8 +124,11 @@ SLIP_UNCERTAIN = 0x2000
 """The slip's standard deviation from the filter's covariance (σ_v, σ_κ through eq. 6 with k_i(κ)·v) exceeds
 ``slip_sigma_max`` on some wheel (creeping, manoeuvring, the first seconds after a start): slip is not supported
 by the data.  The last supported slip is held (as at standstill) and no (μ, s) pair goes to the curve, so ``a``
-holds too.  μ and ρ_s do not rest on the slip (eqs. 2 and 8 take the torques, loads and v̇): their validity is
-their own, and this bit alone does not make the estimate invalid; a consumer of ``slip`` checks it."""
+holds too.  Also set, with the slip held, where the curvature input is at its clip ``KAPPA_MAX`` (a turn tighter
+than the model's range: eq. 6's wheel ground speeds k_i(κ)·v are not known, nor an average over the last metres);
+there the curve's pairs are gated by the σ test alone, as before.  μ and ρ_s do not rest on the slip (eqs. 2
+and 8 take the torques, loads and v̇): their validity is their own, and this bit alone does not make the estimate
+invalid; a consumer of ``slip`` checks it."""
 STATUS_NAMES[SLIP_UNCERTAIN] = "slip_not_supported"
 MACHINE_UNSUPPORTED = 0x1000
 """The machine-level μ is not supported by the bus now (:class:`.machine.MachineValidity`: gear shift or clutch
@@ -253,7 +256,8 @@ density is taken as σ_κ²·BIAS_TAU_S; it moves v̇ through the front forces' 
 transfer, every wheel's load)."""
 KAPPA_MAX = 0.25
 """Largest path curvature of the rear-axle centre [1/m] (a tractor's tightest turn, ≈ 4 m radius): the
-curvature input is limited to ±this, and so is its standard deviation when it is not known."""
+curvature input is limited to ±this, and so is its standard deviation when it is not known.  At the clip the
+slip is reported not supported (SLIP_UNCERTAIN)."""
 RELAX_DEFAULT_M = 0.5
 """Relaxation length of the carcass model before a μ(s) curve is identified [m] (Pacejka 2006, ch. 7: about
 the rolling radius's order for a large tyre near zero slip; :meth:`Estimator._relax`)."""
@@ -1385,7 +1389,17 @@ class Estimator:
             if self._win_n:
                 self._win_reset()
         else:
-            if not slip_ok:
+            # the curvature input at its clip (|κ| ≥ KAPPA_MAX: a turn tighter than the model's range): the wheels'
+            # ground speeds k_i(κ)·v of eq. 6 are not known, so neither is the slip nor its average over the last
+            # metres; the last supported slip, flagged (μ and ρ_s do not rest on it)
+            clipped = not -KAPPA_MAX < kap < KAPPA_MAX
+            if clipped:
+                status |= SLIP_UNCERTAIN
+                if self._held is not None:
+                    s = self._held[1]
+                if self._win_n:
+                    self._win_reset()
+            elif not slip_ok:
                 # slip not supported (creeping, reversing): its average over the last metres if that is
                 # supported (SLIP_AVERAGED), else the last supported slip, flagged; ρ_s stays live
                 avg = self._slip_window(t, v, kw, omega, mu, float(pd[IX_V]), kap) if cfg.slip_avg_max_m > 0.0 else None
@@ -1398,7 +1412,7 @@ class Estimator:
                         s = self._held[1]
             elif self._win_n:
                 self._win_reset()
-            if conv and (slip_ok or self._held is not None):
+            if conv and ((slip_ok and not clipped) or self._held is not None):
                 self._held = (rho, s)
         cs = self._curve_state
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
