@@ -293,15 +293,26 @@ def test_slip_not_supported_where_the_curvature_is_clipped(run20):
     """Round a 3 m circle (κ = 0.33 1/m: a headland turn between passes 6 m apart) the curvature input is
     clipped at KAPPA_MAX, the wheels' ground speeds k_i(κ)·v of eq. 6 are not known, and a slip taken with the
     clipped κ is off by about 0.1 on the front wheels: every step at the clip is flagged SLIP_UNCERTAIN (never
-    SLIP_AVERAGED) and holds the last supported slip of the straight before.  Round a 30 m circle nothing is
-    clipped and the slip is reported as on the straight."""
+    SLIP_AVERAGED) and holds the last supported slip of the straight before, and no (μ, s) pair of a clipped step
+    goes to the μ(s) curve (regression: the curve's pairs were gated by the slip's σ alone there, and 92 of 119
+    updates round such a circle took slips off by up to 0.18).  Round a 30 m circle nothing is clipped and the
+    slip is reported as on the straight."""
     n0 = int(10.0 / 0.01)
+    fed: list[float] = []
 
     def run(steps):
         est = Estimator(VEH)
+        upd = est._curve.update
+
+        def update(t, *args, **kw):
+            fed.append(t)
+            return upd(t, *args, **kw)
+
+        est._curve.update = update                                 # type: ignore[method-assign]
         return [est.step(*s) for s in steps]
 
     tight = run(_turning(run20, 1 / 3.0, t_from=10.0))
+    fed_t = set(fed)
     kap = np.array([e.kappa for e in tight])
     st = np.array([e.status for e in tight])
     slip = np.array([e.slip for e in tight])
@@ -314,6 +325,9 @@ def test_slip_not_supported_where_the_curvature_is_clipped(run20):
     last = int(np.flatnonzero((st[:first] & SLIP_UNCERTAIN) == 0)[-1])
     assert end - first > 500 and first - last < 300
     assert (slip[first:end] == slip[last]).all()                   # the last supported slip, held
+    t_steps = np.array([e.t for e in tight])
+    assert len(fed_t & set(t_steps[~clipped])) > 20                # the curve is fed off the clip
+    assert not fed_t & set(t_steps[clipped])                       # and never at it
     for steps in (run20.steps, _turning(run20, 1 / 30.0)):
         wide = run(steps)
         assert max(abs(e.kappa) for e in wide) < KAPPA_MAX

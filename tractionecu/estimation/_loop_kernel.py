@@ -1184,7 +1184,7 @@ def _mk_stage_estimate(tag):
         slip_ok = code >= 2
         I[I_SLIP_OK] = 1 if slip_ok else 0
         if (t - F[F_T_CURVE] >= F[F_C_CURVE_PERIOD] and abs(v) >= F[F_C_CURVE_MINSPD] and not I[I_LOST]
-                and slip_ok):
+                and slip_ok and -KAPPA_MAX < kap < KAPPA_MAX):
             F[F_T_CURVE] = t
             # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6, the wheel's ground speed k_i(κ)·v (Estimator._estimate)
             h = 0.5 * F[F_C_TRACK]

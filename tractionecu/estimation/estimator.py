@@ -125,8 +125,8 @@ SLIP_UNCERTAIN = 0x2000
 ``slip_sigma_max`` on some wheel (creeping, manoeuvring, the first seconds after a start): slip is not supported
 by the data.  The last supported slip is held (as at standstill) and no (μ, s) pair goes to the curve, so ``a``
 holds too.  Also set, with the slip held, where the curvature input is at its clip ``KAPPA_MAX`` (a turn tighter
-than the model's range: eq. 6's wheel ground speeds k_i(κ)·v are not known, nor an average over the last metres);
-there the curve's pairs are gated by the σ test alone, as before.  μ and ρ_s do not rest on the slip (eqs. 2
+than the model's range: eq. 6's wheel ground speeds k_i(κ)·v are not known, nor an average over the last metres),
+and there too no pair goes to the curve.  μ and ρ_s do not rest on the slip (eqs. 2
 and 8 take the torques, loads and v̇): their validity is their own, and this bit alone does not make the estimate
 invalid; a consumer of ``slip`` checks it."""
 STATUS_NAMES[SLIP_UNCERTAIN] = "slip_not_supported"
@@ -1362,9 +1362,10 @@ class Estimator:
             omega = x[:4].copy()
             conv_p = (pl[5] < c_mu and pl[6] < c_mu and pl[7] < c_mu and pl[8] < c_mu and pl[IX_RHO] < c_rho)
             slip_ok = self._slip_supported(v, kap, kw, omega, pd)
-        # curve parameter a (paper section 3.2) at the curve rate; not fed by a filter that was lost
+        # curve parameter a (paper section 3.2) at the curve rate; not fed by a filter that was lost, nor with the
+        # curvature input at its clip (the slips there are not known: SLIP_UNCERTAIN)
         if (t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps and not self._lost
-                and slip_ok):
+                and slip_ok and -KAPPA_MAX < kap < KAPPA_MAX):
             self._t_curve = t
             self._loads()
             # ∂s/∂v·σ_v and ∂s/∂κ·σ_κ of eq. 6 with the wheel's ground speed k_i(κ)·v
