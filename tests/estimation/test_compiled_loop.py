@@ -348,20 +348,14 @@ def test_self_check_falls_back_when_the_loop_differs(monkeypatch):
 
 
 def test_kernel_constants_are_the_estimators():
-    """The compiled loop's copies of the estimator's status bits and curvature bounds (_loop_kernel's module
-    comment says why they are copies) equal estimator.py's."""
+    """The compiled loop's copies of the estimator's status bits, curvature bounds and the averaged slip's
+    steadiness time (_loop_kernel's module comment says why they are copies) equal estimator.py's."""
     from tractionecu.estimation import estimator as E
     names = ("WHEEL_TIMEOUT", "GPS_TIMEOUT", "TORQUE_TIMEOUT", "AXLE_TIMEOUT", "DRAFT_TIMEOUT", "NOT_CONVERGED",
              "INPUT_REJECTED", "MEAS_GATED", "COV_REPAIRED", "FILTER_LOST", "STANDSTILL", "UNVERIFIED",
-             "MACHINE_UNSUPPORTED", "SLIP_UNCERTAIN", "SLIP_AVERAGED", "INVALID_MASK", "KAPPA_NOISE_MIN", "KAPPA_MAX")
+             "MACHINE_UNSUPPORTED", "SLIP_UNCERTAIN", "SLIP_AVERAGED", "INVALID_MASK", "KAPPA_NOISE_MIN", "KAPPA_MAX",
+             "SLIP_STEADY_S")
     assert {n: getattr(K, n) for n in names} == {n: getattr(E, n) for n in names}
-
-
-def test_steady_travel_time_is_the_step_paths():
-    """The averaged slip's steadiness time is one figure in the step path and the compiled loop."""
-    from tractionecu.estimation import _loop_kernel
-    from tractionecu.estimation import estimator as est_mod
-    assert _loop_kernel.SLIP_STEADY_S == est_mod.SLIP_STEADY_S
 
 
 def test_slip_at_the_clipped_curvature_as_the_python_estimator():

@@ -503,3 +503,18 @@ def test_pair_errors_drops_non_finite_pairs_and_rejects_unequal_lengths():
     assert math.isnan(pair_errors(mu[:2], s[:2], mu[:2], s[:2])["mu_sd"])     # fewer than 3 pairs
     with pytest.raises(ValueError, match="same length"):
         pair_errors(mu, s[:4], mu, s)
+
+
+def test_load_term_only_where_a_reference_load_is_known():
+    """The load term (on by default) is kept on the wheel estimator, which knows the reference load m g/4, and
+    left off where no reference load is given (the machine-level estimator: every pair would fall in the
+    reference group, and the term would only carry three times the bins)."""
+    from tractionecu.estimation.config import EstimatorConfig
+    from tractionecu.estimation.machine_curve import machine_curve_estimator
+
+    cfg = EstimatorConfig()
+    assert cfg.curve_shape_load
+    assert CurveEstimator.from_config(cfg, fz_ref_n=15_000.0).shape.load
+    assert not CurveEstimator.from_config(cfg).shape.load
+    assert not machine_curve_estimator(cfg, None).shape.load
+    assert not machine_curve_estimator(cfg, SOIL_CLASSES["tilled"]).shape.load

@@ -150,11 +150,12 @@ class CurveEstimator:
         """The curve identification an :class:`~tractionecu.estimation.config.EstimatorConfig` asks for
         (its ``soil_classes`` and ``curve_*`` settings); both estimators build theirs here.
         ``fz_ref_n``: the reference wheel load of the identified curve [N] (the machine's static mean
-        wheel load m g/4; NaN: no load dependence is identified)."""
+        wheel load m g/4; NaN: no load dependence is identified, and the load term is off whatever
+        ``curve_shape_load`` says: every pair would fall in the reference group)."""
         return cls(cfg.soil_classes, tau_s=cfg.curve_tau_s, min_mu=cfg.curve_min_mu, min_slip=cfg.curve_min_slip,
                    class_tau_s=cfg.curve_class_tau_s, slip_corr_s=cfg.curve_slip_corr_s, shape=cfg.curve_shape,
                    shape_kw={"min_span": cfg.curve_shape_min_span}, switch_min_delta=cfg.curve_switch_min_delta,
-                   fz_ref_n=fz_ref_n, load=bool(getattr(cfg, "curve_shape_load", False)))
+                   fz_ref_n=fz_ref_n, load=bool(getattr(cfg, "curve_shape_load", True)) and fz_ref_n > 0.0)
 
     def __init__(self, classes: Sequence[SoilClass | str] = ("stubble",), *, tau_s: float = 5.0,
                  min_mu: float = 0.15, min_slip: float = 0.005, class_tau_s: float = 30.0,
@@ -503,23 +504,23 @@ assert _CS_FIELDS == ("a", "class_index", "class_name", "a_per_class", "nll_per_
 # test and README).
 
 #
-# Load (``load``, opt-in: EstimatorConfig.curve_shape_load).  On soil the curve depends on the wheel
-# load (Brixius 1987: B_n ∝ 1/F_z; Pacejka 2006 p_Dx2 for tyres in general), and the four wheels of a
-# hub-drive tractor at work carry very different loads (front ≈ 0.65, rear ≈ 1.4 of m g/4 with draft
-# transfer), so one curve pooled over them is the soil's curve at no particular load.  Each pair keeps its
-# relative load z = F_z/F_z,ref − 1 (F_z,ref = m g/4, the load at which a map's curve and the truth's
-# table are given); the fit's bins are kept per load group (LOAD_EDGES).  The one-curve selection is made
-# on the groups added up (:meth:`PairBins.pooled`: the same bins as without the load term), and where the
-# groups' loads differ (LOAD_MIN_SPREAD) every candidate is also fitted on the groups as (1 + q z) μ(s),
-# −Q_MAX ≤ q ≤ 0.  q is kept when |q| ≥ 2 σ_q and the load selection's BIC is ``bic_margin`` lower than
-# the one-curve selection's on the same (grouped) bins; the curve reported is μ(s) at F_z,ref
-# (``MuCurve.mu(s, fz)`` at any other load), path ``shape:<form>+load``.  The light and the heavy wheels
-# need not work at the same slips: the form ties their curves together (each group's bins show its own
-# bend), and σ_q, from the fit's covariance, says where the load and the bend cannot be told apart.  (An
-# earlier rule asked for an overlap of the groups' slips; on soft soil the front wheels of a hub-drive
-# tractor work at 0.08–0.13 and the rear at 0.05–0.09, so the term was never fitted where it matters most:
-# README, "Load-aware identification".)  The soil segments' change test and pooling use the groups added
-# up, as without the load term.
+# Load (``load``: EstimatorConfig.curve_shape_load, on by default where a reference load is known).  On soil
+# the curve depends on the wheel load (Brixius 1987: B_n ∝ 1/F_z; Pacejka 2006 p_Dx2 for tyres in general),
+# and the four wheels of a hub-drive tractor at work carry very different loads (front ≈ 0.65, rear ≈ 1.4 of
+# m g/4 with draft transfer), so one curve pooled over them is the soil's curve at no particular load.  Each
+# pair keeps its relative load z = F_z/F_z,ref − 1 (F_z,ref = m g/4, the load at which a map's curve and the
+# truth's table are given); the fit's bins are kept per load group (LOAD_EDGES).  The one-curve selection is
+# made on the groups added up (:meth:`PairBins.pooled`: the same bins as without the load term), and where
+# the groups' loads differ (LOAD_MIN_SPREAD) every candidate is also fitted on the groups as (1 + q z) μ(s),
+# −Q_MAX ≤ q ≤ 0.  q is kept when |q| ≥ 2 σ_q and the load selection's BIC is ``bic_margin`` lower than the
+# one-curve selection's on the same (grouped) bins; the curve reported is μ(s) at F_z,ref (``MuCurve.mu(s,
+# fz)`` at any other load), path ``shape:<form>+load``.  The light and the heavy wheels need not work at the
+# same slips: the form ties their curves together (each group's bins show its own bend), and σ_q, from the
+# fit's covariance, says where the load and the bend cannot be told apart.  (An earlier rule asked for an
+# overlap of the groups' slips; on soft soil the front wheels of a hub-drive tractor work at 0.08–0.13 and
+# the rear at 0.05–0.09, so the term was never fitted where it matters most: README, "Load-aware
+# identification".)  The soil segments' change test and pooling use the groups added up, as without the load
+# term.
 
 MU_BIN_WIDTH = 0.02
 """Width of the |μ̂| bins [-]."""
