@@ -635,3 +635,28 @@ def test_reversing_slip_is_averaged_only_in_steady_travel(make_recording):
     accel = np.abs(np.gradient(tr.v, tr.t))[k]
     assert np.sum(avg & (accel > 0.05)) <= 0.02 * avg.sum()
     assert np.mean(np.abs(a["slip"][avg] - tr.slip[k][avg])) < 0.006
+
+
+def test_slip_window_keeps_the_steadiness_look_back_when_trimmed(run20):
+    """The averaged slip's window drops what no distance window reaches any more (past 4096 entries), but never
+    the entries of the last SLIP_STEADY_S, which the steadiness test looks back over: at 12 m/s a second is more
+    than ``slip_avg_max_m`` (10 m), and a trim by distance alone would leave the test a shorter look-back than
+    the compiled loop's, which keeps the same rows."""
+    from tractionecu.estimation.estimator import SLIP_STEADY_S
+
+    est = Estimator(VEH)
+    for s in run20.steps[:50]:
+        est.step(*s)
+    kw = np.ones(4)
+    omega = np.full(4, 12.0 / 0.78)
+    mu = np.full(4, 0.3)
+    t0 = run20.steps[49][0]
+    est._win_reset()
+    lengths: list[int] = []
+    for k in range(1, 6000):
+        t = t0 + 0.01 * k
+        est._slip_window(t, 12.0, kw, omega, mu, 1e-4, 0.0)
+        if k > 110:
+            assert est._win_t[0] <= t - SLIP_STEADY_S + 1e-9, f"step {k}"
+        lengths.append(len(est._win_t))
+    assert max(lengths) < 4300 and min(lengths[4100:]) < 200       # and it is still trimmed

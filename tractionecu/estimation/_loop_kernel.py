@@ -1293,6 +1293,9 @@ def _slip_window(F, I, WIN, EV):                                          # prag
     if lo + n >= WIN.shape[0]:
         # drop what no window reaches any more (the step path drops it past 4096 entries; the same windows)
         j_lo = _bisect_left(WIN, lo, n, 1, WIN[lo + n - 1, 1] - F[F_C_AVG_MAX])
+        jt = _bisect_left(WIN, lo, n, 0, t - SLIP_STEADY_S)      # nor the steadiness test's look-back
+        if jt < j_lo:
+            j_lo = jt
         if j_lo == 0:
             return EV_WINFULL
         keep = n - j_lo

@@ -1242,6 +1242,9 @@ class Estimator:
         ws = self._win_s
         j_lo = bisect.bisect_left(ws, ws[-1] - cfg.slip_avg_max_m)    # first start within slip_avg_max_m
         if j_lo > 4096:                                               # drop what no window reaches any more
+            # (nor the steadiness test's look-back over SLIP_STEADY_S, which at over slip_avg_max_m per
+            # SLIP_STEADY_S reaches further back than the distance windows: kept as the compiled loop keeps it)
+            j_lo = min(j_lo, bisect.bisect_left(self._win_t, t - SLIP_STEADY_S))
             for lst in (self._win_t, self._win_s, self._win_p, self._win_c):
                 del lst[:j_lo]
             n -= j_lo
