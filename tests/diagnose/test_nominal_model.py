@@ -293,3 +293,33 @@ def test_the_nominal_wheel_torque_goes_through_the_hub_drives_declared_efficienc
     ws2 = wheel_state(frames[1], np.zeros((n, 4)), None, **kw)
     assert np.allclose(ws2.fh, wheel_state(frames[0], np.zeros((n, 4)), None, **kw).fh)
     assert np.allclose(ws2.fh - ws0.fh, (0.95 - 1.0) * 800.0 / r)
+
+
+def test_the_relaxations_mu_rate_takes_the_wheel_torque_of_the_fitted_effects(make_recording):
+    """The relaxation's lead μ̇ σ/|v| is taken from μ at the bin edges, whose torque must be the bin means' own: a
+    fitted drivetrain's η (and a torque sensor's gain) scale it there as in :func:`wheel_state` (it was taken
+    through the declared reduction whatever the effects said)."""
+    from tractionecu.diagnose import channels, data, features
+
+    rec = make_recording("paper-three-soils", 7, 60.0)
+    feat = features.compute(data.load(rec))
+    slip = next(c for c in channels.build_channels(feat) if isinstance(c, SlipChannel))
+    fr = feat.frame
+    assert fr.md_edge is not None
+    ws = slip.wc.get({})
+    base = slip._mu_dot(ws, {})
+    rf = ws.r * ws.fz
+    rf_e = np.concatenate([rf[:1], 0.5 * (rf[1:] + rf[:-1]), rf[-1:]])
+    md_e = np.nan_to_num(fr.md_edge)
+    om = np.nan_to_num(fr.omega)
+    om_e = np.concatenate([om[:1], om])                    # the wheel speed at each edge, as _mu_dot takes it
+    for eff, factor in (({"drivetrain": {"eta": 0.8, "loss_nm": 0.0}}, 0.8),
+                        ({"torque_gain": {"k_front": 0.1, "k_rear": 0.1}}, None)):
+        got = slip._mu_dot(ws, eff)
+        kw = channels.wheel_kwargs(eff, fr)
+        m_eff = features.wheel_torque(md_e, om_e, fr.vehicle, **kw)
+        if factor is not None:
+            np.testing.assert_allclose(m_eff, factor * md_e)
+        expect = np.diff((m_eff - md_e) / rf_e, axis=0) / fr.dt
+        np.testing.assert_allclose(got - base, expect, atol=1e-9 * float(np.abs(base).max()))
+        assert np.abs(expect).max() > 1e-3 * np.abs(base).max()

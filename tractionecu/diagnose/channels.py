@@ -53,8 +53,8 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import (Features, SplineFit, cumtrapz0, declared_wheel_torque, fused_speed, spline_basis, SPLINE_KNOT_S,
-                       wheel_state, WheelState)
+from .features import (Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state,
+                       wheel_torque, WheelState)
 from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
@@ -837,18 +837,19 @@ class SlipChannel(Channel):
             k = k * self.v0 / self.wc.v_ref(eff)[self.ti]
         lead = None
         if "relaxation" in eff:
-            mu_dot = self._mu_dot(ws)[self.ti, self.wi]
+            mu_dot = self._mu_dot(ws, eff)[self.ti, self.wi]
             lam = fx.relaxation_rate(1.0, 0.0, self.wc.v_ref(eff)[self.ti], eff["relaxation"]["sigma_m"])
             lead = mu_dot / lam
         return mu, k, lead
 
-    def _mu_dot(self, ws: WheelState) -> NDArray:
+    def _mu_dot(self, ws: WheelState, eff: Effects) -> NDArray:
         """dμ/dt averaged over each bin [1/s]: difference of μ at the bin edges.
 
-        At an edge, μ = (M_edge − J (ω̄_k − ω̄_{k−1})/Δ)/(r F_z) − ρ_t sgn ω (M_edge through the hub's
-        declared efficiency and drag, as the bin means: :func:`~.features.declared_wheel_torque`) with the
-        torque sampled at the edge and the wheel acceleration from the bin means on
-        either side; without edge data, the central difference of the bin means.
+        At an edge, μ = (M_edge − J (ω̄_k − ω̄_{k−1})/Δ)/(r F_z) − ρ_t sgn ω (M_edge the wheel torque of the
+        effects in ``eff``, as the bin means: a torque sensor's gain and offset, a fitted drivetrain or the
+        declared reduction, :func:`~.features.wheel_torque`) with the torque sampled at the edge and the wheel
+        acceleration from the bin means on either side; without edge data, the central difference of the bin
+        means.
         """
         fr = self.feat.frame
         if fr.md_edge is None:
@@ -860,7 +861,9 @@ class SlipChannel(Channel):
         rf = ws.r * ws.fz
         rf_e = np.concatenate([rf[:1], 0.5 * (rf[1:] + rf[:-1]), rf[-1:]])
         sg = np.sign(np.concatenate([om[:1], om]))
-        md_e = declared_wheel_torque(np.nan_to_num(fr.md_edge), np.concatenate([om[:1], om]), veh)
+        kw = wheel_kwargs(eff, fr)
+        md_e = wheel_torque(np.nan_to_num(fr.md_edge), np.concatenate([om[:1], om]), veh,
+                            **{k: kw[k] for k in ("eta", "loss_nm", "gain", "offset_nm") if k in kw})
         mu_e = (md_e - veh.wheel_inertia_kgm2 * wd) / rf_e - veh.rho_t * sg
         return np.diff(mu_e, axis=0) / fr.dt
 

@@ -291,7 +291,10 @@ def declared_wheel_torque(md: NDArray[np.float64], omega: NDArray[np.float64], v
     """The wheel torque [N·m] a hub drive's reported motor torque ``md`` gives through its declared reduction:
     η M driving, M/η braking (losses against the power flow, M ω < 0), less the declared no-load drag c ω
     (``drivetrain.efficiency``, ``drivetrain.hub_drag_nms``), as the estimator takes it (model doc "Declared
-    drivetrain").  An engine-driven machine's torques, a declared η of 1 and no drag: ``md`` itself.
+    drivetrain").  The power flow's direction is the sign of M ω here, of M times the direction of travel in the
+    estimator (which has no per-row wheel speed at the torque's arrival): the two differ only where a wheel
+    stands or turns against the travel.  An engine-driven machine's torques, a declared η of 1 and no drag:
+    ``md`` itself.
 
     Every hub drive loses torque in its reduction; left out, the wheel forces read 1/η high (5 % on the physical
     truth's η = 0.95), a force error that grows with the pull and so with the slip and the draft.  On
@@ -312,6 +315,26 @@ def declared_wheel_torque(md: NDArray[np.float64], omega: NDArray[np.float64], v
     if drag != 0.0:
         out = out - drag * omega
     return out
+
+
+def wheel_torque(md: NDArray[np.float64], omega: NDArray[np.float64], veh, *, eta: float | None = None,
+                 loss_nm: float = 0.0, gain: tuple[float, float] = (0.0, 0.0),
+                 offset_nm: tuple[float, float] = (0.0, 0.0)) -> NDArray[np.float64]:
+    """The wheel torque [N·m] of the reported drive torques ``md`` (rows × FL, FR, RL, RR) at wheel speeds
+    ``omega`` [rad/s]: the reading corrected for a torque sensor's gain and offset per axle (effects
+    ``torque_gain``, ``torque_offset``), then through a fitted drivetrain effect M_wheel = η M − M_loss sgn ω
+    (``eta``, ``loss_nm``), whose η replaces the declared one, or else through the declared reduction
+    (:func:`declared_wheel_torque`).  One function for the bin means (:func:`wheel_state`) and the torque at the
+    bin edges (the relaxation's μ̇)."""
+    from ..model import effects as fx
+
+    if gain != (0.0, 0.0) or offset_nm != (0.0, 0.0):
+        k = np.array([gain[0], gain[0], gain[1], gain[1]])
+        b = np.array([offset_nm[0], offset_nm[0], offset_nm[1], offset_nm[1]])
+        md = fx.torque_true(md, k, b)
+    if eta is not None or loss_nm != 0.0:
+        return fx.drivetrain_torque(md, omega, 1.0 if eta is None else eta, loss_nm)
+    return declared_wheel_torque(md, omega, veh)
 
 
 def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64] | None, *,
@@ -348,15 +371,7 @@ def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64
     r = rolling_radius(fz, veh)
     if eps_r != 0.0:
         r = fx.wheel_radius_true(r, eps_r)
-    md = fr.md
-    if gain != (0.0, 0.0) or offset_nm != (0.0, 0.0):
-        k = np.array([gain[0], gain[0], gain[1], gain[1]])
-        b = np.array([offset_nm[0], offset_nm[0], offset_nm[1], offset_nm[1]])
-        md = fx.torque_true(md, k, b)
-    if eta is not None or loss_nm != 0.0:
-        md = fx.drivetrain_torque(md, fr.omega, 1.0 if eta is None else eta, loss_nm)
-    else:
-        md = declared_wheel_torque(md, fr.omega, veh)
+    md = wheel_torque(fr.md, fr.omega, veh, eta=eta, loss_nm=loss_nm, gain=gain, offset_nm=offset_nm)
     fh = (md - veh.wheel_inertia_kgm2 * omega_dot) / r - veh.rho_t * rho_t_factor * fz * np.sign(fr.omega)
     if turning:
         fx_sum = np.nansum(fh * wheel_speed_factors(fr.kappa, veh.track_width_m, veh.wheelbase_m), axis=1)
