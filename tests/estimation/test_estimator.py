@@ -479,15 +479,9 @@ def test_hub_relaxed_slip_follows_the_rims_speed_over_the_step(run15):
 
 
 @pytest.fixture(scope="module")
-def declared_exact_40s(tmp_path_factory):
-    from tractionecu.sim import scenarios
-    from tractionecu.sim.simulator import simulate
-    from tractionecu.sim.writer import write_recording
-
-    out = tmp_path_factory.mktemp("declared_exact_40s")
-    scn = scenarios.get("physical-declared-exact", seed=0, duration_s=40.0)
-    write_recording(scn, simulate(scn), out)
-    return out
+def declared_exact_40s(make_recording):
+    """40 s of ``physical-declared-exact`` seed 0 (simulated once per session)."""
+    return make_recording("physical-declared-exact", 0, 40.0)
 
 
 def test_hub_front_wheels_follow_the_truths_mu_at_1_to_4_hz(declared_exact_40s, monkeypatch):

@@ -207,15 +207,9 @@ def test_hub_switches_with_the_observed_wheel_rate():
 
 
 @pytest.fixture(scope="module")
-def short_recording(tmp_path_factory):
-    from tractionecu.sim import scenarios
-    from tractionecu.sim.simulator import simulate
-    from tractionecu.sim.writer import write_recording
-
-    out = tmp_path_factory.mktemp("declared_exact")
-    scn = scenarios.get("physical-declared-exact", seed=0, duration_s=40.0)
-    write_recording(scn, simulate(scn), out)
-    return out
+def short_recording(make_recording):
+    """40 s of ``physical-declared-exact`` seed 0 (simulated once per session)."""
+    return make_recording("physical-declared-exact", 0, 40.0)
 
 
 def test_declared_exact_recording_declares_the_hub(short_recording):
