@@ -126,9 +126,9 @@ SLIP_UNCERTAIN = 0x2000
 by the data.  The last supported slip is held (as at standstill) and no (μ, s) pair goes to the curve, so ``a``
 holds too.  Also set, with the slip held, where the curvature input is at its clip ``KAPPA_MAX`` (a turn tighter
 than the model's range: eq. 6's wheel ground speeds k_i(κ)·v are not known, nor an average over the last metres),
-and there too no pair goes to the curve.  μ and ρ_s do not rest on the slip (eqs. 2
-and 8 take the torques, loads and v̇): their validity is their own, and this bit alone does not make the estimate
-invalid; a consumer of ``slip`` checks it."""
+and there too no pair goes to the curve.  μ and ρ_s do not rest on the slip (eqs. 2 and 8 take the torques, loads
+and v̇): their validity is their own, and this bit alone does not make the estimate invalid; a consumer of ``slip``
+checks it."""
 STATUS_NAMES[SLIP_UNCERTAIN] = "slip_not_supported"
 MACHINE_UNSUPPORTED = 0x1000
 """The machine-level μ is not supported by the bus now (:class:`.machine.MachineValidity`: gear shift or clutch
