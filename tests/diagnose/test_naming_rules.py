@@ -454,3 +454,14 @@ def test_a_mass_without_support_in_the_speed_equation_or_the_axle_load_is_not_se
     assert engine._unseparated("mass", {"speed": 30.7, "gps_speed": 2.3, "front_load": 116.4}) == ""
     assert engine._unseparated("mass", {"speed": -3.0, "front_load": 40.0}) == ""
     assert engine._unseparated("gps_latency", {"gps_speed": 13.4}) == ""
+
+
+def test_a_front_axle_load_offset_needs_support_on_the_pins_own_channel():
+    """A front-axle load sensor's offset is an error of that reading: gains on the GNSS speed and slip channels,
+    through the wheel loads it shifts, with the pin's own channel losing, are not its evidence (phys_mass_drift:
+    +12.2 and +15.7 there, −1.6 on the front load, beside a mass moved wholly onto the front axle)."""
+    why = engine._unseparated("axle_load_offset", {"gps_speed": 12.15, "slip": 15.73, "front_load": -1.56})
+    assert why.startswith("no support where it is separable (front_load: -1.6 held out)")
+    assert "wheel loads" in why
+    assert engine._unseparated("axle_load_offset", {"front_load": 240.0, "slip": -0.5}) == ""
+    assert "force-scale error" in engine._unseparated("mass", {"gps_speed": 13.4})
