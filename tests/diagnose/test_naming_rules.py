@@ -465,3 +465,21 @@ def test_a_front_axle_load_offset_needs_support_on_the_pins_own_channel():
     assert "wheel loads" in why
     assert engine._unseparated("axle_load_offset", {"front_load": 240.0, "slip": -0.5}) == ""
     assert "force-scale error" in engine._unseparated("mass", {"gps_speed": 13.4})
+
+
+def test_a_none_verdict_names_the_best_candidate_that_could_have_been_it():
+    """Verdict none: the statement's best candidate is the best one that could have been the verdict, not a
+    characteristic reported beside it (phys_torque_rear_low read "best candidate relaxation, held-out score
+    267.8 < 10"); one over the threshold that was not named says why."""
+    def cr(name, score, reason=""):
+        return CandidateResult(name, True, reason, score, {}, None, None, False)
+
+    results = [cr("relaxation", 267.8), cr("wheel_radius", 7.4), cr("drivetrain", 7.1)]
+    text = engine._statement("none", None, [], results, None, None, None, {})
+    assert "best candidate wheel_radius, held-out score 7.4 < 10" in text
+    assert "relaxation" not in text
+    results = [cr("relaxation", 267.8), cr("mass", 31.0, "contradicted by the speed channel"), cr("grade", 4.0)]
+    text = engine._statement("none", None, [], results, None, None, None, {})
+    assert "best candidate mass, held-out score 31.0, not named: contradicted by the speed channel" in text
+    assert "No significant mismatch" in engine._statement("none", None, [], [cr("relaxation", 300.0)], None, None,
+                                                          None, {})

@@ -970,8 +970,16 @@ def _fmt(v: float) -> str:
 
 def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -> str:
     if verdict == "none":
-        best = next((r for r in results if r.testable), None)
-        extra = f" (best candidate {best.name}, held-out score {best.score:.1f} < {DETECT_LLR:.0f})" if best else ""
+        # the best candidate that could have been the verdict: a characteristic at a healthy size is the machine's
+        # (reported beside), not a finding, and a detected one scores far above the threshold
+        best = next((r for r in results if r.testable and r.name not in CHARACTERISTIC), None)
+        if best is None:
+            extra = ""
+        elif best.score < DETECT_LLR:
+            extra = f" (best candidate {best.name}, held-out score {best.score:.1f} < {DETECT_LLR:.0f})"
+        else:
+            why = best.reason or "its interval in the fit does not exclude its absence"
+            extra = f" (best candidate {best.name}, held-out score {best.score:.1f}, not named: {why})"
         return "No significant mismatch: no effect from the library improves the held-out fit" + extra + "."
     if verdict == "ambiguous":
         if ambiguous and ambiguous[0] == "grade" and len(ambiguous) == 2 and "constant" in ambiguous[1]:
