@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from fleet import _load, _simulate   # benchmarks/fleet.py: the load-average line and the simulated run
+from _common import load_line as _load, simulate_paper as _simulate   # benchmarks/_common.py
 
 TARGET_X = 1000.0
 TARGET_DIFF = 1e-9

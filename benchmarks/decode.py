@@ -38,10 +38,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-
-def _load() -> str:
-    a, b, c = os.getloadavg()
-    return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
+from _common import load_line as _load   # benchmarks/_common.py
 
 
 def _simulate(out: Path, scenario: str, seed: int, duration: float) -> None:

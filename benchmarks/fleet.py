@@ -35,23 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-
-def _load() -> str:
-    a, b, c = os.getloadavg()
-    return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
-
-
-def _simulate(out: Path, seed: int, duration: float) -> None:
-    from tractionecu.sim import scenarios
-    from tractionecu.sim.simulator import simulate
-    from tractionecu.sim.writer import write_recording
-
-    scn = scenarios.get("paper-three-soils", seed=seed, duration_s=duration)
-    tmp = out.with_name(out.name + ".tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    write_recording(scn, simulate(scn), tmp)
-    os.replace(tmp, out)
+from _common import load_line as _load, simulate_paper as _simulate   # benchmarks/_common.py
 
 
 def make_season(work: Path, n: int, machines: int, duration: float, client) -> Path:

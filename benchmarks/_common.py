@@ -1,0 +1,29 @@
+"""What several benchmarks share: the load-average line printed beside their timings, and the simulated
+``paper-three-soils`` recording of the fleet and batch-replay benchmarks."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+
+def load_line() -> str:
+    """The machine's load averages and core count: on a shared machine a timing measures the other jobs too."""
+    a, b, c = os.getloadavg()
+    return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
+
+
+def simulate_paper(out: Path, seed: int, duration: float) -> None:
+    """Simulate ``paper-three-soils`` (``seed``, ``duration`` [s]) into the recording directory ``out``, written
+    beside it first and moved in place whole (a worker stopped half-way leaves no half recording)."""
+    from tractionecu.sim import scenarios
+    from tractionecu.sim.simulator import simulate
+    from tractionecu.sim.writer import write_recording
+
+    scn = scenarios.get("paper-three-soils", seed=seed, duration_s=duration)
+    tmp = out.with_name(out.name + ".tmp")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    write_recording(scn, simulate(scn), tmp)
+    os.replace(tmp, out)
