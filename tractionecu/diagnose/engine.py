@@ -970,8 +970,8 @@ def _fmt(v: float) -> str:
 
 def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -> str:
     if verdict == "none":
-        # the best candidate that could have been the verdict: a characteristic at a healthy size is the machine's
-        # (reported beside), not a finding, and a detected one scores far above the threshold
+        # the best candidate that could have been the verdict (the characteristics are reported beside it: they
+        # are the machine's, not findings)
         best = next((r for r in results if r.testable and r.name not in CHARACTERISTIC), None)
         if best is None:
             extra = ""
