@@ -1,5 +1,5 @@
-"""What several benchmarks share: the load-average line printed beside their timings, and the simulated
-``paper-three-soils`` recording of the fleet and batch-replay benchmarks."""
+"""What several benchmarks share: the load-average line printed beside their timings, and a simulated
+recording written whole."""
 
 from __future__ import annotations
 
@@ -14,14 +14,14 @@ def load_line() -> str:
     return f"load average {a:.2f} {b:.2f} {c:.2f} on {os.cpu_count()} cores"
 
 
-def simulate_paper(out: Path, seed: int, duration: float) -> None:
-    """Simulate ``paper-three-soils`` (``seed``, ``duration`` [s]) into the recording directory ``out``, written
-    beside it first and moved in place whole (a worker stopped half-way leaves no half recording)."""
+def simulate_recording(out: Path, seed: int, duration: float, scenario: str = "paper-three-soils") -> None:
+    """Simulate ``scenario`` (``seed``, ``duration`` [s]) into the recording directory ``out``, written beside it
+    first and moved in place whole (a worker stopped half-way leaves no half recording)."""
     from tractionecu.sim import scenarios
     from tractionecu.sim.simulator import simulate
     from tractionecu.sim.writer import write_recording
 
-    scn = scenarios.get("paper-three-soils", seed=seed, duration_s=duration)
+    scn = scenarios.get(scenario, seed=seed, duration_s=duration)
     tmp = out.with_name(out.name + ".tmp")
     if tmp.exists():
         shutil.rmtree(tmp)

@@ -39,7 +39,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from _common import load_line as _load, simulate_paper as _simulate   # benchmarks/_common.py
+from _common import load_line as _load, simulate_recording as _simulate   # benchmarks/_common.py
 
 TARGET_X = 1000.0
 TARGET_DIFF = 1e-9

@@ -31,27 +31,13 @@ the two paths give the same arrays and statistics (``equal``).
 from __future__ import annotations
 
 import argparse
-import os
 import shutil
 import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
 
-from _common import load_line as _load   # benchmarks/_common.py
-
-
-def _simulate(out: Path, scenario: str, seed: int, duration: float) -> None:
-    from tractionecu.sim import scenarios
-    from tractionecu.sim.simulator import simulate
-    from tractionecu.sim.writer import write_recording
-
-    scn = scenarios.get(scenario, seed=seed, duration_s=duration)
-    tmp = out.with_name(out.name + ".tmp")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    write_recording(scn, simulate(scn), tmp)
-    os.replace(tmp, out)
+from _common import load_line as _load, simulate_recording   # benchmarks/_common.py
 
 
 def _best(fns: list[Callable[[], Any]], repeat: int) -> list[float]:
@@ -151,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         tmp = None if args.work else work
         path = work / f"{args.scenario}_s{args.seed}_{args.duration:g}s"
         if not (path / "can.log").is_file():
-            _simulate(path, args.scenario, args.seed, args.duration)
+            simulate_recording(path, args.seed, args.duration, args.scenario)
         what = f"{args.scenario} seed {args.seed}, {args.duration:g} s"
     try:
         print(f"decode benchmark: {what}; best CPU time of {args.repeat}, old and new alternating; {_load()}")

@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _common import load_line as _load, simulate_paper as _simulate   # benchmarks/_common.py
+from _common import load_line as _load, simulate_recording as _simulate   # benchmarks/_common.py
 
 
 def make_season(work: Path, n: int, machines: int, duration: float, client) -> Path:
