@@ -33,10 +33,33 @@ def test_tyre_pressure_moves_radius_and_rolling_resistance_together():
     eps, rho = fx.tyre_pressure_terms(1.0)
     assert eps == 0.0 and rho == 1.0
     eps, rho = fx.tyre_pressure_terms(0.5)     # half the rated pressure
-    assert eps == pytest.approx(-fx.TYRE_DEFLECTION_RATIO)     # deflection doubles
+    # The stiffness falls to c + (1 − c)/2 of the rated one (the carcass keeps its share), the deflection
+    # rises by its inverse, and the rolling radius falls by a third of that rise.
+    c = fx.TYRE_CARCASS_SHARE
+    assert eps == pytest.approx(-fx.TYRE_DEFLECTION_RATIO / 3.0 * (1.0 / (c + (1.0 - c) * 0.5) - 1.0))
+    assert -fx.TYRE_DEFLECTION_RATIO / 3.0 < eps < 0.0    # less than a third of the rated deflection
     assert rho == pytest.approx(2.0 ** fx.TYRE_RR_PRESSURE_EXPONENT)
     eps, rho = fx.tyre_pressure_terms(1.25)
     assert eps > 0 and rho < 1
+
+
+def test_tyre_pressure_interval_carries_the_tyre_laws_uncertainty():
+    from tractionecu.diagnose.intervals import tyre_law_extension
+
+    for p in (0.5, 0.75, 1.3):
+        assert fx.tyre_pressure_from_radius(fx.tyre_pressure_terms(p)[0]) == pytest.approx(p)
+    lo, hi = fx.tyre_pressure_law_range(0.7, 0.85)
+    assert lo < 0.7 and hi > 0.85
+    # the ends are pressures that give the fitted radius terms under the range's corners
+    eps_hi = fx.tyre_pressure_terms(0.85)[0]
+    assert hi == pytest.approx(max(fx.tyre_pressure_from_radius(eps_hi, d, c)
+                                   for d in fx.TYRE_DEFLECTION_RATIO_RANGE for c in fx.TYRE_CARCASS_SHARE_RANGE))
+    assert tyre_law_extension("tyre_pressure", "p_ratio", (0.7, 0.85), 0.3, 2.0) == pytest.approx((lo, hi))
+    assert tyre_law_extension("tyre_pressure", "p_ratio", (0.35, 0.85), 0.3, 2.0)[0] == 0.3   # clipped to the bound
+    assert tyre_law_extension("wheel_radius", "epsilon", (-0.01, 0.0)) == (-0.01, 0.0)
+    # a radius gain no finite pressure gives under some corner of the law: the upper end goes to the bound
+    assert fx.tyre_pressure_from_radius(fx.TYRE_DEFLECTION_RATIO / 3.0) == float("inf")
+    assert tyre_law_extension("tyre_pressure", "p_ratio", (1.0, 1.99), 0.3, 2.0)[1] == 2.0
 
 
 def test_offset_drift_and_clock_shift():

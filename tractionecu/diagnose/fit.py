@@ -549,6 +549,7 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
             continue
         lo_j, hi_j = max(p.lo, min(lo_j, x)), min(p.hi, max(hi_j, x))
         lo_j, hi_j = iv.sample_age_extension(en, pn, (lo_j, hi_j), age_s, p.hi)
+        lo_j, hi_j = iv.tyre_law_extension(en, pn, (lo_j, hi_j), p.lo, p.hi)
         side = fr.at_bound.get(en, {}).get(pn, "")
         if side == "upper":
             hi_j = p.hi

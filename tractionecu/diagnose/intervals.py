@@ -65,6 +65,15 @@ known, nothing else): the latency's interval is extended on its upper side by T_
 [lo, hi + T_s] (:func:`sample_age_extension`, :data:`SAMPLE_AGE_PARAMS`), with T_s the raw
 wheel-speed and torque period of the recording (10 ms at 100 Hz).  The estimate is not moved.
 
+The tyre law behind a pressure (a conversion the data cannot check)
+--------------------------------------------------------------------
+A tyre pressure acts on the data through the rolling radius it changes; the pressure that made a radius
+follows from the tyre's deflection and the carcass's share of its stiffness, which no recording measures.
+Their ranges (:data:`tractionecu.model.effects.TYRE_DEFLECTION_RATIO_RANGE`,
+:data:`~tractionecu.model.effects.TYRE_CARCASS_SHARE_RANGE`) are another type-B component: the fitted
+p/p_0 interval is widened to every pressure that gives the radius terms at its ends within them
+(:func:`tyre_law_extension`).
+
 In the diagnosis (:func:`.fit.refine_intervals`) the sandwich interval x̂ ± 1.96 √V_jj is kept
 inside the profile's: the profile only widens it.  A profile edge nearer than the sandwich's is
 what a steeper-than-quadratic cost gives, but also what a re-fit of the other parameters that
@@ -82,7 +91,7 @@ from numpy.typing import NDArray
 
 __all__ = ["CHI2_1_95", "JACKKNIFE_BLOCKS", "Edge", "Interval", "hac_inflation", "profile_edge",
            "profile_interval", "block_labels", "jackknife_se", "heterogeneous", "t_quantile", "union",
-           "SAMPLE_AGE_PARAMS", "sample_age_extension"]
+           "SAMPLE_AGE_PARAMS", "sample_age_extension", "tyre_law_extension"]
 
 CHI2_1_95 = 3.841458820694124
 """95 % quantile of χ² with one degree of freedom (1.959964²)."""
@@ -264,3 +273,19 @@ def sample_age_extension(effect: str, param: str, interval: tuple[float, float],
     if (effect, param) not in SAMPLE_AGE_PARAMS or not (math.isfinite(period_s) and period_s > 0.0):
         return lo, hi
     return lo, min(upper_limit, hi + period_s)
+
+
+def tyre_law_extension(effect: str, param: str, interval: tuple[float, float], lower_limit: float = -math.inf,
+                       upper_limit: float = math.inf) -> tuple[float, float]:
+    """The 95 % interval of ``effect.param`` with the type-B bound of the tyre law: a tyre pressure is fitted
+    through its radius term under the library's nominal δ_0/r_0 and carcass share, so its interval is widened
+    to every pressure that gives the same radius terms within those figures' ranges
+    (:func:`tractionecu.model.effects.tyre_pressure_law_range`), clipped to the parameter's bounds; other
+    parameters are left as they are."""
+    lo, hi = interval
+    if (effect, param) != ("tyre_pressure", "p_ratio") or not (math.isfinite(lo) and math.isfinite(hi)):
+        return lo, hi
+    from ..model.effects import tyre_pressure_law_range
+
+    a, b = tyre_pressure_law_range(lo, hi)
+    return max(lower_limit, a), min(upper_limit, b)

@@ -11,6 +11,7 @@ relaxation, draft_speed, drivetrain, mass, aero``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -226,6 +227,20 @@ def wheel_radius_true(r_nominal: ArrayLike, epsilon: float) -> NDArray[np.float6
 TYRE_DEFLECTION_RATIO = 0.05
 """Static tyre deflection over unloaded radius at the rated pressure, δ_0/r_0 [-] (agricultural
 radial tyres at rated load and pressure deflect about 4–6 % of their radius; ETRTO load tables)."""
+TYRE_DEFLECTION_RATIO_RANGE = (0.04, 0.06)
+"""The range of δ_0/r_0 behind :data:`TYRE_DEFLECTION_RATIO` (its 4–6 %)."""
+TYRE_ROLLING_RADIUS_SHARE = 1.0 / 3.0
+"""Share of the static deflection by which the effective rolling radius falls, r_e ≈ r_0 − δ/3 [-]: a
+radial's belt does not stretch, so the rolling radius lies between the unloaded and the loaded radius,
+about a third of the way (Rill 2011, *Road Vehicle Dynamics*, TMeasy's dynamic rolling radius)."""
+TYRE_CARCASS_SHARE = 0.2
+"""Share of the vertical stiffness at the rated pressure that the carcass carries without inflation, c in
+k_z(p) = k_z(p_0) (c + (1 − c) p/p_0) [-].  The stiffness of an agricultural tyre rises with inflation
+pressure from a non-zero intercept, the carcass's own stiffness, which soil-compaction work states as an
+equivalent pressure added to the inflation pressure (Misiewicz et al. 2016, Biosystems Engineering 147,
+183–192).  The share is an assumption of this library, not a measured figure: its range
+:data:`TYRE_CARCASS_SHARE_RANGE` enters the interval of a fitted pressure."""
+TYRE_CARCASS_SHARE_RANGE = (0.1, 0.35)
 TYRE_RR_PRESSURE_EXPONENT = 0.4
 """Exponent α of the tyre-deformation rolling resistance against inflation pressure, ρ_t ∝ p^−α
 (≈ 0.4 for pneumatic tyres on firm ground; Wong, *Theory of Ground Vehicles*, ch. 1)."""
@@ -279,7 +294,7 @@ SENSOR_FAULTS: dict[str, EffectDef] = {
         EffectDef(
             "tyre_pressure",
             "Inflation pressure differs from the rated one: rolling radius and tyre rolling resistance change together.",
-            "r = r_d (1 − (δ_0/r_0)(p_0/p − 1)),  ρ_t = ρ_t,0 (p_0/p)^α   (δ_0/r_0 = 0.05, α = 0.4)",
+            "r = r_d (1 − (δ_0/3r_0)(1/(c + (1 − c) p/p_0) − 1)),  ρ_t = ρ_t,0 (p_0/p)^α   (δ_0/r_0 = 0.05, c = 0.2, α = 0.4)",
             "a slip offset (radius) together with a larger rolling resistance (lower pressure)",
             (ParamSpec("p_ratio", "-", 0.7, 0.3, 2.0, "pressure over the rated pressure p/p_0"),),
         ),
@@ -342,8 +357,37 @@ def clock_shift_s(t_s: ArrayLike, offset_s: float, rate_ppm: float) -> NDArray[n
     return offset_s + rate_ppm * 1e-6 * np.asarray(t_s, dtype=float)
 
 
-def tyre_pressure_terms(p_ratio: float) -> tuple[float, float]:
+def tyre_pressure_terms(p_ratio: float, deflection_ratio: float = TYRE_DEFLECTION_RATIO,
+                        carcass_share: float = TYRE_CARCASS_SHARE) -> tuple[float, float]:
     """tyre_pressure: (ε, ρ_t factor) for p/p_0 = ``p_ratio``:
-    ε = −(δ_0/r_0)(p_0/p − 1),  ρ_t/ρ_t,0 = (p_0/p)^α."""
-    inv = 1.0 / float(p_ratio)
-    return -TYRE_DEFLECTION_RATIO * (inv - 1.0), inv ** TYRE_RR_PRESSURE_EXPONENT
+    ε = −(δ_0/(3 r_0)) (1/(c + (1 − c) p/p_0) − 1)  (the deflection δ = δ_0 k_z(p_0)/k_z(p), the rolling
+    radius falling by a third of it), ρ_t/ρ_t,0 = (p_0/p)^α."""
+    k_rel = carcass_share + (1.0 - carcass_share) * float(p_ratio)
+    eps = -deflection_ratio * TYRE_ROLLING_RADIUS_SHARE * (1.0 / k_rel - 1.0)
+    return eps, (1.0 / float(p_ratio)) ** TYRE_RR_PRESSURE_EXPONENT
+
+
+def tyre_pressure_from_radius(eps: float, deflection_ratio: float = TYRE_DEFLECTION_RATIO,
+                              carcass_share: float = TYRE_CARCASS_SHARE) -> float:
+    """The p/p_0 whose radius term (:func:`tyre_pressure_terms`) is ``eps``: inf where no finite pressure gives
+    it (a radius gain of a third of the rated deflection or more), below 0 where none does (a radius loss beyond
+    the uninflated carcass's deflection)."""
+    den = 1.0 - float(eps) / (deflection_ratio * TYRE_ROLLING_RADIUS_SHARE)
+    if not den > 0.0:
+        return math.inf
+    return (1.0 / den - carcass_share) / (1.0 - carcass_share)
+
+
+def tyre_pressure_law_range(p_lo: float, p_hi: float) -> tuple[float, float]:
+    """The interval [p_lo, p_hi] of p/p_0 fitted with the nominal tyre law, widened by the law's own
+    uncertainty: the radius terms at its ends mapped back through every corner of
+    (:data:`TYRE_DEFLECTION_RATIO_RANGE`, :data:`TYRE_CARCASS_SHARE_RANGE`).  The radius is what the data
+    measure; which pressure made it depends on the tyre."""
+    lo, hi = p_lo, p_hi
+    for end in (p_lo, p_hi):
+        eps = tyre_pressure_terms(end)[0]
+        for d in TYRE_DEFLECTION_RATIO_RANGE:
+            for c in TYRE_CARCASS_SHARE_RANGE:
+                p = tyre_pressure_from_radius(eps, d, c)
+                lo, hi = min(lo, p), max(hi, p)
+    return lo, hi
