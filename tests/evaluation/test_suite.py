@@ -1,5 +1,7 @@
 """The diagnosis suite: its cases and the figures it scores them with."""
 
+from dataclasses import replace
+
 import pytest
 
 from tractionecu.evaluation.suite import Case, all_cases, cases, fast_cases, summarize
@@ -40,6 +42,12 @@ def test_suite_cases_conceal_valid_library_effects():
         concealed |= set(c.concealed())
     assert {"grade", "gps_latency", "wheel_radius", "relaxation", "draft_speed", "mass", "drivetrain"} <= concealed
     assert {"torque_gain", "draft_offset", "axle_load_offset", "wheel_speed_hold"} <= concealed
+    # Every sensor fault of the library has a recording of the independent truth model.
+    phys = set()
+    for c in full:
+        if c.truth_model == "physical":
+            phys |= set(c.concealed())
+    assert set(SENSOR_FAULTS) <= phys
     assert concealed <= set(EFFECTS) | set(SENSOR_FAULTS)
     # Several effects in one recording, the independent truth model, and its healthy recordings.
     assert any(len(c.concealed()) >= 2 for c in full)
@@ -88,3 +96,22 @@ def test_a_radius_reported_at_the_plants_own_size_is_no_false_alarm_but_another_
     assert row["correct"] and row["plant"]["wheel_radius"]["agrees"]
     row = score_case(case, _diagnosis((-0.03, -0.01)))
     assert not row["correct"]
+
+
+def test_a_tyre_pressure_the_file_does_not_know_is_the_cases_effect_not_the_plants():
+    """``phys_tyre_pressure``: the tyres run at 1.2 bar, the vehicle file (and the calibration of its rear
+    radius) says 1.6 bar; the plant's own radius range is taken at the file's pressure."""
+    from tractionecu.evaluation.suite import inherent
+    from tractionecu.sim import physwriter as pw
+
+    by = {c.name: c for c in all_cases()}
+    case = by["phys_tyre_pressure"]
+    scn = case.scenario()
+    assert scn.vehicle.tyre_pressure_pa == 1.2e5 and case.concealed() == {"tyre_pressure": {"p_ratio": 0.75}}
+    veh = pw._declared_vehicle(scn)
+    assert veh.tyre_pressure_pa == 1.6e5
+    # the declared rear radius is the one calibrated at 1.6 bar: that of the same machine at 1.6 bar
+    at_rated = replace(scn, vehicle=replace(scn.vehicle, tyre_pressure_pa=1.6e5))
+    ref = pw._declared_vehicle(at_rated)
+    assert veh.drivetrain.rolling_radius_m == ref.drivetrain.rolling_radius_m
+    assert inherent(case) == inherent(replace(case, build=lambda: at_rated))

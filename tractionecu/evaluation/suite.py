@@ -251,6 +251,18 @@ def _phys_spec(**phys):
     return PhysicalSpec(PHYSICAL_THREE_SOILS, **phys)
 
 
+def _phys_pressure(seed: int, p_true_pa: float, p_declared_pa: float):
+    """``physical-three-soils`` with the tyres at ``p_true_pa`` while the vehicle file declares
+    ``p_declared_pa`` (and its rear radius was calibrated there)."""
+    def build():
+        from ..config import VehicleParams
+        from ..sim.scenarios import physical_three_soils
+
+        return physical_three_soils(seed=seed, vehicle=VehicleParams(tyre_pressure_pa=p_true_pa),
+                                    physical=_phys_spec(declared_tyre_pressure_pa=p_declared_pa))
+    return build
+
+
 def _mech(seed: int):
     """``mechanical-three-soils`` of the independent truth model with the mechanical drive-line."""
     def build():
@@ -301,6 +313,22 @@ def _realistic_cases(add) -> None:
     add("phys_wheel_dropout_short", "effect", None, {}, _phys_short(1213), truth_model="physical", fast=True,
         full=False, faults=(Fault("wheel_speed_hold", {"t0_s": 40.0, "duration_s": 3.0},
                                   lambda a, b: F.wheel_speed_hold(a, b, "RL", 40.0, 3.0, "dropout")),))
+    # The library's remaining recording-level sensor faults on the physical truth, one recording each, sizes
+    # fixed before their first diagnosis: a drive-torque zero offset of 2 % of a 10 kN·m range on the rear
+    # axle; a CAN logger whose clock runs 0.3 s ahead of GNSS time and gains 100 ppm (a cheap RTC across
+    # temperature); tyres let down to 1.2 bar while the vehicle file (and the rear radius's calibration run)
+    # says 1.6 bar.  A logger clock *behind* GNSS time is, to the data, a GNSS latency of the same size
+    # (the gps_latency cases).
+    add("phys_torque_offset", "effect", None, {}, _phys(1204), truth_model="physical",
+        faults=(Fault("torque_offset", {"b_front_nm": 0.0, "b_rear_nm": 200.0},
+                      lambda a, b: F.torque_offset(a, b, {"RL": 200.0, "RR": 200.0})),),
+        note="rear drive torques read 200 N·m high")
+    add("phys_clock_skew", "effect", None, {}, _phys(1205), truth_model="physical",
+        faults=(Fault("clock_skew", {"offset_s": 0.3, "rate_ppm": 100.0},
+                      lambda a, b: F.clock_skew(a, b, 0.3, 100.0)),),
+        note="CAN clock 0.3 s ahead of GNSS, +100 ppm")
+    add("phys_tyre_pressure", "effect", "tyre_pressure", {"p_ratio": 0.75}, _phys_pressure(1206, 1.2e5, 1.6e5),
+        truth_model="physical", note="tyres at 1.2 bar, the file says 1.6 bar")
     # Several at once on the physical truth: a GNSS latency (receiver) and an axle-load offset.
     add("phys_latency_axle", "effect", "gps_latency", {"tau_s": 0.3}, _phys(1301, gnss_latency_s=0.3),
         truth_model="physical",
@@ -527,7 +555,7 @@ def inherent(case: Case) -> dict[str, tuple[float, float]]:
     ``{"effect.param": (low, high)}``: for the independent truth model, the rolling radius, whose
     tyre deflects under load by its own law (``sim.tyre.rolling_radius``) while the nominal model uses
     the vehicle file's eq. 9 radius; the range is r_truth/r_nominal − 1 over the static front and rear
-    wheel loads.  The paper truth model has none."""
+    wheel loads, at the tyre pressure the file declares.  The paper truth model has none."""
     if case.truth_model == "paper":
         return {}
     from ..config import G
@@ -538,9 +566,14 @@ def inherent(case: Case) -> dict[str, tuple[float, float]]:
     veh = scn.vehicle
     tyre = scn.physical.tyre if scn.physical is not None else ty.TyreSpec()
     f = veh.static_front_fraction
+    # At the pressure the file declares: a concealed pressure error is the case's effect, not the plant's.
+    p_decl = getattr(scn.physical, "declared_tyre_pressure_pa", None) if scn.physical is not None else None
+    if p_decl is not None:
+        veh = replace(veh, tyre_pressure_pa=float(p_decl))
+    p = veh.tyre_pressure_pa
     eps = []
     for fz in (f * veh.mass_kg * G / 2, (1 - f) * veh.mass_kg * G / 2):
-        rt = float(ty.rolling_radius(np.array([fz]), veh.r0_m, tyre, veh.tyre_pressure_pa)[0])
+        rt = float(ty.rolling_radius(np.array([fz]), veh.r0_m, tyre, p)[0])
         rn = float(rolling_radius(np.array([fz]), veh)[0])
         eps.append(rt / rn - 1.0)
     return {"wheel_radius.epsilon": (min(eps), max(eps))}

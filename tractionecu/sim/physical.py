@@ -139,6 +139,11 @@ class PhysicalSpec:
     and wheel-side inertia) and the tyre carcass's longitudinal stiffness, each off the truth's figure by an error
     drawn once per seed inside its stated tolerance (:func:`tractionecu.sim.physwriter._declared_hub`); recording
     writer only, the simulated machine is the same."""
+    declared_tyre_pressure_pa: float | None = None
+    """The tyre inflation pressure the recording's ``vehicle.toml`` declares, and at which its rear rolling
+    radius was calibrated [Pa]; None: the simulated machine's own.  Set apart from the vehicle's pressure, the
+    tyres run at another pressure than the file says (let down for the field and the file not updated, a slow
+    leak): recording writer only, the simulated machine runs at ``vehicle.tyre_pressure_pa``."""
 
 
 def class_equivalent(soil: ty.PhysSoil, veh: VehicleParams, tyre: ty.TyreSpec,

@@ -124,7 +124,14 @@ def _declared_vehicle(scn):
     if not any(f.name == "drivetrain" for f in dataclasses.fields(veh)):
         return veh
     veh = _declared_drivetrain(scn)
-    return dataclasses.replace(veh, front_roll_share=_declared_roll_share(scn))
+    return dataclasses.replace(veh, front_roll_share=_declared_roll_share(scn), tyre_pressure_pa=_declared_pressure(scn))
+
+
+def _declared_pressure(scn) -> float:
+    """The tyre pressure the owner's file states [Pa] (``PhysicalSpec.declared_tyre_pressure_pa``, else the
+    simulated machine's own): the rear rolling radius is calibrated at it."""
+    p = scn.physical.declared_tyre_pressure_pa
+    return float(scn.vehicle.tyre_pressure_pa if p is None else p)
 
 
 def _declared_roll_share(scn) -> float:
@@ -157,7 +164,7 @@ def _declared_drivetrain(scn):
                                                  DECLARED_RADIUS_TOL_REL])
     friction_pct = 100.0 * (eng.friction_nm + eng.aux_torque_nm) / eng.reference_torque_nm + float(err[0])
     fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
-    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
+    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, _declared_pressure(scn))) * (1.0 + float(err[2]))
     dd = DeclaredDrivetrain(kind="mechanical", final_drive_ratio=md.final_drive, gear_ratio="bus",
                             front_drive="engaged" if md.mfwd else "disengaged", front_lead=md.front_lead,
                             engine_friction_percent=round(friction_pct, 2),
@@ -203,7 +210,7 @@ def _declared_hub(scn):
                                                                  hub_motor_inertia_kgm2=hub.motor_inertia_kgm2))
     eta = min(1.0, ps.drivetrain.hub.efficiency * (1.0 + float(err[0])))
     fzr = axle_loads(veh, ps.hitch, veh.mass_kg, 0.0, 0.0, 0.0)[1]
-    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, veh.tyre_pressure_pa)) * (1.0 + float(err[2]))
+    r_cal = float(tyre_radius(0.5 * fzr, veh.r0_m, ps.tyre, _declared_pressure(scn))) * (1.0 + float(err[2]))
     dd = dataclasses.replace(veh.drivetrain, kind="hub", efficiency=round(eta, 4),
                              efficiency_tolerance=HUB_EFFICIENCY_TOL, rolling_radius_m=round(r_cal, 4))
     return dataclasses.replace(veh, drivetrain=dd, pull_angle_deg=round(ps.hitch.pull_angle_deg + float(err[1]), 2),
