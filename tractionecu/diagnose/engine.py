@@ -171,11 +171,60 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
     return out
 
 
+LEVEL_AT_CENTROID = {"clock_skew": ("offset_s", "rate_ppm", 1e-6)}
+"""Effects with a level that drifts linearly in time, level(t) = x_level + scale · x_rate · t: (level
+parameter, rate parameter, scale).  The level at t = 0 trades off with the rate when the data that carry it
+are few and spread (a clock's shift is seen only where the speed changes), so each interval alone may reach
+zero while the shift itself is well measured.  It is tested, and reported, where the data hold it best: at
+the time t* of least variance of the level (:func:`level_at_centroid`)."""
+LIBRARY_LEVEL_NAME = {"clock_skew": "clock shift δ(t)"}
+"""The drifting level's name in the report."""
+
+
+def level_at_centroid(fr: FitResult, name: str) -> dict | None:
+    """``{"t_s", "value", "ci95"}`` of a drifting level (:data:`LEVEL_AT_CENTROID`) at the time t* = −C_lr /
+    (s C_rr) where its variance C_ll + 2 s t C_lr + s² t² C_rr is least (the information-weighted centroid
+    of the fit's data), with the sandwich's 95 % half-width scaled by the larger widening the refined
+    intervals of the two parameters have over theirs; None where the fit has no such level or no finite
+    covariance."""
+    spec = LEVEL_AT_CENTROID.get(name)
+    if spec is None or fr.cov is None:
+        return None
+    lvl, rate, sc = spec
+    try:
+        i, j = fr.names.index(f"{name}.{lvl}"), fr.names.index(f"{name}.{rate}")
+    except ValueError:
+        return None
+    c = np.asarray(fr.cov, dtype=float)
+    cll, clr, crr = c[i, i], c[i, j], c[j, j]
+    if not (np.isfinite([cll, clr, crr]).all() and cll > 0.0 and crr > 0.0):
+        return None
+    t_star = -clr / (sc * crr)
+    var = max(cll - clr * clr / crr, 0.0)
+    ci = fr.ci95_by.get(name, fr.ci95)
+    widen = 1.0
+    for k, v in ((lvl, cll), (rate, crr)):
+        lo, hi = ci.get(k, (math.nan, math.nan))
+        if math.isfinite(lo) and math.isfinite(hi):
+            widen = max(widen, (hi - lo) / (2.0 * 1.959964 * math.sqrt(v)))
+    xs = fr.effects.get(name, fr.params) if fr.effects else fr.params
+    value = float(xs[lvl]) + sc * float(xs[rate]) * t_star
+    half = 1.959964 * widen * math.sqrt(var)
+    return {"t_s": float(t_star), "value": value, "ci95": (value - half, value + half)}
+
+
 def _excludes_null(fr: FitResult, name: str | None = None) -> bool:
     """True when some parameter's 95 % interval of effect ``name`` (default: the fit's only one)
-    lies outside its negligible band around the null value."""
+    lies outside its negligible band around the null value (for a drifting level, also the level where
+    the data hold it, :func:`level_at_centroid`)."""
     name = name or fr.candidate
     cand = CANDIDATES[name]
+    lv = level_at_centroid(fr, name)
+    if lv is not None:
+        p = next(q for q in cand.fitted if q.name == LEVEL_AT_CENTROID[name][0])
+        lo, hi = lv["ci95"]
+        if lo > p.null + p.negligible or hi < p.null - p.negligible:
+            return True
     ci = fr.ci95_by.get(name, fr.ci95)
     for p in cand.fitted:
         lo, hi = ci.get(p.name, (math.nan, math.nan))
@@ -848,13 +897,23 @@ def _xs(f: FitResult, name: str) -> np.ndarray:
     return np.array([eff[p.name] for p in CANDIDATES[name].fitted])
 
 
+def _level_words(parameter: str, lv: dict | None) -> str:
+    """"; <parameter> at t = … s, where the data hold it best: v [lo, hi]" (empty without a level)."""
+    if not lv:
+        return ""
+    return (f"; {parameter} at t = {lv['t_s']:.0f} s, where the data hold it best: {_fmt(lv['value'])} "
+            f"[{_fmt(lv['ci95'][0])}, {_fmt(lv['ci95'][1])}]")
+
+
 def _effect_words(e: dict) -> str:
+    lv = e.get("level_at_centroid")
+    at = _level_words(lv["parameter"], lv) if lv else ""
     ps = ", ".join(f"{k} = {_fmt(v['value']) if isinstance(v['value'], (int, float)) else v['value']}"
                    + (f" [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]"
                                                    if v.get("ci95") and v["ci95"][0] is not None else "")
                    + (f" (at its {v['at_bound']} bound)" if v.get("at_bound") else "")
                    + (" (not identified: the interval spans its range)" if v.get("identified") is False else "")
-                   for k, v in e.get("parameters", {}).items())
+                   for k, v in e.get("parameters", {}).items()) + at
     return f"{e['name']} ({ps})" if ps else e["name"]
 
 
@@ -887,6 +946,10 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
                         "rank": rank + 1, "score": steps.get(name, {}).get("score"),
                         "formula": LIBRARY[name].formula, "plain": CANDIDATES[name].plain,
                         "parameters": params, "trades_off_with": amb})
+            lv = level_at_centroid(jf, name)
+            if lv is not None:
+                out[-1]["level_at_centroid"] = {"parameter": LIBRARY_LEVEL_NAME[name], "t_s": lv["t_s"],
+                                                "value": lv["value"], "ci95": list(lv["ci95"])}
     if jf is not None:
         for e in out:
             rv = steps.get(e["name"], {}).get("ambiguous_with") if e["name"] in chosen else None
@@ -993,6 +1056,8 @@ def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -
     cand = CANDIDATES[effect]
     ps = ", ".join(f"{k} = {_fmt(r.fit.params[k])} [{_fmt(r.fit.ci95[k][0])}, {_fmt(r.fit.ci95[k][1])}]"
                    for k in r.fit.ci95)
+    if effect in LEVEL_AT_CENTROID:
+        ps += _level_words(LIBRARY_LEVEL_NAME[effect], level_at_centroid(r.fit, effect))
     sig = ", ".join(f"{k} r = {v:+.2f}" for k, v in sorted(ev.items(), key=lambda kv: -abs(kv[1]))[:3])
     where = f"the {lead} residual" if lead else "the residual"
     return (f"{cand.plain}: {LIBRARY[effect].formula}.  Evidence: {where} ({problem.channels[lead].signal}) "

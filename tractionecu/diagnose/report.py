@@ -240,6 +240,10 @@ def to_markdown(rep: dict) -> str:
                 if p.get("at_bound"):
                     txt += f" (at the {p['at_bound']} bound)"
                 ps.append(txt + (f" {p['unit']}" if p.get("unit") else ""))
+            lv = e.get("level_at_centroid")
+            if lv:
+                ps.append(f"{lv['parameter']} at t = {lv['t_s']:.0f} s, where the data hold it best: "
+                          f"{lv['value']:.4g} [{lv['ci95'][0]:.4g}, {lv['ci95'][1]:.4g}]")
             tr = ", ".join(f"{t['with']} (r = {t['correlation']:+.2f})" for t in e.get("trades_off_with") or [])
             kind = (e["kind"] + (" (ambiguous)" if e.get("ambiguous") else "")
                     + (" (not named: its 95 % interval reaches its absence"
