@@ -314,6 +314,34 @@ def test_carcass_estimator_relaxed_slip_follows_the_filters_slip(run15):
     assert (np.abs(mu[sl] - run15.mu[sl]) / run15.mu[sl]).mean() < 0.02
 
 
+def test_a_revised_speed_revises_the_relaxed_slips_and_leaves_the_carcass_drive_alone(run15):
+    """An update that moves v revises the speed the relaxed slips were taken against
+    (Estimator._revise_relaxed): σ̄ moves with eq. 6's slip at the wheels' speeds, so the carcass term's drive
+    s − σ̄ (and μ̇) stays what it was to first order in Δv; without the revision a 1 cm/s step of v is a slip
+    step that moves μ̇ by c_x |v| Δs/F_z.  At standstill nothing moves."""
+    from tractionecu.model.vehicle import slip
+
+    veh = dataclasses.replace(VEH, tyre_carcass_stiffness_npm=2.0e5)
+    est = Estimator(veh)
+    for t, i, m in run15.steps[:600]:
+        est.step(t, i, m)
+    x = est.ukf.x.copy()
+    m = est.model
+    u = est._u.copy()
+    v, dv = float(x[4]), 0.01
+    fz, rd = m.loads(u)
+    sb0 = m.relaxed_slip.copy()
+    drive0 = slip(x[:4], v, rd) - sb0
+    est._revise_relaxed(dv, v)
+    np.testing.assert_allclose(m.relaxed_slip, sb0 - (1.0 - np.abs(sb0)) * dv / v, rtol=1e-12)
+    drive1 = slip(x[:4], v + dv, rd) - m.relaxed_slip
+    step = np.abs(slip(x[:4], v + dv, rd) - slip(x[:4], v, rd))       # the slip step without the revision
+    assert np.abs(drive1 - drive0).max() < 0.05 * step.min()
+    sb1 = m.relaxed_slip.copy()
+    est._revise_relaxed(dv, 0.5 * est.cfg.standstill_speed_mps)
+    np.testing.assert_array_equal(m.relaxed_slip, sb1)
+
+
 def test_carcass_term_only_while_the_wheel_speeds_follow_its_mode(run15):
     """f_c T ≤ CARCASS_MAX_FT: with the 20 Hz wheel rate of a vehicle file the term is off until 100 Hz
     periods are observed on the bus."""

@@ -85,8 +85,10 @@ relaxation length L_r = C_Fκ/c_x (C_Fκ the slip stiffness), so that
 
 with s_i eq. 6 of ω_i against the wheel's ground speed k_i v̄ and σ̄_i the
 relaxed slip, which follows s_i at the rate |k_i v|/L_r (the estimator moves
-it between steps, :meth:`tractionecu.estimation.estimator.Estimator._relax`;
-here it is held over a step).  v̄ is the filter's mean speed at the start of
+it between steps, :meth:`tractionecu.estimation.estimator.Estimator._relax`,
+and revises it with the speed when an update revises v,
+:meth:`~tractionecu.estimation.estimator.Estimator._revise_relaxed`; here it is
+held over a step).  v̄ is the filter's mean speed at the start of
 the step, the same for every sigma point: the vehicle's speed hardly moves
 over the carcass's time scales (its mass is two orders above the wheel's
 equivalent), and a v that entered the carcass term would let the wheel
