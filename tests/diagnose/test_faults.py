@@ -143,3 +143,12 @@ def test_reduced_diagnosis_names_a_zero_slip_offset_and_brings_a_into_range():
     assert 0.3 <= sm["a"]["value"] <= 1.1 and sm["a"]["ci95"][0] < a_true < sm["a"]["ci95"][1]
     assert any(e["name"] == "zero_slip_offset" and e["named"] for e in rep["effects"])
     assert "zero-slip" in rep["statement"].lower() or "zero_slip_offset" in rep["statement"]
+
+
+def test_the_reports_tyre_note_gives_the_radius_the_data_measure_and_the_laws_ranges():
+    from tractionecu.diagnose.engine import tyre_law_note
+
+    note = tyre_law_note(0.75)
+    assert f"ε = {fx.tyre_pressure_terms(0.75)[0]:+.4f}" in note
+    assert "0.04–0.06" in note and "0.10–0.35" in note
+

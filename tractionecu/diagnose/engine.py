@@ -29,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import G, VehicleParams
-from ..model.effects import EFFECTS, LIBRARY, SENSOR_FAULTS
+from ..model.effects import (EFFECTS, LIBRARY, SENSOR_FAULTS, TYRE_CARCASS_SHARE_RANGE, TYRE_DEFLECTION_RATIO_RANGE,
+                             tyre_pressure_terms)
 from ..recording.reader import Recording
 from . import data as _data
 from .candidates import CANDIDATES, NOMINAL
@@ -211,6 +212,16 @@ def level_at_centroid(fr: FitResult, name: str) -> dict | None:
     value = float(xs[lvl]) + sc * float(xs[rate]) * t_star
     half = 1.959964 * widen * math.sqrt(var)
     return {"t_s": float(t_star), "value": value, "ci95": (value - half, value + half)}
+
+
+def tyre_law_note(p_ratio: float) -> str:
+    """The report's note beside a fitted tyre pressure: the radius change the data measure, and the tyre law's
+    ranges behind the pressure's interval (:func:`.intervals.tyre_law_extension`)."""
+    eps = tyre_pressure_terms(p_ratio)[0]
+    return (f"tyre_pressure: the data measure its rolling-radius change, ε = {eps:+.4f}; the pressure that made "
+            "it depends on the tyre, so the interval of p/p_0 holds every pressure giving the same radius within "
+            f"δ_0/r_0 {TYRE_DEFLECTION_RATIO_RANGE[0]:.2f}–{TYRE_DEFLECTION_RATIO_RANGE[1]:.2f} and a carcass "
+            f"share {TYRE_CARCASS_SHARE_RANGE[0]:.2f}–{TYRE_CARCASS_SHARE_RANGE[1]:.2f}")
 
 
 def _excludes_null(fr: FitResult, name: str | None = None) -> bool:
@@ -511,6 +522,9 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         d.statement += (f"  A possible cause: {CANDIDATES[c].plain} ({ps}) explains it as well (held-out score "
                         f"{cr.score:.1f}); the recording cannot tell the cause from the term.")
         d.notes.append(f"{c} fits as well as {GENERALISES[c]} (its term); named: {GENERALISES[c]}")
+    for e in d.effects:
+        if e["name"] == "tyre_pressure" and "p_ratio" in e.get("parameters", {}):
+            d.notes.append(tyre_law_note(float(e["parameters"]["p_ratio"]["value"])))
     named = [e for e in d.effects if e["kind"] in ("effect", "sensor_fault") and e.get("named")]
     if len(named) > 1:
         d.statement += "  Several effects at once: " + "; ".join(_effect_words(e) for e in named) + "."
