@@ -114,3 +114,35 @@ def test_nis_coverage_is_95_percent_for_white_noise_and_falls_with_a_systematic_
     slow = white + 6.0 * np.sin(np.arange(n) / 200.0)
     assert abs(noise_sigma(ch, slow) - 2.0) < 0.1
     assert nis_coverage(ch, slow, noise_sigma(ch, slow)) < 0.6
+
+
+def test_the_direction_of_travel_comes_from_the_wheels_and_is_held_through_a_stop():
+    from tractionecu.diagnose.data import DIRECTION_MIN_RAD_S, travel_direction
+
+    w = np.array([0.0, 0.05, 3.0, 3.0, 0.1, 0.0, -0.1, -1.2, -1.3, 0.0, np.nan, 2.0])
+    om = np.tile(w[:, None], (1, 4))
+    d = travel_direction(om)
+    assert d.tolist() == [1, 1, 1, 1, 1, 1, 1, -1, -1, -1, -1, 1]
+    assert travel_direction(None) is None
+    assert 0.1 < DIRECTION_MIN_RAD_S < 0.5
+
+
+def test_the_speed_equations_resistance_turns_with_the_travel():
+    """ρ_g m g d + k x per field cell: with d ≡ 1 the per-cell means (forward driving, as before); with a
+    reverse leg the resistance changes sign there, and a fit without the direction leaves 2 ρ m g."""
+    from tractionecu.diagnose.channels import _rho_and_slip_fit
+
+    rng = np.random.default_rng(0)
+    n = 400
+    group = np.repeat([0, 1], n // 2)
+    xs = rng.uniform(0.0, 3000.0, n)
+    d = np.ones(n)
+    mg = 6300.0 * 9.81
+    y = np.array([0.05, 0.08])[group] * mg + 0.1 * xs
+    fit1 = _rho_and_slip_fit(y, mg, xs, group, 2)
+    np.testing.assert_allclose(_rho_and_slip_fit(y, mg, xs, group, 2, d), fit1, rtol=1e-12)
+    np.testing.assert_allclose(fit1, y, rtol=1e-9)
+    d[150:190] = -1.0                              # a reverse leg in the first cell
+    y = np.array([0.05, 0.08])[group] * mg * d + 0.1 * xs * d
+    np.testing.assert_allclose(_rho_and_slip_fit(y, mg, xs * d, group, 2, d), y, rtol=1e-9, atol=1e-6)
+    assert np.abs(_rho_and_slip_fit(y, mg, xs * d, group, 2) - y).max() > mg * 0.05

@@ -237,17 +237,21 @@ SLIP_RESISTANCE_MAX = 0.15
 mobility numbers of trafficable field soils (B_n ≈ 15–80 for tractor tyres on tilled to firm soil)."""
 
 
-def _rho_and_slip_fit(y: NDArray, mg: float, xs: NDArray, group: NDArray[np.int64], ng: int) -> NDArray:
-    """ρ_g m g + k xs fitted by least squares with one ρ per group and one k in [0, SLIP_RESISTANCE_MAX]
-    shared by all (the group means are profiled out first)."""
-    cnt = np.maximum(np.bincount(group, minlength=ng), 1)
-    ym = np.bincount(group, weights=y, minlength=ng) / cnt
-    xm = np.bincount(group, weights=xs, minlength=ng) / cnt
-    yt, xt = y - ym[group], xs - xm[group]
+def _rho_and_slip_fit(y: NDArray, mg: float, xs: NDArray, group: NDArray[np.int64], ng: int,
+                      d: NDArray | None = None) -> NDArray:
+    """ρ_g m g d + k xs fitted by least squares with one ρ per group and one k in [0, SLIP_RESISTANCE_MAX]
+    shared by all (the groups' ρ are profiled out first).  ``d``: the direction of travel over each row (the
+    window mean of sign v, ±1 in steady travel), on which a motion resistance turns; None: forward (1)."""
+    if d is None:
+        d = np.ones_like(y)
+    dd = np.maximum(np.bincount(group, weights=d * d, minlength=ng), 1e-12)
+    ym = np.bincount(group, weights=d * y, minlength=ng) / dd
+    xm = np.bincount(group, weights=d * xs, minlength=ng) / dd
+    yt, xt = y - ym[group] * d, xs - xm[group] * d
     den = float(np.dot(xt, xt))
     k = float(np.clip(np.dot(xt, yt) / den, 0.0, SLIP_RESISTANCE_MAX)) if den > 0 else 0.0
     rho = ym - k * xm
-    return rho[group] + k * xs
+    return rho[group] * d + k * xs
 
 
 # --------------------------------------------------------------------------- speed
@@ -284,6 +288,10 @@ class SpeedChannel(Channel):
         th = feat.theta
         self.theta = np.nan_to_num(th) if th is not None else np.zeros(fr.n)
         self.v_ref = feat.v_ref
+        # The motion resistance opposes the travel: its regressors turn with the direction (reversing at a
+        # headland), the window mean of sign v (±1 in steady travel, between across a stop).
+        self._sign_v = np.sign(np.nan_to_num(feat.v_ref))
+        self.direction = self._win_mean(self._sign_v)
 
     def _win_mean(self, x: NDArray) -> NDArray:
         """Mean of x over the span between the two speed-averaging centroids (trapezoid)."""
@@ -306,18 +314,20 @@ class SpeedChannel(Channel):
         if "aero" in eff:
             f = f + self._win_mean(fx.aero_force(self.v_ref, eff["aero"]["cd_area_m2"]))
         y, f = y[rows], f[rows]
+        d = self.direction[rows]
         if SLIP_RESISTANCE_NOMINAL:
             xs = self._slip_load(eff)[rows]
-            nu = _rho_and_slip_fit(y - f, m * G, xs, self.cell[rows], self.ncell)
+            nu = _rho_and_slip_fit(y - f, m * G, xs, self.cell[rows], self.ncell, d)
         else:
-            nu = _onehot_scaled_fit(y - f, np.full(y.size, m * G), self.cell[rows], self.ncell)
+            nu = _onehot_scaled_fit(y - f, m * G * d, self.cell[rows], self.ncell)
         return y, f + nu
 
     def _slip_load(self, eff: Effects) -> NDArray:
-        """Window mean of Σ_i F_z,i |s_i| [N]: the regressor of the slip-dependent motion resistance."""
+        """Window mean of sign(v) Σ_i F_z,i |s_i| [N]: the regressor of the slip-dependent motion resistance,
+        which opposes the travel."""
         ws = self.wc.get(eff, with_slip=True)
         s = np.clip(np.nan_to_num(ws.slip), -0.5, 0.5) if ws.slip is not None else np.zeros_like(ws.fz)
-        return self._win_mean(np.nansum(np.nan_to_num(ws.fz) * np.abs(s), axis=1))
+        return self._win_mean(self._sign_v * np.nansum(np.nan_to_num(ws.fz) * np.abs(s), axis=1))
 
     def residual(self, eff: Effects, rows: NDArray[np.bool_]) -> NDArray:
         y, p = self.parts(eff, rows)

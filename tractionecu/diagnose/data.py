@@ -363,7 +363,37 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         fr.heading = _track_heading(fr)
     if fr.v_gps is None and GROUND_BASED_SPEED in means:
         fr.v_gps = mean(GROUND_BASED_SPEED)
+    if fr.v_gps is not None:
+        d = travel_direction(fr.omega)
+        if d is not None:
+            fr.v_gps = fr.v_gps * d
+            if (d < 0).any():
+                fr.notes.append(f"reversing on {np.mean(d < 0):.1%} of the recording (the wheels' sense of "
+                                "rotation): the GNSS speed, which carries no sign, takes it")
     return fr
+
+
+DIRECTION_MIN_RAD_S = 0.2
+"""Mean wheel speed [rad/s] beyond which its sign gives the direction of travel (about 0.15 m/s)."""
+
+
+def travel_direction(omega: NDArray[np.float64] | None) -> NDArray[np.float64] | None:
+    """The direction of travel per row, ±1, from the sign of the mean wheel speed (a drive measures its sense of
+    rotation): held through standstill and creeping (|mean ω| ≤ :data:`DIRECTION_MIN_RAD_S`), forward before the
+    first decided row; None without wheel speeds.  The GNSS speed over ground (RMC/VTG) carries no sign."""
+    if omega is None:
+        return None
+    om = np.asarray(omega, dtype=float)
+    if om.ndim == 1:
+        om = om[:, None]
+    fin = np.isfinite(om)
+    cnt = fin.sum(axis=1)
+    w = np.where(cnt > 0, np.where(fin, om, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+    d = np.where(w > DIRECTION_MIN_RAD_S, 1.0, np.where(w < -DIRECTION_MIN_RAD_S, -1.0, np.nan))
+    idx = np.where(np.isfinite(d), np.arange(d.size), -1)
+    idx = np.maximum.accumulate(idx)
+    out = np.where(idx >= 0, d[np.maximum(idx, 0)], 1.0)
+    return out
 
 
 def _track_heading(fr: Frame) -> NDArray[np.float64] | None:
