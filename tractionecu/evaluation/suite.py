@@ -251,6 +251,15 @@ def _phys_spec(**phys):
     return PhysicalSpec(PHYSICAL_THREE_SOILS, **phys)
 
 
+def _phys_reverse(seed: int):
+    """``physical-headland-reverse``: the physical truth with a three-point turn at every headland."""
+    def build():
+        from ..sim.scenarios import physical_headland_reverse
+
+        return physical_headland_reverse(seed=seed)
+    return build
+
+
 def _phys_pressure(seed: int, p_true_pa: float, p_declared_pa: float):
     """``physical-three-soils`` with the tyres at ``p_true_pa`` while the vehicle file declares
     ``p_declared_pa`` (and its rear radius was calibrated there)."""
@@ -294,6 +303,9 @@ def _realistic_cases(add) -> None:
     add("phys_null_b", "null", None, {}, _phys(1102), truth_model="physical")
     add("phys_null_short", "null", None, {}, _phys_short(1103), truth_model="physical", fast=True, full=False)
     add("phys_null_c", "null", None, {}, _phys(1104), truth_model="physical")
+    # A healthy machine that reverses at every headland (three-point turns: quarter circle, stop, 12 m back
+    # at 1 m/s, stop): everyday driving the forward-only nulls do not have.
+    add("phys_null_reverse", "null", None, {}, _phys_reverse(1105), truth_model="physical", fast=True)
     # The mechanical MFWD tractor of the physical truth model (engine, powershift, front-axle lead,
     # drive-line losses; J1939 engine-level signals, no per-wheel torque, no axle-load pin).
     add("mech_null_a", "null", None, {}, _mech(1111), truth_model="physical-mech")
