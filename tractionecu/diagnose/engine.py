@@ -230,20 +230,14 @@ def _excludes_null(fr: FitResult, name: str | None = None) -> bool:
     the data hold it, :func:`level_at_centroid`)."""
     name = name or fr.candidate
     cand = CANDIDATES[name]
+    ci = fr.ci95_by.get(name, fr.ci95)
+    # front_share is meaningful only through delta_kg; a drifting level's band is its level parameter's
+    tests = [(p, ci.get(p.name, (math.nan, math.nan))) for p in cand.fitted if p.name != "front_share"]
     lv = level_at_centroid(fr, name)
     if lv is not None:
-        p = next(q for q in cand.fitted if q.name == LEVEL_AT_CENTROID[name][0])
-        lo, hi = lv["ci95"]
-        if lo > p.null + p.negligible or hi < p.null - p.negligible:
-            return True
-    ci = fr.ci95_by.get(name, fr.ci95)
-    for p in cand.fitted:
-        lo, hi = ci.get(p.name, (math.nan, math.nan))
-        if not (math.isfinite(lo) and math.isfinite(hi)):
-            continue
-        if p.name == "front_share":
-            continue  # meaningful only through delta_kg
-        if lo > p.null + p.negligible or hi < p.null - p.negligible:
+        tests.append((next(q for q in cand.fitted if q.name == LEVEL_AT_CENTROID[name][0]), lv["ci95"]))
+    for p, (lo, hi) in tests:
+        if math.isfinite(lo) and math.isfinite(hi) and (lo > p.null + p.negligible or hi < p.null - p.negligible):
             return True
     return False
 

@@ -813,7 +813,7 @@ class Estimator:
         wheel_out = ground_out = None
         if r_om is not None and self._cx != 0.0 and cfg.carcass_ring_tau_s > 0.0 and not predict_only:
             self._ring_noise(r_om, wl)
-        v_prior = float(ukf.x[IX_V])
+        v_prior = float(ukf.x[IX_V]) if self._cx != 0.0 else 0.0     # only the carcass's σ̄ needs it
         if not predict_only and (omega is not None or v_meas is not None):
             if omega is not None and v_meas is not None:
                 R = r_om if r_om is not None else self._R_list(wl)
