@@ -11,6 +11,7 @@ import math
 import shutil
 import struct
 
+import numpy as np
 import pytest
 
 from tractionecu.cli.main import main
@@ -102,6 +103,17 @@ def test_realistic_plant(recordings, name):
         sig = to_json(d)["signals"]["speed"]
         assert sig["r2_before"] > 0.9, sig
         assert d.verdict == "none", d.statement
+        # (3) The slip of eq. 6 is positive where a wheel drives, also in reverse, while the torque balance's
+        # adhesion carries the force's sign: the slip channel inverted μ(s) at −|μ| there and predicted a
+        # negative slip on every reverse row (+0.017 m/s mean residual on them, none on the forward rows).
+        ch = d.problem.channels["slip"]
+        rows = np.ones(ch.m, dtype=bool)
+        y, p = ch.parts({}, rows)
+        assert ch.sg is not None
+        mu_dir = ch.sg * ch.wc.get({}).mu[ch.ti, ch.wi]       # the adhesion along the wheel's rotation
+        drive = (ch.sg < 0.0) & (mu_dir > 0.05)
+        assert drive.sum() > 100
+        assert np.mean(y[drive] / ch.wv[drive]) > 0.0 and np.mean(p[drive] / ch.wv[drive]) > 0.0
     if name == "phys_wheel_dropout_short":
         hold = [e for e in rep if e["name"] == "wheel_speed_hold"]
         assert len(hold) == 1 and hold[0]["parameters"]["wheel"]["value"] == "RL"

@@ -53,7 +53,7 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import (Features, SplineFit, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state,
+from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state,
                        wheel_torque, WheelState)
 from .hac import hac_meat
 
@@ -377,7 +377,7 @@ class GpsSpeedChannel(Channel):
             force = force - eff["grade"]["scale"] * fx.grade_force(m, self.theta)
         if "aero" in eff and self.feat.v_ref is not None:
             force = force - fx.aero_force(self.feat.v_ref, eff["aero"]["cd_area_m2"])
-        v = cumtrapz0(force / m, fr.dt)
+        v = cumtrapz0(balance_acceleration(fr, force, m), fr.dt)
         if fr.can_time_offset_s:
             # The force samples of bin k stand for time t_k + δ (δ = can_time_offset_s); the GNSS speed
             # is at t_k.
@@ -621,7 +621,7 @@ def fill_missing_raw(t: NDArray, x: NDArray) -> NDArray:
 class WheelForceChannel(Channel):
     """Per-wheel adhesion from the torque balance against the μ(s) curve at the raw wheel-speed rate.
 
-        y_i = HP[μ_i],  μ_i = ((M_i − J ω̇_i)/r_i − ρ_t F_z,i sgn ω_i)/F_z,i      (bin means, paper eq. 2),
+        y_i = HP[sgn ω_i · μ_i],  μ_i = ((M_i − J ω̇_i)/r_i − ρ_t F_z,i sgn ω_i)/F_z,i      (bin means, paper eq. 2),
         f_i = a_cell HP[⟨g(s_i')⟩],   s_i = 1 − v/(r_i ω_i) at the raw rate,
 
     with ⟨·⟩ the bin mean, HP[x] = x minus its moving average over :data:`WHEEL_FORCE_HP_S` and s_i' = s_i, or the relaxed slip of
@@ -650,7 +650,11 @@ class WheelForceChannel(Channel):
         # Both sides high-passed (minus a WHEEL_FORCE_HP_S moving average): the slow error of the
         # ground speed, which dominates slip, cancels, and the fast dynamics remain.
         self.kw = max(3, int(round(WHEEL_FORCE_HP_S * fr.rate_hz)))
-        self.y_hp = _highpass(np.nan_to_num(ws.mu), self.kw)[ti, wi]
+        # the adhesion along the wheel's rotation, as the slip (positive where a wheel drives, also in reverse)
+        mu = np.nan_to_num(ws.mu)
+        if (fr.omega[ti, wi] < 0.0).any():
+            mu = np.where(fr.omega < 0.0, -mu, mu)
+        self.y_hp = _highpass(mu, self.kw)[ti, wi]
         v_hf = self._v_hf()
         # The raw-rate slip, HF_CHUNK_ROWS frame rows at a time (its temporaries are each as large as
         # the raw-rate wheel speeds: 46 MB at four hours).
@@ -827,6 +831,12 @@ class SlipChannel(Channel):
         self.soil: SoilClass = SOIL_CLASSES["stubble"]
         self.a_cell = np.full(self.ncell, np.nan)
         self.mu0 = np.zeros(2)
+        # The slip of eq. 6 is positive where a wheel drives, forwards and in reverse; the adhesion from the
+        # torque balance carries the force's sign.  The curve relates the slip to the adhesion along the
+        # wheel's rotation, sgn ω · μ, where a tyre's zero-slip traction ratio μ_0 (a rolling loss) keeps its
+        # sign and a torque sensor's offset turns with the travel.  None: every row forwards.
+        sg = np.where(fr.omega[ti, wi] < 0.0, -1.0, 1.0)
+        self.sg = sg if (sg < 0.0).any() else None
         self.y = ws.slip[ti, wi]
         self.r_nom = ws.r[ti, wi]
         self.wv = ws.r[ti, wi] * np.abs(fr.omega[ti, wi])
@@ -838,10 +848,13 @@ class SlipChannel(Channel):
         self._frozen = on
 
     def _inputs(self, eff: Effects) -> tuple[NDArray, NDArray, NDArray | None]:
-        """(adhesion μ, slip-scale factor k with ŝ = 1 − k (1 − s'), μ̇·σ/|v| or None) on all rows."""
+        """(adhesion along the wheel's rotation sgn ω · μ, slip-scale factor k with ŝ = 1 − k (1 − s'),
+        sgn ω · μ̇·σ/|v| or None) on all rows."""
         ws = self.wc.get(eff)
         mu_full = ws.mu
         mu = mu_full[self.ti, self.wi]
+        if self.sg is not None:
+            mu = mu * self.sg
         k = ws.r[self.ti, self.wi] / self.r_nom
         if "gps_latency" in eff:
             k = k * self.v0 / self.wc.v_ref(eff)[self.ti]
@@ -849,7 +862,7 @@ class SlipChannel(Channel):
         if "relaxation" in eff:
             mu_dot = self._mu_dot(ws, eff)[self.ti, self.wi]
             lam = fx.relaxation_rate(1.0, 0.0, self.wc.v_ref(eff)[self.ti], eff["relaxation"]["sigma_m"])
-            lead = mu_dot / lam
+            lead = mu_dot / lam if self.sg is None else self.sg * mu_dot / lam
         return mu, k, lead
 
     def _mu_dot(self, ws: WheelState, eff: Effects) -> NDArray:

@@ -134,6 +134,25 @@ class Diagnosis:
         return self.candidate(self.effect)
 
 
+OFFSET_REVERSE_MIN_S = 10.0
+"""Reversing [s] on each axle, in the slip channel's rows, that makes a drive-torque offset testable.  Forwards
+the offset is the tyre's zero-slip traction ratio μ_0 and a constant resistance; in reverse μ_0 and the motion
+resistance turn with the travel and the offset keeps its sign.  Ten seconds is one headland's reverse (8–12 m
+at 0.8–1.2 m/s); the figure was set before any recording was diagnosed with it."""
+
+
+def _reverse_seconds(problem: Problem) -> float:
+    """Seconds of reversing in the slip channel's rows, the fewer of the two axles' (0 without the channel)."""
+    ch = problem.channels.get("slip")
+    sg = getattr(ch, "sg", None)
+    rate = problem.feat.frame.rate_hz
+    if sg is None or not rate > 0.0:
+        return 0.0
+    rev = sg < 0.0
+    rear = ch.wi >= 2
+    return float(min(np.count_nonzero(rev & ~rear), np.count_nonzero(rev & rear))) / (2.0 * rate)
+
+
 def _testability(problem: Problem, feat: Features) -> dict[str, str]:
     """Reason each candidate cannot be tested (missing signals), or '' when it can."""
     fr = feat.frame
@@ -162,10 +181,12 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
             reason = "no draft signal"
         elif name == "axle_load_offset" and "front_load" not in problem.channels:
             reason = "no measured front-axle load"
-        elif name == "torque_offset" and MU0_NOMINAL:
-            reason = ("in driving a torque offset per axle is the tyre's zero-slip traction ratio of the nominal "
-                      "model (μ_0 = b/(r F_z), fitted per axle) plus a constant resistance (ρ_s): not separable; "
-                      "check the torque reading at standstill with the drive unloaded")
+        elif name == "torque_offset" and MU0_NOMINAL and _reverse_seconds(problem) < OFFSET_REVERSE_MIN_S:
+            reason = ("in forward driving a torque offset per axle is the tyre's zero-slip traction ratio of the "
+                      "nominal model (μ_0 = b/(r F_z), fitted per axle) plus a constant resistance (ρ_s): not "
+                      "separable; in reverse both turn with the travel and the offset does not, but this recording "
+                      f"reverses for {_reverse_seconds(problem):.0f} s (at least {OFFSET_REVERSE_MIN_S:.0f} s "
+                      "needed); check the torque reading at standstill with the drive unloaded")
         elif name == "clock_skew" and fr.rate_hz < 5.0:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a clock offset"
         out[name] = reason

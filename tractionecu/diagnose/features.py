@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..config import G
 from ..model.vehicle import rolling_radius, wheel_loads, wheel_speed_factors
-from .data import Frame
+from .data import DIRECTION_MIN_RAD_S, Frame
 
 SPLINE_KNOT_S = 3.0
 """Knot spacing of the low-frequency speed correction b(t) [s]."""
@@ -390,6 +390,31 @@ def wheel_state(fr: Frame, omega_dot: NDArray[np.float64], v: NDArray[np.float64
 
 
 # --------------------------------------------------------------------------- helpers
+def balance_acceleration(fr: Frame, force: NDArray[np.float64], mass_kg: float) -> NDArray[np.float64]:
+    """The acceleration the force-integrated speed integrates [m/s²]: the balance ``force``/m while the wheels
+    turn; where they stand or creep (mean |ω| ≤ :data:`~.data.DIRECTION_MIN_RAD_S`) the wheels' own, r₀ dω̄/dt.
+
+    At standstill the torque balance's force is not the machine's: a standing machine's drive torque is
+    held by the tyre–soil contact or the brakes, and the rolling resistance's sgn ω flickers with the
+    pickups' noise.  Integrated, it moved the speed through every stop: on a healthy recording that reverses at
+    each headland (`phys_null_reverse`) the fused speed read −0.28 m/s while the machine stood and 0.1 m/s
+    low for seconds after it pulled away, a slip error of 0.1–0.17 there.  Where the wheels do not turn they
+    measure the speed (0) better than the balance, and while they creep their sense of rotation is the
+    speed's."""
+    a = force / mass_kg
+    if fr.omega is None:
+        return a
+    om = fr.omega
+    fin = np.isfinite(om)
+    cnt = fin.sum(axis=1)
+    w = np.where(cnt > 0, np.where(fin, om, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+    creep = np.isfinite(w) & (np.abs(w) <= DIRECTION_MIN_RAD_S)
+    if not creep.any():
+        return a
+    kin = np.gradient(np.nan_to_num(w) * fr.vehicle.r0_m, fr.dt)
+    return np.where(creep, kin, a)
+
+
 def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """Cumulative trapezoid integral starting at 0 (NaN treated as 0)."""
     y = np.nan_to_num(y)
@@ -511,7 +536,7 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
 
     m = fr.vehicle.mass_kg
     force = fh_sum - np.nan_to_num(fr.fdx)
-    v_int = cumtrapz0(force / m, fr.dt)
+    v_int = cumtrapz0(balance_acceleration(fr, force, m), fr.dt)
     if fr.can_time_offset_s:
         v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
     ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
@@ -973,12 +998,13 @@ def compute(fr: Frame) -> Features:
         ws = wheel_state(fr, omega_dot, None)
         fh_sum = ws.fx_sum
         v_ref = fused_speed(fr, fh_sum, valid)
-        # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m, plus the slope of the slow
-        # correction b = v_ref − v_int (resistances the balance does not know).
-        v_int = cumtrapz0((fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg, fr.dt)
+        # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
+        # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not know).
+        a_bal = balance_acceleration(fr, fh_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
+        v_int = cumtrapz0(a_bal, fr.dt)
         if fr.can_time_offset_s:
             v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
-        accel = (fh_sum - np.nan_to_num(fr.fdx)) / fr.vehicle.mass_kg + smooth_derivative(v_ref - v_int, fr.dt)
+        accel = a_bal + smooth_derivative(v_ref - v_int, fr.dt)
     elif v_gps is not None:
         v_ref = v_gps
         accel = smooth_derivative(np.nan_to_num(v_gps), fr.dt)

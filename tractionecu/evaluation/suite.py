@@ -335,6 +335,12 @@ def _realistic_cases(add) -> None:
         faults=(Fault("torque_offset", {"b_front_nm": 0.0, "b_rear_nm": 200.0},
                       lambda a, b: F.torque_offset(a, b, {"RL": 200.0, "RR": 200.0})),),
         note="rear drive torques read 200 N·m high")
+    # The same fault on a machine that reverses at every headland: a torque offset keeps its sign in reverse,
+    # while the tyre's zero-slip traction ratio and the motion resistance turn with the travel.
+    add("phys_torque_offset_reverse", "effect", None, {}, _phys_reverse(1207), truth_model="physical",
+        faults=(Fault("torque_offset", {"b_front_nm": 0.0, "b_rear_nm": 200.0},
+                      lambda a, b: F.torque_offset(a, b, {"RL": 200.0, "RR": 200.0})),),
+        note="rear drive torques read 200 N·m high, reversing headlands")
     add("phys_clock_skew", "effect", None, {}, _phys(1205), truth_model="physical",
         faults=(Fault("clock_skew", {"offset_s": 0.3, "rate_ppm": 100.0},
                       lambda a, b: F.clock_skew(a, b, 0.3, 100.0)),),
