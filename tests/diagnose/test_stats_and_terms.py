@@ -146,3 +146,19 @@ def test_the_speed_equations_resistance_turns_with_the_travel():
     y = np.array([0.05, 0.08])[group] * mg * d + 0.1 * xs * d
     np.testing.assert_allclose(_rho_and_slip_fit(y, mg, xs * d, group, 2, d), y, rtol=1e-9, atol=1e-6)
     assert np.abs(_rho_and_slip_fit(y, mg, xs * d, group, 2) - y).max() > mg * 0.05
+
+
+@pytest.mark.parametrize("step", [1, 20])
+def test_open_world_location_on_sparse_rows(step):
+    """The largest 20-s running mean is found on a channel with one row per frame row and on the speed
+    equation's, one row per 2-s window (20 frame rows at 10 Hz).  Regression: on the sparse rows no window
+    counted, and every statement on the speed equation located its mismatch "around t = 0 s" with a mean of 0."""
+    from tractionecu.diagnose.openworld import largest_running_mean
+
+    n, rate = 3000, 10.0
+    idx = np.arange(0, n, step)
+    t = idx / rate
+    rt = np.where((t >= 150.0) & (t < 170.0), 500.0, 0.0) + np.random.default_rng(3).normal(0.0, 20.0, idx.size)
+    j, mean = largest_running_mean(n, rate, idx, rt)
+    assert 150.0 <= j / rate <= 170.0
+    assert 400.0 < mean < 600.0

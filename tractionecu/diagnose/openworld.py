@@ -240,6 +240,24 @@ def open_world(d) -> dict:
     return out
 
 
+def largest_running_mean(n: int, rate_hz: float, idx: NDArray, rt: NDArray,
+                         window_s: float = WINDOW_S) -> tuple[int, float]:
+    """(frame index, value) of the largest |mean| over ``window_s`` of a channel's residual ``rt`` at frame
+    indices ``idx`` (of ``n`` frame rows at ``rate_hz``).  A window counts when it holds at least half the
+    rows the channel has in such a window: the speed equation's rows are windows of 2 s, one per 20 frame
+    rows at 10 Hz, and counted against one row per frame row no window counted, so every statement on that
+    channel said "around t = 0 s" with a mean of 0."""
+    k = max(1, int(round(window_s * rate_hz)))
+    full = np.full(n, np.nan)
+    full[idx] = rt
+    cnt = np.convolve(np.isfinite(full).astype(float), np.ones(k), mode="same")
+    run = np.convolve(np.nan_to_num(full), np.ones(k), mode="same") / np.maximum(cnt, 1)
+    step = float(np.median(np.diff(np.unique(idx)))) if np.size(idx) > 1 else 1.0
+    run[cnt < k / (2.0 * max(step, 1.0))] = 0.0
+    j = int(np.argmax(np.abs(run)))
+    return j, float(run[j])
+
+
 def _balance_structure(d) -> dict:
     """Structure on the balance channels (module doc)."""
     ho = d.joint_heldout or (d.winner.heldout if d.winner is not None else d.null_heldout)
@@ -278,14 +296,8 @@ def _balance_structure(d) -> dict:
     red = 1.0 - math.sqrt(sse1 / sse0) if sse0 > 0 else 0.0
     coefs = _ols(rt, terms, chosen) if chosen else {}
     # Where and when: the largest 20-s running mean.
-    k = max(1, int(round(WINDOW_S * fr.rate_hz)))
-    full = np.full(fr.n, np.nan)
-    full[idx] = rt
-    cnt = np.convolve(np.isfinite(full).astype(float), np.ones(k), mode="same")
-    run = np.convolve(np.nan_to_num(full), np.ones(k), mode="same") / np.maximum(cnt, 1)
-    run[cnt < k / 2] = 0.0
-    j = int(np.argmax(np.abs(run)))
-    where = {"t_s": float(fr.t[j]), "window_s": WINDOW_S, "mean": float(run[j])}
+    j, run_j = largest_running_mean(fr.n, fr.rate_hz, idx, rt)
+    where = {"t_s": float(fr.t[j]), "window_s": WINDOW_S, "mean": run_j}
     if fr.x is not None and np.isfinite(fr.x[j]):
         where.update({"x_m": float(fr.x[j]), "y_m": float(fr.y[j])})
     regimes = {}
