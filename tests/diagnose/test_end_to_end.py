@@ -209,3 +209,30 @@ def test_an_export_takes_the_reference_torque_the_vehicle_file_declares(tmp_path
                  declared)
     rep = diagnose_path(csv_path, tmp_path / "r1", vehicle=declared, csv_mapping="auto")
     assert (tmp_path / "r1" / "report.json").is_file() and rep["verdict"] == "none"
+
+
+def test_slip_channel_carries_a_clock_running_ahead(recordings, tmp_path):
+    """A CAN clock 0.3 s ahead of GNSS time is a GNSS *lead* of the wheel data, which no latency τ ≥ 0
+    describes.  Regression: the clock skew acted on the GNSS-speed channel only, where the spline takes up
+    almost all of it (phys_clock_skew: 0.5 % of that channel's mismatch, not named); the slip, formed from
+    the CAN wheel speeds and the GNSS-fitted speed, carries it as it carries a latency."""
+    from tractionecu.diagnose import data as _data
+    from tractionecu.diagnose.channels import build_channels
+    from tractionecu.diagnose.features import compute
+    from tractionecu.evaluation import faults as F
+
+    def slip_sse(rec):
+        feat = compute(_data.load(rec, None))
+        ch = next(c for c in build_channels(feat) if c.name == "slip")
+        rows = np.ones(ch.m, dtype=bool)
+        out = {}
+        for off in (-0.3, 0.0, 0.3):
+            eff = {"clock_skew": {"offset_s": off, "rate_ppm": 0.0}} if off else {}
+            y, p = ch.parts(eff, rows)
+            out[off] = float(np.sum((y - p) ** 2))
+        return out
+
+    healthy = slip_sse(recordings("null_fast"))
+    skewed = slip_sse(F.clock_skew(recordings("null_fast"), tmp_path / "skew", 0.3))
+    assert healthy[0.0] < min(healthy[-0.3], healthy[0.3]), healthy
+    assert skewed[0.3] < min(skewed[0.0], skewed[-0.3]), skewed

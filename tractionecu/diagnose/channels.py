@@ -75,6 +75,13 @@ def _p(eff: Effects, name: str, key: str, default: float) -> float:
     return float(eff[name][key]) if name in eff and key in eff[name] else default
 
 
+def _clock(eff: Effects) -> tuple[float, float] | None:
+    """(δ_0 [s], κ [ppm]) of a ``clock_skew`` in ``eff``, None without one."""
+    if "clock_skew" not in eff:
+        return None
+    return _p(eff, "clock_skew", "offset_s", 0.0), _p(eff, "clock_skew", "rate_ppm", 0.0)
+
+
 WHEEL_CACHE_BYTES = 48 * 2 ** 20
 """Most memory the wheel-state memo holds [B] (a state is five (n, 4) arrays: 23 MB on a 4-hour recording).
 
@@ -96,16 +103,17 @@ class _WheelCache:
         self._bytes = 0
 
     def v_ref(self, eff: Effects) -> NDArray:
-        """Fused ground speed; re-fitted when the candidate delays the GNSS speed."""
+        """Fused ground speed; re-fitted when the candidate delays the GNSS speed or shifts the CAN clock."""
         tau = _p(eff, "gps_latency", "tau_s", 0.0)
-        if tau == 0.0:
+        clock = _clock(eff)
+        if tau == 0.0 and clock is None:
             return self.feat.v_ref
-        key = ("v", tau)
+        key = ("v", tau, clock)
         v = self._lookup(key)
         if v is None:
             f = self.feat
             ws = self.get({})
-            v = fused_speed(f.frame, ws.fx_sum, f.valid, tau)
+            v = fused_speed(f.frame, ws.fx_sum, f.valid, tau, clock)
             self._put(key, v)
         return v
 
@@ -131,7 +139,7 @@ class _WheelCache:
     def get(self, eff: Effects, with_slip: bool = False) -> WheelState:
         kw = wheel_kwargs(eff, self.feat.frame)
         key = (tuple((k, v if not isinstance(v, np.ndarray) else v.tobytes()) for k, v in sorted(kw.items())),
-               _p(eff, "gps_latency", "tau_s", 0.0) if with_slip else None, with_slip)
+               (_p(eff, "gps_latency", "tau_s", 0.0), _clock(eff)) if with_slip else None, with_slip)
         ws = self._lookup(key)
         if ws is None:
             f = self.feat
@@ -780,14 +788,16 @@ ASABE D497 rolling-resistance ratios on firm surfaces are 0.01–0.04, against a
 The range is that difference: a torque-sensor offset or a pressure loss beyond it still shows."""
 
 
-SLIP_EFFECTS = frozenset({"wheel_radius", "gps_latency", "torque_gain", "torque_offset", "tyre_pressure",
-                          "axle_load_offset", "mass"})
+SLIP_EFFECTS = frozenset({"wheel_radius", "gps_latency", "clock_skew", "torque_gain", "torque_offset",
+                          "tyre_pressure", "axle_load_offset", "mass"})
 """Effects and faults the slip channel's prediction depends on.  Every term that changes the wheel
 loads is one: the rear loads are the weight less the front pin's reading, F_z,rear = (m + Δm) g − F_zf
 (:func:`~.features.wheel_loads`), so a mass the vehicle file lacks (``mass``) changes them as an
 axle-load offset does, and with them the adhesion μ = F_x/F_z and the loaded radius (paper eq. 9) the
 slip is formed with.  Without ``mass`` here a fitted mass left the slip channel with rear loads short by
-Δm g, and the rolling-radius error beside it took up the difference."""
+Δm g, and the rolling-radius error beside it took up the difference.  A GNSS latency and a CAN clock that
+runs ahead of GNSS time (``clock_skew``) both move the GNSS-fitted speed the slip is formed with against
+the CAN wheel speeds; a clock ahead is a GNSS *lead*, which no latency τ ≥ 0 describes."""
 
 
 class SlipChannel(Channel):
@@ -856,7 +866,7 @@ class SlipChannel(Channel):
         if self.sg is not None:
             mu = mu * self.sg
         k = ws.r[self.ti, self.wi] / self.r_nom
-        if "gps_latency" in eff:
+        if "gps_latency" in eff or "clock_skew" in eff:
             k = k * self.v0 / self.wc.v_ref(eff)[self.ti]
         lead = None
         if "relaxation" in eff:

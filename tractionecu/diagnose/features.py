@@ -524,15 +524,19 @@ def runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
 
 
 def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_],
-                tau_s: float = 0.0) -> NDArray[np.float64]:
-    """Fused ground speed v_ref(t) = v_int(t) + b(t) [m/s].
+                tau_s: float = 0.0, clock: tuple[float, float] | None = None) -> NDArray[np.float64]:
+    """Fused ground speed v_ref(t) = v_int(t) + b(t) [m/s] on the CAN rows' time.
 
     v_int = (1/m) ∫ (Σ F_h,i − F_dx) dt; the slow correction b is a cubic
     B-spline fitted to the GNSS speed.  With a GNSS latency τ the fit is
     v_gps(t) = v_int(t − τ) + b(t − τ) (effect ``gps_latency``) and the
-    returned speed is undelayed.
+    returned speed is undelayed.  With a CAN clock running δ(t) ahead of GNSS
+    time (``clock`` = (δ_0 [s], κ [ppm]), effect ``clock_skew``) the CAN row
+    stamped t holds the state of GNSS time t − δ: the fit is v_gps(t) =
+    v_int(t + δ) + b(t + δ) and the returned speed is b's at t − δ (a GNSS
+    latency of −δ(t) and the latency's together, τ − δ).
     """
-    from ..model.effects import delayed
+    from ..model.effects import clock_shift_s, delayed
 
     m = fr.vehicle.mass_kg
     force = fh_sum - np.nan_to_num(fr.fdx)
@@ -541,11 +545,17 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
         v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
     ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
     B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)
-    model = delayed(fr.t, v_int, tau_s) if tau_s else v_int
+    if clock is not None:
+        shift = clock_shift_s(fr.t, clock[0], clock[1]) - tau_s       # the CAN data lag GNSS time by this
+        model = np.interp(fr.t, fr.t - shift, v_int)
+    else:
+        model = delayed(fr.t, v_int, tau_s) if tau_s else v_int
     sf = SplineFit(B[ok])
     beta = sf.coef(fr.v_gps[ok] - model[ok])
     cols = np.flatnonzero(sf.cols)
-    if tau_s:
+    if clock is not None:
+        B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t - shift, sparse=True, breaks=fr.break_t)
+    elif tau_s:
         B = spline_basis(fr.t, SPLINE_KNOT_S, t_eval=fr.t + tau_s, sparse=True, breaks=fr.break_t)
     v = v_int + B[:, cols] @ beta
     if fr.break_t:
