@@ -377,18 +377,24 @@ DIRECTION_MIN_RAD_S = 0.2
 """Mean wheel speed [rad/s] beyond which its sign gives the direction of travel (about 0.15 m/s)."""
 
 
+def mean_wheel_speed(omega: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each row's mean of its finite wheel speeds [rad/s] (rows × wheels, or one wheel-based speed per row);
+    NaN where none is finite."""
+    om = np.asarray(omega, dtype=float)
+    if om.ndim == 1:
+        om = om[:, None]
+    fin = np.isfinite(om)
+    cnt = fin.sum(axis=1)
+    return np.where(cnt > 0, np.where(fin, om, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+
+
 def travel_direction(omega: NDArray[np.float64] | None) -> NDArray[np.float64] | None:
     """The direction of travel per row, ±1, from the sign of the mean wheel speed (a drive measures its sense of
     rotation): held through standstill and creeping (|mean ω| ≤ :data:`DIRECTION_MIN_RAD_S`), forward before the
     first decided row; None without wheel speeds.  The GNSS speed over ground (RMC/VTG) carries no sign."""
     if omega is None:
         return None
-    om = np.asarray(omega, dtype=float)
-    if om.ndim == 1:
-        om = om[:, None]
-    fin = np.isfinite(om)
-    cnt = fin.sum(axis=1)
-    w = np.where(cnt > 0, np.where(fin, om, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+    w = mean_wheel_speed(omega)
     d = np.where(w > DIRECTION_MIN_RAD_S, 1.0, np.where(w < -DIRECTION_MIN_RAD_S, -1.0, np.nan))
     idx = np.where(np.isfinite(d), np.arange(d.size), -1)
     idx = np.maximum.accumulate(idx)

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..config import G
 from ..model.vehicle import rolling_radius, wheel_loads, wheel_speed_factors
-from .data import DIRECTION_MIN_RAD_S, Frame
+from .data import DIRECTION_MIN_RAD_S, Frame, mean_wheel_speed
 
 SPLINE_KNOT_S = 3.0
 """Knot spacing of the low-frequency speed correction b(t) [s]."""
@@ -404,10 +404,7 @@ def balance_acceleration(fr: Frame, force: NDArray[np.float64], mass_kg: float) 
     a = force / mass_kg
     if fr.omega is None:
         return a
-    om = fr.omega
-    fin = np.isfinite(om)
-    cnt = fin.sum(axis=1)
-    w = np.where(cnt > 0, np.where(fin, om, 0.0).sum(axis=1) / np.maximum(cnt, 1), np.nan)
+    w = mean_wheel_speed(fr.omega)
     creep = np.isfinite(w) & (np.abs(w) <= DIRECTION_MIN_RAD_S)
     if not creep.any():
         return a
