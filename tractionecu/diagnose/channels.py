@@ -53,8 +53,8 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, spline_basis, SPLINE_KNOT_S, wheel_state,
-                       wheel_torque, WheelState)
+from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, spline_basis,
+                       SPLINE_KNOT_S, wheel_state, wheel_torque, WheelState)
 from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
