@@ -53,8 +53,8 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, spline_basis,
-                       SPLINE_KNOT_S, wheel_state, wheel_torque, WheelState)
+from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, speed_integral,
+                       spline_basis, SPLINE_KNOT_S, wheel_state, wheel_torque, WheelState)
 from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
@@ -385,11 +385,7 @@ class GpsSpeedChannel(Channel):
             force = force - eff["grade"]["scale"] * fx.grade_force(m, self.theta)
         if "aero" in eff and self.feat.v_ref is not None:
             force = force - fx.aero_force(self.feat.v_ref, eff["aero"]["cd_area_m2"])
-        v = cumtrapz0(balance_acceleration(fr, force, m), fr.dt)
-        if fr.can_time_offset_s:
-            # The force samples of bin k stand for time t_k + δ (δ = can_time_offset_s); the GNSS speed
-            # is at t_k.
-            v = np.interp(fr.t, fr.t + fr.can_time_offset_s, v)
+        v = speed_integral(fr, balance_acceleration(fr, force, m))
         if "gps_latency" in eff:
             v = fx.delayed(fr.t, v, eff["gps_latency"]["tau_s"])
         if "clock_skew" in eff:

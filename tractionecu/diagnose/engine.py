@@ -157,6 +157,7 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
     """Reason each candidate cannot be tested (missing signals), or '' when it can."""
     fr = feat.frame
     out = {}
+    reverse_s = _reverse_seconds(problem)
     for name, cand in CANDIDATES.items():
         chans = problem.acting(cand)
         reason = ""
@@ -181,11 +182,11 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
             reason = "no draft signal"
         elif name == "axle_load_offset" and "front_load" not in problem.channels:
             reason = "no measured front-axle load"
-        elif name == "torque_offset" and MU0_NOMINAL and _reverse_seconds(problem) < OFFSET_REVERSE_MIN_S:
+        elif name == "torque_offset" and MU0_NOMINAL and reverse_s < OFFSET_REVERSE_MIN_S:
             reason = ("in forward driving a torque offset per axle is the tyre's zero-slip traction ratio of the "
                       "nominal model (μ_0 = b/(r F_z), fitted per axle) plus a constant resistance (ρ_s): not "
                       "separable; in reverse both turn with the travel and the offset does not, but this recording "
-                      f"reverses for {_reverse_seconds(problem):.0f} s (at least {OFFSET_REVERSE_MIN_S:.0f} s "
+                      f"reverses for {reverse_s:.0f} s (at least {OFFSET_REVERSE_MIN_S:.0f} s "
                       "needed); check the torque reading at standstill with the drive unloaded")
         elif name == "clock_skew" and fr.rate_hz < 5.0:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a clock offset"

@@ -412,6 +412,15 @@ def balance_acceleration(fr: Frame, force: NDArray[np.float64], mass_kg: float) 
     return np.where(creep, kin, a)
 
 
+def speed_integral(fr: Frame, accel: NDArray[np.float64]) -> NDArray[np.float64]:
+    """v_int = ∫ ``accel`` dt [m/s] from 0 on the frame's rows, read at GNSS time: the force samples of bin k
+    stand for time t_k + δ (δ = ``can_time_offset_s``), the GNSS speed is at t_k."""
+    v = cumtrapz0(accel, fr.dt)
+    if fr.can_time_offset_s:
+        v = np.interp(fr.t, fr.t + fr.can_time_offset_s, v)
+    return v
+
+
 def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
     """Cumulative trapezoid integral starting at 0 (NaN treated as 0)."""
     y = np.nan_to_num(y)
@@ -537,9 +546,7 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
 
     m = fr.vehicle.mass_kg
     force = fh_sum - np.nan_to_num(fr.fdx)
-    v_int = cumtrapz0(balance_acceleration(fr, force, m), fr.dt)
-    if fr.can_time_offset_s:
-        v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
+    v_int = speed_integral(fr, balance_acceleration(fr, force, m))
     ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
     B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)
     if clock is not None:
@@ -1008,9 +1015,7 @@ def compute(fr: Frame) -> Features:
         # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
         # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not know).
         a_bal = balance_acceleration(fr, fh_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
-        v_int = cumtrapz0(a_bal, fr.dt)
-        if fr.can_time_offset_s:
-            v_int = np.interp(fr.t, fr.t + fr.can_time_offset_s, v_int)
+        v_int = speed_integral(fr, a_bal)
         accel = a_bal + smooth_derivative(v_ref - v_int, fr.dt)
     elif v_gps is not None:
         v_ref = v_gps
