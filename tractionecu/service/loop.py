@@ -98,11 +98,18 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
 
     The estimator's compiled (numba) kernels are compiled or loaded from their
     cache on first use, which takes seconds; done here, before the estimation
-    loop starts, it delays neither the first steps nor the watchdog.
+    loop starts, it delays neither the first steps nor the watchdog.  A short
+    drive does not reach every kernel (the curvature's noise needs a turn,
+    covariance matching's ratio a full window), so every filter kernel is
+    compiled first (:func:`~tractionecu.estimation._kernels.warm_up`), then the
+    drive compiles the machine's own model.
     """
     import numpy as np
 
+    from ..estimation import _kernels
+
     t0 = time.perf_counter()
+    _kernels.warm_up()
     est = factory(vehicle, sensors)
     if getattr(est, "level", None) == "machine":          # the machine-level estimator's keys
         for k in range(60):
