@@ -94,6 +94,18 @@ def test_simulate_refuses_a_duration_or_seed_it_cannot_run(arg, tmp_path, capsys
     assert not out.exists()
 
 
+@pytest.mark.parametrize("arg", [["--duration", "5"], ["--speed", "4"], ["--scenario", "s-curves-30m"],
+                                 ["--seed", "3"]])
+def test_run_refuses_simulation_options_without_simulate(arg, tmp_path, capsys):
+    """``tractionecu run --duration 5`` (no ``--simulate``) started the daemon on the configured hardware and ran
+    until it was stopped: the simulation's options were ignored without a word."""
+    assert main(["run", *arg, "--state-dir", str(tmp_path / "state")]) == 1
+    err = capsys.readouterr().err
+    assert f"tractionecu run: error: {arg[0]}: simulation options, given without --simulate" in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "state").exists()
+
+
 def test_simulate_says_a_mechanical_scenario_on_the_paper_truth_drives_the_hubs(tmp_path, capsys):
     out = tmp_path / "rec"
     assert main(["simulate", "--scenario", "mechanical-three-soils", "--truth", "paper", "--duration", "1",

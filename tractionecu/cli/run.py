@@ -41,12 +41,17 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("simulation (no hardware needed)")
     g.add_argument("--simulate", action="store_true",
                    help="drive the service with the built-in simulator over a virtual CAN bus and a pty")
-    g.add_argument("--scenario", default="paper-three-soils", help="simulated scenario (default: %(default)s)")
-    g.add_argument("--seed", type=int, default=0, help="simulation seed (default: %(default)s)")
-    g.add_argument("--speed", type=float, default=1.0, help="play the simulation this many times faster than real time")
+    g.add_argument("--scenario", default=None, help=f"simulated scenario (default: {SIM_DEFAULTS['scenario']})")
+    g.add_argument("--seed", type=int, default=None, help=f"simulation seed (default: {SIM_DEFAULTS['seed']})")
+    g.add_argument("--speed", type=float, default=None,
+                   help="play the simulation this many times faster than real time (default: 1)")
     g.add_argument("--duration", type=float, default=None, metavar="S",
                    help="stop after S seconds of simulated driving (default: the whole scenario)")
     p.set_defaults(func=run)
+
+
+SIM_DEFAULTS = {"scenario": "paper-three-soils", "seed": 0, "speed": 1.0}
+"""What ``--simulate`` takes for the simulation options not given (``--duration``: the whole scenario)."""
 
 
 def _config(args: argparse.Namespace):
@@ -79,6 +84,13 @@ def keep_mf4_reader_out() -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    sim_only = [f"--{k}" for k in ("scenario", "seed", "speed", "duration") if getattr(args, k) is not None]
+    if sim_only and not args.simulate:
+        # the daemon on real hardware runs until it is stopped: a --duration it ignored left a user waiting
+        raise ConfigError(f"{', '.join(sim_only)}: simulation options, given without --simulate")
+    for k, v in SIM_DEFAULTS.items():
+        if getattr(args, k) is None:
+            setattr(args, k, v)
     cfg = _config(args)
     if not args.simulate:
         keep_mf4_reader_out()
