@@ -53,8 +53,8 @@ from ..config import G
 from ..model import effects as fx
 from ..model.mucurve import SOIL_CLASSES, SoilClass
 from ..model.vehicle import wheel_speed_factors
-from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, speed_integral,
-                       spline_basis, SPLINE_KNOT_S, wheel_state, wheel_torque, WheelState)
+from .features import (Features, SplineFit, balance_acceleration, cumtrapz0, fused_speed, moving_mean,
+                       speed_integral, spline_basis, SPLINE_KNOT_S, wheel_state, wheel_torque, WheelState)
 from .hac import hac_meat
 
 SPEED_WINDOW_S = 2.0
@@ -433,7 +433,7 @@ class FrontLoadChannel(Channel):
         def sm(x: NDArray | None) -> NDArray:
             if x is None:
                 return np.zeros(rows.size)
-            return np.convolve(np.nan_to_num(x), np.ones(k) / k, mode="same")[rows]
+            return np.nan_to_num(moving_mean(x, k)[rows])
 
         self.sm = sm
         self.y = sm(fr.fzf) - veh.static_front_load_n()
@@ -524,7 +524,7 @@ class DraftChannel(Channel):
         # slows the tractor within a second (feedback); the average keeps the operator's speed
         # changes and drops most of that feedback, which would bias c towards negative values.
         k = max(1, int(round(DRAFT_SPEED_SMOOTH_S * fr.rate_hz)))
-        vs = np.convolve(np.nan_to_num(feat.v_ref), np.ones(k) / k, mode="same") if feat.v_ref is not None else np.zeros(fr.n)
+        vs = np.nan_to_num(moving_mean(feat.v_ref, k)) if feat.v_ref is not None else np.zeros(fr.n)
         self.v = vs[rows]
 
     def parts(self, eff: Effects, rows: NDArray[np.bool_]) -> tuple[NDArray, NDArray]:
