@@ -250,3 +250,37 @@ def test_a_delay_fitted_against_periodic_bus_samples_is_covered_only_with_their_
         extended += lo2 <= tau <= hi2
     assert plain / n_seeds < 0.6
     assert extended / n_seeds >= 0.93
+
+
+def test_a_pin_gain_within_its_tolerance_widens_only_an_axle_load_offset():
+    """An axle-load offset fitted beside the load-transfer heights is exactly k · F_zf,static for a pin gain
+    error k.  ``phys_latency_axle`` (2500 N concealed, pin gain exact) read 2469 [2450, 2490] once the front-load
+    channel was at its noise level: a statistical interval around a bias the gain tolerance (0.5 % of 24.7 kN)
+    allows."""
+    b = 0.005 * 24721.0
+    lo, hi = iv.gain_tolerance_extension("axle_load_offset", "b0_n", (2450.0, 2490.0), 2469.0, b)
+    ub = 1.959964 * b / math.sqrt(3.0)
+    assert lo == pytest.approx(2469.0 - math.hypot(19.0, ub)) and hi == pytest.approx(2469.0 + math.hypot(21.0, ub))
+    assert lo < 2500.0 < hi
+    # the statistical half-widths combine in quadrature: a wide interval hardly moves
+    w = iv.gain_tolerance_extension("axle_load_offset", "b0_n", (1000.0, 4000.0), 2500.0, b)
+    assert w[0] == pytest.approx(2500.0 - math.hypot(1500.0, ub)) and w[1] - 4000.0 < 20.0
+    # other parameters, no tolerance, and the parameter's limits
+    assert iv.gain_tolerance_extension("axle_load_offset", "b1_npm", (1.0, 2.0), 1.5, b) == (1.0, 2.0)
+    assert iv.gain_tolerance_extension("draft_offset", "b0_n", (1.0, 2.0), 1.5, b) == (1.0, 2.0)
+    assert iv.gain_tolerance_extension("axle_load_offset", "b0_n", (1.0, 2.0), 1.5, 0.0) == (1.0, 2.0)
+    assert iv.gain_tolerance_extension("axle_load_offset", "b0_n", (1.0, 2.0), 1.5, b, 0.0, 100.0) == (0.0, 100.0)
+
+
+def test_the_diagnosis_reads_the_sensor_tolerances_of_the_vehicle_file(short_recording, tmp_path):
+    import shutil
+
+    from tractionecu.config import SensorSpec, load_vehicle, save_vehicle
+    from tractionecu.diagnose import data
+
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    save_vehicle(load_vehicle(rec / "vehicle.toml"), rec / "vehicle.toml", sensors=SensorSpec(axle_gain_tol_rel=0.002))
+    assert data.load(rec).sensors.axle_gain_tol_rel == 0.002
+    (rec / "vehicle.toml").unlink()
+    assert data.load(rec).sensors == SensorSpec()          # no vehicle file: the documented defaults

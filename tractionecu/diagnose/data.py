@@ -27,7 +27,7 @@ from typing import Iterable, Mapping
 import numpy as np
 from numpy.typing import NDArray
 
-from ..config import VehicleParams, load_vehicle
+from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle
 from ..errors import RecordingError
 from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, GROUND_BASED_SPEED, IN_WORK, WHEEL_BASED_SPEED,
                                 WHEEL_SPEEDS)
@@ -102,6 +102,9 @@ class Frame:
     break_t: tuple[float, ...] = ()
     """Times t [s] at which the recording starts again after a break (the logger off, or the track
     jumping elsewhere; :func:`~.features.find_breaks`): no fit or residual spans one."""
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    """The vehicle file's ``[sensors]`` (their tolerances bound what the data cannot separate from a sensor
+    error: :mod:`.intervals`); the documented defaults without one."""
 
     @property
     def n(self) -> int:
@@ -434,15 +437,19 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
         else:
             rec = read_recording(path)   # no GNSS: the frame rate comes from the signals themselves
     notes = []
+    sensors = SensorSpec()
     if isinstance(vehicle, VehicleParams):
         veh = vehicle
     elif vehicle is not None:
         veh = load_vehicle(vehicle)
+        sensors = load_sensors(vehicle)
     elif rec.vehicle_toml_path is not None:
         veh = load_vehicle(rec.vehicle_toml_path)
+        sensors = load_sensors(rec.vehicle_toml_path)
     else:
         veh = VehicleParams()
         notes.append("no vehicle.toml: package default vehicle parameters used")
     fr = frame_from_recording(rec, veh, rate_hz, blocks)
     fr.notes[:0] = notes
+    fr.sensors = sensors
     return fr

@@ -528,6 +528,11 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
     hf_t = getattr(getattr(problem.feat, "frame", None), "hf_t", None)
     age_s = float(np.median(np.diff(hf_t))) if hf_t is not None and hf_t.size > 2 else math.nan
     info["sample_age_s"] = age_s
+    # The front-axle pin's gain tolerance times the static front load: an offset the data cannot tell from
+    # a gain error (intervals.gain_tolerance_extension).
+    frame = getattr(problem.feat, "frame", None)
+    pin_gain_n = (float(frame.sensors.axle_gain_tol_rel) * float(frame.vehicle.static_front_load_n())
+                  if frame is not None and not getattr(frame, "fzf_modelled", False) else math.nan)
     for j, (nm, p) in enumerate(zip(fr.names, cand.fitted)):
         en, pn = nm.split(".", 1)
         x = float(x_hat[j])
@@ -550,6 +555,7 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
         lo_j, hi_j = max(p.lo, min(lo_j, x)), min(p.hi, max(hi_j, x))
         lo_j, hi_j = iv.sample_age_extension(en, pn, (lo_j, hi_j), age_s, p.hi)
         lo_j, hi_j = iv.tyre_law_extension(en, pn, (lo_j, hi_j), p.lo, p.hi)
+        lo_j, hi_j = iv.gain_tolerance_extension(en, pn, (lo_j, hi_j), x, pin_gain_n, p.lo, p.hi)
         side = fr.at_bound.get(en, {}).get(pn, "")
         if side == "upper":
             hi_j = p.hi

@@ -74,6 +74,15 @@ Their ranges (:data:`tractionecu.model.effects.TYRE_DEFLECTION_RATIO_RANGE`,
 p/p_0 interval is widened to every pressure that gives the radius terms at its ends within them
 (:func:`tyre_law_extension`).
 
+A load pin's gain behind an axle-load offset (a calibration the data cannot check)
+--------------------------------------------------------------------------------------
+The front-axle load channel fits the load-transfer heights as a nuisance, so a gain error k of the pin,
+F_meas = (1 + k) F_zf, reads as an offset k · F_zf,static plus heights scaled by 1 + k: exactly an
+axle-load offset of that size.  The vehicle file's ``[sensors] axle_gain_tol_rel`` bounds |k| (a
+rectangular bound, as every sensor tolerance here), another type-B component: the offset's interval is
+widened to the expanded combination √(U_A² + (1.96 · b/√3)²) with b = tolerance × the static front
+load (:func:`gain_tolerance_extension`; the estimate is not moved).
+
 In the diagnosis (:func:`.fit.refine_intervals`) the sandwich interval x̂ ± 1.96 √V_jj is kept
 inside the profile's: the profile only widens it.  A profile edge nearer than the sandwich's is
 what a steeper-than-quadratic cost gives, but also what a re-fit of the other parameters that
@@ -91,7 +100,8 @@ from numpy.typing import NDArray
 
 __all__ = ["CHI2_1_95", "JACKKNIFE_BLOCKS", "Edge", "Interval", "hac_inflation", "profile_edge",
            "profile_interval", "block_labels", "jackknife_se", "heterogeneous", "t_quantile", "union",
-           "SAMPLE_AGE_PARAMS", "sample_age_extension", "tyre_law_extension"]
+           "SAMPLE_AGE_PARAMS", "sample_age_extension", "tyre_law_extension", "PIN_GAIN_PARAMS",
+           "gain_tolerance_extension"]
 
 CHI2_1_95 = 3.841458820694124
 """95 % quantile of χ² with one degree of freedom (1.959964²)."""
@@ -289,3 +299,23 @@ def tyre_law_extension(effect: str, param: str, interval: tuple[float, float], l
 
     a, b = tyre_pressure_law_range(lo, hi)
     return max(lower_limit, a), min(upper_limit, b)
+
+
+PIN_GAIN_PARAMS = frozenset({("axle_load_offset", "b0_n")})
+"""(effect, parameter) pairs that a load pin's gain error within its tolerance produces unseen (module doc)."""
+
+
+def gain_tolerance_extension(effect: str, param: str, interval: tuple[float, float], estimate: float,
+                             bound: float, lower_limit: float = -math.inf,
+                             upper_limit: float = math.inf) -> tuple[float, float]:
+    """The 95 % interval of ``effect.param`` with the type-B bound ``bound`` (same unit) of a load pin's gain
+    tolerance (:data:`PIN_GAIN_PARAMS`): each side's distance from ``estimate`` becomes
+    √(d² + (1.96 · bound/√3)²), clipped to the parameter's limits; other parameters, and a bound that is
+    not a positive finite number, leave the interval as it is."""
+    lo, hi = interval
+    if ((effect, param) not in PIN_GAIN_PARAMS or not (math.isfinite(bound) and bound > 0.0)
+            or not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(estimate))):
+        return lo, hi
+    ub = 1.959964 * bound / math.sqrt(3.0)
+    dlo, dhi = max(0.0, estimate - lo), max(0.0, hi - estimate)
+    return max(lower_limit, estimate - math.hypot(dlo, ub)), min(upper_limit, estimate + math.hypot(dhi, ub))
