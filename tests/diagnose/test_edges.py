@@ -63,3 +63,17 @@ def test_a_short_healthy_recording_has_no_unexplained_front_load(make_recording)
     sse = d.null_heldout.sse
     assert all(math.isfinite(float(v)) for v in (sse.values() if isinstance(sse, dict) else [sse]))
     assert math.isfinite(ow.get("heldout_rmse_reduction", 0.0))
+
+
+def test_a_recording_too_short_for_a_held_out_test_names_nothing(make_recording):
+    """A 3-s start from rest (paper truth, healthy) was diagnosed "effect: axle_load_offset", held-out score 11.1:
+    its four held-out blocks of 0.75 s were shorter than the 5-s window the draft channel averages its speed
+    over, so the folds were not held out from each other."""
+    from tractionecu.diagnose.engine import MIN_DRIVING_S, diagnose
+
+    d = diagnose(make_recording("paper-straight", 3, 3.0))
+    assert d.verdict == "none" and d.effect is None
+    assert not any(e["named"] for e in d.effects)
+    assert d.statement.startswith("Cannot diagnose: the recording holds ")
+    assert f"at least {MIN_DRIVING_S:.0f} s" in d.statement
+    assert not any(c.testable for c in d.candidates)

@@ -34,7 +34,7 @@ from ..model.effects import (EFFECTS, LIBRARY, SENSOR_FAULTS, TYRE_CARCASS_SHARE
 from ..recording.reader import Recording
 from . import data as _data
 from .candidates import CANDIDATES, NOMINAL
-from .channels import MU0_NOMINAL, Channel, build_channels
+from .channels import DRAFT_SPEED_SMOOTH_S, MU0_NOMINAL, Channel, build_channels
 from .features import Features, compute
 from .fit import FitResult, HeldOut, Problem, fit, held_out, refine_intervals, restrict, score
 from .lifted import lifted_draft_channel, shape_check
@@ -152,16 +152,27 @@ def _reverse_seconds(problem: Problem) -> float:
     rear = ch.wi >= 2
     return float(min(np.count_nonzero(rev & ~rear), np.count_nonzero(rev & rear))) / (2.0 * rate)
 
+MIN_DRIVING_S = 4.0 * DRAFT_SPEED_SMOOTH_S
+"""Driving [s] (moving rows with the force balance's signals) below which no effect is tested: the held-out
+test needs four time blocks (:func:`.features.held_out_folds`), each no shorter than the longest window a
+channel averages over (the draft's speed regressor, :data:`.channels.DRAFT_SPEED_SMOOTH_S`), or one fold's
+rows carry the other's data.  A 3-s start from rest named an axle-load offset before this rule."""
+
 
 def _testability(problem: Problem, feat: Features) -> dict[str, str]:
-    """Reason each candidate cannot be tested (missing signals), or '' when it can."""
+    """Reason each candidate cannot be tested (missing signals, too little driving), or '' when it can."""
     fr = feat.frame
     out = {}
     reverse_s = _reverse_seconds(problem)
+    driving_s = float(np.count_nonzero(feat.valid)) / fr.rate_hz if fr.rate_hz > 0 else 0.0
     for name, cand in CANDIDATES.items():
         chans = problem.acting(cand)
         reason = ""
-        if not chans:
+        if driving_s < MIN_DRIVING_S:
+            reason = (f"the recording holds {driving_s:.1f} s of driving; a held-out test needs at least "
+                      f"{MIN_DRIVING_S:.0f} s (four blocks no shorter than the {DRAFT_SPEED_SMOOTH_S:.0f}-s "
+                      "window the draft's speed is averaged over)")
+        elif not chans:
             reason = "no signal in this recording carries its signature"
         elif name == "grade" and feat.theta is None:
             reason = (feat.grade.method if feat.grade is not None
@@ -1067,6 +1078,9 @@ def _fmt(v: float) -> str:
 
 def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -> str:
     if verdict == "none":
+        reasons = {r.reason for r in results if not r.testable}
+        if results and not any(r.testable for r in results) and len(reasons) == 1:
+            return f"Cannot diagnose: {reasons.pop()}."
         # the best candidate that could have been the verdict (the characteristics are reported beside it: they
         # are the machine's, not findings)
         best = next((r for r in results if r.testable and r.name not in CHARACTERISTIC), None)
