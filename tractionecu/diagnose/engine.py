@@ -152,6 +152,7 @@ def _reverse_seconds(problem: Problem) -> float:
     rear = ch.wi >= 2
     return float(min(np.count_nonzero(rev & ~rear), np.count_nonzero(rev & rear))) / (2.0 * rate)
 
+
 MIN_DRIVING_S = 4.0 * DRAFT_SPEED_SMOOTH_S
 """Driving [s] (moving rows with the force balance's signals) below which no effect is tested: the held-out
 test needs four time blocks (:func:`.features.held_out_folds`), each no shorter than the longest window a
