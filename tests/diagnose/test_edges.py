@@ -77,3 +77,4 @@ def test_a_recording_too_short_for_a_held_out_test_names_nothing(make_recording)
     assert d.statement.startswith("Cannot diagnose: the recording holds ")
     assert f"at least {MIN_DRIVING_S:.0f} s" in d.statement
     assert not any(c.testable for c in d.candidates)
+    assert not any(e["name"] == "load_transfer" for e in d.effects)   # no heights fitted to 2.5 s of driving

@@ -1020,7 +1020,9 @@ def _effect_list(d: "Diagnosis", chosen: list[str], ambiguous: list[str]) -> lis
         if e["name"] in ambiguous:
             e["ambiguous"] = True
     fl = d.problem.channels.get("front_load")
-    if fl is not None:
+    # When nothing could be tested (too little driving) no heights are fitted: fitted to those few rows they
+    # would be reported with intervals as if they meant something (h_cg −0.04 m [−0.055, −0.027] on a 3-s start).
+    if fl is not None and any(c.testable for c in d.candidates):
         eff = jf.effects if jf is not None else {}
         out.append({"name": "load_transfer", "kind": "nominal", "named": False,
                     "formula": LIBRARY["load_transfer"].formula,
