@@ -112,8 +112,7 @@ class _WheelCache:
         v = self._lookup(key)
         if v is None:
             f = self.feat
-            ws = self.get({})
-            v = fused_speed(f.frame, ws.fx_sum, f.valid, tau, clock)
+            v = fused_speed(f.frame, f.v_int, f.valid, tau, clock)
             self._put(key, v)
         return v
 

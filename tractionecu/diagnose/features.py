@@ -95,6 +95,9 @@ class Features:
     """Position across the main axis [m]."""
     notes: list[str] = field(default_factory=list)
     sensor_faults: list[dict] = field(default_factory=list)
+    v_int: NDArray[np.float64] | None = None
+    """The nominal force integral v_int [m/s] that ``v_ref`` is fused from (:func:`fused_speed`); None without
+    wheel speeds or GNSS speed."""
     """Wheel-speed holds and dropouts found and repaired (:func:`wheel_speed_faults`)."""
 
     @property
@@ -559,11 +562,12 @@ def runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
     return list(zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]))
 
 
-def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_],
+def fused_speed(fr: Frame, v_int: NDArray[np.float64], valid: NDArray[np.bool_],
                 tau_s: float = 0.0, clock: tuple[float, float] | None = None) -> NDArray[np.float64]:
     """Fused ground speed v_ref(t) = v_int(t) + b(t) [m/s] on the CAN rows' time.
 
-    v_int = (1/m) ∫ (Σ F_h,i − F_dx) dt; the slow correction b is a cubic
+    v_int is the force integral (1/m) ∫ (Σ F_h,i − F_dx) dt (:attr:`Features.v_int`: :func:`speed_integral`
+    of :func:`balance_acceleration`); the slow correction b is a cubic
     B-spline fitted to the GNSS speed.  With a GNSS latency τ the fit is
     v_gps(t) = v_int(t − τ) + b(t − τ) (effect ``gps_latency``) and the
     returned speed is undelayed.  With a CAN clock running δ(t) ahead of GNSS
@@ -574,9 +578,6 @@ def fused_speed(fr: Frame, fh_sum: NDArray[np.float64], valid: NDArray[np.bool_]
     """
     from ..model.effects import clock_shift_s, delayed
 
-    m = fr.vehicle.mass_kg
-    force = fh_sum - np.nan_to_num(fr.fdx)
-    v_int = speed_integral(fr, balance_acceleration(fr, force, m))
     ok = np.flatnonzero(valid & np.isfinite(fr.v_gps))
     B = spline_basis(fr.t, SPLINE_KNOT_S, sparse=True, breaks=fr.break_t)
     if clock is not None:
@@ -1036,15 +1037,14 @@ def compute(fr: Frame) -> Features:
     if have_wheels:
         omega_dot = fr.omega_dot if fr.omega_dot is not None else smooth_derivative(np.nan_to_num(fr.omega), fr.dt)
         omega_dot = np.where(np.isfinite(omega_dot), omega_dot, smooth_derivative(np.nan_to_num(fr.omega), fr.dt))
-    v_ref = accel = None
+    v_ref = accel = v_int = None
     if have_wheels and v_gps is not None:
         ws = wheel_state(fr, omega_dot, None)
-        fh_sum = ws.fx_sum
-        v_ref = fused_speed(fr, fh_sum, valid)
         # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
         # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not know).
-        a_bal = balance_acceleration(fr, fh_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
+        a_bal = balance_acceleration(fr, ws.fx_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
         v_int = speed_integral(fr, a_bal)
+        v_ref = fused_speed(fr, v_int, valid)
         accel = a_bal + smooth_derivative(v_ref - v_int, fr.dt)
     elif v_gps is not None:
         v_ref = v_gps
@@ -1083,4 +1083,5 @@ def compute(fr: Frame) -> Features:
     feat = Features(fr, valid, omega_dot, v_gps, v_ref, accel, theta, grade, segment, direction, cell,
                     n_cells, fold, u, w, notes)
     feat.sensor_faults = sensor_faults
+    feat.v_int = v_int
     return feat

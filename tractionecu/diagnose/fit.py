@@ -525,12 +525,12 @@ def _refine_intervals(problem: Problem, fr: FitResult) -> FitResult:
     fr.ci95_wald_by = {en: dict(d) for en, d in fr.ci95_by.items()}
     # The drive-line signals' sample period: how old a torque value may be at its time stamp
     # (intervals.sample_age_extension).
-    hf_t = getattr(getattr(problem.feat, "frame", None), "hf_t", None)
+    frame = getattr(problem.feat, "frame", None)
+    hf_t = getattr(frame, "hf_t", None)
     age_s = float(np.median(np.diff(hf_t))) if hf_t is not None and hf_t.size > 2 else math.nan
     info["sample_age_s"] = age_s
     # The front-axle pin's gain tolerance times the static front load: an offset the data cannot tell from
     # a gain error (intervals.gain_tolerance_extension).
-    frame = getattr(problem.feat, "frame", None)
     pin_gain_n = (float(frame.sensors.axle_gain_tol_rel) * float(frame.vehicle.static_front_load_n())
                   if frame is not None and not getattr(frame, "fzf_modelled", False) else math.nan)
     for j, (nm, p) in enumerate(zip(fr.names, cand.fitted)):
