@@ -89,3 +89,18 @@ def test_without_the_owner_dbc_the_mapping_is_an_error_naming_the_key(owner_reco
     assert not (tmp_path / "c").exists()
     assert main(["inspect", str(owner_recording), "--dbc", str(tmp_path / "absent.dbc")]) == 1
     assert "absent.dbc" in capsys.readouterr().err
+
+
+def test_inspect_lists_a_message_on_several_identifiers_once(owner_recording, tmp_path, capsys):
+    """The CANedge gnss.dbc defines each of its nine messages on two 11-bit identifiers (two GNSS
+    modules); inspect listed all eighteen skips, each name twice."""
+    p = tmp_path / "gnss.dbc"
+    p.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
+                 'BO_ 3 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 19 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 7 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n')
+    assert main(["inspect", str(owner_recording), "--dbc", str(OWNER), "--dbc", str(p)]) == 0
+    out = capsys.readouterr().out
+    lines = [x.strip() for x in out.splitlines() if x.strip().startswith("skipped gnss")]
+    assert lines == ["skipped gnss_pos (2 identifiers): 11-bit identifier (J1939 decodes 29-bit frames by PGN)",
+                     "skipped gnss_speed: 11-bit identifier (J1939 decodes 29-bit frames by PGN)"]

@@ -47,7 +47,11 @@ def dbc_lines(codec: Codec) -> list[str]:
     for path in codec.extra_paths:
         names = [m.name for m in codec.messages.values() if m.source == path.name]
         out.append(f"  owner DBC {path.name}: {len(names)} messages ({', '.join(names)})")
-        out += [f"    skipped {msg}: {why}" for f, msg, why in codec.skipped if f == path.name]
+        ids: dict[tuple[str, str], int] = {}      # a DBC may define one name on several identifiers
+        for f, msg, why in codec.skipped:
+            if f == path.name:
+                ids[(msg, why)] = ids.get((msg, why), 0) + 1
+        out += [f"    skipped {msg}{f' ({n} identifiers)' if n > 1 else ''}: {why}" for (msg, why), n in ids.items()]
     return out
 
 
