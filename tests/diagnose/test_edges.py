@@ -78,3 +78,20 @@ def test_a_recording_too_short_for_a_held_out_test_names_nothing(make_recording)
     assert f"at least {MIN_DRIVING_S:.0f} s" in d.statement
     assert not any(c.testable for c in d.candidates)
     assert not any(e["name"] == "load_transfer" for e in d.effects)   # no heights fitted to 2.5 s of driving
+
+
+def test_the_report_of_a_recording_without_channels_is_written(make_recording, tmp_path):
+    """A 2-s ``henrys-slope`` start (1.2 s of driving) left no channel to test, and ``tractionecu diagnose``
+    stopped with a traceback drawing the residual figure with zero rows (report.json was already written)."""
+    import json
+
+    from tractionecu.cli.main import main
+    from tractionecu.diagnose.engine import diagnose
+
+    rec = make_recording("henrys-slope", 3, 2.0)
+    assert not diagnose(rec).problem.channels                     # the case: nothing to plot
+    assert main(["diagnose", str(rec), "--out", str(tmp_path / "d"), "--no-estimator"]) == 0
+    rep = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert rep["verdict"] == "none" and rep["statement"].startswith("Cannot diagnose")
+    for png in ("residual_before_after.png", "residual_map.png", "ranking.png"):
+        assert (tmp_path / "d" / png).stat().st_size > 1000

@@ -137,6 +137,14 @@ def plot_before_after(d: Diagnosis, path: Path) -> None:
         chans = sorted(chans, key=lambda c: -focus.per_channel.get(c, 0.0))[:3] or [d.lead_channel]
     else:
         chans = [d.lead_channel] if d.lead_channel else list(d.problem.channels)[:1]
+    if not chans:                      # nothing was tested (too short a drive): the figure says so
+        fig, ax = plt.subplots(figsize=(11, 3.0))
+        ax.text(0.5, 0.5, "no residual: nothing in this recording could be tested", ha="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        return
     fig, axes = plt.subplots(len(chans), 1, figsize=(11, 3.0 * len(chans)), squeeze=False)
     fr = d.features.frame
     for ax, cname in zip(axes[:, 0], chans):
