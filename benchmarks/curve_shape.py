@@ -74,11 +74,12 @@ from tractionecu.estimation.config import EstimatorConfig  # noqa: E402
 from tractionecu.estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN  # noqa: E402
 from tractionecu.evaluation.curve_score import identified_curve, pair_errors, r_squared_over, true_curve  # noqa: E402
 from tractionecu.config import G, load_vehicle  # noqa: E402
-from tractionecu.evaluation.scoring import S_GRID, read_truth, r_squared, scorecard  # noqa: E402
+from tractionecu.evaluation.scoring import R2_TARGET_SLIP_SPAN, S_GRID, read_truth, r_squared, scorecard  # noqa: E402
+from tractionecu.evaluation.scoring import slip_spans as scoring_slip_spans  # noqa: E402
 from tractionecu.pipeline.replay import replay  # noqa: E402
 from tractionecu.recording.reader import read_recording  # noqa: E402
 
-TARGET_R2, TARGET_SPAN = 0.98, 0.04
+TARGET_R2, TARGET_SPAN = 0.98, R2_TARGET_SLIP_SPAN
 """Issue 13's target: R² of the identified μ(s) ≥ 0.98 on every soil whose slip span is ≥ 0.04."""
 SLIP_SIGMA = 0.009
 SLIP_CORR_S = 0.5
@@ -196,17 +197,8 @@ def axle_r2(rec: Path, name: str, idx: np.ndarray, sts: list, veh) -> dict[str, 
 
 
 def slip_spans(rec: Path, ranges: bool = False) -> dict[str, Any]:
-    """5–95 % span of the true slips per soil while working (|μ| ≥ 0.15, v ≥ 0.5 m/s); with ``ranges`` the
-    (5 %, 95 %) slips themselves."""
-    tr = read_truth(rec / "truth.csv", rec / "truth.toml")
-    out = {}
-    names = np.array(tr.soil_name, dtype=object)
-    for name in sorted(set(tr.soil_name)):
-        m = (names == name)[:, None] & (np.abs(tr.mu) >= 0.15) & (np.abs(tr.v)[:, None] >= 0.5)
-        s = np.abs(tr.slip[m])
-        lo, hi = (float(np.percentile(s, 5)), float(np.percentile(s, 95))) if s.size else (math.nan, math.nan)
-        out[name] = (lo, hi) if ranges else hi - lo
-    return out
+    """:func:`tractionecu.evaluation.scoring.slip_spans` of the recording's truth."""
+    return scoring_slip_spans(read_truth(rec / "truth.csv", rec / "truth.toml"), ranges)
 
 
 def main(argv: list[str] | None = None) -> int:

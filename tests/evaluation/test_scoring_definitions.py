@@ -71,3 +71,26 @@ def test_signed_mu_bias_is_reported(tmp_path):
     assert sc["mu_mean_bias"] == pytest.approx([0.004, 0.004, -0.003, -0.003], abs=1e-9)
     assert sc["mu_mean_rel_bias"] == pytest.approx((0.004 / 0.4 - 0.003 / 0.3) / 2, abs=1e-9)
     assert sc["mu_mean_abs_rel_error"] == pytest.approx((0.004 / 0.4 + 0.003 / 0.3) / 2, abs=1e-9)
+
+
+def test_the_curve_target_states_the_soils_slip_span(tmp_path):
+    """A 12-s start on the HENRYS slope printed "r2_mu_curve[stubble] 0.3213 ... >= 0.98": the soil's true slips in
+    work spanned 0.030, below the 0.04 from which issue 13's R² target holds, and nothing said so."""
+    from tractionecu.cli.replay import format_summary
+    from tractionecu.evaluation.scoring import R2_TARGET_SLIP_SPAN, slip_spans
+
+    t, mu, rho, *_ = _write_truth(tmp_path, physical=False)
+    tr = read_truth(tmp_path / "truth.csv", tmp_path / "truth.toml")
+    assert slip_spans(tr) == {"firm": pytest.approx(0.0)}               # every true slip is 0.08
+    tr.slip[:, :] = np.linspace(0.02, 0.12, len(t))[:, None]             # 5–95 %: 0.025 .. 0.115
+    assert slip_spans(tr)["firm"] == pytest.approx(0.09, abs=1e-3)
+    assert slip_spans(tr, ranges=True)["firm"] == pytest.approx((0.025, 0.115), abs=1e-3)
+    res = {"steps": len(t), "sim_seconds": 2.0, "wall_seconds": 0.1, "realtime_factor": 20.0}
+    sc = scorecard(_estimates(t, mu, rho), tr)
+    assert sc["slip_span"]["firm"] == pytest.approx(0.09, abs=1e-3)
+    line = next(x for x in format_summary({**res, "scorecard": sc}).splitlines() if x.startswith("r2_mu_curve"))
+    assert line.endswith(">= 0.98 (true slips span 0.090)")
+    tr.slip[:, :] = 0.08
+    sc = scorecard(_estimates(t, mu, rho), tr)
+    line = next(x for x in format_summary({**res, "scorecard": sc}).splitlines() if x.startswith("r2_mu_curve"))
+    assert line.endswith(f"n/a: true slips span 0.000 < {R2_TARGET_SLIP_SPAN}")

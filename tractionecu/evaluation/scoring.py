@@ -31,6 +31,9 @@ used for an estimate at time t is the latest truth sample at or before t):
     over s ∈ [0, 0.4] (401 points).  Where most of the soil's samples report a
     fitted shape (curve path ``shape:<form>``), the mean of those curves, and a
     tabulated true curve where the truth has one (:mod:`.curve_score`).
+``slip_span``
+    per soil name, the 5–95 % span of its true slips in work (:func:`slip_spans`): the R² target applies
+    from ``R2_TARGET_SLIP_SPAN`` on.
 ``reconvergence_s``
     worst over soil changes (after the first convergence) of the time from
     the change until every wheel's |μ̂ − μ|/|μ| < 5 % and stays so for
@@ -132,6 +135,24 @@ def r_squared(y_hat: NDArray[np.float64], y: NDArray[np.float64]) -> float:
     return 1.0 - ss_res / ss_tot if ss_tot > 0 else math.nan
 
 
+R2_TARGET_SLIP_SPAN = 0.04
+"""Issue 13's μ(s) target (R² ≥ 0.98) holds for a soil whose true slips in work span at least this much [-]
+(5–95 %, :func:`slip_spans`): over a narrower span the data hold one working point, not a curve."""
+
+
+def slip_spans(truth: Truth, ranges: bool = False) -> dict[str, Any]:
+    """Per soil name, the 5–95 % span of the true slips while working (|μ| ≥ 0.15, |v| ≥ 0.5 m/s) [-], NaN
+    where the soil has no such sample; with ``ranges`` the (5 %, 95 %) slips themselves."""
+    out: dict[str, Any] = {}
+    names = np.array(truth.soil_name, dtype=object)
+    for name in sorted(set(truth.soil_name)):
+        m = (names == name)[:, None] & (np.abs(truth.mu) >= 0.15) & (np.abs(truth.v)[:, None] >= 0.5)
+        s = np.abs(truth.slip[m])
+        lo, hi = (float(np.percentile(s, 5)), float(np.percentile(s, 95))) if s.size else (math.nan, math.nan)
+        out[name] = (lo, hi) if ranges else hi - lo
+    return out
+
+
 def nis_bounds(dof: NDArray[np.int64], p: float = 0.95) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Two-sided χ² interval [lo, hi] of probability p for each degree of freedom."""
     lo = chi2.ppf((1 - p) / 2, np.maximum(dof, 1))
@@ -193,6 +214,8 @@ def scorecard(est: dict[str, NDArray[Any]], truth: Truth, *, mu_rel_floor: float
         r2[name] = r_squared(mu_id_curve, mu_true_curve)
         curves[name] = {**ident, "a_true": info["a"], "class_true": info["soil_class"]}
     out["r2_mu_curve"] = r2
+    spans = slip_spans(truth)
+    out["slip_span"] = {name: spans.get(name, math.nan) for name in r2}
     out["curves"] = curves
 
     # reconvergence after soil changes
