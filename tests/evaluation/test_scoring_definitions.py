@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -94,3 +95,19 @@ def test_the_curve_target_states_the_soils_slip_span(tmp_path):
     sc = scorecard(_estimates(t, mu, rho), tr)
     line = next(x for x in format_summary({**res, "scorecard": sc}).splitlines() if x.startswith("r2_mu_curve"))
     assert line.endswith(f"n/a: true slips span 0.000 < {R2_TARGET_SLIP_SPAN}")
+
+
+def test_a_scorecard_without_rho_s_prints_no_nan(tmp_path):
+    """A mechanical machine without a draft sensor reports no ρ_s (issue 14): the replay table printed
+    "rho_s_mean_abs_error nan", and an empty map "map_soil_accuracy n/a %"."""
+    from tractionecu.cli.replay import format_summary
+
+    t, mu, rho, *_ = _write_truth(tmp_path, physical=False)
+    tr = read_truth(tmp_path / "truth.csv", tmp_path / "truth.toml")
+    sc = scorecard(_estimates(t, mu, np.full(len(t), np.nan)), tr)
+    assert math.isnan(sc["rho_s_mean_abs_error"])
+    res = {"steps": len(t), "sim_seconds": 2.0, "wall_seconds": 0.1, "realtime_factor": 20.0, "scorecard": sc,
+           "map_scorecard": {"map_soil_accuracy": None, "map_a_rmse": None, "map_rho_s_rmse": None}}
+    text = format_summary(res)
+    assert "nan" not in text and "n/a %" not in text
+    assert re.search(r"^rho_s_mean_abs_error +n/a: no rho_s reported", text, re.M)

@@ -239,7 +239,9 @@ def format_summary(res: dict[str, Any]) -> str:
             rows = [("mu_mean_abs_rel_error" + ("[machine]" if mach else ""),
                      f"{sc['mu_mean_abs_rel_error'] * 100:.2f} %", "<= 4 %" if mach else "<= 2 %"),
                     ("mu_mean_abs_error", f"{sc['mu_mean_abs_error']:.4f}", ""),
-                    ("rho_s_mean_abs_error", f"{sc['rho_s_mean_abs_error']:.4f}", "<= 0.015" if mach else ""),
+                    ("rho_s_mean_abs_error", f"{sc['rho_s_mean_abs_error']:.4f}"
+                     if math.isfinite(sc["rho_s_mean_abs_error"]) else "n/a: no rho_s reported",
+                     "<= 0.015" if mach else ""),
                     ("reconvergence_s", f"{sc['reconvergence_s']:.2f} s", "<= 2 s"),
                     ("nis_within_95", f"{sc['nis_within_95'] * 100:.1f} %", "~95 %"),
                     ("t_first_convergence_s", f"{sc['t_first_convergence_s']:.2f} s", "")]
@@ -270,7 +272,8 @@ def format_summary(res: dict[str, Any]) -> str:
         def num(x: Any, fmt: str, scale: float = 1.0) -> str:    # None: nothing to score (no ρ_s mapped)
             return "n/a" if x is None else format(x * scale, fmt)
 
-        lines.append(f"{'map_soil_accuracy':<22}  {num(msc['map_soil_accuracy'], '.1f', 100.0)} %  (target >= 95 %)")
+        acc = num(msc['map_soil_accuracy'], '.1f', 100.0)
+        lines.append(f"{'map_soil_accuracy':<22}  {acc}{'' if acc == 'n/a' else ' %'}  (target >= 95 %)")
         lines.append(f"{'map_a_rmse':<22}  {num(msc['map_a_rmse'], '.4f')}")
         lines.append(f"{'map_rho_s_rmse':<22}  {num(msc['map_rho_s_rmse'], '.4f')}")
     if "map_samples" in res and "map_epochs" not in res:    # no tiles written (mapping.from_replay)
