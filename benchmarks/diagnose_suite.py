@@ -2,8 +2,11 @@
 
 Run from the repository root::
 
-    python benchmarks/diagnose_suite.py --json OUT.json [--fast] [--jobs 2] [--workdir DIR] [--reuse]
+    python benchmarks/diagnose_suite.py --json OUT.json [--fast] [--jobs 2] [--workdir DIR] [--reuse] [--seed-offset N]
     python benchmarks/diagnose_suite.py --json OUT.json --realistic --workdir DIR --simulate-only
+
+``--seed-offset N`` adds N to every case's seed: the same cases with other noise, sensor draws and
+disturbances, recordings the diagnosis has never been run on (keep them in their own ``--workdir``).
 
 ``--simulate-only`` writes the recordings into ``--workdir`` and diagnoses nothing, so that a
 later ``--reuse`` run re-diagnoses the same recordings after a change of the diagnosis.
@@ -54,12 +57,15 @@ from tractionecu.diagnose.engine import diagnose  # noqa: E402
 from tractionecu.evaluation.suite import all_cases, cases, fast_cases, score_case, summarize, write_case  # noqa: E402
 
 
-def run_case(name: str, workdir: str, reuse: bool, simulate_only: bool = False) -> dict:
+def run_case(name: str, workdir: str, reuse: bool, simulate_only: bool = False, seed_offset: int = 0) -> dict:
     case = next(c for c in all_cases() if c.name == name)
     rec = Path(workdir) / name
+    mark = Path(workdir) / f"{name}.seed_offset"       # which seeds the kept recording was made with
     t0 = time.perf_counter()
-    if not (reuse and (rec / "can.log").is_file()):
-        write_case(case, rec)
+    made = (rec / "can.log").is_file() and (mark.read_text().strip() if mark.is_file() else "0") == str(seed_offset)
+    if not (reuse and made):
+        write_case(case, rec, seed_offset)
+        mark.write_text(f"{seed_offset}\n")
     t1 = time.perf_counter()
     if simulate_only:
         return {"case": name, "simulate_s": round(t1 - t0, 2)}
@@ -116,6 +122,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="parallel processes (default: %(default)s)")
     ap.add_argument("--workdir", default=None, help="keep the recordings here (default: a temporary directory)")
     ap.add_argument("--reuse", action="store_true", help="diagnose recordings already in --workdir")
+    ap.add_argument("--seed-offset", type=int, default=0,
+                    help="add this to every case's seed: the same cases with noise, sensor draws and disturbances "
+                         "the diagnosis was never run on (default: %(default)s, the suite's own recordings)")
     ap.add_argument("--simulate-only", action="store_true",
                     help="only write the recordings into --workdir (diagnose them later with --reuse)")
     args = ap.parse_args(argv)
@@ -139,9 +148,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.jobs > 1:
             with ProcessPoolExecutor(max_workers=args.jobs) as ex:
                 sims = list(ex.map(run_case, names, [workdir] * len(names), [args.reuse] * len(names),
-                                   [True] * len(names)))
+                                   [True] * len(names), [args.seed_offset] * len(names)))
         else:
-            sims = [run_case(n, workdir, args.reuse, True) for n in names]
+            sims = [run_case(n, workdir, args.reuse, True, args.seed_offset) for n in names]
         for r in sims:
             print(f"{r['case']:28s} simulated in {r['simulate_s']} s", flush=True)
         Path(args.json).write_text(json.dumps({"simulated": sims, "wall_s": round(time.perf_counter() - t0, 1)},
@@ -151,17 +160,18 @@ def main(argv: list[str] | None = None) -> int:
         from concurrent.futures import as_completed
 
         with ProcessPoolExecutor(max_workers=args.jobs) as ex:
-            futs = {ex.submit(run_case, n, workdir, args.reuse): n for n in names}
+            futs = {ex.submit(run_case, n, workdir, args.reuse, False, args.seed_offset): n for n in names}
             done = {}
             for f in as_completed(futs):
                 done[futs[f]] = f.result()
                 print(table([done[futs[f]]]).splitlines()[-1], flush=True)   # progress, one line per case
             rows = [done[n] for n in names]
     else:
-        rows = [run_case(n, workdir, args.reuse) for n in names]
+        rows = [run_case(n, workdir, args.reuse, False, args.seed_offset) for n in names]
     wall = time.perf_counter() - t0
     figs = summarize(rows)
     figs["wall_s"] = round(wall, 1)
+    figs["seed_offset"] = args.seed_offset
     print(table(rows))
     print()
     for k, v in figs.items():

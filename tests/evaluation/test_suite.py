@@ -115,3 +115,19 @@ def test_a_tyre_pressure_the_file_does_not_know_is_the_cases_effect_not_the_plan
     ref = pw._declared_vehicle(at_rated)
     assert veh.drivetrain.rolling_radius_m == ref.drivetrain.rolling_radius_m
     assert inherent(case) == inherent(replace(case, build=lambda: at_rated))
+
+
+def test_a_seed_offset_redraws_the_recording_and_keeps_the_case(monkeypatch, tmp_path):
+    """``diagnose_suite.py --seed-offset N``: the same case (field, plan, concealed effects) with the noise and
+    sensor draws of seed + N, for figures on recordings the diagnosis was never run on."""
+    from tractionecu.evaluation import suite as S
+
+    seen = []
+    monkeypatch.setattr(S, "simulate", lambda scn: seen.append(scn) or None)
+    monkeypatch.setattr(S, "write_recording", lambda scn, tr, out: None)
+    case = next(c for c in S.cases() if c.name == "phys_null_a")
+    S.write_case(case, tmp_path / "a")
+    S.write_case(case, tmp_path / "b", seed_offset=1000)
+    assert seen[1].seed == seen[0].seed + 1000
+    assert seen[1].name == seen[0].name and seen[1].vehicle == seen[0].vehicle
+    assert (seen[1].plan.x == seen[0].plan.x).all() and seen[1].effects == seen[0].effects

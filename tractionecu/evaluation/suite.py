@@ -402,13 +402,16 @@ def fast_cases() -> list[Case]:
     return [c for c in all_cases() if c.fast]
 
 
-def write_case(case: Case, out: str | Path) -> Path:
+def write_case(case: Case, out: str | Path, seed_offset: int = 0) -> Path:
     """Simulate ``case``, write its recording directory and apply its recording-level faults and
-    vehicle-file edits; returns the path."""
+    vehicle-file edits; returns the path.  ``seed_offset`` is added to the scenario's seed: the same
+    case with other noise, sensor draws and disturbances (recordings the diagnosis was never run on)."""
     import shutil
 
     out = Path(out)
     scn = case.scenario()
+    if seed_offset:
+        scn = replace(scn, seed=scn.seed + int(seed_offset))
     tr = simulate(scn)
     if not case.faults:
         write_recording(scn, tr, out)
