@@ -88,3 +88,14 @@ def test_motion_unknown_without_speeds_and_standing_with_zero_speed(tmp_path):
     assert m.moving is False
     assert m.describe() == ("no motion: WheelBasedVehicleSpeed 0.05 m/s at most (20 samples); gear selected: neutral; "
                             "parking brake set")
+
+
+def test_the_rear_hitch_status_at_its_standard_rate_has_no_gaps(make_recording):
+    """ISO 11783-7 sends the rear hitch status every 100 ms, as the mechanical simulator does; the DBC's
+    nominal period was 20 ms, so inspect listed every frame of a mechanical recording as a gap."""
+    rec = read_recording(make_recording("mechanical-three-soils", 3, 4.0))
+    ms = rec.stats.messages["RearHitchStatus"]
+    assert ms.rate_hz == pytest.approx(10.0, rel=0.05) and ms.nominal_period_s == pytest.approx(0.1)
+    assert ms.n_gaps == 0
+    hub = read_recording(make_recording("paper-straight", 3, 4.0)).stats.messages["RearHitchStatus"]
+    assert hub.rate_hz == pytest.approx(50.0, rel=0.05) and hub.n_gaps == 0     # faster than the standard: fine
