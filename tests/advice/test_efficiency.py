@@ -197,3 +197,24 @@ def test_a_curve_shape_outside_the_surface_classes_has_its_curve_and_optimum() -
     assert eff.curve_of(SimpleNamespace(a=0.8, soil_class="loam")) is None
     with pytest.raises(KeyError, match="loam"):
         eff.true_optimum(0.8, 0.06, 0.015, "loam")
+
+
+def test_a_machine_without_a_draft_sensor_is_told_apart_from_an_invalid_estimate() -> None:
+    """A mechanical tractor without a draft sensor reports no ρ_s by design (status 0x8000, machine level 0x4000);
+    its estimate is valid, but the service's status line said "s* - (estimate not valid)" all the way."""
+    from tractionecu.advice.engine import AdviceEngine
+
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    est = estimate(0.0, 0.08, rho_s=math.nan, status=0xC000)
+    est.valid = True
+    rep = trk.update(est)
+    assert rep.flags & eff.NO_RHO_S and not rep.flags & eff.ESTIMATE_INVALID
+    assert not rep.eta_valid and not rep.s_star_valid and rep.slip_ok
+    _, vals = default_codec().decode(*efficiency_frame(default_codec(), rep, sa=0x90, priority=6))
+    assert int(vals["EfficiencyValidity"]) & eff.NO_RHO_S and math.isnan(vals["TractionEfficiency"])
+    eng = AdviceEngine(VehicleParams())
+    eng.feed(est)
+    assert "no rho_s without a draft sensor" in eng.status_text() and "estimate not valid" not in eng.status_text()
+    # a ρ_s missing for any other reason still makes the estimate unusable
+    rep = trk.update(estimate(0.1, 0.08, rho_s=math.nan))
+    assert rep.flags & eff.ESTIMATE_INVALID and not rep.flags & eff.NO_RHO_S

@@ -56,13 +56,16 @@ ESTIMATE_INVALID = 0x08
 """The estimate itself is not valid (input timeout, not converged, filter lost, standstill)."""
 NOT_PULLING = 0x10
 """Too slow or too little traction for a current η (η of a wheel that does not pull is meaningless)."""
+NO_RHO_S = 0x20
+"""The estimate is valid but holds no soil rolling resistance ρ_s: a machine without a draft sensor, where ρ_s
+and the implement's draft are not separable (EstimateStatus ``DRAFT_NOT_SEPARATED``); eq. 7 needs ρ_s."""
 FLAGS = {CURVE_NOT_IDENTIFIED: "curve not identified", LOW_EXCITATION: "slip too low to identify the curve",
          INTERVAL_WIDE: "optimal slip too uncertain", ESTIMATE_INVALID: "estimate not valid",
-         NOT_PULLING: "not pulling"}
+         NOT_PULLING: "not pulling", NO_RHO_S: "no rho_s without a draft sensor"}
 """Validity bits of :attr:`EfficiencyReport.flags` (also the DBC's ``EfficiencyValidity``)."""
-S_STAR_BITS = CURVE_NOT_IDENTIFIED | LOW_EXCITATION | INTERVAL_WIDE | ESTIMATE_INVALID
+S_STAR_BITS = CURVE_NOT_IDENTIFIED | LOW_EXCITATION | INTERVAL_WIDE | ESTIMATE_INVALID | NO_RHO_S
 """Any of these set: no s*, η* or pull at s*."""
-ETA_BITS = ESTIMATE_INVALID | NOT_PULLING
+ETA_BITS = ESTIMATE_INVALID | NOT_PULLING | NO_RHO_S
 """Any of these set: no current η."""
 
 S_MAX = 0.6
@@ -357,6 +360,8 @@ INVALID_STATUS = 0x01 | 0x02 | 0x04 | 0x08 | 0x20 | 0x40 | 0x200 | 0x400 | 0x100
 # ... and the bits that make the slip itself unusable: wheel or ground speed timed out, rejected input,
 # filter lost, standstill, slip not supported by its own σ (creeping, manoeuvring).
 SLIP_INVALID_STATUS = 0x01 | 0x02 | 0x40 | 0x200 | 0x400 | 0x2000
+# ... and the bit saying that ρ_s is not reported by design (no draft sensor).
+DRAFT_NOT_SEPARATED = 0x8000
 
 
 @dataclass
@@ -422,7 +427,7 @@ class EfficiencyTracker:
         pulling = (math.isfinite(v) and abs(v) >= c.min_speed_mps and bool(np.isfinite(mu).all())
                    and bool(np.isfinite(s).all()) and float(np.mean(mu)) >= c.min_mu)
         if not math.isfinite(rho_s):
-            flags |= ESTIMATE_INVALID
+            flags |= NO_RHO_S if status & DRAFT_NOT_SEPARATED else ESTIMATE_INVALID
         rep.slip_ok = bool(pulling and not status & SLIP_INVALID_STATUS and math.isfinite(rep.slip))
         if not pulling:
             flags |= NOT_PULLING
