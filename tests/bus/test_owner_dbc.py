@@ -42,10 +42,39 @@ def test_owner_messages_decode_by_pgn_under_message_dot_signal_names(codec):
     assert codec.signals["DriveCtrl_4.HitchDraft"].raw_min == -32768
 
 
-def test_multiplexed_and_11_bit_messages_are_skipped_and_listed(codec):
-    assert {(m, why.split(" ")[0]) for _, m, why in codec.skipped} == {("DriveCtrl_5", "multiplexed"),
-                                                                       ("Dash_Lamps", "11-bit")}
+def test_multiplexed_messages_are_skipped_and_listed(codec):
+    assert {(m, why.split(" ")[0]) for _, m, why in codec.skipped} == {("DriveCtrl_5", "multiplexed")}
     assert codec.message_for_pgn(0xFF57) is None and "DriveCtrl_5" not in codec.messages
+
+
+def test_an_owner_message_on_an_11_bit_identifier_decodes_by_that_identifier(codec):
+    """A CANedge logger's GNSS frames, an implement's own bus: CAN 2.0A identifiers of the owner's DBC."""
+    info = codec.messages["Dash_Lamps"]
+    assert info.pgn is None and info.std_id == 0x3A0 and codec.message_for_std_id(0x3A0) is info
+    assert codec.decode(0x3A0, bytes([1, 0]), False) == ("Dash_Lamps", {"Dash_Lamps.Beacon": 1.0})
+    with pytest.raises(dbcmod.UnknownFrame):
+        codec.decode(0x3A1, bytes(2), False)                       # an 11-bit identifier no DBC defines
+    with pytest.raises(dbcmod.UnknownFrame):
+        codec.decode(0x3A0, bytes(2), True)                        # the same number as a 29-bit identifier
+    with pytest.raises(dbcmod.DecodeError, match=r"Dash_Lamps \(11-bit ID 0x3a0\): DLC 8, expected 2"):
+        codec.decode(0x3A0, bytes(8), False)
+    assert codec.resolve("Dash_Lamps.Beacon") == "Dash_Lamps.Beacon"
+    assert not default_codec().has_std_ids and codec.has_std_ids
+    with pytest.raises(dbcmod.UnknownFrame):
+        default_codec().decode(0x3A0, bytes(2), False)             # the built-in DBC alone: J1939 only
+
+
+def test_an_11_bit_identifier_or_name_defined_twice(tmp_path):
+    a = one_message_dbc(tmp_path / "a.dbc", "Lamps", 0x3A0)
+    with pytest.raises(ConfigError, match=r"11-bit identifier 0x3a0 defined twice: Dash_Lamps in owner_drivectrl"):
+        Codec(extra=[OWNER, a])
+    twice = tmp_path / "twice.dbc"                                  # one name on two identifiers of one file
+    twice.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
+                     'BO_ 3 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                     'BO_ 19 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n')
+    c = Codec(extra=[twice])
+    assert c.messages["gnss_pos"].std_id == 3 and c.message_for_std_id(19) is None
+    assert c.skipped == [("twice.dbc", "gnss_pos", "defined again on another 11-bit identifier (the first is decoded)")]
 
 
 def test_a_pgn_defined_twice_names_both_files(tmp_path):
@@ -115,16 +144,19 @@ def test_extra_dbcs_block_extends_the_shared_codec_and_restores_it():
 
 
 def test_skipped_messages_are_logged_once_per_file_and_reason(tmp_path, caplog):
-    """An owner's DBC of 11-bit messages (the CANedge gnss.dbc: 9 of them) logged one warning per message
-    and again for every codec built from it (inspect --dbc: 18 lines)."""
+    """An owner's DBC with skipped messages (the CANedge gnss.dbc defines its 9 messages twice, on two
+    identifiers) logged one warning per message and again for every codec built from it (inspect --dbc:
+    18 lines)."""
     p = tmp_path / "gnss.dbc"
     p.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
                  'BO_ 3 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
-                 'BO_ 7 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n')
+                 'BO_ 7 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 19 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 23 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n')
     with caplog.at_level("WARNING", logger="tractionecu.bus.dbc"):
         for _ in range(3):
             c = Codec(extra=[p])
             assert [m for _, m, _ in c.skipped] == ["gnss_pos", "gnss_speed"]      # still listed every time
     lines = [r.getMessage() for r in caplog.records if r.name == "tractionecu.bus.dbc"]
-    assert lines == ["dbc: gnss.dbc: 2 message(s) skipped, 11-bit identifier (J1939 decodes 29-bit frames by PGN): "
-                     "gnss_pos, gnss_speed"]
+    assert lines == ["dbc: gnss.dbc: 2 message(s) skipped, defined again on another 11-bit identifier (the first is "
+                     "decoded): gnss_pos, gnss_speed"]

@@ -78,7 +78,7 @@ def test_inspect_lists_the_mapped_signals_and_their_source(owner_recording, caps
     assert "wheel speed FL   WheelSpeed_FL from DriveCtrl_3.WhlSpdFL x 0.10472" in out
     assert "drive torque RR  DriveTorque_RR from TECU_DriveTorques" in out
     assert "hub (replay runs this one): 11 of 11 found" in out and "motion: moving" in out
-    assert "owner DBC owner_drivectrl.dbc: 2 messages (DriveCtrl_3, DriveCtrl_4)" in out
+    assert "owner DBC owner_drivectrl.dbc: 3 messages (DriveCtrl_3, DriveCtrl_4, Dash_Lamps)" in out
     assert "skipped DriveCtrl_5: multiplexed" in out
 
 
@@ -93,14 +93,16 @@ def test_without_the_owner_dbc_the_mapping_is_an_error_naming_the_key(owner_reco
 
 def test_inspect_lists_a_message_on_several_identifiers_once(owner_recording, tmp_path, capsys):
     """The CANedge gnss.dbc defines each of its nine messages on two 11-bit identifiers (two GNSS
-    modules); inspect listed all eighteen skips, each name twice."""
+    modules); inspect listed every skipped definition, each name as often as it was skipped."""
     p = tmp_path / "gnss.dbc"
     p.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\n'
                  'BO_ 3 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
                  'BO_ 19 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
+                 'BO_ 35 gnss_pos: 8 X\n SG_ Lat : 0|16@1+ (1,0) [0|0] "" X\n'
                  'BO_ 7 gnss_speed: 8 X\n SG_ Speed : 0|16@1+ (1,0) [0|0] "" X\n')
     assert main(["inspect", str(owner_recording), "--dbc", str(OWNER), "--dbc", str(p)]) == 0
     out = capsys.readouterr().out
+    assert "owner DBC gnss.dbc: 2 messages (gnss_pos, gnss_speed)" in out
     lines = [x.strip() for x in out.splitlines() if x.strip().startswith("skipped gnss")]
-    assert lines == ["skipped gnss_pos (2 identifiers): 11-bit identifier (J1939 decodes 29-bit frames by PGN)",
-                     "skipped gnss_speed: 11-bit identifier (J1939 decodes 29-bit frames by PGN)"]
+    assert lines == ["skipped gnss_pos (2 identifiers): defined again on another 11-bit identifier (the first is "
+                     "decoded)"]

@@ -161,3 +161,32 @@ def test_kernel_filters_pass_the_transport_protocol() -> None:
     f = pgn_filters([*CODEC.pgns(), *TRANSPORT_PGNS], 0x90)
     cid = j1939.make_id(7, PGN_TP_DT, 0x00, 0xFF)
     assert any((cid & x["can_mask"]) == (x["can_id"] & x["can_mask"]) for x in f)
+
+
+def test_an_owner_message_on_an_11_bit_identifier_feeds_the_steps(tmp_path: Path) -> None:
+    """A CANedge GNSS speed frame (11-bit identifier 7, CSS Electronics' gnss.dbc layout) mapped onto the
+    ground speed; before, every 11-bit frame was counted as ``standard_id_frames`` and dropped, and the
+    kernel filters did not pass it."""
+    from tractionecu.service.daemon import pgn_filters
+
+    dbc = tmp_path / "gnss.dbc"
+    dbc.write_text('VERSION ""\nNS_ :\nBS_:\nBU_: X\nBO_ 7 gnss_speed: 5 X\n'
+                   ' SG_ Speed : 1|20@1+ (0.001,0) [0|1048.575] "m/s" X\n'
+                   ' SG_ SpeedValid : 0|1@1+ (1,0) [0|1] "" X\n', encoding="utf-8")
+    cfg = from_dict({"can": {"dbc": [str(dbc)]}, "signals": {"GroundBasedMachineSpeed": "gnss_speed.Speed"}})
+    codec, mapping = codec_for(cfg)
+    steps = StepAssembler(groups=MACHINE_GROUPS)
+    d = FrameDispatcher(codec, steps, FixBuffer(GnssGate()), mapping=mapping)
+    raw = (2512 << 1) | 1                                     # 2.512 m/s, valid
+    frames = [can.Message(arbitration_id=7, is_extended_id=False, data=raw.to_bytes(5, "little")),
+              can.Message(arbitration_id=9, is_extended_id=False, data=bytes(8))]     # in no DBC
+    for m in through_virtual_bus(frames):
+        d.on_frame(4.0, m)
+    assert d.stats["rx_gnss_speed"] == 1 and d.stats["standard_id_frames"] == 1
+    d.on_frame(4.0, can.Message(arbitration_id=7, is_extended_id=False, data=bytes(8)))   # wrong length
+    assert d.bad_frames["gnss_speed"] == 1
+    _, meas = steps.take(4.01)
+    assert meas["vr"] == pytest.approx(2.512)                 # the estimator's ground-speed key
+    f = pgn_filters([*codec.pgns(), *TRANSPORT_PGNS], 0x90, codec.std_ids())
+    assert {"can_id": 7, "can_mask": 0x7FF, "extended": False} in f
+    assert all(x["extended"] for x in pgn_filters(CODEC.pgns(), 0x90, CODEC.std_ids()))

@@ -54,9 +54,12 @@ messages are decoded by PGN like the others.  Their signals are named
 messages), so a recording holds them under those names and a ``[signals]``
 table maps them onto the contract names (:meth:`Codec.resolve_mapping`).  A
 PGN or a message name defined twice is a :class:`ConfigError` naming both
-files.  Messages of an extra DBC that cannot be decoded by PGN (11-bit
-identifiers, multiplexed messages) are skipped and listed in
-:attr:`Codec.skipped`.
+files.  An extra DBC's messages with an 11-bit identifier (CAN 2.0A: a
+CANedge logger's GNSS/IMU frames, an implement's or a retrofit sensor's own
+bus) are decoded by that identifier: they have no PGN (``pgn`` None,
+``std_id`` the identifier) and no source address.  Multiplexed messages, and
+a message name defined again on another identifier (the first definition is
+decoded), are skipped and listed in :attr:`Codec.skipped`.
 
 The DBC has one place, ``dbc/tractionecu.dbc`` at the top of the
 repository, installed as the package ``tractionecu.contract`` (see
@@ -148,7 +151,7 @@ class SignalInfo:
 
     name: str
     message: str
-    pgn: int
+    pgn: int | None
     scale: float
     offset: float
     minimum: float
@@ -172,10 +175,11 @@ class SignalInfo:
 
 @dataclass(frozen=True)
 class MessageInfo:
-    """Static description of one DBC message (parameter group); ``source`` is the DBC file's name."""
+    """Static description of one DBC message (parameter group); ``source`` is the DBC file's name.  A message
+    of an owner's DBC on an 11-bit identifier has ``pgn`` None and ``std_id`` its identifier."""
 
     name: str
-    pgn: int
+    pgn: int | None
     priority: int
     default_sa: int
     default_da: int | None
@@ -184,6 +188,7 @@ class MessageInfo:
     signals: tuple[str, ...]
     comment: str | None
     source: str = ""
+    std_id: int | None = None
 
     @property
     def multi_packet(self) -> bool:
@@ -215,7 +220,24 @@ def _raw_bounds(sig) -> tuple[int, int, int]:
     return raw_min, raw_max, raw_na
 
 
-def _signal_info(key: str, message: str, pgn: int, s) -> SignalInfo:
+@contextmanager
+def _quiet_cantools() -> Iterator[None]:
+    """cantools' own warnings off while a DBC loads (the codec reports what it skips, once per file)."""
+    lg = logging.getLogger("cantools.database")
+    level = lg.level
+    lg.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        lg.setLevel(level)
+
+
+def _where(info: MessageInfo) -> str:
+    """``PGN n`` of a J1939 message, ``11-bit ID 0x..`` of an owner's message on a standard identifier."""
+    return f"PGN {info.pgn}" if info.pgn is not None else f"11-bit ID {info.std_id:#05x}"
+
+
+def _signal_info(key: str, message: str, pgn: int | None, s) -> SignalInfo:
     """The :class:`SignalInfo` of cantools signal ``s`` decoded under ``key``."""
     if s.is_float:
         lo = float(s.minimum) if s.minimum is not None and s.minimum != s.maximum else -math.inf
@@ -260,6 +282,7 @@ class Codec:
         self.signals: dict[str, SignalInfo] = {}
         self.skipped: list[tuple[str, str, str]] = []
         self._by_pgn: dict[int, MessageInfo] = {}
+        self._by_std_id: dict[int, MessageInfo] = {}      # owner messages on 11-bit identifiers
         self._cmsg: dict[str, object] = {}
         self._keys: dict[str, dict[str, str]] = {}       # message -> {DBC signal name: decoded key}
         self.db = self._load(self.path, extra=False)
@@ -276,51 +299,61 @@ class Codec:
 
     def _load(self, path: Path, extra: bool):
         try:
-            db = cantools.database.load_file(str(path), strict=not extra)
+            with _quiet_cantools():        # "Overwriting message ..." for a name on several identifiers: ours says it
+                db = cantools.database.load_file(str(path), strict=not extra)
         except FileNotFoundError as exc:
             raise ConfigError(f"dbc: file not found: {path}") from exc
         except Exception as exc:  # cantools raises several unrelated types
             raise ConfigError(f"dbc: cannot load {path}: {exc}") from exc
         skipped: dict[str, list[str]] = {}
         for m in db.messages:
-            if extra and (not m.is_extended_frame or m.is_multiplexed()):
-                why = "11-bit identifier (J1939 decodes 29-bit frames by PGN)" if not m.is_extended_frame \
-                    else "multiplexed (not decoded by PGN)"
+            std = not m.is_extended_frame
+            again = std and extra and m.name in self.messages and self.messages[m.name].source == path.name
+            if extra and (m.is_multiplexed() or again):
+                why = "multiplexed (not decoded by PGN)" if m.is_multiplexed() else \
+                    "defined again on another 11-bit identifier (the first is decoded)"
                 self.skipped.append((path.name, m.name, why))
                 names = skipped.setdefault(why, [])
                 if m.name not in names:             # a DBC may define one name on several identifiers
                     names.append(m.name)
                 continue
-            if not m.is_extended_frame:
+            if std and not extra:
                 raise ConfigError(f"dbc: message {m.name} is not a 29-bit extended frame")
-            cid = j1939.parse_id(m.frame_id)
-            twice = self._by_pgn.get(cid.pgn) or self.messages.get(m.name)
+            cid = None if std else j1939.parse_id(m.frame_id)
+            pgn = None if cid is None else cid.pgn
+            twice = self._by_std_id.get(m.frame_id) if std else self._by_pgn.get(pgn)
+            what = f"11-bit identifier {m.frame_id:#05x}" if std else f"PGN {pgn} ({pgn:#06x})"
+            if twice is None and m.name in self.messages:
+                twice, what = self.messages[m.name], f"message name {m.name}"
             if twice is not None:
-                what = f"PGN {cid.pgn} ({cid.pgn:#06x})" if twice.pgn == cid.pgn else f"message name {m.name}"
                 raise ConfigError(f"dbc: {what} defined twice: {twice.name} in {twice.source}, "
                                   f"{m.name} in {path.name}")
             keys = {s.name: (f"{m.name}.{s.name}" if extra else s.name) for s in m.signals}
             info = MessageInfo(
                 name=m.name,
-                pgn=cid.pgn,
-                priority=cid.priority,
-                default_sa=cid.sa,
-                default_da=cid.da,
+                pgn=pgn,
+                priority=cid.priority if cid is not None else 0,
+                default_sa=cid.sa if cid is not None else 0,
+                default_da=cid.da if cid is not None else None,
                 length=m.length,
                 cycle_time_s=(m.cycle_time / 1000.0) if m.cycle_time else None,
                 signals=tuple(keys.values()),
                 comment=m.comment,
                 source=path.name,
+                std_id=m.frame_id if std else None,
             )
             for s in m.signals:
                 if keys[s.name] in self.signals:
                     raise ConfigError(f"dbc: signal name {s.name} used in two messages")
             self.messages[m.name] = info
-            self._by_pgn[cid.pgn] = info
+            if std:
+                self._by_std_id[m.frame_id] = info
+            else:
+                self._by_pgn[pgn] = info
             self._cmsg[m.name] = m
             self._keys[m.name] = keys
             for s in m.signals:
-                self.signals[keys[s.name]] = _signal_info(keys[s.name], m.name, cid.pgn, s)
+                self.signals[keys[s.name]] = _signal_info(keys[s.name], m.name, pgn, s)
         for why, names in skipped.items():                    # one line per file and reason, once per process
             key = (str(path.resolve()), why, tuple(names))
             if key not in _SKIP_LOGGED:
@@ -344,6 +377,19 @@ class Codec:
     def message_for_id(self, can_id: int) -> MessageInfo | None:
         """Message description for a 29-bit ID (any SA/DA), or None."""
         return self._by_pgn.get(j1939.parse_id(can_id).pgn)
+
+    def message_for_std_id(self, can_id: int) -> MessageInfo | None:
+        """Message description for an 11-bit identifier (an owner's DBC), or None."""
+        return self._by_std_id.get(can_id)
+
+    @property
+    def has_std_ids(self) -> bool:
+        """Whether any message is on an 11-bit identifier (an owner's DBC)."""
+        return bool(self._by_std_id)
+
+    def std_ids(self) -> list[int]:
+        """Every 11-bit identifier of the owner's DBCs, ascending."""
+        return sorted(self._by_std_id)
 
     def pgns(self) -> list[int]:
         """Every PGN in the DBC, ascending."""
@@ -380,28 +426,33 @@ class Codec:
         Returns ``(message_name, {signal: physical value})`` with values in
         the DBC units; not-available / error codes give NaN.
 
-        Raises :class:`UnknownFrame` for an 11-bit frame or a PGN not in the
-        DBC, :class:`DecodeError` when the data length differs from the
-        message's DLC.
+        An 11-bit frame is decoded by its identifier when an owner's DBC
+        defines it.  Raises :class:`UnknownFrame` for an 11-bit frame or a
+        PGN not in the DBCs, :class:`DecodeError` when the data length
+        differs from the message's DLC.
         """
         if not is_extended:
-            exc = UnknownFrame(f"11-bit frame {can_id:#05x}: J1939 uses 29-bit IDs only")
-            exc.pgn = None  # type: ignore[attr-defined]
-            raise exc
-        try:
-            pgn = j1939.parse_id(can_id).pgn
-        except ValueError as e:
-            raise DecodeError(str(e)) from None
-        info = self._by_pgn.get(pgn)
-        if info is None:
-            exc = UnknownFrame(f"PGN {pgn} ({pgn:#06x}) not in {self.path.name}")
-            exc.pgn = pgn  # type: ignore[attr-defined]
-            raise exc
+            info = self._by_std_id.get(can_id)
+            if info is None:
+                exc = UnknownFrame(f"11-bit frame {can_id:#05x}: not in an owner's DBC (J1939 uses 29-bit IDs)")
+                exc.pgn = None  # type: ignore[attr-defined]
+                raise exc
+            pgn = None
+        else:
+            try:
+                pgn = j1939.parse_id(can_id).pgn
+            except ValueError as e:
+                raise DecodeError(str(e)) from None
+            info = self._by_pgn.get(pgn)
+            if info is None:
+                exc = UnknownFrame(f"PGN {pgn} ({pgn:#06x}) not in {self.path.name}")
+                exc.pgn = pgn  # type: ignore[attr-defined]
+                raise exc
         data = bytes(data)
         if len(data) != info.length:
             if not info.multi_packet:
                 raise DecodeError(
-                    f"{info.name} (PGN {pgn}): DLC {len(data)}, expected {info.length}"
+                    f"{info.name} ({_where(info)}): DLC {len(data)}, expected {info.length}"
                 )
             data = data[: info.length].ljust(info.length, b"\xff")
         try:
@@ -409,7 +460,7 @@ class Codec:
                 data, decode_choices=False, scaling=False
             )
         except Exception as e:  # cantools.DecodeError and bitstruct errors
-            raise DecodeError(f"{info.name} (PGN {pgn}): {e}") from None
+            raise DecodeError(f"{info.name} ({_where(info)}): {e}") from None
         keys = self._keys[info.name]
         out: dict[str, float] = {}
         for name, r in raw.items():

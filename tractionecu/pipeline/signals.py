@@ -43,7 +43,8 @@ the GNSS speed over ground of the recording's track):
 :func:`profile_status` tells which needs a recording meets and from which
 message; :func:`missing_signals` the signals it lacks, by default those
 :data:`REPLAY_REQUIRED`; :func:`motion` whether its speed signals show the
-machine moving.  A signal counts as found when it has at least one sample
+machine moving (a wheel-based speed over 0.1 m/s, or with none a wheel turning
+or a ground speed over it: radar and GNSS read noise at standstill).  A signal counts as found when it has at least one sample
 that is not "not available".
 """
 
@@ -346,6 +347,11 @@ SPEED_SIGNALS: tuple[str, ...] = (VEHICLE_SPEED, WHEEL_BASED_SPEED, FRONT_AXLE_S
                                   GNSS_TRACK_SPEED)
 """Ground and wheel-based speeds [m/s] that tell motion."""
 
+GROUND_SPEEDS: tuple[str, ...] = (GROUND_BASED_SPEED, GNSS_TRACK_SPEED)
+"""The speeds of :data:`SPEED_SIGNALS` measured against the ground (radar, GNSS): at standstill they read their
+noise, not zero (a parked CANedge logger's GNSS speed: up to 0.92 m/s at a reported accuracy of 0.1–0.3 m/s),
+so where a wheel-based speed is present, it decides."""
+
 
 @dataclass(frozen=True)
 class Motion:
@@ -363,11 +369,14 @@ class Motion:
 def motion(rec: Any, engine: bool = True) -> Motion:
     """Motion from the speed signals (module doc), with the engine speed (``engine``: a streamed replay's survey
     keeps only a stub of it), gear and parking brake as context."""
-    moving: bool | None = None
+    wheels: bool | None = None                     # what the wheel-based speeds say, then the ground speeds
+    ground: bool | None = None
     evidence = []
-    for names, limit, unit in ((SPEED_SIGNALS, MOTION_SPEED_MPS, "m/s"), (WHEEL_SPEEDS, MOTION_WHEEL_RAD_S, "rad/s")):
-        if moving is not None:                     # wheel angular speeds only when no speed in m/s tells
-            break
+    wheel_mps = tuple(n for n in SPEED_SIGNALS if n not in GROUND_SPEEDS)
+    for names, limit, unit in ((wheel_mps, MOTION_SPEED_MPS, "m/s"), (WHEEL_SPEEDS, MOTION_WHEEL_RAD_S, "rad/s"),
+                               (GROUND_SPEEDS, MOTION_SPEED_MPS, "m/s")):
+        if names is WHEEL_SPEEDS and wheels is not None:   # wheel angular speeds only when no speed in m/s tells
+            continue
         for name in names:
             v = _values(rec, name)
             if v is None or not np.isfinite(v).any():
@@ -375,7 +384,14 @@ def motion(rec: Any, engine: bool = True) -> Motion:
             top = float(np.nanmax(np.abs(v)))
             label = "GNSS speed" if name == GNSS_TRACK_SPEED else name
             evidence.append(f"{label} {top:.2f} {unit} at most ({int(np.isfinite(v).sum())} samples)")
-            moving = bool(moving) or top > limit
+            if names is GROUND_SPEEDS:
+                ground = bool(ground) or top > limit
+            else:
+                wheels = bool(wheels) or top > limit
+    moving = ground if wheels is None else wheels
+    if wheels is False and ground:
+        evidence.append(f"the ground speeds above {MOTION_SPEED_MPS:g} m/s with the wheels standing are their "
+                        "noise at standstill")
     rpm = _values(rec, ENGINE_SPEED) if engine else None
     if rpm is not None and np.isfinite(rpm).any():
         rpm = rpm[np.isfinite(rpm)] * 30.0 / math.pi
@@ -399,7 +415,7 @@ def motion(rec: Any, engine: bool = True) -> Motion:
 
 __all__ = ["ANCHOR_SIGNAL", "DECLARED_REFERENCE_TORQUE", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
            "ENGINE_REFERENCE_TORQUE", "ENGINE_SPEED", "ESTIMATED_PROFILES", "FRONT_AXLE_LOAD", "FRONT_AXLE_SPEED",
-           "GEAR_RATIO", "GNSS_SPEED", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
+           "GEAR_RATIO", "GNSS_SPEED", "GROUND_SPEEDS", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
            "SignalGroups", "estimator_profile", "machine_missing", "required_missing", "ENGINE_CURRENT_GEAR",
            "REAR_RELATIVE_SPEEDS", "FRONT_RELATIVE_SPEEDS", "GNSS_TRACK_SPEED", "GROUND_BASED_SPEED", "GROUPS", "INPUT_GROUPS",
            "INPUT_MESSAGES", "IN_WORK", "MACHINE_INPUT_MESSAGES", "MEASUREMENT_GROUPS", "MOTION_SPEED_MPS", "MOTION_WHEEL_RAD_S", "Motion",

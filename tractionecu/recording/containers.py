@@ -139,9 +139,14 @@ class AddressClaim:
     lineno: int
 
 
+STD_SA = -1
+"""The source address recorded for a frame on an 11-bit identifier (an owner's DBC): CAN 2.0A has none."""
+
+
 @dataclass
 class MessageStats:
-    """Frame count, time span [s], mean rate [Hz], nominal period [s] and gaps of one message."""
+    """Frame count, time span [s], mean rate [Hz], nominal period [s] and gaps of one message (``std_id``: its
+    11-bit identifier, for an owner's message that has no PGN)."""
 
     name: str
     pgn: int | None
@@ -154,6 +159,7 @@ class MessageStats:
     n_gaps: int = 0
     max_interval_s: float = 0.0
     sources: Counter = field(default_factory=Counter)
+    std_id: int | None = None
 
     @property
     def rate_hz(self) -> float:

@@ -69,6 +69,7 @@ from ..bus.candump import ReadStats, _classify
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..errors import DecodeError, UnknownFrame
+from .containers import STD_SA
 
 CHUNK_CHARS = 1 << 20
 """Characters read at a time (whole lines are processed per chunk)."""
@@ -416,7 +417,9 @@ def _find_layout(codec: Codec, name: str) -> list[tuple[str, int, int, bool]] | 
     sigs = {s.name: s for s in msg.signals}
     if any(s.byte_order != "little_endian" or s.is_float or s.length > 64 for s in sigs.values()):
         return None
-    _, values = codec.decode(codec.messages[name].pgn << 8, bytes(msg.length), True)
+    info = codec.messages[name]
+    _, values = (codec.decode(info.pgn << 8, bytes(msg.length), True) if info.std_id is None
+                 else codec.decode(info.std_id, bytes(msg.length), False))
     dbc = {k: sigs[codec.signals[k].dbc_name] for k in values}
     return [(k, dbc[k].start, dbc[k].length, dbc[k].is_signed) for k in values]
 
@@ -453,11 +456,17 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
         stats.can_t_first = float(table.t[0])
         stats.can_t_last = float(table.t[-1])
     ext = table.ext
-    stats.non_extended_frames += int(n - ext.sum())
     cid = table.can_id
     pgn = j1939.pgn_of(cid)
-    sa = cid & 0xFF
+    sa = np.where(ext, cid & 0xFF, STD_SA)                  # an 11-bit frame has no source address
     known = {p: codec.message_for_pgn(p) for p in np.unique(pgn[ext]).tolist()}
+    std = np.flatnonzero(~ext)
+    std_known = {}                                         # the owner's messages on 11-bit identifiers
+    if std.size and codec.has_std_ids:
+        std_known = {i: info for i in np.unique(cid[std]).tolist()
+                     if (info := codec.message_for_std_id(i)) is not None}
+    n_std = int(std.size) - (int(np.isin(cid[std], list(std_known)).sum()) if std_known else 0)
+    stats.non_extended_frames += n_std
     msg_parts: dict[str, list] = {}                    # name -> [(rows, values dict | None)]
     sig_out: dict[str, list] = {}
     unknown_first: dict[int, int] = {}
@@ -471,8 +480,9 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
             claims[key][1] += 1
         else:
             claims[key] = [float(table.t[i]), 1, int(table.lineno[i]), name]
-    for p, info in known.items():
-        rows = np.flatnonzero(ext & (pgn == p))
+    groups = [(p, info, None) for p, info in known.items()] + [(None, info, i) for i, info in std_known.items()]
+    for p, info, std_id in groups:
+        rows = np.flatnonzero(ext & (pgn == p)) if std_id is None else std[cid[std] == std_id]
         if info is None:
             unknown_first[p] = int(rows[0])
             stats.unknown_pgns[p] += int(rows.size)
@@ -507,15 +517,16 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
         if done is not None and codec.message_for_pgn(done[0]) is not None:
             items.append((i, 1, message_id(done[0], done[1]), done[2]))
     for i, _, can_id, data in sorted(items, key=lambda x: x[:2]):
-        p = j1939.pgn_of(can_id)
+        is_ext = bool(ext[i])
+        p = j1939.pgn_of(can_id) if is_ext else None
         try:
-            msg, values = codec.decode(can_id, data, True)
+            msg, values = codec.decode(can_id, data, is_ext)
         except UnknownFrame:                            # pragma: no cover - PGN known above
             stats.unknown_pgns[p] += 1
             stats.unknown_pgn_sources.setdefault(p, set()).add(int(sa[i]))
             continue
         except DecodeError:
-            info = codec.message_for_pgn(p)
+            info = codec.message_for_pgn(p) if is_ext else codec.message_for_std_id(can_id)
             key_name = info.name if info is not None else f"PGN {p}"
             stats.decode_errors[key_name] += 1
             ex = stats.decode_error_lines.setdefault(key_name, [])

@@ -35,7 +35,8 @@ capture again block by block for a streamed replay.  Every 29-bit frame is decod
 whatever its source (and, for PDU1, destination) address.  Frames whose
 PGN the DBC lacks are skipped and counted per PGN (with the source
 addresses seen); frames of a known PGN with the wrong DLC are skipped and
-counted per message; 11-bit frames are counted and skipped.  Address
+counted per message; 11-bit frames are decoded by identifier when an owner's
+DBC defines it (no source address: ``Series.sa`` -1), else counted and skipped.  Address
 Claimed frames (PGN 60928) are listed with source address and decoded
 NAME.  Lines the candump reader rejects (garbage, truncated, bad hex,
 DLC > 8, time going backwards, ...) are counted by reason with the first
@@ -122,7 +123,7 @@ def read_recording(path: str | Path, codec: Codec | None = None, *, dbc: Sequenc
     stats = RecordingStats()
     if hold is not None:
         hold.mapping = list(mapping)
-    decoded = _read_can(can_path, codec, stats, keep, hold)
+    decoded = _read_can(can_path, codec, stats, _keep_mapped(keep, mapping), hold)
     sources = {name: codec.signals[name].message for name in decoded}
     for target, src, scale in mapping:
         s = decoded.get(src)
@@ -355,6 +356,22 @@ def _when(t: float) -> str:
     if 0 <= t < 4e9:
         return time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(t))
     return f"{t:.3f} s"
+
+
+def _keep_mapped(keep: Callable[[str, set[str]], bool] | None, mapping: Sequence[tuple[str, str, float]]
+                 ) -> Callable[[str, set[str]], bool] | None:
+    """``keep`` that also keeps whole the owner's signals a ``[signals]`` table maps onto a kept name: the
+    mapping is applied after decoding, so a ground speed mapped from an owner's message was otherwise a stub
+    (inspect's motion report read one sample of it, the clock offset none)."""
+    if keep is None or not mapping:
+        return keep
+    targets: dict[str, list[str]] = {}
+    for target, src, _ in mapping:
+        targets.setdefault(src, []).append(target)
+
+    def kept(name: str, seen: set[str]) -> bool:
+        return keep(name, seen) or any(keep(t, seen) for t in targets.get(name, ()))
+    return kept
 
 
 # --------------------------------------------------------------------------- CAN

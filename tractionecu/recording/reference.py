@@ -21,7 +21,7 @@ from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import with_reassembled
 from ..counting import MAX_EXAMPLES
 from ..errors import DecodeError, RecordingError, UnknownFrame
-from .containers import AddressClaim, MessageStats, RecordingStats, Series
+from .containers import STD_SA, AddressClaim, MessageStats, RecordingStats, Series
 from .reader import check_frames, message_times
 
 
@@ -59,10 +59,13 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
                 stats.can_t_first = frame.t
             stats.can_t_last = frame.t
             if not frame.is_extended:
-                stats.non_extended_frames += 1
-                continue
-            cid = j1939.parse_id(frame.can_id)
-            if cid.pgn == j1939.PGN_ADDRESS_CLAIMED and len(frame.data) == 8:
+                if codec.message_for_std_id(frame.can_id) is None:
+                    stats.non_extended_frames += 1
+                    continue
+                cid = None                      # an owner's message on an 11-bit identifier: no PGN, no address
+            else:
+                cid = j1939.parse_id(frame.can_id)
+            if cid is not None and cid.pgn == j1939.PGN_ADDRESS_CLAIMED and len(frame.data) == 8:
                 name = j1939.Name.from_bytes(frame.data)
                 key = (cid.sa, name.to_int())
                 if key in claims:
@@ -70,13 +73,13 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
                 else:
                     claims[key] = AddressClaim(cid.sa, name, frame.t, 1, lineno)
             try:
-                msg, values = codec.decode(frame.can_id, frame.data, True)
+                msg, values = codec.decode(frame.can_id, frame.data, frame.is_extended)
             except UnknownFrame:
                 stats.unknown_pgns[cid.pgn] += 1
                 stats.unknown_pgn_sources.setdefault(cid.pgn, set()).add(cid.sa)
                 continue
             except DecodeError:
-                info = codec.message_for_pgn(cid.pgn)
+                info = codec.message_for_pgn(cid.pgn) if cid is not None else codec.message_for_std_id(frame.can_id)
                 key_name = info.name if info is not None else f"PGN {cid.pgn}"
                 stats.decode_errors[key_name] += 1
                 ex = stats.decode_error_lines.setdefault(key_name, [])
@@ -86,12 +89,13 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
             ms = stats.messages.get(msg)
             if ms is None:
                 info = codec.message(msg)
-                ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s)
+                ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s, std_id=info.std_id)
                 times[msg] = []
+            sa = STD_SA if cid is None else cid.sa
             ms.count += 1
-            ms.sources[cid.sa] += 1
+            ms.sources[sa] += 1
             times[msg].append(frame.t)
-            if cid.pgn in NETWORK_MANAGEMENT_PGNS:
+            if cid is not None and cid.pgn in NETWORK_MANAGEMENT_PGNS:
                 continue
             for sig, v in values.items():
                 b = builders.get(sig)
@@ -99,7 +103,7 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
                     b = builders[sig] = _SeriesBuilder()
                 b.t.append(frame.t)
                 b.v.append(v)
-                b.sa.append(cid.sa)
+                b.sa.append(sa)
     except OSError as e:
         raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
 

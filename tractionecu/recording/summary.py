@@ -49,7 +49,7 @@ def summarize(recording: Recording) -> str:
             nom = f"{1.0 / ms.nominal_period_s:.1f}" if ms.nominal_period_s else "-"
             rate = f"{ms.rate_hz:.2f}" if math.isfinite(ms.rate_hz) else "-"
             srcs = ",".join(f"0x{sa:02X}" for sa in sorted(ms.sources) if sa >= 0) or "-"
-            pgn = str(ms.pgn) if ms.pgn is not None else "-"
+            pgn = str(ms.pgn) if ms.pgn is not None else f"{ms.std_id:#05x}" if ms.std_id is not None else "-"
             out.append(
                 f"    {ms.name:<22}{pgn:>7}{ms.count:>8}{rate:>9}{nom:>9}{ms.n_gaps:>6}{ms.max_interval_s:>10.3f}  {srcs}"
             )

@@ -112,14 +112,16 @@ otherwise be parsed in Python).  Address Claimed passes to any destination (ever
 address table)."""
 
 
-def pgn_filters(pgns: Iterable[int], address: int | None = None) -> list[dict[str, Any]]:
-    """python-can ``can_filters`` passing these PGNs from any source.
+def pgn_filters(pgns: Iterable[int], address: int | None = None, std_ids: Iterable[int] = ()
+                ) -> list[dict[str, Any]]:
+    """python-can ``can_filters`` passing these PGNs from any source, and the 11-bit identifiers ``std_ids``
+    (an owner's DBC messages on CAN 2.0A identifiers).
 
     A PDU2 PGN passes whole; a PDU1 PGN passes to any destination, except the
     :data:`ADDRESSED_PGNS`, which pass only to the global address (0xFF) and to
     ``address`` (our claimed address; None: global only).
     """
-    out = []
+    out = [{"can_id": i, "can_mask": 0x7FF, "extended": False} for i in sorted(set(std_ids))]
     for pgn in sorted(set(pgns)):
         if not j1939.is_pdu1(pgn):
             out.append({"can_id": (pgn & 0x3FFFF) << 8, "can_mask": 0x3FFFF << 8, "extended": True})
@@ -232,7 +234,8 @@ class Service:
         bus_kwargs = dict(extra_bus_kwargs or {})
         if cfg.can.kernel_filters:
             addr = cfg.broadcast.preferred_address if cfg.broadcast.enabled else None
-            bus_kwargs.setdefault("can_filters", pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], addr))
+            bus_kwargs.setdefault("can_filters", pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], addr,
+                                                             self.codec.std_ids()))
         self.can = CanLink(cfg.can, self.dispatcher.on_frame, self.clock, bus_factory=bus_factory,
                            extra_bus_kwargs=bus_kwargs, on_open=self.network.on_bus_open)
         self.network.link = self.can
@@ -301,7 +304,7 @@ class Service:
 
     def _follow_address(self, address: int | None) -> None:
         """Our address changed: the kernel passes Requests, TP, ETP and acknowledgements to it."""
-        self.can.set_filters(pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], address))
+        self.can.set_filters(pgn_filters([*self.codec.pgns(), *TRANSPORT_PGNS], address, self.codec.std_ids()))
         log.info("CAN filters follow address %s", "none" if address is None else f"0x{address:02X}")
 
     # ------------------------------------------------------------ start-up steps

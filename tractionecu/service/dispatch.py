@@ -5,8 +5,10 @@
 ==============================  ==============================================
 frame                           goes to / counted as
 ==============================  ==============================================
-error, remote, 11-bit, CAN FD   ``error_frames``, ``remote_frames``,
-                                ``standard_id_frames``, ``canfd_frames``
+error, remote, CAN FD          ``error_frames``, ``remote_frames``,
+                                ``canfd_frames``
+11-bit                          an owner's DBC message on that identifier:
+                                decoded as below; else ``standard_id_frames``
 Address Claimed, Request        the network (:meth:`.network.Network.on_nm_frame`)
 a PGN not in the DBC            ``unknown_pgn_frames`` and per PGN in
                                 :attr:`FrameDispatcher.unknown_pgns` (at most
@@ -116,11 +118,15 @@ class FrameDispatcher:
         if msg.is_remote_frame:
             st["remote_frames"] += 1
             return
-        if not msg.is_extended_id:
-            st["standard_id_frames"] += 1
-            return
         if msg.is_fd:
             st["canfd_frames"] += 1
+            return
+        if not msg.is_extended_id:
+            info = self.codec.message_for_std_id(msg.arbitration_id)
+            if info is None:
+                st["standard_id_frames"] += 1
+                return
+            self._decoded(t, msg.arbitration_id, bytes(msg.data), info.name, extended=False)
             return
         cid = msg.arbitration_id
         pgn = j1939.pgn_of(cid)
@@ -156,15 +162,16 @@ class FrameDispatcher:
             return
         self._decoded(t, cid, bytes(msg.data), info.name)
 
-    def _decoded(self, t: float, cid: int, data: bytes, message: str) -> None:
+    def _decoded(self, t: float, cid: int, data: bytes, message: str, extended: bool = True) -> None:
         """Decode a frame (or a reassembled message) of a DBC message and give its signals to the steps."""
         st = self.stats
         try:
-            name, values = self.codec.decode(cid, data, True)
+            name, values = self.codec.decode(cid, data, extended)
         except (DecodeError, KeyError, ValueError) as e:
             self.bad_frames[message] += 1
             st["bad_frames"] += 1
-            self._warn("bad:" + message, "skipped frame %08X#%s: %s", cid, data.hex().upper(), e)
+            self._warn("bad:" + message, "skipped frame %s#%s: %s", f"{cid:08X}" if extended else f"{cid:03X}",
+                       data.hex().upper(), e)
             return
         st["decoded_frames"] += 1
         st["rx_" + name] += 1
