@@ -93,7 +93,7 @@ def test_bad_sensor_figure_names_the_key(tmp_path: Path, table: dict, key: str) 
     load_vehicle(p)  # the vehicle part is fine
     with pytest.raises(ConfigError) as ei:
         load_sensors(p)
-    assert str(ei.value).startswith(key), str(ei.value)
+    assert str(ei.value).startswith(f"{p}: {key}"), str(ei.value)     # the file, then the key
     with pytest.raises(ConfigError) as ei:
         from_mapping(SensorSpec, table, "sensors")
     assert str(ei.value).startswith(key), str(ei.value)
@@ -110,7 +110,7 @@ def test_sensors_not_a_table(tmp_path: Path) -> None:
     p = tmp_path / "vehicle.toml"
     p.write_text("mass_kg = 6500\nsensors = 3\n", encoding="utf-8")
     assert load_vehicle(p) == VehicleParams(mass_kg=6500.0)
-    with pytest.raises(ConfigError, match="^sensors: expected a table"):
+    with pytest.raises(ConfigError, match=r"vehicle\.toml: sensors: expected a table"):
         load_sensors(p)
 
 
@@ -237,3 +237,13 @@ def test_the_estimator_does_not_import_the_simulator() -> None:
             "print(sorted(m for m in sys.modules if m.startswith('tractionecu.sim')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_a_vehicle_file_error_names_the_file(tmp_path: Path) -> None:
+    """Replay reads a recording's vehicle.toml without the user naming it; its error said
+    "drivetrain.final_drive_ratio: needed ..." and no file."""
+    p = tmp_path / "vehicle.toml"
+    p.write_text('[drivetrain]\nkind = "mechanical"\n', encoding="utf-8")
+    with pytest.raises(ConfigError) as ei:
+        load_vehicle(p)
+    assert str(ei.value).startswith(f"{p}: drivetrain.final_drive_ratio: needed"), str(ei.value)

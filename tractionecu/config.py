@@ -95,9 +95,10 @@ import datetime as _dt
 import math
 import re
 import tomllib
+from contextlib import contextmanager
 from dataclasses import MISSING, dataclass, fields
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 from .errors import ConfigError
 
@@ -600,13 +601,30 @@ def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
 
 
 def load_vehicle(path: str | Path) -> VehicleParams:
-    """Load ``vehicle.toml`` (keys at top level or under ``[vehicle]``; a ``[sensors]`` table is left to :func:`load_sensors`)."""
-    return from_mapping(VehicleParams, _vehicle_tables(load_toml(path, "vehicle"))[0], "vehicle")
+    """Load ``vehicle.toml`` (keys at top level or under ``[vehicle]``; a ``[sensors]`` table is left to :func:`load_sensors`).
+    A :class:`ConfigError` names the file."""
+    tables = _vehicle_tables(load_toml(path, "vehicle"))
+    with _naming(path):
+        return from_mapping(VehicleParams, tables[0], "vehicle")
 
 
 def load_sensors(path: str | Path) -> SensorSpec:
     """The ``[sensors]`` table of a vehicle file; the documented defaults for keys (or a table) it lacks."""
-    return from_mapping(SensorSpec, _vehicle_tables(load_toml(path, "vehicle"))[1], "sensors")
+    tables = _vehicle_tables(load_toml(path, "vehicle"))
+    with _naming(path):
+        return from_mapping(SensorSpec, tables[1], "sensors")
+
+
+@contextmanager
+def _naming(path: str | Path) -> Iterator[None]:
+    """A :class:`ConfigError` raised inside says which file it is about ("drivetrain.final_drive_ratio: needed
+    ..." named no file, though a recording's vehicle.toml is read without the user naming it)."""
+    try:
+        yield
+    except ConfigError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ConfigError(f"{path}: {exc}") from exc
 
 
 def resolve_sensors(vehicle_path: str | Path | None, overrides: Mapping[str, Any] | None = None) -> SensorSpec:
