@@ -67,7 +67,8 @@ def vehicle_of(rec: Any) -> tuple[Any, str]:
     try:
         veh = machine_of(rec)[0]
     except ConfigError as e:
-        return VehicleParams(), f"vehicle.toml does not load ({e}): the default [drivetrain] kind = \"hub\""
+        why = str(e).removeprefix(f"{rec.vehicle_toml_path}: ")      # the line names the file already
+        return VehicleParams(), f"vehicle.toml does not load ({why}): the default [drivetrain] kind = \"hub\""
     return veh, f"vehicle.toml: [drivetrain] kind = \"{veh.drivetrain.kind}\""
 
 
