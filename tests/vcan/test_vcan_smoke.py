@@ -180,3 +180,28 @@ def test_vcan0_delete_and_recreate() -> None:
         got = rx.recv(timeout=RECV_TIMEOUT)
         assert got is not None, "no frame on the re-created vcan0"
         assert frame_key(got) == ("0CFE4980", "0102")
+
+
+def test_kernel_filters_pass_the_owners_11_bit_identifiers() -> None:
+    """The service's kernel filters (``pgn_filters``) with an owner's 11-bit identifier (a CANedge GNSS speed
+    on 0x007): the kernel passes that standard frame and the contract's PGNs, and drops another 11-bit
+    identifier and a 29-bit frame with the same number."""
+    from tractionecu.bus.dbc import default_codec
+    from tractionecu.service.daemon import pgn_filters
+
+    filters = pgn_filters(default_codec().pgns(), 0x90, [0x007])
+    with (
+        can.Bus(interface="socketcan", channel=CHANNEL) as tx,
+        can.Bus(interface="socketcan", channel=CHANNEL, can_filters=filters) as rx,
+    ):
+        drain(rx)
+        sent = [can.Message(arbitration_id=0x009, is_extended_id=False, data=bytes(8)),
+                can.Message(arbitration_id=0x00000007, is_extended_id=True, data=bytes(5)),
+                can.Message(arbitration_id=0x007, is_extended_id=False, data=bytes([1, 2, 3, 4, 5])),
+                can.Message(arbitration_id=0x18FF1080, is_extended_id=True, data=bytes(8))]
+        for m in sent:
+            tx.send(m)
+        got = []
+        while (m := rx.recv(timeout=0.5)) is not None:
+            got.append(frame_key(m))
+        assert got == [("007", "0102030405"), ("18FF1080", "0000000000000000")]
