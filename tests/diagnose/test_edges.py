@@ -95,3 +95,34 @@ def test_the_report_of_a_recording_without_channels_is_written(make_recording, t
     assert rep["verdict"] == "none" and rep["statement"].startswith("Cannot diagnose")
     for png in ("residual_before_after.png", "residual_map.png", "ranking.png"):
         assert (tmp_path / "d" / png).stat().st_size > 1000
+
+
+def test_a_mechanical_recording_without_draft_gets_the_engine_level_analysis(make_recording, tmp_path):
+    """A mechanical tractor's bus recording without draft or axle-load sensing left the full analysis no
+    channel: "Cannot diagnose: no signal in this recording carries its signature", though it carries what the
+    engine-level analysis of a 1 Hz export needs (EEC1 percent torque with EC1's reference, engine speed,
+    a wheel-based speed, GNSS)."""
+    import json
+
+    from tractionecu.diagnose import diagnose_path
+    from tractionecu.diagnose.data import load
+
+    rec = make_recording("mechanical-no-draft", 11, 45.0)
+    fr = load(rec)
+    assert fr.md is None and not fr.has("fdx") and not fr.has("fzf")   # hitch status sends draft "not available"
+    # the engine torque is EEC1's percent less the declared friction percent (basic friction and accessories,
+    # SPN 514) of EC1's reference torque: the simulator's engine torque less its accessories' torque, within
+    # the declared friction's tolerance (1 % of the reference) and EEC1's 1 %/bit
+    import tomllib
+
+    truth = np.genfromtxt(rec / "truth.csv", delimiter=",", names=True)
+    eng = tomllib.loads((rec / "truth.toml").read_text())["physical"]["drivetrain"]["mech"]["engine"]
+    te_true = np.interp(fr.t + fr.t0_epoch, truth["t"], truth["engine_torque_nm"]) - eng["aux_torque_nm"]
+    ok = np.isfinite(fr.engine_torque) & (te_true > 100.0)
+    assert ok.sum() > 200
+    assert abs(np.median(fr.engine_torque[ok] - te_true[ok])) < 0.015 * eng["reference_torque_nm"]
+    rep = diagnose_path(rec, tmp_path / "d", estimator=False)
+    assert any(n.startswith("engine-level analysis") for n in rep["notes"])
+    assert not rep["statement"].startswith("Cannot diagnose") and rep["verdict"] == "none"
+    assert rep["slip_model"]["detected"]                              # wheel slip under load, from GNSS vs wheels
+    assert json.loads((tmp_path / "d" / "report.json").read_text())["slip_model"]["a"]["value"] > 0

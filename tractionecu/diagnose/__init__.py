@@ -20,10 +20,10 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     name of one, ``"contract"``, ``"j1939"`` or ``"auto"``, or a path ending in ``.csv``) goes
     through :func:`tractionecu.recording.csv_import.import_csv` (percent engine torque over
     ``reference_torque_nm``, else the vehicle file's ``[drivetrain] engine_reference_torque_nm``);
-    engine-level exports without per-wheel data get the reduced analysis of :mod:`.reduced`.  Returns the ``report.json`` dict.
+    engine-level exports without per-wheel data get the reduced analysis of :mod:`.reduced`, and so does a
+    bus recording that leaves the full analysis no channel but carries the engine-level signals (a
+    mechanical tractor without draft sensing).  Returns the ``report.json`` dict.
     """
-    import json
-
     from . import data as _data
     from . import report as _report
 
@@ -44,21 +44,20 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
                          vehicle_toml=vehicle)
         fr = _data.load(rec, vehicle)
         if not fr.has("omega", "md"):
-            from .reduced import diagnose_reduced
-
-            rep = diagnose_reduced(fr)
-            out.mkdir(parents=True, exist_ok=True)
-            (out / "report.json").write_text(json.dumps(_report._num(rep), indent=2, ensure_ascii=False),
-                                             encoding="utf-8")
-            (out / "report.md").write_text(_report.to_markdown(_report._num(rep)), encoding="utf-8")
-            _report.plot_reduced(rep, fr, out)
-            return _report._num(rep)
+            return _write_reduced(fr, out)
         source = fr
     else:
         source = _data.load(p, vehicle)
     from .engine import diagnose
 
     d = diagnose(source)
+    if not d.problem.channels and not source.has("omega", "md") and source.has(*ENGINE_LEVEL):
+        # A bus recording of a mechanical tractor without draft or axle-load sensing: no channel of the
+        # full analysis, but the engine-level one of an export works on the same signals.
+        return _write_reduced(source, out, note=(
+            "engine-level analysis: the recording has no per-wheel drive torques, no front-axle load and no "
+            "draft, which the full analysis needs; it has engine torque (EEC1 × EC1), engine speed, a "
+            "wheel-based speed and the GNSS speed"))
     from .channels import release_memos
 
     release_memos(d.problem.channels.values())   # the fits are done: memos only spare recomputation
@@ -68,6 +67,27 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
 
         est = estimator_view(p, d.features)
     return _report.write(d, out, est)
+
+
+ENGINE_LEVEL = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
+"""Frame signals of the engine-level analysis (:mod:`.reduced`)."""
+
+
+def _write_reduced(fr, out: Path, note: str | None = None) -> dict:
+    """The engine-level analysis of ``fr`` (:func:`.reduced.diagnose_reduced`) written into ``out``."""
+    import json
+
+    from . import report as _report
+    from .reduced import diagnose_reduced
+
+    if note:
+        fr.notes.append(note)
+    rep = _report._num(diagnose_reduced(fr))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "report.json").write_text(json.dumps(rep, indent=2, ensure_ascii=False), encoding="utf-8")
+    (out / "report.md").write_text(_report.to_markdown(rep), encoding="utf-8")
+    _report.plot_reduced(rep, fr, out)
+    return rep
 
 
 __all__ = ["diagnose_path"]

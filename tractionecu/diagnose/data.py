@@ -29,14 +29,14 @@ from numpy.typing import NDArray
 
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle
 from ..errors import RecordingError
-from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, GROUND_BASED_SPEED, IN_WORK, WHEEL_BASED_SPEED,
-                                WHEEL_SPEEDS)
+from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, ENGINE_PERCENT_TORQUE, ENGINE_REFERENCE_TORQUE, FRONT_AXLE_LOAD,
+                                GROUND_BASED_SPEED, IN_WORK, VEHICLE_SPEED, WHEEL_BASED_SPEED, WHEEL_SPEEDS)
 from ..recording.containers import MAX_TABLE_ROWS
 from ..pipeline.survey import survey_keep
 from ..recording.reader import Recording, read_recording, stream_signals
 
 FRAME_SIGNALS = (*WHEEL_SPEEDS, *DRIVE_TORQUES, FRONT_AXLE_LOAD, DRAFT, IN_WORK, WHEEL_BASED_SPEED,
-                 GROUND_BASED_SPEED, "EngineTorque", "EngineSpeed")
+                 GROUND_BASED_SPEED, "EngineTorque", "EngineSpeed", ENGINE_PERCENT_TORQUE, VEHICLE_SPEED)
 """The CAN signals the frame bins (all a streamed recording is read for)."""
 EARTH_R = 6378137.0
 """WGS84 equatorial radius [m]."""
@@ -219,6 +219,19 @@ class _Windows:
         return out
 
 
+def _reference_torque(sig: Mapping, vehicle: VehicleParams) -> float | None:
+    """The engine's reference torque [N·m]: EC1's (SPN 544, the median of its numbers), else the vehicle
+    file's ``[drivetrain] engine_reference_torque_nm`` when it declares one."""
+    s = sig.get(ENGINE_REFERENCE_TORQUE)
+    if s is not None and len(s):
+        v = np.asarray(s.value, dtype=float)
+        v = v[np.isfinite(v) & (v > 0)]
+        if v.size:
+            return float(np.median(v))
+    declared = float(vehicle.drivetrain.engine_reference_torque_nm)
+    return declared if declared > 0 else None
+
+
 def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float | None = None,
                          blocks: Iterable[Mapping[str, tuple[NDArray, NDArray]]] | None = None) -> Frame:
     """Resample a :class:`Recording` onto a regular grid (see module doc).
@@ -352,7 +365,17 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         d = np.nan_to_num(fr.fdx)
         fr.work = d > 0.3 * np.percentile(d, 95)
     fr.v_wheel_bus = mean(WHEEL_BASED_SPEED)
-    fr.engine_torque = mean("EngineTorque")
+    if fr.v_wheel_bus is None:
+        fr.v_wheel_bus = mean(VEHICLE_SPEED)              # CCVS1's wheel-based speed where no WBSD is sent
+    fr.engine_torque = mean("EngineTorque")               # a decoded export's (csv_import)
+    if fr.engine_torque is None and ENGINE_PERCENT_TORQUE in means:
+        # a bus recording's EEC1: the indicated percent torque less the nominal friction percent (the vehicle
+        # file's, as the machine-level estimator takes it) of the reference torque (EC1, SPN 544; else the
+        # vehicle file's): the engine's net torque T_e = (p − p_f)/100 · T_ref
+        ref = _reference_torque(sig, vehicle)
+        if ref is not None:
+            p_f = float(vehicle.drivetrain.engine_friction_percent)
+            fr.engine_torque = (mean(ENGINE_PERCENT_TORQUE) - p_f) / 100.0 * ref
     fr.engine_speed = mean("EngineSpeed")
     if len(gps):
         tol = 0.6 * period
