@@ -44,8 +44,8 @@ the GNSS speed over ground of the recording's track):
 message; :func:`missing_signals` the signals it lacks, by default those
 :data:`REPLAY_REQUIRED`; :func:`motion` whether its speed signals show the
 machine moving (a wheel-based speed over 0.1 m/s, or with none a wheel turning
-or a ground speed over it: radar and GNSS read noise at standstill).  A signal counts as found when it has at least one sample
-that is not "not available".
+or a ground speed over it: radar and GNSS read noise at standstill).  A signal
+counts as found when it has at least one sample that is not "not available".
 """
 
 from __future__ import annotations

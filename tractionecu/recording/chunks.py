@@ -109,7 +109,8 @@ class ChunkDecoder:
             ms = st.messages.get(msg)
             if ms is None:
                 info = self.codec.message(msg)
-                ms = st.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s, std_id=info.std_id)
+                ms = st.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s,
+                                                     std_id=info.std_id)
             _add_times(ms, arr, sa)
         return {name: (t, v, sa) for name, (_lines, t, v, sa) in signals.items()}
 
