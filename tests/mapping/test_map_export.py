@@ -62,6 +62,8 @@ def test_geotiff_reads_back_with_crs_and_values(noise_free_map, tmp_path):
         assert ds.count == 2 and ds.descriptions == ("a", "rho_s")
         assert ds.units == ("1", "1")
         assert ds.tags(1)["units"] == "1" and ds.tags(2)["long_name"] == "soil rolling resistance"
+        # the synthetic map's samples carry no status: its estimator level is unknown (issue 14's flag)
+        assert ds.tags()["estimate_levels"] == (",".join(sorted(store.estimate_levels)) or "unknown")
         assert ds.res == (0.5, 0.5)
         a = ds.read(1)
         rho = ds.read(2)

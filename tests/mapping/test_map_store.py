@@ -478,3 +478,22 @@ def test_track_waits_in_order_while_the_disk_is_full_and_is_bounded(tmp_path, mo
     assert st.stats["track_dropped"] == 160 - len(pending)
     np.testing.assert_array_equal(pending, np.arange(200.0 - len(pending), 200.0))
     st.close()
+
+
+def test_the_manifest_says_which_estimator_level_made_the_map(tmp_path):
+    """Issue 14: the map carries the estimation level. A machine-level μ (EstimateStatus 0x4000) is one value
+    for all four wheels and must not read as per-wheel precision."""
+    st = MapStore(tmp_path, *ORIGIN, resolution_m=0.5)
+    assert json.loads((tmp_path / "manifest.json").read_text())["estimate_levels"] == []
+    assert add_xy(st, 1.0, 1.0, {"mu": 0.4, "a": 0.7}, 1.0, status=0x4000)
+    assert not add_xy(st, 2.0, 1.0, {"mu": 0.4}, 2.0, status=0x4000 | 0x20)      # rejected: no level from it
+    st.flush(force=True)
+    assert json.loads((tmp_path / "manifest.json").read_text())["estimate_levels"] == ["machine"]
+    st.close()
+    st = MapStore.open(tmp_path)                                               # resumed: the levels stay
+    assert st.estimate_levels == {"machine"}
+    lat, lon = st.to_latlon(np.array([3.0, 4.0]), np.array([1.0, 1.0]))
+    ok = st.add_many(lat, lon, {"mu": np.array([0.3, 0.35])}, np.array([3.0, 4.0]), status=np.array([0, 0]))
+    assert ok.all()
+    st.close()
+    assert json.loads((tmp_path / "manifest.json").read_text())["estimate_levels"] == ["machine", "wheel"]

@@ -53,7 +53,7 @@ from .fill import DEFAULT_EPS_M
 from .iso11783 import ISO_DDI, ISO_DDI_COVERAGE, ISO_DESIGNATOR, ISO_SCALE, export_isoxml_log, latlon_grid_spec
 from .iso11783 import export_isoxml_grid as _iso_grid
 from .soil import classify_by_a, natural_classes
-from .store import LayerGrid, MapStore, open_store
+from .store import ESTIMATE_LEVELS, LayerGrid, MapStore, open_store
 from .tiles import atomic_write_bytes
 
 GEOTIFF_UNIT = "1"
@@ -146,7 +146,8 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
                 dst.update_tags(b, units=GEOTIFF_UNIT, long_name=ISO_DESIGNATOR.get(n, n))
             dst.update_tags(source="tractionecu", content="paper fill of cell means" if filled else "cell means",
                             units="dimensionless", origin_lat=str(store.frame.origin_lat),
-                            origin_lon=str(store.frame.origin_lon))
+                            origin_lon=str(store.frame.origin_lon),
+                            estimate_levels=",".join(sorted(store.estimate_levels)) or "unknown")
         os.replace(tmp, out)
     finally:
         if tmp.exists():
@@ -386,6 +387,8 @@ def export_geojson(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
                           "properties": props})
     doc = {"type": "FeatureCollection",
            "name": "tractionecu ground condition map",
+           # which estimator made the map: "machine" means one μ for all four wheels, not per-wheel precision
+           "estimate_levels": {lv: ESTIMATE_LEVELS[lv] for lv in sorted(store.estimate_levels)},
            "features": feats}
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -92,6 +92,12 @@ STATUS_STANDSTILL = 0x400
 """EstimateStatus bit of a standstill, where ρ_s and slip are not supported by the data."""
 STATUS_MACHINE_UNSUPPORTED = 0x1000
 """EstimateStatus bit of a machine-level μ the bus does not support now (shift, front axle decoupled, low torque)."""
+STATUS_MACHINE_LEVEL = 0x4000
+"""EstimateStatus bit of the machine-level estimator: one μ for the machine, the same on all four wheels."""
+ESTIMATE_LEVELS = {"wheel": "per-wheel μ (hub drive: a torque and a speed per wheel)",
+                   "machine": "one μ for the machine, the same on all four wheels (engine-level data: no per-wheel "
+                              "precision)"}
+"""The manifest's ``estimate_levels``: which estimator levels the accepted samples came from."""
 DEFAULT_REJECT_STATUS_MASK = 0x17F | STATUS_FILTER_LOST | STATUS_STANDSTILL | STATUS_MACHINE_UNSUPPORTED
 """EstimateStatus bits that make :meth:`MapStore.add` reject a sample: sensor
 timeouts (0x01–0x10), not converged (0x20), input rejected (0x40),
@@ -237,6 +243,9 @@ class MapStore:
         self.min_flush_interval_s = float(min_flush_interval_s)
         self.max_resident_tiles = int(max_resident_tiles)
         self.read_only = bool(read_only)
+        self.estimate_levels: set[str] = set()
+        """Levels (:data:`ESTIMATE_LEVELS`) of the accepted samples that carried a status, this map's whole life."""
+        self._levels_written: set[str] = set()
 
         self._lock = threading.Lock()
         self._flush_lock = threading.Lock()
@@ -267,6 +276,8 @@ class MapStore:
                 old = read_manifest(self.directory)
                 self._check_manifest(old, manifest)
                 self._created_utc = str(old.get("created_utc", self._created_utc))
+                self.estimate_levels = {str(x) for x in old.get("estimate_levels", ()) if str(x) in ESTIMATE_LEVELS}
+                self._levels_written = set(self.estimate_levels)
                 if soil_classes is None:
                     sc = old.get("soil_classes")
                     self.soil_classes = {str(k): float(v) for k, v in sc.items()} if sc else None
@@ -340,6 +351,7 @@ class MapStore:
             "tile_cells": self.tile_cells,
             "layers": list(self.layers),
             "soil_classes": self.soil_classes,
+            "estimate_levels": sorted(self.estimate_levels),
             "created_utc": self._created_utc,
         }
 
@@ -517,6 +529,8 @@ class MapStore:
             tile.stats.add(row % n, col % n, pairs)
             tile.version += 1
             self.stats["accepted"] += 1
+            if status is not None:
+                self.estimate_levels.add("machine" if int(status) & STATUS_MACHINE_LEVEL else "wheel")
         return True
 
     def add_many(self, lat_deg: ArrayLike, lon_deg: ArrayLike, values: Mapping[str, ArrayLike], t: ArrayLike, *,
@@ -585,6 +599,12 @@ class MapStore:
             self.stats["accepted"] += int(ok.sum())
             for why, cnt in collections.Counter(reason[~ok].tolist()).items():
                 self.stats["rejected_" + why] += cnt
+            if status is not None and ok.any():
+                machine = (np.broadcast_to(np.asarray(status, dtype=np.int64), (n,))[ok] & STATUS_MACHINE_LEVEL) != 0
+                if machine.any():
+                    self.estimate_levels.add("machine")
+                if not machine.all():
+                    self.estimate_levels.add("wheel")
         return ok
 
     # ------------------------------------------------------------ flush
@@ -629,6 +649,14 @@ class MapStore:
                 errors += failed
                 with self._lock:
                     self._track.put_back(unwritten)
+            with self._lock:
+                levels = set(self.estimate_levels)
+            if levels != self._levels_written:              # the manifest says which levels the map holds
+                try:
+                    write_manifest(self.directory, {**self._manifest_dict(), "estimate_levels": sorted(levels)})
+                    self._levels_written = levels
+                except OSError as e:
+                    errors.append(f"{MANIFEST_NAME}: {e}")
             self.stats["tiles_written"] += written
             self.stats["flushes"] += 1
             if errors:
