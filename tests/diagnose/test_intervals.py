@@ -284,3 +284,65 @@ def test_the_diagnosis_reads_the_sensor_tolerances_of_the_vehicle_file(short_rec
     assert data.load(rec).sensors.axle_gain_tol_rel == 0.002
     (rec / "vehicle.toml").unlink()
     assert data.load(rec).sensors == SensorSpec()          # no vehicle file: the documented defaults
+
+
+def _passes(n_pass: int = 4, length_m: float = 260.0, v: float = 2.5, rate_hz: float = 2.0):
+    """Back-and-forth passes along x, 6 m apart, with 12-s turns between them: (t, x, y, along)."""
+    t, x, y, along = [], [], [], []
+    t0 = 0.0
+    for k in range(n_pass):
+        s = np.arange(0.0, length_m, v / rate_hz)
+        d = 1.0 if k % 2 == 0 else -1.0
+        t.append(t0 + s / v)
+        x.append(s if d > 0 else length_m - s)
+        y.append(np.full(s.size, 6.0 * k))
+        along.append(np.full(s.size, d))
+        t0 = t[-1][-1] + 12.0
+    return np.concatenate(t), np.concatenate(x), np.concatenate(y), np.concatenate(along)
+
+
+def test_the_altitude_drift_bound_predicts_the_slope_error_of_a_few_passes():
+    """The GNSS altitude error (Gauss–Markov, 0.5 m, 30 s) drifts over each pass and reads as slope; on four
+    passes it does not average out. On `multi_grade_latency` with another seed the surface's slope was 0.75×
+    the truth's and the grade scale 1.30 [1.08, 1.53] for 1. ``altitude_drift_rel_se`` gives the spread of
+    that error from the receiver's figures; checked here against independent draws of the same error."""
+    from tractionecu.diagnose.features import DEM_BANDWIDTH_M, _dem_gradient, altitude_drift_rel_se
+
+    t, x, y, along = _passes()
+    slope = 0.018                                         # a uniform incline along x (HENRYS: 1.8 % rms)
+    g_use = slope * along                                 # the calibrated slope along the track
+    rel = altitude_drift_rel_se(x, y, t, DEM_BANDWIDTH_M, 0.0, along, g_use, 1.0, 0.5, 30.0)
+    assert 0.03 < rel < 0.3
+    # proportional to the receiver's altitude error; none without one
+    assert altitude_drift_rel_se(x, y, t, DEM_BANDWIDTH_M, 0.0, along, g_use, 1.0, 1.0, 30.0) == \
+        pytest.approx(2.0 * rel, rel=1e-9)
+    assert math.isnan(altitude_drift_rel_se(x, y, t, DEM_BANDWIDTH_M, 0.0, along, g_use, 1.0, 0.0, 30.0))
+    # independent draws of the error (other seeds), fitted as the diagnosis fits the surface
+    rng = np.random.default_rng(11)
+    c = []
+    for _ in range(48):
+        dt = np.diff(t, prepend=t[0])
+        phi = np.exp(-dt / 30.0)
+        e = np.empty(t.size)
+        e[0] = rng.standard_normal() * 0.5
+        w = rng.standard_normal(t.size) * 0.5 * np.sqrt(1.0 - phi * phi)
+        for i in range(1, t.size):
+            e[i] = phi[i] * e[i - 1] + w[i]
+        _, ge = _dem_gradient(x, y, slope * x + e, t, x, y, t, DEM_BANDWIDTH_M, 0.0, -1.0, math.inf)
+        ok = np.isfinite(ge)
+        c.append(float(np.sum(ge[ok] * along[ok] * g_use[ok]) / np.sum(g_use[ok] ** 2)) - 1.0)
+    spread = float(np.std(c))
+    assert 0.6 < rel / spread < 1.6, (rel, spread)
+
+
+def test_the_grade_scale_variance_carries_the_calibration_and_the_drift():
+    from types import SimpleNamespace
+
+    from tractionecu.diagnose.fit import _grade_calibration_var
+
+    g = SimpleNamespace(reliability=0.95, reliability_se=0.08, drift_rel_se=0.10)
+    v = _grade_calibration_var(SimpleNamespace(feat=SimpleNamespace(grade=g)), np.array([1.3]))
+    assert v[0, 0] == pytest.approx(1.3 ** 2 * ((0.08 / 0.95) ** 2 + 0.10 ** 2))
+    g = SimpleNamespace(reliability=math.nan, reliability_se=math.nan, drift_rel_se=0.10)
+    v = _grade_calibration_var(SimpleNamespace(feat=SimpleNamespace(grade=g)), np.array([1.0]))
+    assert v[0, 0] == pytest.approx(0.01)

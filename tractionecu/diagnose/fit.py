@@ -265,16 +265,21 @@ def fit(problem: Problem, name, fold: int | None = None, with_cov: bool = True,
 
 
 def _grade_calibration_var(problem: Problem, x: NDArray) -> NDArray:
-    """Variance a fitted grade scale inherits from the slope calibration λ (features.GradeEstimate).
+    """Variance a fitted grade scale inherits from the slope it is fitted against (features.GradeEstimate).
 
-    The regressor is λ·g_pooled, so the scale s scales as 1/λ: Var_λ(s) = s² (SE_λ/λ)².
+    The regressor is λ·g_pooled, so the scale s scales as 1/λ: Var_λ(s) = s² (SE_λ/λ)²; and the GNSS
+    altitude error's slow drift leaves a slope error in the surface itself, relative SE ``drift_rel_se``:
+    Var(s) += s² drift_rel_se² (type B, from the receiver's declared error).
     """
     g = problem.feat.grade
     k = x.size
-    if g is None or not (math.isfinite(g.reliability) and math.isfinite(g.reliability_se)) or g.reliability <= 0:
-        return np.zeros((k, k))
     out = np.zeros((k, k))
-    out[0, 0] = float(x[0]) ** 2 * (g.reliability_se / g.reliability) ** 2
+    if g is None:
+        return out
+    if math.isfinite(g.reliability) and math.isfinite(g.reliability_se) and g.reliability > 0:
+        out[0, 0] += float(x[0]) ** 2 * (g.reliability_se / g.reliability) ** 2
+    if math.isfinite(g.drift_rel_se):
+        out[0, 0] += float(x[0]) ** 2 * g.drift_rel_se ** 2
     return out
 
 
