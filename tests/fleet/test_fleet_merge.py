@@ -15,14 +15,15 @@ from tractionecu.fleet.store import contributors_of
 ORIGIN = (47.88, -110.55)
 
 
-def _store(d: Path, seed: int, n: int = 4000, machine: str = "m", date: str = "2026-07-10") -> Path:
+def _store(d: Path, seed: int, n: int = 4000, machine: str = "m", date: str = "2026-07-10",
+           status: int | None = None) -> Path:
     """A map store of ``n`` random samples over a 40 m x 40 m patch (overlapping the others)."""
     rng = np.random.default_rng(seed)
     lat = ORIGIN[0] + 0.0002 + rng.uniform(0, 3.6e-4, n)
     lon = ORIGIN[1] + 0.0002 + rng.uniform(0, 5.4e-4, n)
     vals = {"a": rng.normal(0.7, 0.05, n), "rho_s": rng.normal(0.06, 0.001, n), "mu": rng.normal(0.4, 0.1, n)}
     with MapStore(d, *ORIGIN) as st:
-        st.add_many(lat, lon, vals, 1.78e9 + np.arange(n) * 0.1)
+        st.add_many(lat, lon, vals, 1.78e9 + np.arange(n) * 0.1, status=status)
     contributors_of(MapStore.open(d, read_only=True), machine, date, d / "contributors.parquet")
     return d
 
@@ -99,3 +100,12 @@ def test_merged_map_of_two_machines_equals_one_map_fed_in_sequence(tmp_path: Pat
     assert int(both.count.sum()) == sum(int(g.count.sum()) for g in single) > 100
     # the two runs share cells, so the merge combines, not only places side by side
     assert int((both.count > 0).sum()) < sum(int((g.count > 0).sum()) for g in single)
+
+
+def test_the_farm_map_holds_the_estimator_levels_of_its_machines(tmp_path: Path) -> None:
+    """A hub tractor's map (per-wheel μ) merged with a mechanical one's (machine-level μ, status 0x4000)."""
+    a = _store(tmp_path / "A", 1, n=500, machine="hub", status=0)
+    b = _store(tmp_path / "B", 2, n=500, machine="mech", status=0x4000)
+    assert MapStore.open(a, read_only=True).estimate_levels == {"wheel"}
+    merge_maps([a, b], tmp_path / "AB")
+    assert MapStore.open(tmp_path / "AB", read_only=True).estimate_levels == {"machine", "wheel"}

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..mapping.grid import COUNT_DTYPE, TileStats
-from ..mapping.store import MapStore
+from ..mapping.store import ESTIMATE_LEVELS, MapStore
 from ..mapping.tiles import TRACK_NAME, iter_tile_files, read_manifest, read_tile, read_track, write_tile
 from ..mapping.track import VALUES_NAME, read_values
 
@@ -88,9 +88,12 @@ def merge_maps(inputs: Sequence[str | Path], out_dir: str | Path, *, names: Sequ
     tmp = out.with_name(out.name + ".merging")
     if tmp.exists():
         shutil.rmtree(tmp)
-    MapStore(tmp, float(ref["origin_lat"]), float(ref["origin_lon"]), resolution_m=float(ref["resolution_m"]),
-             tile_cells=int(ref["tile_cells"]), layers=tuple(ref["layers"]),
-             soil_classes=ref.get("soil_classes")).close()
+    st = MapStore(tmp, float(ref["origin_lat"]), float(ref["origin_lon"]), resolution_m=float(ref["resolution_m"]),
+                  tile_cells=int(ref["tile_cells"]), layers=tuple(ref["layers"]),
+                  soil_classes=ref.get("soil_classes"))
+    # the farm map holds every estimator level its machines' maps hold (a hub tractor's and a mechanical one's)
+    st.estimate_levels = {str(lv) for m in mans for lv in m.get("estimate_levels", ()) if str(lv) in ESTIMATE_LEVELS}
+    st.close()
     for (tx, ty), st in tiles.items():
         write_tile(tmp, tx, ty, st)
     n_layers = len(ref["layers"])
