@@ -89,7 +89,8 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
             ms = stats.messages.get(msg)
             if ms is None:
                 info = codec.message(msg)
-                ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s, std_id=info.std_id)
+                ms = stats.messages[msg] = MessageStats(msg, info.pgn, nominal_period_s=info.cycle_time_s,
+                                                        std_id=info.std_id)
                 times[msg] = []
             sa = STD_SA if cid is None else cid.sa
             ms.count += 1
