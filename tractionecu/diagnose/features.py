@@ -95,10 +95,10 @@ class Features:
     """Position across the main axis [m]."""
     notes: list[str] = field(default_factory=list)
     sensor_faults: list[dict] = field(default_factory=list)
+    """Wheel-speed holds and dropouts found and repaired (:func:`wheel_speed_faults`)."""
     v_int: NDArray[np.float64] | None = None
     """The nominal force integral v_int [m/s] that ``v_ref`` is fused from (:func:`fused_speed`); None without
     wheel speeds or GNSS speed."""
-    """Wheel-speed holds and dropouts found and repaired (:func:`wheel_speed_faults`)."""
 
     @property
     def n(self) -> int:
