@@ -30,6 +30,12 @@ def test_moving_mean_does_not_pull_ends_and_gaps_towards_zero():
     assert np.allclose(moving_mean(y, 5)[2:-2], y[2:-2])  # inside: the centred mean of a line is the line
     assert moving_mean(y, 5)[0] == pytest.approx(1.0)     # first row: the mean of rows 0..2
     assert np.isnan(moving_mean(np.full(5, np.nan), 3)).all()
+    sparse = np.full(20, np.nan)
+    sparse[::4] = 1.0                                     # one sample in four rows
+    m = moving_mean(sparse, 8, min_count=2)               # windows of 8 rows hold 1 or 2 samples
+    assert np.array_equal(np.isfinite(m), np.isfinite(moving_mean(sparse, 8)) & (np.convolve(
+        np.isfinite(sparse), np.ones(8), mode="same") >= 2))
+    assert np.allclose(m[np.isfinite(m)], 1.0)
 
 
 def test_a_recording_shorter_than_two_blocks_gets_both_folds():

@@ -438,20 +438,21 @@ def held_out_folds(t: NDArray[np.float64]) -> NDArray[np.int64]:
     return np.minimum(np.floor(4.0 * (t - t0) / span), 3.0).astype(np.int64) % 2
 
 
-def moving_mean(x: NDArray[np.float64], k: int) -> NDArray[np.float64]:
+def moving_mean(x: NDArray[np.float64], k: int, min_count: float = 0.0) -> NDArray[np.float64]:
     """Centred mean of ``x`` over ``k`` rows, of the finite samples in each window only (NaN where the
-    window holds none).  A plain ``np.convolve(nan_to_num(x), ones(k)/k, "same")`` averages the missing
-    rows, and the rows past either end of the recording, as zeros: within k/2 rows of an end or a gap
-    it pulls the mean towards 0 (a front-axle load of 20 kN read as 10 kN on the last row)."""
+    window holds none, or fewer than ``min_count``).  A plain ``np.convolve(nan_to_num(x), ones(k)/k,
+    "same")`` averages the missing rows, and the rows past either end of the recording, as zeros: within
+    k/2 rows of an end or a gap it pulls the mean towards 0 (a front-axle load of 20 kN read as 10 kN on
+    the last row)."""
     x = np.asarray(x, dtype=float)
-    if k <= 1:
+    if k <= 1 and min_count <= 1:
         return x.copy()
     ok = np.isfinite(x)
-    w = np.ones(k)
+    w = np.ones(max(k, 1))
     cnt = np.convolve(ok.astype(float), w, mode="same")
     tot = np.convolve(np.where(ok, x, 0.0), w, mode="same")
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(cnt > 0, tot / np.maximum(cnt, 1.0), np.nan)
+        return np.where((cnt > 0) & (cnt >= min_count), tot / np.maximum(cnt, 1.0), np.nan)
 
 
 def cumtrapz0(y: NDArray[np.float64], dt: float) -> NDArray[np.float64]:

@@ -33,6 +33,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from .features import moving_mean
 from .hac import hac_meat
 from .locate import ljung_box_p, nis_coverage, noise_sigma, per_time
 
@@ -250,10 +251,8 @@ def largest_running_mean(n: int, rate_hz: float, idx: NDArray, rt: NDArray,
     k = max(1, int(round(window_s * rate_hz)))
     full = np.full(n, np.nan)
     full[idx] = rt
-    cnt = np.convolve(np.isfinite(full).astype(float), np.ones(k), mode="same")
-    run = np.convolve(np.nan_to_num(full), np.ones(k), mode="same") / np.maximum(cnt, 1)
     step = float(np.median(np.diff(np.unique(idx)))) if np.size(idx) > 1 else 1.0
-    run[cnt < k / (2.0 * max(step, 1.0))] = 0.0
+    run = np.nan_to_num(moving_mean(full, k, min_count=k / (2.0 * max(step, 1.0))))
     j = int(np.argmax(np.abs(run)))
     return j, float(run[j])
 
