@@ -111,7 +111,7 @@ def parts(rec_dir: Path) -> dict:
                     "not in work, turning": part(~work & turn), "valid": part(v), "not valid": part(~v)}
     if "curvature" in cols:
         # the turn's outer wheels (κ > 0, a left turn: the right wheels FR, RR) and inner wheels, where the
-        # lateral load transfer moves the loads (README "Turns"); turning steps in and out of work
+        # lateral load transfer moves the loads (docs/results/estimator.md, "Turns"); turning steps in and out of work
         left = (cols["curvature"][k][sl] > 0.0)[:, None]
         right_w = np.array([False, True, False, True])[None, :]
         outer = np.where(left, right_w, ~right_w)

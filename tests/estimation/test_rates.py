@@ -167,7 +167,7 @@ def test_hold_period_of_the_input_noise_is_the_observed_one(run20):
 def test_recording_at_bus_rates_with_jitter(tmp_path, wheel_hz, pin_hz, min_valid):
     """40 s of paper-three-soils with 0–10 ms CAN arrival delay: no timeout in work; at 20/10 Hz valid
     ≥ 95 % of work time (issue 13).  At 10 Hz the filter's own σ_μ keeps it from being flagged converged
-    much of the time (README "Bus rates"): only the absence of timeouts and a first convergence are asserted."""
+    much of the time (docs/results/estimator.md, "Bus rates"): only the absence of timeouts and a first convergence are asserted."""
     sensors = replace(SensorSpec(), wheel_rate_hz=wheel_hz, loadpin_rate_hz=pin_hz, can_jitter_s=0.01)
     scn = scenarios.get("paper-three-soils", seed=7, duration_s=40.0, sensors=sensors)
     write_recording(scn, simulate(scn), tmp_path)

@@ -5,7 +5,7 @@ rim and the motor behind the compliant hub reduction on the carcass's longitudin
 ring holds most of the rear wheels' rim-slip variance, and the speed pickup on the motor shaft sees it larger
 than the rim does (the motor side of a two-mass drive line swings more than the load side below the hub's own
 mode; Schröder 2009, ch. 18).  The paper's one-inertia wheel takes the pickup's speed for the rim's, so its
-rear slip follows the ring ≈ 1.45× (the gain of ŝ on s of 1.3–1.45 per soil in README "What the fit is
+rear slip follows the ring ≈ 1.45× (the gain of ŝ on s of 1.3–1.45 per soil in docs/results/curve-shape.md "What the fit is
 fed").  The two-inertia hub with the tyre carcass (vehicle.toml ``hub_stiffness_nmprad``,
 ``hub_damping_nmsprad``, ``hub_motor_inertia_kgm2``, ``tyre_carcass_stiffness_npm``) estimates the rim's speed
 and takes the gain back to ≈ 1.

@@ -186,7 +186,7 @@ def test_estimator_carries_the_hub_while_the_carcass_term_is_on(wheel_hz, hub_st
     assert est.ukf.n == (18 if hub_states else 10) and est._hub_on == hub_states
     assert e.P_diag.shape == (10,) and np.isfinite(e.mu).all() and np.isfinite(e.slip).all()
     assert np.all(np.abs(e.omega - 2.4 / 0.78 * 1.05) < 0.05)
-    # without a declared carcass the hub is not carried (measured worse: README)
+    # without a declared carcass the hub is not carried (measured worse: docs/results/estimator.md)
     est = Estimator(hub_vehicle(cx=0.0))
     for t, i, m in _steps(50, 0.01):
         est.step(t, i, m)
@@ -221,7 +221,7 @@ def test_hub_option_improves_the_rear_wheels_mu_on_the_physical_truth(short_reco
     the hub takes the rear wheels' μ error (valid steps in work) from 1.09/1.08 % to 0.85/0.87 %: their ring was
     overshot 1.2× by the lumped model.  (The front wheels' error rises from 1.27 to 1.58 % over these first
     40 s, before a curve is identified; over the full run it falls too and the scorecard's error goes from
-    1.32 to 1.29 %, README.)"""
+    1.32 to 1.29 %, docs/results/estimator.md.)"""
     from tractionecu.evaluation.scoring import read_truth
     from tractionecu.pipeline.replay import replay
     from tractionecu.recording.reader import read_recording

@@ -501,7 +501,7 @@ assert _CS_FIELDS == ("a", "class_index", "class_name", "a_per_class", "nll_per_
 # eq. 14 exponents distinct by a factor ≥ 1.3 and p not within 0.02 of 0 or 1 (else it is exp1).  The
 # covariance is (JᵀWJ)⁻¹ · max(1, χ²/(n − m)).  Cost: 1–3 ms per fit; a segment is refitted at
 # most every ``fit_period_s`` and only when its weight grew by half (module figures in the
-# test and README).
+# test and docs/results/curve-shape.md).
 
 #
 # Load (``load``: EstimatorConfig.curve_shape_load, on by default where a reference load is known).  On soil
@@ -518,7 +518,7 @@ assert _CS_FIELDS == ("a", "class_index", "class_name", "a_per_class", "nll_per_
 # same slips: the form ties their curves together (each group's bins show its own bend), and σ_q, from the
 # fit's covariance, says where the load and the bend cannot be told apart.  (An earlier rule asked for an
 # overlap of the groups' slips; on soft soil the front wheels of a hub-drive tractor work at 0.08–0.13 and
-# the rear at 0.05–0.09, so the term was never fitted where it matters most: README, "Load-aware
+# the rear at 0.05–0.09, so the term was never fitted where it matters most: docs/results/curve-shape.md, "Load-aware
 # identification".)  The soil segments' change test and pooling use the groups added up, as without the load
 # term.
 

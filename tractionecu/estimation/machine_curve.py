@@ -31,7 +31,7 @@ Priors
   curve with Wong's shear moduli K of farm soils (1–2.5 cm) rises much faster than 1 − e^{−7.5 s}: even
   the best level a gives R² 0.26 / 0.66 / 0.92 there (D497's shape matches Janosi's only for K ≥ 4 cm).
   The default stays the configured classes; no prior meets R² ≥ 0.95 on every soil of both truths, and the
-  machine's pairs, at one working point per soil, do not choose between shapes (README, issue 14).
+  machine's pairs, at one working point per soil, do not choose between shapes (docs/results/mechanical.md, issue 14).
 
 The prior is chosen per estimator (:class:`~.machine.MachineEstimator` ``curve_prior``); a prior outside
 the registry of surface classes (:data:`~tractionecu.model.mucurve.SOIL_CLASSES`, which the simulator's
