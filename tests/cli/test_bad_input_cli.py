@@ -70,6 +70,25 @@ def test_a_replay_into_an_earlier_output_leaves_no_product_of_the_earlier_one(sh
     assert main(["map", "export", str(out), "--format", "geojson"]) == 1     # no map: an error, not the old one
 
 
+@pytest.mark.parametrize("no_map", [False, True])
+def test_a_replay_never_deletes_a_map_folder_it_did_not_write(no_map, short_recording, tmp_path, capsys):
+    """An owner's own ``map/`` folder in the output directory (field boundaries: no map manifest) was deleted
+    by ``replay --out`` ("removed ... what an earlier replay had written there"), with --no-map by the stale
+    products' clean-up and without it by the map writer."""
+    out = tmp_path / "run"
+    (out / "map").mkdir(parents=True)
+    (out / "map" / "boundary.kml").write_text("<kml/>")
+    code = main(["replay", "--out", str(out), *(["--no-map"] if no_map else []), str(short_recording)])
+    captured = capsys.readouterr()
+    assert (out / "map" / "boundary.kml").read_text() == "<kml/>"
+    if no_map:
+        assert code == 0 and "removed" not in captured.out
+    else:
+        assert code == 1
+        assert "is not a map a replay wrote" in captured.err and "Traceback" not in captured.err
+        assert not (out / "estimates.csv").exists()           # refused before the run, nothing half-written
+
+
 def test_a_replay_that_fails_keeps_what_was_written(short_recording, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["replay", "--out", str(out), str(short_recording)]) == 0

@@ -21,8 +21,25 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import ConfigError
 from .sampler import DEFAULT_HALF_WINDOW_S, STATUS_NO_PAIR, centred_map_values
 from .store import STATUS_FILTER_LOST, MapStore
+from .tiles import MANIFEST_NAME
+
+
+def check_map_dir(map_dir: Path) -> None:
+    """Refuse a ``map`` directory a replay may not replace: one that holds files but no map manifest.
+
+    Every map store writes its manifest when it is created, so a replay's map, even one cut short, has one;
+    a directory without it is the owner's own (field boundaries, notes) and is never deleted.
+    """
+    d = Path(map_dir)
+    if d.is_dir() and not (d / MANIFEST_NAME).exists() and any(d.iterdir()):
+        raise ConfigError(f"{d}: exists and is not a map a replay wrote (no {MANIFEST_NAME}); a replay replaces "
+                          "its own map there and would delete these files: move them or choose another --out")
+    if d.exists() and not d.is_dir():
+        raise ConfigError(f"{d}: exists and is not a directory; a replay writes its map there: move it or choose "
+                          "another --out")
 
 
 def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
@@ -44,6 +61,7 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     summary: dict[str, Any] = {"map_dir": str(out / "map")}
     map_dir = out / "map"
     if store is None and map_dir.exists():          # also when this replay maps nothing: never another's map
+        check_map_dir(map_dir)
         shutil.rmtree(map_dir)
     if len(gps) == 0:
         summary["map_samples"] = 0

@@ -593,6 +593,10 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
     if not rate_hz > 0:
         raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    if write_map:
+        from ..mapping.from_replay import check_map_dir
+
+        check_map_dir(out / "map")                        # before the run: an owner's folder is never replaced
     out.mkdir(parents=True, exist_ok=True)
     read_s = time.perf_counter() - wall0
     vehicle, s0 = machine_of(rec)
