@@ -68,7 +68,13 @@ MAX_SPAN_S = 6 * 3600.0
 """At most this much [s] of each series is correlated (a 0.05 s grid of 432 000 points)."""
 GOOD_OVERLAP = 0.5
 """A trusted CAN clock whose frames and the GNSS epochs overlap over at least this fraction of the shorter
-of the two spans is left alone."""
+of the two spans is only checked (:data:`CHECK_MIN_S`)."""
+CHECK_MIN_S = 1.0
+"""A trusted CAN clock that overlaps the GNSS epochs well is still checked: an offset found beyond this [s]
+is the logger's clock set wrong (a clock without time sync runs seconds off) and is applied.  Below it the
+times are kept: the GNSS latency and the wheels' lead over the ground speed while slip builds up are tenths
+of a second (module doc, "Accuracy"), and a small CAN-to-GNSS skew is the diagnosis's to find
+(``clock_skew``), not the reader's to hide."""
 
 SPEED_SIGNALS = ("GroundBasedMachineSpeed", "WheelBasedMachineSpeed", "WheelBasedVehicleSpeed")
 WHEEL_SIGNALS = ("WheelSpeed_FL", "WheelSpeed_FR", "WheelSpeed_RL", "WheelSpeed_RR")

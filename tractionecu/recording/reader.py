@@ -19,7 +19,9 @@ Clocks
 When the CAN capture's clock cannot be trusted (:data:`.formats.TRUSTED_CLOCK`)
 or its frames overlap the GNSS epochs badly, the offset between the two clocks
 is estimated from the speeds both see (:mod:`.clock`) and added to every CAN
-time; ``RecordingStats.clock_note`` reports it with its uncertainty.  When the
+time; ``RecordingStats.clock_note`` reports it with its uncertainty.  A trusted
+clock that overlaps well is checked the same way, and an offset beyond
+:data:`.clock.CHECK_MIN_S` (a logger's clock seconds off) is applied and reported.  When the
 frames and the epochs do not overlap and no offset is found, ``clock="auto"``
 raises :class:`~tractionecu.errors.RecordingError` saying why;
 ``clock="report"`` (``inspect``) keeps the times and reports the problem;
@@ -321,7 +323,7 @@ CLOCK_MODES = ("auto", "report", "keep")
 def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrack, stats: RecordingStats,
                       mode: str) -> None:
     """Estimate and apply the CAN-to-GNSS clock offset when needed (module doc, "Clocks")."""
-    from .clock import estimate_offset, overlap_fraction, shift_can, GOOD_OVERLAP
+    from .clock import CHECK_MIN_S, GOOD_OVERLAP, estimate_offset, overlap_fraction, shift_can
     from .formats import TRUSTED_CLOCK
 
     if mode == "keep" or len(track) < 2 or not math.isfinite(stats.can_t_first):
@@ -330,6 +332,13 @@ def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrac
     frac = max(overlap_fraction(c0, c1, g0, g1), overlap_fraction(g0, g1, c0, c1))   # of the shorter span
     trusted = stats.can_format in TRUSTED_CLOCK
     if trusted and frac >= GOOD_OVERLAP:
+        # The spans agree, the clocks may still not: a logger's clock seconds off overlaps almost wholly.
+        off = estimate_offset(decoded, track.t, track.speed)
+        if off.found and abs(off.offset_s) > CHECK_MIN_S:
+            shift_can(decoded, stats, off.offset_s)
+            stats.clock_offset_s, stats.clock_sigma_s = off.offset_s, off.sigma_s
+            stats.clock_note = (f"the {stats.can_format} capture's clock and GNSS time disagree although their "
+                                f"spans overlap over {frac:.0%}: {off.describe()}, applied")
         return
     why = (f"the CAN frames ({_span(c0, c1)}) and the GNSS epochs ({_span(g0, g1)}) overlap over {frac:.0%} "
            "of the shorter"
