@@ -89,6 +89,21 @@ def test_a_replay_never_deletes_a_map_folder_it_did_not_write(no_map, short_reco
         assert not (out / "estimates.csv").exists()           # refused before the run, nothing half-written
 
 
+def test_a_gnss_log_without_gga_is_mapped_and_what_is_not_mapped_is_said(short_recording, tmp_path, capsys):
+    """RMC and VTG only (no GGA, so no HDOP): the gate let the epochs through, the map refused every one of
+    them on the missing HDOP, and replay said only 'map: 0 of 120 GNSS epochs mapped'."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    nmea = (rec / "gps.nmea").read_text().splitlines(keepends=True)
+    (rec / "gps.nmea").write_text("".join(ln for ln in nmea if "GGA," not in ln))
+    assert main(["replay", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("map: "))
+    mapped, epochs = (int(x) for x in line.split()[1:4:2])
+    assert epochs > 100 and mapped > 0.8 * epochs, line
+    if mapped < epochs:
+        assert "(not mapped: " in line and "HDOP" not in line, line
+
+
 def test_a_replay_that_fails_keeps_what_was_written(short_recording, tmp_path, capsys):
     out = tmp_path / "run"
     assert main(["replay", "--out", str(out), str(short_recording)]) == 0

@@ -278,7 +278,11 @@ def format_summary(res: dict[str, Any]) -> str:
     if "map_samples" in res and "map_epochs" not in res:    # no tiles written (mapping.from_replay)
         lines.append("map: none written: the recording has no GNSS epoch with a position")
     elif "map_samples" in res:
-        lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped -> {res['map_dir']}")
+        from ..mapping.from_replay import REFUSED_WORDS
+
+        refused = "; ".join(f"{n} {REFUSED_WORDS.get(k, k)}" for k, n in res.get("map_refused", {}).items())
+        lines.append(f"map: {res['map_samples']} of {res.get('map_epochs', 0)} GNSS epochs mapped"
+                     + (f" (not mapped: {refused})" if refused else "") + f" -> {res['map_dir']}")
     for axle, c in res.get("radius_calibration", {}).items():       # estimation/calibration.py
         if c.get("blocks"):
             val = "n/a" if c["scale"] is None else f"{c['scale']:.4f} ± {c['halfwidth95']:.4f} (95 %)"

@@ -27,6 +27,19 @@ from .store import STATUS_FILTER_LOST, MapStore
 from .tiles import MANIFEST_NAME
 
 
+REFUSED_WORDS = {
+    "invalid": "no valid estimate, or the GNSS gate refused the epoch",
+    "status": "estimate flagged",
+    "fix": "fix quality",
+    "hdop": "HDOP",
+    "position": "no position",
+    "range": "beyond the map's range",
+    "value": "no finite value",
+    "no_layer": "no layer",
+}
+"""What each of the map store's rejection reasons means for a replay's GNSS epoch."""
+
+
 def check_map_dir(map_dir: Path) -> None:
     """Refuse a ``map`` directory a replay may not replace: one that holds files but no map manifest.
 
@@ -55,7 +68,8 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     map in one frame fed by several replays in sequence.  ``gps_mask`` (one bool per GNSS epoch of ``rec``) keeps
     the epochs the replay's GNSS gate accepted; the others are not mapped.
     Returns a summary: ``map_dir``, ``map_samples`` (estimates stored) and,
-    when tiles were written, ``map_epochs`` (GNSS epochs of the recording).
+    when tiles were written, ``map_epochs`` (GNSS epochs of the recording) and ``map_refused`` (the epochs
+    not mapped, by the map store's reason: :data:`REFUSED_WORDS`).
     """
     gps = rec.gps
     summary: dict[str, Any] = {"map_dir": str(out / "map")}
@@ -97,8 +111,11 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     offered = arrays["valid"][idx] & inside
     if gps_mask is not None:
         offered &= np.asarray(gps_mask, dtype=bool)
+    before = {k: v for k, v in store.stats.items() if k.startswith("rejected_")}
     accepted = store.add_many(gps.lat, gps.lon, values, gps.t, valid=offered,
                               status=arrays["status"][idx], fix_quality=gps.fix_quality, hdop=gps.hdop)
+    summary["map_refused"] = {k[len("rejected_"):]: int(v - before.get(k, 0)) for k, v in store.stats.items()
+                              if k.startswith("rejected_") and v - before.get(k, 0) > 0}
     if own:
         store.close()
     else:

@@ -58,6 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from tractionecu.errors import ConfigError
 
+from ..gnss.fix import fix_accepted
 from .fill import DEFAULT_EPS_M, DEFAULT_WEIGHTS, EPS_LOW_M, paper_fill
 from .grid import LAYERS, TileStats
 from .projection import FieldFrame
@@ -187,8 +188,9 @@ class MapStore:
         Optional {soil name: typical a [-]}, stored in the manifest and used by
         the exports to classify and outline soils.
     min_fix_quality:
-        Lowest accepted GGA fix quality when :meth:`add` is given one
-        (1 = autonomous GNSS, 2 = DGPS/SBAS, 4 = RTK fixed, 5 = RTK float).
+        Least accurate GGA fix quality accepted when :meth:`add` is given one
+        (1 = autonomous GNSS, 2 = DGPS/SBAS, 5 = RTK float, 4 = RTK fixed, in that order; dead reckoning,
+        manual input and simulation, 6–8, never: :mod:`tractionecu.gnss.fix`).
     max_hdop:
         Highest accepted HDOP [-] when :meth:`add` is given one.
     reject_status_mask:
@@ -451,8 +453,9 @@ class MapStore:
     # rejection, counted as ``stats["rejected_" + reason]``.
     def _gnss_rules(self, lat: Any, lon: Any, t: Any, fix_quality: Any, hdop: Any) -> tuple[tuple[str, Any], ...]:
         return (("position", (abs(lat) <= 90.0) & (abs(lon) <= 180.0) & (abs(t) < math.inf)),
-                ("fix", fix_quality is None or fix_quality >= self.min_fix_quality),
-                ("hdop", hdop is None or hdop <= self.max_hdop))
+                ("fix", fix_quality is None or fix_accepted(fix_quality, self.min_fix_quality)),
+                # an HDOP not given (NaN: an epoch without GGA) is no reason to refuse, as for the gate
+                ("hdop", hdop is None or np.logical_not(np.greater(hdop, self.max_hdop))))
 
     def _range_rule(self, x: Any, y: Any) -> tuple[str, Any]:
         return "range", (abs(x) <= self.max_range_m) & (abs(y) <= self.max_range_m)

@@ -4,7 +4,9 @@ A GNSS epoch reaches the estimator (its speed over ground) and the map (its
 position) only if
 
 1. the receiver did not mark it invalid (RMC status ``V``);
-2. its GGA fix quality is known and at least ``min_fix_quality``;
+2. its GGA fix quality is known, carries a measured position and is at least as accurate as
+   ``min_fix_quality`` (:mod:`tractionecu.gnss.fix`: RTK float ranks below RTK fixed; dead reckoning,
+   manual input and simulation are never accepted);
 3. its HDOP, when given, is at most ``max_hdop``;
 4. it has a position;
 5. it is later than the epoch accepted before it (a repeated or earlier
@@ -31,6 +33,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..gnss.fix import fix_accepted
+
 REASONS = ("invalid", "fix_quality", "hdop", "no_position", "repeated", "stale")
 """Gating reasons, in the order they are checked."""
 
@@ -54,7 +58,7 @@ class GnssGate:
         """The first check one epoch fails (checks 1–4), or None if it passes."""
         if valid is False:
             return "invalid"
-        if fix_quality is None or fix_quality < 0 or fix_quality < self.min_fix_quality:
+        if fix_quality is None or not fix_accepted(fix_quality, self.min_fix_quality):
             return "fix_quality"
         if hdop is not None and math.isfinite(hdop) and hdop > self.max_hdop:
             return "hdop"
@@ -82,7 +86,7 @@ class GnssGate:
         q = np.asarray(track.fix_quality)
         hdop = np.asarray(track.hdop, dtype=float)
         mark(0, np.asarray(track.valid) == 0)
-        mark(1, (q < 0) | (q < self.min_fix_quality))
+        mark(1, ~fix_accepted(q, self.min_fix_quality))
         with np.errstate(invalid="ignore"):
             mark(2, np.isfinite(hdop) & (hdop > self.max_hdop))
         mark(3, ~(np.isfinite(track.lat) & np.isfinite(track.lon)))

@@ -142,7 +142,8 @@ class GpsConfig:
     source: str = setting("serial", "'serial' (NMEA from a serial port) or 'none' (no GNSS: no map, no GPS speed)")
     port: str = setting("/dev/ttyACM0", "serial device of the receiver")
     baudrate: int = setting(115200, "serial speed [bit/s]", 300, 4_000_000)
-    min_fix_quality: int = setting(1, "lowest accepted GGA fix quality (1 autonomous, 2 DGNSS, 4 RTK fixed, 5 RTK float)", 1, 8)
+    min_fix_quality: int = setting(1, "least accurate GGA fix quality accepted, in the order 1 autonomous, 2 DGNSS, "
+                                      "5 RTK float, 4 RTK fixed (6-8, dead reckoning, manual and simulated, never)", 1, 5)
     max_hdop: float = setting(5.0, "highest accepted HDOP [-]", 0.1, 99.0)
     latency_s: float = setting(0.0, "receiver output latency subtracted from the arrival time of an epoch [s]", 0.0, 1.0)
     max_line_bytes: int = setting(160, "longer lines are rejected as garbage [bytes] (NMEA allows 82)", 82, 4096)
