@@ -132,3 +132,59 @@ def test_a_mechanical_recording_without_draft_gets_the_engine_level_analysis(mak
     assert not rep["statement"].startswith("Cannot diagnose") and rep["verdict"] == "none"
     assert rep["slip_model"]["detected"]                              # wheel slip under load, from GNSS vs wheels
     assert json.loads((tmp_path / "d" / "report.json").read_text())["slip_model"]["a"]["value"] > 0
+
+
+def _nmea(body: str) -> str:
+    c = 0
+    for ch in body:
+        c ^= ord(ch)
+    return f"${body}*{c:02X}"
+
+
+def test_gnss_epochs_the_gate_refuses_are_not_used(make_recording, tmp_path):
+    """A receiver that marks 1 s in every 5 s invalid (RMC status V, GGA quality 0, speed 0): replay's gate
+    refused those epochs, diagnosis used their speed of 0 and reported an unexplained GNSS-speed mismatch
+    of 0.785 m/s RMS, 13.7 times its noise."""
+    import shutil
+
+    from tractionecu.diagnose import data as ddata
+
+    src = make_recording("paper-three-soils", 2, 60.0)
+    rec = tmp_path / "rec"
+    shutil.copytree(src, rec)
+    out = []
+    for ln in (rec / "gps.nmea").read_text().splitlines():
+        body = ln[1:ln.index("*")] if ln.startswith("$") and "*" in ln else ""
+        f = body.split(",")
+        if body and f[0][2:] in ("RMC", "GGA", "VTG") and f[1 if f[0][2:] != "VTG" else 0]:
+            sec = None if f[0][2:] == "VTG" else float(f[1][4:])
+            if f[0][2:] != "VTG" and int(sec) % 5 == 0:
+                if f[0][2:] == "RMC":
+                    f[2], f[7] = "V", "0.000"
+                else:
+                    f[6] = "0"
+                ln = _nmea(",".join(f))
+        out.append(ln)
+    (rec / "gps.nmea").write_text("\n".join(out) + "\n")
+    clean, bad = ddata.load(src), ddata.load(rec)
+    assert any("GNSS epochs refused by the GNSS gate (invalid" in n for n in bad.notes)
+    both = np.isfinite(clean.v_gps) & np.isfinite(bad.v_gps)
+    assert np.isnan(bad.v_gps).sum() > 0.15 * bad.v_gps.size       # the refused fifth is left out
+    assert np.max(np.abs(clean.v_gps[both] - bad.v_gps[both])) < 1e-9
+
+
+def test_without_gnss_the_radar_stands_in_and_no_clock_skew_is_tested(make_recording, tmp_path):
+    """Without gps.nmea the radar speed (GBSD) silently became 'GNSS speed' and the CAN-to-GNSS clock skew
+    was scored against a speed on the CAN clock."""
+    import shutil
+
+    from tractionecu.diagnose.engine import diagnose
+
+    rec = tmp_path / "rec"
+    shutil.copytree(make_recording("paper-three-soils", 2, 60.0), rec)
+    (rec / "gps.nmea").unlink()
+    d = diagnose(rec)
+    assert d.features.frame.v_gps_source == "radar"
+    assert any("radar's ground speed (GBSD) stands in" in n for n in d.notes)
+    cs = d.candidate("clock_skew")
+    assert cs is not None and not cs.testable and "no GNSS" in cs.reason

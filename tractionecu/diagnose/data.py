@@ -20,6 +20,7 @@ Derived quantities (SI units):
 from __future__ import annotations
 
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -29,6 +30,7 @@ from numpy.typing import NDArray
 
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle
 from ..errors import RecordingError
+from ..pipeline.gnss import GnssGate
 from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, ENGINE_PERCENT_TORQUE, ENGINE_REFERENCE_TORQUE, FRONT_AXLE_LOAD,
                                 GROUND_BASED_SPEED, IN_WORK, VEHICLE_SPEED, WHEEL_BASED_SPEED, WHEEL_SPEEDS)
 from ..recording.containers import MAX_TABLE_ROWS
@@ -71,7 +73,9 @@ class Frame:
     work: NDArray[np.bool_] | None = None
     """Implement fully in work."""
     v_gps: NDArray[np.float64] | None = None
-    """GNSS ground speed [m/s]."""
+    """GNSS ground speed [m/s] (without GNSS, the radar's: :attr:`v_gps_source`)."""
+    v_gps_source: str = "gnss"
+    """Where :attr:`v_gps` comes from: ``gnss``, or ``radar`` (GBSD) on a recording without GNSS."""
     v_wheel_bus: NDArray[np.float64] | None = None
     """The tractor's own wheel-based speed (WBSD / CCVS) [m/s]."""
     alt: NDArray[np.float64] | None = None
@@ -379,16 +383,29 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
     fr.engine_speed = mean("EngineSpeed")
     if len(gps):
         tol = 0.6 * period
-        fr.v_gps = _at(gps.t, gps.speed, grid, tol)
-        fr.alt = _at(gps.t, gps.alt, grid, tol)
-        lat = _at(gps.t, gps.lat, grid, tol)
-        lon = _at(gps.t, gps.lon, grid, tol)
-        fr.x, fr.y = local_xy(lat, lon)
-        course = _at(gps.t, gps.course, grid, tol)
+        # The epochs replay's gate refuses (receiver's invalid flag, no fix, HDOP, repeated) are not used here
+        # either: an invalid epoch's speed of 0 read as a GNSS-speed mismatch 14 times its noise.
+        refused: Counter[str] = Counter()
+        keep = GnssGate().track_mask(gps, refused)
+        if not keep.all():
+            why = ", ".join(f"{k.removeprefix('gated_')} {n}" for k, n in refused.items())
+            fr.notes.append(f"{int((~keep).sum())} of {len(gps)} GNSS epochs refused by the GNSS gate ({why}): "
+                            "not used, as replay does not use them")
+
+        def kept(v: NDArray[np.float64]) -> NDArray[np.float64]:
+            return _at(gps.t, np.where(keep, v, np.nan), grid, tol)
+
+        fr.v_gps = kept(gps.speed)
+        fr.alt = kept(gps.alt)
+        fr.x, fr.y = local_xy(kept(gps.lat), kept(gps.lon))
+        course = kept(gps.course)
         fr.heading = np.where(np.isfinite(course), np.radians(90.0 - course), np.nan)
         fr.heading = _track_heading(fr)
     if fr.v_gps is None and GROUND_BASED_SPEED in means:
         fr.v_gps = mean(GROUND_BASED_SPEED)
+        fr.v_gps_source = "radar"
+        fr.notes.append("no GNSS: the radar's ground speed (GBSD) stands in for the GNSS speed; it is on the CAN "
+                        "clock, so a CAN-to-GNSS clock skew is not tested, and a latency found is the radar's")
     if fr.v_gps is not None:
         d = travel_direction(fr.omega)
         if d is not None:

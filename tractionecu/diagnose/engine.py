@@ -200,6 +200,9 @@ def _testability(problem: Problem, feat: Features) -> dict[str, str]:
                       "separable; in reverse both turn with the travel and the offset does not, but this recording "
                       f"reverses for {reverse_s:.0f} s (at least {OFFSET_REVERSE_MIN_S:.0f} s "
                       "needed); check the torque reading at standstill with the drive unloaded")
+        elif name == "clock_skew" and fr.v_gps_source != "gnss":
+            reason = ("no GNSS in this recording: the radar's ground speed that stands in for it is on the CAN "
+                      "clock, so there is no second clock to skew")
         elif name == "clock_skew" and fr.rate_hz < 5.0:
             reason = f"sample rate {fr.rate_hz:.1f} Hz is too low to resolve a clock offset"
         out[name] = reason
