@@ -142,3 +142,23 @@ def test_a_time_jump_is_warned_about_and_sizes_no_array(short_recording, tmp_pat
         rec.table(100.0)
     with pytest.raises(RecordingError, match="time jumps"):
         frame_from_recording(rec, VehicleParams())
+
+
+def test_a_drive_that_repeats_itself_keeps_its_logged_times(short_recording, tmp_path):
+    """Copies of one drive joined end to end (the same noise in every copy) correlate best some copies
+    away: the check moved a 45-minute log by 1200 s.  Its speeds agree at the logged times, and an offset
+    the logs' spans contradict is never applied."""
+    from tractionecu.recording.clock import check_offset
+    from tractionecu.recording.concat import concatenate
+
+    concatenate(short_recording, tmp_path / "rep", 6 * 12.0, gap_s=0.01)
+    rec = read_recording(tmp_path / "rep")
+    assert rec.stats.clock_offset_s == 0.0
+    assert "applied" not in rec.stats.clock_note or "not applied" in rec.stats.clock_note
+    # one speed 3 s late while the logs' spans agree: the speeds disagree, the spans contradict the offset
+    raw = read_recording(short_recording, clock="keep")
+    sp = raw.signals["GroundBasedMachineSpeed"]
+    late = {"GroundBasedMachineSpeed": type(sp)(sp.t + 3.0, sp.value, sp.sa, sp.unit)}
+    off = check_offset(late, raw.gps.t, raw.gps.speed, (raw.stats.can_t_first, raw.stats.can_t_last))
+    assert not off.found and "not applied" in off.reason and "-3.0" in off.reason
+    assert check_offset(late, raw.gps.t, raw.gps.speed).found      # without the spans: found

@@ -75,6 +75,18 @@ is the logger's clock set wrong (a clock without time sync runs seconds off) and
 times are kept: the GNSS latency and the wheels' lead over the ground speed while slip builds up are tenths
 of a second (module doc, "Accuracy"), and a small CAN-to-GNSS skew is the diagnosis's to find
 (``clock_skew``), not the reader's to hide."""
+CHECK_RMS_RATIO = 2.0
+"""... and only when the speeds disagree at the logged times: the RMS of GNSS speed minus CAN speed at zero
+offset at least this many times its RMS at the offset found.  A drive that repeats itself (the same pass
+driven again and again) correlates as well one repetition away; there the two RMS are alike and the logged
+times are kept."""
+CHECK_RMS_MIN = 0.1
+"""... and at least this [m/s] (a speed error the estimator would feel: 4 % at 2.5 m/s)."""
+SPAN_SLACK_S = 2.0
+"""... and only when the offset agrees with the spans: a logger whose clock is off by Δ starts and stops Δ
+away from the receiver's log, so Δ must lie between the two differences of the spans' starts and ends
+(either log may start or stop first), widened by this [s].  An offset the spans contradict is reported and
+not applied."""
 
 SPEED_SIGNALS = ("GroundBasedMachineSpeed", "WheelBasedMachineSpeed", "WheelBasedVehicleSpeed")
 WHEEL_SIGNALS = ("WheelSpeed_FL", "WheelSpeed_FR", "WheelSpeed_RL", "WheelSpeed_RR")
@@ -226,6 +238,47 @@ def estimate_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray) 
         reason = (f"{name} and the GNSS speed correlate at most {rmax:.2f} (< {MIN_CORRELATION}); "
                   "the recording may not show the same drive")
     return ClockOffset(off if not reason else math.nan, sigma, rmax, name, reason)
+
+
+def check_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray,
+                 can_span: tuple[float, float] | None = None) -> ClockOffset:
+    """The offset of a trusted clock whose frames overlap the GNSS epochs.  Found only when it is beyond
+    :data:`CHECK_MIN_S`, the speeds disagree at the logged times (:data:`CHECK_RMS_RATIO`,
+    :data:`CHECK_RMS_MIN`) and, given ``can_span`` (the first and last CAN frame [s]), it agrees with the
+    logs' spans (:data:`SPAN_SLACK_S`); otherwise ``reason`` says why the logged times stand (with "not
+    applied" when the speeds disagree but the spans contradict the offset)."""
+    off = estimate_offset(signals, gps_t, gps_speed)
+    if not off.found:
+        return off
+    if abs(off.offset_s) <= CHECK_MIN_S:
+        return ClockOffset(math.nan, off.sigma_s, off.correlation, off.signal,
+                           f"offset {off.offset_s:+.3f} s is within {CHECK_MIN_S:g} s")
+    ok = np.isfinite(gps_speed) & np.isfinite(gps_t)
+    src = can_speed(signals)
+    ct, cv = _longest_run(src[1], src[2])
+    gt, gv = _longest_run(gps_t[ok], gps_speed[ok])
+    # the CAN speed's scale (wheel speeds in rad/s) fitted at each offset, so that only the timing counts
+    def rms(o: float) -> float:
+        tc = gt - o
+        m = (tc >= ct[0]) & (tc <= ct[-1])
+        if m.sum() < 5:
+            return math.nan
+        x = np.interp(tc[m], ct, cv)
+        k = float(x @ gv[m] / (x @ x)) if x @ x > 0 else 1.0
+        return float(np.sqrt(np.mean((k * x - gv[m]) ** 2)))
+    r0, r1 = rms(0.0), rms(off.offset_s)
+    if not (r0 >= max(CHECK_RMS_RATIO * r1, CHECK_RMS_MIN)):
+        return ClockOffset(math.nan, off.sigma_s, off.correlation, off.signal,
+                           f"the speeds agree at the logged times (RMS {r0:.3f} m/s; {r1:.3f} m/s "
+                           f"{off.offset_s:+.3f} s away)")
+    if can_span is not None:
+        d0, d1 = float(gps_t[ok][0] - can_span[0]), float(gps_t[ok][-1] - can_span[1])
+        lo, hi = min(d0, d1) - SPAN_SLACK_S, max(d0, d1) + SPAN_SLACK_S
+        if not lo <= off.offset_s <= hi:
+            return ClockOffset(math.nan, off.sigma_s, off.correlation, off.signal,
+                               f"the speeds agree best {off.offset_s:+.3f} s away, but the logs' starts and ends "
+                               f"differ by {d0:+.1f} s and {d1:+.1f} s: not applied; check the logger's clock")
+    return off
 
 
 def shift_can(signals: Mapping, stats, offset: float) -> None:

@@ -323,7 +323,7 @@ CLOCK_MODES = ("auto", "report", "keep")
 def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrack, stats: RecordingStats,
                       mode: str) -> None:
     """Estimate and apply the CAN-to-GNSS clock offset when needed (module doc, "Clocks")."""
-    from .clock import CHECK_MIN_S, GOOD_OVERLAP, estimate_offset, overlap_fraction, shift_can
+    from .clock import GOOD_OVERLAP, check_offset, estimate_offset, overlap_fraction, shift_can
     from .formats import TRUSTED_CLOCK
 
     if mode == "keep" or len(track) < 2 or not math.isfinite(stats.can_t_first):
@@ -333,12 +333,14 @@ def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrac
     trusted = stats.can_format in TRUSTED_CLOCK
     if trusted and frac >= GOOD_OVERLAP:
         # The spans agree, the clocks may still not: a logger's clock seconds off overlaps almost wholly.
-        off = estimate_offset(decoded, track.t, track.speed)
-        if off.found and abs(off.offset_s) > CHECK_MIN_S:
+        off = check_offset(decoded, track.t, track.speed, (c0, c1))
+        if off.found:
             shift_can(decoded, stats, off.offset_s)
             stats.clock_offset_s, stats.clock_sigma_s = off.offset_s, off.sigma_s
             stats.clock_note = (f"the {stats.can_format} capture's clock and GNSS time disagree although their "
                                 f"spans overlap over {frac:.0%}: {off.describe()}, applied")
+        elif "not applied" in off.reason:
+            stats.clock_note = f"CAN times kept: {off.reason}"
         return
     why = (f"the CAN frames ({_span(c0, c1)}) and the GNSS epochs ({_span(g0, g1)}) overlap over {frac:.0%} "
            "of the shorter"
