@@ -78,7 +78,7 @@ def test_a_recording_too_short_for_a_held_out_test_names_nothing(make_recording)
     from tractionecu.diagnose.engine import MIN_DRIVING_S, diagnose
 
     d = diagnose(make_recording("paper-straight", 3, 3.0))
-    assert d.verdict == "none" and d.effect is None
+    assert d.verdict == "untestable" and d.effect is None        # not a healthy machine's "none"
     assert not any(e["named"] for e in d.effects)
     assert d.statement.startswith("Cannot diagnose: the recording holds ")
     assert f"at least {MIN_DRIVING_S:.0f} s" in d.statement
@@ -96,9 +96,9 @@ def test_the_report_of_a_recording_without_channels_is_written(make_recording, t
 
     rec = make_recording("henrys-slope", 3, 2.0)
     assert not diagnose(rec).problem.channels                     # the case: nothing to plot
-    assert main(["diagnose", str(rec), "--out", str(tmp_path / "d"), "--no-estimator"]) == 0
+    assert main(["diagnose", str(rec), "--out", str(tmp_path / "d"), "--no-estimator"]) == 4
     rep = json.loads((tmp_path / "d" / "report.json").read_text())
-    assert rep["verdict"] == "none" and rep["statement"].startswith("Cannot diagnose")
+    assert rep["verdict"] == "untestable" and rep["statement"].startswith("Cannot diagnose")
     for png in ("residual_before_after.png", "residual_map.png", "ranking.png"):
         assert (tmp_path / "d" / png).stat().st_size > 1000
 

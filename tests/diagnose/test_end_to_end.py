@@ -177,9 +177,9 @@ def test_real_engine_export_of_a_standing_machine_says_why_nothing_can_be_diagno
     csv_path = Path(__file__).resolve().parents[1] / "data" / "csv" / "css_engine_gnss_1hz.csv"
     out = tmp_path / "rep"
     assert main(["diagnose", str(csv_path), "--out", str(out), "--csv-mapping", "j1939",
-                 "--reference-torque", "1500", "--time-offset", "1635188454"]) == 0
+                 "--reference-torque", "1500", "--time-offset", "1635188454"]) == 4
     rep = json.loads((out / "report.json").read_text())
-    assert rep["verdict"] == "none" and rep["effect"] is None
+    assert rep["verdict"] == "untestable" and rep["effect"] is None    # a standing machine is not "healthy"
     assert "0 of 128 samples usable" in rep["statement"]
     assert "does not drive" in rep["statement"] and "wheel-based speed at most 0.00 m/s" in rep["statement"]
     assert "GNSS speed at most 0.92 m/s" in rep["statement"]
@@ -208,7 +208,7 @@ def test_an_export_takes_the_reference_torque_the_vehicle_file_declares(tmp_path
                                                                          engine_reference_torque_nm=450.0)),
                  declared)
     rep = diagnose_path(csv_path, tmp_path / "r1", vehicle=declared, csv_mapping="auto")
-    assert (tmp_path / "r1" / "report.json").is_file() and rep["verdict"] == "none"
+    assert (tmp_path / "r1" / "report.json").is_file() and rep["verdict"] == "untestable"   # standing
 
 
 def test_slip_channel_carries_a_clock_running_ahead(recordings, tmp_path):

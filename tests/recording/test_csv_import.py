@@ -194,7 +194,7 @@ def test_diagnose_runs_on_the_prefixed_real_export(tmp_path):
 
     out = tmp_path / "rep"
     assert main(["diagnose", str(DATA / "css_engine_gnss_prefixed_datetime.csv"), "--out", str(out),
-                 "--csv-mapping", "auto", "--csv-timezone", "+06:00", "--reference-torque", "1500"]) == 0
+                 "--csv-mapping", "auto", "--csv-timezone", "+06:00", "--reference-torque", "1500"]) == 4
     rep = json.loads((out / "report.json").read_text())
     assert "0 of 128 samples usable" in rep["statement"]
 

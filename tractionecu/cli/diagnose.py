@@ -3,6 +3,10 @@
 ``--dbc FILE`` (repeatable) adds the owner's DBC files to the built-in one
 for every read of the recording; a ``[signals]`` table in its
 ``vehicle.toml`` maps their signals onto contract names.
+
+Exit status: 0 with a verdict, 4 (as ``replay`` with missing signals) when nothing could be tested
+(verdict ``untestable``: the recording is too short, or has none of the signals an effect acts on); the
+report is written either way.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import time
 from pathlib import Path
 
 from .inspect import add_dbc_option
+from .replay import EXIT_MISSING_SIGNALS
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -63,4 +68,4 @@ def run(args: argparse.Namespace) -> int:
                      + (f" (explains as well: {', '.join(e['consistent_with'])})" if e.get("consistent_with") else ""))
     lines.append(f"-> {Path(args.out) / 'report.md'} ({dt:.1f} s)")
     print("\n".join(lines))
-    return 0
+    return EXIT_MISSING_SIGNALS if rep["verdict"] == "untestable" else 0

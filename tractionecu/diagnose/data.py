@@ -19,6 +19,7 @@ Derived quantities (SI units):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -386,7 +387,11 @@ def frame_from_recording(rec: Recording, vehicle: VehicleParams, rate_hz: float 
         # The epochs replay's gate refuses (receiver's invalid flag, no fix, HDOP, repeated) are not used here
         # either: an invalid epoch's speed of 0 read as a GNSS-speed mismatch 14 times its noise.
         refused: Counter[str] = Counter()
-        keep = GnssGate().track_mask(gps, refused)
+        judged = gps
+        if len(gps) and (np.asarray(gps.fix_quality) < 0).all():
+            # a decoded export without a fix-quality column: that check has nothing to judge by
+            judged = dataclasses.replace(gps, fix_quality=np.ones_like(gps.fix_quality))
+        keep = GnssGate().track_mask(judged, refused)
         if not keep.all():
             why = ", ".join(f"{k.removeprefix('gated_')} {n}" for k, n in refused.items())
             fr.notes.append(f"{int((~keep).sum())} of {len(gps)} GNSS epochs refused by the GNSS gate ({why}): "

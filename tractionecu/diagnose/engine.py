@@ -375,7 +375,10 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
     withdrawn: list[dict] = []
     joint = None
     joint_ho = None
-    if not detected:
+    if results and not any(r.testable for r in results):
+        # Nothing could be tested (too short, signals missing): not the verdict of a healthy machine.
+        verdict, effect = "untestable", None
+    elif not detected:
         if gcheck.get("material") and not gcheck.get("separable"):
             verdict, effect = "ambiguous", None
             ambiguous = ["grade", "constant resistance (soil rolling resistance ρ_s or a constant draft)"]
@@ -1083,10 +1086,13 @@ def _fmt(v: float) -> str:
 
 
 def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck) -> str:
+    if verdict == "untestable":
+        reasons = list(dict.fromkeys(r.reason for r in results if not r.testable))
+        if len(reasons) == 1:
+            return f"Cannot diagnose: {reasons[0]}."
+        return ("Cannot diagnose: no effect of the library can be tested here ("
+                + "; ".join(f"{r.name}: {r.reason}" for r in results if not r.testable) + ").")
     if verdict == "none":
-        reasons = {r.reason for r in results if not r.testable}
-        if results and not any(r.testable for r in results) and len(reasons) == 1:
-            return f"Cannot diagnose: {reasons.pop()}."
         # the best candidate that could have been the verdict (the characteristics are reported beside it: they
         # are the machine's, not findings)
         best = next((r for r in results if r.testable and r.name not in CHARACTERISTIC), None)

@@ -128,7 +128,7 @@ def diagnose_reduced(fr: Frame) -> dict:
         for name in EFFECTS:
             cands.append({"name": name, "score": None, "testable": False, "detected": False, "reason": reason,
                           "per_channel": {}, "parameters": {}, "formula": EFFECTS[name].formula})
-        return {"source": fr.source, "verdict": "none", "effect": None, "ambiguous_between": [],
+        return {"source": fr.source, "verdict": "untestable", "effect": None, "ambiguous_between": [],
                 "statement": f"Cannot diagnose: {reason}.", "candidates": cands, "parameters": {},
                 "parameters_of": None, "signals": {}, "slip_model": None,
                 "locate": {"lead_channel": None, "change_points": [], "regimes": [], "signature_correlation": {}},

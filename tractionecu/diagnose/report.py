@@ -2,7 +2,9 @@
 
 ``report.json`` keys (a contract):
 
-- ``verdict``: ``"effect"``, ``"none"`` or ``"ambiguous"``;
+- ``verdict``: ``"effect"``, ``"none"``, ``"ambiguous"``, or ``"untestable"`` when no effect of the library
+  could be tested (a recording too short, or without the signals any effect acts on: never a healthy
+  machine's verdict; ``tractionecu diagnose`` exits 4 then);
 - ``effect``: the named effect or null; ``ambiguous_between``: the tied explanations;
 - ``candidates``: ranked list, each ``{name, score, testable, detected, reason, per_channel, parameters}``;
 - ``parameters``: ``{name: {"value", "ci95": [lo, hi], "unit"}}`` of the named (or leading
