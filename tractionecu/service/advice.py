@@ -20,6 +20,7 @@ from collections import Counter
 from typing import Any, Callable
 
 from ..advice.engine import AdviceEngine
+from ..aio import wait_event
 from .lifecycle import TaskPart
 
 log = logging.getLogger(__name__)
@@ -158,9 +159,7 @@ class AdvicePart(TaskPart):
         while True:
             if self.trigger is not None:
                 # right after the loop's broadcast step: the furthest from the next broadcast
-                try:
-                    await asyncio.wait_for(self.trigger.wait(), timeout=max(2 * wall, 0.5))
-                except asyncio.TimeoutError:
+                if not await wait_event(self.trigger, max(2 * wall, 0.5)):
                     self.stats["untriggered"] += 1
                 self.trigger.clear()
             else:

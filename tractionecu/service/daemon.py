@@ -74,6 +74,7 @@ from ..advice.bus import efficiency_frame
 from ..advice.efficiency import efficiency_config_for
 from ..advice.engine import AdviceEngine
 from ..advice.rules import AdviceSettings
+from ..aio import cancel_and_wait
 from ..bus import j1939
 from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS
@@ -161,12 +162,7 @@ class Readiness:
         self._task = asyncio.create_task(self._wait(), name=self.name)
 
     async def stop(self) -> None:
-        if self._task is not None and not self._task.done():
-            self._task.cancel()
-            try:
-                await self._task
-            except asyncio.CancelledError:
-                pass
+        await cancel_and_wait(self._task)
 
 
 class Service:

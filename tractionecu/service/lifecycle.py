@@ -30,6 +30,8 @@ import inspect
 import logging
 from typing import Any, Awaitable, Callable, Iterable, Protocol
 
+from ..aio import cancel_and_wait
+
 log = logging.getLogger(__name__)
 
 DEVICE_STOP_TIMEOUT_S = 5.0
@@ -89,14 +91,7 @@ class TaskPart:
 
     async def stop(self) -> None:
         """Cancel the task (one that already ended was reported when it ended)."""
-        t = self.task
-        if t is None or t.done():
-            return
-        t.cancel()
-        try:
-            await t
-        except asyncio.CancelledError:
-            pass
+        await cancel_and_wait(self.task)
 
 
 class Device(Protocol):
@@ -124,13 +119,12 @@ class DeviceTask(TaskPart):
         t = self.task
         if t is None or t.done():
             return
-        try:
-            await asyncio.wait_for(t, timeout=self.stop_timeout_s)
-        except asyncio.TimeoutError:
-            t.cancel()
-            raise TimeoutError(f"did not stop within {self.stop_timeout_s:g} s") from None
-        except asyncio.CancelledError:
-            pass
+        await asyncio.wait({t}, timeout=self.stop_timeout_s)
+        if not t.done():
+            await cancel_and_wait(t)
+            raise TimeoutError(f"did not stop within {self.stop_timeout_s:g} s")
+        if not t.cancelled():
+            t.exception()
 
 
 class Lifecycle:

@@ -38,6 +38,8 @@ from collections import Counter
 from importlib import resources
 from typing import Any, Callable
 
+from ..aio import cancel_and_wait, wait_event
+
 from aiohttp import WSMsgType, web
 
 log = logging.getLogger(__name__)
@@ -259,9 +261,7 @@ class WebPart:
             if self.trigger is not None:
                 # wake after a broadcast step of the estimation loop once the period is (nearly) over
                 while True:
-                    try:
-                        await asyncio.wait_for(self.trigger.wait(), timeout=period)
-                    except asyncio.TimeoutError:
+                    if not await wait_event(self.trigger, period):
                         self.stats["untriggered"] += 1
                         break
                     self.trigger.clear()
@@ -306,14 +306,12 @@ class WebPart:
         self.task = asyncio.create_task(self.run(), name=self.name)
 
     async def stop(self) -> None:
-        if self.task is not None and not self.task.done():
-            self.task.cancel()
-            try:
-                await self.task
-            except asyncio.CancelledError:
-                pass
-        for v in list(self.viewers):
-            self._drop(v, "service stopping")
-        if self.runner is not None:
-            await self.runner.cleanup()
-            self.runner = None
+        try:
+            await cancel_and_wait(self.task)
+        finally:
+            self.task = None
+            for v in list(self.viewers):
+                self._drop(v, "service stopping")
+            if self.runner is not None:
+                await self.runner.cleanup()
+                self.runner = None
