@@ -221,3 +221,23 @@ async def test_silence_reopen(silence: float) -> None:
     finally:
         await link.close()
         await asyncio.wait_for(task, 5)
+
+
+async def test_a_close_during_the_reopen_backoff_ends_the_link_at_once() -> None:
+    """An interface that is there but cannot be opened, retried every 30 s: the backoff slept on after
+    close() and the device task overran its stop limit."""
+    def factory(**kw):
+        raise can.CanError("adapter busy")
+
+    link = CanLink(CanConfig(interface="virtual", channel="busy0", reopen_min_s=30.0, reopen_max_s=60.0),
+                   lambda t, m: None, ServiceClock(), bus_factory=factory)
+    task = asyncio.create_task(link.run())
+    loop = asyncio.get_running_loop()
+    end = loop.time() + 5.0
+    while link.stats["open_failures"] < 1:
+        assert loop.time() < end
+        await asyncio.sleep(0.01)
+    t0 = loop.time()
+    await link.close()
+    await asyncio.wait_for(task, 2.0)
+    assert loop.time() - t0 < 1.0

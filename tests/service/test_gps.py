@@ -183,3 +183,17 @@ async def test_serial_reader_on_a_pty_survives_unplug(tmp_path: Path) -> None:
         await reader.close()
         await asyncio.wait_for(task, 10)
     assert not reader.is_open.is_set()
+
+
+async def test_a_close_during_the_reopen_backoff_ends_the_reader_at_once(tmp_path: Path) -> None:
+    """A GNSS port that does not exist, retried every 30 s: SIGTERM waited out the backoff's sleep, the
+    device task overran its 5 s stop limit and the service exited 1 after 5.1 s."""
+    reader = GpsReader(GpsConfig(port=str(tmp_path / "ttyNOPE"), reopen_min_s=30.0, reopen_max_s=60.0),
+                       lambda s: None, ServiceClock())
+    task = asyncio.create_task(reader.run())
+    await _until(lambda: reader.stats["open_failures"] >= 1)
+    loop = asyncio.get_running_loop()
+    t0 = loop.time()
+    await reader.close()
+    await asyncio.wait_for(task, 2.0)
+    assert loop.time() - t0 < 1.0

@@ -40,6 +40,7 @@ from typing import Any, Callable
 
 import can
 
+from ..aio import wait_event
 from ..counting import WarnOnce
 from .clock import ServiceClock
 from .config import CanConfig
@@ -187,6 +188,7 @@ class CanLink:
         self._fd: int | None = None
         self._failed: asyncio.Future[str] | None = None
         self._closing = False
+        self._closed = asyncio.Event()     # wakes a backoff at close
         self._thread: threading.Thread | None = None
         self._thread_stop: threading.Event | None = None
         self._queue: collections.deque[tuple[float, can.Message]] = collections.deque()
@@ -247,12 +249,12 @@ class CanLink:
         backoff to run out."""
         present = self._link_present()
         if present is None or present:
-            await asyncio.sleep(seconds)
+            await wait_event(self._closed, seconds)
             return
         loop = asyncio.get_running_loop()
         end = loop.time() + seconds
         while (left := end - loop.time()) > 0 and not self._closing:
-            await asyncio.sleep(min(LINK_POLL_S, left))
+            await wait_event(self._closed, min(LINK_POLL_S, left))
             if self._link_present():
                 self.stats["link_appeared"] += 1
                 await asyncio.sleep(LINK_SETTLE_S)
@@ -322,8 +324,9 @@ class CanLink:
         self.drain()
 
     async def close(self) -> None:
-        """Stop reading and close the bus."""
+        """Stop reading and close the bus (also ends a wait before the next open)."""
         self._closing = True
+        self._closed.set()
         self._fail("closed")
 
     # ------------------------------------------------------------ receive

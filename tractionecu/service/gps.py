@@ -61,6 +61,7 @@ from dataclasses import dataclass
 from datetime import date
 from typing import Any, Callable
 
+from ..aio import wait_event
 from ..counting import WarnOnce
 from ..errors import DecodeError
 from ..gnss.nmea import EpochAssembler, GpsFix, parse_line
@@ -288,6 +289,7 @@ class GpsReader:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._failed: asyncio.Future[str] | None = None
         self._closing = False
+        self._closed = asyncio.Event()     # wakes a backoff at close
         self._warn = WarnOnce(log)
 
     def _factory(self) -> Callable[..., Any]:
@@ -318,7 +320,7 @@ class GpsReader:
                 self.stats["open_failures"] += 1
                 self.last_error = f"open: {e}"
                 self._warn("open", "GPS %s: cannot open (%s); retrying", self.cfg.port, e)
-                await asyncio.sleep(backoff)
+                await wait_event(self._closed, backoff)
                 backoff = min(2 * backoff, self.cfg.reopen_max_s)
                 continue
             if self._closing:
@@ -334,7 +336,7 @@ class GpsReader:
             self.stats["link_failures"] += 1
             self.last_error = reason
             self._warn("link", "GPS %s: lost (%s); reopening", self.cfg.port, reason)
-            await asyncio.sleep(backoff)
+            await wait_event(self._closed, backoff)
             backoff = min(2 * backoff, self.cfg.reopen_max_s)
 
     async def _serve(self, port: Any) -> str:
@@ -385,6 +387,7 @@ class GpsReader:
             self._on_readable()
 
     async def close(self) -> None:
-        """Stop reading and close the port."""
+        """Stop reading and close the port (also ends a wait before the next open)."""
         self._closing = True
+        self._closed.set()
         self._fail("closed")
