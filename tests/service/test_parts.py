@@ -320,6 +320,44 @@ def test_loop_step_feeds_the_assembled_arguments() -> None:
     assert est.calls[1][2] == {}                         # nothing new: nothing passed
 
 
+def test_a_silent_bus_pauses_the_estimator_instead_of_integrating_held_torques() -> None:
+    """The CAN bus went silent with the service running: every step predicted with the held drive torques and
+    no measurement, and the page's speed grew by 0.3 m/s² without end (5326 m/s after 90 min).  As replay's
+    grid has no step in a wheel-speed gap longer than GRID_MAX_GAP_S, the loop now steps nothing there and
+    publishes a no-data estimate; the first step after the gap restarts the filter."""
+    from tractionecu.estimation.estimator import NOT_CONVERGED, WHEEL_TIMEOUT, Estimator
+    from tractionecu.pipeline.steps import GRID_MAX_GAP_S
+
+    est_loop, steps = loop_part(Estimator(VehicleParams()))
+    r = VehicleParams().r0_m
+
+    def push(t: float) -> None:
+        steps.push_signals(t, {**{f"WheelSpeed_{w}": 2.6 / r for w in WHEELS},
+                               **{f"DriveTorque_{w}": 2500.0 for w in WHEELS},
+                               "FrontAxleLoad": 25e3, "DraftForce": 8e3})
+        if round(t * 100) % 10 == 0:
+            steps.push_speed(t, 2.5)
+
+    t = 0.0
+    for k in range(500):                                 # 5 s of data at 100 Hz
+        t = k / 100.0
+        push(t)
+        est_loop.step(t + 0.005)
+    assert math.isfinite(est_loop.last_estimate.v)
+    v_last = est_loop.last_estimate.v
+    for k in range(500, 1500):                           # 10 s of silence
+        e = est_loop.step(k / 100.0 + 0.005)
+        if k / 100.0 + 0.005 - t > GRID_MAX_GAP_S:
+            assert math.isnan(e.v) and e.status & WHEEL_TIMEOUT and e.status & NOT_CONVERGED and not e.valid
+        else:
+            assert abs(e.v - v_last) < 1.0                # predicted only for the 2 s a step may hold
+    assert est_loop.stats["no_data_steps"] > 700
+    for k in range(1500, 1700):                          # the data return: the filter restarts
+        push(k / 100.0)
+        e = est_loop.step(k / 100.0 + 0.005)
+    assert est_loop.estimator.counters["gap_resets"] == 1 and math.isfinite(e.v) and abs(e.v - 2.5) < 0.5
+
+
 def test_loop_step_counts_an_estimator_failure_and_resets_it() -> None:
     est = StandIn(fail_at=2)
     est_loop, _ = loop_part(est)

@@ -357,6 +357,13 @@ class Estimator:
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
+    def no_data(self, t: float) -> Estimate:
+        """The estimate of a time ``t`` [s] at which nothing is stepped because the wheel speeds have been silent
+        longer than replay's grid gap (:data:`~tractionecu.pipeline.steps.GRID_MAX_GAP_S`; the service's loop):
+        every value NaN, not converged, wheel speeds timed out.  The filter is not moved; its next step, after
+        the gap, restarts it (``max_gap_s``) as in replay."""
+        return self._estimate(t, WHEEL_TIMEOUT | NOT_CONVERGED, None)
+
     def reset(self) -> None:
         """Forget everything (as after power-up)."""
         cfg = self.cfg

@@ -320,6 +320,11 @@ class MachineEstimator:
         self._g_table = (self._cls0.g(grid), grid)
 
     # ------------------------------------------------------------------ lifecycle
+    def no_data(self, t: float) -> MachineEstimate:
+        """As :meth:`Estimator.no_data <tractionecu.estimation.estimator.Estimator.no_data>`: nothing stepped in a
+        wheel-speed silence longer than replay's grid gap; every value NaN, not converged."""
+        return self._estimate(t, WHEEL_TIMEOUT | NOT_CONVERGED, None, math.nan)
+
     def reset(self) -> None:
         """Forget everything (as after power-up)."""
         cfg = self.cfg

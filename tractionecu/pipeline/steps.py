@@ -165,6 +165,8 @@ class StepAssembler:
         """Largest (last step time − sample time) of a late sample [s]: how much more lag was needed."""
         self.counts: Counter[str] = Counter()
         self.anchor: float | None = None
+        self.last_anchor: float | None = None
+        """Time of the latest anchor frame (wheel speeds) [s], or None."""
 
     def _push(self, key: str, t: float, value: Any) -> None:
         r = self._rings[key]
@@ -187,8 +189,11 @@ class StepAssembler:
                     self._push(key, t, np.array([values[n] for n in names], dtype=float))
                 else:
                     self._push(key, t, values[first])
-        if self.anchor is None and self._anchor_signal in values:
-            self.anchor = t + GRID_MARGIN_S
+        if self._anchor_signal in values:
+            if self.anchor is None:
+                self.anchor = t + GRID_MARGIN_S
+            if self.last_anchor is None or t > self.last_anchor:
+                self.last_anchor = t
 
     def push_speed(self, t: float, speed_mps: float, course_deg: float | None = None) -> None:
         """Add a GNSS speed over ground [m/s] of the accepted epoch at ``t`` [s] and its course over ground
