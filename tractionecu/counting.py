@@ -63,7 +63,7 @@ class RejectCounter:
 
 
 class WarnOnce:
-    """Log the first message of each kind at WARNING, later ones of the same kind at DEBUG.
+    """Log the first message of each kind at WARNING (or ``level``), later ones of the same kind at DEBUG.
 
     ``forget(kind)`` re-arms a kind (e.g. after a device came back, so the
     next failure is reported again).
@@ -75,12 +75,12 @@ class WarnOnce:
         self.log = log
         self._seen: set[str] = set()
 
-    def __call__(self, kind: str, msg: str, *args: Any) -> None:
+    def __call__(self, kind: str, msg: str, *args: Any, level: int = logging.WARNING) -> None:
         if kind in self._seen:
             self.log.debug(msg, *args)
         else:
             self._seen.add(kind)
-            self.log.warning(msg, *args)
+            self.log.log(level, msg, *args)
 
     def forget(self, kind: str) -> None:
         """Warn again the next time ``kind`` happens."""

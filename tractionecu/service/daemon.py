@@ -405,6 +405,8 @@ class Service:
         behind = self.estimation.behind_text(time.monotonic())
         if self.advice is not None and e is not None:
             est += " | " + self.advice.engine.status_text()
+        if self.map is not None and self.map.last_error:
+            est += " | map " + self.map.state
         return (f"{behind + ' | ' if behind else ''}{t}{est} | CAN {can_s} {r.get('can', 0):.0f} fr/s (inputs {r.get('inputs', 0):.0f}/s)"
                 f"  GPS {gps_s} {r.get('gps', 0):.1f} Hz  est {r.get('est', 0):.0f} Hz"
                 f"  tx {r.get('tx', 0):.0f} fr/s  addr {self.network.describe_address()}")

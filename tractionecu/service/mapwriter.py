@@ -31,6 +31,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+from ..counting import WarnOnce
 from ..mapping.sampler import CentredSampler
 from ..mapping.tiles import MANIFEST_NAME
 from ..model.mucurve import curve_class
@@ -59,6 +60,12 @@ def layer_values(est: Any) -> dict[str, float]:
     return out
 
 
+OPEN_RETRY_MIN_S = 1.0
+"""First wait before opening the map again after it could not be opened [s] (doubling)."""
+OPEN_RETRY_MAX_S = 60.0
+"""Longest wait between attempts to open the map [s]."""
+
+
 class MapWriter:
     """Accumulate on the loop, flush in a worker thread.
 
@@ -79,6 +86,9 @@ class MapWriter:
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="map-flush")
         self._flushing: asyncio.Future[Any] | None = None
         self._opening: asyncio.Future[Any] | None = None
+        self._open_retry_mono = -math.inf
+        self._open_backoff_s = OPEN_RETRY_MIN_S
+        self._warn = WarnOnce(log)
         self._last_flush_mono = -math.inf
         self.sampler = CentredSampler(cfg.window_half_s)
 
@@ -122,8 +132,9 @@ class MapWriter:
             return False
         if self.store is None and self._opening is None:
             loop = asyncio.get_running_loop()
-            self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
-            self._opening.add_done_callback(self._opened)
+            if loop.time() >= self._open_retry_mono:
+                self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
+                self._opening.add_done_callback(self._opened)
         try:
             ready = self.sampler.push(est.t, fix.lat_deg, fix.lon_deg, fix.fix_quality, fix.hdop, est)
         except Exception as e:  # a malformed estimate must not stop the loop
@@ -164,10 +175,27 @@ class MapWriter:
             return
         e = fut.exception()
         if e is not None:
+            # retried with a doubling wait: the samples meanwhile wait in the sampler's window or are
+            # counted (waiting_for_store); one error line, not one per 10 Hz sample
             self.stats["open_errors"] += 1
-            self.last_error = str(e)
-            log.error("map %s: cannot open: %s", self.directory, e)
+            self.last_error = f"cannot open: {e}"
+            self._warn("open", "map %s: cannot open: %s; retrying every %g s at most", self.directory, e,
+                       OPEN_RETRY_MAX_S, level=logging.ERROR)
+            self._open_retry_mono = asyncio.get_running_loop().time() + self._open_backoff_s
+            self._open_backoff_s = min(2 * self._open_backoff_s, OPEN_RETRY_MAX_S)
             self._opening = None
+        else:
+            self._warn.forget("open")
+            self._open_backoff_s = OPEN_RETRY_MIN_S
+            self.last_error = ""
+
+    @property
+    def state(self) -> str:
+        """What the page and the status line say of the map: ``writing``, ``waiting for a GNSS fix`` or the
+        error that stops it."""
+        if self.last_error:
+            return "ERROR: " + self.last_error
+        return "writing" if self.store is not None else "waiting for a GNSS fix"
 
     def maybe_flush(self, now_mono: float) -> None:
         """Start a flush in the worker thread if the interval is over and none is running."""
@@ -201,9 +229,14 @@ class MapWriter:
         e = fut.exception()
         if e is not None:
             self.stats["flush_errors"] += 1
-            self.last_error = str(e)
-            log.error("map flush failed: %s", e)
+            self.last_error = f"flush failed: {e}"
+            self._warn("flush", "map flush failed: %s (the tiles stay in memory and are written at the next "
+                       "flush that succeeds)", e, level=logging.ERROR)
         else:
+            if "flush" in self._warn:
+                log.warning("map %s: flushing again", self.directory)
+                self._warn.forget("flush")
+                self.last_error = ""
             self.stats["flushes"] += 1
             self.stats["tiles_written"] += int(fut.result() or 0)
 

@@ -127,5 +127,6 @@ def web_snapshot(svc: Any) -> dict[str, Any]:
     }
     if svc.gps is not None:
         health["gps_fixes"] = int(svc.stats.get("gps_fixes", 0))
+    health["map"] = "off" if svc.map is None else svc.map.state
     out["health"] = health
     return out

@@ -160,6 +160,7 @@
       ["sent", fmt(r.tx, 0) + " frames/s from " + (h.address || "-"), true],
       ["dropped frames", h.dropped_frames, !h.dropped_frames], ["bad / unknown frames", h.bad_frames + " / " + h.unknown_pgn_frames, true],
       ["late frames, skipped steps", h.late_frames + ", " + h.skipped_steps, !h.skipped_steps],
+      ["map", h.map, !String(h.map || "").startsWith("ERROR")],
       ["viewers", s.viewers, true],
     ];
     if (h.behind) rows.push(["schedule", h.behind, false]);
