@@ -43,6 +43,30 @@ def test_replay_reports_the_lines_it_skipped(short_recording, tmp_path, capsys):
     assert len(rows) > 100                                      # the rest of the recording was estimated
 
 
+def test_replay_and_diagnosis_say_what_they_left_out(short_recording, tmp_path, capsys):
+    """Frames of a known message one byte short were counted by ``inspect`` only: replay printed nothing
+    about them, and diagnosis reported neither those nor the lines the reader skipped.  Without a
+    vehicle.toml replay ran the default tractor without a word."""
+    from tractionecu.diagnose.data import load
+
+    rec = _damaged(short_recording, tmp_path / "rec")
+    lines = (rec / "can.log").read_text().splitlines(keepends=True)
+    wheel = [i for i, ln in enumerate(lines) if " 0CFF1080#" in ln]        # TECU_WheelSpeeds (PGN 65296)
+    for i in wheel[::10]:                                                  # every 10th frame one byte short
+        lines[i] = lines[i].rstrip("\n")[:-2] + "\n"
+    (rec / "can.log").write_text("".join(lines))
+    (rec / "vehicle.toml").unlink()
+    out = tmp_path / "run"
+    assert main(["replay", "--no-map", "--out", str(out), str(rec)]) == 0
+    text = capsys.readouterr().out
+    assert "no vehicle.toml beside the recording: the default machine" in text
+    n_short = len(wheel[::10])
+    assert f"skipped frames of a known message with the wrong length: TECU_WheelSpeeds {n_short}" in text
+    notes = load(rec).notes
+    assert any(f"wrong length: TECU_WheelSpeeds {n_short}" in n for n in notes), notes
+    assert any(n.startswith("can.log: skipped ") and "garbage: 1 (can.log line 303)" in n for n in notes), notes
+
+
 def test_replay_of_a_clean_recording_reports_no_skips(short_recording, tmp_path, capsys):
     assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(short_recording)]) == 0
     assert "skipped" not in capsys.readouterr().out

@@ -41,8 +41,9 @@ def test_hub_without_draft_load_and_gnss_replays_with_a_note(tmp_path):
     hub = dict((need.what, sig) for need, sig in profile_status(rec)["hub"])
     assert hub["wheel speed FL"] == "WheelSpeed_FL" and hub["draft"] is None and hub["GNSS speed"] is None
     assert source_of(rec, "WheelSpeed_FL") == "TECU_WheelSpeeds"
-    assert profile_note(rec) == ["profile hub: missing front-axle load, draft, GNSS speed: the estimator flags those "
-                                 "steps (time-out bits)"]
+    assert profile_note(rec)[1:] == ["profile hub: missing front-axle load, draft, GNSS speed: the estimator flags "
+                                     "those steps (time-out bits)"]
+    assert profile_note(rec)[0].startswith("no vehicle.toml beside the recording")
     summary, _, res = replay_to_dir(rec, tmp_path / "run", write_map=False)
     assert res.steps > 150 and not res.arrays["valid"].any()
     m = motion(rec)

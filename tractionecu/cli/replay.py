@@ -165,9 +165,14 @@ def rejects_note(rec: Any) -> list[str]:
     """The lines of the recording's files that were skipped (counted by reason, with the first line
     numbers), as ``inspect`` lists them: a replay over a damaged capture says what it left out."""
     out = []
-    for _fname, st in getattr(getattr(rec, "stats", None), "files", {}).items():
+    stats = getattr(rec, "stats", None)
+    for _fname, st in getattr(stats, "files", {}).items():
         if getattr(st, "total_rejected", 0):
             out += [f"skipped {line}" for line in st.describe()]  # type: ignore[attr-defined]
+    bad = getattr(stats, "decode_errors", None)
+    if bad:
+        out.append("skipped frames of a known message with the wrong length: "
+                   + ", ".join(f"{name} {n}" for name, n in sorted(bad.items())))
     return out
 
 
@@ -212,6 +217,9 @@ def profile_note(rec: Any) -> list[str]:
     run_as = estimator_profile(veh)                      # hub, or mechanical for an engine-driven [drivetrain]
     absent = [need.what for need, sig in profile_status(rec, veh)[run_as] if sig is None]
     out = []
+    if getattr(rec, "vehicle_toml_path", None) is None:
+        out.append("no vehicle.toml beside the recording: the default machine (the paper's 6300 kg hub-drive "
+                   "tractor) stands in; its masses, radii and drivetrain may not be this machine's")
     if run_as == "mechanical" and "draft" in absent:      # by design: the machine-level estimator's sum
         absent.remove("draft")
         out.append("profile mechanical: no draft: rho_s and the draft are estimated as their sum, rho_s is not "

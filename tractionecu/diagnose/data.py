@@ -494,7 +494,23 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
     else:
         veh = VehicleParams()
         notes.append("no vehicle.toml: package default vehicle parameters used")
+    notes += skipped_input_notes(rec)
     fr = frame_from_recording(rec, veh, rate_hz, blocks)
     fr.notes[:0] = notes
     fr.sensors = sensors
     return fr
+
+
+def skipped_input_notes(rec: Recording) -> list[str]:
+    """What the reader left out of the recording (lines by reason with the first line numbers, frames of a
+    known message with the wrong length), as ``inspect`` and ``replay`` say it: a diagnosis of a damaged
+    capture says what it did not see."""
+    out = []
+    st = rec.stats
+    for fname, fst in getattr(st, "files", {}).items():
+        if getattr(fst, "total_rejected", 0):
+            out.append(f"{fname}: skipped " + "; ".join(fst.describe()))
+    if st.decode_errors:
+        out.append("skipped frames of a known message with the wrong length: "
+                   + ", ".join(f"{name} {n}" for name, n in sorted(st.decode_errors.items())))
+    return out
