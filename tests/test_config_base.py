@@ -106,6 +106,19 @@ def test_unknown_key_is_named_with_the_known_ones() -> None:
         from_mapping(VehicleParams, {"mass": 1.0}, "vehicle")
 
 
+@pytest.mark.parametrize("text, named", [
+    ("[vehicle]\nmass_kg = 6500\n[sensorz]\ngps_rate_hz = 10\n", "sensorz"),          # a table's typo
+    ("mass_kg = 99999999\n[vehicle]\nmass_kg = 6500\n", "mass_kg"),                   # a key above [vehicle]
+])
+def test_a_vehicle_file_with_a_vehicle_table_refuses_what_it_would_ignore(tmp_path: Path, text, named) -> None:
+    """Beside [vehicle], a misspelt table or a top-level key was dropped without a word."""
+    p = tmp_path / "vehicle.toml"
+    p.write_text(text, encoding="utf-8")
+    for load in (load_vehicle, load_sensors):
+        with pytest.raises(ConfigError, match=rf"^{p}: {named}: unknown in a vehicle file with a \[vehicle\] table"):
+            load(p)
+
+
 def test_sensors_not_a_table(tmp_path: Path) -> None:
     p = tmp_path / "vehicle.toml"
     p.write_text("mass_kg = 6500\nsensors = 3\n", encoding="utf-8")

@@ -585,12 +585,22 @@ class SensorSpec:
 
 
 # ----------------------------------------------------------------------------- vehicle files
+VEHICLE_FILE_TABLES = ("vehicle", "drivetrain", "sensors", "signals")
+"""The tables of a vehicle file that has a ``[vehicle]`` table."""
+
+
 def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
     """(vehicle table, sensors table) of a parsed vehicle file: ``[vehicle]`` or top-level keys, optional
     ``[sensors]`` (a ``[signals]`` table is :func:`load_signal_map`'s); a top-level ``[drivetrain]``
     is the vehicle's."""
     sensors = data.get("sensors", {})
     if "vehicle" in data:
+        # beside [vehicle] only the file's other tables: a typo ([sensorz]) or a key above [vehicle] would
+        # otherwise be dropped without a word (the keys inside each table are checked where they are read)
+        extra = sorted(k for k in data if k not in VEHICLE_FILE_TABLES)
+        if extra:
+            raise ConfigError(f"{', '.join(extra)}: unknown in a vehicle file with a [vehicle] table (it holds only "
+                              f"{', '.join('[' + t + ']' for t in VEHICLE_FILE_TABLES)}; keys go inside [vehicle])")
         veh = data["vehicle"]
         if "drivetrain" in data and isinstance(veh, Mapping):     # a top-level [drivetrain] beside [vehicle]
             if "drivetrain" in veh:
@@ -603,16 +613,16 @@ def _vehicle_tables(data: Mapping[str, Any]) -> tuple[Any, Any]:
 def load_vehicle(path: str | Path) -> VehicleParams:
     """Load ``vehicle.toml`` (keys at top level or under ``[vehicle]``; a ``[sensors]`` table is left to :func:`load_sensors`).
     A :class:`ConfigError` names the file."""
-    tables = _vehicle_tables(load_toml(path, "vehicle"))
+    data = load_toml(path, "vehicle")
     with _naming(path):
-        return from_mapping(VehicleParams, tables[0], "vehicle")
+        return from_mapping(VehicleParams, _vehicle_tables(data)[0], "vehicle")
 
 
 def load_sensors(path: str | Path) -> SensorSpec:
     """The ``[sensors]`` table of a vehicle file; the documented defaults for keys (or a table) it lacks."""
-    tables = _vehicle_tables(load_toml(path, "vehicle"))
+    data = load_toml(path, "vehicle")
     with _naming(path):
-        return from_mapping(SensorSpec, tables[1], "sensors")
+        return from_mapping(SensorSpec, _vehicle_tables(data)[1], "sensors")
 
 
 @contextmanager
