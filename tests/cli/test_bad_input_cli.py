@@ -265,3 +265,21 @@ def test_a_vehicle_file_that_is_not_toml_is_named_once(short_recording, tmp_path
     err = capsys.readouterr().err
     assert f"tractionecu replay: error: {rec / 'vehicle.toml'}: not valid TOML: " in err
     assert err.count("vehicle.toml") == 1
+
+
+def test_diagnose_reads_a_can_capture_in_csv_by_its_content(short_recording, tmp_path, capsys):
+    """A python-can CSV capture was taken for a decoded export by its suffix: "line 1: no time column
+    'timestamps' in header", while inspect and replay read it (formats are judged by content)."""
+    import can
+
+    d = tmp_path / "rec"
+    d.mkdir()
+    shutil.copy(short_recording / "gps.nmea", d / "gps.nmea")
+    shutil.copy(short_recording / "vehicle.toml", d / "vehicle.toml")
+    with can.CSVWriter(str(d / "capture.csv")) as w:
+        for msg in can.LogReader(str(short_recording / "can.log")):
+            w.on_message_received(msg)
+    code = main(["diagnose", str(d / "capture.csv"), "--out", str(tmp_path / "diag"), "--no-estimator"])
+    captured = capsys.readouterr()
+    assert "no time column" not in captured.err and "Traceback" not in captured.err
+    assert code in (0, 4) and (tmp_path / "diag" / "report.json").is_file()

@@ -29,7 +29,7 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
 
     p = Path(recording)
     out = Path(out)
-    is_csv = csv_mapping is not None or (p.is_file() and p.suffix.lower() == ".csv")
+    is_csv = csv_mapping is not None or (p.is_file() and p.suffix.lower() == ".csv" and not _is_can_capture(p))
     if is_csv:
         from ..recording.csv_import import CsvMapping, import_csv, mapping_named
 
@@ -71,6 +71,18 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
 
 ENGINE_LEVEL = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
 """Frame signals of the engine-level analysis (:mod:`.reduced`)."""
+
+
+def _is_can_capture(p: Path) -> bool:
+    """A ``.csv`` file that is a CAN capture (python-can's CSV, a PolyCAN export), judged by content as
+    ``replay`` and ``inspect`` judge it, not a decoded export."""
+    from ..errors import RecordingError
+    from ..recording.formats import detect
+
+    try:
+        return detect(p) in ("csv", "polycan")
+    except RecordingError:
+        return False
 
 
 def _write_reduced(fr, out: Path, note: str | None = None) -> dict:
