@@ -132,9 +132,21 @@ def test_a_slip_the_estimator_does_not_support_gives_no_efficiency() -> None:
     trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
     rep = trk.update(estimate(0.0, 0.08, status=0x2000))
     assert rep.flags & eff.ESTIMATE_INVALID and not rep.eta_valid and not rep.slip_ok
+    assert not rep.flags & eff.LOW_EXCITATION          # no supported slip yet: the estimate's flag says why
+    rep = trk.update(estimate(0.05, 0.005))             # the first supported slip is low: the 0.08 did not count
     assert rep.flags & eff.LOW_EXCITATION
     rep = trk.update(estimate(0.1, 0.08, status=0x1000))
     assert rep.flags & eff.ESTIMATE_INVALID and not rep.eta_valid
+
+
+def test_start_up_does_not_read_as_low_slip() -> None:
+    """Every run's first status lines said "slip too low to identify the curve" (at a slip of 0.55 too):
+    the excitation window started at −∞.  Before the first supported slip, the estimate's flags say why."""
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    rep = trk.update(estimate(0.0, 0.55, status=0x2000))    # start-up: the slip not yet supported
+    assert not rep.flags & eff.LOW_EXCITATION and "slip too low" not in rep.reasons()
+    rep = trk.update(estimate(0.1, 0.08))
+    assert not rep.flags & eff.LOW_EXCITATION
 
 
 def test_the_message_decodes_back() -> None:

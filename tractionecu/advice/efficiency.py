@@ -394,6 +394,7 @@ class EfficiencyTracker:
     def __init__(self, cfg: EfficiencyConfig | None = None) -> None:
         self.cfg = cfg or EfficiencyConfig()
         self._excited_t = -math.inf
+        self._slip_seen_t = -math.inf
         self._sigma_a = math.nan
         self._cache: tuple[tuple[float, ...], tuple[float, float, float, float]] | None = None
 
@@ -438,7 +439,12 @@ class EfficiencyTracker:
             rep.eta_rear = eta_machine(mu[2:], s[2:], fz[2:], rho_s, c.rho_t)
         if rep.slip_ok and rep.slip >= c.excitation_slip:
             self._excited_t = t
-        if not (math.isfinite(t) and t - self._excited_t <= c.excitation_window_s):
+        if not flags & ESTIMATE_INVALID and not status & SLIP_INVALID_STATUS and math.isfinite(rep.slip):
+            self._slip_seen_t = t
+        # "slip too low" only once the estimator has reported a slip it supports: before that (start-up, not
+        # converged) the estimate's own flags say why (it read so from the first step of every run, at a slip
+        # of 0.55 too)
+        if math.isfinite(self._slip_seen_t) and not (math.isfinite(t) and t - self._excited_t <= c.excitation_window_s):
             flags |= LOW_EXCITATION
         curve = curve_of(est)
         if curve is None:
