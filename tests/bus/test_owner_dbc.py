@@ -126,7 +126,8 @@ def test_mapping_resolves_and_names_the_bad_key(codec):
 
 def test_without_the_owner_dbc_the_error_says_to_give_it():
     with pytest.raises(ConfigError, match=r"signals.WheelSpeed_FL: no message 'DriveCtrl_3' in the loaded DBCs "
-                                          r"\(tractionecu.dbc\); give the owner's DBC with --dbc"):
+                                          r"\(tractionecu.dbc\); add the owner's DBC \(--dbc FILE for replay, "
+                                          r'inspect and diagnose; dbc = \["FILE"\] in the service.s \[can\] table\)'):
         Codec().resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", 1.0)})
 
 

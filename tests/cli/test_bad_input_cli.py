@@ -283,3 +283,19 @@ def test_diagnose_reads_a_can_capture_in_csv_by_its_content(short_recording, tmp
     captured = capsys.readouterr()
     assert "no time column" not in captured.err and "Traceback" not in captured.err
     assert code in (0, 4) and (tmp_path / "diag" / "report.json").is_file()
+
+
+@pytest.mark.parametrize("toml, said", [
+    ('[signals]\nWheelSpeed_FL = "Nope.Nothing"\n', "dbc = [\"FILE\"] in the service's [can] table"),
+    ('[can]\ndbc = ["nonexist.dbc"]\n', "can.dbc: file not found: nonexist.dbc"),
+])
+def test_run_simulate_checks_the_owner_dbc_before_it_simulates(toml, said, tmp_path, capsys):
+    """A bad [signals] entry or a missing can.dbc file was reported only after the whole scenario had been
+    simulated, told the user of an option run does not have (--dbc), named neither key nor table for the
+    missing file, and left the virtual bus open ("VirtualBus was not properly shut down")."""
+    cfg = tmp_path / "svc.toml"
+    cfg.write_text(toml)
+    code = main(["run", "--simulate", "--duration", "5", "--config", str(cfg), "--state-dir", str(tmp_path / "st")])
+    err = capsys.readouterr().err
+    assert code != 0 and said in err
+    assert not (tmp_path / "st" / "simulation").exists()          # refused before simulating

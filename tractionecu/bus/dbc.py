@@ -489,7 +489,8 @@ class Codec:
         info = self.messages.get(msg)
         if info is None:
             files = ", ".join(p.name for p in (self.path, *self.extra_paths))
-            hint = "" if self.extra_paths else "; give the owner's DBC with --dbc"
+            hint = ("" if self.extra_paths else "; add the owner's DBC (--dbc FILE for replay, inspect and "
+                    "diagnose; dbc = [\"FILE\"] in the service's [can] table)")
             raise KeyError(f"no message {msg!r} in the loaded DBCs ({files}){hint}")
         key = self._keys[msg].get(sig)
         if key is None:

@@ -107,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.scenario not in scenarios.SCENARIOS:   # before a simulation directory is announced
         raise ConfigError(f"scenario {args.scenario!r}: unknown (known: {', '.join(sorted(scenarios.SCENARIOS))})")
+    from ..service.dispatch import codec_for
+
+    codec_for(cfg)           # can.dbc and [signals] checked before the simulation runs, not after it
     return asyncio.run(simulate_main(cfg, args))
 
 

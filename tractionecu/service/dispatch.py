@@ -51,7 +51,7 @@ from ..bus import j1939
 from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..counting import WarnOnce
-from ..errors import DecodeError
+from ..errors import ConfigError, DecodeError
 from ..pipeline.steps import StepAssembler
 from .broadcast import output_pgns
 from .fixes import FixBuffer
@@ -210,7 +210,10 @@ def codec_for(cfg: Any, codec: Codec | None = None) -> tuple[Codec, list[tuple[s
 
     files = cfg.dbc_files()
     if files:
-        codec = Codec(codec.path if codec is not None else None,
-                      extra=[*(codec.extra_paths if codec is not None else ()), *files])
+        try:
+            codec = Codec(codec.path if codec is not None else None,
+                          extra=[*(codec.extra_paths if codec is not None else ()), *files])
+        except ConfigError as e:           # "dbc: file not found: F" named neither the key nor the table
+            raise ConfigError(f"can.{e}" if str(e).startswith("dbc:") else str(e)) from None
     codec = codec or default_codec()
     return codec, codec.resolve_mapping(cfg.signal_mapping())

@@ -272,8 +272,12 @@ async def run_simulation(cfg: Any, recording: str | Path, *, speed: float = 1.0,
     for attempt in range(1, START_ATTEMPTS + 1):
         clock = ServiceClock(speed=speed, epoch0=first.t - lead * speed)
         machine.clock = clock
-        svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
-                      warm_up_estimator=False)          # warmed up above
+        try:
+            svc = Service(cfg, clock=clock, status_stream=status_stream, estimator_factory=estimator_factory,
+                          warm_up_estimator=False)      # warmed up above
+        except BaseException:
+            machine.stop()                              # its virtual bus and pty, also on a config error
+            raise
         stop = asyncio.Event()
         task = asyncio.create_task(svc.run(stop))
         t0 = time.monotonic()
