@@ -52,11 +52,15 @@ class RejectCounter:
         return sum(self.rejected.values())
 
     def describe(self) -> list[str]:
-        """One line per reject reason: ``reason: count (file line a, b, ...)``."""
+        """One line per reject reason: ``reason: count (file line a, b, ...)`` (without line numbers where the
+        reader gave none: 0)."""
         out = []
         src = f"{self.source} " if self.source else ""
         for reason in sorted(self.rejected):
-            ex = self.examples.get(reason, [])
+            ex = [k for k in self.examples.get(reason, []) if k > 0]     # 0: a reader that gives no line number
+            if not ex:
+                out.append(f"{reason}: {self.rejected[reason]}" + (f" ({self.source})" if self.source else ""))
+                continue
             more = "" if self.rejected[reason] <= len(ex) else ", ..."
             out.append(f"{reason}: {self.rejected[reason]} ({src}line {', '.join(map(str, ex))}{more})")
         return out

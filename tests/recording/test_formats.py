@@ -371,3 +371,48 @@ def test_mf4_without_asammdf_names_the_extra(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_asammdf)
     with pytest.raises(RecordingError, match=r"tractionecu\[mf4\]"):
         read_frames(MF4, ReadStats())
+
+
+def _damage_line(path: Path, lineno: int, edit) -> str:
+    lines = path.read_text().splitlines(keepends=True)
+    lines[lineno - 1] = edit(lines[lineno - 1])
+    path.write_text("".join(lines))
+    return lines[lineno - 1]
+
+
+@pytest.mark.parametrize("fmt, edit", [
+    ("asc", lambda ln: ln.replace(" d 8 ", " d 8 ZZ ", 1)),            # a data byte that is no hex
+    ("csv", lambda ln: "notatime" + ln[ln.index(","):]),                 # a time stamp that is no number
+    ("csv", lambda ln: ln.split(",", 1)[0] + ",0xZZ,1,0,0,8,AAAA\n"),    # an identifier that is no hex
+])
+def test_one_bad_line_of_a_text_capture_is_counted_and_the_rest_read(captures, tmp_path, fmt, edit):
+    """One bad line stopped python-can's ASC and CSV readers, and the whole file was refused
+    ("cannot read as asc: ValueError: invalid literal for int() with base 16: 'ZZ'", no line number)."""
+    d = tmp_path / fmt
+    shutil.copytree(captures[fmt], d)
+    good = read_frames(captures[fmt] / "can.capture", ReadStats())[0]
+    _damage_line(d / "can.capture", 300, edit)
+    rs = ReadStats()
+    table, got = read_frames(d / "can.capture", rs)
+    assert got == fmt and rs.rejected["bad_line"] == 1 and rs.examples["bad_line"] == [300]
+    assert len(table.t) == len(good.t) - 1                                # every other frame kept
+    rec = read_recording(d)
+    assert "bad_line: 1 (can.capture line 300)" in rec.stats.files["can.capture"].describe()
+
+
+def test_trc_lines_python_can_skips_and_a_truncated_blf_are_counted(captures, tmp_path):
+    d = tmp_path / "trc"
+    shutil.copytree(captures["trc"], d)
+    lines = (d / "can.capture").read_text().splitlines(keepends=True)
+    lines.insert(len(lines) // 2, "garbage\r\n")
+    (d / "can.capture").write_text("".join(lines))
+    rs = ReadStats()
+    read_frames(d / "can.capture", rs)
+    assert rs.rejected["bad_line"] == 1
+    b = tmp_path / "blf"
+    shutil.copytree(captures["blf"], b)
+    raw = (b / "can.capture").read_bytes()
+    (b / "can.capture").write_bytes(raw[: 2 * len(raw) // 3])
+    rs = ReadStats()
+    read_frames(b / "can.capture", rs)
+    assert rs.rejected["truncated"] == 1 and "truncated: 1" in rs.describe()[0]

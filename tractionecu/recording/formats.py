@@ -40,12 +40,14 @@ GNSS epochs by :mod:`.clock`.
 
 from __future__ import annotations
 
+import binascii
+import logging
 import math
 import re
 from calendar import timegm
 from datetime import datetime
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 
@@ -155,7 +157,7 @@ def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tupl
             return _table(_mf4_messages(p), rs), fmt
         if fmt == "polycan":
             return _table(_polycan_messages(p, rs), rs), fmt
-        return _table(_python_can_messages(p, fmt), rs), fmt
+        return _table(_python_can_messages(p, fmt, rs), rs), fmt
     except RecordingError:
         raise
     except OSError as e:
@@ -164,29 +166,119 @@ def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tupl
         raise RecordingError(f"{p}: cannot read as {fmt}: {type(e).__name__}: {e}") from e
 
 
-def _python_can_messages(p: Path, fmt: str) -> Iterator[tuple]:
+class _Lines:
+    """The lines of a text capture for a python-can reader, counted, with lines put back in front: a reader
+    that stops at a line it cannot parse is made again on the rest (:func:`_python_can_messages`)."""
+
+    def __init__(self, fh: Any) -> None:
+        self.fh = fh
+        self.n = 0                                   # lines of the file taken so far
+        self.front: list[str] = []
+
+    def __iter__(self) -> "_Lines":
+        return self
+
+    def __next__(self) -> str:
+        if self.front:
+            return self.front.pop()
+        line = next(self.fh)
+        self.n += 1
+        return line
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+_RESUMED_ASC_STATE = ("base", "_converted_base", "relative_timestamp", "date", "start_time", "timestamps_format",
+                      "internal_events_logged")
+"""What an ASC reader learnt from the file's header, handed to the reader made again after a bad line."""
+
+
+def _python_can_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
+    """Messages of a capture python-can reads.  Text captures (ASC, python-can CSV) are read line-tolerant:
+    python-can's readers end at the first line they cannot parse, so a bad line is counted (``bad_line``, with
+    its line number) and the reading goes on after it, as the candump reader does.  TRC lines python-can
+    skips itself are counted from its log; a BLF shorter than its header says is counted ``truncated``."""
     import can
 
-    if fmt == "asc":
-        reader = can.ASCReader(str(p), relative_timestamp=False)
-    elif fmt == "blf":
+    if fmt in ("asc", "csv"):
+        yield from _text_messages(p, fmt, rs)
+        return
+    if fmt == "blf":
         reader = can.BLFReader(str(p))
+        declared = int(getattr(reader, "file_size", 0) or 0)
+        if 0 < (size := p.stat().st_size) < declared:
+            rs.reject("truncated", 0, f"{size} of the {declared} bytes its header declares")
     elif fmt == "trc":
         reader = can.TRCReader(str(p))
-    elif fmt == "csv":
-        reader = can.CSVReader(str(p))
     elif fmt == "sqlite":
         reader = can.SqliteReader(str(p))
     else:  # pragma: no cover - FORMATS and detect() agree
         raise RecordingError(f"{p}: no reader for format {fmt!r}")
+    counted = _CountFailures(rs) if fmt == "trc" else None
+    trc_log = logging.getLogger("can.io.trc")
+    if counted is not None:
+        trc_log.addHandler(counted)
+        keep, trc_log.propagate = trc_log.propagate, False    # counted and reported, not also logged
     try:
         for m in reader:
             yield (m.timestamp, m.arbitration_id, m.is_extended_id, bytes(m.data), m.dlc,
                    m.is_error_frame, m.is_remote_frame, m.is_fd)
     finally:
+        if counted is not None:
+            trc_log.removeHandler(counted)
+            trc_log.propagate = keep
         stop = getattr(reader, "stop", None)
         if stop is not None:
             stop()
+
+
+class _CountFailures(logging.Handler):
+    """Counts the lines python-can's TRC reader logs as not parsed (it skips them itself)."""
+
+    def __init__(self, rs: ReadStats) -> None:
+        super().__init__(logging.WARNING)
+        self.rs = rs
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.rs.reject("bad_line", 0, record.getMessage())
+
+
+def _text_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
+    import can
+
+    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+        lines = _Lines(fh)
+        state: dict[str, Any] = {}
+        header = None
+        last_bad = -1
+        while True:
+            if fmt == "asc":
+                reader = can.ASCReader(lines, relative_timestamp=False)
+                if state:
+                    lines.front.append("\n")          # ends the new reader's header search at once
+                    for k, v in state.items():
+                        setattr(reader, k, v)
+            else:
+                reader = can.CSVReader(lines)
+                if header is not None:
+                    lines.front.append(header)          # the new reader skips one header line
+            it = iter(reader)
+            try:
+                for m in it:
+                    if fmt == "asc" and not state:
+                        state = {k: getattr(reader, k) for k in _RESUMED_ASC_STATE if hasattr(reader, k)}
+                    yield (m.timestamp, m.arbitration_id, m.is_extended_id, bytes(m.data), m.dlc,
+                           m.is_error_frame, m.is_remote_frame, m.is_fd, lines.n)
+                return
+            except (ValueError, TypeError, IndexError, KeyError, binascii.Error) as e:
+                if lines.n == last_bad:             # no line taken since the last one: give up, as before
+                    raise
+                last_bad = lines.n
+                rs.reject("bad_line", lines.n, f"{type(e).__name__}: {e}")
+                if fmt == "asc" and not state:
+                    state = {k: getattr(reader, k) for k in _RESUMED_ASC_STATE if hasattr(reader, k)}
+                header = header or "timestamp,arbitration_id,extended,remote,error,dlc,data\n"
 
 
 _POLYCAN_COLUMNS = frozenset({"time", "pgn", "priority", "source", "destination", "data"})
