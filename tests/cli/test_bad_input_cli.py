@@ -299,3 +299,11 @@ def test_run_simulate_checks_the_owner_dbc_before_it_simulates(toml, said, tmp_p
     err = capsys.readouterr().err
     assert code != 0 and said in err
     assert not (tmp_path / "st" / "simulation").exists()          # refused before simulating
+
+
+def test_run_simulate_says_which_hardware_options_it_does_not_use(tmp_path, capsys):
+    """--gps-port, --interface, --channel and estimation.vehicle were dropped by --simulate without a word."""
+    code = main(["run", "--simulate", "--duration", "3", "--speed", "8", "--gps-port", "/dev/ttyS9",
+                 "--interface", "socketcan", "--state-dir", str(tmp_path / "st"), "--no-web"])
+    err = capsys.readouterr().err
+    assert code == 0 and "--interface, --gps-port: not used with --simulate" in err

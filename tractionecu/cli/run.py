@@ -110,6 +110,12 @@ def run(args: argparse.Namespace) -> int:
     from ..service.dispatch import codec_for
 
     codec_for(cfg)           # can.dbc and [signals] checked before the simulation runs, not after it
+    ignored = [f"--{k.replace('_', '-')}" for k in ("interface", "channel", "gps_port") if getattr(args, k)]
+    if cfg.estimation.vehicle:
+        ignored.append("estimation.vehicle")
+    if ignored:
+        print(f"tractionecu run: {', '.join(ignored)}: not used with --simulate (the simulation plays on its own "
+              "virtual CAN bus and NMEA pty, with the scenario's vehicle file)", file=sys.stderr)
     return asyncio.run(simulate_main(cfg, args))
 
 
