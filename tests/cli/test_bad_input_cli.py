@@ -307,3 +307,15 @@ def test_run_simulate_says_which_hardware_options_it_does_not_use(tmp_path, caps
                  "--interface", "socketcan", "--state-dir", str(tmp_path / "st"), "--no-web"])
     err = capsys.readouterr().err
     assert code == 0 and "--interface, --gps-port: not used with --simulate" in err
+
+
+def test_map_export_says_what_is_missing(short_recording, tmp_path, capsys):
+    """``map export`` of a directory that does not exist, or of a replay run with --no-map, said only
+    "DIR/manifest.json: no map manifest"."""
+    assert main(["map", "export", str(tmp_path / "nonexist"), "--format", "geojson"]) == 1
+    assert "nonexist: no such directory" in capsys.readouterr().err
+    out = tmp_path / "run"
+    assert main(["replay", "--no-map", "--out", str(out), str(short_recording)]) == 0
+    capsys.readouterr()
+    assert main(["map", "export", str(out), "--format", "geojson"]) == 1
+    assert "a replay's output without a map (replayed with --no-map" in capsys.readouterr().err

@@ -62,7 +62,7 @@ def test_export_options(replay_dir, tmp_path):
 def test_errors_give_exit_codes(tmp_path, replay_dir, capsys, monkeypatch):
     args = parse(["map", "export", str(tmp_path / "nothing"), "--format", "png"])
     assert args.func(args) == 1
-    assert "manifest" in capsys.readouterr().err
+    assert "nothing: no such directory" in capsys.readouterr().err
     args = parse(["map", "export", str(replay_dir), "--format", "isoxml", "--layers", "nope"])
     assert args.func(args) == 2
     args = parse(["map", "export", str(replay_dir), "--format", "png", "--soil-classes", "junk"])

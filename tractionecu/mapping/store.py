@@ -832,8 +832,13 @@ def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:
     if isinstance(store_or_dir, MapStore):
         return store_or_dir
     d = Path(store_or_dir)
+    if not d.exists():
+        raise MapStoreError(f"{d}: no such directory")
     if not (d / MANIFEST_NAME).exists() and (d / "map" / MANIFEST_NAME).exists():
         d = d / "map"
+    elif not (d / MANIFEST_NAME).exists() and (d / "estimates.csv").exists():
+        raise MapStoreError(f"{d}: a replay's output without a map (replayed with --no-map, or the recording has "
+                            "no GNSS position): nothing to export")
     return MapStore.open(d, read_only=True)
 
 
