@@ -190,3 +190,21 @@ def test_an_owner_message_on_an_11_bit_identifier_feeds_the_steps(tmp_path: Path
     f = pgn_filters([*codec.pgns(), *TRANSPORT_PGNS], 0x90, codec.std_ids())
     assert {"can_id": 7, "can_mask": 0x7FF, "extended": False} in f
     assert all(x["extended"] for x in pgn_filters(CODEC.pgns(), 0x90, CODEC.std_ids()))
+
+
+def test_a_late_gnss_epoch_is_named_by_the_status_lines_time(caplog):
+    """The warning printed the epoch's raw POSIX time ('GNSS epoch 1783670401.432 arrived ...') while every
+    status line counts t from the grid's start."""
+    import logging
+
+    from tractionecu.service.gps import GpsSample
+
+    steps = StepAssembler()
+    d = FrameDispatcher(CODEC, steps, FixBuffer(GnssGate()), lag_s=0.05)
+    t0 = 1_783_670_400.0
+    steps.push_signals(t0, {f"WheelSpeed_{w}": 3.0 for w in ("FL", "FR", "RL", "RR")})
+    steps.take(t0 + 12.5)                                   # the loop has stepped to t0 + 12.5 s
+    caplog.set_level(logging.WARNING, logger="tractionecu.service.dispatch")
+    d.on_fix(GpsSample(t0 + 12.0, t0 + 12.6, 48.0, 11.0, 500.0, 2.5, 90.0, 4, 0.8, 12))
+    msg = " ".join(r.getMessage() for r in caplog.records)
+    assert "GNSS epoch at t 12.0 s arrived 0.600 s after it" in msg and "1783670" not in msg

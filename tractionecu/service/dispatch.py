@@ -198,8 +198,9 @@ class FrameDispatcher:
             late = self.steps.counts["late"]
             self.steps.push_speed(fix.t, fix.speed_mps, fix.course_deg)
             if self.steps.counts["late"] > late:
-                self._warn("late-gps", "GNSS epoch %.3f arrived %.3f s after it (lag %.3f s): it is used one "
-                           "step late; raise estimation.lag_s", fix.t, fix.t_arrival - fix.t, self.lag_s)
+                t0 = self.steps.anchor if self.steps.anchor is not None else fix.t
+                self._warn("late-gps", "GNSS epoch at t %.1f s arrived %.3f s after it (lag %.3f s): it is used one "
+                           "step late; raise estimation.lag_s", fix.t - t0, fix.t_arrival - fix.t, self.lag_s)
 
 
 def codec_for(cfg: Any, codec: Codec | None = None) -> tuple[Codec, list[tuple[str, str, float]]]:

@@ -263,7 +263,9 @@ class EstimationLoop(TaskPart):
         since = getattr(est, "lost_since", math.nan)
         if not math.isnan(since):      # the filter had lost the vehicle since then
             self.stats["filter_lost"] += 1
-            self._warn("lost", "estimator lost the vehicle at t=%.3f (since %.3f); re-initialised", t, since)
+            g0 = self.grid_t0 if self.grid_t0 is not None else t      # the status line's t
+            self._warn("lost", "estimator lost the vehicle at t %.1f s (since %.1f s); re-initialised", t - g0,
+                       since - g0)
             if self.map is not None:
                 self.map.discard_since(since)
         return est
