@@ -160,6 +160,28 @@ def test_eec1_at_10_ms_and_ccvs1_only_replay_like_the_recording(mech40: Path, tm
         assert sc["rho_s_mean_abs_error"] < 0.03, name
 
 
+def test_eec1_thinned_to_100_ms_keeps_the_drive_speed_timeout_off(mech40: Path, tmp_path: Path) -> None:
+    """A logger that keeps every 5th EEC1 frame (100 ms): the drive speed's one period tracker took samples
+    from the engine speed and from CCVS1/WBSD, which land a step apart, read them as a 10 ms stream, and the
+    timeout (at its floor) tripped between two 10 Hz samples: wheel_speed_timeout on 32 % of the steps.  The
+    period now follows one source (the engine speed, where it is the drive speed)."""
+    from tractionecu.estimation.estimator import WHEEL_TIMEOUT
+
+    lines = (mech40 / "can.log").read_text(encoding="utf-8").splitlines()
+    k = [0]
+
+    def keep(ln: str) -> bool:
+        if _pgn(ln) != PGN_EEC1:
+            return True
+        k[0] += 1
+        return k[0] % 5 == 1                          # the frames just before CCVS1 and WBSD
+
+    rec = _variant(mech40, tmp_path / "eec1-100ms", [x for x in lines if keep(x)])
+    _replay_scorecard(rec, tmp_path / "run")
+    st = _estimates(tmp_path / "run")["status"].astype(int)
+    assert np.mean((st & WHEEL_TIMEOUT) != 0) < 0.03
+
+
 def test_without_ec1_replay_names_the_reference_torque_or_takes_the_declared_one(mech40: Path, tmp_path: Path,
                                                                                    capsys) -> None:
     """No EC1 on the bus (a capture started after its 5 s broadcast): replay says what is missing for the

@@ -612,7 +612,10 @@ class MachineEstimator:
         z_w = r_w = None
         bus_ratio = self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"])
         learnt = not bus_ratio and i_tot == self._ratio_learnt and self._ratio_jump == 0
-        if we is not None and (bus_ratio or learnt) and i_tot > 0:
+        engine_drive = (bus_ratio or learnt) and i_tot > 0     # the engine speed is the drive speed
+        from_engine = False
+        if we is not None and engine_drive:
+            from_engine = True
             # the engine speed over the ratio: the drive speed at EEC1's rate; over a learnt ratio with the
             # learnt ratio's own error beside the engine speed's (:meth:`_learn_ratio`)
             s_e = self.ms.engine_speed_sigma_rel * we + self.ms.engine_speed_quant / math.sqrt(12.0)
@@ -628,7 +631,10 @@ class MachineEstimator:
             z_w, r_w = self._dir * vfa / den, (s_w * s_w + self.ms.wheel_speed_quant ** 2 / 12.0) / den ** 2
         if z_w is not None:
             self._t_omega = t
-            if rates.trackers["omega"].push(t):
+            # One source sets the drive speed's period: the engine speed where it is the drive speed, else the
+            # wheel-based or axle speed.  Pushed together, EEC1 and CCVS1/WBSD samples one step apart read as a
+            # 10 ms stream, whose timeout then tripped between two 10 Hz samples (EEC1 at 10 Hz: 12 % valid).
+            if from_engine == engine_drive and rates.trackers["omega"].push(t):
                 rates.refresh("omega")
         rel = meas.get("rel_r")                                # EBC2 rear wheels relative to the front axle
         if rel is not None and vfa is not None and vfa > 0.5:
