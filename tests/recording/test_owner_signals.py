@@ -104,8 +104,9 @@ def test_mapped_signals_are_the_source_times_the_scale(rec_dir):
 
 
 def test_an_explicit_mapping_replaces_the_vehicle_files(rec_dir):
-    rec = read_recording(rec_dir, dbc=[OWNER], signals={"WheelSpeed_RR": ("DriveCtrl_3.WhlSpdRR", 1.0)})
-    assert "WheelSpeed_FL" not in rec.signals and rec.signals["WheelSpeed_RR"].value[0] == pytest.approx(28.10)
+    rpm = math.pi / 30.0                                   # the owner's wheel speeds are in rpm
+    rec = read_recording(rec_dir, dbc=[OWNER], signals={"WheelSpeed_RR": ("DriveCtrl_3.WhlSpdRR", rpm)})
+    assert "WheelSpeed_FL" not in rec.signals and rec.signals["WheelSpeed_RR"].value[0] == pytest.approx(28.10 * rpm)
     rec = read_recording(rec_dir, dbc=[OWNER], signals={})
     assert not any(k.startswith("WheelSpeed") for k in rec.signals)
     rec = read_recording(rec_dir, dbc=[OWNER], signals={"FrontAxleLoad": ("DriveCtrl_4.Counter", 5.0)})
@@ -139,3 +140,20 @@ def test_bulk_and_per_frame_decoders_agree_on_the_owner_messages(tmp_path):
     sig, st = assert_same(path, Codec(extra=[OWNER]))
     assert {"DriveCtrl_3", "DriveCtrl_4", "CCVS1"} <= set(st.messages) and st.decode_errors
     assert sig["DriveCtrl_4.HitchDraft"].value[0] == pytest.approx(-12.34)
+
+
+def test_a_mapping_in_other_units_without_a_scale_or_one_source_twice_is_refused():
+    """A km/h speed mapped without its scale ran replay with a ρ_s error of 0.29 and no word; a radar mapped
+    onto the wheel-based speed's source halved the slip."""
+    from tractionecu.bus.dbc import Codec
+    from tractionecu.errors import ConfigError
+
+    codec = Codec(extra=[OWNER])
+    with pytest.raises(ConfigError, match=r"signals.WheelSpeed_FL: DriveCtrl_3.WhlSpdFL is in rpm, WheelSpeed_FL in "
+                                          r"rad/s: give scale = 0.10472"):
+        codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", 1.0)})
+    assert codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0)})
+    with pytest.raises(ConfigError, match=r"signals.WheelSpeed_FR: DriveCtrl_3.WhlSpdFL is already "
+                                          r"signals.WheelSpeed_FL; one measurement cannot be two"):
+        codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0),
+                               "WheelSpeed_FR": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0)})

@@ -138,6 +138,29 @@ def default_dbc_path() -> Path:
         return repo_dbc_path()
 
 
+UNIT_SI = {
+    "m/s": 1.0, "km/h": 1.0 / 3.6, "kph": 1.0 / 3.6, "mph": 0.44704,
+    "N": 1.0, "kN": 1000.0, "daN": 10.0,
+    "Nm": 1.0, "N.m": 1.0, "N·m": 1.0, "kNm": 1000.0,
+    "rad/s": 1.0, "rpm": math.pi / 30.0, "1/min": math.pi / 30.0, "U/min": math.pi / 30.0,
+    "m": 1.0, "mm": 1e-3, "cm": 1e-2,
+}
+"""Units an owner's DBC may give its signals in, with their factor to SI; each group one quantity."""
+_UNIT_KIND = {u: k for k, us in {"speed": ("m/s", "km/h", "kph", "mph"), "force": ("N", "kN", "daN"),
+                                  "torque": ("Nm", "N.m", "N·m", "kNm"),
+                                  "rate": ("rad/s", "rpm", "1/min", "U/min"), "length": ("m", "mm", "cm")}.items()
+              for u in us}
+
+
+def unit_factor(src_unit: str, to_unit: str) -> float | None:
+    """The factor from ``src_unit`` to ``to_unit`` when both are known units of one quantity
+    (:data:`UNIT_SI`), else None (unknown or blank units are not judged)."""
+    a, b = (src_unit or "").strip(), (to_unit or "").strip()
+    if a not in UNIT_SI or b not in UNIT_SI or _UNIT_KIND[a] != _UNIT_KIND[b]:
+        return None
+    return UNIT_SI[a] / UNIT_SI[b]
+
+
 @dataclass(frozen=True)
 class SignalInfo:
     """Static description of one DBC signal.
@@ -509,6 +532,7 @@ class Codec:
         unknown contract name, message or signal.
         """
         out = []
+        used: dict[str, str] = {}
         for target, (ref, scale) in mapping.items():
             key = f"{section}.{target}"
             if target not in self.contract_inputs:
@@ -517,6 +541,16 @@ class Codec:
                 src = self.resolve(ref)
             except KeyError as e:
                 raise ConfigError(f"{key}: {e.args[0]}") from None
+            if src in used:
+                # a radar speed mapped onto the wheel-based speed's source made the slip read half its size
+                raise ConfigError(f"{key}: {ref} is already {section}.{used[src]}; one measurement cannot be two "
+                                  "contract signals")
+            used[src] = target
+            factor = unit_factor(self.signals[src].unit, self.signals[target].unit)
+            if factor is not None and abs(factor - 1.0) > 1e-9 and float(scale) == 1.0:
+                raise ConfigError(f"{key}: {ref} is in {self.signals[src].unit}, {target} in "
+                                  f"{self.signals[target].unit}: give scale = {factor:.6g} "
+                                  f"({target} = {{signal = \"{ref}\", scale = {factor:.6g}}})")
             out.append((target, src, float(scale)))
         return out
 
