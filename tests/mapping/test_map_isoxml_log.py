@@ -174,3 +174,29 @@ def test_torn_values_record_is_cut_on_reopen(tmp_path):
     assert p.stat().st_size == size
     assert np.array_equal(st.track_values()[:, 1], [0.7, 0.8])
     st.close()
+
+
+def test_a_farm_map_of_two_machines_at_the_same_times_logs_each_ones_values(tmp_path):
+    """Two machines working at the same clock times, merged into one farm map: the time log looked each
+    sample's values up by time alone, so one machine's records carried the other's (12 of 900 'a' values
+    right on a fleet of six recordings)."""
+    from tractionecu.fleet.merge import merge_maps
+
+    t = T0 + 0.1 * np.arange(200)
+    dirs = []
+    for k, a_value in enumerate((0.6, 0.9)):
+        d = tmp_path / f"m{k}"
+        st = MapStore(d, *ORIGIN)
+        lat, lon = st.to_latlon(np.linspace(0.0, 100.0, t.size), np.full(t.size, 30.0 * k))
+        st.add_many(lat, lon, {"a": np.full(t.size, a_value), "rho_s": np.full(t.size, 0.05 + 0.02 * k)}, t)
+        st.close()
+        dirs.append(d)
+    merge_maps(dirs, tmp_path / "farm")
+    out = export_isoxml(tmp_path / "farm", tmp_path / "TASKDATA")
+    recs = _decode_tlg((out.parent / "TLG00001.BIN").read_bytes(), _parse_header(out.parent / "TLG00001.XML"))
+    assert len(recs) == 2 * t.size
+    north = np.array([r["north"] for r in recs])
+    got_a = np.array([r["dlv"][1] for r in recs]) * ISO_SCALE["a"]
+    first = north < 0.5 * (north.min() + north.max())   # the first machine's pass, 30 m south of the other
+    assert first.sum() == t.size
+    assert np.allclose(got_a[first], 0.6, atol=1e-3) and np.allclose(got_a[~first], 0.9, atol=1e-3)
