@@ -85,3 +85,12 @@ def test_first_fix_and_field_name(tmp_path: Path) -> None:
     assert lat == pytest.approx(47 + 52.89606 / 60, abs=1e-12)
     assert lon == pytest.approx(-(110 + 33.20423 / 60), abs=1e-12)
     assert field_of_fix(lat, lon) == "lat47.88_lon-110.56"
+
+
+@pytest.mark.parametrize("origin", ["95,10", "48,200", "nan,10"])
+def test_an_origin_off_the_globe_is_refused_before_any_replay(tmp_path, capsys, origin):
+    """--origin 95,10 replayed every recording in full, then failed each one with a ConfigError."""
+    from tractionecu.cli.main import main
+
+    assert main(["fleet", "map", str(tmp_path / "nothing"), "--out", str(tmp_path / "out"), "--origin", origin]) == 1
+    assert "--origin: latitude in [-90, 90]" in capsys.readouterr().err

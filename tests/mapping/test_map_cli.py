@@ -103,3 +103,17 @@ def test_out_an_existing_directory_gets_the_default_file_name(replay_dir, tmp_pa
     assert args.func(args) == 0
     assert (tmp_path / name).stat().st_size > 0
     assert capsys.readouterr().out.strip() == str(tmp_path / name)
+
+
+@pytest.mark.parametrize("fmt", ["geotiff", "isoxml", "isoxml-grid", "png"])
+@pytest.mark.parametrize("layers", [",,", "a,a"])
+def test_an_empty_or_repeated_layer_list_is_a_usage_error(tmp_path, replay_dir, capsys, fmt, layers):
+    """--layers ",," gave an IndexError traceback (isoxml-grid), a rasterio error (geotiff) or a log without
+    layers (isoxml); "a,a" wrote two bands named a and two process-data entries of one DDI."""
+    args = parse(["map", "export", str(replay_dir), "--format", fmt, "--layers", layers, "--out", str(tmp_path / "x")])
+    code = args.func(args)
+    err = capsys.readouterr().err
+    if fmt == "png" and layers == "a,a":
+        assert code == 0                                  # png draws the first layer named
+    else:
+        assert code == 2 and ("no layer named" in err or "named twice" in err), err

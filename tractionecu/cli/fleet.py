@@ -74,6 +74,8 @@ def _origin(text: str | None) -> tuple[float, float] | None:
         lat, lon = (float(x) for x in text.split(","))
     except ValueError:
         raise ConfigError(f"--origin: expected LAT,LON in degrees, got {text!r}") from None
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):    # NaN fails too; checked before any replay
+        raise ConfigError(f"--origin: latitude in [-90, 90] and longitude in [-180, 180] degrees, got {text!r}")
     return lat, lon
 
 

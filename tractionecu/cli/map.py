@@ -120,7 +120,10 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
 
     kwargs: dict[str, Any] = {}
-    layers = [s.strip() for s in args.layers.split(",") if s.strip()] if args.layers else None
+    layers = [s.strip() for s in args.layers.split(",") if s.strip()] if args.layers is not None else None
+    if layers is not None and not layers:
+        print(f"tractionecu map export: --layers {args.layers!r}: no layer named", file=sys.stderr)
+        return EXIT_USAGE
     try:
         if args.fmt in ("geotiff", "isoxml-grid"):
             kwargs["layers"] = layers

@@ -87,9 +87,13 @@ def _layers(store: MapStore, layers: Sequence[str] | None) -> list[str]:
             raise ValueError(f"{store.directory}: the map holds no data")
         return names
     names = list(layers)
+    if not names:
+        raise KeyError(f"no layer named; layers are {list(store.layers)}")
     for n in names:
         if n not in store.layers:
             raise KeyError(f"unknown map layer {n!r}; layers are {list(store.layers)}")
+    if len(set(names)) < len(names):
+        raise KeyError(f"a layer named twice in {','.join(names)}: each is one band and one logged value")
     return names
 
 
