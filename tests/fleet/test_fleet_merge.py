@@ -109,3 +109,15 @@ def test_the_farm_map_holds_the_estimator_levels_of_its_machines(tmp_path: Path)
     assert MapStore.open(a, read_only=True).estimate_levels == {"wheel"}
     merge_maps([a, b], tmp_path / "AB")
     assert MapStore.open(tmp_path / "AB", read_only=True).estimate_levels == {"machine", "wheel"}
+
+
+def test_a_merge_keeps_the_exports_written_into_the_farm_map(tmp_path: Path) -> None:
+    """``tractionecu map export FARM`` writes into FARM/export by default; the next merge (a day's new
+    recordings) replaced the farm map and deleted them."""
+    a, b = _store(tmp_path / "a", 1), _store(tmp_path / "b", 2)
+    merge_maps([a], tmp_path / "farm")
+    (tmp_path / "farm" / "export").mkdir()
+    (tmp_path / "farm" / "export" / "map.tif").write_bytes(b"tif")
+    merge_maps([a, b], tmp_path / "farm")
+    assert (tmp_path / "farm" / "export" / "map.tif").read_bytes() == b"tif"
+    assert merged_inputs(tmp_path / "farm") and (tmp_path / "farm" / "manifest.json").is_file()

@@ -60,6 +60,10 @@ def _manifest(d: Path) -> dict[str, Any]:
     return read_manifest(d)
 
 
+EXPORT_DIR = "export"
+"""The sub-directory ``tractionecu map export`` writes into by default; a merge keeps it."""
+
+
 def merge_maps(inputs: Sequence[str | Path], out_dir: str | Path, *, names: Sequence[str] | None = None) -> dict[str, Any]:
     """Merge the map stores ``inputs`` (directories holding ``manifest.json``; all in one frame: same
     origin, resolution, tile size and layers) into a new store ``out_dir`` (replaced if it exists).
@@ -116,6 +120,9 @@ def merge_maps(inputs: Sequence[str | Path], out_dir: str | Path, *, names: Sequ
             labels.append(str(names[i]) if names is not None else str(d))
     (tmp / MERGED).write_text(json.dumps({"inputs": labels}, indent=1), encoding="utf-8")
     _merge_contributors([d / CONTRIBUTORS for d in dirs], tmp / CONTRIBUTORS)
+    if (out / EXPORT_DIR).is_dir():
+        # `tractionecu map export FARM` writes into FARM/export by default: the user's exports outlive a merge
+        os.replace(out / EXPORT_DIR, tmp / EXPORT_DIR)
     if out.exists():
         shutil.rmtree(out)
     os.replace(tmp, out)
