@@ -2,9 +2,9 @@
 
 ``report.json`` keys (a contract):
 
-- ``verdict``: ``"effect"``, ``"none"``, ``"ambiguous"``, or ``"untestable"`` when no effect of the library
-  could be tested (a recording too short, or without the signals any effect acts on: never a healthy
-  machine's verdict; ``tractionecu diagnose`` exits 4 then);
+- ``verdict``: ``"effect"``, ``"none"``, ``"ambiguous"``, or ``"untestable"`` when nothing could be tested
+  (a recording too short, or without the signals any effect acts on; for the engine-level analysis, not even
+  its slip model: never a healthy machine's verdict; ``tractionecu diagnose`` exits 4 then);
 - ``effect``: the named effect or null; ``ambiguous_between``: the tied explanations;
 - ``candidates``: ranked list, each ``{name, score, testable, detected, reason, per_channel, parameters}``;
 - ``parameters``: ``{name: {"value", "ci95": [lo, hi], "unit"}}`` of the named (or leading
