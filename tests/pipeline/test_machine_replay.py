@@ -220,11 +220,14 @@ def test_jd5055e_capture_with_a_mechanical_vehicle_replays_with_no_motion(tmp_pa
     assert main(["inspect", str(rec)]) == 0
     out = capsys.readouterr().out
     assert 'replay runs mechanical (vehicle.toml: [drivetrain] kind = "mechanical")' in out
-    assert "mechanical (replay runs this one): 3 of 6 found" in out and "replay of profile mechanical: runs" in out
+    # the learnt ratio meets the gear-ratio need (replay said "missing gear ratio ... flags those steps")
+    assert "mechanical (replay runs this one): 4 of 6 found" in out and "replay of profile mechanical: runs" in out
+    assert "gear ratio               learnt from engine speed over wheel speed" in out
     run = tmp_path / "run"
     assert main(["replay", str(rec), "--out", str(run), "--no-map"]) == 0
     cap = capsys.readouterr()
     assert "motion: no motion" in cap.out and "Traceback" not in cap.err
+    assert "gear ratio" not in cap.out
     e = _estimates(run)
     assert len(e["valid"]) > 0 and not e["valid"].any()
     assert np.all(e["status"].astype(np.int64) & MACHINE_LEVEL)

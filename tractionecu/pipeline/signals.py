@@ -308,17 +308,22 @@ def source_of(rec: Any, name: str) -> str:
     """Where a signal of ``rec`` came from: its message, ``Message.Signal × scale``, or ``GNSS``."""
     if name == GNSS_TRACK_SPEED:
         return "GNSS"
-    if name == DECLARED_REFERENCE_TORQUE:
+    if name in (DECLARED_REFERENCE_TORQUE, LEARNT_GEAR_RATIO):
         return "vehicle.toml"
     return getattr(rec, "signal_sources", {}).get(name, "")
+
+
+LEARNT_GEAR_RATIO = "learnt from engine speed over wheel speed ([drivetrain] gear_ratio)"
+"""What meets the gear-ratio need of a vehicle file that has the ratio learnt (no ETC2 needed)."""
 
 
 def profile_status(rec: Any, vehicle: Any = None) -> dict[str, list[tuple[Need, str | None]]]:
     """For each profile of :data:`PROFILES`, each need with the first of its signals found (None if none is);
     with ``vehicle``, a declared engine reference torque meets its need (:data:`DECLARED_REFERENCE_TORQUE`)
-    when the recording has no EC1."""
+    when the recording has no EC1, and a learnt gear ratio the ratio's (:data:`LEARNT_GEAR_RATIO`)."""
     dt = getattr(vehicle, "drivetrain", None)
     declared = dt is not None and dt.engine_reference_torque_nm > 0.0
+    learnt = dt is not None and getattr(dt, "gear_ratio", "") == "learnt"
     out = {}
     for name, needs in PROFILES.items():
         rows = []
@@ -326,6 +331,8 @@ def profile_status(rec: Any, vehicle: Any = None) -> dict[str, list[tuple[Need, 
             sig = next((s for s in need.signals if signal_state(rec, s) == "found"), None)
             if sig is None and declared and need.signals == (ENGINE_REFERENCE_TORQUE,):
                 sig = DECLARED_REFERENCE_TORQUE
+            if sig is None and learnt and need.signals == (GEAR_RATIO,):
+                sig = LEARNT_GEAR_RATIO
             rows.append((need, sig))
         out[name] = rows
     return out
@@ -413,7 +420,7 @@ def motion(rec: Any, engine: bool = True) -> Motion:
     return Motion(moving, tuple(evidence))
 
 
-__all__ = ["ANCHOR_SIGNAL", "DECLARED_REFERENCE_TORQUE", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
+__all__ = ["ANCHOR_SIGNAL", "DECLARED_REFERENCE_TORQUE", "LEARNT_GEAR_RATIO", "DRAFT", "DRIVE_TORQUES", "ENGINE_IDLE_SPEED", "ENGINE_PERCENT_TORQUE",
            "ENGINE_REFERENCE_TORQUE", "ENGINE_SPEED", "ESTIMATED_PROFILES", "FRONT_AXLE_LOAD", "FRONT_AXLE_SPEED",
            "GEAR_RATIO", "GNSS_SPEED", "GROUND_SPEEDS", "HUB_GROUPS", "MACHINE_GROUPS", "MACHINE_REQUIRED", "DRIVE_SPEEDS",
            "SignalGroups", "estimator_profile", "machine_missing", "required_missing", "ENGINE_CURRENT_GEAR",
