@@ -236,3 +236,14 @@ def test_slip_channel_carries_a_clock_running_ahead(recordings, tmp_path):
     skewed = slip_sse(F.clock_skew(recordings("null_fast"), tmp_path / "skew", 0.3))
     assert healthy[0.0] < min(healthy[-0.3], healthy[0.3]), healthy
     assert skewed[0.3] < min(skewed[0.0], skewed[-0.3]), skewed
+
+
+def test_an_engine_level_export_with_a_draft_does_not_call_it_absent():
+    """A mechanical export carrying 'RHS SPN1879 Rear Draft [N]' was diagnosed with "no draft" in its
+    statement and "no draft signal" as every candidate's reason, while its note read work from that draft."""
+    from tractionecu.diagnose.reduced import DRAFT_NOT_USED, _reason
+
+    assert _reason("mass", False).startswith("no draft signal")
+    assert _reason("mass", True).startswith(DRAFT_NOT_USED)
+    assert _reason("load_transfer", True) == "no axle-load signal; " + DRAFT_NOT_USED
+    assert "no draft" not in _reason("draft_speed", True)

@@ -62,6 +62,20 @@ UNTESTABLE = {
 }
 
 
+DRAFT_NOT_USED = "the draft is recorded, but this engine-level analysis does not use it"
+"""Said instead of "no draft signal" where the export carries a draft (a reason of :data:`UNTESTABLE`)."""
+
+
+def _reason(name: str, has_draft: bool) -> str:
+    """Why ``name`` is not tested here: :data:`UNTESTABLE`, without claiming a draft the export carries is
+    absent."""
+    r = UNTESTABLE[name]
+    if not has_draft:
+        return r
+    return r.replace("no axle-load and no draft signal", "no axle-load signal; " + DRAFT_NOT_USED).replace(
+        "no draft signal", DRAFT_NOT_USED)
+
+
 def _rows(fr: Frame):
     need = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
     missing = [k for k in need if not fr.has(k)]
@@ -243,9 +257,10 @@ def diagnose_reduced(fr: Frame) -> dict:
     s_meas = 1.0 - vg / vw
     load = mu > np.percentile(mu, 75)
     light = mu < np.percentile(mu, 25)
+    has_draft = fr.has("fdx")
     for name in EFFECTS:
         cands.append({"name": name, "score": None, "testable": False, "detected": False,
-                      "reason": UNTESTABLE[name], "per_channel": {}, "parameters": {},
+                      "reason": _reason(name, has_draft), "per_channel": {}, "parameters": {},
                       "formula": EFFECTS[name].formula})
     verdict, effect = "none", None
     slip_txt = (f"Wheel slip under load: the GNSS speed falls below the wheel-based speed as the traction ratio "
@@ -308,7 +323,9 @@ def diagnose_reduced(fr: Frame) -> dict:
                          "measurement, would separate them")
     statement = (slip_txt + term_txt + ("  Implausible: " + "; ".join(plaus) + "." if plaus else "")
                  + "  No effect from the library can be tested with these signals (engine torque and "
-                 "speed, one wheel-based speed, GNSS; no per-wheel data, no draft): see the candidates' reasons.")
+                 "speed, one wheel-based speed, GNSS; no per-wheel data, "
+                 + ("a draft this engine-level analysis does not use" if has_draft else "no draft")
+                 + "): see the candidates' reasons.")
     signals = {"ground_speed": {
         "signal": "GNSS speed against the wheel-based speed (model without slip) and with the μ(s) curve",
         "unit": "m/s", "n": int(t.size),
