@@ -315,3 +315,20 @@ def test_a_bekker_soil_recording_replays_and_scores_against_its_own_curve(tmp_pa
         # at s = 0.4 the D497 curve through the working point lies > 0.2 above the soil's Janosi curve
         over = d497["curves"][n]["a_identified"] * float(curve_class("d497").g(0.4)) - truth[n]["mu_curve"][20]
         assert over > 0.2 and d497["r2_mu_curve"][n] < default["r2_mu_curve"][n]
+
+
+def test_inspect_does_not_advise_declaring_what_a_broken_vehicle_file_declares(mech40: Path, tmp_path: Path,
+                                                                               capsys) -> None:
+    """A vehicle file that declares kind = "mechanical" but does not load (here: a front_drive value it does
+    not know) was reported, and then inspect advised 'declare [drivetrain] kind = "mechanical" ... to run it'."""
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(mech40, rec)
+    text = (rec / "vehicle.toml").read_text(encoding="utf-8")
+    assert 'front_drive = "engaged"' in text
+    (rec / "vehicle.toml").write_text(text.replace('front_drive = "engaged"', 'front_drive = "on"'), encoding="utf-8")
+    assert main(["inspect", str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert "vehicle.toml does not load" in out and "front_drive" in out
+    assert "declare [drivetrain]" not in out and "once vehicle.toml loads (above)" in out

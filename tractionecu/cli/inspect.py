@@ -99,7 +99,10 @@ def profile_lines(rec: Any) -> list[str]:
                             if x != GNSS_TRACK_SPEED and signal_state(rec, x) == "absent" and source_of(rec, x))
             out.append(f"      {need.what:<{width}}  missing: {names}{note}")
     best = best_profile(status)
-    if best != run_as:
+    if best != run_as and origin.startswith("vehicle.toml does not load"):
+        out.append(f"  the signals fit profile {best} best: once vehicle.toml loads (above), it runs the profile "
+                   "its [drivetrain] declares")
+    elif best != run_as:
         out.append(f"  the signals fit profile {best} best: declare [drivetrain] {PROFILE_KINDS[best]} in "
                    "vehicle.toml to run it")
     missing = required_missing(rec, veh)
