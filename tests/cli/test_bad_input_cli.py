@@ -319,3 +319,13 @@ def test_map_export_says_what_is_missing(short_recording, tmp_path, capsys):
     capsys.readouterr()
     assert main(["map", "export", str(out), "--format", "geojson"]) == 1
     assert "a replay's output without a map (replayed with --no-map" in capsys.readouterr().err
+
+
+def test_simulate_counts_the_frames_it_writes(tmp_path, capsys):
+    """A mechanical recording reported 18 more CAN frames than can.log holds: each EC1 message was counted
+    on top of the transport-protocol frames that carry it."""
+    out = tmp_path / "m"
+    assert main(["simulate", "--scenario", "mechanical-three-soils", "--duration", "12", "--out", str(out)]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    n = int(line.split(" CAN frames")[0].split()[-1])
+    assert n == len((out / "can.log").read_text().splitlines())

@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
     tr = simulate(scn)
     counts = write_recording(scn, tr, args.out)
     wall = time.perf_counter() - t0
-    frames = sum(v for k, v in counts.items() if k != "nmea_lines")
+    # EC1 goes out in transport-protocol frames (TP.CM, TP.DT), which are counted; the message is not a frame
+    frames = sum(v for k, v in counts.items() if k not in ("nmea_lines", "EC1"))
     print(f"{scn.name} ({scn.truth} truth): {tr.t[-1]:.1f} s simulated in {wall:.1f} s; {frames} CAN frames, "
           f"{counts['nmea_lines']} NMEA lines -> {args.out}{note}")
     return 0
