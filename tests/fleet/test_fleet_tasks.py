@@ -75,6 +75,16 @@ def test_replay_tables_failures_and_rerun(tmp_path: Path, fleet_tree: Path) -> N
     merge_maps([out / "tasks" / "replay" / k / "farm_map" for k in keys], tmp_path / "scratch")
     d = max_difference(out / "farm_map", tmp_path / "scratch")
     assert d["count"] == 0 and d["cells_only_in_one"] == 0 and d["mean"] <= 1e-12 and d["var"] <= 1e-12
+    # a run over part of the season rebuilds the farm map from that part, and says what it left out (it
+    # shrank without a word)
+    import io
+
+    part = runner.run_kind("replay", fleet_tree / "tractor-b" / "2026-07-13", out, stream=None)
+    said = io.StringIO()
+    s4 = runner.build_farm_map(out, part, stream=said)
+    # (3, not 2: with the recording's own folder as SOURCE its machine and date are not read from the path,
+    # so it is a new task too)
+    assert s4["left_out"] == 3 and "3 recording(s) of the earlier farm map are not among them" in said.getvalue()
     shutil.rmtree(fleet_tree / "tractor-b" / "2026-07-13")
 
     # a changed recording is a new task

@@ -218,7 +218,8 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
 def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Sequence[str] = (),
                    stream: TextIO | None = None) -> dict[str, Any]:
     """Merge the farm-frame maps of the replay records ``recs`` into ``OUT/farm_map`` (:mod:`.merge`): only
-    the new ones into an existing farm map that holds nothing else, else all anew; export ``formats``
+    the new ones into an existing farm map that holds nothing else, else all anew (``left_out``: the earlier
+    farm map's recordings this run does not have, said on ``stream``); export ``formats``
     (:data:`tractionecu.mapping.export.FORMATS`) into ``OUT/farm_export/``."""
     from .merge import merge_maps, merged_inputs
 
@@ -239,8 +240,14 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
             merge_maps([farm] + [dirs[k] for k in new], farm, names=[""] + new)
         summary.update(merged_now=len(new), reused=len(have))
     else:
+        left_out = [k for k in have if k not in set(keys)]
         merge_maps([dirs[k] for k in keys], farm, names=keys)
-        summary.update(merged_now=len(keys), reused=0)
+        summary.update(merged_now=len(keys), reused=0, left_out=len(left_out))
+        if left_out and stream is not None:
+            # the farm map is the map of this run's SOURCE: a run over part of a season rebuilds it from that part
+            print(f"fleet map: the farm map was rebuilt from this run's {len(keys)} recording(s); {len(left_out)} "
+                  "recording(s) of the earlier farm map are not among them (changed, removed, or outside this "
+                  "SOURCE) and are no longer in it: run over the whole season to keep them", file=stream)
     summary["map_dir"] = str(farm)
     exports = {}
     if formats:
