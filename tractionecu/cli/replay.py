@@ -164,15 +164,15 @@ def clock_gnss_note(rec: Any, summary: dict[str, Any]) -> list[str]:
 def rejects_note(rec: Any) -> list[str]:
     """The lines of the recording's files that were skipped (counted by reason, with the first line
     numbers), as ``inspect`` lists them: a replay over a damaged capture says what it left out."""
+    from ..recording.summary import wrong_length_line
+
     out = []
     stats = getattr(rec, "stats", None)
     for _fname, st in getattr(stats, "files", {}).items():
         if getattr(st, "total_rejected", 0):
             out += [f"skipped {line}" for line in st.describe()]  # type: ignore[attr-defined]
-    bad = getattr(stats, "decode_errors", None)
-    if bad:
-        out.append("skipped frames of a known message with the wrong length: "
-                   + ", ".join(f"{name} {n}" for name, n in sorted(bad.items())))
+    if stats is not None and (line := wrong_length_line(stats)):
+        out.append(line)
     return out
 
 

@@ -49,6 +49,7 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     else:
         source = _data.load(p, vehicle)
     from .engine import diagnose
+    from .reduced import ENGINE_LEVEL
 
     d = diagnose(source)
     if not d.problem.channels and not source.has("omega", "md") and source.has(*ENGINE_LEVEL):
@@ -67,10 +68,6 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
 
         est = estimator_view(p, d.features)
     return _report.write(d, out, est)
-
-
-ENGINE_LEVEL = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
-"""Frame signals of the engine-level analysis (:mod:`.reduced`)."""
 
 
 def _is_can_capture(p: Path) -> bool:

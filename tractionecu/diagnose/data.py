@@ -37,6 +37,7 @@ from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, ENGINE_PERCENT_TORQUE, ENG
 from ..recording.containers import MAX_TABLE_ROWS
 from ..pipeline.survey import survey_keep
 from ..recording.reader import Recording, read_recording, stream_signals
+from ..recording.summary import wrong_length_line
 
 FRAME_SIGNALS = (*WHEEL_SPEEDS, *DRIVE_TORQUES, FRONT_AXLE_LOAD, DRAFT, IN_WORK, WHEEL_BASED_SPEED,
                  GROUND_BASED_SPEED, "EngineTorque", "EngineSpeed", ENGINE_PERCENT_TORQUE, VEHICLE_SPEED)
@@ -510,7 +511,6 @@ def skipped_input_notes(rec: Recording) -> list[str]:
     for fname, fst in getattr(st, "files", {}).items():
         if getattr(fst, "total_rejected", 0):
             out.append(f"{fname}: skipped " + "; ".join(fst.describe()))
-    if st.decode_errors:
-        out.append("skipped frames of a known message with the wrong length: "
-                   + ", ".join(f"{name} {n}" for name, n in sorted(st.decode_errors.items())))
+    if line := wrong_length_line(st):
+        out.append(line)
     return out

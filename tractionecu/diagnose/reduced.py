@@ -76,9 +76,12 @@ def _reason(name: str, has_draft: bool) -> str:
         "no draft signal", DRAFT_NOT_USED)
 
 
+ENGINE_LEVEL = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
+"""Frame signals the engine-level analysis needs."""
+
+
 def _rows(fr: Frame):
-    need = ("engine_torque", "engine_speed", "v_wheel_bus", "v_gps")
-    missing = [k for k in need if not fr.has(k)]
+    missing = [k for k in ENGINE_LEVEL if not fr.has(k)]
     if missing:
         return None, missing
     ok = (np.isfinite(fr.engine_torque) & np.isfinite(fr.engine_speed) & np.isfinite(fr.v_wheel_bus)

@@ -10,7 +10,7 @@ from collections import Counter
 from datetime import datetime, timezone
 
 from ..bus.transport import PGN_TP_CM, PGN_TP_DT
-from .containers import Recording
+from .containers import Recording, RecordingStats
 
 _PGN_NOTES = {PGN_TP_CM: "  (transport protocol: connection management)",
               PGN_TP_DT: "  (transport protocol: data)"}
@@ -95,3 +95,12 @@ def summarize(recording: Recording) -> str:
             f"  {fname} ignored: " + ", ".join(f"{k} x{v}" for k, v in sorted(s.ignored.items()))  # type: ignore[attr-defined]
         )
     return "\n".join(out)
+
+
+def wrong_length_line(stats: RecordingStats) -> str:
+    """The frames of a known message skipped for their wrong length, one line (``""`` when there are none):
+    what ``replay`` and ``diagnose`` say they left out beside the skipped lines."""
+    if not stats.decode_errors:
+        return ""
+    return ("skipped frames of a known message with the wrong length: "
+            + ", ".join(f"{name} {n}" for name, n in sorted(stats.decode_errors.items())))
