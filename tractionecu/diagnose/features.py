@@ -619,9 +619,9 @@ def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float
     memory is bounded by one chunk's pairs.
     """
     tree = cKDTree(np.c_[x, y])
-    shape = ex.shape if h.ndim == 1 else (ex.size, h.shape[1])
-    h0 = np.full(shape, np.nan)
-    gu = np.full(shape, np.nan)
+    hk = h if h.ndim == 2 else h[:, None]                 # K altitude vectors fitted on the same pairs
+    h0 = np.full((ex.size, hk.shape[1]), np.nan)
+    gu = np.full((ex.size, hk.shape[1]), np.nan)
     ca, sa = math.cos(axis), math.sin(axis)
     r = 3.0 * bw
     for a in range(0, ex.size, DEM_CHUNK):
@@ -653,18 +653,14 @@ def _dem_gradient(x, y, h, tf, ex, ey, te, bw: float, axis: float, dt_min: float
         dc = du - mu_[i]
         suu = np.bincount(i, weights=wgt * dc * dc, minlength=m)
         good = ok & (cnt >= 8) & ~(suu < 1e-3 * sw * bw * bw)
-        for col in range(1 if h.ndim == 1 else h.shape[1]):    # several altitude vectors: the same pairs
-            hj = h[j] if h.ndim == 1 else h[j, col]
+        for col in range(hk.shape[1]):
+            hj = hk[j, col]
             mh = np.bincount(i, weights=wgt * hj, minlength=m) / swd
             suh = np.bincount(i, weights=wgt * dc * (hj - mh[i]), minlength=m)
             g = np.where(good, suh / np.where(good, suu, 1.0), np.nan)
-            if h.ndim == 1:
-                h0[a:b] = np.where(good, mh - g * mu_, np.nan)
-                gu[a:b] = g
-            else:
-                h0[a:b, col] = np.where(good, mh - g * mu_, np.nan)
-                gu[a:b, col] = g
-    return h0, gu
+            h0[a:b, col] = np.where(good, mh - g * mu_, np.nan)
+            gu[a:b, col] = g
+    return (h0, gu) if h.ndim == 2 else (h0[:, 0], gu[:, 0])
 
 
 MAX_GRADE_POINTS = 6000

@@ -613,9 +613,8 @@ class MachineEstimator:
         bus_ratio = self.dt.gear_ratio == "bus" and math.isfinite(self._in["gear"])
         learnt = not bus_ratio and i_tot == self._ratio_learnt and self._ratio_jump == 0
         engine_drive = (bus_ratio or learnt) and i_tot > 0     # the engine speed is the drive speed
-        from_engine = False
-        if we is not None and engine_drive:
-            from_engine = True
+        from_engine = we is not None and engine_drive
+        if from_engine:
             # the engine speed over the ratio: the drive speed at EEC1's rate; over a learnt ratio with the
             # learnt ratio's own error beside the engine speed's (:meth:`_learn_ratio`)
             s_e = self.ms.engine_speed_sigma_rel * we + self.ms.engine_speed_quant / math.sqrt(12.0)

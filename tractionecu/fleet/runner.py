@@ -240,7 +240,8 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
             merge_maps([farm] + [dirs[k] for k in new], farm, names=[""] + new)
         summary.update(merged_now=len(new), reused=len(have))
     else:
-        left_out = [k for k in have if k not in set(keys)]
+        taken = set(keys)
+        left_out = [k for k in have if k not in taken]
         merge_maps([dirs[k] for k in keys], farm, names=keys)
         summary.update(merged_now=len(keys), reused=0, left_out=len(left_out))
         if left_out and stream is not None:

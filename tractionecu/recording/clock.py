@@ -102,6 +102,8 @@ class ClockOffset:
     correlation: float
     signal: str
     reason: str = ""
+    contradicted: bool = False
+    """The speeds disagree at the logged times but the logs' spans contradict the offset: worth reporting."""
 
     @property
     def found(self) -> bool:
@@ -245,8 +247,8 @@ def check_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray,
     """The offset of a trusted clock whose frames overlap the GNSS epochs.  Found only when it is beyond
     :data:`CHECK_MIN_S`, the speeds disagree at the logged times (:data:`CHECK_RMS_RATIO`,
     :data:`CHECK_RMS_MIN`) and, given ``can_span`` (the first and last CAN frame [s]), it agrees with the
-    logs' spans (:data:`SPAN_SLACK_S`); otherwise ``reason`` says why the logged times stand (with "not
-    applied" when the speeds disagree but the spans contradict the offset)."""
+    logs' spans (:data:`SPAN_SLACK_S`); otherwise ``reason`` says why the logged times stand
+    (``contradicted`` when the speeds disagree but the spans contradict the offset)."""
     off = estimate_offset(signals, gps_t, gps_speed)
     if not off.found:
         return off
@@ -277,7 +279,8 @@ def check_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray,
         if not lo <= off.offset_s <= hi:
             return ClockOffset(math.nan, off.sigma_s, off.correlation, off.signal,
                                f"the speeds agree best {off.offset_s:+.3f} s away, but the logs' starts and ends "
-                               f"differ by {d0:+.1f} s and {d1:+.1f} s: not applied; check the logger's clock")
+                               f"differ by {d0:+.1f} s and {d1:+.1f} s: not applied; check the logger's clock",
+                               contradicted=True)
     return off
 
 

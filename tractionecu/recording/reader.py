@@ -339,7 +339,7 @@ def _reconcile_clocks(can_path: Path, decoded: dict[str, Series], track: GpsTrac
             stats.clock_offset_s, stats.clock_sigma_s = off.offset_s, off.sigma_s
             stats.clock_note = (f"the {stats.can_format} capture's clock and GNSS time disagree although their "
                                 f"spans overlap over {frac:.0%}: {off.describe()}, applied")
-        elif "not applied" in off.reason:
+        elif off.contradicted:
             stats.clock_note = f"CAN times kept: {off.reason}"
         return
     why = (f"the CAN frames ({_span(c0, c1)}) and the GNSS epochs ({_span(g0, g1)}) overlap over {frac:.0%} "
