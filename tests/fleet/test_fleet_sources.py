@@ -94,3 +94,18 @@ def test_an_origin_off_the_globe_is_refused_before_any_replay(tmp_path, capsys, 
 
     assert main(["fleet", "map", str(tmp_path / "nothing"), "--out", str(tmp_path / "out"), "--origin", origin]) == 1
     assert "--origin: latitude in [-90, 90]" in capsys.readouterr().err
+
+
+def test_source_inside_the_tree_keeps_machine_and_date(tmp_path: Path) -> None:
+    """A machine's folder, a date's folder or one recording as SOURCE: the same machine and date as a run
+    over the whole tree (they were 'unknown' and the RMC date, so the recording became another task)."""
+    _rec(tmp_path / "season" / "m1" / "2026-07-10" / "a")
+    _rec(tmp_path / "season" / "m1" / "20260711" / "b")
+    whole = {Path(r.path).name: (r.machine, r.date) for r in discover(tmp_path / "season")}
+    assert whole == {"a": ("m1", "2026-07-10"), "b": ("m1", "2026-07-11")}
+    for src in ("season/m1", "season/m1/2026-07-10", "season/m1/2026-07-10/a", "season/m1/20260711/b"):
+        for r in discover(tmp_path / src):
+            assert (r.machine, r.date) == whole[Path(r.path).name], src
+    # a folder without a date above the recording names no machine (as in the tree)
+    _rec(tmp_path / "loose" / "c", GGA + RMC)
+    assert [(r.machine, r.date) for r in discover(tmp_path / "loose" / "c")] == [("unknown", "2026-07-10")]

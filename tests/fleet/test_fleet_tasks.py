@@ -75,16 +75,18 @@ def test_replay_tables_failures_and_rerun(tmp_path: Path, fleet_tree: Path) -> N
     merge_maps([out / "tasks" / "replay" / k / "farm_map" for k in keys], tmp_path / "scratch")
     d = max_difference(out / "farm_map", tmp_path / "scratch")
     assert d["count"] == 0 and d["cells_only_in_one"] == 0 and d["mean"] <= 1e-12 and d["var"] <= 1e-12
-    # a run over part of the season rebuilds the farm map from that part, and says what it left out (it
-    # shrank without a word)
+    # a run over part of the season (here one recording's own folder) keeps the rest of the season: the same
+    # machine and date from SOURCE's own path, so the same task (cached), and the farm map unchanged (it had
+    # shrunk to that part)
     import io
 
-    part = runner.run_kind("replay", fleet_tree / "tractor-b" / "2026-07-13", out, stream=None)
     said = io.StringIO()
+    part = runner.run_kind("replay", fleet_tree / "tractor-b" / "2026-07-13" / "run2", out, stream=None, notes=said)
+    assert [(r["machine"], r["date"], r["cached"]) for r in part] == [("tractor-b", "2026-07-13", True)]
+    assert "3 recording(s) of earlier runs that this SOURCE does not cover kept" in said.getvalue()
+    assert len(pd.read_parquet(out / "recordings.parquet")) == 4 and len(pd.read_parquet(out / "failures.parquet")) == 1
     s4 = runner.build_farm_map(out, part, stream=said)
-    # (3, not 2: with the recording's own folder as SOURCE its machine and date are not read from the path,
-    # so it is a new task too)
-    assert s4["left_out"] == 3 and "3 recording(s) of the earlier farm map are not among them" in said.getvalue()
+    assert (s4["merged_now"], s4["reused"]) == (0, 3) and "left_out" not in s4
     shutil.rmtree(fleet_tree / "tractor-b" / "2026-07-13")
 
     # a changed recording is a new task
@@ -93,8 +95,24 @@ def test_replay_tables_failures_and_rerun(tmp_path: Path, fleet_tree: Path) -> N
     assert sum(r["cached"] for r in runner.run_kind("replay", fleet_tree, out, stream=None)) == 2
     with open(gps, "a", encoding="ascii") as fh:
         fh.write("\n")
-    third = runner.run_kind("replay", fleet_tree, out, stream=None)
+    said = io.StringIO()
+    third = runner.run_kind("replay", fleet_tree, out, stream=None, notes=said)
     assert sum(r["cached"] for r in third) == 1
+    # the changed recording's estimates replace those of its old content (they stood beside them, its rows
+    # twice in the dataset); the recording of the removed folder is kept until --prune
+    est3 = pd.read_parquet(out / "estimates")
+    per = est3.groupby("recording").size()
+    assert len(per) == 3 and per.between(18, 21).all()            # no recording twice
+    assert est3.groupby("recording")["recording_hash"].nunique().eq(1).all()
+    assert "(1 no longer at their path: --prune drops them)" in said.getvalue()
+    assert "2 Parquet file(s) of changed or dropped recordings removed" in said.getvalue()
+    pruned = runner.run_kind("replay", fleet_tree, out, stream=None, prune=True)
+    assert len(pd.read_parquet(out / "estimates")) == len(est)
+    assert len(pd.read_parquet(out / "recordings.parquet")) == len(pruned) == 3
+    # a done task whose Parquet files are gone runs again (it was cached with nothing in estimates/)
+    shutil.rmtree(out / "estimates")
+    again = runner.run_kind("replay", fleet_tree, out, stream=None)
+    assert sum(r["cached"] for r in again) == 0 and len(pd.read_parquet(out / "estimates")) == len(est)
 
 
 def test_diagnosis_rows_flatten_effects_with_intervals() -> None:

@@ -63,6 +63,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", action="append", default=None, choices=FORMATS_ALL,
                    help="farm map export format (repeatable; default: all)")
     p.add_argument("--no-diagnose", action="store_true", help="drift: only the replay's series")
+    p.add_argument("--prune", action="store_true",
+                   help="drop the recordings of earlier runs that are no longer at their path (kept otherwise)")
     p.add_argument("--no-progress", action="store_true", help="no progress line")
     p.set_defaults(func=run)
 
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     client = runner.make_client(args.workers, args.memory_limit, args.scheduler)
     failed: list[dict] = []
     try:
-        kw = dict(client=client, retries=args.retries, stream=stream, refs=refs)
+        kw = dict(client=client, retries=args.retries, stream=stream, notes=sys.stderr, refs=refs, prune=args.prune)
         if args.action in ("replay", "map", "drift"):
             recs = runner.run_kind("replay", args.source, args.out, rate_hz=args.rate,
                                    estimate_rate_hz=args.estimate_rate_hz, origin=origin, keep_csv=args.keep_csv,

@@ -21,6 +21,7 @@ import json
 import logging
 import math
 import os
+import re
 import resource
 import sys
 import time
@@ -164,28 +165,77 @@ def farm_origin(out: Path, refs: Sequence[RecordingRef], origin: tuple[float, fl
     return None
 
 
-def _update_table(path: Path, rows: list[dict[str, Any]], columns: tuple[str, ...], kind: str | None) -> None:
-    """Replace the rows of ``kind`` in the table at ``path`` by ``rows`` (all rows when kind is None)."""
-    keep: list[dict[str, Any]] = []
-    if kind is not None and path.is_file():
-        import pandas as pd
+def _table_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows of the Parquet table at ``path`` (NaN as None), none when it does not exist."""
+    if not path.is_file():
+        return []
+    import pandas as pd
 
-        old = pd.read_parquet(path)
-        if "kind" in old.columns:
-            keep = [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
-                    for r in old[old["kind"] != kind].to_dict("records")]
-    fstore.write_rows(keep + rows, columns, path)
+    return [{k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in r.items()}
+            for r in pd.read_parquet(path).to_dict("records")]
+
+
+def _update_table(path: Path, rows: list[dict[str, Any]], columns: tuple[str, ...], kind: str | None,
+                  keep: Any = None, path_col: str = "path") -> list[dict[str, Any]]:
+    """Write the table at ``path``: its rows of other kinds, its rows of ``kind`` for which ``keep(path)``
+    is true (recordings this run does not cover, module doc of :func:`run_kind`), then ``rows``; returns the
+    rows of ``kind`` it kept.  ``kind`` None: the rows of every kind are candidates for ``keep``."""
+    kept_other: list[dict[str, Any]] = []
+    kept: list[dict[str, Any]] = []
+    for r in _table_rows(path):
+        if kind is not None and r.get("kind", kind) != kind:
+            kept_other.append(r)
+        elif keep is not None and keep(str(r.get(path_col) or "")):
+            kept.append(r)
+    fstore.write_rows(kept_other + kept + rows, columns, path)
+    return kept
+
+
+_PART = re.compile(r"^machine=[^/]+/date=[^/]+/[0-9a-f]{24}\.parquet$")
+"""A Parquet file a replay task writes under ``estimates/`` and ``map_samples/`` (:mod:`.tasks`)."""
+
+
+def _part(row: dict[str, Any]) -> str:
+    from .tasks import _safe
+
+    return f"machine={_safe(row['machine'])}/date={_safe(row['date'])}/{str(row['recording_hash'])[:24]}.parquet"
+
+
+def _prune_outputs(out: Path, rows: Sequence[dict[str, Any]]) -> int:
+    """Remove the replay tasks' Parquet files under ``estimates/`` and ``map_samples/`` that belong to no
+    recording of ``rows`` with status ok (a recording since changed, dropped, or now failing): the datasets
+    hold the recordings table's recordings, once each.  Returns the files removed."""
+    want = {_part(r) for r in rows if r.get("status") == "ok" and r.get("recording_hash")}
+    removed = 0
+    for sub in ("estimates", "map_samples"):
+        base = out / sub
+        if not base.is_dir():
+            continue
+        for f in base.glob("machine=*/date=*/*.parquet"):
+            rel = f.relative_to(base).as_posix()
+            if _PART.match(rel) and rel not in want:
+                f.unlink()
+                removed += 1
+    return removed
 
 
 def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = None, retries: int = DEFAULT_RETRIES,
              rate_hz: float = 100.0, estimate_rate_hz: float = 1.0, origin: tuple[float, float] | None = None,
              keep_csv: bool = False, stream: TextIO | None = sys.stderr,
-             refs: Sequence[RecordingRef] | None = None, batch: bool = False) -> list[dict[str, Any]]:
+             refs: Sequence[RecordingRef] | None = None, batch: bool = False,
+             prune: bool = False, notes: TextIO | None = None) -> list[dict[str, Any]]:
     """Run ``kind`` (``replay`` or ``diagnose``) over every recording of ``source`` into ``out``; update
     ``recordings.parquet``, ``failures.parquet`` and, for diagnosis, ``diagnosis.parquet``.  Returns the
     task records.  ``batch``: replay on the batch path (:mod:`tractionecu.pipeline.batch`: the same
     estimates, kept as arrays, Parquet written from them at full precision, no ``estimates.csv``;
-    ``keep_csv`` takes the step path)."""
+    ``keep_csv`` takes the step path).
+
+    OUT accumulates a season: a run updates the recordings of its SOURCE and keeps, in every table, dataset
+    and the farm map, the recordings of earlier runs that this SOURCE does not cover (a day's folder run
+    after the season's tree adds that day).  ``prune``: those of them no longer at their path are dropped.
+    A recording whose content changed is one recording with new results: the Parquet files of its old
+    content are removed (:func:`_prune_outputs`), never left beside the new ones.  What was kept, dropped
+    or removed is said on ``notes`` (else on ``stream``, the progress line's)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     refs = list(refs) if refs is not None else discover(source, exclude=out)
@@ -206,25 +256,64 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
         raise ConfigError(f"unknown fleet task {kind!r}")
     specs = [{"kind": kind, "ref": r.as_dict(), "out": str(out), "options": options} for r in refs]
     recs = run_specs(specs, client, retries=retries, progress=Progress(kind, len(specs), stream))
-    _update_table(out / "recordings.parquet", [{**r, "path": r.get("path")} for r in recs],
-                  fstore.RECORDINGS_COLUMNS, kind)
-    _update_table(out / "failures.parquet", [r for r in recs if r.get("status") != "ok"], fstore.FAILURE_COLUMNS, kind)
-    if kind == "diagnose":
+    here = {str(r.path) for r in refs}
+    resolved = {_resolved(p) for p in here}
+
+    def earlier(path: str) -> bool:
+        """A recording of an earlier run that this run does not cover: kept, unless ``prune`` and it is gone."""
+        if not path or path in here or _resolved(path) in resolved:
+            return False
+        return not (prune and not Path(path).exists())
+
+    before = {str(r.get("path")) for r in _table_rows(out / "recordings.parquet") if r.get("kind") == kind}
+    kept = _update_table(out / "recordings.parquet", [{**r, "path": r.get("path")} for r in recs],
+                         fstore.RECORDINGS_COLUMNS, kind, earlier)
+    _update_table(out / "failures.parquet", [r for r in recs if r.get("status") != "ok"], fstore.FAILURE_COLUMNS,
+                  kind, lambda p: any(str(k.get("path")) == p for k in kept))
+    dropped = len(before - here - {str(k.get("path")) for k in kept})
+    gone = sum(1 for k in kept if not Path(str(k.get("path"))).exists())
+    removed = 0
+    if kind == "replay":
+        removed = _prune_outputs(out, kept + list(recs))
+    elif kind == "diagnose":
         rows = [row for r in recs if r.get("status") == "ok" for row in r.get("rows", [])]
-        fstore.write_rows(rows, fstore.DIAGNOSIS_COLUMNS, out / "diagnosis.parquet")
+        _update_table(out / "diagnosis.parquet", rows, fstore.DIAGNOSIS_COLUMNS, None,
+                      lambda p: any(str(k.get("path")) == p for k in kept), path_col="recording")
+    notes = notes if notes is not None else stream
+    if notes is not None and (kept or dropped or removed):
+        said = [f"{len(kept)} recording(s) of earlier runs that this SOURCE does not cover kept"
+                + (f" ({gone} no longer at their path: --prune drops them)" if gone else "")] if kept else []
+        if dropped:
+            said.append(f"{dropped} no longer at their path dropped")
+        if removed:
+            said.append(f"{removed} Parquet file(s) of changed or dropped recordings removed")
+        print(f"fleet {kind}: " + "; ".join(said), file=notes)
     return recs
+
+
+def _resolved(path: str) -> str:
+    try:
+        return str(Path(path).resolve())
+    except OSError:
+        return path
 
 
 def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Sequence[str] = (),
                    stream: TextIO | None = None) -> dict[str, Any]:
-    """Merge the farm-frame maps of the replay records ``recs`` into ``OUT/farm_map`` (:mod:`.merge`): only
-    the new ones into an existing farm map that holds nothing else, else all anew (``left_out``: the earlier
-    farm map's recordings this run does not have, said on ``stream``); export ``formats``
+    """Merge the farm-frame maps of the replay records ``recs`` and of the earlier recordings
+    ``recordings.parquet`` keeps (:func:`run_kind`) into ``OUT/farm_map`` (:mod:`.merge`): only the new ones
+    into an existing farm map that holds nothing else, else all anew (``left_out``: the earlier farm map's
+    recordings no longer among them, said on ``stream``); export ``formats``
     (:data:`tractionecu.mapping.export.FORMATS`) into ``OUT/farm_export/``."""
     from .merge import merge_maps, merged_inputs
 
     out = Path(out)
-    ok = sorted((r for r in recs if r.get("status") == "ok" and r.get("map_samples")),
+    paths = {str(r.get("path")) for r in recs}
+    # the recordings of earlier runs the table keeps (:func:`run_kind`) are the farm map's too
+    earlier = [r for r in _table_rows(out / "recordings.parquet")
+               if r.get("kind") == "replay" and str(r.get("path")) not in paths
+               and (out / "tasks" / "replay" / str(r.get("key")) / "farm_map").is_dir()]
+    ok = sorted((r for r in list(recs) + earlier if r.get("status") == "ok" and r.get("map_samples")),
                 key=lambda r: (r["machine"], r["date"], r["path"]))
     keys = [r["key"] for r in ok]
     dirs = {r["key"]: out / "tasks" / "replay" / r["key"] / "farm_map" for r in ok}
@@ -246,9 +335,9 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
         summary.update(merged_now=len(keys), reused=0, left_out=len(left_out))
         if left_out and stream is not None:
             # the farm map is the map of this run's SOURCE: a run over part of a season rebuilds it from that part
-            print(f"fleet map: the farm map was rebuilt from this run's {len(keys)} recording(s); {len(left_out)} "
-                  "recording(s) of the earlier farm map are not among them (changed, removed, or outside this "
-                  "SOURCE) and are no longer in it: run over the whole season to keep them", file=stream)
+            print(f"fleet map: the farm map was rebuilt from {len(keys)} recording(s); {len(left_out)} "
+                  "recording(s) of the earlier farm map are not among them (changed, dropped, or their replay "
+                  "failed) and are no longer in it", file=stream)
     summary["map_dir"] = str(farm)
     exports = {}
     if formats:

@@ -15,7 +15,10 @@ Machine, date and field from the path (relative to the tree's root, or to the gl
 1. Hive-style segments ``machine=M``, ``date=YYYY-MM-DD``, ``field=F`` anywhere in the path win;
 2. otherwise the date is the last segment holding ``YYYY-MM-DD`` or ``YYYYMMDD``, and the machine the
    first segment of the relative path when it is not the date and not the recording itself
-   (``<machine>/<date>/<recording>``, the usual logger export layout);
+   (``<machine>/<date>/<recording>``, the usual logger export layout); when SOURCE lies inside such a
+   tree (a machine's folder, a date's folder, one recording), SOURCE's own last two segments are read too:
+   a date folder there dates the recording and the folder above it is the machine, so a recording keeps
+   the machine and date (and the task key) a run over the whole tree gives it;
 3. a date still unknown is the first RMC date of the recording's GNSS log; else ``unknown``.
 
 A manifest's columns win over the path.  The field stays empty when neither names it; the tasks then
@@ -115,6 +118,23 @@ def from_path(path: Path, root: Path | None) -> RecordingRef:
     machine = hive.get("machine")
     if machine is None:
         machine = parts[0] if len(parts) >= 2 and date_seg != 0 and "=" not in parts[0] else UNKNOWN
+    if machine == UNKNOWN and root is not None and "machine" not in hive:
+        # SOURCE inside the tree (a machine's folder, a date's, one recording): its own last segments are
+        # the <machine>/<date> the relative path lacks, so the recording keeps the identity (partitions,
+        # task key) a run over the whole tree gives it
+        ctx = [s for s in root.resolve().parts[-2:] if s != root.resolve().anchor]
+        full = ctx + parts
+        di = len(ctx) + date_seg if date_seg is not None else None
+        if date is None:
+            for i in range(len(ctx) - 1, -1, -1):
+                d = _parse_date(ctx[i])
+                if d is not None:
+                    date, di = d, i
+                    break
+        if di is not None and 1 <= di < len(full) - 1:     # the date a folder, not the recording's own name
+            m = full[di - 1]
+            if "=" not in m and _parse_date(m) is None:
+                machine = m
     if date is None:
         date = _rmc_date(path) or UNKNOWN
     return RecordingRef(str(path), machine, date, hive.get("field", ""))

@@ -5,7 +5,7 @@ content hash (:func:`content_hash`: every file of the recording directory, or th
 its GNSS log), the software version (:func:`software_version`: the package version and a digest of
 its Python sources, so a changed estimator re-runs everything) and the task's options.  ``done.json``
 is written last (atomically): a re-run finds it and returns its record without replaying
-(``cached`` true).  A recording that fails (unreadable, missing signals, any error of the pipeline)
+(``cached`` true) when the Parquet files it lists (``outputs``) are all there.  A recording that fails (unreadable, missing signals, any error of the pipeline)
 gives a record with ``status`` ``"failed"``, the error's type and message; it is not cached, so a
 re-run tries it again.  Only a worker that dies (out of memory, killed) raises: the scheduler retries
 those (:mod:`.runner`).
@@ -125,8 +125,10 @@ def run_task(spec: dict[str, Any]) -> dict[str, Any]:
     if done.is_file():
         try:
             rec = json.loads(done.read_text(encoding="utf-8"))
-            rec["cached"] = True
-            return rec
+            # its Parquet files too (removed with OUT/estimates, or as a changed recording's): else run again
+            if all((Path(spec["out"]) / o).is_file() for o in rec.get("outputs", ())):
+                rec["cached"] = True
+                return rec
         except ValueError:
             pass                                     # a damaged record: run again
     base.update(key=key, recording_hash=chash, cached=False)
@@ -182,6 +184,7 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
             csv_path.unlink()
     origin = options.get("origin")
     n_map = 0
+    outputs = [f"estimates/{part}"]                  # the Parquet files of the task, relative to OUT
     rho = {"rho_s_mean": math.nan, "rho_s_hw95": math.nan, "rho_s_blocks": 0}
     if origin is not None and ok.any() and len(map_arrays["t"]):
         fdir = tdir / "farm_map"
@@ -189,10 +192,12 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
             write_replay_map(tdir, rec, map_arrays, gps_mask=gps_mask, store=st)
         st = MapStore.open(fdir, read_only=True)
         n_map = fstore.map_samples_to_parquet(st, out / "map_samples" / part, ident)
+        outputs.append(f"map_samples/{part}")
         fstore.contributors_of(st, ref["machine"], ref["date"], fdir / "contributors.parquet")
         rho = rho_s_of_field(st.track_values(), st.layers)
     cal = summary.get("radius_calibration") or {}
     row: dict[str, Any] = {
+        "outputs": outputs,
         "field": field, "hours": float(summary["sim_seconds"]) / 3600.0, "steps": int(summary["steps"]),
         "loop_seconds": float(summary["loop_seconds"]), "estimates_rows": est["rows"], "map_samples": n_map,
         "map_samples_own_frame": int(summary.get("map_samples", 0)),
