@@ -167,3 +167,18 @@ def test_a_task_that_raises_is_retried_then_reported(monkeypatch) -> None:
     assert recs[1]["error"] == "MemoryError"
     assert (prog.done, prog.failed, prog.hours) == (3, 1, 1.0)
     assert prog.line().startswith("fleet replay: 3/3 recordings (0 cached, 1 failed), 1.00 h processed")
+
+
+def test_table_column_types_from_every_value(tmp_path: Path) -> None:
+    """A column's type follows all its values: an integer before a fraction made the column int64 and
+    wrote the fraction truncated (score 12.7 as 12)."""
+    from tractionecu.fleet.store import write_rows
+
+    rows = [{"score": 40, "n": 3, "ok": True, "name": "x"}, {"score": 12.7, "n": None, "ok": None, "name": 5},
+            {"score": math.nan, "n": 4, "ok": False, "name": None}]
+    write_rows(rows, ("score", "n", "ok", "name"), tmp_path / "t.parquet")
+    t = pd.read_parquet(tmp_path / "t.parquet")
+    assert t["score"].tolist()[:2] == [40.0, 12.7] and math.isnan(t["score"].iloc[2])
+    assert t["n"].tolist()[0] == 3 and t["n"].tolist()[2] == 4 and pd.isna(t["n"].iloc[1])
+    assert t["ok"].tolist()[0] is True and t["ok"].tolist()[2] is False
+    assert t["name"].tolist() == ["x", "5", ""]

@@ -187,12 +187,16 @@ def write_rows(rows: Iterable[dict[str, Any]], columns: tuple[str, ...], path: P
     data: dict[str, list[Any]] = {c: [r.get(c) for r in rows] for c in columns}
     arrays = {}
     for c, vals in data.items():
-        sample = next((v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))), None)
-        if isinstance(sample, bool):
+        # the column's type from all its values: one float among integers makes it float (from the first
+        # value alone, a score of 40 before one of 12.7 had written 12)
+        present = [v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+        if present and all(isinstance(v, (bool, np.bool_)) for v in present):
             arrays[c] = pa.array([bool(v) if v is not None else None for v in vals], pa.bool_())
-        elif isinstance(sample, (int, np.integer)) and not isinstance(sample, bool):
+        elif present and all(isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+                             for v in present) and len(present) == sum(v is not None for v in vals):
             arrays[c] = pa.array([int(v) if v is not None else None for v in vals], pa.int64())
-        elif isinstance(sample, (float, np.floating)):
+        elif present and all(isinstance(v, (int, float, np.integer, np.floating))
+                             and not isinstance(v, (bool, np.bool_)) for v in present):
             arrays[c] = pa.array([float(v) if v is not None else math.nan for v in vals], pa.float64())
         else:
             arrays[c] = pa.array(["" if v is None else str(v) for v in vals], pa.string())
