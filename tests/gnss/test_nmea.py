@@ -233,3 +233,32 @@ def test_read_nmea_file_crlf(tmp_path):
     fixes = list(read_nmea(p, stats))
     assert len(fixes) == 1 and stats.total_rejected == 0 and stats.source == "gps.nmea"
     assert not math.isnan(fixes[0].lat_deg)
+
+
+def test_glued_sentences_split_in_both_readers(tmp_path):
+    """The log reader (reference and fast paths) reads each sentence of a line that holds several (a lost
+    line break), gives the epochs of the intact log and counts the lines it split."""
+    from tractionecu.gnss.nmea import NmeaStats, iter_nmea, iter_nmea_fast, split_glued
+    from tractionecu.gnss.nmea import format_gga, format_rmc, format_vtg
+
+    t0 = datetime(2026, 7, 10, 8, 0, 0, tzinfo=timezone.utc)
+    lines = []
+    for i in range(10):
+        u = t0 + timedelta(seconds=0.1 * i)
+        lines += [format_gga(u, 47.88, -110.55, 2, 12, 0.9, 850.0), format_rmc(u, 47.88, -110.55, 2.5, 90.0, True),
+                  format_vtg(2.5, 90.0)]
+    glued = []
+    for k in range(0, len(lines), 3):
+        glued += [lines[k] + lines[k + 1], lines[k + 2]]
+    assert split_glued(glued[0]) == [lines[0], lines[1]] and split_glued(lines[0]) == [lines[0]]
+    ref = [r for _, r in iter_nmea(lines)]
+    st = NmeaStats()
+    got = [r for _, r in iter_nmea(glued, st)]
+    assert got == ref and st.split_count == 10 and st.total_rejected == 0
+    assert "lines holding several sentences, split: 10 (line 1, 3, 5, 7, 9, ...)" in st.describe()
+    p = tmp_path / "g.nmea"
+    p.write_text("\n".join(glued) + "\n", encoding="ascii")
+    st2 = NmeaStats()
+    with open(p, encoding="ascii") as fh:
+        fast = list(iter_nmea_fast(fh, st2))
+    assert len(fast) == len(ref) and st2.split_count == 10 and st2.accepted == st.accepted

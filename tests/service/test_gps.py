@@ -197,3 +197,24 @@ async def test_a_close_during_the_reopen_backoff_ends_the_reader_at_once(tmp_pat
     await reader.close()
     await asyncio.wait_for(task, 2.0)
     assert loop.time() - t0 < 1.0
+
+
+def test_sentences_glued_by_a_lost_line_break_are_each_read() -> None:
+    """A lost CR/LF glues two sentences into one line ('$GNGGA,…*hh$GNRMC,…*hh'): the line was refused as
+    garbage and the epoch lost; each sentence is judged on its own now, and the split is counted."""
+    s, got = collect()
+    ref, got_ref = collect()
+    for i in range(4):
+        utc = T0 + timedelta(seconds=0.1 * i)
+        lines = epoch(utc)
+        feed_lines(ref, lines, utc.timestamp())
+        feed_lines(s, [lines[0] + lines[1], lines[2]], utc.timestamp())
+    assert [g.t for g in got] == [g.t for g in got_ref] and len(got) == 4
+    assert [g.speed_mps for g in got] == [g.speed_mps for g in got_ref]
+    assert s.stats["split_lines"] == 4 and not any(k.startswith("rejected_") and v for k, v in s.stats.items())
+    # a glued line whose second sentence is damaged: the first still counts, the second is refused
+    bad, got_bad = collect()
+    utc = T0
+    lines = epoch(utc)
+    feed_lines(bad, [lines[0] + lines[1][:-1] + "0", lines[2]], utc.timestamp())
+    assert bad.stats["rejected_bad_checksum"] == 1 and bad.stats["split_lines"] == 1

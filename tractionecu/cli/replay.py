@@ -169,8 +169,9 @@ def rejects_note(rec: Any) -> list[str]:
     out = []
     stats = getattr(rec, "stats", None)
     for _fname, st in getattr(stats, "files", {}).items():
-        if getattr(st, "total_rejected", 0):
-            out += [f"skipped {line}" for line in st.describe()]  # type: ignore[attr-defined]
+        if getattr(st, "total_rejected", 0) or getattr(st, "split_count", 0):
+            out += [line if line.startswith("lines holding") else f"skipped {line}"
+                    for line in st.describe()]  # type: ignore[attr-defined]
     if stats is not None and (line := wrong_length_line(stats)):
         out.append(line)
     return out

@@ -76,7 +76,7 @@ from typing import Any, Iterable, Iterator
 import numpy as np
 import pynmea2
 
-from ..counting import RejectCounter
+from ..counting import MAX_EXAMPLES, RejectCounter
 from ..errors import DecodeError
 
 KNOT_MPS = 1852.0 / 3600.0
@@ -96,6 +96,17 @@ MAX_SENTENCES_PER_EPOCH = 16
 """Sentence names kept per epoch: a stream that repeats one time forever must not grow it without bound."""
 
 _CHECKSUM_RE = re.compile(r"\*([0-9A-Fa-f]{2})$")
+_GLUED_RE = re.compile(r"(?<=\*[0-9A-Fa-f]{2})(?=[$!])")
+
+
+def split_glued(line: str) -> list[str]:
+    """The sentences of a line that holds several, each ended by its checksum (``$GPGGA,…*47$GPRMC,…*2A``:
+    a line break lost in a receiver's or logger's buffer); ``[line]`` otherwise.  Each piece is then
+    judged on its own, so a lost line break costs no epoch."""
+    if line.count("$") + line.count("!") < 2:
+        return [line]
+    parts = _GLUED_RE.split(line.strip())
+    return parts if len(parts) > 1 else [line]
 
 
 # --------------------------------------------------------------------------- formatting
@@ -500,6 +511,26 @@ class NmeaStats(RejectCounter):
 
     accepted: int = 0
     ignored: Counter = field(default_factory=Counter)
+    split_lines: list[int] = field(default_factory=list)
+    """Line numbers (the first :data:`~tractionecu.counting.MAX_EXAMPLES`) of lines holding several
+    sentences, each judged on its own (:func:`split_glued`); ``split_count`` counts them all."""
+    split_count: int = 0
+
+    def split(self, lineno: int) -> None:
+        """Count one line split into its sentences."""
+        self.split_count += 1
+        if len(self.split_lines) < MAX_EXAMPLES:
+            self.split_lines.append(lineno)
+
+    def describe(self) -> list[str]:
+        """:meth:`RejectCounter.describe`, and the lines split into several sentences."""
+        out = super().describe()
+        if self.split_count:
+            more = ", ..." if self.split_count > len(self.split_lines) else ""
+            src = f"{self.source} " if self.source else ""
+            out.append(f"lines holding several sentences, split: {self.split_count} "
+                       f"({src}line {', '.join(map(str, self.split_lines))}{more})")
+        return out
 
 
 def sentence_label(line: str) -> str:
@@ -518,20 +549,24 @@ def iter_nmea(
 ) -> Iterator[tuple[int, NmeaRecord]]:
     """Yield ``(line number, record)`` for each supported sentence; count the rest."""
     st = stats if stats is not None else NmeaStats()
-    for lineno, line in enumerate(lines, start=first_lineno):
+    for lineno, whole in enumerate(lines, start=first_lineno):
         st.lines += 1
-        try:
-            rec = parse_line(line)
-        except DecodeError as e:
-            st.reject(getattr(e, "reason", "garbage"), lineno, line)
-            continue
-        if rec is None:
-            s = line.strip()
-            if s:
-                st.ignored[sentence_label(s)] += 1
-            continue
-        st.accepted += 1
-        yield lineno, rec
+        pieces = split_glued(whole)
+        if len(pieces) > 1:
+            st.split(lineno)
+        for line in pieces:
+            try:
+                rec = parse_line(line)
+            except DecodeError as e:
+                st.reject(getattr(e, "reason", "garbage"), lineno, line)
+                continue
+            if rec is None:
+                s = line.strip()
+                if s:
+                    st.ignored[sentence_label(s)] += 1
+                continue
+            st.accepted += 1
+            yield lineno, rec
 
 
 @dataclass(frozen=True)
@@ -1309,16 +1344,20 @@ def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Ite
                 st.accepted += 1
                 yield lineno0 + i + 1, vals
                 continue
-            try:
-                rec = parse_line(line)
-            except DecodeError as e:
-                st.reject(getattr(e, "reason", "garbage"), lineno0 + i + 1, line)
-                continue
-            if rec is None:
-                s = line.strip()
-                if s:
-                    st.ignored[sentence_label(s)] += 1
-                continue
-            st.accepted += 1
-            yield lineno0 + i + 1, record_values(rec)
+            pieces = split_glued(line)
+            if len(pieces) > 1:
+                st.split(lineno0 + i + 1)
+            for piece in pieces:
+                try:
+                    rec = parse_line(piece)
+                except DecodeError as e:
+                    st.reject(getattr(e, "reason", "garbage"), lineno0 + i + 1, piece)
+                    continue
+                if rec is None:
+                    s = piece.strip()
+                    if s:
+                        st.ignored[sentence_label(s)] += 1
+                    continue
+                st.accepted += 1
+                yield lineno0 + i + 1, record_values(rec)
         lineno0 += len(lines)

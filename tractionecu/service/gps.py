@@ -64,7 +64,7 @@ from typing import Any, Callable
 from ..aio import wait_event
 from ..counting import WarnOnce
 from ..errors import DecodeError
-from ..gnss.nmea import EpochAssembler, GpsFix, parse_line
+from ..gnss.nmea import EpochAssembler, GpsFix, parse_line, split_glued
 from ..gnss.utc import nearest_date, utc_epoch
 from ..pipeline.gnss import GnssGate
 from .clock import ServiceClock
@@ -164,7 +164,12 @@ class NmeaStream:
             if len(line) > self.cfg.max_line_bytes:
                 self._reject("overlong", line[:40].decode("ascii", "replace"))
                 continue
-            self._line(line.decode("ascii", "replace"), t_arrival)
+            text = line.decode("ascii", "replace")
+            pieces = split_glued(text)
+            if len(pieces) > 1:              # a lost line break: each sentence on its own
+                self.stats["split_lines"] += 1
+            for piece in pieces:
+                self._line(piece, t_arrival)
 
     def _reject(self, reason: str, text: str) -> None:
         self.stats["lines"] += 1
