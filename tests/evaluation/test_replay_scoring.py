@@ -118,3 +118,21 @@ def test_replay_map_keeps_only_the_gnss_epochs_the_gate_accepted(rec_dir, tmp_pa
     assert write_replay_map(tmp_path / "none", rec, arrays, gps_mask=np.zeros(n, bool))["map_samples"] == 0
     half = write_replay_map(tmp_path / "half", rec, arrays, gps_mask=np.arange(n) % 2 == 0)["map_samples"]
     assert 0.4 * full < half < 0.6 * full
+
+
+def test_a_truth_file_of_another_tool_is_left_unscored_not_fatal(rec_dir, tmp_path):
+    """A recording holding another simulator's truth.csv (no column 'a') and a truth.toml that is not TOML:
+    replay raised KeyError after writing its estimates; the scoring is now said to be left out."""
+    other = tmp_path / "rec"
+    shutil.copytree(rec_dir, other)
+    arrays = truth_arrays(read_recording(rec_dir))
+    (other / "truth.csv").write_text("t,speed,mu\n0.0,1.0,0.5\n", encoding="utf-8")
+    (other / "truth.toml").write_text("x = [\n", encoding="utf-8")
+    rec = read_recording(other)
+    run = tmp_path / "run"
+    summary = write_replay_map(run, rec, arrays)
+    add = score_replay(run, rec, arrays, plot=False, summary=summary)
+    assert set(add) == {"truth_skipped"} and not (run / "scorecard.json").exists()
+    said = "\n".join(add["truth_skipped"])
+    assert "truth.csv: not scored: truth.csv is not the truth file of tractionecu simulate (no column" in said
+    assert "a, soil_id" in said and "truth.toml: not scored" in said

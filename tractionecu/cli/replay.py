@@ -275,6 +275,7 @@ def format_summary(res: dict[str, Any]) -> str:
             w2 = max(len(r[1]) for r in rows)
             lines.append(f"{'metric':<{w}}  {'value':<{w2}}  target")
             lines += [f"{a:<{w}}  {b:<{w2}}  {c}" for a, b, c in rows]
+    lines += res.get("truth_skipped", [])
     msc = res.get("map_scorecard")
     if msc:
         def num(x: Any, fmt: str, scale: float = 1.0) -> str:    # None: nothing to score (no ρ_s mapped)

@@ -44,20 +44,33 @@ def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
     """
     out = Path(out_dir)
     add: dict[str, Any] = {}
+    def skipped(path: Any, e: Exception) -> None:
+        # a truth file of another tool (a user's own simulator, another format): the replay's outputs
+        # stand, the scoring is said to be left out (it raised after every estimate had been written)
+        add.setdefault("truth_skipped", []).append(f"{Path(path).name}: not scored: {e}")
+
     if "map_epochs" in summary:
-        card = score_replay_map(out, rec, Path(summary.get("map_dir", out / "map")))
+        try:
+            card = score_replay_map(out, rec, Path(summary.get("map_dir", out / "map")))
+        except (ValueError, KeyError, TypeError, OSError) as e:      # tomllib.TOMLDecodeError is a ValueError
+            skipped(rec.truth_toml_path, e)
+            card = None
         if card is not None:
             add["map_scorecard"] = card
     truth = sc = None
     if rec.truth_csv_path is not None:
-        truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
-        if is_machine_level(arrays):                     # one μ for the machine: scored against ΣF_h/ΣF_z
-            from ..pipeline.replay import machine_of
+        try:
+            truth = read_truth(rec.truth_csv_path, rec.truth_toml_path)
+            if is_machine_level(arrays):                 # one μ for the machine: scored against ΣF_h/ΣF_z
+                from ..pipeline.replay import machine_of
 
-            sc = machine_scorecard(arrays, truth, rec.truth_csv_path, machine_of(rec)[0].mass_kg)
-        else:
-            sc = scorecard(arrays, truth)
-        add["scorecard"] = sc
+                sc = machine_scorecard(arrays, truth, rec.truth_csv_path, machine_of(rec)[0].mass_kg)
+            else:
+                sc = scorecard(arrays, truth)
+            add["scorecard"] = sc
+        except (ValueError, KeyError, TypeError, OSError) as e:
+            skipped(rec.truth_csv_path, e)
+            truth = sc = None
     if plot:
         add["plots"] = plot_run(out, arrays, truth, sc)
         eff_paths, _ = plot_efficiency(out, rec, arrays, truth)     # η and s*, and report.html

@@ -95,6 +95,10 @@ def read_truth(csv_path: str | Path, toml_path: str | Path | None = None) -> Tru
         head = next(csv.reader(fh))
     col = {k: i for i, k in enumerate(head)}
     numeric = ["t", *(f"mu_{w}" for w in WHEELS), "rho_s", "a", "soil_id", *(f"slip_{w}" for w in WHEELS), "v"]
+    missing = [k for k in [*numeric, "soil_name"] if k not in col]
+    if missing:
+        raise ValueError(f"{Path(csv_path).name} is not the truth file of tractionecu simulate (no column "
+                         + ", ".join(missing) + ")")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)          # a truth file with no rows
         # numpy's reader (quoted fields as in the csv module); floats parse as float() does
