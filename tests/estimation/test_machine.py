@@ -330,6 +330,28 @@ def test_tight_turn_and_decoupled_front_axle_mark_mu_unsupported(synthetic) -> N
     assert _unsupported(out, 48.0, 55.0) > 0.9                 # after the 3 s smoothing has seen it
 
 
+def test_gnss_course_noise_is_no_turn_and_a_course_turn_still_is(synthetic) -> None:
+    """The GNSS course carries its Doppler noise, σ_v/|v| per epoch (1.1° at 2.5 m/s with the receiver's
+    0.05 m/s), more than a 17 m radius turns it in 0.1 s: a rate from two epochs held almost every step of
+    a straight pass unsupported (0.13 % valid on a recording of an independent simulator). The window's
+    slope, tested beyond its own noise, leaves the straight pass valid and still finds a tight turn."""
+    truth, bus = synthetic
+    rng = np.random.default_rng(5)
+    veh = mech_vehicle()
+    rate = 0.3                                            # [rad/s] at ~2 m/s: L·κ ≈ 0.35, beyond the 1 % excess
+    course = []
+    for t, k, v in bus:
+        if k != "v":
+            continue
+        heading = 90.0 + (math.degrees(rate * (min(t, 38.0) - 35.0)) if t >= 35.0 else 0.0)
+        noise = math.degrees(0.05 / max(abs(v), 0.5)) * rng.standard_normal()
+        course.append((t, "course", (heading + noise) % 360.0))
+    out = run(MachineEstimator(veh), sorted(bus + course, key=lambda b: b[0]))
+    assert _unsupported(out, 20.0, 34.9) == 0.0 and _unsupported(out, 40.5, 60.0) == 0.0
+    assert np.mean([e.valid for e in out if 20.0 < e.t < 34.9]) > 0.99
+    assert _unsupported(out, 35.6, 38.9) == 1.0             # found within half the 1 s window, held 1 s after
+
+
 def test_two_wheel_drive_front_rolls_and_the_rear_carries_the_torque() -> None:
     """MFWD declared disengaged (2WD): the plant's front wheels roll, the rear carries every N·m; the
     machine μ = ΣF_h/ΣF_z and the rear axle's μ(s) (a) come out right."""

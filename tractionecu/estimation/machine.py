@@ -166,7 +166,12 @@ class MachineValidity:
       (1 + λ) r_r/r_f times the rear's angular speed on a straight line) do not hold; beyond
       ``max_front_path_excess`` the front slip of the model is that far off, and tractors with automatic
       MFWD management disengage it at some steering angle.  κ from EBC2's rear wheels (left − right
-      over the track) or the GNSS course rate over the speed.  Also when EBC2's front-axle over rear-wheel
+      over the track) or the GNSS course rate over the speed.  The course rate is the least-squares slope
+      of the course over the last ``course_window_s`` (at least three epochs above 0.5 m/s), and a turn is
+      one whose rate exceeds the limit by twice the slope's standard error: the course's own noise, σ_χ =
+      σ_v/|v| per epoch (the Doppler velocity across the track), is 1.1° at 2.5 m/s, more than a 17 m
+      radius turns it between two 10 Hz epochs (0.8°), so a rate from two epochs flagged straight passes
+      as turns (0.13 % of the steps valid).  Also when EBC2's front-axle over rear-wheel
       speed, smoothed over ``coupling_tau_s``, departs by more than ``coupling_tolerance`` times the lead
       from its value learnt over ``coupling_ref_tau_s`` (the engaged axle's fixed gear ratio; a disengaged
       front axle rolls and its ratio falls by λ + s_r).  A disengagement that lasts much longer than
@@ -186,6 +191,7 @@ class MachineValidity:
     shift_hold_s: float = setting(2.0, "time after a ratio change or clutch slip with μ not supported [s]", 0.0, 60.0)
     max_front_path_excess: float = setting(0.01, "front-axle path over the rear's in a turn, less 1 [-]", 0.0, 1.0)
     turn_hold_s: float = setting(1.0, "time after a turn beyond the limit with μ not supported [s]", 0.0, 60.0)
+    course_window_s: float = setting(1.0, "window of the GNSS course rate's least-squares slope [s]", 0.2, 10.0)
     coupling_tau_s: float = setting(3.0, "smoothing of the front/rear speed ratio [s]", 0.0, 60.0)
     coupling_ref_tau_s: float = setting(30.0, "time constant of the learnt coupled front/rear speed ratio [s]",
                                         1.0, 3600.0)
@@ -320,6 +326,40 @@ class MachineEstimator:
         self._g_table = (self._cls0.g(grid), grid)
 
     # ------------------------------------------------------------------ lifecycle
+    def _course_turn(self, t: float, course_rad: float, val: MachineValidity) -> None:
+        """A turn from the GNSS course (class :class:`MachineValidity`, "front axle not coupled"): the course
+        rate as the least-squares slope over ``course_window_s``, tested against the limits less twice its
+        standard error."""
+        v = abs(self._last_v or 0.0)
+        w = self._courses
+        if v < 0.5 or (w and t - w[-1][0] > val.course_window_s):
+            w.clear()                                          # creeping (the course is noise), or a gap
+            self._turning_gnss = False
+            if v < 0.5:
+                return
+        if w:
+            if t <= w[-1][0]:
+                return
+            course_rad = w[-1][1] + (course_rad - w[-1][1] + math.pi) % (2.0 * math.pi) - math.pi
+        w.append((t, course_rad))
+        while t - w[0][0] > val.course_window_s:
+            del w[0]
+        n = len(w)
+        if n < 3:
+            return
+        tm = sum(x for x, _ in w) / n
+        cm = sum(c for _, c in w) / n
+        stt = sum((x - tm) ** 2 for x, _ in w)
+        if stt <= 0.0:
+            return
+        slope = sum((x - tm) * (c - cm) for x, c in w) / stt
+        sigma_chi = math.sqrt(self._r_v) / v                   # the course's noise per epoch [rad]
+        rate = max(0.0, abs(slope) - 2.0 * sigma_chi / math.sqrt(stt))
+        self._turning_gnss = rate > self._radius.cfg.max_turn_rel / self.vehicle.track_width_m * v
+        lk = self.vehicle.wheelbase_m * rate / v
+        if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
+            self._t_turn = t
+
     def no_data(self, t: float) -> MachineEstimate:
         """As :meth:`Estimator.no_data <tractionecu.estimation.estimator.Estimator.no_data>`: nothing stepped in a
         wheel-speed silence longer than replay's grid gap; every value NaN, not converged."""
@@ -373,7 +413,7 @@ class MachineEstimator:
         self._radius_version = 0
         self._turning = False
         self._turning_gnss = False
-        self._course: tuple[float, float] | None = None
+        self._courses: list[tuple[float, float]] = []      # (t [s], unwrapped course [rad]) of the window
         self._loads_key: tuple[float, float, int] | None = None
         self._loads = (math.nan,) * 4
         self._terms_key: float | None = None
@@ -661,16 +701,7 @@ class MachineEstimator:
                         self._t_coupling = t
         crs = meas.get("course")                               # GNSS course: a turn bends it
         if crs is not None and math.isfinite(crs):
-            if self._course is not None and t > self._course[0]:
-                d = (float(crs) - self._course[1] + 180.0) % 360.0 - 180.0
-                rate = math.radians(abs(d)) / (t - self._course[0])
-                self._turning_gnss = rate > self._radius.cfg.max_turn_rel / self.vehicle.track_width_m * max(
-                    abs(self._last_v or 0.0), 0.5)
-                if abs(self._last_v or 0.0) > 0.5:
-                    lk = self.vehicle.wheelbase_m * rate / abs(self._last_v)
-                    if math.sqrt(1.0 + lk * lk) - 1.0 > val.max_front_path_excess:
-                        self._t_turn = t
-            self._course = (t, float(crs))
+            self._course_turn(t, math.radians(float(crs)), val)
         zv: list[tuple[int, float, float]] = []
         vm = meas.get("v")
         if vm is not None:

@@ -28,11 +28,22 @@ def gnss_sentences(spec: SensorSpec, t0: float, t: float, lat_deg: float, lon_de
             nmea.format_vtg(sog, course_deg))
 
 
-def course_over_ground(heading, v):
+def course_over_ground(heading, v, sigma_v_mps: float = 0.0, rng: np.random.Generator | None = None):
     """Course over ground [deg, clockwise from north] of the motion: the body heading [rad, 0 = east,
-    counter-clockwise], + 180° when v < 0; held at its last value while |v| < GNSS_COURSE_HOLD_MPS."""
+    counter-clockwise], + 180° when v < 0, with the receiver's noise; held at its last value while
+    |v| < GNSS_COURSE_HOLD_MPS.
+
+    The receiver computes the course from its Doppler velocity, so the velocity noise across the track,
+    ``sigma_v_mps`` per axis (``SensorSpec.gps_speed_sigma``: ZED-F9P velocity accuracy 0.05 m/s), turns it
+    by atan(n/|v|): σ ≈ σ_v/|v|, 1.1° at 2.5 m/s, tens of degrees when creeping.  ``rng`` draws that noise
+    (a generator of its own, so the other noise of a recording does not move with it).  The physical truth's
+    receiver has it (:mod:`.physwriter`); the paper truth's writes the course of the motion, so the paper's
+    scenario stays byte for byte what it was."""
     motion = np.where(v < 0.0, heading + np.pi, heading)
     course = (90.0 - np.degrees(motion)) % 360.0
+    if sigma_v_mps > 0.0 and rng is not None and len(course):
+        n_cross = sigma_v_mps * rng.standard_normal(len(course))
+        course = (course + np.degrees(np.arctan2(n_cross, np.maximum(np.abs(v), 1e-9)))) % 360.0
     for j in range(1, len(course)):
         if abs(v[j]) < GNSS_COURSE_HOLD_MPS:
             course[j] = course[j - 1]

@@ -427,7 +427,7 @@ def _gnss(scn, tr, b: SensorBiases, rng, emit, *, radar: bool, gbsd_from_gnss: b
     ez = ou_noise(len(gi), g_dt, spec.gps_alt_sigma, spec.gps_pos_tau_s, rng)
     lat, lon = scn.field.to_latlon(x + ex, y + ey)
     alt = scn.field.origin_alt + alt_t + ez
-    course = course_over_ground(hd, vt)
+    course = course_over_ground(hd, vt, spec.gps_speed_sigma, rng.spawn(1)[0])
     dir_code = np.where(tr.direction > 0, FORWARD, REVERSE)
     gbsd_dist = np.cumsum(np.abs(v_gps)) * g_dt
     lines: list[str] = []
