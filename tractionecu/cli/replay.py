@@ -168,10 +168,17 @@ def rejects_note(rec: Any) -> list[str]:
 
     out = []
     stats = getattr(rec, "stats", None)
-    for _fname, st in getattr(stats, "files", {}).items():
+    for fname, st in getattr(stats, "files", {}).items():
         if getattr(st, "total_rejected", 0) or getattr(st, "split_count", 0):
             out += [line if line.startswith("lines holding") else f"skipped {line}"
                     for line in st.describe()]  # type: ignore[attr-defined]
+        back = getattr(st, "rejected", {}).get("time_backwards", 0)
+        if back and back >= 0.01 * max(getattr(st, "lines", 0), 1):
+            # a capture merged from several interfaces, or stamped on arrival, out of time order: its frames
+            # are read in file order, and each one earlier than the latest before it is left out
+            out.append(f"{fname}: {back} of {st.lines} lines ({100.0 * back / max(st.lines, 1):.1f} %) are stamped "
+                       "earlier than a line before them and were left out: if the capture is out of time order, "
+                       f"sort it by time first (candump -L: sort -s -n -k1.2 {fname} > sorted.log)")
     if stats is not None and (line := wrong_length_line(stats)):
         out.append(line)
     return out
