@@ -76,7 +76,7 @@ def _frame(n=300, rate=10.0, seed=4):
                  md=np.full((n, 4), 500.0), v_gps=np.full(n, 2.4))
 
 
-@pytest.mark.parametrize("kind", ["hold", "dropout", "missing"])
+@pytest.mark.parametrize("kind", ["hold", "dropout", "missing", "sign flip"])
 def test_wheel_speed_hold_is_found_located_and_repaired(kind):
     fr = _frame()
     truth = fr.omega.copy()
@@ -85,6 +85,8 @@ def test_wheel_speed_hold_is_found_located_and_repaired(kind):
         fr.omega[a:b, 2] = fr.omega[a - 1, 2]
     elif kind == "dropout":
         fr.omega[a:b, 2] = 0.0
+    elif kind == "sign flip":                         # a sign lost in the sensor or its decoding: never mentioned
+        fr.omega[a:b, 2] = -fr.omega[a:b, 2]
     else:
         fr.omega[a:b, 2] = np.nan
     faults, bad = wheel_speed_faults(fr)
@@ -100,6 +102,10 @@ def test_wheel_speed_hold_is_found_located_and_repaired(kind):
 
 def test_a_healthy_frame_has_no_wheel_speed_fault():
     faults, bad = wheel_speed_faults(_frame(seed=5))
+    assert faults == [] and not bad.any()
+    rev = _frame(seed=6)
+    rev.omega *= -1.0                                 # reversing: all four wheels turn backwards together
+    faults, bad = wheel_speed_faults(rev)
     assert faults == [] and not bad.any()
 
 

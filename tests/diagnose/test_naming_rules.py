@@ -62,7 +62,8 @@ def _ho(name: str) -> HeldOut:
 
 
 def _diagnose(monkeypatch, scores: dict[str, float], chosen: list[str], joint: FitResult, steps: list[dict],
-              reaches_absence: frozenset[str] = frozenset(), rerun: tuple | None = None):
+              reaches_absence: frozenset[str] = frozenset(), rerun: tuple | None = None,
+              open_world: dict | None = None, sensor_faults: tuple = ()):
     """Run :func:`engine.diagnose` with the candidates' single-step held-out ``scores``, and the
     augmentation's outcome (``chosen``, the joint fit, its ``steps``; ``rerun`` the same three when the
     augmentation is re-run without a withdrawn fault) given; everything that reads a
@@ -94,8 +95,11 @@ def _diagnose(monkeypatch, scores: dict[str, float], chosen: list[str], joint: F
 
     monkeypatch.setattr(engine, "_stepwise", stepwise)
     monkeypatch.setattr(engine, "_statement",
-                        lambda verdict, effect, ambiguous, *a: f"<{verdict} {effect} {'/'.join(ambiguous or [])}>")
-    monkeypatch.setattr(openworld, "open_world", lambda d: {})
+                        lambda verdict, effect, ambiguous, *a, fitted=None: f"<{verdict} {effect} {'/'.join(ambiguous or [])}>"
+                        + ("" if fitted is None else " fitted " + ", ".join(
+                            f"{k} [{v['ci95'][0]}, {v['ci95'][1]}]" for k, v in fitted.items() if v.get("ci95"))))
+    monkeypatch.setattr(openworld, "open_world", lambda d: dict(open_world or {}))
+    feat.sensor_faults = list(sensor_faults)
     d = engine.diagnose(frame)
     return d, seen
 
@@ -483,3 +487,44 @@ def test_a_none_verdict_names_the_best_candidate_that_could_have_been_it():
     assert "best candidate mass, held-out score 31.0, not named: contradicted by the speed channel" in text
     assert "No significant mismatch" in engine._statement("none", None, [], [cr("relaxation", 300.0)], None, None,
                                                           None, {})
+
+
+# --------------------------------------------------------------------------- rule: identified, and the verdict agrees
+def test_a_fault_none_of_whose_parameters_is_identified_is_not_named(monkeypatch):
+    """A frozen draft reading was the headline "effect: drivetrain", η = 0.6 [0.5, 0.977]: an interval over
+    nearly the library's whole range says nothing. It is not named; with structure left in the residuals
+    the verdict is "unexplained", never the healthy machine's "none"."""
+    joint = _fit(_values("drivetrain", drivetrain={"eta": 0.6}))
+    joint.ci95_by["drivetrain"]["eta"] = (0.5, 0.977)
+    steps = [{"step": 1, "added": "drivetrain", "score": 49.3, "against": "nominal model"}]
+    d, _ = _diagnose(monkeypatch, {"drivetrain": 49.3}, ["drivetrain"], joint, steps)
+    e = _effect(d, "drivetrain")
+    assert e["kind"] == "effect" and (e["named"], e["not_identified"]) == (False, True)
+    assert e["parameters"]["eta"]["identified"] is False
+    assert (d.verdict, d.effect) == ("none", None)
+    assert d.statement.startswith("No fault named: the best explanation, drivetrain, is not identified")
+    assert any(n.startswith("drivetrain: held-out score 49.3, but no parameter is identified") for n in d.notes)
+    d2, _ = _diagnose(monkeypatch, {"drivetrain": 49.3}, ["drivetrain"], joint, steps,
+                      open_world={"structure_remains": True, "finding": True, "statement": "Unexplained mismatch in the x."})
+    assert (d2.verdict, d2.effect) == ("unexplained", None)
+    assert d2.statement.startswith("Mismatch that no library effect explains (below); no library effect named: "
+                                   "the best explanation, drivetrain")
+
+
+def test_the_statement_gives_the_reported_interval_of_the_named_fault(monkeypatch):
+    """The statement took the candidate's own fit's interval, the effects list the joint fit's calibrated one
+    (b_rear 383 [243, 523] against [68, 690] for a true 200): the statement now gives the list's."""
+    joint = _fit(_values("gps_latency"))
+    joint.ci95_by["gps_latency"]["tau_s"] = (0.12, 0.48)
+    steps = [{"step": 1, "added": "gps_latency", "score": 40.0, "against": "nominal model"}]
+    d, _ = _diagnose(monkeypatch, {"gps_latency": 40.0}, ["gps_latency"], joint, steps)
+    assert (d.verdict, d.effect) == ("effect", "gps_latency")
+    assert d.statement == "<effect gps_latency > fitted tau_s [0.12, 0.48]"
+
+
+def test_a_sensor_fault_of_a_data_check_is_the_verdict_when_nothing_else_is_named(monkeypatch):
+    """A wheel-speed hold found by the data check was in ``effects`` as named while the verdict said none."""
+    fault = {"wheel": "RL", "kind": "hold", "t0_s": 60.0, "duration_s": 2.9}
+    d, _ = _diagnose(monkeypatch, {"gps_latency": 3.0}, [], None, [], sensor_faults=(fault,))
+    assert (d.verdict, d.effect) == ("effect", "wheel_speed_hold")
+    assert d.statement.startswith("wheel-speed hold on RL: wheel_speed_hold (wheel = RL, t0_s = 60")

@@ -162,3 +162,16 @@ def test_open_world_location_on_sparse_rows(step):
     j, mean = largest_running_mean(n, rate, idx, rt)
     assert 150.0 <= j / rate <= 170.0
     assert 400.0 < mean < 600.0
+
+
+def test_a_generic_term_is_named_only_when_significant():
+    """The held-out selection's terms are named only with |coefficient| ≥ 2 HAC standard errors (a drifting
+    draft was named on a healthy recording at z = 1.2)."""
+    from tractionecu.diagnose.openworld import significant_terms
+
+    coefs = {"time_draft": {"coefficient": -0.0758, "se": 0.061, "words": "draft × time"},
+             "v2": {"coefficient": 126.0, "se": 20.0, "words": "speed squared v²"},
+             "acc": {"coefficient": 3.0, "se": float("nan"), "words": "acceleration dv/dt"}}
+    assert significant_terms(coefs, ["time_draft", "v2", "acc"]) == ["v2"]
+    assert coefs["time_draft"]["z"] == pytest.approx(1.243, abs=1e-3) and coefs["time_draft"]["significant"] is False
+    assert coefs["v2"]["significant"] is True and coefs["acc"]["significant"] is False

@@ -914,9 +914,9 @@ def modelled_front_load(fr: Frame) -> NDArray[np.float64]:
 def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
     """Find wheel-speed sensor holds and dropouts (library fault ``wheel_speed_hold``) and repair them.
 
-    A wheel whose speed is missing, zero, or exactly constant for at least :data:`HOLD_MIN_S` while
-    the other three turn faster than :data:`HOLD_MOVING_RADPS` and change is a sensor fault, not
-    physics.  Its samples take the speed of the other wheel on the same axle (so the force balance
+    A wheel whose speed is missing, zero, exactly constant, or of the sign opposite to the three others'
+    for at least :data:`HOLD_MIN_S` while the other three turn faster than :data:`HOLD_MOVING_RADPS` (and,
+    for a hold, change) is a sensor fault, not physics.  Its samples take the speed of the other wheel on the same axle (so the force balance
     stays continuous) and the rows are returned as bad (slip and fits skip them).
     Returns (faults, bad rows).
     """
@@ -943,7 +943,14 @@ def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
             do = np.max(np.nan_to_num(np.abs(np.diff(oth, axis=0, prepend=np.nan)), nan=0.0), axis=1)
         held = (d == 0.0) & (do > 0.0)
         held = (held | np.concatenate([held[1:], [False]])) & ~zero   # the first sample of the run too
-        for kind, mask in (("missing", missing), ("dropout", zero), ("hold", held)):
+        # turning the other way from the three others (a sign flipped in the sensor or its decoding: the
+        # wheels of a tractor never turn against each other while all of them move)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # rows without any other wheel speed: NaN
+            ref = np.nanmedian(oth, axis=1)
+            sign = (np.isfinite(wi) & ~zero & (np.sign(wi) * np.sign(ref) < 0)
+                    & np.all(np.sign(oth) == np.sign(ref)[:, None], axis=1))
+        for kind, mask in (("missing", missing), ("dropout", zero), ("hold", held), ("sign flip", sign)):
             for a, b in runs(mask & moving):
                 if b - a < kmin:
                     continue

@@ -2,7 +2,10 @@
 
 ``report.json`` keys (a contract):
 
-- ``verdict``: ``"effect"``, ``"none"``, ``"ambiguous"``, or ``"untestable"`` when nothing could be tested
+- ``verdict``: ``"effect"``, ``"none"``, ``"ambiguous"``, ``"unexplained"`` when no library effect is named
+  but the open world located a finding (``open_world.finding``: one wheel against its partner, the lifted
+  draft's shape, or a generic model of significant terms taking 30 % of the held-out RMSE; located and
+  quantified in the statement), or ``"untestable"`` when nothing could be tested
   (a recording too short, or without the signals any effect acts on; for the engine-level analysis, not even
   its slip model: never a healthy machine's verdict; ``tractionecu diagnose`` exits 4 then);
 - ``effect``: the named effect or null; ``ambiguous_between``: the tied explanations;
