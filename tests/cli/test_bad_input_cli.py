@@ -353,3 +353,18 @@ def test_a_capture_out_of_time_order_is_named_with_how_to_sort_it(short_recordin
     sorted_log.replace(rec / "can.log")
     assert main(["replay", "--no-map", "--out", str(tmp_path / "run2"), str(rec)]) == 0
     assert "time_backwards" not in capsys.readouterr().out
+
+
+def test_plots_of_a_recording_without_truth_and_without_a_map(short_recording, tmp_path, capsys):
+    """replay --plot --no-map on a recording without truth.csv ended in an IndexError: the streamed replay kept
+    only the map's steps (none without a map) and the figures were drawn from an empty array."""
+    pytest.importorskip("matplotlib")
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    for name in ("truth.csv", "truth.toml"):
+        (rec / name).unlink(missing_ok=True)
+    out = tmp_path / "run"
+    assert main(["replay", "--plot", "--no-map", "--out", str(out), str(rec)]) == 0
+    text = capsys.readouterr().out
+    for name in ("fig6_mu_rho.png", "fig_efficiency.png", "report.html"):
+        assert (out / name).stat().st_size > 1000 and f"plot: {out / name}" in text

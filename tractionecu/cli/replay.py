@@ -82,8 +82,10 @@ def run(args: argparse.Namespace) -> int:
     earlier = _products(Path(args.out))
     try:
         with extra_dbcs(args.dbc):
+            # --plot draws every step: without truth.csv the streamed replay kept only the map's steps (none
+            # with --no-map), and the figures failed on an empty array
             summary, rec, res = replay_to_dir(args.recording, args.out, rate_hz=args.rate, cfg=cfg,
-                                              write_map=not args.no_map)
+                                              write_map=not args.no_map, keep_arrays=True if args.plot else None)
     except MissingSignals as e:
         print("\n".join(missing_report(e.recording, e.missing)), file=sys.stderr)
         return EXIT_MISSING_SIGNALS

@@ -27,6 +27,8 @@ def plot_run(out: Path, arrays: dict[str, Any], truth: Truth | None, sc: dict[st
     import matplotlib.pyplot as plt
 
     t = arrays["t"]
+    if len(t) == 0:                     # no step to draw (a recording with no estimator step)
+        return []
     tr = t - t[0]
     paths = []
     fig, axes = plt.subplots(5, 1, figsize=(10, 11), sharex=True)
