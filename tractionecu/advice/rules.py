@@ -18,21 +18,28 @@ Two triggers (issue: "what farmers act on today"):
 2. **η far below η(s*)** for minutes: the mean of η* − η over the last
    ``eta_minutes`` minutes (while s* and η are valid) exceeds ``eta_loss``.
 
-Each trigger gives recommendations by the side of the optimum it is on:
+Each trigger gives recommendations by the side of the optimum it is on.  The amounts use the pull P
+averaged over the window (not the instant's), and advice whose window has held no pulling for
+:data:`EXPIRY_S` is withdrawn.
 
 * slip too high (s > s*): **add ballast**.  The pull P = Σ (μ_i − ρ_s) F_z,i
   stays; at the target slip s_t (s*, else the band's middle) each newton of
   weight gives μ(s_t) − ρ_s of pull, so W' = P/(μ(s_t) − ρ_s) and the
-  ballast is (W' − W)/g.  Where: the drawbar pull moves P·h_hitch/L off the
-  front axle onto the rear (physics.md, load transfer); the axle that slips
-  more gets it.  Then **lower the tyre pressure** if the tyre profile allows
-  (``tyre_pressure_min_pa`` > 0: the lowest pressure the tyre's load table
-  allows for this load): a longer contact patch raises the pull at a given
-  slip.  Or a **shallower working depth**: the draft to shed is
-  P − (μ(s_t) − ρ_s)·W.
-* slip too low (s < s*): **remove ballast**, (W − W')/g by the same
-  formula, or a **higher gear** (more speed for the same pull uses the
-  traction that the weight provides).
+  ballast is (W' − W)/g.  Where: towards the axle type's static front share
+  (:data:`FRONT_SHARE`; the axles' slips do not say it: an MFWD front axle's
+  lead makes its slip the larger one whatever the weights), then the tyre
+  pressures of the tyre's load table for the new axle loads.  Or, without
+  ballast, **lower the tyre pressure** if the tyre profile allows it at the
+  present load (``tyre_pressure_min_pa`` > 0): a longer contact patch raises
+  the pull at a given slip.  Or a **shallower working depth**: the draft to
+  shed is P − (μ(s_t) − ρ_s)·W.  (A lower gear at the same pull leaves the
+  slip where it is.)
+* slip too low (s < s*): **remove ballast**, at most the ballast declared
+  carried (``ballast_kg``; undeclared: no amount, only the weight the pull
+  needs, W' = P/(μ(s*) − ρ_s), against the machine's), or **pull more** with
+  the same weight (a wider or deeper implement: (μ(s*) − ρ_s)·W − P more
+  draft).  A tractor at a light pull is underloaded: taking off weight below
+  its bare mass is no advice.
 
 The amounts are first estimates from the identified curve: they say what
 the curve implies, not what the next field will do.
@@ -54,6 +61,20 @@ SLIP_BANDS: dict[str, tuple[float, float]] = {
     "tracks": (0.02, 0.05),
 }
 """Slip bands for ballasting by axle type [-] (operator manuals; ASABE EP496)."""
+
+FRONT_SHARE: dict[str, tuple[float, float]] = {
+    "mfwd": (0.35, 0.40),
+    "4wd": (0.55, 0.60),
+    "2wd": (0.25, 0.30),
+}
+"""Static share of the weight on the front axle to ballast towards, by axle type [-] (Zoz & Grisso 2003,
+"Traction and tractor performance", ASAE; Grisso et al., Virginia Cooperative Extension 442-450: MFWD
+35/65, 4WD 55/45 to 60/40, 2WD 25/75 to 30/70).  Where ballast goes follows the static split, not the axles'
+slips: on an MFWD tractor the front axle's lead makes its slip the larger one whatever the weights."""
+
+EXPIRY_S = 60.0
+"""Advice whose window holds no pulling for this long [s] is withdrawn (the field, or its end, is left: road
+transport, a long stop)."""
 
 
 @dataclass(frozen=True)
@@ -77,6 +98,9 @@ class AdviceSettings:
     """Lowest tyre pressure the tyre's load table allows [Pa]; 0: lowering is not advised."""
     tyre_pressure_step_pa: float = 20e3
     """Pressure step of a recommendation [Pa]."""
+    ballast_kg: float = math.nan
+    """Ballast the machine carries now [kg] (front weights, wheel weights, liquid); NaN: not declared, and then
+    no amount of ballast to remove is given (only what the pull needs against what the machine weighs)."""
 
     def band(self) -> tuple[float, float]:
         lo, hi = SLIP_BANDS[self.axle_type]
@@ -111,8 +135,10 @@ class Advisor:
         self.front_fraction = front_fraction
         self.L = wheelbase_m
         self.h = hitch_height_m
-        self._dist: deque[tuple[float, float, float, float, float]] = deque()  # (d, slip, loss or nan, s-s*, t)
-        self._sums = [0.0] * 5      # Σd, Σd·slip, Σd (loss known), Σd·loss, Σd·(s − s*) over the window
+        # (d, slip, loss or nan, s − s*, t, pull or nan)
+        self._dist: deque[tuple[float, float, float, float, float, float]] = deque()
+        # Σd, Σd·slip, Σd (loss known), Σd·loss, Σd·(s − s*), Σd (pull known), Σd·pull over the window
+        self._sums = [0.0] * 7
         self._n_added = 0
         self._eta: deque[tuple[float, float]] = deque()
         self._eta_sum = 0.0
@@ -127,18 +153,22 @@ class Advisor:
         dt = 0.0 if self._t is None or not math.isfinite(t) else min(max(t - self._t, 0.0), 1.0)
         self._t = t
         self.last_report = rep
+        if self._dist and math.isfinite(t) and t - self._dist[-1][4] > EXPIRY_S:
+            # nothing pulled for a minute: the window (and the advice it gave) is about ground left behind
+            self._dist.clear()
+            self._sums = [0.0] * 7
         if rep.slip_ok and math.isfinite(v):
             dd = abs(v) * dt
             loss = rep.eta_lost if rep.s_star_valid else math.nan
             side = rep.slip - rep.s_star if rep.s_star_valid else math.nan
-            item = (dd, rep.slip, loss, side, t)
+            item = (dd, rep.slip, loss, side, t, rep.pull_n)
             self._dist.append(item)
             self._add(item, 1.0)
             while self._dist and self._sums[0] - self._dist[0][0] >= self.s.distance_m:
                 self._add(self._dist.popleft(), -1.0)
             self._n_added += 1
             if self._n_added % 4096 == 0:        # running sums: recompute now and then (rounding)
-                self._sums = [0.0] * 5
+                self._sums = [0.0] * 7
                 for x in self._dist:
                     self._add(x, 1.0)
         if rep.s_star_valid and rep.eta_valid:
@@ -151,8 +181,8 @@ class Advisor:
         return self.active
 
     # ------------------------------------------------------------ triggers
-    def _add(self, x: tuple[float, float, float, float, float], sign: float) -> None:
-        d, slip, loss, side, _ = x
+    def _add(self, x: tuple[float, float, float, float, float, float], sign: float) -> None:
+        d, slip, loss, side, _, pull = x
         s = self._sums
         s[0] += sign * d
         s[1] += sign * d * slip
@@ -160,10 +190,18 @@ class Advisor:
             s[2] += sign * d
             s[3] += sign * d * loss
             s[4] += sign * d * side
+        if math.isfinite(pull):
+            s[5] += sign * d
+            s[6] += sign * d * pull
+
+    def window_pull(self) -> float:
+        """Distance-weighted mean pull over the window [N] (the amounts rest on it, not on the instant's pull:
+        from the instant's the ballast figure moved 1.1–2.3 t within a minute on one soil); NaN when unknown."""
+        return self._sums[6] / self._sums[5] if self._sums[5] > 0.5 * self._sums[0] > 0 else math.nan
 
     def _window_means(self) -> tuple[float, float, float, float]:
         """Distance-weighted mean slip, η loss and (s − s*) over the window, and the window's length [m]."""
-        d, dslip, dl, dloss, dside = self._sums
+        d, dslip, dl, dloss, dside = self._sums[:5]
         if d <= 1e-9:
             return math.nan, math.nan, math.nan, 0.0
         slip = dslip / d
@@ -206,40 +244,59 @@ class Advisor:
         return band_mid, "band middle"
 
     def _weight_for(self, rep: EfficiencyReport, curve: CurveParams | None, s_t: float) -> float:
-        """W' = P/(μ(s_t) − ρ_s) [N] (module doc); NaN without a curve."""
-        if curve is None or not (math.isfinite(rep.pull_n) and math.isfinite(rep.rho_s)):
+        """W' = P/(μ(s_t) − ρ_s) [N] (module doc), P the window's mean pull; NaN without a curve."""
+        pull = self.window_pull()
+        if curve is None or not (math.isfinite(pull) and math.isfinite(rep.rho_s)):
             return math.nan
         k = float(curve.mu(s_t)) - rep.rho_s
-        return rep.pull_n / k if k > 0.02 else math.nan
+        return pull / k if k > 0.02 else math.nan
+
+    def _where(self) -> str:
+        """The axle to ballast: towards the axle type's static front share (:data:`FRONT_SHARE`)."""
+        lo_hi = FRONT_SHARE.get(self.s.axle_type)
+        ff = self.front_fraction
+        if lo_hi is None or not math.isfinite(ff):
+            return "front and rear"
+        lo, hi = lo_hi
+        if ff < lo:
+            return "front"
+        if ff > hi:
+            return "rear"
+        return f"front and rear, keeping {lo:.0%}–{hi:.0%} of the weight on the front"
 
     def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
                   slip_axles: tuple[float, float], band_mid: float) -> list[Recommendation]:
         s_t, target = self._target(rep, band_mid)
+        pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t)
         ballast_kg = (w_new - self.weight_n) / G if math.isfinite(w_new) else math.nan
-        transfer = rep.pull_n * self.h / self.L if math.isfinite(rep.pull_n) else math.nan
+        transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
         sf, sr = slip_axles
-        where = "front" if (math.isfinite(sf) and math.isfinite(sr) and sf > sr + 0.005) else (
-            "rear" if (math.isfinite(sf) and math.isfinite(sr) and sr > sf + 0.005) else "front and rear")
-        e = {**ev, "target_slip": s_t, "target": target, "pull_n": rep.pull_n, "rho_s": rep.rho_s, "a": rep.a,
+        where = self._where()
+        e = {**ev, "target_slip": s_t, "target": target, "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
              "weight_n": self.weight_n, "weight_needed_n": w_new, "load_transfer_n": transfer,
-             "slip_front": sf, "slip_rear": sr}
+             "slip_front": sf, "slip_rear": sr, "front_share": self.front_fraction}
         amount = (f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0
                   else "amount not estimated" + (" (curve not identified)" if curve is None else ""))
-        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, on the {where} axle: {why}.", why,
-                               {**e, "ballast_kg": ballast_kg, "where": where})]
         p, pmin = self.s.tyre_pressure_pa, self.s.tyre_pressure_min_pa
+        after = ("; then set the tyre pressures the tyre's load table gives for the new axle loads"
+                 if pmin > 0 else "")
+        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, on the {where} axle{after}: {why}.", why,
+                               {**e, "ballast_kg": ballast_kg, "where": where})]
         if pmin > 0 and math.isfinite(p) and p - self.s.tyre_pressure_step_pa >= pmin:
+            # an alternative to the ballast, at the present loads (more load needs more pressure, not less)
             p_new = max(pmin, p - self.s.tyre_pressure_step_pa)
             recs.append(Recommendation("lower_tyre_pressure",
-                                       f"Lower the tyre pressure from {p / 1e5:.2f} to {p_new / 1e5:.2f} bar "
-                                       f"(tyre minimum {pmin / 1e5:.2f} bar): {why}.", why,
+                                       f"Or, without adding ballast, lower the tyre pressure from {p / 1e5:.2f} to "
+                                       f"{p_new / 1e5:.2f} bar (the tyre's minimum for the present load "
+                                       f"{pmin / 1e5:.2f} bar): {why}.", why,
                                        {**e, "tyre_pressure_pa": p, "tyre_pressure_new_pa": p_new,
                                         "tyre_pressure_min_pa": pmin}))
-        shed = (rep.pull_n - (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n) if curve is not None else math.nan
-        txt = (f"or work shallower or in a lower gear: shed about {shed / 1e3:.1f} kN of draft"
-               if math.isfinite(shed) and shed > 0 else "or work shallower or in a lower gear")
+        shed = (pull - (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n) if curve is not None else math.nan
+        # (a lower gear at the same pull leaves the slip where it is: only less draft or more weight moves it)
+        txt = (f"or work shallower: shed about {shed / 1e3:.1f} kN of draft"
+               if math.isfinite(shed) and shed > 0 else "or work shallower")
         recs.append(Recommendation("shallower_depth", txt[0].upper() + txt[1:] + f": {why}.", why,
                                    {**e, "draft_to_shed_n": shed}))
         return recs
@@ -247,11 +304,32 @@ class Advisor:
     def _too_low(self, rep: EfficiencyReport, curve: CurveParams | None, why: str,
                  ev: dict[str, float | str]) -> list[Recommendation]:
         s_t = rep.s_star
+        pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t)
-        ballast_kg = (self.weight_n - w_new) / G if math.isfinite(w_new) else math.nan
-        e = {**ev, "target_slip": s_t, "target": "s*", "pull_n": rep.pull_n, "rho_s": rep.rho_s, "a": rep.a,
-             "eta": rep.eta, "eta_star": rep.eta_star, "weight_n": self.weight_n, "weight_needed_n": w_new}
-        amount = f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0 else "some"
-        return [Recommendation("remove_ballast", f"Remove {amount} of ballast (at most what is carried): {why}.", why,
-                               {**e, "ballast_kg": ballast_kg}),
-                Recommendation("higher_gear", f"Or shift to a higher gear at the same pull: {why}.", why, e)]
+        spare_kg = (self.weight_n - w_new) / G if math.isfinite(w_new) else math.nan
+        carried = self.s.ballast_kg
+        ballast_kg = min(spare_kg, carried) if math.isfinite(carried) else math.nan
+        e = {**ev, "target_slip": s_t, "target": "s*", "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
+             "eta": rep.eta, "eta_star": rep.eta_star, "weight_n": self.weight_n, "weight_needed_n": w_new,
+             "weight_spare_kg": spare_kg, "ballast_carried_kg": carried}
+        if math.isfinite(ballast_kg) and ballast_kg > 0:
+            rest = (f"; the machine stays {spare_kg - ballast_kg:.0f} kg heavier than this pull needs"
+                    if spare_kg > carried else "")
+            txt = f"Remove about {ballast_kg:.0f} kg of the {carried:.0f} kg of ballast carried{rest}: {why}."
+        elif math.isfinite(carried):
+            txt = f"No ballast to remove (none declared carried): {why}."
+        elif math.isfinite(spare_kg) and spare_kg > 0:
+            # the carried ballast is not declared: no amount to take off (from a light pull the formula asked
+            # a 7.2 t tractor to shed 4.2–6.5 t), only what the pull needs against what the machine weighs
+            txt = (f"Remove ballast if any is carried: this pull needs about {w_new / G:.0f} kg on the wheels at "
+                   f"s*, the machine weighs {self.weight_n / G:.0f} kg: {why}.")
+        else:
+            txt = f"Remove ballast if any is carried: {why}."
+        more = (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n - pull if curve is not None and math.isfinite(
+            pull) else math.nan
+        # (a higher gear at the same pull leaves the slip, and η(s), where they are: more pull moves them)
+        mtxt = ("Or pull more with the same weight, a wider or deeper implement"
+                + (f": about {more / 1e3:.1f} kN more draft" if math.isfinite(more) and more > 0 else "")
+                + f": {why}.")
+        return [Recommendation("remove_ballast", txt, why, {**e, "ballast_kg": ballast_kg}),
+                Recommendation("more_pull", mtxt, why, {**e, "draft_to_add_n": more})]

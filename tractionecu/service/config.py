@@ -263,6 +263,8 @@ class AdviceConfig:
     tyre_pressure_min_pa: float = setting(0.0, "lowest tyre pressure the tyre's load table allows for this "
                                                "machine [Pa]; 0 = no tyre pressure advice", 0.0, 1e6)
     max_sigma_s_star: float = setting(0.01, "s* is sent only with a standard error up to this [-]", 0.0001, 1.0)
+    ballast_kg: float = setting(math.nan, "ballast the machine carries now [kg]; NaN = not declared (no amount of "
+                                          "ballast to remove is given)", 0.0, 100000.0, nan_ok=True)
 
     def __post_init__(self) -> None:
         validate(self, "advice")

@@ -344,7 +344,7 @@ class Service:
         vehicle = self.estimation.machine[0] if self.estimation.machine else VehicleParams()
         settings = AdviceSettings(axle_type=a.axle_type, slip_min=a.slip_min, slip_max=a.slip_max,
                                   distance_m=a.distance_m, eta_loss=a.eta_loss, eta_minutes=a.eta_minutes,
-                                  tyre_pressure_min_pa=a.tyre_pressure_min_pa)
+                                  tyre_pressure_min_pa=a.tyre_pressure_min_pa, ballast_kg=a.ballast_kg)
         eff = efficiency_config_for(vehicle, max_sigma_s_star=a.max_sigma_s_star)
         return AdviceEngine(vehicle, settings, eff=eff)
 
