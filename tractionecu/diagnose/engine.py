@@ -521,6 +521,19 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                                    "by the machine's characteristics at a healthy size (below).")
                 else:
                     d.statement = _statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+    def unname(e: dict, flag: str, note: str, if_none: str) -> None:
+        """Report effect ``e`` without naming it (``flag`` says why, ``note`` in the notes); a verdict it was
+        moves to the next named fault the augmentation chose, else none with the statement ``if_none``."""
+        e["named"] = False
+        e[flag] = True
+        d.notes.append(note)
+        if d.effect == e["name"]:
+            rest = [x["name"] for x in d.effects if x["kind"] in ("effect", "sensor_fault") and x.get("named")
+                    and x["name"] in chosen]
+            d.verdict, d.effect = ("effect", rest[0]) if rest else ("none", None)
+            d.statement = (_statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+                           if rest else if_none)
+
     # A fault is named only when the 95 % interval it is reported with (the joint fit's, profile
     # likelihood and block jackknife) still excludes its negligible band: detection asked that of the
     # sandwich interval, and a name whose calibrated interval reaches the effect's absence is not a finding
@@ -529,20 +542,13 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         if (e["kind"] not in ("effect", "sensor_fault") or not e.get("named") or e["name"] == "wheel_speed_hold"
                 or joint is None or e["name"] not in joint.ci95_by or _excludes_null(joint, e["name"])):
             continue
-        e["named"] = False
-        e["not_significant"] = True
         iv = "; ".join(f"{k} [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]" for k, v in e["parameters"].items()
                        if v.get("ci95") and k != "front_share")
-        d.notes.append(f"{e['name']}: held-out score {e.get('score') or 0.0:.1f}, but its 95 % interval ({iv}) reaches "
-                       "the value at which it vanishes: not named")
-        if d.effect == e["name"]:
-            rest = [x["name"] for x in d.effects if x["kind"] in ("effect", "sensor_fault") and x.get("named")
-                    and x["name"] in chosen]
-            d.verdict, d.effect = ("effect", rest[0]) if rest else ("none", None)
-            d.statement = (_statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
-                           if rest else
-                           "No fault named: the best explanation's 95 % interval reaches the value at which it "
-                           f"vanishes ({e['name']}: {iv}).")
+        unname(e, "not_significant",
+               f"{e['name']}: held-out score {e.get('score') or 0.0:.1f}, but its 95 % interval ({iv}) reaches the "
+               "value at which it vanishes: not named",
+               "No fault named: the best explanation's 95 % interval reaches the value at which it vanishes "
+               f"({e['name']}: {iv}).")
     # A fault none of whose parameters is identified (every 95 % interval spans nearly its library range, as at
     # a bound) says nothing about the machine: it is not named (a draft reading frozen at 150 s was the headline
     # "effect: drivetrain", η = 0.6 [0.5, 0.977], with its interval reported as not identified).
@@ -551,20 +557,13 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         if (e["kind"] not in ("effect", "sensor_fault") or not e.get("named") or e["name"] == "wheel_speed_hold"
                 or not ps or any(v.get("identified") is not False for v in ps)):
             continue
-        e["named"] = False
-        e["not_identified"] = True
         iv = "; ".join(f"{k} [{_fmt(v['ci95'][0])}, {_fmt(v['ci95'][1])}]" for k, v in e["parameters"].items()
                        if v.get("ci95"))
-        d.notes.append(f"{e['name']}: held-out score {e.get('score') or 0.0:.1f}, but no parameter is identified "
-                       f"(its 95 % interval spans nearly the library's range: {iv}): not named")
-        if d.effect == e["name"]:
-            rest = [x["name"] for x in d.effects if x["kind"] in ("effect", "sensor_fault") and x.get("named")
-                    and x["name"] in chosen]
-            d.verdict, d.effect = ("effect", rest[0]) if rest else ("none", None)
-            d.statement = (_statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
-                           if rest else
-                           f"No fault named: the best explanation, {e['name']}, is not identified by this recording "
-                           f"(its 95 % interval spans nearly its whole range: {iv}).")
+        unname(e, "not_identified",
+               f"{e['name']}: held-out score {e.get('score') or 0.0:.1f}, but no parameter is identified (its 95 % "
+               f"interval spans nearly the library's range: {iv}): not named",
+               f"No fault named: the best explanation, {e['name']}, is not identified by this recording (its 95 % "
+               f"interval spans nearly its whole range: {iv}).")
     # The named effect's parameters in the statement are the reported ones (the joint fit's calibrated
     # intervals of the effects list), not the candidate's own fit: the two disagreed (b_rear 383 [243, 523]
     # in the statement, [68, 690] in the list, for a true 200).

@@ -93,6 +93,15 @@ def _rmc_date(path: Path, max_lines: int = 400) -> str | None:
     return None
 
 
+def _last_date(segments: list[str]) -> tuple[str | None, int | None]:
+    """The date of the last segment holding one, and that segment's index; (None, None) without."""
+    for i in range(len(segments) - 1, -1, -1):
+        d = _parse_date(segments[i])
+        if d is not None:
+            return d, i
+    return None, None
+
+
 def from_path(path: Path, root: Path | None) -> RecordingRef:
     """Machine, date and field of the recording ``path`` by the rules of the module doc."""
     try:
@@ -110,11 +119,7 @@ def from_path(path: Path, root: Path | None) -> RecordingRef:
     date = _parse_date(date) if date else None
     date_seg = None
     if date is None:
-        for i in range(len(parts) - 1, -1, -1):
-            d = _parse_date(parts[i])
-            if d is not None:
-                date, date_seg = d, i
-                break
+        date, date_seg = _last_date(parts)
     machine = hive.get("machine")
     if machine is None:
         machine = parts[0] if len(parts) >= 2 and date_seg != 0 and "=" not in parts[0] else UNKNOWN
@@ -126,11 +131,7 @@ def from_path(path: Path, root: Path | None) -> RecordingRef:
         full = ctx + parts
         di = len(ctx) + date_seg if date_seg is not None else None
         if date is None:
-            for i in range(len(ctx) - 1, -1, -1):
-                d = _parse_date(ctx[i])
-                if d is not None:
-                    date, di = d, i
-                    break
+            date, di = _last_date(ctx)
         if di is not None and 1 <= di < len(full) - 1:     # the date a folder, not the recording's own name
             m = full[di - 1]
             if "=" not in m and _parse_date(m) is None:

@@ -551,22 +551,29 @@ def iter_nmea(
     st = stats if stats is not None else NmeaStats()
     for lineno, whole in enumerate(lines, start=first_lineno):
         st.lines += 1
-        pieces = split_glued(whole)
-        if len(pieces) > 1:
-            st.split(lineno)
-        for line in pieces:
-            try:
-                rec = parse_line(line)
-            except DecodeError as e:
-                st.reject(getattr(e, "reason", "garbage"), lineno, line)
-                continue
-            if rec is None:
-                s = line.strip()
-                if s:
-                    st.ignored[sentence_label(s)] += 1
-                continue
-            st.accepted += 1
+        for rec in _parsed(whole, lineno, st):
             yield lineno, rec
+
+
+def _parsed(line: str, lineno: int, st: NmeaStats) -> Iterator[NmeaRecord]:
+    """The supported records of one line (each sentence of a glued line on its own, :func:`split_glued`),
+    counting the line's rejects, ignored sentences and accepted records in ``st``."""
+    pieces = split_glued(line)
+    if len(pieces) > 1:
+        st.split(lineno)
+    for piece in pieces:
+        try:
+            rec = parse_line(piece)
+        except DecodeError as e:
+            st.reject(getattr(e, "reason", "garbage"), lineno, piece)
+            continue
+        if rec is None:
+            s = piece.strip()
+            if s:
+                st.ignored[sentence_label(s)] += 1
+            continue
+        st.accepted += 1
+        yield rec
 
 
 @dataclass(frozen=True)
@@ -1344,20 +1351,6 @@ def iter_nmea_fast(fh: Any, stats: NmeaStats, chunk_chars: int = 1 << 20) -> Ite
                 st.accepted += 1
                 yield lineno0 + i + 1, vals
                 continue
-            pieces = split_glued(line)
-            if len(pieces) > 1:
-                st.split(lineno0 + i + 1)
-            for piece in pieces:
-                try:
-                    rec = parse_line(piece)
-                except DecodeError as e:
-                    st.reject(getattr(e, "reason", "garbage"), lineno0 + i + 1, piece)
-                    continue
-                if rec is None:
-                    s = piece.strip()
-                    if s:
-                        st.ignored[sentence_label(s)] += 1
-                    continue
-                st.accepted += 1
+            for rec in _parsed(line, lineno0 + i + 1, st):
                 yield lineno0 + i + 1, record_values(rec)
         lineno0 += len(lines)
