@@ -251,18 +251,19 @@ class Advisor:
         k = float(curve.mu(s_t)) - rep.rho_s
         return pull / k if k > 0.02 else math.nan
 
-    def _where(self) -> str:
-        """The axle to ballast: towards the axle type's static front share (:data:`FRONT_SHARE`)."""
+    def _where(self) -> tuple[str, str]:
+        """The axle to ballast, towards the axle type's static front share (:data:`FRONT_SHARE`): (``front``,
+        ``rear`` or ``front and rear``; the words of the advice)."""
         lo_hi = FRONT_SHARE.get(self.s.axle_type)
         ff = self.front_fraction
         if lo_hi is None or not math.isfinite(ff):
-            return "front and rear"
+            return "front and rear", "on both axles"
         lo, hi = lo_hi
         if ff < lo:
-            return "front"
+            return "front", "on the front axle"
         if ff > hi:
-            return "rear"
-        return f"front and rear, keeping {lo:.0%}–{hi:.0%} of the weight on the front"
+            return "rear", "on the rear axle"
+        return "front and rear", f"on both axles, keeping {lo:.0%}–{hi:.0%} of the weight on the front"
 
     def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
                   slip_axles: tuple[float, float], band_mid: float) -> list[Recommendation]:
@@ -272,7 +273,7 @@ class Advisor:
         ballast_kg = (w_new - self.weight_n) / G if math.isfinite(w_new) else math.nan
         transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
         sf, sr = slip_axles
-        where = self._where()
+        where, words = self._where()
         e = {**ev, "target_slip": s_t, "target": target, "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
              "weight_n": self.weight_n, "weight_needed_n": w_new, "load_transfer_n": transfer,
@@ -282,7 +283,7 @@ class Advisor:
         p, pmin = self.s.tyre_pressure_pa, self.s.tyre_pressure_min_pa
         after = ("; then set the tyre pressures the tyre's load table gives for the new axle loads"
                  if pmin > 0 else "")
-        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, on the {where} axle{after}: {why}.", why,
+        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, {words}{after}: {why}.", why,
                                {**e, "ballast_kg": ballast_kg, "where": where})]
         if pmin > 0 and math.isfinite(p) and p - self.s.tyre_pressure_step_pa >= pmin:
             # an alternative to the ballast, at the present loads (more load needs more pressure, not less)

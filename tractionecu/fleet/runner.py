@@ -268,17 +268,18 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
     before = {str(r.get("path")) for r in _table_rows(out / "recordings.parquet") if r.get("kind") == kind}
     kept = _update_table(out / "recordings.parquet", [{**r, "path": r.get("path")} for r in recs],
                          fstore.RECORDINGS_COLUMNS, kind, earlier)
+    kept_paths = {str(k.get("path")) for k in kept}
     _update_table(out / "failures.parquet", [r for r in recs if r.get("status") != "ok"], fstore.FAILURE_COLUMNS,
-                  kind, lambda p: any(str(k.get("path")) == p for k in kept))
-    dropped = len(before - here - {str(k.get("path")) for k in kept})
+                  kind, kept_paths.__contains__)
+    dropped = len(before - here - kept_paths)
     gone = sum(1 for k in kept if not Path(str(k.get("path"))).exists())
     removed = 0
     if kind == "replay":
         removed = _prune_outputs(out, kept + list(recs))
     elif kind == "diagnose":
         rows = [row for r in recs if r.get("status") == "ok" for row in r.get("rows", [])]
-        _update_table(out / "diagnosis.parquet", rows, fstore.DIAGNOSIS_COLUMNS, None,
-                      lambda p: any(str(k.get("path")) == p for k in kept), path_col="recording")
+        _update_table(out / "diagnosis.parquet", rows, fstore.DIAGNOSIS_COLUMNS, None, kept_paths.__contains__,
+                      path_col="recording")
     notes = notes if notes is not None else stream
     if notes is not None and (kept or dropped or removed):
         said = [f"{len(kept)} recording(s) of earlier runs that this SOURCE does not cover kept"
@@ -334,7 +335,7 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
         merge_maps([dirs[k] for k in keys], farm, names=keys)
         summary.update(merged_now=len(keys), reused=0, left_out=len(left_out))
         if left_out and stream is not None:
-            # the farm map is the map of this run's SOURCE: a run over part of a season rebuilds it from that part
+            # a recording that changed, was dropped (--prune) or whose replay failed leaves the farm map
             print(f"fleet map: the farm map was rebuilt from {len(keys)} recording(s); {len(left_out)} "
                   "recording(s) of the earlier farm map are not among them (changed, dropped, or their replay "
                   "failed) and are no longer in it", file=stream)

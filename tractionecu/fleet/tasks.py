@@ -5,9 +5,9 @@ content hash (:func:`content_hash`: every file of the recording directory, or th
 its GNSS log), the software version (:func:`software_version`: the package version and a digest of
 its Python sources, so a changed estimator re-runs everything) and the task's options.  ``done.json``
 is written last (atomically): a re-run finds it and returns its record without replaying
-(``cached`` true) when the Parquet files it lists (``outputs``) are all there.  A recording that fails (unreadable, missing signals, any error of the pipeline)
-gives a record with ``status`` ``"failed"``, the error's type and message; it is not cached, so a
-re-run tries it again.  Only a worker that dies (out of memory, killed) raises: the scheduler retries
+(``cached`` true) when the Parquet files it lists (``outputs``) are all there.  A recording that fails
+(unreadable, missing signals, any error of the pipeline) gives a record with ``status`` ``"failed"``, the
+error's type and message; it is not cached, so a re-run tries it again.  Only a worker that dies (out of memory, killed) raises: the scheduler retries
 those (:mod:`.runner`).
 
 Replay (:func:`replay_task`) writes
