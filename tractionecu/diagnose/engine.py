@@ -521,6 +521,7 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
                                    "by the machine's characteristics at a healthy size (below).")
                 else:
                     d.statement = _statement(d.verdict, d.effect, ambiguous, results, lead, ev, problem, gcheck)
+
     def unname(e: dict, flag: str, note: str, if_none: str) -> None:
         """Report effect ``e`` without naming it (``flag`` says why, ``note`` in the notes); a verdict it was
         moves to the next named fault the augmentation chose, else none with the statement ``if_none``."""
