@@ -161,3 +161,21 @@ def test_advice_expires_when_nothing_is_pulled_for_a_minute() -> None:
         eng.feed(SimpleNamespace(t=t + 0.1 * k, mu=np.zeros(4), slip=np.zeros(4), rho_s=0.07, v=0.0, P_diag=P,
                                  a=0.7, soil_class="stubble", status=0, valid=True))
     assert eng.advice == []
+
+
+def test_a_two_wheel_drive_ballasts_its_driven_rear_axle() -> None:
+    """A 2WD pulls on its rear wheels only: the ballast is the rear axle's, W' − (W (1 − f) + P h/L), on the
+    rear; the whole weight had made it a quarter of that, "front and rear"."""
+    veh = VehicleParams()
+    eng = AdviceEngine(veh, AdviceSettings(axle_type="2wd", distance_m=50.0))
+    drive(eng, 40.0, 0.20)
+    add = {r.kind: r for r in eng.advice}["add_ballast"]
+    ev = add.evidence
+    adv = eng.advisor
+    rear = veh.weight_n * (1.0 - adv.front_fraction) + ev["pull_n"] * adv.h / adv.L
+    assert ev["weight_driven_n"] == pytest.approx(rear)
+    assert ev["ballast_kg"] == pytest.approx((ev["weight_needed_n"] - rear) / 9.80665)
+    assert ev["where"] == "rear" and "on the rear axle (the driven one)" in add.text
+    mfwd = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
+    drive(mfwd, 40.0, 0.20)
+    assert {r.kind: r for r in mfwd.advice}["add_ballast"].evidence["weight_driven_n"] == veh.weight_n

@@ -25,7 +25,8 @@ averaged over the window (not the instant's), and advice whose window has held n
 * slip too high (s > s*): **add ballast**.  The pull P = Σ (μ_i − ρ_s) F_z,i
   stays; at the target slip s_t (s*, else the band's middle) each newton of
   weight gives μ(s_t) − ρ_s of pull, so W' = P/(μ(s_t) − ρ_s) and the
-  ballast is (W' − W)/g.  Where: towards the axle type's static front share
+  ballast is (W' − W)/g, W the weight on the driven wheels (a two-wheel
+  drive's rear axle with the pull's load transfer, its ballast on the rear).  Where: towards the axle type's static front share
   (:data:`FRONT_SHARE`; the axles' slips do not say it: an MFWD front axle's
   lead makes its slip the larger one whatever the weights), then the tyre
   pressures of the tyre's load table for the new axle loads.  Or, without
@@ -251,9 +252,19 @@ class Advisor:
         k = float(curve.mu(s_t)) - rep.rho_s
         return pull / k if k > 0.02 else math.nan
 
+    def _driven_weight(self, pull: float) -> float:
+        """The weight on the driven wheels [N]: the machine's, or on a two-wheel drive the rear axle's with the
+        pull's load transfer, W (1 − f) + P h/L (the whole weight made 454 kg of a ballast the rear axle's
+        balance puts near 1.9 t)."""
+        if self.s.axle_type != "2wd":
+            return self.weight_n
+        return self.weight_n * (1.0 - self.front_fraction) + (pull * self.h / self.L if math.isfinite(pull) else 0.0)
+
     def _where(self) -> tuple[str, str]:
         """The axle to ballast, towards the axle type's static front share (:data:`FRONT_SHARE`): (``front``,
         ``rear`` or ``front and rear``; the words of the advice)."""
+        if self.s.axle_type == "2wd":
+            return "rear", "on the rear axle (the driven one)"
         lo_hi = FRONT_SHARE.get(self.s.axle_type)
         ff = self.front_fraction
         if lo_hi is None or not math.isfinite(ff):
@@ -270,13 +281,14 @@ class Advisor:
         s_t, target = self._target(rep, band_mid)
         pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t)
-        ballast_kg = (w_new - self.weight_n) / G if math.isfinite(w_new) else math.nan
+        w_driven = self._driven_weight(pull)
+        ballast_kg = (w_new - w_driven) / G if math.isfinite(w_new) else math.nan
         transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
         sf, sr = slip_axles
         where, words = self._where()
         e = {**ev, "target_slip": s_t, "target": target, "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
-             "weight_n": self.weight_n, "weight_needed_n": w_new, "load_transfer_n": transfer,
+             "weight_n": self.weight_n, "weight_driven_n": w_driven, "weight_needed_n": w_new, "load_transfer_n": transfer,
              "slip_front": sf, "slip_rear": sr, "front_share": self.front_fraction}
         amount = (f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0
                   else "amount not estimated" + (" (curve not identified)" if curve is None else ""))
@@ -294,7 +306,7 @@ class Advisor:
                                        f"{pmin / 1e5:.2f} bar): {why}.", why,
                                        {**e, "tyre_pressure_pa": p, "tyre_pressure_new_pa": p_new,
                                         "tyre_pressure_min_pa": pmin}))
-        shed = (pull - (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n) if curve is not None else math.nan
+        shed = (pull - (float(curve.mu(s_t)) - rep.rho_s) * w_driven) if curve is not None else math.nan
         # (a lower gear at the same pull leaves the slip where it is: only less draft or more weight moves it)
         txt = (f"or work shallower: shed about {shed / 1e3:.1f} kN of draft"
                if math.isfinite(shed) and shed > 0 else "or work shallower")
@@ -307,11 +319,13 @@ class Advisor:
         s_t = rep.s_star
         pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t)
-        spare_kg = (self.weight_n - w_new) / G if math.isfinite(w_new) else math.nan
+        w_driven = self._driven_weight(pull)
+        spare_kg = (w_driven - w_new) / G if math.isfinite(w_new) else math.nan
         carried = self.s.ballast_kg
         ballast_kg = min(spare_kg, carried) if math.isfinite(carried) else math.nan
         e = {**ev, "target_slip": s_t, "target": "s*", "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
-             "eta": rep.eta, "eta_star": rep.eta_star, "weight_n": self.weight_n, "weight_needed_n": w_new,
+             "eta": rep.eta, "eta_star": rep.eta_star, "weight_n": self.weight_n, "weight_driven_n": w_driven,
+             "weight_needed_n": w_new,
              "weight_spare_kg": spare_kg, "ballast_carried_kg": carried}
         if math.isfinite(ballast_kg) and ballast_kg > 0:
             rest = (f"; the machine stays {spare_kg - ballast_kg:.0f} kg heavier than this pull needs"
@@ -322,11 +336,11 @@ class Advisor:
         elif math.isfinite(spare_kg) and spare_kg > 0:
             # the carried ballast is not declared: no amount to take off (from a light pull the formula asked
             # a 7.2 t tractor to shed 4.2–6.5 t), only what the pull needs against what the machine weighs
-            txt = (f"Remove ballast if any is carried: this pull needs about {w_new / G:.0f} kg on the wheels at "
-                   f"s*, the machine weighs {self.weight_n / G:.0f} kg: {why}.")
+            txt = (f"Remove ballast if any is carried: this pull needs about {w_new / G:.0f} kg on the driven "
+                   f"wheels at s*, they carry {w_driven / G:.0f} kg: {why}.")
         else:
             txt = f"Remove ballast if any is carried: {why}."
-        more = (float(curve.mu(s_t)) - rep.rho_s) * self.weight_n - pull if curve is not None and math.isfinite(
+        more = (float(curve.mu(s_t)) - rep.rho_s) * w_driven - pull if curve is not None and math.isfinite(
             pull) else math.nan
         # (a higher gear at the same pull leaves the slip, and η(s), where they are: more pull moves them)
         mtxt = ("Or pull more with the same weight, a wider or deeper implement"
