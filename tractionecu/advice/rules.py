@@ -66,12 +66,13 @@ SLIP_BANDS: dict[str, tuple[float, float]] = {
 FRONT_SHARE: dict[str, tuple[float, float]] = {
     "mfwd": (0.35, 0.40),
     "4wd": (0.55, 0.60),
-    "2wd": (0.25, 0.30),
 }
 """Static share of the weight on the front axle to ballast towards, by axle type [-] (Zoz & Grisso 2003,
 "Traction and tractor performance", ASAE; Grisso et al., Virginia Cooperative Extension 442-450: MFWD
-35/65, 4WD 55/45 to 60/40, 2WD 25/75 to 30/70).  Where ballast goes follows the static split, not the axles'
-slips: on an MFWD tractor the front axle's lead makes its slip the larger one whatever the weights."""
+35/65, 4WD 55/45 to 60/40).  Where ballast goes follows the static split, not the axles' slips: on an MFWD
+tractor the front axle's lead makes its slip the larger one whatever the weights.  A two-wheel drive's
+traction ballast goes on its driven rear axle (its 25–30 % front is for steering, not for pull); tracks
+are ballasted as a whole."""
 
 EXPIRY_S = 60.0
 """Advice whose window holds no pulling for this long [s] is withdrawn (the field, or its end, is left: road
