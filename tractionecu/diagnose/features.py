@@ -914,11 +914,11 @@ def modelled_front_load(fr: Frame) -> NDArray[np.float64]:
 def wheel_speed_faults(fr: Frame) -> tuple[list[dict], NDArray[np.bool_]]:
     """Find wheel-speed sensor holds and dropouts (library fault ``wheel_speed_hold``) and repair them.
 
-    A wheel whose speed is missing, zero, exactly constant, or of the sign opposite to the three others'
-    for at least :data:`HOLD_MIN_S` while the other three turn faster than :data:`HOLD_MOVING_RADPS` (and,
-    for a hold, change) is a sensor fault, not physics.  Its samples take the speed of the other wheel on the same axle (so the force balance
-    stays continuous) and the rows are returned as bad (slip and fits skip them).
-    Returns (faults, bad rows).
+    A wheel whose speed is missing, zero, exactly constant, or of the sign opposite to the three others' for at
+    least :data:`HOLD_MIN_S` while the other three turn faster than :data:`HOLD_MOVING_RADPS` (and, for a hold,
+    change) is a sensor fault, not physics.  Its samples take the speed of the other wheel on the same axle (so
+    the force balance stays continuous) and the rows are returned as bad (slip and fits skip them). Returns
+    (faults, bad rows).
     """
     bad = np.zeros(fr.n, dtype=bool)
     out: list[dict] = []
