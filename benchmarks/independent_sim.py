@@ -24,7 +24,11 @@ Sensors (the datasheet figures the package's own simulator uses, so that the pla
 The truth (per-wheel μ, slip, loads, ρ_s, speed at 100 Hz) goes to ``independent_truth.csv``, which replay does
 not read.
 """
-import json, math, os, sys, argparse
+import argparse
+import datetime as dtm
+import json
+import math
+import os
 import numpy as np
 import cantools
 
@@ -265,7 +269,6 @@ def run(cfg, out):
         elif cfg.get("cog_sigma_deg") is not None:
             cog = (math.degrees(math.atan2(vE, vN)) + cfg["cog_sigma_deg"] * rng.standard_normal() + 360) % 360
         ut = T0 + round(t, 1)
-        import datetime as dtm
         d = dtm.datetime.fromtimestamp(ut, dtm.timezone.utc)
         hms = d.strftime("%H%M%S") + f".{int(round(d.microsecond / 1e4)):02d}"
         dmy = d.strftime("%d%m%y")
@@ -281,14 +284,13 @@ def run(cfg, out):
     with open(os.path.join(out, "vehicle.toml"), "w") as f:
         f.write(vt.format(pull=cfg.get("pull_decl", 4.0), wheel_rate=wheel_rate, loadpin_rate=load_rate,
                           eta=cfg.get("eta_decl", 1.0), eta_tol=cfg.get("eta_tol", 0.0)))
-    cfg.pop("vehicle_toml", None); json.dump(cfg, open(os.path.join(out, "cfg.json"), "w"), indent=1)
+    json.dump(cfg, open(os.path.join(out, "cfg.json"), "w"), indent=1)
     return {"frames": len(lines), "epochs": len(gps_rows)}
 
 
-VEHICLE_TOML = """[vehicle]
+_VEHICLE_TABLE = """[vehicle]
 mass_kg = 6300.0
 wheel_mass_kg = 160.0
-rated_power_w = 80000.0
 r0_m = 0.8
 tyre_width_m = 0.54
 tyre_pressure_pa = 160000.0
@@ -299,9 +301,13 @@ cg_height_m = 1.0
 hitch_height_m = 0.5
 static_front_fraction = 0.4
 track_width_m = 1.8
-front_roll_share = 0.3
 pull_angle_deg = {pull}
 pull_angle_tol_deg = 2.0
+"""
+"""The machine both drive lines share (the truth's own figures, :func:`run`)."""
+
+VEHICLE_TOML = _VEHICLE_TABLE + """rated_power_w = 80000.0
+front_roll_share = 0.3
 
 [vehicle.drivetrain]
 kind = "hub"
@@ -316,22 +322,7 @@ wheel_rate_hz = {wheel_rate}
 loadpin_rate_hz = {loadpin_rate}
 """
 
-MECH_TOML = """[vehicle]
-mass_kg = 6300.0
-wheel_mass_kg = 160.0
-r0_m = 0.8
-tyre_width_m = 0.54
-tyre_pressure_pa = 160000.0
-wheel_inertia_kgm2 = 60.0
-rho_t = 0.015
-wheelbase_m = 2.5
-cg_height_m = 1.0
-hitch_height_m = 0.5
-static_front_fraction = 0.4
-track_width_m = 1.8
-pull_angle_deg = {pull}
-pull_angle_tol_deg = 2.0
-
+MECH_TOML = _VEHICLE_TABLE + """
 [vehicle.drivetrain]
 kind = "mechanical"
 final_drive_ratio = 28.0
@@ -356,7 +347,7 @@ SCEN = {
     "reverse": dict(duration=100, segments=[(8, 2.0, 0.0, "firm", False), (40, 2.0, 0.0, "firm", True), (48, 0.0, 0.0, "firm", False),
                                             (70, -1.0, 0.0, "firm", False), (76, 0.0, 0.0, "firm", False), (100, 2.0, 0.0, "firm", True)]),
     "stuck": dict(duration=60, segments=[(8, 2.0, 0.0, "firm", False), (30, 2.0, 0.0, "firm", True), (60, 2.0, 0.0, "mud", True)]),
-    "mech2": dict(duration=160, mech=True, load_rate=10.0, eta_true=0.9, vehicle_toml=MECH_TOML,
+    "mech2": dict(duration=160, mech=True, load_rate=10.0, eta_true=0.9,
                   segments=[(8, 2.5, 0.0, "firm", False), (80, 2.5, 0.0, "firm", True), (160, 2.5, 0.0, "soft", True)]),
     "stops": dict(duration=120, segments=[(8, 2.5, 0.0, "firm", False), (40, 2.5, 0.0, "firm", True), (55, 0.0, 0.0, "firm", True),
                                           (85, 2.5, 0.0, "soft", True), (100, 0.0, 0.0, "soft", True), (120, 2.5, 0.0, "soft", True)]),
