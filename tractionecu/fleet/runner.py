@@ -31,7 +31,7 @@ from typing import Any, Sequence, TextIO
 from ..errors import ConfigError
 from . import store as fstore
 from .sources import RecordingRef, discover, first_fix
-from .tasks import run_task
+from .tasks import partition_file, run_task
 
 log = logging.getLogger(__name__)
 
@@ -195,17 +195,12 @@ _PART = re.compile(r"^machine=[^/]+/date=[^/]+/[0-9a-f]{24}\.parquet$")
 """A Parquet file a replay task writes under ``estimates/`` and ``map_samples/`` (:mod:`.tasks`)."""
 
 
-def _part(row: dict[str, Any]) -> str:
-    from .tasks import _safe
-
-    return f"machine={_safe(row['machine'])}/date={_safe(row['date'])}/{str(row['recording_hash'])[:24]}.parquet"
-
-
 def _prune_outputs(out: Path, rows: Sequence[dict[str, Any]]) -> int:
     """Remove the replay tasks' Parquet files under ``estimates/`` and ``map_samples/`` that belong to no
     recording of ``rows`` with status ok (a recording since changed, dropped, or now failing): the datasets
     hold the recordings table's recordings, once each.  Returns the files removed."""
-    want = {_part(r) for r in rows if r.get("status") == "ok" and r.get("recording_hash")}
+    want = {partition_file(r["machine"], r["date"], r["recording_hash"]) for r in rows
+            if r.get("status") == "ok" and r.get("recording_hash")}
     removed = 0
     for sub in ("estimates", "map_samples"):
         base = out / sub

@@ -87,6 +87,12 @@ def _safe(s: str) -> str:
     return "".join(c if c.isalnum() or c in "-_.@" else "_" for c in str(s)) or "_"
 
 
+def partition_file(machine: str, date: str, chash: str) -> str:
+    """A recording's Parquet file under ``estimates/`` and ``map_samples/``: ``machine=M/date=D/<hash>.parquet``,
+    named by the content hash (module doc)."""
+    return f"machine={_safe(machine)}/date={_safe(date)}/{str(chash)[:24]}.parquet"
+
+
 def _atomic_json(path: Path, obj: Any) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(obj, indent=1, default=_json_default), encoding="utf-8")
@@ -172,7 +178,7 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
     ok = np.isfinite(gps.lat) & np.isfinite(gps.lon) if len(gps) else np.zeros(0, bool)
     field = ref.get("field") or (field_of_fix(float(gps.lat[ok][0]), float(gps.lon[ok][0])) if ok.any() else "")
     # named by the content, not the key: a re-run under a new software version replaces the file
-    part = f"machine={_safe(ref['machine'])}/date={_safe(ref['date'])}/{chash[:24]}.parquet"
+    part = partition_file(ref["machine"], ref["date"], chash)
     ident = {"recording": ref["path"], "recording_hash": chash, "field": field}
     if rows is not None:
         est = estimates_arrays_to_parquet(rows, out / "estimates" / part, ident)
