@@ -245,9 +245,8 @@ class Advisor:
             return rep.s_star, "s*"
         return band_mid, "band middle"
 
-    def _weight_for(self, rep: EfficiencyReport, curve: CurveParams | None, s_t: float) -> float:
-        """W' = P/(μ(s_t) − ρ_s) [N] (module doc), P the window's mean pull; NaN without a curve."""
-        pull = self.window_pull()
+    def _weight_for(self, rep: EfficiencyReport, curve: CurveParams | None, s_t: float, pull: float) -> float:
+        """W' = P/(μ(s_t) − ρ_s) [N] (module doc), P = ``pull`` the window's mean pull; NaN without a curve."""
         if curve is None or not (math.isfinite(pull) and math.isfinite(rep.rho_s)):
             return math.nan
         k = float(curve.mu(s_t)) - rep.rho_s
@@ -281,7 +280,7 @@ class Advisor:
                   slip_axles: tuple[float, float], band_mid: float) -> list[Recommendation]:
         s_t, target = self._target(rep, band_mid)
         pull = self.window_pull()
-        w_new = self._weight_for(rep, curve, s_t)
+        w_new = self._weight_for(rep, curve, s_t, pull)
         w_driven = self._driven_weight(pull)
         ballast_kg = (w_new - w_driven) / G if math.isfinite(w_new) else math.nan
         transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
@@ -319,7 +318,7 @@ class Advisor:
                  ev: dict[str, float | str]) -> list[Recommendation]:
         s_t = rep.s_star
         pull = self.window_pull()
-        w_new = self._weight_for(rep, curve, s_t)
+        w_new = self._weight_for(rep, curve, s_t, pull)
         w_driven = self._driven_weight(pull)
         spare_kg = (w_driven - w_new) / G if math.isfinite(w_new) else math.nan
         carried = self.s.ballast_kg

@@ -618,14 +618,12 @@ def diagnose(source: str | Path | Recording | _data.Frame, vehicle: VehicleParam
         checked = next((e for e in d.effects if e.get("detected_by") == "data check" and e.get("named")), None)
         if checked is not None:
             d.verdict, d.effect = "effect", checked["name"]
-            head = "No significant mismatch: no effect from the library improves the held-out fit"
-            rest = ("No effect of the model improves the held-out fit" + d.statement[len(head):]
-                    if d.statement.startswith(head) else d.statement)
+            rest = ("No effect of the model improves the held-out fit" + d.statement[len(NO_MISMATCH):]
+                    if d.statement.startswith(NO_MISMATCH) else d.statement)
             d.statement = f"{checked['plain']}: {_effect_words(checked)}.  " + rest
         elif d.open_world.get("finding"):
             d.verdict = "unexplained"
-            for head in ("No significant mismatch: no effect from the library improves the held-out fit",
-                         "No fault named"):
+            for head in (NO_MISMATCH, "No fault named"):
                 if d.statement.startswith(head):
                     d.statement = ("Mismatch that no library effect explains (below); no library effect named"
                                    + d.statement[len(head):])
@@ -1137,6 +1135,10 @@ def _fmt(v: float) -> str:
     return f"{v:.3g}"
 
 
+NO_MISMATCH = "No significant mismatch: no effect from the library improves the held-out fit"
+"""The head of the statement of the verdict none (:func:`_statement`)."""
+
+
 def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck, fitted: dict | None = None) -> str:
     """The report's statement for ``verdict``; ``fitted``: the named effect's parameters as the effects list
     reports them (value, ci95), else the candidate's own fit's."""
@@ -1157,7 +1159,7 @@ def _statement(verdict, effect, ambiguous, results, lead, ev, problem, gcheck, f
         else:
             why = best.reason or "its interval in the fit does not exclude its absence"
             extra = f" (best candidate {best.name}, held-out score {best.score:.1f}, not named: {why})"
-        return "No significant mismatch: no effect from the library improves the held-out fit" + extra + "."
+        return NO_MISMATCH + extra + "."
     if verdict == "ambiguous":
         if ambiguous and ambiguous[0] == "grade" and len(ambiguous) == 2 and "constant" in ambiguous[1]:
             return ("Ambiguous between grade and a constant resistance: the GNSS altitude shows a material slope "
