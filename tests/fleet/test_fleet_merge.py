@@ -121,3 +121,19 @@ def test_a_merge_keeps_the_exports_written_into_the_farm_map(tmp_path: Path) -> 
     merge_maps([a, b], tmp_path / "farm")
     assert (tmp_path / "farm" / "export" / "map.tif").read_bytes() == b"tif"
     assert merged_inputs(tmp_path / "farm") and (tmp_path / "farm" / "manifest.json").is_file()
+
+
+def test_a_recording_beyond_the_farm_maps_range_is_named(tmp_path: Path) -> None:
+    """A recording 67 km from the farm map's origin was replayed "ok" with map_samples 0 and left out of the
+    farm map without a word ("farm map … from 1 recordings", exit 0)."""
+    import io
+
+    from tractionecu.fleet.runner import build_farm_map
+
+    recs = [{"kind": "replay", "status": "ok", "machine": "a", "date": "2026-07-11", "path": "far/rec", "key": "k1",
+             "map_samples": 0, "map_beyond_range": 1200}]
+    out = io.StringIO()
+    summary = build_farm_map(tmp_path, recs, stream=out)
+    assert summary["recordings"] == 0
+    assert "beyond the farm map's range (50 km from its origin)" in out.getvalue()
+    assert "far/rec (1200 epochs)" in out.getvalue()

@@ -87,6 +87,17 @@ def test_first_fix_and_field_name(tmp_path: Path) -> None:
     assert field_of_fix(lat, lon) == "lat47.88_lon-110.56"
 
 
+def test_first_fix_is_not_a_dead_reckoned_or_single_glitched_one(tmp_path: Path) -> None:
+    """A dead-reckoned (quality 6) first fix 60 km away became the farm map's origin, and every recording of
+    the season then lay beyond the map's 50 km range: "farm map: None from 0 recordings", exit 0."""
+    dr = "$GNGGA,080000.00,4720.00000,N,11033.20383,W,6,16,0.90,862.1,M,0.0,M,,*00\n"
+    glitch = "$GNGGA,080000.05,4600.00000,N,11033.20383,W,1,16,0.90,862.1,M,0.0,M,,*00\n"
+    d = _rec(tmp_path / "r", dr + glitch + GGA * 5)
+    lat, lon = first_fix(d)
+    assert lat == pytest.approx(47 + 52.89606 / 60, abs=1e-12)
+    assert lon == pytest.approx(-(110 + 33.20423 / 60), abs=1e-12)
+
+
 @pytest.mark.parametrize("origin", ["95,10", "48,200", "nan,10"])
 def test_an_origin_off_the_globe_is_refused_before_any_replay(tmp_path, capsys, origin):
     """--origin 95,10 replayed every recording in full, then failed each one with a ConfigError."""

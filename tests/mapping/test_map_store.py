@@ -76,7 +76,9 @@ def test_rejections(tmp_path):
     ok = {"a": 0.7}
     assert add_xy(st, 1.0, 1.0, ok)
     assert not add_xy(st, 1.0, 1.0, {"a": math.nan})
-    assert not add_xy(st, 1.0, 1.0, {"a": 0.7, "mu": math.inf})
+    # each layer is its own mean: a non-finite value leaves only its own layer alone
+    assert add_xy(st, 1.0, 1.0, {"a": 0.7, "mu": math.inf})
+    assert not add_xy(st, 1.0, 1.0, {"a": math.nan, "mu": math.inf})
     assert not add_xy(st, 1.0, 1.0, {"a": 0.7}, valid=False)
     assert not add_xy(st, 1.0, 1.0, {"a": 0.7}, status=0x20)  # not converged
     assert add_xy(st, 1.0, 1.0, {"a": 0.7}, status=0x80)      # one NIS-gated measurement is fine
@@ -87,17 +89,18 @@ def test_rejections(tmp_path):
     assert not st.add(math.nan, ORIGIN[1], ok, 0.0)
     assert not st.add(ORIGIN[0], ORIGIN[1], ok, math.nan)
     assert not st.add(ORIGIN[0] + 1.0, ORIGIN[1], ok, 0.0)  # 111 km away
-    assert st.stats["accepted"] == 3 and st.stats["rejected_status"] == 1
+    assert st.stats["accepted"] == 4 and st.stats["rejected_status"] == 1
     assert st.stats["rejected_value"] == 2 and st.stats["rejected_invalid"] == 1
     assert st.stats["rejected_fix"] == 1 and st.stats["rejected_hdop"] == 1
     assert st.stats["rejected_no_layer"] == 1 and st.stats["rejected_position"] == 2
     assert st.stats["rejected_range"] == 1
     g = st.grid("a")
-    assert g.count.sum() == 3 and np.nanmax(g.mean) == pytest.approx(0.7)
+    assert g.count.sum() == 4 and np.nanmax(g.mean) == pytest.approx(0.7)
+    assert st.grid("mu").count.sum() == 0
     # the track holds every position that passed the GNSS checks, flagged
     st.flush(force=True)
     tr = st.track()
-    assert len(tr) == 8 and tr[:, 3].sum() == 3
+    assert len(tr) == 9 and tr[:, 3].sum() == 4
     st.close()
 
 
@@ -497,3 +500,32 @@ def test_the_manifest_says_which_estimator_level_made_the_map(tmp_path):
     assert ok.all()
     st.close()
     assert json.loads((tmp_path / "manifest.json").read_text())["estimate_levels"] == ["machine", "wheel"]
+
+
+def test_a_nan_layer_leaves_the_others_of_a_batch_sample(tmp_path):
+    """A replay's map refused every epoch whose windowed `a` was NaN, though its μ and ρ_s were valid (1068
+    of 1163 μ samples mapped where the service, which drops a NaN per layer, mapped all 1163)."""
+    st = MapStore(tmp_path, *ORIGIN)
+    lat, lon = st.to_latlon(np.array([1.0, 1.0, 1.0]), np.array([1.0, 1.0, 1.0]))
+    ok = st.add_many(lat, lon, {"a": np.array([0.7, np.nan, np.nan]), "mu": np.array([0.4, 0.5, np.nan])},
+                     np.array([0.0, 0.1, 0.2]))
+    assert ok.tolist() == [True, True, False] and st.stats["rejected_value"] == 1
+    assert st.grid("a").count.sum() == 1 and st.grid("mu").count.sum() == 2
+    assert np.nanmax(st.grid("mu").mean) == pytest.approx(0.45)
+    st.close()
+
+
+def test_a_replays_origin_is_not_a_refused_or_glitched_first_fix():
+    """A dead-reckoned (or unfixed) first fix 60 km away became the replay map's origin: "map: 0 of 1201
+    GNSS epochs mapped (… 1200 beyond the map's range)"."""
+    from types import SimpleNamespace
+
+    from tractionecu.mapping.from_replay import replay_origin
+
+    lat = np.r_[47.3333, 47.8816 + 1e-6 * np.arange(30)]
+    lon = np.r_[-110.55, np.full(30, -110.5534)]
+    q = np.r_[6, np.full(30, 2)]
+    assert replay_origin(SimpleNamespace(lat=lat, lon=lon, fix_quality=q))[0] == pytest.approx(47.8816, abs=1e-4)
+    q[0] = 2                                          # a measured fix, but one the replay's gate refused
+    mask = np.r_[False, np.ones(30, bool)]
+    assert replay_origin(SimpleNamespace(lat=lat, lon=lon, fix_quality=q), mask)[0] == pytest.approx(47.8816, abs=1e-4)

@@ -35,3 +35,23 @@ async def test_an_unwritable_map_directory_is_reported_once_and_retried_with_a_w
     assert 1 <= mw.stats["open_errors"] <= 3                # retried after a doubling wait, not per sample
     assert mw.state.startswith("ERROR: cannot open")
     await mw.close()
+
+
+async def test_positions_beyond_the_maps_range_are_said_not_dropped_silently(tmp_path, caplog):
+    """A map whose origin lay 64 km from the field took none of the service's samples, with no warning and the
+    status still "writing" (map_samples 0, map_tiles_written 0)."""
+    import dataclasses
+
+    cfg = dataclasses.replace(MapConfig(), origin_lat=47.30, origin_lon=11.0)
+    mw = MapWriter(cfg, tmp_path / "map")
+    await mw.open()
+    caplog.set_level(logging.DEBUG, logger="tractionecu.service.mapwriter")
+    for k in range(150):          # 15 s at 10 Hz (mapped 10 s late), 0.58° (64 km) north of the origin
+        fix = GpsSample(k * 0.1, k * 0.1, 47.88 + k * 1e-6, 11.0, 500.0, 2.5, 0.0, 4, 0.8, 12)
+        mw.add(_est(k * 0.1), fix)
+        await asyncio.sleep(0.002)
+    warned = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert len(warned) == 1 and "64 km from the map's origin" in warned[0] and "beyond the 50 km" in warned[0]
+    assert mw.stats["beyond_range"] > 20 and mw.stats["added"] == 0
+    assert mw.state.startswith("NOT MAPPING: 64 km from the map's origin")
+    await mw.close()

@@ -35,7 +35,10 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import ConfigError
+from ..gnss.fix import fix_rank
 
 CAPTURE_SUFFIXES = (".blf", ".asc", ".trc", ".mf4", ".mdf", ".log")
 """Capture files taken as recordings outside a recording directory (the reader knows the format by
@@ -232,17 +235,33 @@ def discover(source: str | Path, *, exclude: str | Path | None = None) -> list[R
     return sorted(unique, key=lambda r: (r.machine, r.date, r.path))
 
 
+FIRST_FIXES = 25
+""":func:`first_fix` takes the median of this many fixes (2.5 s at 10 Hz)."""
+
+
 def first_fix(path: str | Path, max_lines: int = 2000) -> tuple[float, float] | None:
-    """(lat, lon) [deg] of the first GGA with a fix in the recording's GNSS log, or None."""
+    """(lat, lon) [deg] where the recording starts: the median of the first :data:`FIRST_FIXES` GGA
+    positions of a measured fix (:data:`~tractionecu.gnss.fix.FIX_RANK` > 0: not dead reckoning, manual
+    or simulated) in the recording's GNSS log, so that one glitched first fix does not move a farm map's
+    origin tens of kilometres away; None without such a fix."""
+    lats: list[float] = []
+    lons: list[float] = []
     for f in _nmea_fields(Path(path), max_lines):
-        if len(f) > 6 and f[0].endswith("GGA") and f[6] not in ("", "0") and f[2] and f[4]:
+        if len(f) > 6 and f[0].endswith("GGA") and f[2] and f[4]:
             try:
+                if fix_rank(int(f[6])) <= 0:
+                    continue
                 lat = int(f[2][:2]) + float(f[2][2:]) / 60.0
                 lon = int(f[4][:3]) + float(f[4][3:]) / 60.0
             except ValueError:
                 continue
-            return (-lat if f[3] == "S" else lat, -lon if f[5] == "W" else lon)
-    return None
+            lats.append(-lat if f[3] == "S" else lat)
+            lons.append(-lon if f[5] == "W" else lon)
+            if len(lats) == FIRST_FIXES:
+                break
+    if not lats:
+        return None
+    return (float(np.median(lats)), float(np.median(lons)))
 
 
 def field_of_fix(lat_deg: float, lon_deg: float, cell_deg: float = 0.01) -> str:

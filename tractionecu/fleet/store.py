@@ -41,7 +41,7 @@ from typing import Any, Iterable
 import numpy as np
 
 RECORDINGS_COLUMNS = ("kind", "machine", "date", "field", "path", "recording_hash", "key", "software", "status",
-                      "cached", "hours", "steps", "valid_share", "estimates_rows", "map_samples",
+                      "cached", "hours", "steps", "valid_share", "estimates_rows", "map_samples", "map_beyond_range",
                       "radius_scale_front", "radius_hw95_front", "radius_blocks_front", "radius_scale_rear",
                       "radius_hw95_rear", "radius_blocks_rear", "rho_s_mean", "rho_s_hw95", "rho_s_blocks",
                       "verdict", "wall_seconds", "cpu_seconds", "error", "message")

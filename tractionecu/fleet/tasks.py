@@ -190,12 +190,14 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
             csv_path.unlink()
     origin = options.get("origin")
     n_map = 0
+    n_far = 0
     outputs = [f"estimates/{part}"]                  # the Parquet files of the task, relative to OUT
     rho = {"rho_s_mean": math.nan, "rho_s_hw95": math.nan, "rho_s_blocks": 0}
     if origin is not None and ok.any() and len(map_arrays["t"]):
         fdir = tdir / "farm_map"
         with MapStore(fdir, float(origin[0]), float(origin[1])) as st:
-            write_replay_map(tdir, rec, map_arrays, gps_mask=gps_mask, store=st)
+            msum = write_replay_map(tdir, rec, map_arrays, gps_mask=gps_mask, store=st)
+        n_far = int(msum.get("map_refused", {}).get("range", 0))
         st = MapStore.open(fdir, read_only=True)
         n_map = fstore.map_samples_to_parquet(st, out / "map_samples" / part, ident)
         outputs.append(f"map_samples/{part}")
@@ -206,6 +208,7 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
         "outputs": outputs,
         "field": field, "hours": float(summary["sim_seconds"]) / 3600.0, "steps": int(summary["steps"]),
         "loop_seconds": float(summary["loop_seconds"]), "estimates_rows": est["rows"], "map_samples": n_map,
+        "map_beyond_range": n_far,
         "map_samples_own_frame": int(summary.get("map_samples", 0)),
         "valid_share": est["valid_steps"] / est["steps"] if est["steps"] else math.nan, **rho,
     }

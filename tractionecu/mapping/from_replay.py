@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ConfigError
+from ..gnss.fix import fix_accepted
 from .sampler import DEFAULT_HALF_WINDOW_S, STATUS_NO_PAIR, centred_map_values
 from .store import STATUS_FILTER_LOST, MapStore
 from .tiles import MANIFEST_NAME
@@ -55,6 +56,26 @@ def check_map_dir(map_dir: Path) -> None:
                           "another --out")
 
 
+ORIGIN_FIXES = 25
+"""A replay's map origin is the median of this many of its first mappable fixes (2.5 s at 10 Hz)."""
+
+
+def replay_origin(gps: Any, gps_mask: np.ndarray | None = None) -> tuple[float, float]:
+    """(lat, lon) [deg] of a replay's map origin: the median of its first :data:`ORIGIN_FIXES` fixes that
+    the map could hold (a measured position: :func:`~tractionecu.gnss.fix.fix_accepted`, accepted by the
+    replay's GNSS gate ``gps_mask``), so that a dead-reckoned, unfixed or single glitched first fix tens of
+    kilometres off does not put the rest of the recording beyond the map's range.  Without such a fix,
+    the first finite position (the map then holds nothing anyway)."""
+    ok = np.isfinite(gps.lat) & np.isfinite(gps.lon)
+    good = ok & np.asarray(fix_accepted(np.asarray(gps.fix_quality, dtype=float), 1), dtype=bool)
+    if gps_mask is not None:
+        good &= np.asarray(gps_mask, dtype=bool)
+    idx = np.flatnonzero(good)[:ORIGIN_FIXES]
+    if idx.size == 0:
+        idx = np.flatnonzero(ok)[:1]
+    return float(np.median(gps.lat[idx])), float(np.median(gps.lon[idx]))
+
+
 def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_m: float | None = None,
                      half_window_s: float = DEFAULT_HALF_WINDOW_S,
                      gps_mask: np.ndarray | None = None, origin: tuple[float, float] | None = None,
@@ -84,11 +105,10 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     if not ok.any():
         summary["map_samples"] = 0
         return summary
-    first = int(np.flatnonzero(ok)[0])
     kw = {} if resolution_m is None else {"resolution_m": resolution_m}
     own = store is None
     if store is None:
-        lat0, lon0 = (float(gps.lat[first]), float(gps.lon[first])) if origin is None else origin
+        lat0, lon0 = replay_origin(gps, gps_mask) if origin is None else origin
         store = MapStore(map_dir, float(lat0), float(lon0), **kw)
     t = np.asarray(arrays["t"], dtype=float)
     idx = np.searchsorted(t, gps.t - 1e-9)

@@ -167,6 +167,11 @@ def _lock_file(directory: Path) -> Any:
     return f
 
 
+DEFAULT_MAX_RANGE_M = 50_000.0
+"""A map covers one farm: positions farther than this from its origin on either axis [m] are refused as GNSS
+glitches (a far-off tile would also stretch every export's grid over the gap)."""
+
+
 class MapStore:
     """Tiled, persistent per-cell running statistics of the map layers.
 
@@ -215,7 +220,7 @@ class MapStore:
     def __init__(self, directory: os.PathLike[str] | str, origin_lat: float, origin_lon: float, *,
                  resolution_m: float = DEFAULT_RESOLUTION_M, tile_cells: int = DEFAULT_TILE_CELLS,
                  layers: Sequence[str] = LAYERS, soil_classes: Mapping[str, float] | None = None,
-                 min_fix_quality: int = 1, max_hdop: float = 5.0, max_range_m: float = 50_000.0,
+                 min_fix_quality: int = 1, max_hdop: float = 5.0, max_range_m: float = DEFAULT_MAX_RANGE_M,
                  reject_status_mask: int = DEFAULT_REJECT_STATUS_MASK,
                  min_flush_interval_s: float = DEFAULT_MIN_FLUSH_INTERVAL_S,
                  max_resident_tiles: int = 256, max_track_pending: int = DEFAULT_MAX_TRACK_PENDING,
@@ -462,9 +467,16 @@ class MapStore:
 
     def _estimate_rules(self, valid: Any, status: Any, layer_values: Sequence[Any]) -> list[tuple[str, Any]]:
         """``layer_values``: the values of the known layers."""
-        rules = [("invalid", valid), ("status", status is None or (status & self.reject_status_mask) == 0)]
-        rules += [("value", abs(v) < math.inf) for v in layer_values]
-        rules.append(("no_layer", len(layer_values) > 0))
+        rules = [("invalid", valid), ("status", status is None or (status & self.reject_status_mask) == 0),
+                 ("no_layer", len(layer_values) > 0)]
+        if layer_values:
+            # Each layer is its own mean: a NaN `a` (its window not full yet) leaves μ and ρ_s of the same
+            # sample to their layers, as the service's map writer does; only a sample with no finite layer
+            # value is refused.
+            finite = abs(layer_values[0]) < math.inf
+            for v in layer_values[1:]:
+                finite = finite | (abs(v) < math.inf)
+            rules.append(("value", finite))
         return rules
 
     def _reject(self, reason: str) -> bool:
@@ -482,7 +494,8 @@ class MapStore:
         (the estimator's EstimateStatus bitfield) with a bit of
         ``reject_status_mask`` set, fix quality
         below ``min_fix_quality``, HDOP above ``max_hdop``, non-finite or
-        out-of-range position or time, any non-finite layer value, no known
+        out-of-range position or time, no finite layer value (a non-finite
+        value of one layer leaves that layer alone), no known
         layer, position farther than ``max_range_m`` from the origin.  The track
         records every sample whose position passed the GNSS checks.
         """
@@ -529,7 +542,7 @@ class MapStore:
                 self.stats["rejected_" + reason] += 1
                 return False
             tile = self._tile((col // n, row // n))
-            tile.stats.add(row % n, col % n, pairs)
+            tile.stats.add(row % n, col % n, [(li, v) for li, v in pairs if math.isfinite(v)])
             tile.version += 1
             self.stats["accepted"] += 1
             if status is not None:
@@ -597,7 +610,9 @@ class MapStore:
                 tile = self._tile((int(tx), int(ty)))
                 r, c = row[sel] % nt, col[sel] % nt
                 for li, arr in layer_vals:
-                    tile.stats.merge_batch(li, r, c, arr[sel])
+                    fin = np.isfinite(arr[sel])
+                    if fin.any():
+                        tile.stats.merge_batch(li, r[fin], c[fin], arr[sel][fin])
                 tile.version += 1
             self.stats["accepted"] += int(ok.sum())
             for why, cnt in collections.Counter(reason[~ok].tolist()).items():
@@ -842,4 +857,4 @@ def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:
     return MapStore.open(d, read_only=True)
 
 
-__all__ = ["CorruptTileError", "LayerGrid", "MapStore", "MapStoreError", "open_store"]
+__all__ = ["DEFAULT_MAX_RANGE_M", "CorruptTileError", "LayerGrid", "MapStore", "MapStoreError", "open_store"]

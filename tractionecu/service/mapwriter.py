@@ -91,6 +91,9 @@ class MapWriter:
         self._warn = WarnOnce(log)
         self._last_flush_mono = -math.inf
         self.sampler = CentredSampler(cfg.window_half_s)
+        self.beyond_range_km: float | None = None
+        """Distance of the last refused position from the map's origin [km] while positions beyond the map's
+        range are refused (None once one is mapped again)."""
 
     async def open(self) -> None:
         """Resume an existing map (tiles read in the worker thread), or wait for the first fix."""
@@ -159,7 +162,9 @@ class MapWriter:
                 continue
             vals = {k: v for k, v in values.items() if math.isfinite(v)}
             try:
+                far = self.store.stats.get("rejected_range", 0)
                 ok = self.store.add(lat, lon, vals, t, valid=valid, status=status, fix_quality=fix_quality, hdop=hdop)
+                far = self.store.stats.get("rejected_range", 0) > far
             except Exception as e:  # a closed or broken store must not stop the loop
                 self.stats["add_errors"] += 1
                 self.last_error = str(e)
@@ -167,8 +172,25 @@ class MapWriter:
                 all_ok = False
                 continue
             self.stats["added" if ok else "rejected"] += 1
+            if far:
+                self._beyond_range(lat, lon)
+            elif ok and self.beyond_range_km is not None:
+                self.beyond_range_km = None
+                self._warn.forget("range")
             all_ok = all_ok and ok
         return all_ok
+
+    def _beyond_range(self, lat: float, lon: float) -> None:
+        """A position beyond the map's range (:class:`~tractionecu.mapping.store.MapStore` ``max_range_m``
+        from its origin) was refused: count it, say so once per spell, and let :attr:`state` show it."""
+        st = self.store
+        x, y = st.to_local(lat, lon)
+        self.beyond_range_km = math.hypot(float(x), float(y)) / 1000.0
+        self.stats["beyond_range"] += 1
+        self._warn("range", "map %s: the machine is %.0f km from the map's origin %.6f, %.6f, beyond the %.0f km "
+                   "a map covers: nothing here is mapped (a map holds one farm: run this place with another "
+                   "--state-dir, or move the map directory away so that a new one starts here)", self.directory,
+                   self.beyond_range_km, st.frame.origin_lat, st.frame.origin_lon, st.max_range_m / 1000.0)
 
     def _opened(self, fut: asyncio.Future[Any]) -> None:
         if fut.cancelled():
@@ -195,6 +217,9 @@ class MapWriter:
         error that stops it."""
         if self.last_error:
             return "ERROR: " + self.last_error
+        if self.store is not None and self.beyond_range_km is not None:
+            return (f"NOT MAPPING: {self.beyond_range_km:.0f} km from the map's origin, beyond its "
+                    f"{self.store.max_range_m / 1000.0:.0f} km range")
         return "writing" if self.store is not None else "waiting for a GNSS fix"
 
     def maybe_flush(self, now_mono: float) -> None:
