@@ -126,7 +126,7 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
                                 np.asarray(arrays["soil_class"], dtype=object)[idx], half_window_s,
                                 curves=None if "curve" not in arrays else [arrays["curve"][i] for i in idx.tolist()])
     # A layer the estimator never reports (ρ_s of a machine without a draft sensor: ρ_s and the draft are
-    # not separable) is not offered: its NaN would reject every sample, as the service's map never does.
+    # not separable) is not offered; a NaN of a layer at one epoch leaves only that layer (the store's rule).
     values = {k: v for k, v in values.items() if np.isfinite(np.asarray(v, dtype=float)).any()}
     offered = arrays["valid"][idx] & inside
     if gps_mask is not None:
