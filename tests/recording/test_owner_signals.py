@@ -157,3 +157,25 @@ def test_a_mapping_in_other_units_without_a_scale_or_one_source_twice_is_refused
                                           r"signals.WheelSpeed_FL; one measurement cannot be two"):
         codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0),
                                "WheelSpeed_FR": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0)})
+
+
+def test_units_in_capitals_are_judged_and_an_inverted_scale_is_refused(tmp_path):
+    """An owner DBC giving its wheel speed in "RPM" (capitals) was mapped without a scale and taken as rad/s:
+    ω 33 rad/s for 3.4, slip 0.90, a 0.35 for 0.73, exit 0. Its inverse (9.549) ran with no valid step."""
+    from tractionecu.bus.dbc import Codec, unit_factor
+    from tractionecu.errors import ConfigError
+
+    for unit, to, f in (("RPM", "rad/s", math.pi / 30.0), ("Km/h", "m/s", 1 / 3.6), ("KPH", "m/s", 1 / 3.6),
+                        ("KN", "N", 1000.0), ("MPH", "m/s", 0.44704), ("rev/min", "rad/s", math.pi / 30.0),
+                        ("NM", "Nm", 1.0)):
+        assert unit_factor(unit, to) == pytest.approx(f), unit
+    assert unit_factor("kn", "N") is None           # the knot as often as the kilonewton: not judged
+    text = OWNER.read_text().replace('"rpm"', '"RPM"')
+    assert '"RPM"' in text
+    (tmp_path / "owner.dbc").write_text(text)
+    codec = Codec(extra=[tmp_path / "owner.dbc"])
+    with pytest.raises(ConfigError, match=r"is in RPM, WheelSpeed_FL in rad/s: give scale = 0.10472"):
+        codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", 1.0)})
+    with pytest.raises(ConfigError, match=r"scale 9.5493 converts rad/s to RPM, the wrong way"):
+        codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", 30.0 / math.pi)})
+    assert codec.resolve_mapping({"WheelSpeed_FL": ("DriveCtrl_3.WhlSpdFL", math.pi / 30.0 / 20.0)})  # a reduction

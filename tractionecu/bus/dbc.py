@@ -152,11 +152,29 @@ _UNIT_KIND = {u: k for k, us in {"speed": ("m/s", "km/h", "kph", "mph"), "force"
               for u in us}
 
 
+UNIT_ALIASES = {"rev/min": "rpm", "r/min": "rpm", "min-1": "rpm", "min^-1": "rpm", "1/min": "rpm",
+                "kmh": "km/h", "km/hr": "km/h", "kmph": "km/h", "m/sec": "m/s", "newton": "N",
+                "nm": "Nm", "n m": "Nm", "n*m": "Nm", "knm": "kNm"}
+"""Other spellings of the units of :data:`UNIT_SI`, matched without regard to case."""
+_UNIT_FOLD = {**{u.lower(): u for u in UNIT_SI if u.lower() != "kn"}, **UNIT_ALIASES}
+# "kn" is the knot as often as the kilonewton: only "kN" and "KN" (no speed is written so) are taken for it
+_UNIT_FOLD_EXACT = {"KN": "kN"}
+
+
+def _unit(u: str) -> str | None:
+    """The :data:`UNIT_SI` name of a DBC unit string: exact, then without regard to case or through
+    :data:`UNIT_ALIASES` (a DBC writes "RPM", "Km/h", "KN" as often as "rpm", "km/h", "kN"); None if unknown."""
+    u = (u or "").strip()
+    if u in UNIT_SI:
+        return u
+    return _UNIT_FOLD_EXACT.get(u) or _UNIT_FOLD.get(u.lower())
+
+
 def unit_factor(src_unit: str, to_unit: str) -> float | None:
     """The factor from ``src_unit`` to ``to_unit`` when both are known units of one quantity
-    (:data:`UNIT_SI`), else None (unknown or blank units are not judged)."""
-    a, b = (src_unit or "").strip(), (to_unit or "").strip()
-    if a not in UNIT_SI or b not in UNIT_SI or _UNIT_KIND[a] != _UNIT_KIND[b]:
+    (:data:`UNIT_SI`, any case, :data:`UNIT_ALIASES`), else None (unknown or blank units are not judged)."""
+    a, b = _unit(src_unit), _unit(to_unit)
+    if a is None or b is None or _UNIT_KIND[a] != _UNIT_KIND[b]:
         return None
     return UNIT_SI[a] / UNIT_SI[b]
 
@@ -551,6 +569,11 @@ class Codec:
                 raise ConfigError(f"{key}: {ref} is in {self.signals[src].unit}, {target} in "
                                   f"{self.signals[target].unit}: give scale = {factor:.6g} "
                                   f"({target} = {{signal = \"{ref}\", scale = {factor:.6g}}})")
+            if factor is not None and abs(factor - 1.0) > 1e-9 and abs(float(scale) * factor - 1.0) < 1e-3:
+                # a scale from the target's unit to the source's: 9.549 for rpm → rad/s made ω 91× too large
+                raise ConfigError(f"{key}: scale {float(scale):.6g} converts {self.signals[target].unit} to "
+                                  f"{self.signals[src].unit}, the wrong way: {ref} in {self.signals[src].unit} "
+                                  f"becomes {target} in {self.signals[target].unit} with scale = {factor:.6g}")
             out.append((target, src, float(scale)))
         return out
 
