@@ -368,3 +368,36 @@ def test_plots_of_a_recording_without_truth_and_without_a_map(short_recording, t
     text = capsys.readouterr().out
     for name in ("fig6_mu_rho.png", "fig_efficiency.png", "report.html"):
         assert (out / name).stat().st_size > 1000 and f"plot: {out / name}" in text
+
+
+def test_an_export_of_the_replaced_map_goes_with_it(short_recording, tmp_path, capsys):
+    """``map export RUN`` writes RUN/export/; a later replay into RUN replaced the map and kept the old map's
+    GeoJSON and GeoTIFF beside it (the GeoTIFF's origin tag still the old map's)."""
+    out = tmp_path / "run"
+    assert main(["replay", "--out", str(out), str(short_recording)]) == 0
+    assert main(["map", "export", str(out), "--format", "geojson"]) == 0
+    assert (out / "export" / "map.geojson").is_file()
+    (out / "export" / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    assert main(["replay", "--out", str(out), "--no-map", str(short_recording)]) == 0
+    assert "export/map.geojson" in capsys.readouterr().out
+    assert not (out / "export" / "map.geojson").exists()
+    assert (out / "export" / "notes.txt").read_text() == "mine"       # only what map export writes goes
+
+
+def test_an_interrupted_replay_leaves_the_earlier_estimates_whole(short_recording, tmp_path, monkeypatch):
+    """Ctrl-C 2.6 s into a replay into an earlier run's folder cut its estimates.csv from 9003 lines to 1,
+    beside the earlier map and scorecard."""
+    from tractionecu.pipeline import replay as rp
+
+    out = tmp_path / "run"
+    assert main(["replay", "--out", str(out), str(short_recording)]) == 0
+    before = (out / "estimates.csv").read_bytes()
+
+    def interrupted(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rp._Run, "close", interrupted)
+    assert main(["replay", "--out", str(out), str(short_recording)]) == 130
+    assert (out / "estimates.csv").read_bytes() == before
+    assert not (out / "estimates.csv.partial").exists()

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
+from ..mapping.export import DEFAULT_OUT as EXPORT_DEFAULT_OUT
 from .inspect import add_dbc_option
 
 EXIT_MISSING_SIGNALS = 4
@@ -103,8 +104,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 PRODUCTS = ("map", "scorecard.json", "map_scorecard.json", "fig6_mu_rho.png", "fig5_mu_curves.png",
-            "fig_efficiency.png", "report.html")
-"""What a replay may write into its output directory beside ``estimates.csv`` and ``config.toml``."""
+            "fig_efficiency.png", "report.html", *(f"export/{name}" for name in EXPORT_DEFAULT_OUT.values()))
+"""What a replay may write into its output directory beside ``estimates.csv`` and ``config.toml``, and what
+``tractionecu map export`` writes there by default (an export of the map a new replay replaced is stale)."""
 
 
 def _products(out: Path) -> dict[str, int]:

@@ -48,6 +48,7 @@ Scoring against simulated truth is not here: it is the evaluation side's
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -606,18 +607,26 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     if keep_arrays is None:
         keep_arrays = not streamed or rec.truth_csv_path is not None
     csv_path = out / "estimates.csv"
-    with open(csv_path, "w", encoding="utf-8", newline="\n") as fh:
-        fh.write(",".join(CSV_COLUMNS) + "\n")
-        sink = _Sink(keep_all=keep_arrays, csv_fh=fh, hold_s=cfg.lost_after_s + cfg.max_gap_s + 1.0,
-                     map_times=rec.gps.t if write_map and len(rec.gps) else None)
-        run = _Run(rec, rate_hz, vehicle, sensors, cfg, gate, sink, on_estimate)
-        if streamed:
-            names = {nm for grp in run.groups for nm in grp.names}
-            for block, before in stream_signals(rec, names=sorted(names)):
-                run.feed(block, before)
-        else:
-            run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
-        run.close()
+    # Written beside and renamed over estimates.csv when the run is through: a replay interrupted (Ctrl-C,
+    # a read error) leaves the previous run's estimates.csv whole, with the products that belong to it.
+    part_path = out / "estimates.csv.partial"
+    try:
+        with open(part_path, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(",".join(CSV_COLUMNS) + "\n")
+            sink = _Sink(keep_all=keep_arrays, csv_fh=fh, hold_s=cfg.lost_after_s + cfg.max_gap_s + 1.0,
+                         map_times=rec.gps.t if write_map and len(rec.gps) else None)
+            run = _Run(rec, rate_hz, vehicle, sensors, cfg, gate, sink, on_estimate)
+            if streamed:
+                names = {nm for grp in run.groups for nm in grp.names}
+                for block, before in stream_signals(rec, names=sorted(names)):
+                    run.feed(block, before)
+            else:
+                run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
+            run.close()
+        os.replace(part_path, csv_path)
+    except BaseException:
+        part_path.unlink(missing_ok=True)
+        raise
     if sink.late_lost:                                    # pragma: no cover - hold_s covers the lost window
         raise RuntimeError(f"{sink.late_lost} lost periods reached estimates already written")
     arrays = sink.arrays() if keep_arrays else sink.map_arrays()
