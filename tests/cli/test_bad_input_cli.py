@@ -401,3 +401,25 @@ def test_an_interrupted_replay_leaves_the_earlier_estimates_whole(short_recordin
     assert main(["replay", "--out", str(out), str(short_recording)]) == 130
     assert (out / "estimates.csv").read_bytes() == before
     assert not (out / "estimates.csv.partial").exists()
+
+
+def test_a_can_clock_stepped_while_logging_is_said_by_replay(short_recording, tmp_path, capsys):
+    """A capture whose first half was stamped by an unset logger clock (1970) and whose second half by GNSS
+    time replayed with exit 0 and no word, "1783670390.0 s simulated … (2030976327x real time)": only
+    inspect warned of the jump."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    lines = (rec / "can.log").read_text().splitlines()
+    t0 = float(lines[0][1:lines[0].index(")")])
+    cut = t0 + 6.0
+    out_lines = []
+    for ln in lines:
+        t = float(ln[1:ln.index(")")])
+        out_lines.append(f"({t - t0 + 100.0:.6f}){ln[ln.index(')') + 1:]}" if t < cut else ln)
+    (rec / "can.log").write_text("\n".join(out_lines) + "\n")
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    text = capsys.readouterr().out
+    assert "WARNING: 1 time jump(s) between consecutive CAN frames" in text
+    head = next(ln for ln in text.splitlines() if ln.startswith("replay: "))
+    simulated = float(head.split()[3])
+    assert simulated <= 12.5, head

@@ -150,10 +150,16 @@ def clock_gnss_note(rec: Any, summary: dict[str, Any]) -> list[str]:
     """The CAN-to-GNSS clock offset the reader applied (as ``inspect`` reports it) and the GNSS epochs the
     gate refused (``pipeline/gnss.py``): a replay whose CAN times were moved, or whose GNSS speed never
     reached the estimator, says so."""
+    from .inspect import time_lines
+
     out = []
     note = getattr(getattr(rec, "stats", None), "clock_note", "")
     if note:
         out.append(f"clock: {note}")
+    if getattr(rec, "stats", None) is not None:
+        # a clock stepped while logging (set by GNSS, a logger reboot): inspect's warnings, which the
+        # replay's figures (its duration, its real-time factor, the epochs without CAN) depend on
+        out += [ln.strip() for ln in time_lines(rec) if ln.strip().startswith("WARNING")]
     gated = {k[len("gated_"):]: int(v) for k, v in (summary.get("gnss_gated") or {}).items()
              if k.startswith("gated_") and v}
     n = len(getattr(rec, "gps", ()))

@@ -64,7 +64,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..estimation.estimator import Estimate, EstimatorConfig
-from .replay import _Sink, _rows
+from .replay import _Sink, _rows, stepped_seconds
 
 BLOCK = 4096
 """Estimates gathered before they are copied into arrays."""
@@ -470,7 +470,8 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
                           on_estimate=None, make_sink=make, compiled=compiled, hold_bytes=hold_bytes)
     est = run.est
     return {"recording": rec, "rows": sink.rate_arrays(), "map": sink.map_arrays(), "steps": sink.rows,
-            "sim_seconds": sink.t_last - sink.t_first if sink.rows > 1 else 0.0,
+            "sim_seconds": stepped_seconds(sink.t_last - sink.t_first if sink.rows > 1 else 0.0, sink.rows,
+                                           float(rate_hz)),
             "valid_steps": sink.steps_valid, "steps_finite": sink.steps_finite, "gps_mask": run.gps_mask,
             "counters": _counters(run), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
             "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {},

@@ -96,6 +96,13 @@ class MissingSignals(ConfigError):
                          f"profile needs them (tractionecu inspect lists what the recording holds)")
 
 
+def stepped_seconds(span_s: float, steps: int, rate_hz: float) -> float:
+    """The recorded time a replay's ``steps`` at ``rate_hz`` cover [s]: their span ``span_s``, at most
+    (steps − 1)/rate: a CAN clock stepped by 1.78e9 s while logging made a 90 s replay "1783670390.0 s
+    simulated (2057247388x real time)"."""
+    return min(float(span_s), max(steps - 1, 0) / float(rate_hz)) if rate_hz > 0 else float(span_s)
+
+
 @dataclass
 class ReplayResult:
     """Estimates of one replay as arrays over the step grid.
@@ -127,11 +134,13 @@ class ReplayResult:
 
     @property
     def sim_seconds(self) -> float:
-        """Span of the step grid [s]."""
-        if not math.isnan(self.span_s):
-            return self.span_s
-        t = self.arrays["t"]
-        return float(t[-1] - t[0]) if t.size > 1 else 0.0
+        """Recorded time the steps cover [s]: the span of the step grid, at most the steps over the rate (a
+        clock that jumped while logging, or a gap the grid steps over, is not time replayed)."""
+        span = self.span_s
+        if math.isnan(span):
+            t = self.arrays["t"]
+            span = float(t[-1] - t[0]) if t.size > 1 else 0.0
+        return stepped_seconds(span, self.steps, self.rate_hz)
 
 
 def recording_grid(rec: Recording, rate_hz: float, vehicle: VehicleParams | None = None) -> np.ndarray:
