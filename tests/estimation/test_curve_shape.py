@@ -518,3 +518,15 @@ def test_load_term_only_where_a_reference_load_is_known():
     assert not CurveEstimator.from_config(cfg).shape.load
     assert not machine_curve_estimator(cfg, None).shape.load
     assert not machine_curve_estimator(cfg, SOIL_CLASSES["tilled"]).shape.load
+
+
+def test_a_single_exponent_on_its_bound_is_not_a_shape():
+    """An exp1 fit at α1 = −200 (a step at zero slip, flat after it) was taken as the soil's shape and held
+    a = 0.28 below the μ it had been fed for the rest of a run."""
+    from tractionecu.estimation.curve import K_MAX, _well_posed
+
+    cov = np.diag([1e-4, 1.0])
+    assert _well_posed(MuCurve("exp1", (0.6, -20.0), cov, "shape:exp1"), 0.3)
+    assert not _well_posed(MuCurve("exp1", (0.6, -K_MAX), cov, "shape:exp1"), 0.3)
+    # eq. 14 may put one exponent there, for a steep rise ahead of a slower one
+    assert _well_posed(MuCurve("eq14", (0.8, 0.3, -K_MAX, -10.0), np.diag([1e-4, 1e-3, 1.0, 1.0]), "shape:eq14"), 0.3)

@@ -527,3 +527,25 @@ def test_curve_prior_fits_the_machine_pairs_with_its_shape_and_reports_it() -> N
     # the default prior is the configured class: the same bus fitted with stubble's shape
     dflt = [e for e in run(MachineEstimator(mech_vehicle()), bus) if e.t > 20.0 and e.valid]
     assert dflt[-1].soil_class == "stubble" and dflt[-1].curve.soil_class is STUBBLE
+
+
+def test_no_curve_pair_while_the_engine_torque_is_missing(synthetic) -> None:
+    """Ten seconds of EEC1 "not available" fed the curve the held μ beside the moving slip: an exp1 curve at
+    its α1 bound, a = 0.28 below the μ it had been fed, for the rest of the run (1 of 8 outages)."""
+    from tractionecu.estimation.machine import TORQUE_TIMEOUT
+
+    truth, bus = synthetic
+    bus = [b for b in bus if not (b[1] == "Te" and 20.0 <= b[0] < 30.0)]
+    est = MachineEstimator(mech_vehicle())
+    fed = []
+    update = est._curve.update
+
+    def spy(t, *a, **k):
+        fed.append(t)
+        return update(t, *a, **k)
+
+    est._curve.update = spy
+    out = run(est, bus)
+    timed_out = {round(e.t, 6) for e in out if e.status & TORQUE_TIMEOUT}
+    assert len(timed_out) > 900                                   # the outage less the timeout
+    assert fed and not timed_out & {round(t, 6) for t in fed}

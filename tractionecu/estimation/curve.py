@@ -1116,6 +1116,11 @@ def _well_posed(c: MuCurve, max_rel_sigma_a: float) -> bool:
             return False
     if c.form == "exp1_offset" and not (-0.1 <= c.theta[0] < c.theta[1]):
         return False
+    if c.form in ("exp1", "exp1_offset") and c.alpha1 <= -0.99 * K_MAX:
+        # a single exponent on its bound is a step at zero slip and a flat curve after it, not a shape the
+        # pairs identify (an exp1 fit at α1 = −200 held a below the μ it had been fed for the rest of a run);
+        # eq. 14 may put one of its two exponents there for a steep rise ahead of a slower one
+        return False
     return True
 
 

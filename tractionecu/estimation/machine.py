@@ -978,9 +978,11 @@ class MachineEstimator:
         else:                                  # a rolling front axle: its speed is not modelled
             w_f, s_f = math.nan, math.nan
         s = [s_f, s_f, s_r, s_r]
-        # curve parameter a from the machine-level pair
+        # curve parameter a from the machine-level pair; not while the engine torque or the wheel speed is
+        # missing: μ is then the held prediction beside a slip that moves on (10 s of EEC1 "not available" left
+        # an exp1 curve at its α1 bound with a below the μ it was fed, for the rest of the run)
         if (t - self._t_curve >= cfg.curve_period_s and abs(v) >= cfg.curve_min_speed_mps
-                and not status & MACHINE_UNSUPPORTED):
+                and not status & (MACHINE_UNSUPPORTED | TORQUE_TIMEOUT | WHEEL_TIMEOUT)):
             self._t_curve = t
             s_e = self._effective_slip(s_f, s_r, fzf, fzr)
             sig_s = math.sqrt(pv) / max(rdr * abs(w), 1e-3)
