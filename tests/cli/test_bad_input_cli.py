@@ -423,3 +423,15 @@ def test_a_can_clock_stepped_while_logging_is_said_by_replay(short_recording, tm
     head = next(ln for ln in text.splitlines() if ln.startswith("replay: "))
     simulated = float(head.split()[3])
     assert simulated <= 12.5, head
+
+
+def test_an_empty_gnss_log_is_a_recording_without_gnss(short_recording, tmp_path, capsys):
+    """A zero-byte gps.nmea refused the whole recording ("gps.nmea: empty file", exit 1), while the same
+    recording without the file, or with two blank lines in it, was replayed."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    (rec / "gps.nmea").write_bytes(b"")
+    assert main(["inspect", str(rec)]) == 0
+    assert "gps.nmea: 0 lines" in capsys.readouterr().out
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    assert len((tmp_path / "run" / "estimates.csv").read_text().splitlines()) > 1000

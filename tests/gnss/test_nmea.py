@@ -262,3 +262,28 @@ def test_glued_sentences_split_in_both_readers(tmp_path):
     with open(p, encoding="ascii") as fh:
         fast = list(iter_nmea_fast(fh, st2))
     assert len(fast) == len(ref) and st2.split_count == 10 and st2.accepted == st.accepted
+
+
+def test_a_loggers_prefix_before_each_sentence_is_read_past(tmp_path):
+    """A logger that writes its own time before every sentence ("1783670400.001 $GNGGA,…") had all 2700
+    lines rejected as garbage: no GNSS, a replay with no valid step and exit 0."""
+    from tractionecu.gnss.nmea import NmeaStats, format_gga, format_rmc, iter_nmea, iter_nmea_fast
+
+    t0 = datetime(2026, 7, 10, 8, 0, 0, tzinfo=timezone.utc)
+    lines = []
+    for i in range(10):
+        u = t0 + timedelta(seconds=0.1 * i)
+        lines += [format_gga(u, 47.88, -110.55, 2, 12, 0.9, 850.0), format_rmc(u, 47.88, -110.55, 2.5, 90.0, True)]
+    prefixed = [f"{1783670400.0 + 0.05 * k:.3f} {ln}" for k, ln in enumerate(lines)]
+    ref = [r for _, r in iter_nmea(lines)]
+    st = NmeaStats()
+    assert [r for _, r in iter_nmea(prefixed, st)] == ref
+    assert st.prefixed_count == 20 and st.total_rejected == 0
+    assert any(d.startswith("lines holding text before their sentence") for d in st.describe())
+    p = tmp_path / "p.nmea"
+    p.write_text("\n".join(prefixed) + "\n", encoding="ascii")
+    st2 = NmeaStats()
+    with open(p, encoding="ascii") as fh:
+        assert len(list(iter_nmea_fast(fh, st2))) == len(ref) and st2.prefixed_count == 20
+    bad = NmeaStats()
+    assert not list(iter_nmea(["no sentence here", "GGA,080000.00,4752.8,N*00"], bad)) and bad.total_rejected == 2

@@ -179,7 +179,7 @@ def rejects_note(rec: Any) -> list[str]:
     out = []
     stats = getattr(rec, "stats", None)
     for fname, st in getattr(stats, "files", {}).items():
-        if getattr(st, "total_rejected", 0) or getattr(st, "split_count", 0):
+        if getattr(st, "total_rejected", 0) or getattr(st, "split_count", 0) or getattr(st, "prefixed_count", 0):
             out += [line if line.startswith("lines holding") else f"skipped {line}"
                     for line in st.describe()]  # type: ignore[attr-defined]
         back = getattr(st, "rejected", {}).get("time_backwards", 0)

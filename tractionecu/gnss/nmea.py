@@ -515,6 +515,10 @@ class NmeaStats(RejectCounter):
     """Line numbers (the first :data:`~tractionecu.counting.MAX_EXAMPLES`) of lines holding several
     sentences, each judged on its own (:func:`split_glued`); ``split_count`` counts them all."""
     split_count: int = 0
+    prefixed_lines: list[int] = field(default_factory=list)
+    """Line numbers (the first :data:`~tractionecu.counting.MAX_EXAMPLES`) of lines with text before their
+    sentence (a logger's own time stamp), read from the sentence's ``$``; ``prefixed_count`` counts them all."""
+    prefixed_count: int = 0
 
     def split(self, lineno: int) -> None:
         """Count one line split into its sentences."""
@@ -522,14 +526,25 @@ class NmeaStats(RejectCounter):
         if len(self.split_lines) < MAX_EXAMPLES:
             self.split_lines.append(lineno)
 
+    def prefixed(self, lineno: int) -> None:
+        """Count one line read from the ``$`` after a prefix."""
+        self.prefixed_count += 1
+        if len(self.prefixed_lines) < MAX_EXAMPLES:
+            self.prefixed_lines.append(lineno)
+
     def describe(self) -> list[str]:
         """:meth:`RejectCounter.describe`, and the lines split into several sentences."""
         out = super().describe()
+        src = f"{self.source} " if self.source else ""
         if self.split_count:
             more = ", ..." if self.split_count > len(self.split_lines) else ""
-            src = f"{self.source} " if self.source else ""
             out.append(f"lines holding several sentences, split: {self.split_count} "
                        f"({src}line {', '.join(map(str, self.split_lines))}{more})")
+        if self.prefixed_count:
+            more = ", ..." if self.prefixed_count > len(self.prefixed_lines) else ""
+            out.append(f"lines holding text before their sentence (a logger's time stamp), read from the "
+                       f"sentence's $: {self.prefixed_count} ({src}line "
+                       f"{', '.join(map(str, self.prefixed_lines))}{more})")
         return out
 
 
@@ -558,6 +573,14 @@ def iter_nmea(
 def _parsed(line: str, lineno: int, st: NmeaStats) -> Iterator[NmeaRecord]:
     """The supported records of one line (each sentence of a glued line on its own, :func:`split_glued`),
     counting the line's rejects, ignored sentences and accepted records in ``st``."""
+    head = line.lstrip()
+    if head and head[0] not in "$!":
+        # a logger that writes its own time (or a channel name) before each sentence: the sentence after it
+        # is whole and is read (every line of such a log was garbage, and the replay had no GNSS)
+        k = min((i for i in (head.find("$"), head.find("!")) if i > 0), default=-1)
+        if k > 0:
+            st.prefixed(lineno)
+            line = head[k:]
     pieces = split_glued(line)
     if len(pieces) > 1:
         st.split(lineno)

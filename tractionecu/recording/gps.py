@@ -173,8 +173,8 @@ def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: b
                 epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
         except OSError as e:
             raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
-    if ns.lines == 0:
-        raise RecordingError(f"{path}: empty file")
+    # an empty GNSS log (a receiver that never sent, a logger stopped at once) is a recording without GNSS,
+    # as one without the file or of blank lines: the CAN part is replayed, and the replay says what is missing
     if orphans:
         ns.ignored["VTG before first timed sentence"] += orphans
     if untimed:
@@ -460,8 +460,8 @@ def read_gps_reference(path: Path, can_t0: float | None, stats: RecordingStats) 
     last = asm.flush()
     if last is not None:
         fixes.append(last)
-    if ns.lines == 0:
-        raise RecordingError(f"{path}: empty file")
+    # an empty GNSS log (a receiver that never sent, a logger stopped at once) is a recording without GNSS,
+    # as one without the file or of blank lines: the CAN part is replayed, and the replay says what is missing
     if asm.orphans:
         ns.ignored["VTG before first timed sentence"] += asm.orphans
     if asm.untimed:

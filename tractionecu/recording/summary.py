@@ -83,7 +83,8 @@ def summarize(recording: Recording) -> str:
         )
     if st.gps_alignment:
         out.append(f"  GPS alignment: {st.gps_alignment}")
-    rej = [(f, s) for f, s in st.files.items() if getattr(s, "total_rejected", 0) or getattr(s, "split_count", 0)]
+    rej = [(f, s) for f, s in st.files.items() if getattr(s, "total_rejected", 0) or getattr(s, "split_count", 0)
+           or getattr(s, "prefixed_count", 0)]
     if rej:
         out.append("  rejected lines:")
         for _fname, s in rej:
