@@ -241,3 +241,27 @@ def test_infinite_cells_are_counted_not_passed_on(tmp_path):
     d = rec.signals["DraftForce"]
     assert d.t.tolist() == [0.0, 0.3] and d.value[0] == 100 and math.isnan(d.value[1])   # NaN: not available
     assert rec.signals["FrontAxleLoad"].t.tolist() == [0.0, 0.1, 0.2, 0.3]
+
+
+def test_a_european_export_with_decimal_commas_is_read(tmp_path):
+    """A spreadsheet export in a European locale (";" between cells, "1376,1") had every number rejected as
+    bad_value and diagnosis said "untestable — missing signals: engine_speed, v_wheel_bus, v_gps"."""
+    p = tmp_path / "euro.csv"
+    p.write_text("Time [s];EEC1 SPN190 Engine Speed [rpm];GNSS Speed [km/h];RHS SPN1879 Rear Draft [N]\n"
+                 "0,5;1376,1;2,58;1.450,5\n1,5;1815,6;4,15;-450\n")
+    rec = import_csv(p, mapping_named("auto"))
+    assert rec.signals["EngineSpeed"].t.tolist() == [0.5, 1.5]
+    assert np.allclose(rec.signals["EngineSpeed"].value, [1376.1 * np.pi / 30, 1815.6 * np.pi / 30])
+    assert np.allclose(rec.gps.speed, [2.58 / 3.6, 4.15 / 3.6])
+    assert np.allclose(rec.signals["DraftForce"].value, [1450.5, -450.0])
+    assert not rec.stats.files["euro.csv"].rejected
+
+
+@pytest.mark.parametrize("name", ["Date Time UTC", "Time (UTC)", "Timestamp UTC"])
+def test_a_utc_date_time_column_is_the_time(tmp_path, name):
+    """An export whose only time column was "Date Time UTC" or "Time (UTC)" was refused: "no time column
+    'timestamps' in header"."""
+    p = tmp_path / "t.csv"
+    p.write_text(f"{name},GNSS Speed [km/h]\n2026-07-10 08:00:01,3.6\n2026-07-10 08:00:02,7.2\n")
+    rec = import_csv(p, mapping_named("auto"))
+    assert np.allclose(rec.gps.t - rec.gps.t[0], [0.0, 1.0]) and rec.gps.t[0] == pytest.approx(1783670401.0)

@@ -203,7 +203,7 @@ MAPPINGS = {"contract": CONTRACT_MAPPING, "j1939": J1939_LOGGER_MAPPING, "auto":
 """The presets by their ``--csv-mapping`` name."""
 
 TIME_COLUMN_NAMES = ("timestamps", "timestamp", "time", "t", "datetime", "date_time", "time_s", "time_ms",
-                     "t_s", "t_ms", "utc", "time_utc")
+                     "t_s", "t_ms", "utc", "time_utc", "date_time_utc", "datetime_utc", "timestamp_utc")
 """Time column names a loose mapping accepts (normalised)."""
 
 TIME_UNITS = ("s", "ms", "datetime", "auto")
@@ -237,6 +237,21 @@ def _tzinfo(name: str | None) -> _dt.tzinfo:
         raise ConfigError(f"timezone: {name!r} is not UTC, an offset such as +02:00 or a zone name") from None
 
 
+_DECIMAL_COMMA = re.compile(r"[+-]?(\d+|\d{1,3}(\.\d{3})+),\d+([eE][+-]?\d+)?")
+
+
+def _number(cell: str) -> float:
+    """A number cell: as Python reads it, else with a decimal comma (``1376,1``, ``1.376,1``: what a
+    spreadsheet in a European locale exports, with ``;`` between the cells); raises ValueError."""
+    try:
+        return float(cell)
+    except ValueError:
+        c = cell.strip()
+        if _DECIMAL_COMMA.fullmatch(c):
+            return float(c.replace(".", "").replace(",", "."))
+        raise
+
+
 class _TimeParser:
     """One CSV time cell -> seconds, per ``unit`` (see module docstring)."""
 
@@ -248,7 +263,7 @@ class _TimeParser:
         """Seconds; raises ValueError.  ``auto`` settles on the first cell it can read."""
         if self.unit == "auto":
             try:
-                v = float(cell)
+                v = _number(cell)
             except ValueError:
                 t = self._datetime(cell)
                 self.unit = "datetime"
@@ -256,7 +271,7 @@ class _TimeParser:
             self.unit = "ms" if abs(v) >= 1e11 else "s"
         if self.unit == "datetime":
             return self._datetime(cell)
-        return float(cell) * (1e-3 if self.unit == "ms" else 1.0)
+        return _number(cell) * (1e-3 if self.unit == "ms" else 1.0)
 
     def _datetime(self, cell: str) -> float:
         text = cell.strip()
@@ -306,6 +321,7 @@ _BUS_PREFIX = re.compile(r"^can\d+[._]", re.IGNORECASE)
 
 _SEPARATORS = re.compile(r"[\s.\-]+")
 _BRACKET_UNIT = re.compile(r"^(.*?)\s*\[([^\]]*)\]\s*$")
+_PAREN_NOTE = re.compile(r"^(.*?)\s*\(([^)]*)\)\s*$")
 _SPN = re.compile(r"(?:^|[^a-z0-9])spn[\s_]*(\d+)(?:$|[^0-9])", re.IGNORECASE)
 
 
@@ -411,8 +427,10 @@ def import_csv(
         for i, h in enumerate(header):
             hn = h.strip()
             bm = _BRACKET_UNIT.match(hn) if mp.loose else None
+            pm = _PAREN_NOTE.match(hn) if mp.loose else None      # "Time (UTC)"
             if t_idx is None and (hn == tcol or norm(hn) in time_names
-                                  or bm is not None and norm(bm.group(1)) in time_names):
+                                  or bm is not None and norm(bm.group(1)) in time_names
+                                  or pm is not None and norm(pm.group(1)) in time_names):
                 t_idx = i
                 continue
             if hn in mp.columns:
@@ -480,7 +498,7 @@ def import_csv(
                 if cell == "":
                     continue
                 try:
-                    raw = float(cell)
+                    raw = _number(cell)
                 except ValueError:
                     stats.reject("bad_value", lineno)
                     continue
