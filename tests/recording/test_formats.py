@@ -319,7 +319,8 @@ def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_
     w.stop()
     ref = read_recording(short_recording)
     rec = read_recording(tmp_path / "rec")
-    assert rec.stats.can_format == "mf4" and rec.stats.can_t_first == ref.stats.can_t_first
+    # python-can writes its start time as a local time without a zone (the header's local-time flag)
+    assert rec.stats.can_format == "mf4 (local time)" and rec.stats.can_t_first == ref.stats.can_t_first
     assert list(rec.signals) == list(ref.signals)
     for name, s in ref.signals.items():
         np.testing.assert_array_equal(rec.signals[name].value, s.value, err_msg=name)
@@ -416,3 +417,32 @@ def test_trc_lines_python_can_skips_and_a_truncated_blf_are_counted(captures, tm
     rs = ReadStats()
     read_frames(b / "can.capture", rs)
     assert rs.rejected["truncated"] == 1 and "truncated: 1" in rs.describe()[0]
+
+
+def test_an_mf4_in_local_time_reads_the_same_in_every_time_zone(short_recording, tmp_path, monkeypatch):
+    """An MF4 whose header holds a local time without a zone started at 19:01Z, 17:01Z or 00:01Z by the TZ
+    of the computer reading it."""
+    pytest.importorskip("asammdf")
+    import time
+
+    import can
+
+    if not hasattr(can, "MF4Writer"):
+        pytest.skip("this python-can has no MF4 writer")
+    shutil.copytree(short_recording, tmp_path / "rec")
+    (tmp_path / "rec" / "can.log").unlink()
+    w = can.MF4Writer(str(tmp_path / "rec" / "can.mf4"))
+    for f in frames_of(short_recording):
+        w.on_message_received(can.Message(timestamp=f.t, arbitration_id=f.can_id, is_extended_id=f.is_extended,
+                                          data=f.data, channel=0))
+    w.stop()
+    firsts = []
+    try:
+        for zone in ("UTC", "Europe/Berlin", "America/Chicago"):
+            monkeypatch.setenv("TZ", zone)
+            time.tzset()
+            firsts.append(read_recording(tmp_path / "rec", clock="keep").stats.can_t_first)
+    finally:
+        monkeypatch.undo()
+        time.tzset()
+    assert firsts[0] == firsts[1] == firsts[2]

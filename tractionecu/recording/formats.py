@@ -45,7 +45,7 @@ import logging
 import math
 import re
 from calendar import timegm
-from datetime import datetime
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Iterable, Iterator
 
@@ -58,7 +58,12 @@ from .fastdecode import FrameTable
 FORMATS = ("candump", "candump-screen", "asc", "blf", "trc", "csv", "sqlite", "mf4", "polycan")
 """Formats :func:`read_frames` reads."""
 
-TRUSTED_CLOCK = frozenset({"candump", "blf", "trc", "csv", "sqlite", "mf4", "candump-screen -ta"})
+MF4_LOCAL = "mf4 (local time)"
+"""The format name of an MF4 whose start time is the logger's local time without a zone (its header's
+local-time flag): its times are read as UTC.  Its clock is trusted as a UTC one is: a zone's whole hours
+leave the CAN frames and the GNSS epochs apart, and the reader then places them by the GNSS speed."""
+
+TRUSTED_CLOCK = frozenset({"candump", "blf", "trc", "csv", "sqlite", "mf4", MF4_LOCAL, "candump-screen -ta"})
 """Formats (and candump screen time modes) whose times are the logger's absolute epoch time."""
 
 CONVERT_HINT = (
@@ -154,7 +159,8 @@ def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tupl
         if fmt == "candump-screen":
             return scan_screen(p, rs)
         if fmt == "mf4":
-            return _table(_mf4_messages(p), rs), fmt
+            rows, local = _mf4_messages(p)
+            return _table(rows, rs), (MF4_LOCAL if local else fmt)
         if fmt == "polycan":
             return _table(_polycan_messages(p, rs), rs), fmt
         return _table(_python_can_messages(p, fmt, rs), rs), fmt
@@ -326,8 +332,10 @@ def _polycan_messages(p: Path, rs: ReadStats) -> Iterator[tuple]:
             yield (t, cid, True, data, len(data), False, False, False, lineno)
 
 
-def _mf4_messages(p: Path) -> Iterator[tuple]:
-    """Frames of the bus-logging channel groups (``CAN_DataFrame``) of an ASAM MDF 4 file."""
+def _mf4_messages(p: Path) -> tuple[Iterator[tuple], bool]:
+    """Frames of the bus-logging channel groups (``CAN_DataFrame``) of an ASAM MDF 4 file, and whether its
+    start time is a local time without a zone.  Such a start time is read as UTC: taken in the zone of the
+    computer reading it, the same file started at 19:01Z, 17:01Z or 00:01Z by that computer's setting."""
     try:
         from asammdf import MDF
     except ImportError:
@@ -335,7 +343,9 @@ def _mf4_messages(p: Path) -> Iterator[tuple]:
                              "pip install 'tractionecu[mf4]'") from None
     mdf = MDF(str(p))
     try:
-        start = mdf.header.start_time.timestamp()
+        st = mdf.header.start_time
+        local = st.tzinfo is None
+        start = (st.replace(tzinfo=timezone.utc) if local else st).timestamp()
         rows = []
         for gi, group in enumerate(mdf.groups):
             names = {ch.name for ch in group.channels}
@@ -363,7 +373,7 @@ def _mf4_messages(p: Path) -> Iterator[tuple]:
         mdf.close()
     if not rows:
         raise RecordingError(f"{p}: an MF4 file without a CAN bus-logging channel group (CAN_DataFrame)")
-    return iter(rows)
+    return iter(rows), local
 
 
 def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
