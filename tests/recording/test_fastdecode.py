@@ -57,6 +57,7 @@ def assert_same(path: Path, codec: Codec) -> tuple[dict, RecordingStats]:
     for attr in ("unknown_pgns", "unknown_pgn_sources", "decode_errors", "decode_error_lines"):
         a, b = getattr(sta, attr), getattr(stb, attr)
         assert a == b and list(a) == list(b), attr
+    assert sta.source_used == stb.source_used and sta.other_sources == stb.other_sources
     assert sta.non_extended_frames == stb.non_extended_frames
     assert [vars(c) for c in sta.address_claims] == [vars(c) for c in stb.address_claims]
     for attr in ("can_t_first", "can_t_last"):
@@ -101,7 +102,7 @@ def _standard_lines(n: int = 160) -> list[str]:
         b = J1939_CODES[k % len(J1939_CODES)]
         hi = J1939_CODES[(k // len(J1939_CODES)) % len(J1939_CODES)]
         eec1 = bytes([0xF0 | k % 16, 0xFF, b, (37 * k) & 0xFF, hi, 0xFF, 0xFF, b])
-        lines.append(format_line(t, "can0", 0x0CF00400 | (k % 2), True, eec1))
+        lines.append(format_line(t, "can0", 0x0CF00400, True, eec1))
         if k % 5 == 0:
             lines.append(format_line(t + 0.001, "can0", 0x18F00503, True, bytes([b, 0x39, hi, b, 0x20, 0x20, 0x20, 0x20])))
             lines.append(format_line(t + 0.002, "can0", 0x18FEF147, True, bytes([0xF3 | (k % 4) << 2, b, hi, 0xFF,
@@ -132,8 +133,15 @@ def test_standard_messages_with_error_and_na_codes_decode_identically(tmp_path, 
         v = sig[name].value
         assert np.isnan(v).any() and np.isfinite(v).any(), name
     assert np.isnan(sig["RelativeSpeedRearAxle2LeftWheel"].value).all()      # 0xFE error
-    assert st.messages["EC1"].count == 3 and sig["EngineReferenceTorque"].value.tolist() == [260.0] * 3
     assert dict(st.messages["EC1"].sources) == {0x00: 1, 0x01: 2}          # BAM at k = 7 (87 broken), RTS 47, 127
+    # one source per message: the engine's (first seen); the other ECU's two EC1 are counted, not used
+    assert st.messages["EC1"].count == 3 and sig["EngineReferenceTorque"].value.tolist() == [260.0]
+    assert st.source_used["EC1"] == 0x00 and st.other_sources["EC1"] == {0x01: 2}
+    from tractionecu.recording.summary import other_source_lines
+
+    assert other_source_lines(st) == ["EC1 is sent by more than one source: its signals are those of 0x00, the "
+                                      "first seen; not used: 0x01 (2 frames) (another ECU sending the same message, "
+                                      "or a second bus logged through a gateway)"]
 
 
 def test_fixture_with_bad_lines_decodes_identically(codec):

@@ -188,10 +188,11 @@ async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
         p.send(can.Message(arbitration_id=0x18FF1080, data=b"\x01\x02\x03"))     # wheel speeds, DLC 3
         p.send(can.Message(arbitration_id=0x18FF2033, data=bytes(8)))            # an estimate from another ECU
         p.send(can.Message(arbitration_id=0x18FF10A5, data=bytes(8), is_fd=True))
-        rig.inputs()                                                              # then good frames, any SA
-        rig.send("TECU_WheelSpeeds", {"WheelSpeed_FL": 1.0}, sa=0x33)
-        await until(lambda: rig.svc.stats["rx_TECU_WheelSpeeds"] == 2)
+        rig.send("TECU_WheelSpeeds", {"WheelSpeed_FL": 1.0}, sa=0x33)            # then good frames, any SA
+        rig.inputs()                             # its wheel speeds from 0x80: a second source, counted, not used
+        await until(lambda: rig.svc.stats["other_source_frames"] == 1)
         st = rig.svc.stats
+        assert st["rx_TECU_WheelSpeeds"] == 1
         assert st["standard_id_frames"] == 1 and st["remote_frames"] == 1 and st["error_frames"] == 1
         assert rig.svc.dispatcher.unknown_pgns[0xF003] == 1
         assert rig.svc.dispatcher.bad_frames["TECU_WheelSpeeds"] == 1

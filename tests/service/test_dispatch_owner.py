@@ -208,3 +208,26 @@ def test_a_late_gnss_epoch_is_named_by_the_status_lines_time(caplog):
     d.on_fix(GpsSample(t0 + 12.0, t0 + 12.6, 48.0, 11.0, 500.0, 2.5, 90.0, 4, 0.8, 12))
     msg = " ".join(r.getMessage() for r in caplog.records)
     assert "GNSS epoch at t 12.0 s arrived 0.600 s after it" in msg and "1783670" not in msg
+
+
+def test_a_message_from_a_second_source_is_counted_not_mixed_in(caplog) -> None:
+    """GBSD from a second ECU (0x2C) reporting 0 m/s, interleaved with the radar's (0x1D): both reached the
+    estimator as one signal, and a replay of such a capture had no valid step."""
+    import logging
+
+    steps = StepAssembler(groups=MACHINE_GROUPS)
+    d = FrameDispatcher(CODEC, steps, FixBuffer(GnssGate()))
+    caplog.set_level(logging.WARNING, logger="tractionecu.service.dispatch")
+    frames = []
+    for k in range(10):
+        for sa, v in ((0x1D, 2.5), (0x2C, 0.0)):
+            cid, data = CODEC.encode("GBSD", {"GroundBasedMachineSpeed": v, "GroundBasedMachineDirection": 1},
+                                     sa=sa)
+            frames.append(can.Message(arbitration_id=cid, data=data))
+    for k, m in enumerate(through_virtual_bus(frames)):
+        d.on_frame(1.0 + 0.05 * k, m)
+    _, meas = steps.take(2.0)
+    assert meas["vr"] == pytest.approx(2.5)
+    assert d.stats["other_source_frames"] == 10 and d.stats["rx_GBSD"] == 10
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "GBSD is also sent by source 0x2C: only the frames of 0x1D" in warned[0]

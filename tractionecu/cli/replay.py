@@ -174,7 +174,7 @@ def clock_gnss_note(rec: Any, summary: dict[str, Any]) -> list[str]:
 def rejects_note(rec: Any) -> list[str]:
     """The lines of the recording's files that were skipped (counted by reason, with the first line
     numbers), as ``inspect`` lists them: a replay over a damaged capture says what it left out."""
-    from ..recording.summary import wrong_length_line
+    from ..recording.summary import other_source_lines, wrong_length_line
 
     out = []
     stats = getattr(rec, "stats", None)
@@ -191,6 +191,8 @@ def rejects_note(rec: Any) -> list[str]:
                        f"sort it by time first (candump -L: sort -s -n -k1.2 {fname} > sorted.log)")
     if stats is not None and (line := wrong_length_line(stats)):
         out.append(line)
+    if stats is not None and getattr(stats, "other_sources", None):
+        out += other_source_lines(stats)
     return out
 
 

@@ -37,7 +37,7 @@ from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, ENGINE_PERCENT_TORQUE, ENG
 from ..recording.containers import MAX_TABLE_ROWS
 from ..pipeline.survey import survey_keep
 from ..recording.reader import Recording, read_recording, stream_signals
-from ..recording.summary import wrong_length_line
+from ..recording.summary import other_source_lines, wrong_length_line
 
 FRAME_SIGNALS = (*WHEEL_SPEEDS, *DRIVE_TORQUES, FRONT_AXLE_LOAD, DRAFT, IN_WORK, WHEEL_BASED_SPEED,
                  GROUND_BASED_SPEED, "EngineTorque", "EngineSpeed", ENGINE_PERCENT_TORQUE, VEHICLE_SPEED)
@@ -513,4 +513,6 @@ def skipped_input_notes(rec: Recording) -> list[str]:
             out.append(f"{fname}: skipped " + "; ".join(fst.describe()))
     if line := wrong_length_line(st):
         out.append(line)
+    if getattr(st, "other_sources", None):
+        out += other_source_lines(st)
     return out

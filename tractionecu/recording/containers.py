@@ -204,6 +204,12 @@ class RecordingStats:
     time_jumps: list[tuple[float, float]] = field(default_factory=list)
     """(time [s], length [s]) of the first jumps forward between consecutive CAN frames over TIME_JUMP_S."""
     n_time_jumps: int = 0
+    source_used: dict[str, int] = field(default_factory=dict)
+    """The source address whose frames give a message's signals: the first one seen (J1939: one PGN sent by two
+    ECUs is two measurements, and their samples interleaved are neither)."""
+    other_sources: dict[str, Counter] = field(default_factory=dict)
+    """Frames of a message from another source address than :attr:`source_used`, by address: decoded and
+    counted (the message's ``sources``), their signals not used."""
 
     @property
     def unknown_frames(self) -> int:

@@ -552,7 +552,27 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
         lines_r, t_r, sa_r = messages[name] = (table.lineno[rows], table.t[rows], sa[rows])
         if parts[0][1] is None:
             continue
+        keep = one_source(stats, name, sa_r)
+        if keep is not None:
+            lines_r, t_r, sa_r = lines_r[keep], t_r[keep], sa_r[keep]
         for sig in parts[0][1]:                         # a message's signals share its line, time, source
             v = parts[0][1][sig] if order is None else np.concatenate([vals[sig] for _, vals in parts])[order]
-            signals[sig] = (lines_r, t_r, v, sa_r)
+            signals[sig] = (lines_r, t_r, v if keep is None else v[keep], sa_r)
     return messages, signals, claims
+
+
+def one_source(stats: Any, message: str, sa: np.ndarray) -> np.ndarray | None:
+    """The frames of ``message`` (source addresses ``sa``, in file order) whose signals are used: those of
+    ``stats.source_used[message]``, the first source seen (set here); the others are counted in
+    ``stats.other_sources``.  None when every frame is of that source (the common case)."""
+    if not sa.size:
+        return None
+    used = stats.source_used.setdefault(message, int(sa[0]))
+    keep = sa == used
+    if keep.all():
+        return None
+    other = stats.other_sources.setdefault(message, Counter())
+    vals, counts = np.unique(sa[~keep], return_counts=True)
+    for a, c in zip(vals.tolist(), counts.tolist()):
+        other[int(a)] += int(c)
+    return keep

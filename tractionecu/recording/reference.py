@@ -11,6 +11,7 @@ messages of DBC PGNs are decoded after their last transport-protocol packet
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,10 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
             ms.sources[sa] += 1
             times[msg].append(frame.t)
             if cid is not None and cid.pgn in NETWORK_MANAGEMENT_PGNS:
+                continue
+            used = stats.source_used.setdefault(msg, sa)      # one source per message (fastdecode.one_source)
+            if sa != used:
+                stats.other_sources.setdefault(msg, Counter())[sa] += 1
                 continue
             for sig, v in values.items():
                 b = builders.get(sig)

@@ -69,6 +69,7 @@ def summarize(recording: Recording) -> str:
         for name, n in sorted(st.decode_errors.items()):
             lines = ", ".join(map(str, st.decode_error_lines.get(name, [])))
             out.append(f"    {name}: {n} (line {lines})")
+    out += [f"  WARNING: {line}" for line in other_source_lines(st)]
     if st.address_claims:
         out.append("  address claims (PGN 60928):")
         for c in st.address_claims:
@@ -96,6 +97,19 @@ def summarize(recording: Recording) -> str:
             f"  {fname} ignored: " + ", ".join(f"{k} x{v}" for k, v in sorted(s.ignored.items()))  # type: ignore[attr-defined]
         )
     return "\n".join(out)
+
+
+def other_source_lines(stats: RecordingStats) -> list[str]:
+    """One line per message sent by more than one source address: whose frames give its signals, and what of
+    the others was left out (:func:`.fastdecode.one_source`)."""
+    out = []
+    for name, other in stats.other_sources.items():
+        used = stats.source_used.get(name)
+        srcs = ", ".join(f"0x{sa:02X} ({n} frames)" for sa, n in sorted(other.items()))
+        out.append(f"{name} is sent by more than one source: its signals are those of 0x{used:02X}, the first "
+                   f"seen; not used: {srcs} (another ECU sending the same message, or a second bus logged "
+                   "through a gateway)")
+    return out
 
 
 def wrong_length_line(stats: RecordingStats) -> str:

@@ -105,6 +105,8 @@ class FrameDispatcher:
         self._output_pgns = output_pgns(codec)
         self._warn = WarnOnce(log)
         self.tp = Reassembler()
+        self._source: dict[str, int] = {}
+        """The source address whose frames give each message's signals (the first seen)."""
         self._mapped: dict[str, list[tuple[str, float]]] = {}
         for target, src, scale in mapping:
             self._mapped.setdefault(src, []).append((target, scale))
@@ -165,6 +167,16 @@ class FrameDispatcher:
     def _decoded(self, t: float, cid: int, data: bytes, message: str, extended: bool = True) -> None:
         """Decode a frame (or a reassembled message) of a DBC message and give its signals to the steps."""
         st = self.stats
+        sa = cid & 0xFF if extended else None
+        if sa is not None:
+            # one source per message, the first decoded, as the recording reader (fastdecode.one_source): one
+            # PGN from two ECUs is two measurements, interleaved they are neither
+            used = self._source.get(message, sa)
+            if sa != used:
+                st["other_source_frames"] += 1
+                self._warn("source:" + message, "%s is also sent by source 0x%02X: only the frames of 0x%02X, the "
+                           "first seen, are used", message, sa, used)
+                return
         try:
             name, values = self.codec.decode(cid, data, extended)
         except (DecodeError, KeyError, ValueError) as e:
@@ -173,6 +185,8 @@ class FrameDispatcher:
             self._warn("bad:" + message, "skipped frame %s#%s: %s", f"{cid:08X}" if extended else f"{cid:03X}",
                        data.hex().upper(), e)
             return
+        if sa is not None:
+            self._source.setdefault(message, sa)
         st["decoded_frames"] += 1
         st["rx_" + name] += 1
         if self._mapped:
