@@ -23,6 +23,7 @@ from tractionecu.mapping.tiles import (
     encode_tile,
     iter_tile_files,
     read_tile,
+    TRACK_RECORD_SIZE,
     read_track,
 )
 
@@ -295,6 +296,44 @@ def test_torn_track_record_is_cut(tmp_path):
     tr, good = read_track(tmp_path / "track.log")
     assert len(tr) == 6 and good == (tmp_path / "track.log").stat().st_size
     assert tr[-1, 0] == 9.0
+
+
+def test_a_full_disk_mid_append_leaves_no_torn_record_and_an_old_one_is_skipped(tmp_path, monkeypatch):
+    """A disk that filled during an append left a 14-byte fragment inside track.log; the records put back and
+    appended after it were unreadable, and the next start cut the file at the fragment, deleting 621 records
+    that had been written and fsync'ed."""
+    import errno
+
+    from tractionecu.mapping import track as track_mod
+
+    st = MapStore(tmp_path, *ORIGIN, min_flush_interval_s=0.0)
+    for k in range(5):
+        add_xy(st, k, 0.0, {"a": 0.5}, k)
+    st.flush(force=True)
+    real_write = os.write
+
+    def full(fd, data):                     # the disk takes 14 bytes of the block, then is full
+        real_write(fd, bytes(data[:14]))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    for k in range(5, 8):
+        add_xy(st, k, 0.0, {"a": 0.5}, k)
+    monkeypatch.setattr(track_mod.os, "write", full)
+    with pytest.raises(MapStoreError, match="No space left"):
+        st.flush(force=True)                                # said, and the records are held
+    monkeypatch.setattr(track_mod.os, "write", real_write)
+    assert len(read_track(tmp_path / "track.log")[0]) == 5
+    assert (tmp_path / "track.log").stat().st_size == 5 * TRACK_RECORD_SIZE     # cut back: no fragment
+    st.flush(force=True)                                                            # the disk has room again
+    st.close()
+    tr, good = read_track(tmp_path / "track.log")
+    assert tr[:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
+    # a fragment inside a file written before appends were cut back: the records after it are kept
+    data = (tmp_path / "track.log").read_bytes()
+    (tmp_path / "track.log").write_bytes(data[:3 * TRACK_RECORD_SIZE] + data[:14] + data[3 * TRACK_RECORD_SIZE:])
+    with MapStore.open(tmp_path) as st:
+        pass
+    assert read_track(tmp_path / "track.log")[0][:, 0].tolist() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]
 
 
 WRITER = textwrap.dedent("""

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .tiles import encode_track_records, read_track
+from .tiles import TRACK_RECORD_SIZE, atomic_write_bytes, encode_track_records, read_track
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +74,44 @@ def _encode_values(records: array.array, width: int) -> bytes:
     return bytes(out)
 
 
+def _append(path: Path, data: bytes) -> None:
+    """Append ``data`` to ``path`` and fsync; on failure (a full disk takes part of a block) the file is cut
+    back to its size before, so that the records :meth:`TrackLog.put_back` appends again later follow whole
+    records and no torn fragment is left inside the file."""
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        start = os.lseek(fd, 0, os.SEEK_END)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view):]
+            os.fsync(fd)
+        except OSError:
+            try:
+                os.ftruncate(fd, start)
+                os.fsync(fd)
+            except OSError:                              # pragma: no cover - repair() still skips the fragment
+                pass
+            raise
+    finally:
+        os.close(fd)
+
+
+def resync_records(data: bytes, rec_size: int) -> bytes:
+    """The whole records of a log of fixed-size records each ending in the CRC-32 of the bytes before it:
+    read in order; at a record whose CRC fails, the reading moves on byte by byte to the next whole one."""
+    out = bytearray()
+    pos, n, body = 0, len(data), rec_size - 4
+    while pos + rec_size <= n:
+        rec = data[pos:pos + body]
+        if zlib.crc32(rec) & 0xFFFFFFFF == _CRC.unpack_from(data, pos + body)[0]:
+            out += data[pos:pos + rec_size]
+            pos += rec_size
+        else:
+            pos += 1
+    return bytes(out)
+
+
 class TrackLog:
     """Pending track records of one map and its ``track.log`` file."""
 
@@ -91,19 +129,30 @@ class TrackLog:
         """Records not yet written, flat: t [s], x [m], y [m], accepted flag (0/1), ..."""
 
     def repair(self) -> None:
-        """Cut a torn last record off the files (a crash during an append)."""
-        for path, good in ((self.path, lambda: read_track(self.path)[1]),
-                           (self.values_path, lambda: read_values(self.values_path, self.n_layers)[1])):
+        """Cut a torn last record off the files (a crash during an append); a torn record inside a file (a
+        disk that filled during an append, before appends were cut back on failure) is skipped and every whole
+        record after it kept (:func:`resync_records`)."""
+        for path, good, rec_size in ((self.path, lambda: read_track(self.path)[1], TRACK_RECORD_SIZE),
+                                     (self.values_path, lambda: read_values(self.values_path, self.n_layers)[1],
+                                      8 * (1 + self.n_layers) + 4)):
             if not path.exists():
                 continue
             size = path.stat().st_size
             keep = good()
-            if keep != size:
-                log.warning("track log %s: dropping %d bytes of a torn record", path, size - keep)
-                with open(path, "r+b") as f:
-                    f.truncate(keep)
-                    f.flush()
-                    os.fsync(f.fileno())
+            if keep == size:
+                continue
+            data = path.read_bytes()
+            whole = resync_records(data, rec_size)
+            if len(whole) > keep:
+                log.warning("track log %s: skipping %d bytes of torn records inside the file, %d records after "
+                            "them kept", path, size - len(whole), (len(whole) - keep) // rec_size)
+                atomic_write_bytes(path, whole)
+                continue
+            log.warning("track log %s: dropping %d bytes of a torn record", path, size - keep)
+            with open(path, "r+b") as f:
+                f.truncate(keep)
+                f.flush()
+                os.fsync(f.fileno())
 
     def append(self, t: float, x: float, y: float, accepted: bool,
                values: list[float] | None = None) -> None:
@@ -159,10 +208,7 @@ class TrackLog:
             if not recs:
                 continue
             try:
-                with open(path, "ab") as f:
-                    f.write(encode(recs))
-                    f.flush()
-                    os.fsync(f.fileno())
+                _append(path, encode(recs))
             except OSError as e:
                 errors.append(f"{path.name}: {e}")
                 left[k].extend(recs)
