@@ -490,14 +490,14 @@ def test_track_waits_in_order_while_the_disk_is_full_and_is_bounded(tmp_path, mo
     for k in range(10):
         add_xy(st, 1.0 + k, 1.0, {"a": 0.5}, t=float(k))
     st.flush(force=True)
-    real_open = open
+    real_open = os.open
 
-    def full(path, mode="r", *a, **kw):
-        if str(path).endswith("track.log") and "a" in mode:
+    def full(path, flags, *a, **kw):
+        if str(path).endswith("track.log") and flags & os.O_APPEND:
             raise OSError(28, "No space left on device")
-        return real_open(path, mode, *a, **kw)
+        return real_open(path, flags, *a, **kw)
 
-    monkeypatch.setattr("builtins.open", full)
+    monkeypatch.setattr(os, "open", full)
     for k in range(10, 40):
         add_xy(st, 1.0, 1.0 + k % 5, {"a": 0.5}, t=float(k))
         if k % 10 == 9:
@@ -511,7 +511,7 @@ def test_track_waits_in_order_while_the_disk_is_full_and_is_bounded(tmp_path, mo
     np.testing.assert_array_equal(on_disk[:, 0], np.arange(40.0))
 
     # the disk stays full: memory holds at most 50 records, the oldest go first and are counted
-    monkeypatch.setattr("builtins.open", full)
+    monkeypatch.setattr(os, "open", full)
     for k in range(40, 200):
         add_xy(st, 1.0, 1.0, {"a": 0.5}, t=float(k))
     monkeypatch.undo()
