@@ -67,6 +67,8 @@ async def test_viewers_get_the_full_state_then_updates() -> None:
     c = await client(w)
     try:
         ws = await c.ws_connect("/ws")
+        await asyncio.sleep(0.05)
+        w.push(w.build())                        # the full state comes with the next update
         first = json.loads((await ws.receive(timeout=5)).data)
         assert first["kind"] == "full" and first["map"]["full"] and len(first["map"]["cells"]) == 1
         w.push(w.build())
@@ -78,6 +80,28 @@ async def test_viewers_get_the_full_state_then_updates() -> None:
         r = await c.get("/state.json")
         assert json.loads(await r.text())["efficiency"]["s_star"] == 0.08
         await ws.close()
+    finally:
+        await c.close()
+
+
+async def test_viewers_connecting_between_two_updates_share_one_full_state() -> None:
+    """Each connect built and serialised the whole live map in the connect handler, inside the event loop:
+    eight viewers reconnecting every 2 s held the estimation loop up to 1.6 s and the watchdog went unfed."""
+    w = part()
+    c = await client(w)
+    try:
+        socks = [await c.ws_connect("/ws") for _ in range(5)]
+        await asyncio.sleep(0.05)
+        assert w.stats["full_states"] == 0                 # nothing built in the connect handler
+        w.push(w.build())
+        firsts = [json.loads((await ws.receive(timeout=5)).data) for ws in socks]
+        assert all(f["kind"] == "full" for f in firsts) and w.stats["full_states"] == 1
+        w.push(w.build())
+        nxt = [json.loads((await ws.receive(timeout=5)).data) for ws in socks]
+        assert all(u["kind"] == "update" for u in nxt)
+        assert w.stats["full_states"] == 1
+        for ws in socks:
+            await ws.close()
     finally:
         await c.close()
 
