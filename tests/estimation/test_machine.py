@@ -549,3 +549,18 @@ def test_no_curve_pair_while_the_engine_torque_is_missing(synthetic) -> None:
     timed_out = {round(e.t, 6) for e in out if e.status & TORQUE_TIMEOUT}
     assert len(timed_out) > 900                                   # the outage less the timeout
     assert fed and not timed_out & {round(t, 6) for t in fed}
+
+
+def test_a_nan_time_is_refused_and_a_clock_stepped_back_restarts(synthetic) -> None:
+    """As the hub estimator: a NaN time is a counted refusal, a clock stepped back starts again from the next
+    data instead of freezing the filter with its holds and timeouts in the future."""
+    truth, bus = synthetic
+    est = MachineEstimator(mech_vehicle())
+    first = [b for b in bus if b[0] < 30.0]
+    out = run(est, first)
+    e = est.step(math.nan, {}, {})
+    assert not e.valid and est.counters["rejected_times"] == 1
+    back = [(t - 10.0, k, v) for t, k, v in bus if t >= 30.0]
+    out2 = run(est, back)
+    assert est.counters["time_backwards"] == 1 and out[-1].valid
+    assert np.mean([o.valid for o in out2 if o.t > 35.0]) > 0.9

@@ -419,6 +419,7 @@ class CompiledLoop:
         K = self.K
         out = {name: int(self.I[K.I_COUNTERS + j]) for j, name in enumerate(K.COUNTERS)}
         out["chol_repairs"] = int(self.I[K.I_CHOL_REPAIRS])
+        out["rejected_times"] = out["time_backwards"] = 0    # a replay grid's times are finite and increasing
         return out
 
     def arrays(self, OUT: np.ndarray) -> dict[str, Any]:

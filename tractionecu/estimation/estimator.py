@@ -418,7 +418,8 @@ class Estimator:
         nan2 = np.full(2, np.nan)
         self._rad = (nan2, nan2.copy(), np.ones(2))
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
-                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0}
+                         "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0, "rejected_times": 0,
+                         "time_backwards": 0}
         self._monitor.reset()
 
     # ------------------------------------------------------------------ noise
@@ -647,6 +648,19 @@ class Estimator:
         predict_only = False
         counters = self.counters
         counters["steps"] += 1
+        if not math.isfinite(t):
+            # a time that is no time: the step is refused, the state untouched (one NaN time stamp had made
+            # the supervisor's acceleration NaN for good and re-initialised the filter on every later step)
+            counters["rejected_times"] += 1
+            return self._estimate(self.t if self.t is not None else math.nan, INPUT_REJECTED, None)
+        if self.t is not None and t < self.t:
+            # the caller's clock stepped back (an NTP correction of epoch seconds): every hold, timeout and
+            # window is in the future of the new time; start again from the next data, as after a gap (without
+            # it the predictions stopped, the timeouts never fired and a stale μ stayed valid for the step)
+            kept = self.counters
+            self.reset()
+            self.counters = kept
+            counters["time_backwards"] += 1
         t_in = self._t_in
         u = self._u
         # ---- inputs (zero-order hold, rejection)

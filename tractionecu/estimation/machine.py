@@ -420,7 +420,8 @@ class MachineEstimator:
         self._terms_val = (math.nan,) * 5
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "gear_changes": 0, "held_steps": 0,
-                         "unsupported_steps": 0, "not_available": 0, "mfwd_changes": 0}
+                         "unsupported_steps": 0, "not_available": 0, "mfwd_changes": 0, "rejected_times": 0,
+                         "time_backwards": 0}
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
 
@@ -541,6 +542,16 @@ class MachineEstimator:
         meanwhile, so the prediction of the mean is the same).
         """
         t = float(t)
+        if not math.isfinite(t):            # as Estimator.step: refused, the state untouched
+            self.counters["steps"] += 1
+            self.counters["rejected_times"] += 1
+            return self._estimate(self.t if self.t is not None else math.nan, INPUT_REJECTED | NOT_CONVERGED,
+                                  None, math.nan)
+        if self.t is not None and t < self.t:
+            kept = self.counters           # the caller's clock stepped back: start again from the next data
+            self.reset()
+            self.counters = kept
+            kept["time_backwards"] += 1
         last = self._last
         if not inputs and not measurements and last is not None and t < self._hold_until and t > last.t:
             self.counters["steps"] += 1

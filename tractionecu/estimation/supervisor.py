@@ -269,7 +269,7 @@ class DynamicsMonitor:
             self._t, self._v, self._m = t, v, m_total
             return
         dt = t - self._t
-        if dt <= 0.0:
+        if not dt > 0.0:                    # also a NaN time: it would make the filtered rates NaN for good
             return
         if dt != self._dt:                  # the step period repeats: the same gain
             self._dt = dt
