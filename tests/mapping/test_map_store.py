@@ -568,3 +568,23 @@ def test_a_replays_origin_is_not_a_refused_or_glitched_first_fix():
     q[0] = 2                                          # a measured fix, but one the replay's gate refused
     mask = np.r_[False, np.ones(30, bool)]
     assert replay_origin(SimpleNamespace(lat=lat, lon=lon, fix_quality=q), mask)[0] == pytest.approx(47.8816, abs=1e-4)
+
+
+def test_a_map_directory_removed_while_open_is_made_again(tmp_path):
+    """``rm -rf`` of the service's map directory mid-run: every later flush failed ("No such file or
+    directory: …/tiles/…tmp"), the run exited 1 and the 693 samples held in memory were lost."""
+    import shutil
+
+    d = tmp_path / "map"
+    st = MapStore(d, *ORIGIN, min_flush_interval_s=0.0)
+    for k in range(20):
+        add_xy(st, k, 0.0, {"a": 0.5}, k)
+    st.flush(force=True)
+    shutil.rmtree(d)
+    for k in range(20, 30):
+        add_xy(st, k, 0.0, {"a": 0.6}, k)
+    st.flush(force=True)
+    st.close()
+    assert st.stats["recreated"] == 1 and st.stats["tiles_lost_with_directory"] == 0
+    again = MapStore.open(d, read_only=True)
+    assert again.grid("a").count.sum() == 30                 # every sample the store held in memory

@@ -630,6 +630,28 @@ class MapStore:
         with self._lock:
             return [k for k, t in self._tiles.items() if t.dirty]
 
+    def _recreate_if_removed(self) -> None:
+        """The map directory was removed while the map was open (its manifest is gone): make it again with the
+        manifest and write every tile held in memory anew (the tiles held only on disk are lost with it, and
+        counted); without this every later flush failed and the samples held in memory were lost at shutdown."""
+        if (self.directory / MANIFEST_NAME).exists():
+            return
+        (self.directory / TILES_DIRNAME).mkdir(parents=True, exist_ok=True)
+        with self._lock:
+            levels = set(self.estimate_levels)
+        write_manifest(self.directory, {**self._manifest_dict(), "estimate_levels": sorted(levels)})
+        self._levels_written = levels
+        with self._lock:
+            lost = len(self._on_disk - set(self._tiles))
+            for tile in self._tiles.values():
+                tile.saved_version = -1
+            self._on_disk.clear()
+        self.stats["recreated"] += 1
+        self.stats["tiles_lost_with_directory"] += lost
+        log.warning("map %s: the map directory was removed while the map was open: made again, the %d tile(s) "
+                    "in memory written anew, %d held only on disk lost with it", self.directory, len(self._tiles),
+                    lost)
+
     def flush(self, *, force: bool = False) -> int:
         """Write the dirty tiles (and new track records) atomically.
 
@@ -646,6 +668,11 @@ class MapStore:
             if not force and now - self._last_flush < self.min_flush_interval_s:
                 return 0
             self._last_flush = now
+            try:
+                self._recreate_if_removed()
+            except OSError as e:
+                raise MapStoreError(f"{self.directory}: the map directory was removed and cannot be made "
+                                    f"again: {e}") from e
             with self._lock:
                 todo = [(k, t, t.version, t.stats.copy()) for k, t in self._tiles.items() if t.dirty]
                 track = self._track.take()
