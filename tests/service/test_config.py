@@ -105,3 +105,15 @@ def test_file_errors_name_the_file(tmp_path: Path) -> None:
     wrong.write_text('[gps]\nport = 5\n')
     with pytest.raises(ConfigError, match=r"wrong.toml: gps.port"):
         load_config(wrong)
+
+
+def test_the_estimation_timeouts_reach_the_estimator() -> None:
+    """[estimation] wheel_speed_timeout_s and its four siblings were read and written to the resolved
+    configuration, but the estimator kept its 0.05/0.5/0.05/0.1/0.1 s."""
+    from tractionecu.service.config import from_dict
+    from tractionecu.service.loop import default_estimator_factory, estimator_machine, service_estimator_config
+
+    cfg = from_dict({"estimation": {"wheel_speed_timeout_s": 0.5, "ground_speed_timeout_s": 5.0,
+                                    "torque_timeout_s": 0.5, "axle_load_timeout_s": 1.0, "draft_timeout_s": 1.0}})
+    est = default_estimator_factory(*estimator_machine(cfg), cfg=service_estimator_config(cfg))
+    assert est._rates.timeout_s == {"Md": 0.5, "Fzf": 1.0, "Fdx": 1.0, "omega": 0.5, "v": 5.0}

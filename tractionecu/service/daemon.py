@@ -59,6 +59,7 @@ unknown PGNs, wrong DLCs and undecodable NMEA lines are counted in
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import math
 import signal
@@ -91,7 +92,8 @@ from .fixes import FixBuffer
 from .gps import GpsReader
 from .heap import settle_heap
 from .lifecycle import DeviceTask, Hook, Lifecycle, Part
-from .loop import EstimationLoop, EstimatorFactory, default_estimator_factory, estimator_groups
+from .loop import (EstimationLoop, EstimatorFactory, default_estimator_factory, estimator_groups,
+                   service_estimator_config)
 from .mapwriter import MapWriter
 from .network import Network
 from .notify import Notifier, watchdog_interval
@@ -243,7 +245,9 @@ class Service:
                                  gate=gate)
         self.map: MapWriter | None = MapWriter(cfg.map, cfg.map_dir(env)) if cfg.map.enabled else None
         self.estimation = EstimationLoop(
-            cfg, self.clock, self.steps, factory=estimator_factory or default_estimator_factory,
+            cfg, self.clock, self.steps,
+            factory=estimator_factory or functools.partial(default_estimator_factory,
+                                                           cfg=service_estimator_config(cfg)),
             broadcast=self._broadcast, map_writer=self.map, fixes=self.fixes, can=self.can, gps=self.gps,
             watchdog=self.notifier.watchdog, watchdog_s=watchdog_interval(env), status=self.notifier.status,
             after_step=self.network.serve_requests, stats=self.stats)

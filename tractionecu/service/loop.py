@@ -55,18 +55,31 @@ EstimatorFactory = Callable[[Any, Any], Any]
 ``reset()`` and ``counters``)."""
 
 
-def default_estimator_factory(vehicle: Any, sensors: Any = None) -> Any:
-    """The estimator ``replay`` uses, with its default tuning (``sensors`` None: the documented figures):
-    the hub estimator, or for an engine-driven ``[drivetrain]`` the machine-level one
+def default_estimator_factory(vehicle: Any, sensors: Any = None, cfg: Any = None) -> Any:
+    """The estimator ``replay`` uses, with its default tuning (``sensors`` None: the documented figures;
+    ``cfg`` an :class:`~tractionecu.estimation.config.EstimatorConfig`, None: the defaults): the hub
+    estimator, or for an engine-driven ``[drivetrain]`` the machine-level one
     (:class:`~tractionecu.estimation.machine.MachineEstimator`, draft as ``draft_sensing`` says)."""
     dt = getattr(vehicle, "drivetrain", None)
     if dt is not None and dt.engine_driven:
         from ..estimation.machine import MachineEstimator
 
-        return MachineEstimator(vehicle, sensors=sensors, draft=dt.draft_sensing)
+        return MachineEstimator(vehicle, cfg, sensors=sensors, draft=dt.draft_sensing)
     from ..estimation.estimator import Estimator
 
-    return Estimator(vehicle, sensors=sensors)
+    return Estimator(vehicle, cfg, sensors=sensors)
+
+
+def service_estimator_config(cfg: ServiceConfig) -> Any:
+    """The :class:`~tractionecu.estimation.config.EstimatorConfig` of the service: the defaults with the
+    ``[estimation]`` timeouts as the floors of the rate-derived ones (the keys were read and written to the
+    resolved configuration but never reached the estimator)."""
+    from ..estimation.config import EstimatorConfig
+
+    e = cfg.estimation
+    return EstimatorConfig(wheel_timeout_s=e.wheel_speed_timeout_s, gps_timeout_s=e.ground_speed_timeout_s,
+                           torque_timeout_s=e.torque_timeout_s, axle_timeout_s=e.axle_load_timeout_s,
+                           draft_timeout_s=e.draft_timeout_s)
 
 
 def estimator_groups(cfg: ServiceConfig) -> Any:
