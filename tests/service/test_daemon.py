@@ -332,13 +332,16 @@ async def test_watchdog_stops_while_the_loop_is_behind_and_resumes(tmp_path: Pat
         assert asyncio.get_running_loop().time() - withheld_at >= 1.0
 
 
-async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path) -> None:
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+async def test_sigterm_flushes_tiles_and_a_restart_resumes_them(tmp_path: Path, sig: int) -> None:
+    """SIGHUP (a closed terminal, a ``kill -HUP`` meant as reload) killed the service unflushed, losing the
+    last 15–20 s of map; it now stops it as SIGTERM does."""
     rig = Rig(tmp_path, StandIn())
     async with rig:
         await asyncio.wait_for(rig.svc.ready.wait(), 10)
         while rig.svc.map.stats["added"] < 5:
             await drive(rig, 0.2)
-        os.kill(os.getpid(), signal.SIGTERM)           # the real signal, handled by the service's loop
+        os.kill(os.getpid(), sig)                      # the real signal, handled by the service's loop
         assert rig.task is not None
         rc = await asyncio.wait_for(rig.task, 20)
     assert rc == 0

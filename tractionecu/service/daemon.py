@@ -443,12 +443,16 @@ class Service:
 
     # ------------------------------------------------------------ run
     async def run(self, stop: asyncio.Event | None = None) -> int:
-        """Run until SIGTERM/SIGINT, :meth:`request_stop` or ``stop`` is set.  Returns the exit code."""
+        """Run until SIGTERM/SIGINT/SIGHUP, :meth:`request_stop` or ``stop`` is set.  Returns the exit code.
+
+        SIGHUP (a closed terminal or ssh session, or a ``kill -HUP`` meant as "reload") stops the service as
+        SIGTERM does, the map flushed: left to its default it killed the process and lost the last 15–20 s of
+        map.  The service has nothing to reload; a changed configuration takes a restart."""
         loop = asyncio.get_running_loop()
         self._stop = stop or asyncio.Event()
         signals_installed: list[int] = []
         if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGTERM, signal.SIGINT):
+            for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
                 try:
                     loop.add_signal_handler(sig, self.request_stop)
                     signals_installed.append(sig)
