@@ -176,6 +176,22 @@ async def test_ready_waits_for_bus_and_gps_then_claims_and_broadcasts(tmp_path: 
     assert (tmp_path / "state" / "run-config.toml").is_file()
 
 
+async def test_ready_without_a_gnss_receiver_after_the_wait(tmp_path: Path, monkeypatch) -> None:
+    """With the receiver unplugged (or gps.port wrong) READY=1 never came: under Type=notify systemd fails the
+    start at TimeoutStartSec and restarts the service every two minutes, losing its convergence and map."""
+    from tractionecu.service import daemon
+
+    monkeypatch.setattr(daemon, "READY_GPS_WAIT_S", 0.3)
+    rig = Rig(tmp_path, StandIn(), gps_present=False)
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        seen: list[str] = []
+        await until(lambda: seen.extend(rig.notifications()) or any(n.startswith("READY=1") for n in seen))
+        assert not rig.svc.gps.is_open.is_set()
+        ready = next(n for n in seen if n.startswith("READY=1"))
+        assert "not open: estimating without GNSS until it opens" in ready
+
+
 async def test_bad_frames_are_counted_and_skipped(tmp_path: Path) -> None:
     rig = Rig(tmp_path, StandIn(), can={"kernel_filters": False})
     async with rig:

@@ -136,8 +136,16 @@ def pgn_filters(pgns: Iterable[int], address: int | None = None, std_ids: Iterab
     return out
 
 
+READY_GPS_WAIT_S = 30.0
+"""Longest wait for the GNSS receiver after the CAN bus is open before ``READY=1`` [s]: well inside the unit's
+``TimeoutStartSec`` (120 s), so that an unplugged receiver or a wrong ``gps.port`` is a status to show, not a
+start that systemd fails and restarts every two minutes."""
+
+
 class Readiness:
-    """The ``ready`` part: ``READY=1`` once every device is open (the service's :attr:`Service.ready`)."""
+    """The ``ready`` part: ``READY=1`` once every device is open (the service's :attr:`Service.ready`), or once
+    the CAN bus is and the GNSS receiver has not opened within :data:`READY_GPS_WAIT_S` (it is retried and
+    shown in the status lines meanwhile)."""
 
     name = "ready"
 
@@ -145,19 +153,28 @@ class Readiness:
         self.svc = svc
         self._task: asyncio.Task[None] | None = None
 
-    def text(self) -> str:
+    def text(self, gps_open: bool = True) -> str:
         svc = self.svc
-        gps = f", GPS {svc.cfg.gps.port}" if svc.gps is not None else ""
-        return f"CAN {svc.cfg.can.interface}:{svc.cfg.can.channel}{gps} open"
+        gps = ""
+        if svc.gps is not None:
+            gps = f", GPS {svc.cfg.gps.port}" if gps_open else ""
+        can_part = f"CAN {svc.cfg.can.interface}:{svc.cfg.can.channel}{gps} open"
+        if svc.gps is not None and not gps_open:
+            can_part += f"; GPS {svc.cfg.gps.port} not open: estimating without GNSS until it opens"
+        return can_part
 
     async def _wait(self) -> None:
         svc = self.svc
         await svc.can.is_open.wait()
+        gps_open = True
         if svc.gps is not None:
-            await svc.gps.is_open.wait()
+            try:
+                await asyncio.wait_for(svc.gps.is_open.wait(), READY_GPS_WAIT_S)
+            except asyncio.TimeoutError:
+                gps_open = False
         svc.ready.set()
-        svc.notifier.ready(self.text())
-        log.info("ready: %s", self.text())
+        svc.notifier.ready(self.text(gps_open))
+        (log.info if gps_open else log.warning)("ready: %s", self.text(gps_open))
 
     async def start(self) -> None:
         self.svc.notifier.status("waiting for the CAN bus" + (" and GPS" if self.svc.gps else ""))
