@@ -75,6 +75,24 @@ def test_truth_scores_itself_perfectly_and_both_scorecards_are_written(rec_dir, 
     assert card["map_soil_accuracy"] > 0.97 and card["map_a_rmse"] < 0.05
 
 
+def test_a_step_without_estimate_does_not_blank_the_scorecard(rec_dir, tmp_path):
+    """Three NaN steps of 3701 (a filter restarting after a CAN gap) made mu_mean_abs_error,
+    rho_s_mean_abs_error and mu_mean_bias NaN ("n/a: no rho_s reported"), and scorecard.json held bare NaN,
+    which strict JSON parsers refuse."""
+    rec = read_recording(rec_dir)
+    arrays = truth_arrays(rec)
+    arrays["mu"] = arrays["mu"].copy()
+    arrays["rho_s"] = arrays["rho_s"].copy()
+    arrays["mu"][1000:1003] = np.nan
+    arrays["rho_s"][1000:1003] = np.nan
+    add = score_replay(tmp_path, rec, arrays, plot=False, summary={})
+    sc = add["scorecard"]
+    assert sc["mu_mean_abs_error"] == 0.0 and sc["rho_s_mean_abs_error"] == 0.0
+    assert sc["mu_mean_bias"] == [0.0] * 4 and sc["steps_without_estimate"] == 3
+    text = (tmp_path / "scorecard.json").read_text()
+    assert "NaN" not in text and json.loads(text)["mu_mean_abs_error"] == 0.0
+
+
 def test_no_map_scorecard_without_a_written_map(rec_dir, tmp_path):
     rec = read_recording(rec_dir)
     add = score_replay(tmp_path, rec, truth_arrays(rec), plot=False, summary={})

@@ -20,6 +20,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from ..jsonsafe import json_safe
 from .map_truth import score_replay_map
 from .plots import plot_efficiency, plot_run
 from .machine_score import is_machine_level, machine_scorecard
@@ -80,6 +81,8 @@ def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
         if "realtime_factor" in summary:
             sc_out["realtime_factor"] = summary["realtime_factor"]
         path = out / "scorecard.json"
-        path.write_text(json.dumps(sc_out, indent=2, sort_keys=True) + "\n", encoding="utf-8")
+        # strict JSON: a figure not measured (NaN) is null
+        path.write_text(json.dumps(json_safe(sc_out), indent=2, sort_keys=True, allow_nan=False) + "\n",
+                        encoding="utf-8")
         add["scorecard_json"] = str(path)
     return add

@@ -38,13 +38,13 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
-import math
 import time
 from collections import Counter
 from importlib import resources
 from typing import Any, Callable
 
 from ..aio import cancel_and_wait, wait_event
+from ..jsonsafe import json_safe
 
 from aiohttp import WSMsgType, web
 
@@ -72,17 +72,8 @@ def load_assets() -> dict[str, tuple[bytes, str]]:
     return {name: ((root / name).read_bytes(), ctype) for name, ctype in ASSETS.items()}
 
 
-def clean(x: Any) -> Any:
-    """JSON-safe copy: NaN and ±inf become null, numpy scalars and arrays plain Python."""
-    if isinstance(x, float):
-        return x if math.isfinite(x) else None
-    if isinstance(x, dict):
-        return {str(k): clean(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [clean(v) for v in x]
-    if hasattr(x, "tolist"):
-        return clean(x.tolist())
-    return x
+clean = json_safe
+"""JSON-safe copy of a state (:func:`~tractionecu.jsonsafe.json_safe`)."""
 
 
 class Viewer:
