@@ -117,3 +117,17 @@ def test_the_estimation_timeouts_reach_the_estimator() -> None:
                                     "torque_timeout_s": 0.5, "axle_load_timeout_s": 1.0, "draft_timeout_s": 1.0}})
     est = default_estimator_factory(*estimator_machine(cfg), cfg=service_estimator_config(cfg))
     assert est._rates.timeout_s == {"Md": 0.5, "Fzf": 1.0, "Fdx": 1.0, "omega": 0.5, "v": 5.0}
+
+
+def test_a_one_sided_slip_band_must_still_run_upwards_and_a_kpa_pressure_is_named() -> None:
+    """slip_max = 0.05 alone made an MFWD's band 8 %–5 % ("slip 6.5 % above the 8 %–5 % band": add ballast);
+    tyre_pressure_min_pa = 80 (meant as kPa) advised "the tyre's minimum for the present load 0.00 bar"."""
+    from tractionecu.service.config import from_dict
+
+    with pytest.raises(ConfigError, match=r"advice.slip_max = 0.05: the band with the mfwd axle type's other end "
+                                          r"is 0.08–0.05"):
+        from_dict({"advice": {"axle_type": "mfwd", "slip_max": 0.05}})
+    assert from_dict({"advice": {"axle_type": "mfwd", "slip_max": 0.15}}).advice.slip_max == 0.15
+    with pytest.raises(ConfigError, match=r"advice.tyre_pressure_min_pa = 80: .* the key is in Pa \(80 kPa = 80000"):
+        from_dict({"advice": {"tyre_pressure_min_pa": 80}})
+    assert from_dict({"advice": {"tyre_pressure_min_pa": 80000}}).advice.tyre_pressure_min_pa == 80000

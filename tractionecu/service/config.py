@@ -272,6 +272,24 @@ class AdviceConfig:
             raise ConfigError(f"advice.axle_type: {self.axle_type!r} is not one of {', '.join(AXLE_TYPES)}")
         if not (math.isnan(self.slip_min) or math.isnan(self.slip_max)) and self.slip_max <= self.slip_min:
             raise ConfigError(f"advice.slip_max = {self.slip_max} is not above advice.slip_min = {self.slip_min}")
+        from ..advice.rules import SLIP_BANDS
+
+        lo, hi = SLIP_BANDS[self.axle_type]
+        if math.isnan(self.slip_min) != math.isnan(self.slip_max):
+            # one end given: the other is the axle type's, and the band must still run upwards (slip_max 0.05
+            # with an MFWD's 8 % made the band 8 %–5 % and advised ballast at 6.5 % slip)
+            lo = lo if math.isnan(self.slip_min) else self.slip_min
+            hi = hi if math.isnan(self.slip_max) else self.slip_max
+            if hi <= lo:
+                given = "slip_max" if math.isnan(self.slip_min) else "slip_min"
+                raise ConfigError(f"advice.{given} = {self.slip_max if given == 'slip_max' else self.slip_min}: the "
+                                  f"band with the {self.axle_type} axle type's other end is {lo:g}–{hi:g}, which "
+                                  "does not run upwards; give both slip_min and slip_max")
+        if 0.0 < self.tyre_pressure_min_pa < 2.0e4:
+            raise ConfigError(f"advice.tyre_pressure_min_pa = {self.tyre_pressure_min_pa:g}: that is "
+                              f"{self.tyre_pressure_min_pa / 1e5:.4f} bar; the key is in Pa "
+                              f"({self.tyre_pressure_min_pa:g} kPa = {self.tyre_pressure_min_pa * 1e3:g}, "
+                              f"{self.tyre_pressure_min_pa:g} bar = {self.tyre_pressure_min_pa * 1e5:g})")
 
 
 @dataclass(frozen=True)
