@@ -65,3 +65,17 @@ def test_python_m_tractionecu_is_the_command() -> None:
     assert "``" not in out.stdout and ":func:" not in out.stdout   # product text, not developer notes
     v = subprocess.run([sys.executable, "-m", "tractionecu", "--version"], capture_output=True, text=True, check=True)
     assert v.stdout.strip() == f"tractionecu {tractionecu.__version__}"
+
+
+def test_replay_takes_a_path_and_bounds_its_rate(tmp_path, short_recording) -> None:
+    """replay("path") raised AttributeError; replay(rec, rate_hz=1e6) on 40 s grew past 21 GB."""
+    import pytest
+
+    from tractionecu.errors import ConfigError
+    from tractionecu.pipeline.replay import replay
+
+    with pytest.raises(ConfigError, match=r"rate_hz: an estimator step rate in \[1, 1000\] Hz"):
+        replay(tmp_path, rate_hz=1e6)
+    with pytest.raises(ConfigError, match="rate_hz"):
+        replay(tmp_path, rate_hz=float("nan"))
+    assert replay(str(short_recording)).steps > 1000

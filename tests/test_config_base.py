@@ -261,3 +261,30 @@ def test_a_vehicle_file_error_names_the_file(tmp_path: Path) -> None:
     with pytest.raises(ConfigError) as ei:
         load_vehicle(p)
     assert str(ei.value).startswith(f"{p}: drivetrain.final_drive_ratio: needed"), str(ei.value)
+
+
+def test_numpy_scalars_are_the_numbers_they_hold() -> None:
+    """VehicleParams(mass_kg=np.int64(6300)) was refused: "expected a number, got np.int64(6300)"."""
+    import numpy as np
+
+    from tractionecu.config import VehicleParams
+
+    v = VehicleParams(mass_kg=np.int64(6300), r0_m=np.float32(0.8))
+    assert v.mass_kg == 6300 and type(v.mass_kg) is int and type(v.r0_m) is float
+
+
+def test_keys_beside_the_estimator_table_are_an_error(tmp_path) -> None:
+    """q_mu = 5.0 above [estimator] was dropped: the default 0.001 in force, nothing said."""
+    import pytest
+
+    from tractionecu.errors import ConfigError
+    from tractionecu.estimation.config import load_estimator_config
+
+    p = tmp_path / "est.toml"
+    p.write_text("q_mu = 5.0\n[estimator]\nq_rho = 1e-5\n")
+    with pytest.raises(ConfigError, match=r"q_mu beside the \[estimator\] table"):
+        load_estimator_config(p)
+    p.write_text("[estimator]\nq_mu = 5.0\n")
+    assert load_estimator_config(p).q_mu == 5.0
+    p.write_text("q_mu = 5.0\n")
+    assert load_estimator_config(p).q_mu == 5.0

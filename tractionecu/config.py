@@ -93,6 +93,7 @@ from __future__ import annotations
 import dataclasses
 import datetime as _dt
 import math
+import numbers
 import re
 import tomllib
 from contextlib import contextmanager
@@ -170,6 +171,10 @@ def validate(obj: Any, section_name: str) -> None:
             if not isinstance(v, bool):
                 raise ConfigError(f"{key}: expected true or false, got {v!r}")
         elif isinstance(d, (int, float)):
+            if isinstance(v, numbers.Real) and not isinstance(v, (bool, int, float)):
+                # a numpy scalar (a value read from an array) is the number it holds
+                v = int(v) if isinstance(v, numbers.Integral) else float(v)
+                object.__setattr__(obj, f.name, v)
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 raise ConfigError(f"{key}: expected a number, got {v!r}")
             if isinstance(d, int) and not isinstance(v, int):

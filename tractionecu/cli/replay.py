@@ -38,14 +38,14 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..mapping.export import DEFAULT_OUT as EXPORT_DEFAULT_OUT
+from ..pipeline.replay import RATE_HZ
 from .inspect import add_dbc_option
 
 EXIT_MISSING_SIGNALS = 4
 """Exit code when the recording lacks the signals of the profile the estimator runs."""
 
-RATE_HZ = (1.0, 1000.0)
-"""Bounds of ``--rate`` [Hz]: the service's ``estimation.rate_hz`` range (``tractionecu/service/config.py``).
-Above it the step grid outgrows memory (``--rate 1e9`` asked for 149 GiB on a 20 s recording)."""
+# Bounds of --rate [Hz]: the service's estimation.rate_hz range; above it the step grid outgrows memory
+# (--rate 1e9 asked for 149 GiB on a 20 s recording).  The pipeline's own check (pipeline.replay.check_rate).
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:

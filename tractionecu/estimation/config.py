@@ -161,6 +161,14 @@ class EstimatorConfig:
 
 
 def load_estimator_config(path: str | Path) -> EstimatorConfig:
-    """Read an estimator TOML file (``[estimator]`` table, or its keys at the top level)."""
+    """Read an estimator TOML file (``[estimator]`` table, or its keys at the top level).  Keys or tables
+    beside an ``[estimator]`` table are an error naming them (``q_mu`` above the table was dropped, the
+    default in force and nothing said), as a key above ``[vehicle]`` is in a vehicle file."""
     data = load_toml(path, "configuration")
-    return EstimatorConfig.from_mapping(data.get("estimator", data))
+    if "estimator" not in data:
+        return EstimatorConfig.from_mapping(data)
+    other = sorted(k for k in data if k != "estimator")
+    if other:
+        raise ConfigError(f"{path}: {', '.join(other)} beside the [estimator] table: put the estimator's keys "
+                          "inside [estimator] (or all at the top level, without the table)")
+    return EstimatorConfig.from_mapping(data["estimator"])

@@ -64,7 +64,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..estimation.estimator import Estimate, EstimatorConfig
-from .replay import _Sink, _rows, stepped_seconds
+from .replay import _Sink, _rows, check_rate, stepped_seconds
 
 BLOCK = 4096
 """Estimates gathered before they are copied into arrays."""
@@ -372,8 +372,7 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
-    if not rate_hz > 0:
-        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    check_rate(rate_hz)
     cfg = cfg or EstimatorConfig()
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()

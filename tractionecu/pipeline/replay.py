@@ -96,6 +96,17 @@ class MissingSignals(ConfigError):
                          f"profile needs them (tractionecu inspect lists what the recording holds)")
 
 
+RATE_HZ = (1.0, 1000.0)
+"""Estimator step rates a replay takes [Hz]: 1e6 Hz on a 40 s recording asked for 40 million steps (the
+process passed 21 GB before it was stopped)."""
+
+
+def check_rate(rate_hz: float) -> None:
+    """A :class:`ConfigError` for a step rate outside :data:`RATE_HZ` (NaN included)."""
+    if not RATE_HZ[0] <= rate_hz <= RATE_HZ[1]:
+        raise ConfigError(f"rate_hz: an estimator step rate in [{RATE_HZ[0]:g}, {RATE_HZ[1]:g}] Hz, got {rate_hz}")
+
+
 def stepped_seconds(span_s: float, steps: int, rate_hz: float) -> float:
     """The recorded time a replay's ``steps`` at ``rate_hz`` cover [s]: their span ``span_s``, at most
     (steps − 1)/rate: a CAN clock stepped by 1.78e9 s while logging made a 90 s replay "1783670390.0 s
@@ -150,8 +161,7 @@ def recording_grid(rec: Recording, rate_hz: float, vehicle: VehicleParams | None
     Raises :class:`MissingSignals` when the recording lacks a signal of :data:`~.signals.REPLAY_REQUIRED`
     (:func:`~.signals.required_missing` for ``vehicle``).
     """
-    if not rate_hz > 0:
-        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    check_rate(rate_hz)
     missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(rec, missing)
@@ -168,16 +178,20 @@ def machine_of(rec: Recording) -> tuple[VehicleParams, SensorSpec]:
     return load_vehicle(rec.vehicle_toml_path), load_sensors(rec.vehicle_toml_path)
 
 
-def replay(rec: Recording, *, rate_hz: float = 100.0, vehicle: VehicleParams | None = None,
+def replay(rec: Recording | str | Path, *, rate_hz: float = 100.0, vehicle: VehicleParams | None = None,
            sensors: SensorSpec | None = None, cfg: EstimatorConfig | None = None, gate: GnssGate | None = None,
            on_estimate: Callable[[Estimate], None] | None = None) -> ReplayResult:
-    """Step the estimator over ``rec`` and keep every estimate (module doc).
+    """Step the estimator over ``rec`` (a :class:`Recording`, or its path: :func:`read_recording`) and keep
+    every estimate (module doc).
 
     ``vehicle`` and ``sensors`` default to the recording's ``vehicle.toml``
     (:func:`machine_of`); ``on_estimate`` is called with every
     :class:`~tractionecu.estimation.estimator.Estimate` in time order.
     The recording is fed to the same step function as a streamed one, as one block.
     """
+    check_rate(rate_hz)
+    if not isinstance(rec, Recording):                 # a path, as replay_streamed and replay_to_dir take
+        rec = read_recording(rec)
     if vehicle is None or sensors is None:
         v0, s0 = machine_of(rec)
         vehicle = vehicle or v0
@@ -203,8 +217,7 @@ def replay_streamed(recording: str | Path, *, rate_hz: float = 100.0, cfg: Estim
     missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(read_recording(recording), missing)
-    if not rate_hz > 0:
-        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    check_rate(rate_hz)
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), _Sink(keep_all=False),
                on_estimate)
     names = {nm for grp in run.groups for nm in grp.names}
@@ -601,8 +614,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     missing = required_missing(rec, machine_of(rec)[0])
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
-    if not rate_hz > 0:
-        raise ConfigError(f"rate_hz: must be > 0, got {rate_hz}")
+    check_rate(rate_hz)
     if write_map:
         from ..mapping.from_replay import check_map_dir
 
