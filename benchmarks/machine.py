@@ -47,6 +47,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tractionecu.evaluation.replay import read_scorecard  # noqa: E402
 from tractionecu.evaluation.curve_score import r_squared_over, true_curve  # noqa: E402
 from tractionecu.evaluation.scoring import S_GRID  # noqa: E402
 from tractionecu.model.mucurve import CURVE_SHAPES, curve_class  # noqa: E402
@@ -88,7 +89,7 @@ def replay(rec: Path, prior: str, keep: Path) -> dict:
                 raise SystemExit(f"unknown prior {prior!r}")
             extra = ["--classes", prior]
         _run(["replay", str(rec), "--out", str(out), "--no-map", *extra])
-    return json.loads(card.read_text(encoding="utf-8"))
+    return read_scorecard(card)
 
 
 def slip_ranges(rec: Path, run: Path) -> dict[str, tuple[float, float]]:

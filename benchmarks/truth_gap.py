@@ -22,13 +22,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses as dc
-import json
 import math
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from tractionecu.evaluation.replay import read_scorecard
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
 from tractionecu.sim.writer import write_recording
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         write_recording(scn, simulate(scn), rec)
         subprocess.run([sys.executable, "-m", "tractionecu", "replay", str(rec), "--out", str(run), "--no-map"],
                        check=True, capture_output=True)
-        sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+        sc = read_scorecard(run / "scorecard.json")
         print(f"{name:26s} {100 * sc['mu_mean_abs_rel_error']:9.2f} % {sc['rho_s_mean_abs_error']:10.4f}", flush=True)
     return 0
 

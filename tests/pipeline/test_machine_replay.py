@@ -9,13 +9,13 @@ first convergence included); the targets are measured on the whole scenarios (RE
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from tractionecu.evaluation.replay import read_scorecard
 from tractionecu.cli.main import main
 from tractionecu.estimation.estimator import DRAFT_NOT_SEPARATED, MACHINE_LEVEL
 from tractionecu.sim import scenarios
@@ -43,7 +43,7 @@ def test_mechanical_recording_replays_at_machine_level(tmp_path: Path, capsys) -
     assert np.all(status & MACHINE_LEVEL) and not np.any(status & DRAFT_NOT_SEPARATED)
     assert np.all(e["mu_FL"][np.isfinite(e["mu_FL"])] == e["mu_RR"][np.isfinite(e["mu_RR"])])
     assert e["valid"].mean() > 0.5
-    sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    sc = read_scorecard(run / "scorecard.json")
     assert sc["level"] == "machine"
     assert sc["mu_mean_abs_rel_error"] < 0.25 and sc["rho_s_mean_abs_error"] < 0.06
     # the errors are over the valid estimates, with their share and the all-steps figure beside them
@@ -84,7 +84,7 @@ def test_without_a_draft_sensor_no_rho_s_is_reported(tmp_path: Path) -> None:
     status = e["status"].astype(np.int64)
     assert np.all(status & DRAFT_NOT_SEPARATED) and np.all(status & MACHINE_LEVEL)
     assert not np.isfinite(e["rho_s"]).any()
-    sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    sc = read_scorecard(run / "scorecard.json")
     assert sc["rho_s_reported_fraction"] == 0.0 and math.isnan(sc["rho_s_mean_abs_error"])
 
 
@@ -140,7 +140,7 @@ def mech40(tmp_path_factory) -> Path:
 
 def _replay_scorecard(rec: Path, run: Path) -> dict:
     assert main(["replay", str(rec), "--out", str(run), "--no-map"]) == 0
-    sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    sc = read_scorecard(run / "scorecard.json")
     assert sc["level"] == "machine"
     return sc
 
@@ -240,7 +240,7 @@ def test_machine_curve_prior_from_the_configuration(mech40: Path, tmp_path: Path
     cfg.write_text('[estimator]\nmachine_curve_prior = "d497"\n', encoding="utf-8")
     run = tmp_path / "run-d497"
     assert main(["replay", str(mech40), "--out", str(run), "--config", str(cfg)]) == 0
-    sc = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+    sc = read_scorecard(run / "scorecard.json")
     ref = _replay_scorecard(mech40, tmp_path / "run-default")
     paths = {c["curve_path"] for c in sc["curves"].values()}
     assert paths == {"class:d497"}, sc["curves"]
@@ -298,7 +298,7 @@ def test_a_bekker_soil_recording_replays_and_scores_against_its_own_curve(tmp_pa
         cfg.write_text(f'[estimator]\nmachine_curve_prior = "{prior}"\n', encoding="utf-8")
         run = tmp_path / f"run{prior}"
         assert main(["replay", str(rec), "--out", str(run), "--no-map", "--config", str(cfg)]) == 0
-        cards[prior] = json.loads((run / "scorecard.json").read_text(encoding="utf-8"))
+        cards[prior] = read_scorecard(run / "scorecard.json")
     default, d497 = cards[""], cards["d497"]
     assert default["level"] == "machine" and default["mu_mean_abs_rel_error"] < 0.25
     assert default["mu_mean_abs_rel_error"] == d497["mu_mean_abs_rel_error"]

@@ -17,6 +17,7 @@ next to ``estimates.csv``:
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,21 @@ from .map_truth import score_replay_map
 from .plots import plot_efficiency, plot_run
 from .machine_score import is_machine_level, machine_scorecard
 from .scoring import read_truth, scorecard
+
+
+def read_scorecard(path: Path | str) -> dict[str, Any]:
+    """A ``scorecard.json`` as :func:`score_replay` returned it: its ``null`` figures (not measured: strict
+    JSON has no NaN) read back as NaN."""
+    def nan(x: Any) -> Any:
+        if x is None:
+            return math.nan
+        if isinstance(x, dict):
+            return {k: nan(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [nan(v) for v in x]
+        return x
+
+    return nan(json.loads(Path(path).read_text(encoding="utf-8")))
 
 
 def score_replay(out_dir: Path, rec: Any, arrays: dict[str, Any], *, plot: bool,
