@@ -116,6 +116,10 @@ def test_logged_data_reads_back_with_the_isoxml_package(logged_map, tmp_path):
         assert p.unit_designator and p.offset == 0
     scale = {ddi: float(dvp[dpd[ddi].device_value_presentation_object_id].scale) for ddi in header_ddis[1:]}
     assert scale == {ISO_DDI["a"]: ISO_SCALE["a"], ISO_DDI["rho_s"]: ISO_SCALE["rho_s"]}
+    # the scale is an xs:decimal: no exponent ("1e-05" for ρ_s's scale is refused by a schema-validating reader)
+    import re
+    scales = re.findall(r'<DVP [^>]*C="([^"]*)"', (out.parent / "TASKDATA.XML").read_text())
+    assert len(scales) >= 2 and all(re.fullmatch(r"-?\d+(\.\d+)?", c) for c in scales), scales
 
     # binary: one record per 10 Hz sample, time, position and the stored values
     assert tim.type.value == ("4",) or tim.type.value == "4"

@@ -114,6 +114,15 @@ def iso_table(layers: Sequence[str]) -> list[tuple[str, int, float]]:
     return table
 
 
+def _xs_decimal(x: float) -> str:
+    """``x`` as an ``xs:decimal`` (the type of DVP and VPN's scale ``C``): no exponent (``repr`` gives
+    ``1e-05`` for ρ_s's scale, which a terminal validating against the ISO 11783-10 schema refuses)."""
+    from decimal import Decimal
+
+    text = format(Decimal(repr(float(x))), "f")
+    return text.rstrip("0").rstrip(".") if "." in text else text
+
+
 def _decimals(scale: float) -> int:
     return max(0, int(round(-math.log10(scale))))
 
@@ -138,7 +147,7 @@ def _device(root: ET.Element, entries: Sequence[tuple[int, str, float | None, st
         attrs = {"A": str(10 + k), "B": f"{ddi:04X}", "C": "1", "D": "1", "E": designator[:32]}
         if scale is not None:
             attrs["F"] = str(100 + k)
-            dvps.append({"A": str(100 + k), "B": "0", "C": repr(float(scale)), "D": str(_decimals(scale)),
+            dvps.append({"A": str(100 + k), "B": "0", "C": _xs_decimal(scale), "D": str(_decimals(scale)),
                          "E": unit})
         ET.SubElement(det, "DOR", {"A": str(10 + k)})
         ET.SubElement(dvc, "DPD", attrs)
@@ -336,7 +345,7 @@ def export_isoxml_grid(store: MapStore, grids: Mapping[str, LayerGrid], out_dir:
         "H": str(len(payload)), "I": "2", "J": "1",
     })
     for k, (n, _, scale) in enumerate(table, start=1):
-        ET.SubElement(root, "VPN", {"A": f"VPN{k}", "B": "0", "C": repr(float(scale)), "D": str(_decimals(scale)),
+        ET.SubElement(root, "VPN", {"A": f"VPN{k}", "B": "0", "C": _xs_decimal(scale), "D": str(_decimals(scale)),
                                     "E": ISO_UNIT})
     ET.SubElement(root, "VPN", {"A": f"VPN{len(table) + 1}", "B": "0", "C": "1.0", "D": "0", "E": ""})
 
