@@ -1,5 +1,7 @@
 import argparse
 import json
+import os
+import stat
 
 import numpy as np
 import pytest
@@ -117,3 +119,27 @@ def test_an_empty_or_repeated_layer_list_is_a_usage_error(tmp_path, replay_dir, 
         assert code == 0                                  # png draws the first layer named
     else:
         assert code == 2 and ("no layer named" in err or "named twice" in err), err
+
+
+def test_an_out_that_is_no_regular_file_is_refused_and_left_alone(replay_dir, tmp_path, capsys):
+    """``--out`` naming a device node or pipe replaced it with the export (/dev/full became a PNG file)."""
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    args = parse(["map", "export", str(replay_dir), "--format", "geojson", "--out", str(fifo)])
+    assert args.func(args) == 1
+    assert "exists and is not a regular file or a directory" in capsys.readouterr().err
+    assert stat.S_ISFIFO(fifo.stat().st_mode)
+
+
+def test_an_export_that_outgrows_memory_says_why(replay_dir, capsys, monkeypatch):
+    """Fields kilometres apart: one raster over the whole extent raised MemoryError with a traceback."""
+    from tractionecu.mapping import export as exp
+
+    def too_big(*a, **k):
+        raise MemoryError
+
+    monkeypatch.setitem(exp.EXPORTERS, "geotiff", too_big)
+    args = parse(["map", "export", str(replay_dir), "--format", "geotiff", "--out", str(replay_dir / "x.tif")])
+    assert args.func(args) == 1
+    err = capsys.readouterr().err
+    assert "not enough memory for one geotiff grid over the map's whole extent" in err and "Traceback" not in err

@@ -156,6 +156,13 @@ def run(args: argparse.Namespace) -> int:
     except (TractionEcuError, OSError, ValueError) as e:
         print(f"tractionecu map export: {e}", file=sys.stderr)
         return EXIT_MAP
+    except MemoryError:
+        # the raster formats are one grid over the map's whole extent: fields kilometres apart make it large
+        ext = store.extent()
+        size = f"{ext[2]} × {ext[3]} cells of {store.resolution_m:g} m" if ext else "its extent"
+        print(f"tractionecu map export: not enough memory for one {args.fmt} grid over the map's whole extent "
+              f"({size}); export the fields apart (a map directory per field) or as geojson", file=sys.stderr)
+        return EXIT_MAP
     for p, reason in store.corrupt_tiles:
         print(f"tractionecu map export: warning: skipped corrupt tile {p} ({reason})", file=sys.stderr)
     print(path)

@@ -413,11 +413,18 @@ DEFAULT_OUT = {"geotiff": "map.tif", "isoxml": "TASKDATA", "isoxml-grid": "TASKD
 
 def export(store_or_dir: MapStore | os.PathLike[str] | str, fmt: str, out: os.PathLike[str] | str,
            **kwargs: Any) -> Path:
-    """Dispatch to the exporter of ``fmt`` (one of :data:`FORMATS`)."""
+    """Dispatch to the exporter of ``fmt`` (one of :data:`FORMATS`).
+
+    An existing ``out`` that is not a regular file or directory (a device, a pipe, a socket) is refused: the
+    exporters write beside the target and rename over it, which replaced ``/dev/null`` with a GeoJSON file."""
     try:
         fn = EXPORTERS[fmt]
     except KeyError:
         raise ValueError(f"unknown map format {fmt!r}; choose from {', '.join(FORMATS)}") from None
+    p = Path(out)
+    if p.exists() and not (p.is_file() or p.is_dir()):
+        raise ValueError(f"{p}: exists and is not a regular file or a directory; an export is written beside its "
+                         "target and moved over it: give a file name")
     return fn(store_or_dir, out, **kwargs)
 
 
