@@ -563,3 +563,27 @@ async def test_a_part_task_that_ends_by_itself_stops_the_service_with_an_error(t
                       warm_up_estimator=False)
     rc = await asyncio.wait_for(svc.run(asyncio.Event()), 20)
     assert rc == 1 and svc.can.bus is None and svc.estimation.task.cancelled()
+
+
+def test_status_lines_to_the_journal_come_once_a_minute() -> None:
+    """Under systemd (standard output not a terminal) no status line was printed at all, though README says
+    ``journalctl -u tractionecu -f`` shows them; a line a second would flood the journal."""
+    import io
+
+    from tractionecu.service.status import StatusReporter
+
+    class Quiet:
+        def status(self, text):
+            self.last = text
+
+    out = io.StringIO()
+    n = iter(range(100))
+    rep = StatusReporter(1.0, 1.0, lambda: {"steps": 1.0}, lambda: f"line {next(n)}", Quiet(), out, 60.0)
+    for _ in range(5):
+        rep.report()
+    assert out.getvalue() == "line 0\n"            # the first at once, the next a minute later
+    every = io.StringIO()
+    rep = StatusReporter(1.0, 1.0, lambda: {}, lambda: "x", Quiet(), every)
+    for _ in range(3):
+        rep.report()
+    assert every.getvalue() == "x\nx\nx\n"

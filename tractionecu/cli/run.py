@@ -83,6 +83,10 @@ def keep_mf4_reader_out() -> None:
         sys.modules.setdefault("asammdf", None)   # ``import asammdf`` then raises ImportError, which python-can expects
 
 
+JOURNAL_STATUS_EVERY_S = 60.0
+"""Wall seconds between the status lines printed when standard output is not a terminal (the journal)."""
+
+
 def run(args: argparse.Namespace) -> int:
     sim_only = [f"--{k}" for k in ("scenario", "seed", "speed", "duration") if getattr(args, k) is not None]
     if sim_only and not args.simulate:
@@ -96,7 +100,11 @@ def run(args: argparse.Namespace) -> int:
         keep_mf4_reader_out()
         from ..service.daemon import run_service
 
-        return run_service(cfg, status_stream=None if args.quiet or not sys.stdout.isatty() else sys.stdout)
+        # on a terminal a line a second; otherwise (the journal of a systemd service) one a minute, so that
+        # `journalctl -u tractionecu` shows how the service is doing without a line a second all day
+        tty = sys.stdout.isatty()
+        return run_service(cfg, status_stream=None if args.quiet else sys.stdout,
+                           status_stream_every_s=0.0 if tty else JOURNAL_STATUS_EVERY_S)
     if not args.speed > 0:
         raise ConfigError(f"--speed: must be > 0, got {args.speed}")
     if args.duration is not None and not 0 < args.duration < float("inf"):

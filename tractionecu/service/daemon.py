@@ -206,6 +206,8 @@ class Service:
     status_stream:
         Where to print one status line per ``service.status_interval_s``
         (None: no lines).
+    status_stream_every_s:
+        At most one line printed on ``status_stream`` per this many seconds (0: every one).
     env:
         Environment for ``$STATE_DIRECTORY`` and the watchdog (default os.environ).
     warm_up_estimator:
@@ -228,6 +230,7 @@ class Service:
                  extra_bus_kwargs: dict[str, Any] | None = None,
                  notifier: Notifier | None = None,
                  status_stream: IO[str] | None = None,
+                 status_stream_every_s: float = 0.0,
                  env: dict[str, str] | None = None,
                  codec: Codec | None = None,
                  warm_up_estimator: bool = True) -> None:
@@ -269,7 +272,7 @@ class Service:
             watchdog=self.notifier.watchdog, watchdog_s=watchdog_interval(env), status=self.notifier.status,
             after_step=self.network.serve_requests, stats=self.stats)
         self.status = StatusReporter(cfg.service.status_interval_s, self.clock.speed, self._totals,
-                                     self.status_line, self.notifier, status_stream)
+                                     self.status_line, self.notifier, status_stream, status_stream_every_s)
         self.live_map: LiveMap | None = LiveMap() if cfg.web.enabled else None
         self._after_broadcast: list[asyncio.Event] = []
         self.advice: AdvicePart | None = None

@@ -32,6 +32,9 @@ class StatusReporter(TaskPart):
     line: Callable[[], str]
     notifier: Notifier
     stream: IO[str] | None = None
+    stream_every_s: float = 0.0
+    """Least wall time between two lines printed on ``stream`` [s] (0: every line; the journal of a service
+    under systemd takes one a minute, not one a second)."""
     name: ClassVar[str] = "status"
 
     def __post_init__(self) -> None:
@@ -39,6 +42,7 @@ class StatusReporter(TaskPart):
         self.rates: dict[str, float] = {}
         self._prev: dict[str, float] = {}
         self._prev_mono = time.monotonic()
+        self._printed_mono = -float("inf")
 
     def update_rates(self) -> dict[str, float]:
         """Rates [1/service s] of the totals since the last call (none at the first)."""
@@ -56,7 +60,9 @@ class StatusReporter(TaskPart):
         self.update_rates()
         text = self.line()
         self.notifier.status(text)
-        if self.stream is not None:
+        now = time.monotonic()
+        if self.stream is not None and now - self._printed_mono >= self.stream_every_s:
+            self._printed_mono = now
             try:
                 print(text, file=self.stream, flush=True)
             except (OSError, ValueError):
