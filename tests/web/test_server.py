@@ -167,3 +167,27 @@ def test_live_map_cells_and_changes() -> None:
     ch = m.take_changed()
     assert sorted(c[2 + m.FIELDS.index("eta")] for c in ch) == [0.6, 0.75]
     assert m.take_changed() == []
+
+
+async def test_malformed_requests_are_counted_not_logged_with_a_traceback_each(caplog) -> None:
+    """Each request with an oversized header wrote an ERROR with a full traceback (50 requests, 35 KB of log)."""
+    import logging
+
+    w = part()
+    await w.start()
+    try:
+        host, port = "127.0.0.1", int(w.address.rsplit(":", 1)[1].strip("/"))
+        caplog.set_level(logging.DEBUG, logger="aiohttp.server")
+        for _ in range(5):
+            r, wr = await asyncio.open_connection(host, port)
+            wr.write(b"GET / HTTP/1.1\r\nHost: x\r\nX-Big: " + b"a" * 20000 + b"\r\n\r\n")
+            await wr.drain()
+            await r.read(200)
+            wr.close()
+        await asyncio.sleep(0.05)
+        recs = [x for x in caplog.records if x.name == "aiohttp.server"]
+        assert w.stats["bad_requests"] == 5 and len(recs) == 1
+        assert recs[0].levelno == logging.WARNING and recs[0].exc_info is None
+        assert "malformed request refused" in recs[0].getMessage()
+    finally:
+        await w.stop()

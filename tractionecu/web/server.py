@@ -76,6 +76,28 @@ clean = json_safe
 """JSON-safe copy of a state (:func:`~tractionecu.jsonsafe.json_safe`)."""
 
 
+class _BadRequests(logging.Filter):
+    """aiohttp's server logs every malformed request at ERROR with a traceback (50 requests with an oversized
+    header wrote 35 KB of log).  Counted in the part's ``stats["bad_requests"]``; the first is logged as one
+    line, the others not."""
+
+    def __init__(self, stats: Counter[str]) -> None:
+        super().__init__()
+        self.stats = stats
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        self.stats["bad_requests"] += 1
+        if self.stats["bad_requests"] > 1:
+            return False
+        exc = record.exc_info[1] if record.exc_info else None
+        record.msg = "in-cab page: a malformed request refused (%s); later ones are counted (bad_requests), not logged"
+        record.args = (repr(exc) if exc is not None else record.getMessage(),)
+        record.exc_info = None
+        record.exc_text = None
+        record.levelno, record.levelname = logging.WARNING, "WARNING"
+        return True
+
+
 class Viewer:
     """One WebSocket viewer: its bounded queue and sender task."""
 
@@ -292,6 +314,8 @@ class WebPart:
     # ------------------------------------------------------------ lifecycle
     async def start(self) -> None:
         self._assets = load_assets()
+        self._bad_requests = _BadRequests(self.stats)
+        logging.getLogger("aiohttp.server").addFilter(self._bad_requests)
         runner = web.AppRunner(self.app(), access_log=None, handle_signals=False)
         await runner.setup()
         site = web.TCPSite(runner, self.cfg.host, self.cfg.port, reuse_address=True)
@@ -324,3 +348,6 @@ class WebPart:
             if self.runner is not None:
                 await self.runner.cleanup()
                 self.runner = None
+            if getattr(self, "_bad_requests", None) is not None:
+                logging.getLogger("aiohttp.server").removeFilter(self._bad_requests)
+                self._bad_requests = None
