@@ -288,3 +288,17 @@ def test_keys_beside_the_estimator_table_are_an_error(tmp_path) -> None:
     assert load_estimator_config(p).q_mu == 5.0
     p.write_text("q_mu = 5.0\n")
     assert load_estimator_config(p).q_mu == 5.0
+
+
+def test_a_hub_drive_without_a_draft_sensor_is_named(tmp_path) -> None:
+    """A hub drive declared without a draft sensor was accepted and the key ignored; its replay ran to exit 0
+    with no estimate."""
+    from tractionecu.config import load_vehicle
+    from tractionecu.errors import ConfigError
+
+    p = tmp_path / "vehicle.toml"
+    p.write_text('[vehicle]\nmass_kg = 6300.0\n[vehicle.drivetrain]\nkind = "hub"\ndraft_sensing = false\n')
+    with pytest.raises(ConfigError, match="drivetrain.draft_sensing = false: the hub estimator needs the measured"):
+        load_vehicle(p)
+    p.write_text('[vehicle]\nmass_kg = 6300.0\n[vehicle.drivetrain]\nkind = "hub"\ndraft_sensing = true\n')
+    assert load_vehicle(p).drivetrain.kind == "hub"

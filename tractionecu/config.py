@@ -440,7 +440,8 @@ class DrivetrainSpec:
                                       "the tractor's wheel-speed distance calibration (a measured 100 m driven "
                                       "with the implement raised) [m]; 0: eq. 9 from r0_m and the tyre data", 0.0, 2.5)
     load_sensing: str = setting("none", "front-axle (load pins) | none (loads from the mass, the static front "
-                                "share and the draft)")
+                                "share and the draft); engine-driven kinds: the hub estimator always takes its "
+                                "loads from the front-axle pins")
     draft_sensing: bool = setting(True, "the hitch measures the draft (ISO 11783-7 rear hitch status); false: "
                                   "ρ_s and the draft are estimated as their sum, ρ_s is not reported")
 
@@ -620,7 +621,22 @@ def load_vehicle(path: str | Path) -> VehicleParams:
     A :class:`ConfigError` names the file."""
     data = load_toml(path, "vehicle")
     with _naming(path):
-        return from_mapping(VehicleParams, _vehicle_tables(data)[0], "vehicle")
+        veh = from_mapping(VehicleParams, _vehicle_tables(data)[0], "vehicle")
+        _check_hub_sensing(veh.drivetrain)
+        return veh
+
+
+def _check_hub_sensing(dt: DrivetrainSpec) -> None:
+    """The hub estimator takes the draft from the hitch: a hub drive declared without it (``draft_sensing =
+    false``) is an error, not a key read and ignored (such a machine replayed to no estimate at all).  Its wheel
+    loads come from the front-axle pins whatever ``load_sensing`` says (a recording without them is refused by
+    replay, :data:`~tractionecu.pipeline.signals.REPLAY_REQUIRED`)."""
+    if dt.kind != "hub":
+        return
+    if "draft_sensing" in given_keys(dt) and not dt.draft_sensing:
+        raise ConfigError("drivetrain.draft_sensing = false: the hub estimator needs the measured draft; a machine "
+                          'without a draft sensor runs the machine-level estimator (kind = "mechanical" or '
+                          '"power-split"), which estimates ρ_s and the draft as their sum')
 
 
 def load_sensors(path: str | Path) -> SensorSpec:

@@ -55,7 +55,7 @@ def test_replay_reports_profile_missing_signals_and_no_motion(jd_dir, tmp_path, 
         err = captured.err
         assert captured.out == "" and "Traceback" not in err
         assert "not replayed: profile hub (the one the estimator runs, no vehicle.toml" in err
-        assert "lacks 8 bus signal(s)" in err
+        assert "lacks 10 bus signal(s)" in err
         assert "missing: WheelSpeed_FL, WheelSpeed_FR, WheelSpeed_RL, WheelSpeed_RR, DriveTorque_FL" in err
         assert "profile mechanical (estimated with [drivetrain] kind" in err and "3 of 6 needs found" in err
         assert "the signals fit profile mechanical best" in err

@@ -35,24 +35,35 @@ HUB = {"TECU_WheelSpeeds": {f"WheelSpeed_{w}": 3.0 for w in WHEELS},
        "TECU_DriveTorques": {f"DriveTorque_{w}": 800.0 for w in WHEELS}}
 
 
-def test_hub_without_draft_load_and_gnss_replays_with_a_note(tmp_path):
+def test_hub_without_draft_and_load_is_refused_and_without_gnss_replays_with_a_note(tmp_path):
+    """Without the front-axle load and the draft the hub estimator never starts: such a replay ran to exit 0
+    with no estimate at all and only the note "the estimator flags those steps"."""
     rec = write(tmp_path, HUB)
-    assert missing_signals(rec) == []
+    assert missing_signals(rec) == ["FrontAxleLoad", "DraftForce"]
     hub = dict((need.what, sig) for need, sig in profile_status(rec)["hub"])
     assert hub["wheel speed FL"] == "WheelSpeed_FL" and hub["draft"] is None and hub["GNSS speed"] is None
     assert source_of(rec, "WheelSpeed_FL") == "TECU_WheelSpeeds"
-    assert profile_note(rec)[1:] == ["profile hub: missing front-axle load, draft, GNSS speed: the estimator flags "
-                                     "those steps (time-out bits)"]
-    assert profile_note(rec)[0].startswith("no vehicle.toml beside the recording")
-    summary, _, res = replay_to_dir(rec, tmp_path / "run", write_map=False)
-    assert res.steps > 150 and not res.arrays["valid"].any()
+    with pytest.raises(MissingSignals) as e:
+        replay_to_dir(rec, tmp_path / "run", write_map=False)
+    assert e.value.missing == ["FrontAxleLoad", "DraftForce"]
     m = motion(rec)
     assert m.moving is True and m.evidence[0].startswith("WheelSpeed_FL 3.00 rad/s")
 
+    rec = write(tmp_path, {**HUB, "TECU_AxleLoad": {"FrontAxleLoad": 25000.0, "FrontAxleLoadStatus": 0},
+                           "RearHitchStatus": {"DraftForce": 12000.0}})
+    assert missing_signals(rec) == []
+    assert profile_note(rec)[1:] == ["profile hub: missing GNSS speed: the estimator flags those steps (time-out "
+                                     "bits)"]
+    assert profile_note(rec)[0].startswith("no vehicle.toml beside the recording")
+    summary, _, res = replay_to_dir(rec, tmp_path / "run", write_map=False)
+    assert res.steps > 150 and not res.arrays["valid"].any()
+
 
 def test_not_available_signals_count_as_missing_and_stop_replay(tmp_path):
-    rec = write(tmp_path, {**HUB, "TECU_DriveTorques": {}})          # every torque sent as "not available"
-    assert signal_state(rec, "DriveTorque_FL") == "not available" and signal_state(rec, "DraftForce") == "absent"
+    rec = write(tmp_path, {**HUB, "TECU_DriveTorques": {},          # every torque sent as "not available"
+                           "TECU_AxleLoad": {"FrontAxleLoad": 25000.0, "FrontAxleLoadStatus": 0},
+                           "RearHitchStatus": {"DraftForce": 12000.0}})
+    assert signal_state(rec, "DriveTorque_FL") == "not available" and signal_state(rec, "DraftForce") == "found"
     assert missing_signals(rec) == [f"DriveTorque_{w}" for w in WHEELS]
     with pytest.raises(MissingSignals) as e:
         recording_grid(rec, 100.0)
@@ -62,7 +73,7 @@ def test_not_available_signals_count_as_missing_and_stop_replay(tmp_path):
     assert not (tmp_path / "run").exists()
     report = "\n".join(missing_report(rec, e.value.missing))
     assert "missing: DriveTorque_FL, DriveTorque_FR, DriveTorque_RL, DriveTorque_RR" in report
-    assert "profile hub: 4 of 11 needs found" in report
+    assert "profile hub: 6 of 11 needs found" in report
 
 
 def test_mechanical_needs_take_any_wheel_based_or_ground_speed(tmp_path):
@@ -74,7 +85,7 @@ def test_mechanical_needs_take_any_wheel_based_or_ground_speed(tmp_path):
     assert mech == {"engine percent torque": "ActualEnginePercentTorque", "engine reference torque": None,
                     "gear ratio": "TransmissionActualGearRatio", "wheel-based speed": "FrontAxleSpeed",
                     "draft": "DraftForce", "ground speed": "GroundBasedMachineSpeed"}
-    assert set(missing_signals(rec)) == set(REPLAY_REQUIRED)
+    assert set(missing_signals(rec)) == set(REPLAY_REQUIRED) - {"DraftForce"}    # the hub's needs: the draft is there
     m = motion(rec)
     assert m.moving is True and "engine 1800 to 1800 rpm (median 1800)" in m.describe()
     assert "gear selected: +4" in m.describe()

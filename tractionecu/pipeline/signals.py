@@ -283,10 +283,11 @@ def required_missing(rec: Any, vehicle: Any) -> list[str]:
     return missing_signals(rec)
 
 
-REPLAY_REQUIRED: tuple[str, ...] = WHEEL_SPEEDS + DRIVE_TORQUES
-"""Signals without which replay does not run: the step grid follows the wheel speeds, and without drive
-torques every step would be a prediction.  Without the front-axle load, the draft or the GNSS speed it runs,
-and the estimator flags its steps with the time-out bits."""
+REPLAY_REQUIRED: tuple[str, ...] = WHEEL_SPEEDS + DRIVE_TORQUES + (FRONT_AXLE_LOAD, DRAFT)
+"""Signals without which replay of the hub profile does not run: the step grid follows the wheel speeds,
+without drive torques every step would be a prediction, and the hub estimator starts only once it has the
+wheel loads (the front-axle load) and the draft (a recording without either ran to exit 0 with no estimate at
+all).  Without the GNSS speed it runs, and the estimator flags its steps with the time-out bits."""
 
 
 def _values(rec: Any, name: str) -> np.ndarray | None:
