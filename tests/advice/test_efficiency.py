@@ -230,3 +230,15 @@ def test_a_machine_without_a_draft_sensor_is_told_apart_from_an_invalid_estimate
     # a ρ_s missing for any other reason still makes the estimate unusable
     rep = trk.update(estimate(0.1, 0.08, rho_s=math.nan))
     assert rep.flags & eff.ESTIMATE_INVALID and not rep.flags & eff.NO_RHO_S
+
+
+def test_the_page_gets_no_slip_or_pull_the_estimate_does_not_support() -> None:
+    """Reversing (slip not supported) and at standstill the page showed "slip now 1.3 %" and the pull frozen
+    from the last supported step, as live values."""
+    trk = eff.EfficiencyTracker(eff.efficiency_config_for(VehicleParams()))
+    d = trk.update(estimate(0.0, 0.08)).as_dict()
+    assert d["slip"] == pytest.approx(0.08) and d["slip_ok"] and d["pull_n"] > 0
+    held = trk.update(estimate(0.1, 0.08, status=0x2000)).as_dict()         # slip not supported: held
+    assert held["slip"] is None and held["slip_ok"] is False and held["pull_n"] is None
+    still = trk.update(estimate(0.2, 0.08, status=0x400, v=0.0)).as_dict()   # standstill
+    assert still["slip"] is None and still["pull_n"] is None

@@ -346,7 +346,11 @@ class EfficiencyReport:
                 "s_star_lo": c(self.s_star_lo), "s_star_hi": c(self.s_star_hi), "eta_star": c(self.eta_star),
                 "eta_star_sigma": c(self.eta_star_sigma), "eta": c(self.eta), "eta_front": c(self.eta_front),
                 "eta_rear": c(self.eta_rear), "eta_wheels": [c(x) for x in self.eta_wheels],
-                "eta_lost": c(self.eta_lost), "slip": c(self.slip), "pull_n": c(self.pull_n),
+                # the slip and pull now only while the estimate supports them: held from a reversing or a
+                # standstill they were shown as live values ("slip now 1.3 %" frozen for 12 s)
+                "eta_lost": c(self.eta_lost), "slip": c(self.slip) if self.slip_ok else None,
+                "slip_ok": self.slip_ok,
+                "pull_n": c(self.pull_n) if not self.flags & (ESTIMATE_INVALID | NOT_PULLING) else None,
                 "pull_at_s_star_n": c(self.pull_at_s_star_n), "a": c(self.a), "sigma_a": c(self.sigma_a),
                 "rho_s": c(self.rho_s), "class": self.class_name}
 

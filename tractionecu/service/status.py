@@ -82,6 +82,11 @@ CURVE_POINTS = 61
 CURVE_S_MAX = 0.3
 
 
+SLIP_NOT_SHOWN = 0x2000 | 0x10000
+"""Estimate status bits under which the page shows no per-wheel slip: slip not supported by its own σ (held),
+averaged over the last metres of travel."""
+
+
 def web_snapshot(svc: Any) -> dict[str, Any]:
     """The state the in-cab page shows (:mod:`tractionecu.web`), from a running
     :class:`~tractionecu.service.daemon.Service`: the last estimate, efficiency and s*, the μ(s) and η(s)
@@ -98,11 +103,16 @@ def web_snapshot(svc: Any) -> dict[str, Any]:
     out["t"] = None if g0 is None else svc.clock.now() - g0
     if e is not None:
         status = int(getattr(e, "status", 0) or 0)
+        valid = bool(getattr(e, "valid", False))
+        # a wheel's slip the estimate does not support (its own σ, a standstill, reversing: held) is not shown as
+        # if it were this step's; μ and ρ_s go with the estimate's validity (valid and status stay beside them)
+        slip_ok = valid and not status & SLIP_NOT_SHOWN
         out["estimate"] = {
-            "v": float(e.v), "mu": [float(x) for x in e.mu], "slip": [float(x) for x in e.slip],
+            "v": float(e.v), "mu": [float(x) for x in e.mu],
+            "slip": [float(x) for x in e.slip] if slip_ok else [None] * 4,
             "rho_s": float(e.rho_s), "a": float(e.a), "soil_class": str(getattr(e, "soil_class", "")),
             "status": status, "status_bits": [n for b, n in STATUS_NAMES.items() if status & b],
-            "valid": bool(getattr(e, "valid", False)),
+            "valid": valid,
         }
     adv = svc.advice
     rep = adv.engine.report if adv is not None else None
