@@ -435,3 +435,19 @@ def test_an_empty_gnss_log_is_a_recording_without_gnss(short_recording, tmp_path
     assert "gps.nmea: 0 lines" in capsys.readouterr().out
     assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
     assert len((tmp_path / "run" / "estimates.csv").read_text().splitlines()) > 1000
+
+
+def test_a_curve_never_identified_is_said(short_recording, tmp_path, capsys):
+    """With a 1 Hz GNSS receiver every step held a = NaN (slip not supported) and the map had no a layer; the
+    replay exited 0 saying only how many epochs it mapped."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    lines = (rec / "gps.nmea").read_text().splitlines(keepends=True)
+    keep = [ln for ln in lines if not (ln.startswith("$") and "," in ln and ln.split(",")[1][:6].isdigit()
+                                       and ln.split(",")[1][7:9] not in ("", "00"))]
+    (rec / "gps.nmea").write_text("".join(keep))
+    assert main(["replay", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert "curve: a was never identified: the slip was not supported on" in out and "GNSS epochs at 1.0 Hz" in out
+    assert main(["replay", "--out", str(tmp_path / "run2"), str(short_recording)]) == 0
+    assert "a was never identified" not in capsys.readouterr().out

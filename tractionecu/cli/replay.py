@@ -38,6 +38,7 @@ from typing import Any
 
 from ..errors import ConfigError
 from ..mapping.export import DEFAULT_OUT as EXPORT_DEFAULT_OUT
+from ..estimation.estimator import SLIP_UNCERTAIN
 from ..pipeline.replay import RATE_HZ
 from .inspect import add_dbc_option
 
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
 
         summary.update(score_replay(args.out, rec, res.arrays, plot=args.plot, summary=summary))
     removed = _remove_stale(Path(args.out), earlier, _products(Path(args.out)))
-    print("\n".join([*profile_note(rec), *rejects_note(rec), *clock_gnss_note(rec, summary),
+    print("\n".join([*profile_note(rec), *rejects_note(rec), *clock_gnss_note(rec, summary), *curve_note(rec, res),
                       format_summary(summary)]))
     if removed:
         print(f"removed from {args.out} what an earlier replay had written there and this one did not: "
@@ -144,6 +145,28 @@ def _remove_stale(out: Path, before: dict[str, int], after: dict[str, int]) -> l
             p.unlink(missing_ok=True)
         removed.append(name)
     return removed
+
+
+def curve_note(rec: Any, res: Any) -> list[str]:
+    """Why the μ(s) curve's ``a`` was never identified, when it was not: a replay whose every estimate held
+    ``a`` = NaN (1–2 Hz GNSS: the slip's σ from the ground speed's never within ``slip_sigma_max``) exited 0
+    with "map: 87 of 90 GNSS epochs mapped" and a map without its ``a`` layer, and nothing said so."""
+    import numpy as np
+
+    arr = getattr(res, "arrays", None) or {}
+    a = np.asarray(arr.get("a", ()), dtype=float)
+    status = np.asarray(arr.get("status", ()), dtype=np.int64)
+    valid = np.asarray(arr.get("valid", ()), dtype=bool)
+    if not a.size or np.isfinite(a).any() or not valid.any():
+        return []
+    held = float(np.mean((status[valid] & SLIP_UNCERTAIN) != 0))
+    gps = getattr(rec, "gps", ())
+    rate = ""
+    if len(gps) > 1 and gps.t[-1] > gps.t[0]:
+        rate = f"; GNSS epochs at {(len(gps) - 1) / (gps.t[-1] - gps.t[0]):.1f} Hz"
+    return [f"curve: a was never identified: the slip was not supported on {100 * held:.0f} % of the valid steps "
+            f"(its σ from the ground speed's above [estimator] slip_sigma_max{rate}); μ and ρ_s are estimated, "
+            "no a is mapped"]
 
 
 def clock_gnss_note(rec: Any, summary: dict[str, Any]) -> list[str]:
