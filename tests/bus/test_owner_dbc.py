@@ -42,6 +42,20 @@ def test_owner_messages_decode_by_pgn_under_message_dot_signal_names(codec):
     assert codec.signals["DriveCtrl_4.HitchDraft"].raw_min == -32768
 
 
+def test_an_unranged_unsigned_owner_signal_takes_all_ones_as_not_available(tmp_path):
+    """An owner DBC's 16-bit wheel speed with [0|0] decoded 0xFFFF ("not available" on the bus) as 655.35 rpm,
+    20× the real speed, and the estimates were marked valid with μ from −1.1 to +1.2."""
+    dbc = tmp_path / "own.dbc"
+    dbc.write_text('VERSION ""\n\nNS_ :\n\nBS_:\n\nBU_: X\n\n'
+                   'BO_ 2566873127 Own_1: 8 X\n SG_ Spd : 0|16@1+ (0.01,0) [0|0] "rpm" X\n'
+                   ' SG_ Flags : 16|2@1+ (1,0) [0|0] "" X\n SG_ Trim : 24|16@1- (1,0) [0|0] "" X\n')
+    codec = dbcmod.Codec(extra=[dbc])
+    _, v = codec.decode(0x18FF6027, bytes([0xFF, 0xFF, 0x03, 0xFF, 0xFF, 0, 0, 0]))
+    assert math.isnan(v["Own_1.Spd"]) and v["Own_1.Flags"] == 3 and v["Own_1.Trim"] == -1
+    _, v = codec.decode(0x18FF6027, bytes([0xFE, 0xFF, 0, 0, 0, 0, 0, 0]))
+    assert v["Own_1.Spd"] == pytest.approx(655.34)
+
+
 def test_multiplexed_messages_are_skipped_and_listed(codec):
     assert {(m, why.split(" ")[0]) for _, m, why in codec.skipped} == {("DriveCtrl_5", "multiplexed")}
     assert codec.message_for_pgn(0xFF57) is None and "DriveCtrl_5" not in codec.messages

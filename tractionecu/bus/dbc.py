@@ -32,7 +32,10 @@ never as a number:
 * **Other signals**: the raw range from the DBC's ``[minimum|maximum]``
   (e.g. 0xFFFF in a 16-bit unsigned speed, 0x8000 in a signed proprietary
   signal lie outside it).  A DBC that writes ``[0|0]`` (no range, common in
-  OEM files) gets the full raw range of the signal's length.  IEEE float
+  OEM files) gets the full raw range of the signal's length, less, for an
+  unsigned signal of 8 bits or more, its all-ones code, which is "not
+  available" as in J1939 (0xFFFF of an OEM's wheel speed decoded as 655 rpm,
+  20× the real speed, and its μ was marked valid).  IEEE float
   signals are taken as they are.
 
 Encoding a NaN or a missing signal writes the all-ones raw code (0x8000 for
@@ -251,8 +254,10 @@ def _raw_bounds(sig) -> tuple[int, int, int]:
     scale = float(sig.scale)
     offset = float(sig.offset)
     lo_phys, hi_phys = sig.minimum, sig.maximum
-    if (lo_phys is not None and hi_phys is not None and lo_phys == hi_phys) or scale == 0:   # "[0|0]": no range
-        return full_lo, full_hi, raw_na
+    no_range = lo_phys is None and hi_phys is None        # cantools reads "[0|0]" so
+    if no_range or (lo_phys is not None and hi_phys is not None and lo_phys == hi_phys) or scale == 0:  # no range
+        # ... but for an unsigned value of a byte or more the all-ones code is "not available" (module doc)
+        return full_lo, (full_hi - 1 if not sig.is_signed and sig.length >= 8 else full_hi), raw_na
     ends = [(x - offset) / scale if x is not None else None for x in (lo_phys, hi_phys)]
     if scale < 0:
         ends.reverse()
