@@ -111,3 +111,16 @@ def test_the_rear_hitch_status_at_its_standard_rate_has_no_gaps(make_recording):
     assert ms.n_gaps == 0
     hub = read_recording(make_recording("paper-straight", 3, 4.0)).stats.messages["RearHitchStatus"]
     assert hub.rate_hz == pytest.approx(50.0, rel=0.05) and hub.n_gaps == 0     # faster than the standard: fine
+
+
+def test_a_ground_speed_in_travel_against_standing_wheels_is_a_contradiction_not_no_motion(tmp_path):
+    """CCVS1's speed left at 0 by the tractor while GBSD read 2.8 m/s: inspect and replay said "no motion",
+    calling the ground speed its noise at standstill, while the replay made 4981 valid estimates."""
+    rec = write(tmp_path, {"CCVS1": {"WheelBasedVehicleSpeed": 0.0, "ParkingBrakeSwitch": 0},
+                           "GBSD": {"GroundBasedMachineSpeed": 2.8}}, n=50)
+    m = motion(rec)
+    assert m.moving is None and m.describe().startswith("unknown (the speeds disagree): ")
+    assert "contradiction: a ground speed above 0.5 m/s on 100 % of its samples" in m.describe()
+    rec = write(tmp_path, {"CCVS1": {"WheelBasedVehicleSpeed": 0.0, "ParkingBrakeSwitch": 1},
+                           "GBSD": {"GroundBasedMachineSpeed": 0.15}}, n=50)     # radar noise at standstill
+    assert motion(rec).moving is False and "noise at standstill" in motion(rec).describe()

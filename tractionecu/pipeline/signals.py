@@ -371,7 +371,16 @@ class Motion:
 
     def describe(self) -> str:
         head = {True: "moving", False: "no motion", None: "unknown (no speed signal)"}[self.moving]
+        if self.moving is None and any(e.startswith("contradiction") for e in self.evidence):
+            head = "unknown (the speeds disagree)"
         return head + (": " + "; ".join(self.evidence) if self.evidence else "")
+
+
+MOTION_SUSTAINED_MPS = 0.5
+"""A ground speed above this [m/s] ..."""
+MOTION_SUSTAINED_SHARE = 0.2
+"""... on this share of its samples or more is travel, not the noise of a receiver or radar at standstill
+(GNSS Doppler σ 0.05 m/s), whatever the wheel-based speeds say."""
 
 
 def motion(rec: Any, engine: bool = True) -> Motion:
@@ -379,6 +388,7 @@ def motion(rec: Any, engine: bool = True) -> Motion:
     keeps only a stub of it), gear and parking brake as context."""
     wheels: bool | None = None                     # what the wheel-based speeds say, then the ground speeds
     ground: bool | None = None
+    sustained = 0.0                                # the largest share of a ground speed's samples above it
     evidence = []
     wheel_mps = tuple(n for n in SPEED_SIGNALS if n not in GROUND_SPEEDS)
     for names, limit, unit in ((wheel_mps, MOTION_SPEED_MPS, "m/s"), (WHEEL_SPEEDS, MOTION_WHEEL_RAD_S, "rad/s"),
@@ -394,10 +404,19 @@ def motion(rec: Any, engine: bool = True) -> Motion:
             evidence.append(f"{label} {top:.2f} {unit} at most ({int(np.isfinite(v).sum())} samples)")
             if names is GROUND_SPEEDS:
                 ground = bool(ground) or top > limit
+                fin = v[np.isfinite(v)]
+                sustained = max(sustained, float(np.mean(np.abs(fin) > MOTION_SUSTAINED_MPS)))
             else:
                 wheels = bool(wheels) or top > limit
     moving = ground if wheels is None else wheels
-    if wheels is False and ground:
+    if wheels is False and sustained >= MOTION_SUSTAINED_SHARE:
+        # not noise: a ground speed over 0.5 m/s on a fifth of its samples while the wheel-based speed reads
+        # standing (a tractor that does not fill CCVS1's speed, a mapping onto a constant) is a contradiction
+        moving = None
+        evidence.append(f"contradiction: a ground speed above {MOTION_SUSTAINED_MPS:g} m/s on {100 * sustained:.0f} % "
+                        "of its samples while the wheel-based speeds read standing (a wheel-based speed this "
+                        "tractor does not fill, or a [signals] mapping onto a constant)")
+    elif wheels is False and ground:
         evidence.append(f"the ground speeds above {MOTION_SPEED_MPS:g} m/s with the wheels standing are their "
                         "noise at standstill")
     rpm = _values(rec, ENGINE_SPEED) if engine else None
