@@ -211,3 +211,17 @@ def test_empty_map_is_an_error_not_a_crash(tmp_path):
     MapStore(tmp_path / "e", *ORIGIN).close()
     with pytest.raises(ValueError, match="no data"):
         export_isoxml(tmp_path / "e", tmp_path / "iso")
+
+
+def test_an_isoxml_grid_across_the_180th_meridian_is_refused_not_allocated(tmp_path):
+    """A field on Fiji (lon ±180) made the ISO grid span the globe: an attempt to allocate 153 GiB and a
+    traceback."""
+    from tractionecu.mapping.export import export
+
+    n = 200
+    lat = np.full(n, -16.8)
+    lon = ((np.linspace(179.9995, 180.0005, n) + 180.0) % 360.0) - 180.0
+    with MapStore(tmp_path / "m", float(lat[0]), float(lon[0])) as st:
+        st.add_many(lat, lon, {"a": np.full(n, 0.7)}, 1.78e9 + 0.1 * np.arange(n))
+    with pytest.raises(ValueError, match="crosses the 180th meridian"):
+        export(tmp_path / "m", "isoxml-grid", tmp_path / "TASKDATA")

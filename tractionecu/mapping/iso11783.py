@@ -279,6 +279,11 @@ def latlon_grid_spec(store: MapStore, grid: LayerGrid, finite: NDArray[np.bool_]
     bx = np.concatenate([xa + (xb - xa) * t, np.full_like(t, xb), xb - (xb - xa) * t, np.full_like(t, xa)])
     by = np.concatenate([np.full_like(t, ya), ya + (yb - ya) * t, np.full_like(t, yb), yb - (yb - ya) * t])
     lat, lon = store.to_latlon(bx, by)
+    if float(lon.max()) - float(lon.min()) > 180.0:
+        # a field across the 180th meridian: the ISO 11783-10 grid runs east from its minimum east position in
+        # −180…180°, so it would span the globe (a Fiji field asked for 153 GiB)
+        raise ValueError("the map crosses the 180th meridian: an ISO 11783-10 grid cannot hold it (GRD runs east "
+                         "from a minimum east position in -180..180 deg); export it as geotiff in its UTM frame")
     lat_c = float(np.mean(lat))
     dlat = math.degrees(res / meridian_radius(lat_c))
     dlon = math.degrees(res / (normal_radius(lat_c) * math.cos(math.radians(lat_c))))
