@@ -179,3 +179,21 @@ def test_a_two_wheel_drive_ballasts_its_driven_rear_axle() -> None:
     mfwd = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
     drive(mfwd, 40.0, 0.20)
     assert {r.kind: r for r in mfwd.advice}["add_ballast"].evidence["weight_driven_n"] == veh.weight_n
+
+
+def test_the_ballast_target_holds_the_last_s_star_inside_the_band() -> None:
+    """The target slip switched each second between s* (0.074, below an MFWD's 8 %–12 % band) and the band's
+    middle as s* came and went: the page showed about 2885 kg, then 1477 kg 1.5 s later."""
+    from tractionecu.advice.efficiency import EfficiencyReport
+
+    adv = Advisor(AdviceSettings(axle_type="mfwd"))
+    band = SLIP_BANDS["mfwd"]
+    rep = EfficiencyReport(10.0, 0, rho_s=0.07)
+    rep.s_star, rep.flags = 0.074, 0
+    assert rep.s_star_valid
+    assert adv._target(rep, band) == (0.08, "s* brought into the band")
+    gone = EfficiencyReport(11.5, 0x01, rho_s=0.07)                  # s* not identified this second
+    assert not gone.s_star_valid
+    assert adv._target(gone, band) == (0.08, "s* brought into the band")
+    late = EfficiencyReport(100.0, 0x01, rho_s=0.07)                 # a minute and more without one
+    assert adv._target(late, band) == (pytest.approx(0.10), "band middle")
