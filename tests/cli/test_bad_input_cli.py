@@ -451,3 +451,20 @@ def test_a_curve_never_identified_is_said(short_recording, tmp_path, capsys):
     assert "curve: a was never identified: the slip was not supported on" in out and "GNSS epochs at 1.0 Hz" in out
     assert main(["replay", "--out", str(tmp_path / "run2"), str(short_recording)]) == 0
     assert "a was never identified" not in capsys.readouterr().out
+
+
+def test_a_logger_restart_is_named_with_where_to_split(short_recording, tmp_path, capsys):
+    """A logger that restarted mid-capture (its clock from 0 again): half the frames dropped as stamped earlier,
+    and the hint to sort the capture interleaved the two runs, after which replay refused it."""
+    rec = tmp_path / "rec"
+    shutil.copytree(short_recording, rec)
+    lines = (rec / "can.log").read_text().splitlines()
+    half = len(lines) // 2
+    t0 = float(lines[0][1:lines[0].index(")")])
+    t1 = float(lines[half][1:lines[half].index(")")])
+    second = [f"({float(ln[1:ln.index(')')]) - t1 + t0:.6f}){ln[ln.index(')') + 1:]}" for ln in lines[half:]]
+    (rec / "can.log").write_text("\n".join(lines[:half] + second) + "\n")
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "run"), str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert f"can.log: its clock restarted at line {half + 2}" in out or f"its clock restarted at line {half + 1}" in out
+    assert "split the capture at line" in out and "sort -s" not in out

@@ -206,7 +206,16 @@ def rejects_note(rec: Any) -> list[str]:
             out += [line if line.startswith("lines holding") else f"skipped {line}"
                     for line in st.describe()]  # type: ignore[attr-defined]
         back = getattr(st, "rejected", {}).get("time_backwards", 0)
-        if back and back >= 0.01 * max(getattr(st, "lines", 0), 1):
+        first = (getattr(st, "examples", {}).get("time_backwards") or [0])[0]
+        if back and first and back >= 0.9 * (st.lines - first + 1) and back >= 0.01 * max(st.lines, 1):
+            # every line from one on was stamped before the lines ahead of it: the clock restarted there (a
+            # logger's reboot), not an order to sort (sorting interleaved the two runs and the clocks
+            # could no longer be reconciled)
+            out.append(f"{fname}: its clock restarted at line {first} (a logger restarted?): the {back} lines "
+                       f"from there on are stamped before the lines ahead of them and were left out; split the "
+                       f"capture at line {first} (head -n {first - 1} {fname} > part1.log; tail -n +{first} "
+                       f"{fname} > part2.log) and replay each part")
+        elif back and back >= 0.01 * max(getattr(st, "lines", 0), 1):
             # a capture merged from several interfaces, or stamped on arrival, out of time order: its frames
             # are read in file order, and each one earlier than the latest before it is left out
             out.append(f"{fname}: {back} of {st.lines} lines ({100.0 * back / max(st.lines, 1):.1f} %) are stamped "
