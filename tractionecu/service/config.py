@@ -169,11 +169,16 @@ class EstimationConfig:
                             "before the grid time has arrived [s]", 0.0, 1.0)
     max_catch_up_s: float = setting(1.0, "when the loop falls further behind than this, it skips ahead [s]", 0.01, 60.0)
     vehicle: str = setting("", "vehicle.toml with the nominal VehicleParams; empty = built-in defaults")
-    wheel_speed_timeout_s: float = setting(0.05, "wheel speeds older than this are not used (status 0x01), or older than timeout_periods of their observed period when that is longer [s]", 0.001, 10.0)
-    ground_speed_timeout_s: float = setting(0.5, "ground speed older than this is not used (status 0x02), or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
-    torque_timeout_s: float = setting(0.05, "drive torques (engine torque) older than this: predict only (status 0x04), or older than timeout_periods of their observed period when that is longer [s]", 0.001, 10.0)
-    axle_load_timeout_s: float = setting(0.1, "front-axle load older than this: predict only (status 0x08), or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
-    draft_timeout_s: float = setting(0.1, "draft force older than this: predict only (status 0x10), or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
+    wheel_speed_timeout_s: float = setting(0.05, "wheel speeds older than this are not used (status 0x01), "
+                                 "or older than timeout_periods of their observed period when that is longer [s]", 0.001, 10.0)
+    ground_speed_timeout_s: float = setting(0.5, "ground speed older than this is not used (status 0x02), "
+                                 "or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
+    torque_timeout_s: float = setting(0.05, "drive torques (engine torque) older than this: predict only (status 0x04), "
+                                 "or older than timeout_periods of their observed period when that is longer [s]", 0.001, 10.0)
+    axle_load_timeout_s: float = setting(0.1, "front-axle load older than this: predict only (status 0x08), "
+                                 "or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
+    draft_timeout_s: float = setting(0.1, "draft force older than this: predict only (status 0x10), "
+                                 "or older than timeout_periods of its observed period when that is longer [s]", 0.001, 10.0)
 
     def __post_init__(self) -> None:
         validate(self, "estimation")
