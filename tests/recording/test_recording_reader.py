@@ -281,3 +281,17 @@ def test_full_jd_captures_through_reader(tmp_path, name):
     assert JD_CLAIMS <= {c.sa for c in st.address_claims}
     assert j1939.DEFAULT_SERVICE_ADDRESS not in {c.sa for c in st.address_claims}
     assert rec.gps.t.size == 0 and st.gps_alignment == "no gps.nmea"
+
+
+def test_a_byte_order_mark_costs_no_line(tmp_path, codec):
+    """A capture and a GNSS log saved by a Windows tool begin with a UTF-8 byte-order mark: the first line of
+    each was rejected as garbage (or read as a prefixed sentence)."""
+    write_rec(tmp_path, codec)
+    ref = read_recording(tmp_path)
+    for name in ("can.log", "gps.nmea"):
+        p = tmp_path / name
+        p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes())
+    rec = read_recording(tmp_path)
+    st, gst = rec.stats.files["can.log"], rec.stats.files["gps.nmea"]
+    assert st.total_rejected == 0 and gst.total_rejected == 0 and gst.prefixed_count == 0
+    assert len(rec.gps) == len(ref.gps) and st.frames == ref.stats.files["can.log"].frames

@@ -166,7 +166,7 @@ def read_candump(path: str | Path, stats: ReadStats | None = None) -> Iterator[F
     st = stats if stats is not None else ReadStats()
     if not st.source:
         st.source = p.name
-    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+    with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         yield from iter_candump(fh, st)
 
 

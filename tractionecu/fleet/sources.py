@@ -78,7 +78,7 @@ def _nmea_fields(path: Path, max_lines: int) -> Iterator[list[str]]:
     cands = [path / "gps.nmea"] if path.is_dir() else [path.with_suffix(".nmea"), path.parent / "gps.nmea"]
     for nmea in cands:
         if nmea.is_file():
-            with open(nmea, encoding="ascii", errors="replace") as fh:
+            with open(nmea, encoding="utf-8-sig", errors="replace") as fh:
                 for _, line in zip(range(max_lines), fh):
                     yield line.strip().split(",")
             return

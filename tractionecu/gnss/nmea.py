@@ -710,7 +710,7 @@ def read_nmea(path: str | Path, stats: NmeaStats | None = None) -> Iterator[GpsF
     st = stats if stats is not None else NmeaStats()
     if not st.source:
         st.source = p.name
-    with open(p, "r", encoding="ascii", errors="replace", newline=None) as fh:
+    with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         yield from assemble_epochs(iter_nmea(fh, st))
 
 

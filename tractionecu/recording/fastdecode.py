@@ -364,7 +364,7 @@ def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUN
     lineno0 = 0
     carry: list[str] = []                  # the text after the last line break, in pieces (a long line
     parts: list = []                       # is joined once, not once per block)
-    with open(path, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+    with open(path, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         while True:
             block = fh.read(chunk_chars)
             if not block:

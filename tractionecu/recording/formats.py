@@ -253,7 +253,7 @@ class _CountFailures(logging.Handler):
 def _text_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
     import can
 
-    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+    with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         lines = _Lines(fh)
         state: dict[str, Any] = {}
         header = None
@@ -444,7 +444,7 @@ def scan_screen(path: str | Path, rs: ReadStats) -> tuple[FrameTable, str]:
     rows: list[tuple] = []
     times: list[float] = []
     modes: set[str] = set()
-    with open(p, "r", encoding="utf-8", errors="replace", newline=None) as fh:
+    with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         for lineno, line in enumerate(fh, start=1):
             rs.lines += 1
             if not line.strip():

@@ -157,7 +157,7 @@ def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: b
     try:
         parts = _read_column_blocks(path)
         if parts is None:
-            with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+            with open(path, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
                 epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
     except OSError as e:
         raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
@@ -169,7 +169,7 @@ def read_gps(path: Path, can_t0: float | None, stats: RecordingStats, *, fast: b
         return track
     if parts is not None:                               # the arrays' shortcut declined: read by records
         try:
-            with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+            with open(path, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
                 epochs, orphans, untimed = _assemble(iter_nmea_fast(fh, ns))
         except OSError as e:
             raise RecordingError(f"{path}: cannot read: {e.strerror or e}") from e
@@ -193,7 +193,7 @@ def _read_column_blocks(path: Path) -> list[dict] | None:
     """The log's blocks as :func:`~tractionecu.gnss.nmea.fast_columns`, if the block conversion takes every
     line (else None, as soon as a block has another line).  OSError propagates."""
     parts = []
-    with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+    with open(path, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
         for lines in iter_line_blocks(fh):
             cols = fast_columns(lines)
             if cols is None:
@@ -450,7 +450,7 @@ def read_gps_reference(path: Path, can_t0: float | None, stats: RecordingStats) 
     asm = EpochAssembler()
     fixes: list[GpsFix] = []
     try:
-        with open(path, "r", encoding="ascii", errors="replace", newline=None) as fh:
+        with open(path, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
             for lineno, rec in iter_nmea(fh, ns):
                 done = asm.push(lineno, rec)
                 if done is not None:
