@@ -419,7 +419,8 @@ class CompiledLoop:
         K = self.K
         out = {name: int(self.I[K.I_COUNTERS + j]) for j, name in enumerate(K.COUNTERS)}
         out["chol_repairs"] = int(self.I[K.I_CHOL_REPAIRS])
-        out["rejected_times"] = out["time_backwards"] = 0    # a replay grid's times are finite and increasing
+        # a replay grid's times are finite and increasing, one step each
+        out["rejected_times"] = out["time_backwards"] = out["repeated_measurements"] = 0
         return out
 
     def arrays(self, OUT: np.ndarray) -> dict[str, Any]:

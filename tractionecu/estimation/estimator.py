@@ -379,6 +379,8 @@ class Estimator:
         self._t_omega = -math.inf
         self._t_v = -math.inf
         self._t_upd_w = self._t_upd_v = -math.inf
+        self._om_upd: list[float] = []                  # the wheel speeds and ground speed of the last update
+        self._v_upd = math.nan
         self._dm_var = np.zeros(4)
         self._last_v_meas: float | None = None
         self._rates.reset()
@@ -419,7 +421,7 @@ class Estimator:
         self._rad = (nan2, nan2.copy(), np.ones(2))
         self.counters = {"steps": 0, "updates": 0, "gated": 0, "rejected_inputs": 0, "rejected_measurements": 0,
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0, "rejected_times": 0,
-                         "time_backwards": 0}
+                         "time_backwards": 0, "repeated_measurements": 0}
         self._monitor.reset()
 
     # ------------------------------------------------------------------ noise
@@ -830,6 +832,14 @@ class Estimator:
                 self._first_order_hold(foh, t, self.t)
             self.t = t
         # ---- update
+        # the same measurement again at the time it was already applied (a caller stepping one time stamp
+        # twice) is no new information: applied again it shrank P, σ_ω by half after five repeats
+        if omega is not None and t == self._t_upd_w and wl[:4] == self._om_upd:
+            omega = None
+            counters["repeated_measurements"] += 1
+        if v_meas is not None and t == self._t_upd_v and v_meas == self._v_upd:
+            v_meas = None
+            counters["repeated_measurements"] += 1
         updated = False
         wheel_out = ground_out = None
         if r_om is not None and self._cx != 0.0 and cfg.carcass_ring_tau_s > 0.0 and not predict_only:
@@ -858,8 +868,10 @@ class Estimator:
                 updated = True
                 if omega is not None:
                     self._t_upd_w = t
+                    self._om_upd = wl[:4]
                 if v_meas is not None:
                     self._t_upd_v = t
+                    self._v_upd = v_meas
                 counters["updates"] += 1
                 if cfg.adaptation:
                     if not self._hub_on:
