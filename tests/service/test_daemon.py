@@ -392,3 +392,12 @@ def test_unknown_pgn_table_is_bounded_under_random_pgns(tmp_path: Path) -> None:
     assert svc.dispatcher.unknown_pgns[pgns[0]] == 2                       # a tracked PGN keeps counting
     assert svc.stats["unknown_pgn_frames"] == len(pgns) + 1
     assert svc.stats["unknown_pgn_untracked"] == len(pgns) - MAX_TRACKED_UNKNOWN_PGNS
+
+
+def test_without_a_gnss_source_the_map_state_says_so(tmp_path: Path) -> None:
+    """gps.source = "none": the page's map health said "waiting for a GNSS fix" for ever."""
+    cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(tmp_path / "state")})
+    svc = Service(cfg, env={}, warm_up_estimator=False)
+    assert svc.map is not None and svc.map.state == 'no GNSS source (gps.source = "none"): nothing is mapped'
+    cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state2")})
+    assert Service(cfg, env={}, warm_up_estimator=False).map.state == "waiting for a GNSS fix"

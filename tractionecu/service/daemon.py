@@ -264,6 +264,8 @@ class Service:
             self.gps = GpsReader(cfg.gps, self.dispatcher.on_fix, self.clock, serial_factory=serial_factory,
                                  gate=gate)
         self.map: MapWriter | None = MapWriter(cfg.map, cfg.map_dir(env)) if cfg.map.enabled else None
+        if self.map is not None and self.gps is None:
+            self.map.no_gnss = True             # said on the page, not "waiting for a GNSS fix" for ever
         self.estimation = EstimationLoop(
             cfg, self.clock, self.steps,
             factory=estimator_factory or functools.partial(default_estimator_factory,

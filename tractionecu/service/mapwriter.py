@@ -91,6 +91,8 @@ class MapWriter:
         self._warn = WarnOnce(log)
         self._last_flush_mono = -math.inf
         self.sampler = CentredSampler(cfg.window_half_s)
+        self.no_gnss = False
+        """The service has no GNSS source (``gps.source = "none"``): nothing can be mapped."""
         self.beyond_range_km: float | None = None
         """Distance of the last refused position from the map's origin [km] while positions beyond the map's
         range are refused (None once one is mapped again)."""
@@ -217,6 +219,8 @@ class MapWriter:
         error that stops it."""
         if self.last_error:
             return "ERROR: " + self.last_error
+        if self.no_gnss and self.store is None:
+            return 'no GNSS source (gps.source = "none"): nothing is mapped'
         if self.store is not None and self.beyond_range_km is not None:
             return (f"NOT MAPPING: {self.beyond_range_km:.0f} km from the map's origin, beyond its "
                     f"{self.store.max_range_m / 1000.0:.0f} km range")
