@@ -225,3 +225,20 @@ def test_an_isoxml_grid_across_the_180th_meridian_is_refused_not_allocated(tmp_p
         st.add_many(lat, lon, {"a": np.full(n, 0.7)}, 1.78e9 + 0.1 * np.arange(n))
     with pytest.raises(ValueError, match="crosses the 180th meridian"):
         export(tmp_path / "m", "isoxml-grid", tmp_path / "TASKDATA")
+
+
+def test_the_geojson_track_is_broken_between_stretches_driven(tmp_path):
+    """A farm map of two machines 1.1 km apart: the GeoJSON track was one LineString with a straight 1124 m
+    segment between the two fields."""
+    from tractionecu.mapping.export import export_geojson
+
+    n = 200
+    with MapStore(tmp_path / "m", *ORIGIN) as st:
+        for x0, t0 in ((0.0, 1.78e9), (1100.0, 1.78e9)):            # the second machine at the same times
+            x = x0 + np.linspace(0.0, 100.0, n)
+            lat, lon = st.to_latlon(x, np.zeros(n))
+            st.add_many(lat, lon, {"a": np.full(n, 0.7)}, t0 + 0.1 * np.arange(n))
+    doc = json.loads(export_geojson(tmp_path / "m", tmp_path / "map.geojson").read_text())
+    (track,) = [f for f in doc["features"] if f["properties"]["kind"] == "track"]
+    assert track["geometry"]["type"] == "MultiLineString" and len(track["geometry"]["coordinates"]) == 2
+    assert all(len(line) == n for line in track["geometry"]["coordinates"])

@@ -370,8 +370,18 @@ def export_geojson(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
                       "properties": props})
     txy = store.track()
     if len(txy) >= 2:
-        feats.append({"type": "Feature", "geometry": {"type": "LineString", "coordinates": ll(txy[:, 1:3])},
-                      "properties": {"kind": "track", "t_start_s": float(txy[0, 0]), "t_end_s": float(txy[-1, 0])}})
+        # one line per stretch driven: broken where consecutive positions lie more than 20 m apart or the time
+        # runs back (a farm map's tracks of several machines, one after the other: a straight 1.1 km segment
+        # joined two fields)
+        step = np.hypot(*np.diff(txy[:, 1:3], axis=0).T)
+        cut = np.flatnonzero((step > 20.0) | (np.diff(txy[:, 0]) < 0.0)) + 1
+        parts = [p for p in np.split(txy, cut) if len(p) >= 2]
+        if parts:
+            geom = ({"type": "LineString", "coordinates": ll(parts[0][:, 1:3])} if len(parts) == 1 else
+                    {"type": "MultiLineString", "coordinates": [ll(p[:, 1:3]) for p in parts]})
+            feats.append({"type": "Feature", "geometry": geom,
+                          "properties": {"kind": "track", "t_start_s": float(txy[:, 0].min()),
+                                         "t_end_s": float(txy[:, 0].max())}})
     if include_cells:
         raw = {n: store.grid(n, (col0, row0, cols, rows)) for n in names}
         any_count = np.zeros((rows, cols), dtype=bool)
