@@ -85,7 +85,9 @@
     (e.slip || []).forEach((sl, i) => {
       const mu = (e.mu || [])[i];
       if (sl == null || mu == null) return;
-      ctx.fillStyle = "#f84"; ctx.beginPath(); ctx.arc(X(Math.min(sl, smax)), Y(mu), 4, 0, 7); ctx.fill();
+      // reversing, slip and μ are both negative: the curve is the same, drawn for their sizes
+      ctx.fillStyle = "#f84"; ctx.beginPath();
+      ctx.arc(X(Math.min(Math.abs(sl), smax)), Y(Math.abs(mu)), 4, 0, 7); ctx.fill();
     });
   }
 
