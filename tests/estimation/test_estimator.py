@@ -597,3 +597,21 @@ def test_the_same_measurement_again_at_its_time_is_not_applied_twice(run15):
     # kinematics' and the rates' samples, moves ρ_s's variance by 1e-6); applied again, P fell 2–4×
     np.testing.assert_allclose(b.P_diag, a.P_diag, rtol=1e-5)
     np.testing.assert_allclose(b.mu, a.mu, rtol=1e-5)
+
+
+def test_wheel_speeds_stuck_at_zero_give_no_supported_slip():
+    """All four wheel speeds stuck at 0 while the GNSS speed said 2 m/s: the slip averaged over the last metres
+    was −1 with a σ near zero, reported as supported (SLIP_AVERAGED) on 4132 of 6000 steps."""
+    from tractionecu.estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN
+
+    est = Estimator(VEH)
+
+    def step(t, k, om):
+        return est.step(t, {"Md": np.full(4, 2500.0), "Fzf": 45e3, "Fdx": 8e3},
+                        {"omega": np.full(4, om), **({"v": 2.0} if k % 10 == 0 else {})})
+
+    for k, t in enumerate(np.arange(0.0, 20.0, 0.01)):
+        step(t, k, 3.0)
+    out = [step(t, k, 0.0) for k, t in enumerate(np.arange(20.0, 40.0, 0.01))]
+    assert not any(e.status & SLIP_AVERAGED for e in out)
+    assert all(e.status & SLIP_UNCERTAIN for e in out[100:])            # the slip is not supported: held

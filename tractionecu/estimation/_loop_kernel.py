@@ -1383,7 +1383,10 @@ def _slip_window(F, I, WIN, EV):                                          # prag
             g = WIN[cn, 3 + i] - WIN[cj, 3 + i]
             w = WIN[cn, 7 + i] - WIN[cj, 7 + i]
             kk = WIN[cn, 11 + i] - WIN[cj, 11 + i]
-            if not (g > 0.0 and w > 0.0):
+            # a wheel that rolled less than half its ground distance (s̄ < −0.5) is locked or its speed is dead:
+            # no driven wheel slides so under drive torque, and its σ from the distances is near zero (four
+            # wheel speeds stuck at 0 reported slip −1 as supported)
+            if not (g > 0.0 and w > 0.5 * g):
                 ok = False
                 break
             sg = math.sqrt(g * g / (S * S) * var_v * T * T + kk * kk * kv)

@@ -1347,7 +1347,10 @@ class Estimator:
                 g = cn[i] - cj[i]
                 w = cn[4 + i] - cj[4 + i]
                 kk = cn[8 + i] - cj[8 + i]
-                if not (g > 0.0 and w > 0.0):
+                # a wheel that rolled less than half its ground distance (s̄ < −0.5) is locked or its speed is dead:
+                # no driven wheel slides so under drive torque, and its σ from the distances is near zero (four
+                # wheel speeds stuck at 0 reported slip −1 as supported)
+                if not (g > 0.0 and w > 0.5 * g):
                     out = []
                     break
                 sg = math.sqrt(g * g / (S * S) * var_v * T * T + kk * kk * kv)      # σ of G_i [m]
