@@ -304,7 +304,8 @@ def test_inspect_and_replay_of_a_simulated_mf4_match_candump(mf4_capture, short_
             assert [repr(x) for x in b[k]] == [repr(x) for x in a[k]], k
 
 
-def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_path):
+def _as_mf4(short_recording, tmp_path):
+    """The recording with its capture written as an MF4 by python-can's writer (skips without one)."""
     pytest.importorskip("asammdf")
     import can
 
@@ -317,6 +318,11 @@ def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_
         w.on_message_received(can.Message(timestamp=f.t, arbitration_id=f.can_id, is_extended_id=f.is_extended,
                                           data=f.data, channel=0))
     w.stop()
+    return tmp_path / "rec"
+
+
+def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_path):
+    _as_mf4(short_recording, tmp_path)
     ref = read_recording(short_recording)
     rec = read_recording(tmp_path / "rec")
     # python-can writes its start time as a local time without a zone (the header's local-time flag)
@@ -422,20 +428,9 @@ def test_trc_lines_python_can_skips_and_a_truncated_blf_are_counted(captures, tm
 def test_an_mf4_in_local_time_reads_the_same_in_every_time_zone(short_recording, tmp_path, monkeypatch):
     """An MF4 whose header holds a local time without a zone started at 19:01Z, 17:01Z or 00:01Z by the TZ
     of the computer reading it."""
-    pytest.importorskip("asammdf")
     import time
 
-    import can
-
-    if not hasattr(can, "MF4Writer"):
-        pytest.skip("this python-can has no MF4 writer")
-    shutil.copytree(short_recording, tmp_path / "rec")
-    (tmp_path / "rec" / "can.log").unlink()
-    w = can.MF4Writer(str(tmp_path / "rec" / "can.mf4"))
-    for f in frames_of(short_recording):
-        w.on_message_received(can.Message(timestamp=f.t, arbitration_id=f.can_id, is_extended_id=f.is_extended,
-                                          data=f.data, channel=0))
-    w.stop()
+    _as_mf4(short_recording, tmp_path)
     firsts = []
     try:
         for zone in ("UTC", "Europe/Berlin", "America/Chicago"):
