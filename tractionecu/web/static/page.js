@@ -156,13 +156,15 @@
     const h = s.health || {}, e = s.estimate || {}, r = h.rates || {};
     const rows = [
       ["CAN", h.can, h.can === "open"], ["GNSS", h.gps, h.gps !== "down"],
-      ["status bits", (e.status_bits || []).join(", ") || "none", (e.status_bits || []).every((b) => NOTICES.has(b))],
+      // before the first estimate there are no bits to show, not "none" in green
+      s.estimate ? ["status bits", (e.status_bits || []).join(", ") || "none", (e.status_bits || []).every((b) => NOTICES.has(b))]
+                 : ["status bits", "no estimate yet", false],
       ["CAN frames", fmt(r.can, 0) + " /s (inputs " + fmt(r.inputs, 0) + " /s)", true],
       ["GNSS fixes", fmt(r.gps, 1) + " /s", true], ["estimates", fmt(r.est, 0) + " /s", true],
       ["sent", fmt(r.tx, 0) + " frames/s from " + (h.address || "-"), true],
       ["dropped frames", h.dropped_frames, !h.dropped_frames], ["bad / unknown frames", h.bad_frames + " / " + h.unknown_pgn_frames, true],
       ["late frames, skipped steps", h.late_frames + ", " + h.skipped_steps, !h.skipped_steps],
-      ["map", h.map, !String(h.map || "").startsWith("ERROR")],
+      ["map", h.map, !/^(ERROR|NOT MAPPING|no GNSS)/.test(String(h.map || ""))],
       ["viewers", s.viewers, true],
     ];
     if (h.behind) rows.push(["schedule", h.behind, false]);
