@@ -315,10 +315,10 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
     far = [r for r in recs if r.get("status") == "ok" and (r.get("map_beyond_range") or 0) > 0]
     if far and stream is not None:
         # a recording of another farm (or a farm map whose origin is elsewhere): its epochs there are refused
+        which = ", ".join(f"{r['path']} ({r['map_beyond_range']} epochs)" for r in far[:5])
         print(f"fleet map: {len(far)} recording(s) have GNSS epochs beyond the farm map's range "
-              f"({DEFAULT_MAX_RANGE_M / 1000.0:.0f} km from its origin), which are not mapped: " + ", ".join(f"{r['path']} ({r['map_beyond_range']} epochs)"
-                                                             for r in far[:5]) + (" …" if len(far) > 5 else "")
-              + "; map that farm into another OUT, or give --origin", file=stream)
+              f"({DEFAULT_MAX_RANGE_M / 1000.0:.0f} km from its origin), which are not mapped: {which}"
+              + (" …" if len(far) > 5 else "") + "; map that farm into another OUT, or give --origin", file=stream)
     keys = [r["key"] for r in ok]
     dirs = {r["key"]: out / "tasks" / "replay" / r["key"] / "farm_map" for r in ok}
     farm = out / "farm_map"
