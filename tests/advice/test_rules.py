@@ -191,9 +191,12 @@ def test_the_ballast_target_holds_the_last_s_star_inside_the_band() -> None:
     rep = EfficiencyReport(10.0, 0, rho_s=0.07)
     rep.s_star, rep.flags = 0.074, 0
     assert rep.s_star_valid
+    adv.update(rep, 2.5, None)              # every report is seen, whether or not advice is sized on it
     assert adv._target(rep, band) == (0.08, "s* brought into the band")
     gone = EfficiencyReport(11.5, 0x01, rho_s=0.07)                  # s* not identified this second
     assert not gone.s_star_valid
+    adv.update(gone, 2.5, None)
     assert adv._target(gone, band) == (0.08, "s* brought into the band")
     late = EfficiencyReport(100.0, 0x01, rho_s=0.07)                 # a minute and more without one
+    adv.update(late, 2.5, None)
     assert adv._target(late, band) == (pytest.approx(0.10), "band middle")

@@ -156,6 +156,8 @@ class Advisor:
         dt = 0.0 if self._t is None or not math.isfinite(t) else min(max(t - self._t, 0.0), 1.0)
         self._t = t
         self.last_report = rep
+        if rep.s_star_valid and math.isfinite(rep.s_star):
+            self._s_star_seen = (t, rep.s_star)
         if self._dist and math.isfinite(t) and t - self._dist[-1][4] > EXPIRY_S:
             # nothing pulled for a minute: the window (and the advice it gave) is about ground left behind
             self._dist.clear()
@@ -247,9 +249,7 @@ class Advisor:
         Switching each second between s* (0.074, below an MFWD's band) and the band's middle moved the amount
         advised between 2885 and 1477 kg within 1.5 s."""
         lo, hi = band
-        if rep.s_star_valid and math.isfinite(rep.s_star):
-            self._s_star_seen = (rep.t, rep.s_star)
-        seen = self._s_star_seen
+        seen = self._s_star_seen                     # kept by update() from every report
         if seen is not None and rep.t - seen[0] <= EXPIRY_S:
             return min(max(seen[1], lo), hi), ("s*" if lo <= seen[1] <= hi else "s* brought into the band")
         return 0.5 * (lo + hi), "band middle"
