@@ -82,11 +82,6 @@ CURVE_POINTS = 61
 CURVE_S_MAX = 0.3
 
 
-SLIP_NOT_SHOWN = 0x2000 | 0x10000
-"""Estimate status bits under which the page shows no per-wheel slip: slip not supported by its own σ (held),
-averaged over the last metres of travel."""
-
-
 def web_snapshot(svc: Any) -> dict[str, Any]:
     """The state the in-cab page shows (:mod:`tractionecu.web`), from a running
     :class:`~tractionecu.service.daemon.Service`: the last estimate, efficiency and s*, the μ(s) and η(s)
@@ -94,7 +89,7 @@ def web_snapshot(svc: Any) -> dict[str, Any]:
     frame rates, dropped frames).  Reads the parts' attributes only; NaN where nothing is known."""
     import numpy as np
 
-    from ..estimation.estimator import STATUS_NAMES
+    from ..estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN, STATUS_NAMES
     from ..advice.efficiency import curve_of, eta_curve
 
     e = svc.estimation.last_estimate
@@ -105,8 +100,8 @@ def web_snapshot(svc: Any) -> dict[str, Any]:
         status = int(getattr(e, "status", 0) or 0)
         valid = bool(getattr(e, "valid", False))
         # a wheel's slip the estimate does not support (its own σ, a standstill, reversing: held) is not shown as
-        # if it were this step's; μ and ρ_s go with the estimate's validity (valid and status stay beside them)
-        slip_ok = valid and not status & SLIP_NOT_SHOWN
+        # if it were this step's; μ and ρ_s are shown with the estimate's valid flag and status beside them
+        slip_ok = valid and not status & (SLIP_UNCERTAIN | SLIP_AVERAGED)
         out["estimate"] = {
             "v": float(e.v), "mu": [float(x) for x in e.mu],
             "slip": [float(x) for x in e.slip] if slip_ok else [None] * 4,
