@@ -367,12 +367,12 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     from .signals import required_missing
     from ..recording.reader import held_signals, read_recording, stream_signals
 
+    check_rate(rate_hz)                                # before the capture is read
     rec, streamed, hold = _open(recording, hold_bytes)
     vehicle, s0 = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
-    check_rate(rate_hz)
     cfg = cfg or EstimatorConfig()
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()

@@ -212,12 +212,12 @@ def replay_streamed(recording: str | Path, *, rate_hz: float = 100.0, cfg: Estim
     ``on_estimate`` (in time order), as :func:`replay` does, but the capture is streamed as
     :func:`replay_to_dir` streams it, so memory does not grow with the recording's length.  Returns the
     survey (:func:`replay_to_dir`'s) and the estimator's counters."""
+    check_rate(rate_hz)                                # before the capture is read
     rec = read_recording(recording, keep=survey_keep)
     vehicle, sensors = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
         raise MissingSignals(read_recording(recording), missing)
-    check_rate(rate_hz)
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), _Sink(keep_all=False),
                on_estimate)
     names = {nm for grp in run.groups for nm in grp.names}
@@ -608,13 +608,13 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     :data:`~.survey.SURVEY_FULL` are stubs of two samples) and the result.
     """
     wall0 = time.perf_counter()
+    check_rate(rate_hz)                                # before the capture is read
     out = Path(out_dir)
     streamed = not isinstance(recording, Recording)
     rec = read_recording(recording, keep=survey_keep) if streamed else recording
     missing = required_missing(rec, machine_of(rec)[0])
     if missing:
         raise MissingSignals(read_recording(recording) if streamed else rec, missing)
-    check_rate(rate_hz)
     if write_map:
         from ..mapping.from_replay import check_map_dir
 
