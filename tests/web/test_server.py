@@ -11,7 +11,8 @@ from aiohttp.test_utils import TestClient, TestServer
 
 from tractionecu.service.advice import LiveMap
 from tractionecu.service.config import WebConfig
-from tractionecu.web.server import ASSETS, SECURITY_HEADERS, WebPart, clean, load_assets
+from tractionecu.jsonsafe import json_safe
+from tractionecu.web.server import ASSETS, SECURITY_HEADERS, WebPart, load_assets
 
 
 def part(**kw) -> WebPart:
@@ -154,7 +155,7 @@ async def test_a_port_in_use_leaves_the_service_without_its_page() -> None:
 def test_clean_makes_json_safe() -> None:
     import numpy as np
 
-    assert clean({"a": math.nan, "b": [1.0, math.inf], "c": np.array([0.5, np.nan])}) == {
+    assert json_safe({"a": math.nan, "b": [1.0, math.inf], "c": np.array([0.5, np.nan])}) == {
         "a": None, "b": [1.0, None], "c": [0.5, None]}
 
 

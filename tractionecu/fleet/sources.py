@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import ConfigError
 from ..gnss.fix import fix_rank
+from ..mapping.from_replay import ORIGIN_FIXES
 
 CAPTURE_SUFFIXES = (".blf", ".asc", ".trc", ".mf4", ".mdf", ".log")
 """Capture files taken as recordings outside a recording directory (the reader knows the format by
@@ -235,12 +236,8 @@ def discover(source: str | Path, *, exclude: str | Path | None = None) -> list[R
     return sorted(unique, key=lambda r: (r.machine, r.date, r.path))
 
 
-FIRST_FIXES = 25
-""":func:`first_fix` takes the median of this many fixes (2.5 s at 10 Hz)."""
-
-
 def first_fix(path: str | Path, max_lines: int = 2000) -> tuple[float, float] | None:
-    """(lat, lon) [deg] where the recording starts: the median of the first :data:`FIRST_FIXES` GGA
+    """(lat, lon) [deg] where the recording starts: the median of the first :data:`~tractionecu.mapping.from_replay.ORIGIN_FIXES` GGA
     positions of a measured fix (:data:`~tractionecu.gnss.fix.FIX_RANK` > 0: not dead reckoning, manual
     or simulated) in the recording's GNSS log, so that one glitched first fix does not move a farm map's
     origin tens of kilometres away; None without such a fix."""
@@ -257,7 +254,7 @@ def first_fix(path: str | Path, max_lines: int = 2000) -> tuple[float, float] | 
                 continue
             lats.append(-lat if f[3] == "S" else lat)
             lons.append(-lon if f[5] == "W" else lon)
-            if len(lats) == FIRST_FIXES:
+            if len(lats) == ORIGIN_FIXES:
                 break
     if not lats:
         return None

@@ -72,10 +72,6 @@ def load_assets() -> dict[str, tuple[bytes, str]]:
     return {name: ((root / name).read_bytes(), ctype) for name, ctype in ASSETS.items()}
 
 
-clean = json_safe
-"""JSON-safe copy of a state (:func:`~tractionecu.jsonsafe.json_safe`)."""
-
-
 class _BadRequests(logging.Filter):
     """aiohttp's server logs every malformed request at ERROR with a traceback (50 requests with an oversized
     header wrote 35 KB of log).  Counted in the part's ``stats["bad_requests"]``; the first is logged as one
@@ -223,7 +219,7 @@ class WebPart:
     # ------------------------------------------------------------ updates
     def full_state(self) -> str:
         """The state for a new viewer: the last update with the whole map."""
-        state = json.loads(self.last_json) if self.last_json != "{}" else clean(self.snapshot())
+        state = json.loads(self.last_json) if self.last_json != "{}" else json_safe(self.snapshot())
         if self.map is not None:
             state["map"] = self._map_part(self.map.cells(), full=True)
         state["kind"] = "full"
@@ -238,7 +234,7 @@ class WebPart:
         """One update as JSON (module doc)."""
         t0 = time.perf_counter()
         c0 = time.thread_time()
-        state = clean(self.snapshot())
+        state = json_safe(self.snapshot())
         state["viewers"] = len(self.viewers)
         state["kind"] = "update"
         if self.map is not None:
