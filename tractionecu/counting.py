@@ -65,6 +65,10 @@ class RejectCounter:
             out.append(f"{reason}: {self.rejected[reason]} ({src}line {', '.join(map(str, ex))}{more})")
         return out
 
+    def notes(self) -> list[str]:
+        """Lines read, but not as they were written (a reader's repairs), one line each; none here."""
+        return []
+
 
 class WarnOnce:
     """Log the first message of each kind at WARNING (or ``level``), later ones of the same kind at DEBUG.

@@ -255,7 +255,7 @@ def test_glued_sentences_split_in_both_readers(tmp_path):
     st = NmeaStats()
     got = [r for _, r in iter_nmea(glued, st)]
     assert got == ref and st.split_count == 10 and st.total_rejected == 0
-    assert "lines holding several sentences, split: 10 (line 1, 3, 5, 7, 9, ...)" in st.describe()
+    assert "lines holding several sentences, split: 10 (line 1, 3, 5, 7, 9, ...)" in st.notes()
     p = tmp_path / "g.nmea"
     p.write_text("\n".join(glued) + "\n", encoding="ascii")
     st2 = NmeaStats()
@@ -279,7 +279,7 @@ def test_a_loggers_prefix_before_each_sentence_is_read_past(tmp_path):
     st = NmeaStats()
     assert [r for _, r in iter_nmea(prefixed, st)] == ref
     assert st.prefixed_count == 20 and st.total_rejected == 0
-    assert any(d.startswith("lines holding text before their sentence") for d in st.describe())
+    assert any(d.startswith("lines holding text before their sentence") for d in st.notes())
     p = tmp_path / "p.nmea"
     p.write_text("\n".join(prefixed) + "\n", encoding="ascii")
     st2 = NmeaStats()

@@ -202,9 +202,9 @@ def rejects_note(rec: Any) -> list[str]:
     out = []
     stats = getattr(rec, "stats", None)
     for fname, st in getattr(stats, "files", {}).items():
-        if getattr(st, "total_rejected", 0) or getattr(st, "split_count", 0) or getattr(st, "prefixed_count", 0):
-            out += [line if line.startswith("lines holding") else f"skipped {line}"
-                    for line in st.describe()]  # type: ignore[attr-defined]
+        if getattr(st, "total_rejected", 0):
+            out += [f"skipped {line}" for line in st.describe()]  # type: ignore[attr-defined]
+        out += getattr(st, "notes", list)()
         back = getattr(st, "rejected", {}).get("time_backwards", 0)
         first = (getattr(st, "examples", {}).get("time_backwards") or [0])[0]
         if back and first and back >= 0.9 * (st.lines - first + 1) and back >= 0.01 * max(st.lines, 1):

@@ -511,6 +511,7 @@ def skipped_input_notes(rec: Recording) -> list[str]:
     for fname, fst in getattr(st, "files", {}).items():
         if getattr(fst, "total_rejected", 0):
             out.append(f"{fname}: skipped " + "; ".join(fst.describe()))
+        out += getattr(fst, "notes", list)()
     if line := wrong_length_line(st):
         out.append(line)
     if getattr(st, "other_sources", None):

@@ -532,9 +532,10 @@ class NmeaStats(RejectCounter):
         if len(self.prefixed_lines) < MAX_EXAMPLES:
             self.prefixed_lines.append(lineno)
 
-    def describe(self) -> list[str]:
-        """:meth:`RejectCounter.describe`, and the lines split into several sentences."""
-        out = super().describe()
+    def notes(self) -> list[str]:
+        """The lines split into several sentences, and those read past a prefix (they are not rejects:
+        :meth:`RejectCounter.describe` lists those)."""
+        out = []
         src = f"{self.source} " if self.source else ""
         if self.split_count:
             more = ", ..." if self.split_count > len(self.split_lines) else ""

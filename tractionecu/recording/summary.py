@@ -84,13 +84,14 @@ def summarize(recording: Recording) -> str:
         )
     if st.gps_alignment:
         out.append(f"  GPS alignment: {st.gps_alignment}")
-    rej = [(f, s) for f, s in st.files.items() if getattr(s, "total_rejected", 0) or getattr(s, "split_count", 0)
-           or getattr(s, "prefixed_count", 0)]
+    rej = [(f, s) for f, s in st.files.items() if getattr(s, "total_rejected", 0)]
     if rej:
         out.append("  rejected lines:")
         for _fname, s in rej:
             for line in s.describe():  # type: ignore[attr-defined]
                 out.append(f"    {line}")
+    for s in st.files.values():
+        out += [f"  {line}" for line in getattr(s, "notes", list)()]
     ign = [(f, s) for f, s in st.files.items() if getattr(s, "ignored", None)]
     for fname, s in ign:
         out.append(
