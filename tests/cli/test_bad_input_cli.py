@@ -468,3 +468,31 @@ def test_a_logger_restart_is_named_with_where_to_split(short_recording, tmp_path
     out = capsys.readouterr().out
     assert f"can.log: its clock restarted at line {half + 2}" in out or f"its clock restarted at line {half + 1}" in out
     assert "split the capture at line" in out and "sort -s" not in out
+
+
+def test_ctrl_c_stops_run_simulate_while_it_simulates(tmp_path):
+    """Ctrl-C while ``run --simulate`` simulated (a first run also compiles its kernels, about 45 s) was
+    held until the whole simulation was done, because it ran in the event loop's executor thread: the
+    command then exited without a word.  It now simulates in the main thread and stops at once."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tractionecu", "run", "--simulate", "--scenario", "paper-three-soils",
+         "--no-web", "--quiet", "--state-dir", str(tmp_path / "st")],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba-cache")},     # a first run's cold cache
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))           # as from a terminal
+    try:
+        assert "simulating paper-three-soils" in proc.stdout.readline()
+        proc.send_signal(signal.SIGINT)
+        # the simulation and its compilation alone take minutes; a stop at once takes well under a second
+        rc = proc.wait(timeout=60)
+    finally:
+        proc.kill()
+        rest = proc.communicate()[0]
+    assert rc == 130, rest
+    assert "playing on virtual CAN" not in rest
+    assert not (tmp_path / "st" / "simulation" / "can.log").exists()      # stopped before the end, not after it

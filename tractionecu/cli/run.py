@@ -124,18 +124,21 @@ def run(args: argparse.Namespace) -> int:
     if ignored:
         print(f"tractionecu run: {', '.join(ignored)}: not used with --simulate (the simulation plays on its own "
               "virtual CAN bus and NMEA pty, with the scenario's vehicle file)", file=sys.stderr)
-    return asyncio.run(simulate_main(cfg, args))
+    from ..sim.player import simulate_recording
+
+    rec_dir = cfg.state_dir() / "simulation"
+    print(f"simulating {args.scenario} (seed {args.seed}) into {rec_dir} ...", file=sys.stdout, flush=True)
+    # in the main thread, before the event loop: Ctrl-C stops it at once (run in the loop's executor, Ctrl-C
+    # waited for the whole simulation, a first run's kernel compilation included, and then said nothing)
+    simulate_recording(args.scenario, args.seed, rec_dir, args.duration)
+    return asyncio.run(simulate_main(cfg, args, rec_dir))
 
 
-async def simulate_main(cfg, args: argparse.Namespace) -> int:
-    """Simulate the scenario, then run the service against the played simulation."""
-    from ..sim.player import run_simulation, simulate_recording
+async def simulate_main(cfg, args: argparse.Namespace, rec_dir) -> int:
+    """Run the service against the simulation in ``rec_dir``, played over a virtual bus and a pty."""
+    from ..sim.player import run_simulation
 
     out = sys.stdout
-    rec_dir = cfg.state_dir() / "simulation"
-    print(f"simulating {args.scenario} (seed {args.seed}) into {rec_dir} ...", file=out, flush=True)
-    await asyncio.get_running_loop().run_in_executor(
-        None, lambda: simulate_recording(args.scenario, args.seed, rec_dir, args.duration))
     res = await run_simulation(cfg, rec_dir, speed=args.speed, duration_s=args.duration,
                                status_stream=None if args.quiet else out, info_stream=out)
     print("done: " + json.dumps(res.summary), file=out, flush=True)
