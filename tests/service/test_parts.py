@@ -437,6 +437,15 @@ async def test_lifecycle_a_failed_start_stops_only_what_was_started() -> None:
     assert log == ["start a", "start b", "stop b", "stop a"]
 
 
+async def test_lifecycle_starts_no_part_after_a_stop_is_asked() -> None:
+    log: list[str] = []
+    stop = asyncio.Event()
+    lc = Lifecycle([Recorder("a", log), Hook("b", start=stop.set), Recorder("c", log)])
+    await lc.start(stop)
+    assert [p.name for p in lc.started] == ["a", "b"]
+    assert await lc.stop() == [] and log == ["start a", "stop a"]
+
+
 def test_lifecycle_rejects_a_name_declared_twice() -> None:
     with pytest.raises(ValueError, match="twice"):
         Lifecycle([Recorder("a", []), Recorder("a", [])])
@@ -563,6 +572,36 @@ async def test_a_part_task_that_ends_by_itself_stops_the_service_with_an_error(t
                       warm_up_estimator=False)
     rc = await asyncio.wait_for(svc.run(asyncio.Event()), 20)
     assert rc == 1 and svc.can.bus is None and svc.estimation.task.cancelled()
+
+
+async def test_a_stop_during_the_warm_up_does_not_wait_for_it(tmp_path: Path, monkeypatch) -> None:
+    """A first start compiles the estimator's kernels for 30-45 s; a SIGTERM meanwhile waited for all of it
+    (the warm-up's executor thread, then the parts after it), beyond systemd's TimeoutStopSec = 20 s."""
+    import threading
+
+    from tractionecu.service import loop as service_loop
+
+    loop = asyncio.get_running_loop()
+    compiling, release = asyncio.Event(), threading.Event()
+
+    def slow_warm_up(*args) -> float:
+        loop.call_soon_threadsafe(compiling.set)
+        release.wait(60)
+        return 60.0
+
+    monkeypatch.setattr(service_loop, "warm_up", slow_warm_up)
+    svc = Service(service_cfg(tmp_path), env={}, estimator_factory=lambda v, s: StandIn())
+    stop = asyncio.Event()
+    try:
+        task = asyncio.create_task(svc.run(stop))
+        await asyncio.wait_for(compiling.wait(), 20)
+        stop.set()
+        rc = await asyncio.wait_for(task, 10)
+    finally:
+        release.set()
+    assert rc == 0
+    assert svc.estimation.task is None and not svc.ready.is_set()       # nothing after the warm-up started
+    assert svc.can.bus is None                                           # what had started was stopped
 
 
 def test_status_lines_to_the_journal_come_once_a_minute() -> None:

@@ -48,6 +48,9 @@ added); shutdown runs it backwards and gathers the errors
 9. ``status``: the status task;
 10. ``ready``: ``READY=1`` to systemd once the bus and the GNSS port are open.
 
+A stop asked during start-up (SIGTERM while a first start compiles) starts no further part and does not
+wait for the warm-up; the parts already started are stopped in reverse.
+
 A task of ``can``, ``gps``, ``estimation``, ``advice`` or ``status`` that ends by itself
 is a bug: the service stops with exit code 1 and systemd restarts it.
 
@@ -341,8 +344,21 @@ class Service:
     async def _warm_up(self) -> None:
         if self.warm_up_estimator:
             self.notifier.status("preparing the estimator")
+            # a first start compiles for 30-45 s: a stop meanwhile does not wait for it (systemd's
+            # TimeoutStopSec is 20 s); the warm-up's thread is left behind and ends with the process
+            warm = asyncio.ensure_future(self.estimation.warm_up())
+            waits: set[asyncio.Future[Any]] = {warm}
+            if self._stop is not None:
+                waits.add(asyncio.ensure_future(self._stop.wait()))
+            await asyncio.wait(waits, return_when=asyncio.FIRST_COMPLETED)
+            for w in waits - {warm}:
+                w.cancel()
+            if not warm.done():
+                warm.cancel()
+                log.info("stop asked during the estimator's warm-up: not waiting for it")
+                return
             try:
-                dt = await self.estimation.warm_up()
+                dt = warm.result()
                 log.info("estimator compiled and ready in %.2f s", dt)
             except Exception as e:  # the real steps will show it; do not stop here
                 log.warning("estimator warm-up failed: %r", e)
@@ -482,7 +498,7 @@ class Service:
                     pass
         errors: list[str] = []
         try:
-            await self.lifecycle.start()
+            await self.lifecycle.start(self._stop)
             errors += await self._watch(self._stop)
         finally:
             self.notifier.stopping()

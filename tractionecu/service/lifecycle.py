@@ -156,11 +156,15 @@ class Lifecycle:
                 return p
         raise KeyError(name)
 
-    async def start(self) -> None:
-        """Start every part in order; the first error ends start-up (call :meth:`stop` after it)."""
+    async def start(self, stop: asyncio.Event | None = None) -> None:
+        """Start every part in order; the first error ends start-up (call :meth:`stop` after it).  Once
+        ``stop`` is set (a SIGTERM while a part was starting) no further part is started."""
         for p in self.parts:
             if p in self.started:
                 continue
+            if stop is not None and stop.is_set():
+                log.info("stop asked during start-up: %s and the parts after it not started", p.name)
+                return
             log.debug("starting %s", p.name)
             await p.start()
             self.started.append(p)

@@ -36,6 +36,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import threading
 import time
 from collections import Counter
 from typing import Any, Callable, Protocol
@@ -240,9 +241,31 @@ class EstimationLoop(TaskPart):
         return self.estimator
 
     async def warm_up(self) -> float:
-        """:func:`warm_up` a throwaway estimator of the same machine in a worker thread; returns seconds."""
+        """:func:`warm_up` a throwaway estimator of the same machine in a worker thread; returns seconds.
+
+        The thread is a daemon of its own, not the loop's executor: a first start compiles for 30–45 s, and a
+        stop meanwhile (SIGTERM) waited for the compilation in the executor's shutdown, beyond systemd's
+        ``TimeoutStopSec``.  A stop now leaves the thread behind; the process ends without it."""
         machine = self.machine or estimator_machine(self.cfg)
-        return await asyncio.get_running_loop().run_in_executor(None, warm_up, self.factory, *machine)
+        loop = asyncio.get_running_loop()
+        done: asyncio.Future[float] = loop.create_future()
+
+        def settle(ok: bool, value: Any) -> None:
+            if not done.done():
+                done.set_result(value) if ok else done.set_exception(value)
+
+        def work() -> None:
+            try:
+                res: tuple[bool, Any] = (True, warm_up(self.factory, *machine))
+            except Exception as e:  # noqa: BLE001 -- handed to the awaiting start-up step
+                res = (False, e)
+            try:
+                loop.call_soon_threadsafe(settle, *res)
+            except RuntimeError:          # the loop has closed: the service stopped meanwhile
+                pass
+
+        threading.Thread(target=work, name="estimator-warm-up", daemon=True).start()
+        return await done
 
     def step(self, t: float) -> Any:
         """Step the estimator at grid time ``t`` [s] with what the assembler holds; the estimate or None.
