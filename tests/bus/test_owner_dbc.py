@@ -175,3 +175,18 @@ def test_skipped_messages_are_logged_once_per_file_and_reason(tmp_path, caplog):
     lines = [r.getMessage() for r in caplog.records if r.name == "tractionecu.bus.dbc"]
     assert lines == ["dbc: gnss.dbc: 2 message(s) skipped, defined again on another 11-bit identifier (the first is "
                      "decoded): gnss_pos, gnss_speed"]
+
+
+def test_a_signal_of_another_quantity_needs_a_scale(codec):
+    # a wheel speed in rpm mapped onto a drive torque or the draft was decoded as N·m or N without a word
+    for target, unit in (("DriveTorque_FL", "torque in Nm"), ("DraftForce", "force in N")):
+        with pytest.raises(ConfigError) as e:
+            codec.resolve_mapping({target: ("DriveCtrl_3.WhlSpdFL", 1.0)})
+        assert (f"signals.{target}: DriveCtrl_3.WhlSpdFL is a rotational speed in rpm, {target} a {unit}: "
+                f"map a {unit.split(' in ')[0]} signal, or give the scale") in str(e.value)
+    # a draft in kN onto the axle load (one quantity), and a wheel speed onto a ground speed with the tyre's
+    # radius as its scale (a deliberate conversion) are taken
+    assert codec.resolve_mapping({"FrontAxleLoad": ("DriveCtrl_4.HitchDraft", 1000.0)})
+    assert codec.resolve_mapping({"WheelBasedVehicleSpeed": ("DriveCtrl_3.WhlSpdFL", RPM * 0.8)})
+    # a signal without a known unit is not judged
+    assert codec.resolve_mapping({"DriveTorque_FL": ("DriveCtrl_4.GearLever", 1.0)})

@@ -151,7 +151,8 @@ UNIT_SI = {
 """Units an owner's DBC may give its signals in, with their factor to SI; each group one quantity."""
 _UNIT_KIND = {u: k for k, us in {"speed": ("m/s", "km/h", "kph", "mph"), "force": ("N", "kN", "daN"),
                                   "torque": ("Nm", "N.m", "N·m", "kNm"),
-                                  "rate": ("rad/s", "rpm", "1/min", "U/min"), "length": ("m", "mm", "cm")}.items()
+                                  "rotational speed": ("rad/s", "rpm", "1/min", "U/min"),
+                                  "length": ("m", "mm", "cm")}.items()
               for u in us}
 
 
@@ -180,6 +181,13 @@ def unit_factor(src_unit: str, to_unit: str) -> float | None:
     if a is None or b is None or _UNIT_KIND[a] != _UNIT_KIND[b]:
         return None
     return UNIT_SI[a] / UNIT_SI[b]
+
+
+def unit_kind(unit: str) -> str | None:
+    """The quantity of a known unit (:data:`UNIT_SI`): speed, force, torque, rotational speed or
+    length; None for an unknown or blank unit."""
+    u = _unit(unit)
+    return None if u is None else _UNIT_KIND[u]
 
 
 @dataclass(frozen=True)
@@ -570,6 +578,13 @@ class Codec:
                                   "contract signals")
             used[src] = target
             factor = unit_factor(self.signals[src].unit, self.signals[target].unit)
+            kinds = unit_kind(self.signals[src].unit), unit_kind(self.signals[target].unit)
+            if None not in kinds and kinds[0] != kinds[1] and float(scale) == 1.0:
+                # a wheel speed in rpm mapped onto a drive torque was taken as N·m, without a word
+                raise ConfigError(f"{key}: {ref} is a {kinds[0]} in {self.signals[src].unit}, {target} a "
+                                  f"{kinds[1]} in {self.signals[target].unit}: map a {kinds[1]} signal, or give "
+                                  f"the scale that converts one into the other ({target} = {{signal = \"{ref}\", "
+                                  "scale = ...}})")
             if factor is not None and abs(factor - 1.0) > 1e-9 and float(scale) == 1.0:
                 raise ConfigError(f"{key}: {ref} is in {self.signals[src].unit}, {target} in "
                                   f"{self.signals[target].unit}: give scale = {factor:.6g} "
