@@ -125,6 +125,9 @@ def test_mapping_resolves_and_names_the_bad_key(codec):
     cases = {
         "WheelSpeed_XX": ("DriveCtrl_3.WhlSpdFL", "signals.WheelSpeed_XX: not a contract signal"),
         "Adhesion_FL": ("DriveCtrl_3.WhlSpdFL", "signals.Adhesion_FL: not a contract signal"),       # an output
+        # the efficiency report is the service's output too (an owner signal mapped onto it was taken and read
+        # by nothing, and the list of the known names offered it)
+        "OptimalSlip": ("DriveCtrl_3.WhlSpdFL", "signals.OptimalSlip: not a contract signal"),
         "WheelSpeed_FR": ("DriveCtrl_9.WhlSpdFR", "signals.WheelSpeed_FR: no message 'DriveCtrl_9'"),
         "WheelSpeed_RL": ("DriveCtrl_3.WhlSpdXL", "signals.WheelSpeed_RL: message DriveCtrl_3 (owner_drivectrl.dbc) "
                                                   "has no signal 'WhlSpdXL' (it has WhlSpdFL"),
@@ -136,6 +139,7 @@ def test_mapping_resolves_and_names_the_bad_key(codec):
         with pytest.raises(ConfigError) as e:
             codec.resolve_mapping({target: (ref, 1.0)})
         assert text in str(e.value), (target, str(e.value))
+        assert "OptimalSlip" not in str(e.value).partition("(known:")[2]
 
 
 def test_without_the_owner_dbc_the_error_says_to_give_it():

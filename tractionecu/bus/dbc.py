@@ -343,10 +343,12 @@ class Codec:
         missing = [n for n in CONTRACT_SIGNALS if n not in self.signals]
         if missing:
             raise ConfigError(f"dbc: contract signal(s) missing from {self.path}: {', '.join(missing)}")
+        ours = {n for m in self.db.messages if any(s.name in OUTPUT_SIGNALS for s in m.signals) for n in m.senders}
         self.contract_inputs: tuple[str, ...] = tuple(
             n for m in self.messages.values() if m.pgn not in NETWORK_MANAGEMENT_PGNS
-            and not any(x in OUTPUT_SIGNALS for x in m.signals) for n in m.signals)
-        """Signals of the contract DBC a ``[signals]`` table may map onto: every data signal but the outputs."""
+            and not ours & set(self.db.get_message_by_name(m.name).senders) for n in m.signals)
+        """Signals of the contract DBC a ``[signals]`` table may map onto: every data signal but those of the
+        messages the service sends (the estimate and the efficiency report)."""
         for x in self.extra_paths:
             self._load(x, extra=True)
         self.clip_counts: Counter[str] = Counter()
