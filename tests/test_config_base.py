@@ -302,3 +302,21 @@ def test_a_hub_drive_without_a_draft_sensor_is_named(tmp_path) -> None:
         load_vehicle(p)
     p.write_text('[vehicle]\nmass_kg = 6300.0\n[vehicle.drivetrain]\nkind = "hub"\ndraft_sensing = true\n')
     assert load_vehicle(p).drivetrain.kind == "hub"
+
+
+@pytest.mark.parametrize("key", ["rolling_radius_m", "wheel_speed_radius_m"])
+@pytest.mark.parametrize("r, ok", [(0.4, False), (1.52, False), (0.55, False), (0.57, True), (0.777, True),
+                                   (1.03, True), (1.05, False)])
+def test_a_declared_radius_far_from_r0_is_named(tmp_path, key, r, ok) -> None:
+    """rolling_radius_m = 0.4 with r0 0.8 m ran with 0.56 m (the model's 30 % deflection limit), the diameter
+    1.52 m scaled every wheel speed: μ 40 % and 54 % off on replay, nothing said."""
+    p = tmp_path / "vehicle.toml"
+    dt = "" if key == "rolling_radius_m" else 'kind = "mechanical"\nfinal_drive_ratio = 28.0\n'
+    p.write_text(f"[vehicle]\nr0_m = 0.8\n[vehicle.drivetrain]\n{dt}{key} = {r}\n")
+    if ok:
+        assert getattr(load_vehicle(p).drivetrain, key) == r
+        return
+    with pytest.raises(ConfigError) as ei:
+        load_vehicle(p)
+    assert str(ei.value) == (f"{p}: drivetrain.{key} = {r} is outside [0.56, 1.04] m, r0_m = 0.8 ± 30% "
+                             "(the radius, not the diameter, of the tyre of r0_m)")

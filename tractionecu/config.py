@@ -357,6 +357,11 @@ FRONT_DRIVE = ("engaged", "disengaged", "auto")
 """``[drivetrain] front_drive``: the mechanical front-wheel drive (MFWD) clutch."""
 
 
+MAX_DEFLECTION = 0.3
+"""Largest tyre deflection the model takes, as a share of the unloaded radius r0 [-]
+(:func:`tractionecu.model.vehicle.rolling_radius`); a declared rolling radius or wheel-speed radius must lie
+within this share of r0 (:class:`VehicleParams`)."""
+
 HUB_EFFICIENCY = 0.96
 """Default torque efficiency of a hub reduction, motor to wheel [-] (DrivetrainSpec doc)."""
 HUB_EFFICIENCY_TOL = 0.02
@@ -509,6 +514,14 @@ class VehicleParams:
     def __post_init__(self) -> None:
         validate(self, "vehicle")
         dt = self.drivetrain
+        lo, hi = (1.0 - MAX_DEFLECTION) * self.r0_m, (1.0 + MAX_DEFLECTION) * self.r0_m
+        for key in ("rolling_radius_m", "wheel_speed_radius_m"):
+            r = getattr(dt, key)
+            if r > 0.0 and not lo <= r <= hi:
+                # a diameter given for the radius, or another tyre's: 0.4 m with r0 0.8 m was taken as 0.56 m (the
+                # deflection limit), 1.52 m halved every slip's wheel speed, without a word
+                raise ConfigError(f"drivetrain.{key} = {r!r} is outside [{lo:.4g}, {hi:.4g}] m, r0_m = {self.r0_m!r} "
+                                  f"± {MAX_DEFLECTION:.0%} (the radius, not the diameter, of the tyre of r0_m)")
         if dt.hub_stiffness_nmprad > 0.0 or dt.hub_motor_inertia_kgm2 > 0.0 or dt.hub_damping_nmsprad > 0.0:
             if dt.engine_driven:
                 raise ConfigError(f"drivetrain.hub_stiffness_nmprad: a two-inertia hub is declared for kind = "

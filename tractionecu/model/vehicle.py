@@ -131,7 +131,7 @@ import os
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..config import G, VehicleParams
+from ..config import MAX_DEFLECTION, G, VehicleParams
 
 JIT_ENV = "TRACTIONECU_JIT"
 """Environment variable: ``0`` runs the filter core in plain numpy even when numba is installed."""
@@ -197,7 +197,7 @@ def tyre_deflection(fz: ArrayLike, params: VehicleParams) -> NDArray[np.float64]
 def rolling_radius(fz: ArrayLike, params: VehicleParams) -> NDArray[np.float64]:
     """Dynamic rolling radius r_d = r0 − Δr(F_z) [m], Δr limited to 30 % of r0 (:func:`radius_law`)."""
     r0 = radius_law(params)[0]
-    return r0 - np.minimum(tyre_deflection(fz, params), 0.3 * params.r0_m)
+    return r0 - np.minimum(tyre_deflection(fz, params), MAX_DEFLECTION * params.r0_m)
 
 
 def radius_law(params: VehicleParams) -> tuple[float, float]:
@@ -302,7 +302,7 @@ class FilterModel:
         # (1 − λ_f) m h_cg/b [N/(m/s²)] (kc[16], kc[17]).
         lat = self.m * params.cg_height_m / params.track_width_m
         lam = float(getattr(params, "front_roll_share", 0.0))
-        self._kc = np.array([params.weight_n, k, 0.3 * params.r0_m, r0, self.rho_t, self.J, self.m,
+        self._kc = np.array([params.weight_n, k, MAX_DEFLECTION * params.r0_m, r0, self.rho_t, self.J, self.m,
                              0.5 * params.track_width_m, params.wheelbase_m, self.tan_pull, self.cx,
                              0.0, 0.0, 0.0, 0.0, 0.0, lam * lat, (1.0 - lam) * lat])
         # Two-inertia hub (module doc): (k, c, J_m, J_w, ω_max) or None.
