@@ -194,6 +194,22 @@ def test_estimator_config_file(tmp_path: Path) -> None:
     assert load_estimator_config(p) == EstimatorConfig(q_mu=2e-3)
 
 
+@pytest.mark.parametrize("text, error", [
+    ("[estimator]\nq_mu = -1\n", "estimator.q_mu = -1.0 is outside [0.0, 10.0]"),
+    ("q_muu = 1e-3\n", "estimator.q_muu: unknown key"),
+    ("[estimator.fuzzy]\nfoo = 1\n", "estimator.fuzzy.foo: unknown key"),
+    ('[estimator]\nsoil_classes = ["stuble"]\n', "estimator.soil_classes: unknown class 'stuble'"),
+])
+def test_an_estimator_config_error_names_the_file(tmp_path: Path, text: str, error: str) -> None:
+    """replay --config est.toml said "estimator.q_mu = -1.0 is outside ..." and no file, unlike the vehicle
+    file's and the service config's errors."""
+    p = tmp_path / "est.toml"
+    p.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as ei:
+        load_estimator_config(p)
+    assert str(ei.value).startswith(f"{p}: {error}"), str(ei.value)
+
+
 # ----------------------------------------------------------------------------- round trips
 @pytest.mark.parametrize("obj, section", [
     (VehicleParams(), "vehicle"),

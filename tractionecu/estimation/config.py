@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
-from ..config import from_mapping, load_toml, section, setting, to_toml, validate
+from ..config import _naming, from_mapping, load_toml, section, setting, to_toml, validate
 from ..errors import ConfigError
 from ..model.mucurve import CURVE_SHAPES, SOIL_CLASSES
 from ..model.vehicle import N_STATE
@@ -165,10 +165,11 @@ def load_estimator_config(path: str | Path) -> EstimatorConfig:
     beside an ``[estimator]`` table are an error naming them (``q_mu`` above the table was dropped, the
     default in force and nothing said), as a key above ``[vehicle]`` is in a vehicle file."""
     data = load_toml(path, "configuration")
-    if "estimator" not in data:
-        return EstimatorConfig.from_mapping(data)
-    other = sorted(k for k in data if k != "estimator")
-    if other:
-        raise ConfigError(f"{path}: {', '.join(other)} beside the [estimator] table: put the estimator's keys "
-                          "inside [estimator] (or all at the top level, without the table)")
-    return EstimatorConfig.from_mapping(data["estimator"])
+    with _naming(path):         # "estimator.q_mu = -1.0 is outside ..." named no file
+        if "estimator" not in data:
+            return EstimatorConfig.from_mapping(data)
+        other = sorted(k for k in data if k != "estimator")
+        if other:
+            raise ConfigError(f"{path}: {', '.join(other)} beside the [estimator] table: put the estimator's keys "
+                              "inside [estimator] (or all at the top level, without the table)")
+        return EstimatorConfig.from_mapping(data["estimator"])
