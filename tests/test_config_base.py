@@ -279,6 +279,18 @@ def test_a_vehicle_file_error_names_the_file(tmp_path: Path) -> None:
     assert str(ei.value).startswith(f"{p}: drivetrain.final_drive_ratio: needed"), str(ei.value)
 
 
+def test_a_final_drive_below_one_is_not_called_missing(tmp_path: Path) -> None:
+    """final_drive_ratio = 0.5 was told "needed for kind = 'mechanical'", as if the key were not there."""
+    p = tmp_path / "vehicle.toml"
+    p.write_text('[drivetrain]\nkind = "mechanical"\nfinal_drive_ratio = 0.5\n', encoding="utf-8")
+    with pytest.raises(ConfigError) as ei:
+        load_vehicle(p)
+    assert str(ei.value) == (f"{p}: drivetrain.final_drive_ratio = 0.5 is below 1: it is the transmission "
+                             "output's speed over the rear wheels' (a reduction, 1 or more; 0: not known)")
+    p.write_text('[drivetrain]\nkind = "mechanical"\nfinal_drive_ratio = 0.5\ngear_ratio = "learnt"\n')
+    assert load_vehicle(p).drivetrain.final_drive_ratio == 0.5          # not used with a learnt ratio
+
+
 def test_numpy_scalars_are_the_numbers_they_hold() -> None:
     """VehicleParams(mass_kg=np.int64(6300)) was refused: "expected a number, got np.int64(6300)"."""
     import numpy as np

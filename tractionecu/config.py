@@ -463,6 +463,11 @@ class DrivetrainSpec:
             if getattr(self, key) not in allowed:
                 raise ConfigError(f"drivetrain.{key}: {getattr(self, key)!r} is not one of {', '.join(allowed)}")
         if self.kind != "hub" and self.gear_ratio == "bus" and not self.final_drive_ratio >= 1.0:
+            if self.final_drive_ratio > 0.0:
+                # 0.5 was told "needed", as if it had not been given
+                raise ConfigError(f"drivetrain.final_drive_ratio = {self.final_drive_ratio!r} is below 1: it is the "
+                                  "transmission output's speed over the rear wheels' (a reduction, 1 or more; "
+                                  "0: not known)")
             raise ConfigError(f"drivetrain.final_drive_ratio: needed for kind = {self.kind!r} with gear_ratio = "
                               "'bus' (the wheel torque is the engine torque times gear and final drive ratios)")
 
