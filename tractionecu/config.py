@@ -720,8 +720,10 @@ def signal_map(data: Any, section_name: str = "signals") -> dict[str, tuple[str,
 
 
 def load_signal_map(path: str | Path) -> dict[str, tuple[str, float]]:
-    """The ``[signals]`` table of a vehicle file (:func:`signal_map`); empty without one."""
-    return signal_map(load_toml(path, "vehicle").get("signals", {}), "signals")
+    """The ``[signals]`` table of a vehicle file (:func:`signal_map`); empty without one.  Errors name the file."""
+    data = load_toml(path, "vehicle")
+    with _naming(path):
+        return signal_map(data.get("signals", {}), "signals")
 
 
 def save_vehicle(params: VehicleParams, path: str | Path, sensors: SensorSpec | None = None) -> None:

@@ -130,6 +130,24 @@ def test_signals_table_errors_name_the_key(tmp_path: Path) -> None:
         from_dict({"signals": {"WheelSpeed_FL": {"signal": "EEC1.EngineSpeed", "scale": 0}}})
 
 
+def test_a_signals_error_of_the_vehicle_file_names_that_file(tmp_path: Path) -> None:
+    """The service reads [signals] from its config and from the vehicle file; an error in the vehicle file's said
+    "signals.WheelSpeed_FL: ..." and named neither file."""
+    veh = tmp_path / "vehicle.toml"
+    veh.write_text('[vehicle]\nmass_kg = 6300.0\n[signals]\nWheelSpeed_FL = "NoSuchMessage.X"\n', encoding="utf-8")
+    with pytest.raises(ConfigError) as ei:
+        codec_for(from_dict({"estimation": {"vehicle": str(veh)}}))
+    assert str(ei.value).startswith(f"{veh}: signals.WheelSpeed_FL: no message 'NoSuchMessage'"), str(ei.value)
+    # the service config's own key over it: its error is the config's, not the vehicle file's
+    with pytest.raises(ConfigError) as ei:
+        codec_for(from_dict({"estimation": {"vehicle": str(veh)}, "signals": {"WheelSpeed_FL": "Other.X"}}))
+    assert str(ei.value).startswith("signals.WheelSpeed_FL: no message 'Other'"), str(ei.value)
+    veh.write_text('[vehicle]\nmass_kg = 6300.0\n[signals]\nWheelSpeed_FL = ["x"]\n', encoding="utf-8")
+    with pytest.raises(ConfigError) as ei:
+        codec_for(from_dict({"estimation": {"vehicle": str(veh)}}))
+    assert str(ei.value).startswith(f"{veh}: signals.WheelSpeed_FL: expected"), str(ei.value)
+
+
 def mech_vehicle_file(tmp_path: Path) -> Path:
     p = tmp_path / "vehicle.toml"
     save_vehicle(VehicleParams(drivetrain=DrivetrainSpec(kind="mechanical", final_drive_ratio=20.0,

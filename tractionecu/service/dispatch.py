@@ -231,4 +231,13 @@ def codec_for(cfg: Any, codec: Codec | None = None) -> tuple[Codec, list[tuple[s
         except ConfigError as e:           # "dbc: file not found: F" named neither the key nor the table
             raise ConfigError(f"can.{e}" if str(e).startswith("dbc:") else str(e)) from None
     codec = codec or default_codec()
-    return codec, codec.resolve_mapping(cfg.signal_mapping())
+    mapping = cfg.signal_mapping()
+    try:
+        return codec, codec.resolve_mapping(mapping)
+    except ConfigError as e:
+        # a key of the vehicle file's [signals] is named with that file: the service config has a [signals] too
+        # ("signals.WheelSpeed_FL: no message 'Nope'" named neither)
+        veh = cfg.estimation.vehicle
+        if veh and any(str(e).startswith(f"signals.{k}:") for k in mapping if k not in cfg.signals):
+            raise ConfigError(f"{veh}: {e}") from None
+        raise
