@@ -49,8 +49,8 @@ DRIVETRAIN_ECU_ADDRESS = 0x80
 DEFAULT_SERVICE_ADDRESS = 0x90
 """Preferred source address of this service (144).
 
-Chosen inside 128..235, the self-configurable range of industry group 2
-(ISO 11783-5), so an arbitrary-address-capable NAME may claim it; it is
+Chosen inside 128..247, the self-configurable range (SAE J1939-81, ISO
+11783-5), so an arbitrary-address-capable NAME may claim it; it is
 distinct from the tractor ECU (0xF0), the task controller (0xF7), the
 virtual terminal (0x26), the drive-train ECU default (0x80) and from every
 address claimed on the John Deere 5055E capture (0x00, 0x03, 0x06, 0x17,
