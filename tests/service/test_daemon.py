@@ -401,3 +401,16 @@ def test_without_a_gnss_source_the_map_state_says_so(tmp_path: Path) -> None:
     assert svc.map is not None and svc.map.state == 'no GNSS source (gps.source = "none"): nothing is mapped'
     cfg = with_overrides(ServiceConfig(), service={"state_dir": str(tmp_path / "state2")})
     assert Service(cfg, env={}, warm_up_estimator=False).map.state == "waiting for a GNSS fix"
+
+
+def test_broadcast_values_clipped_to_the_dbc_range_are_in_the_counters(tmp_path: Path) -> None:
+    """The codec counted values sent at the DBC's limit, and nothing in the service read the count."""
+    from tractionecu.service import broadcast
+
+    cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(tmp_path / "state")})
+    svc = Service(cfg, env={}, warm_up_estimator=False)
+    assert "broadcast_clipped" not in svc.counters()
+    est = StandIn().step(1.0, {}, {})
+    est.rho_s = 5.0                                              # the DBC carries ρ_s up to 0.65534
+    broadcast.estimate_frames(svc.network.codec, est, 0x90, 6)
+    assert svc.counters()["broadcast_clipped"] == {"SoilRollingResistance": 1}

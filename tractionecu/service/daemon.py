@@ -464,6 +464,8 @@ class Service:
             out["gps"] = {**self.gps.stats, "max_delay_s": self.gps.stream.max_delay_s}
         if self.network.claimer is not None:
             out["address_claim"] = dict(self.network.claimer.counts)
+        if self.network.codec.clip_counts:     # broadcast values beyond the DBC's range, sent at its limit
+            out["broadcast_clipped"] = dict(self.network.codec.clip_counts)
         if self.map is not None:
             out["map"] = dict(self.map.stats)
             if self.map.store is not None:
