@@ -348,3 +348,21 @@ def test_a_declared_radius_far_from_r0_is_named(tmp_path, key, r, ok) -> None:
         load_vehicle(p)
     assert str(ei.value) == (f"{p}: drivetrain.{key} = {r} is outside [0.56, 1.04] m, r0_m = 0.8 ± 30% "
                              "(the radius, not the diameter, of the tyre of r0_m)")
+
+
+@pytest.mark.parametrize("key, value", [("final_drive_ratio", "28.0"), ("front_lead", "0.03"),
+                                        ("gear_ratio", '"learnt"')])
+def test_an_engine_key_on_a_hub_drive_is_named(tmp_path, key, value) -> None:
+    """A vehicle file that left out kind = "mechanical" (the default is the paper's hub drive) gave its ratios
+    and lead to the hub estimator, which reads none of them, without a word."""
+    from tractionecu.config import load_vehicle
+    from tractionecu.errors import ConfigError
+
+    p = tmp_path / "vehicle.toml"
+    p.write_text(f"[vehicle]\nmass_kg = 6300.0\n[vehicle.drivetrain]\n{key} = {value}\n")
+    with pytest.raises(ConfigError, match=f"drivetrain.{key}: a key of an engine-driven machine, given for "
+                                          "kind = 'hub'"):
+        load_vehicle(p)
+    ratio = "" if key == "final_drive_ratio" else "final_drive_ratio = 28.0\n"
+    p.write_text(f'[vehicle]\nmass_kg = 6300.0\n[vehicle.drivetrain]\nkind = "mechanical"\n{ratio}{key} = {value}\n')
+    assert load_vehicle(p).drivetrain.kind == "mechanical"

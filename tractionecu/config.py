@@ -644,13 +644,27 @@ def load_vehicle(path: str | Path) -> VehicleParams:
         return veh
 
 
+ENGINE_ONLY_KEYS = ("final_drive_ratio", "gear_ratio", "engine_friction_percent", "engine_reference_torque_nm",
+                    "engine_inertia_kgm2", "front_lead", "front_drive", "wheel_speeds", "wheel_speed_radius_m")
+"""``[drivetrain]`` keys that only the machine-level estimator of an engine-driven kind reads."""
+
+
 def _check_hub_sensing(dt: DrivetrainSpec) -> None:
     """The hub estimator takes the draft from the hitch: a hub drive declared without it (``draft_sensing =
     false``) is an error, not a key read and ignored (such a machine replayed to no estimate at all).  Its wheel
     loads come from the front-axle pins whatever ``load_sensing`` says (a recording without them is refused by
-    replay, :data:`~tractionecu.pipeline.signals.REPLAY_REQUIRED`)."""
+    replay, :data:`~tractionecu.pipeline.signals.REPLAY_REQUIRED`).  A key of :data:`ENGINE_ONLY_KEYS` given
+    away from its default on a hub drive is an error too: the file left out ``kind``."""
     if dt.kind != "hub":
         return
+    defaults = DrivetrainSpec()
+    engine = sorted(k for k in set(given_keys(dt)) & set(ENGINE_ONLY_KEYS)     # (a written file has them all,
+                    if getattr(dt, k) != getattr(defaults, k))                 # at their defaults)
+    if engine:
+        # a vehicle file that forgot kind = "mechanical" ran the hub estimator, its ratios read and ignored
+        raise ConfigError(f"drivetrain.{engine[0]}: a key of an engine-driven machine, given for kind = 'hub' "
+                          f"(the default; {', '.join(engine)}): set kind = \"mechanical\" or \"power-split\", "
+                          "or leave the key out")
     if "draft_sensing" in given_keys(dt) and not dt.draft_sensing:
         raise ConfigError("drivetrain.draft_sensing = false: the hub estimator needs the measured draft; a machine "
                           'without a draft sensor runs the machine-level estimator (kind = "mechanical" or '
