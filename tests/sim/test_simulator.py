@@ -72,3 +72,17 @@ def test_every_nmea_line_parses_with_checksum(tmp_path):
         msg = pynmea2.parse(line, check=True)
         kinds.add(msg.sentence_type)
     assert kinds == {"GGA", "RMC", "VTG"}
+
+
+@pytest.mark.parametrize("truth", ["paper", "physical"])
+def test_a_duration_far_past_the_plan_ends_with_the_plan(truth):
+    """``simulate --duration 1e9`` asked numpy for 745 GiB of draft noise (steps the plan never reaches) and
+    ended in a MemoryError traceback; the run now ends where the plan does, as a duration of 200 s does."""
+    from dataclasses import replace
+
+    from tractionecu.sim.plan import straight
+
+    base = replace(scenarios.get("paper-straight", truth=truth), plan=straight(0.0, 0.0, 0.0, 20.0, 2.5))
+    long_run = simulate(replace(base, duration_s=1e9))
+    assert long_run.x[-1] == pytest.approx(19.5, abs=0.2)          # the 20 m plan driven to its end
+    assert long_run.t[-1] == simulate(replace(base, duration_s=200.0)).t[-1]

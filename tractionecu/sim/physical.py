@@ -75,7 +75,7 @@ from . import tyre as ty
 from .control import Shuttle
 from .drivetrain import RPM, DriveLineSpec
 from .field import Field, SoilRegion
-from .plan import DS
+from .plan import DS, DURATION_CAP
 from .trace import TruthTrace
 
 AIR_DENSITY = 1.2
@@ -284,7 +284,7 @@ def simulate_physical(scn):
     if len(cusps):
         vmax = float(np.max(plan.v_target))
         est_time += len(cusps) * (ctl.shuttle_dwell_s + vmax / ctl.stop_decel + vmax / ctl.accel_max + 5.0)
-    t_end = scn.duration_s if scn.duration_s is not None else est_time
+    t_end = est_time if scn.duration_s is None else min(scn.duration_s, DURATION_CAP * est_time)
     n_max = int(round(t_end / dt)) + 1
 
     phi = math.exp(-dt / imp.draft_tau_s)

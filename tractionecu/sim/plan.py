@@ -23,6 +23,9 @@ from numpy.typing import NDArray
 
 DS = 0.05
 """Path sampling step [m]."""
+DURATION_CAP = 10.0
+"""A scenario's ``duration_s`` is cut to this many times the time its plan is estimated to take [-]: the run
+ends where the plan ends, and a longer duration only allocated noise for steps never driven (745 GiB for 1e9 s)."""
 
 
 @dataclass

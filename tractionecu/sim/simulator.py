@@ -56,7 +56,7 @@ from ..model.vehicle import rolling_radius, slip as slip_fn
 from .control import V_STANDSTILL, ControllerSpec, Shuttle  # noqa: F401  (V_STANDSTILL re-exported)
 from .field import Field
 from .physical import PhysicalSpec, simulate_physical
-from .plan import DS, Plan
+from .plan import DS, DURATION_CAP, Plan
 from .trace import TruthTrace
 
 V_SLIP_MIN = 0.1
@@ -158,7 +158,7 @@ def simulate(scn: Scenario) -> TruthTrace:
         ctl = scn.controller
         vmax = float(np.max(plan.v_target))
         est_time += len(cusps) * (ctl.shuttle_dwell_s + vmax / ctl.stop_decel + vmax / ctl.accel_max + 5.0)
-    t_end = scn.duration_s if scn.duration_s is not None else est_time
+    t_end = est_time if scn.duration_s is None else min(scn.duration_s, DURATION_CAP * est_time)
     n_max = int(round(t_end / dt)) + 1
 
     # Draft fluctuation: Gauss–Markov at the control rate.
