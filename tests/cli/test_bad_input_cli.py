@@ -172,6 +172,17 @@ def test_simulate_says_a_mechanical_scenario_on_the_paper_truth_drives_the_hubs(
     assert 'kind = "hub"' in (out / "vehicle.toml").read_text()
 
 
+def test_simulate_refuses_an_effect_on_the_physical_truth(tmp_path, capsys):
+    """``simulate --scenario physical-three-soils --effect grade`` ended in a ValueError traceback from the
+    physical truth model."""
+    out = tmp_path / "rec"
+    assert main(["simulate", "--scenario", "physical-three-soils", "--effect", "grade", "--duration", "1",
+                 "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "tractionecu simulate: error: --effect grade: effects belong to the paper truth model" in err
+    assert "Traceback" not in err and not out.exists()
+
+
 @pytest.mark.parametrize("rate", ["0", "nan", "inf", "1e9", "0.5"])
 def test_replay_refuses_a_step_rate_outside_the_services_range(rate, short_recording, tmp_path, capsys):
     """``--rate 1e9`` ended in a traceback after asking numpy for 149 GiB; inf passed the > 0 test too."""

@@ -45,6 +45,10 @@ def run(args: argparse.Namespace) -> int:
     mech = scn.truth == "physical" and scn.physical is not None and scn.physical.drivetrain.kind != "hub"
     if args.truth is not None:
         scn = scenarios.with_truth(scn, args.truth)
+    if effects and scn.truth == "physical":   # simulate_physical raised them as a ValueError traceback
+        raise ConfigError(f"--effect {', '.join(effects)}: effects belong to the paper truth model; {scn.name} runs "
+                          "the physical one, which has its own physics (with --truth paper it runs on the paper "
+                          "model, which takes them)")
     note = ""
     if mech and scn.truth == "paper":     # scenarios.with_truth: the paper model drives the hubs
         note = " (hub drive: the paper truth model has no engine, gearbox or mechanical front-wheel drive)"
