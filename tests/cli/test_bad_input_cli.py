@@ -266,6 +266,23 @@ def test_simulate_does_not_overwrite_a_recording_it_did_not_make(short_recording
     assert main(["simulate", "--duration", "1", "--seed", "2", "--out", str(sim)]) == 0   # simulated again
 
 
+def test_simulate_again_leaves_no_export_of_the_earlier_run(tmp_path, capsys):
+    """A paper run simulated into the directory of a mechanical one kept the mechanical run's export_1hz.csv
+    beside the new can.log and truth (diagnose of it diagnosed the other run); a logger's own export_1hz.csv
+    without truth.toml was overwritten."""
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--scenario", "mechanical-three-soils", "--duration", "2", "--out", str(sim)]) == 0
+    assert (sim / "export_1hz.csv").is_file()
+    assert main(["simulate", "--duration", "2", "--out", str(sim)]) == 0
+    assert sorted(p.name for p in sim.iterdir()) == ["can.log", "gps.nmea", "truth.csv", "truth.toml", "vehicle.toml"]
+    own = tmp_path / "logger"
+    own.mkdir()
+    (own / "export_1hz.csv").write_text("Time [s]\n1\n")
+    assert main(["simulate", "--scenario", "mechanical-three-soils", "--duration", "2", "--out", str(own)]) == 1
+    assert "holds a recording that was not simulated" in capsys.readouterr().err
+    assert (own / "export_1hz.csv").read_text() == "Time [s]\n1\n" and len(list(own.iterdir())) == 1
+
+
 def test_a_vehicle_file_that_is_not_toml_is_named_once(short_recording, tmp_path, capsys):
     """The error read 'rec/vehicle.toml: rec/vehicle.toml: not valid TOML: ...'."""
     rec = tmp_path / "rec"

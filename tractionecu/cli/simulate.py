@@ -10,6 +10,7 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..model.effects import parse_effect_arg
 from ..sim import scenarios
+from ..sim.physwriter import EXPORT_CSV
 from ..sim.simulator import simulate
 from ..sim.writer import write_recording
 
@@ -36,10 +37,10 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:                     # numpy's generators take non-negative seeds only
         raise ConfigError(f"--seed: a non-negative integer, got {args.seed}")
     out = Path(args.out)
-    if out.is_dir() and any((out / n).exists() for n in ("can.log", "gps.nmea")) and \
+    if out.is_dir() and any((out / n).exists() for n in ("can.log", "gps.nmea", EXPORT_CSV)) and \
             not (out / "truth.toml").is_file():
-        raise ConfigError(f"--out {out}: holds a recording that was not simulated (can.log or gps.nmea without "
-                          "truth.toml); the simulation would overwrite it: choose another directory")
+        raise ConfigError(f"--out {out}: holds a recording that was not simulated (can.log, gps.nmea or {EXPORT_CSV} "
+                          "without truth.toml); the simulation would overwrite it: choose another directory")
     effects = dict(parse_effect_arg(e) for e in args.effect)
     scn = scenarios.get(args.scenario, seed=args.seed, effects=effects, duration_s=args.duration)
     mech = scn.truth == "physical" and scn.physical is not None and scn.physical.drivetrain.kind != "hub"

@@ -75,7 +75,8 @@ EXPORT_CSV = "export_1hz.csv"
 
 def write_physical_recording(scn, tr, out: str | Path, codec: Codec | None = None) -> dict[str, int]:
     """Write a physical-truth run: ``can.log``, ``gps.nmea``, ``vehicle.toml``, ``truth.csv``, ``truth.toml``
-    (and ``export_1hz.csv`` for a mechanical tractor).  Returns counts of frames per message and NMEA lines."""
+    (and ``export_1hz.csv`` for a mechanical tractor; one an earlier run left in ``out`` is removed otherwise).
+    Returns counts of frames per message and NMEA lines."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     codec = codec or default_codec()
@@ -113,6 +114,8 @@ def write_physical_recording(scn, tr, out: str | Path, codec: Codec | None = Non
     save_vehicle(_declared_vehicle(scn), out / "vehicle.toml", scn.sensors)
     if export is not None:
         _write_export(out / EXPORT_CSV, scn, export, gps)
+    else:                                 # an earlier mechanical run's export is not this run's
+        (out / EXPORT_CSV).unlink(missing_ok=True)
     _write_truth(scn, tr, out, biases)
     return counts
 

@@ -32,13 +32,14 @@ from ..config import save_vehicle, to_toml
 from ..model.vehicle import WHEELS, rolling_radius
 from .frames import DRIVETRAIN_SA, FORWARD, HITCH_SA, NAV_SA, REVERSE, TRACTOR_SA
 from .gnss_receiver import course_over_ground, gnss_sentences
-from .physwriter import write_physical_recording
+from .physwriter import EXPORT_CSV, write_physical_recording
 from .sensors import ou_noise, quantise, torque_meas, wheel_speed_meas
 from .simulator import Scenario, TruthTrace
 
 
 def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec | None = None) -> dict[str, int]:
-    """Write ``can.log``, ``gps.nmea``, ``vehicle.toml``, ``truth.csv``, ``truth.toml`` to ``out``.
+    """Write ``can.log``, ``gps.nmea``, ``vehicle.toml``, ``truth.csv``, ``truth.toml`` to ``out`` (an
+    ``export_1hz.csv`` an earlier mechanical run left there is removed: it is not this run's).
 
     Returns counts of frames per message and NMEA lines.  A physical-truth scenario is written by
     :func:`tractionecu.sim.physwriter.write_physical_recording` (its own sensors and, for a mechanical
@@ -130,6 +131,7 @@ def write_recording(scn: Scenario, tr: TruthTrace, out: str | Path, codec: Codec
 
     save_vehicle(scn.vehicle, out / "vehicle.toml", scn.sensors)
     _write_truth(scn, tr, out)
+    (out / EXPORT_CSV).unlink(missing_ok=True)      # an earlier mechanical run's export is not this run's
     return counts
 
 
