@@ -182,3 +182,28 @@ def test_table_column_types_from_every_value(tmp_path: Path) -> None:
     assert t["n"].tolist()[0] == 3 and t["n"].tolist()[2] == 4 and pd.isna(t["n"].iloc[1])
     assert t["ok"].tolist()[0] is True and t["ok"].tolist()[2] is False
     assert t["name"].tolist() == ["x", "5", ""]
+
+
+def test_a_copy_of_a_recording_counts_once(tmp_path: Path, short_recordings: dict[str, Path]) -> None:
+    """The same recording filed twice (``run`` and ``run-copy``, one machine and day) had one task key: the
+    farm map merged its map twice (its cells' counts doubled and their means weighted 2:1 against the other
+    recording, unlike the map_samples table), and recordings.parquet listed ``run`` twice and ``run-copy``
+    not at all."""
+    import io
+    import shutil
+
+    from tractionecu.mapping.store import open_store
+
+    src = tmp_path / "season" / "tractor-a" / "2026-07-10"
+    shutil.copytree(short_recordings["s1"], src / "run")
+    shutil.copytree(short_recordings["s1"], src / "run-copy")
+    shutil.copytree(short_recordings["s2"], src / "other")
+    out, said = tmp_path / "out", io.StringIO()
+    recs = runner.run_kind("replay", tmp_path / "season", out, stream=None, notes=said)
+    assert sorted(Path(r["path"]).name for r in recs) == ["other", "run"]
+    assert "1 recording(s) hold the same files as another of their machine and date and are left out, so that " \
+           f"their data count once: {src / 'run-copy'} (= {src / 'run'})" in said.getvalue()
+    runner.build_farm_map(out, recs)
+    samples = pd.read_parquet(out / "map_samples")
+    farm = open_store(out / "farm_map")
+    assert int(farm.grid("a", farm.extent()).count.sum()) == int((samples["accepted"] & samples["a"].notna()).sum())

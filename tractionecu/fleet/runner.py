@@ -32,7 +32,7 @@ from ..errors import ConfigError
 from ..mapping.store import DEFAULT_MAX_RANGE_M
 from . import store as fstore
 from .sources import RecordingRef, discover, first_fix
-from .tasks import partition_file, run_task
+from .tasks import copies, partition_file, run_task
 
 log = logging.getLogger(__name__)
 
@@ -230,8 +230,9 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
     and the farm map, the recordings of earlier runs that this SOURCE does not cover (a day's folder run
     after the season's tree adds that day).  ``prune``: those of them no longer at their path are dropped.
     A recording whose content changed is one recording with new results: the Parquet files of its old
-    content are removed (:func:`_prune_outputs`), never left beside the new ones.  What was kept, dropped
-    or removed is said on ``notes`` (else on ``stream``, the progress line's)."""
+    content are removed (:func:`_prune_outputs`), never left beside the new ones.  A recording whose files
+    are byte for byte another's of the same machine and date (:func:`~.tasks.copies`) is left out.  What was
+    kept, dropped, removed or left out is said on ``notes`` (else on ``stream``, the progress line's)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     refs = list(refs) if refs is not None else discover(source, exclude=out)
@@ -250,9 +251,19 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
         options = {}
     else:
         raise ConfigError(f"unknown fleet task {kind!r}")
+    here = {str(r.path) for r in refs}              # a copy's path too: this run covers it
+    notes = notes if notes is not None else stream
+    dup = copies(refs)
+    if dup:
+        # one drive filed twice for one machine and day (one task key, one output): run once, so that the
+        # farm map counts its samples once and the recordings table lists each path once
+        refs = [r for r in refs if r.path not in {c.path for c, _ in dup}]
+        if notes is not None:
+            which = ", ".join(f"{c.path} (= {o.path})" for c, o in dup[:5]) + (" …" if len(dup) > 5 else "")
+            print(f"fleet {kind}: {len(dup)} recording(s) hold the same files as another of their machine and "
+                  f"date and are left out, so that their data count once: {which}", file=notes)
     specs = [{"kind": kind, "ref": r.as_dict(), "out": str(out), "options": options} for r in refs]
     recs = run_specs(specs, client, retries=retries, progress=Progress(kind, len(specs), stream))
-    here = {str(r.path) for r in refs}
     resolved = {_resolved(p) for p in here}
 
     def earlier(path: str) -> bool:
@@ -276,7 +287,6 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
         rows = [row for r in recs if r.get("status") == "ok" for row in r.get("rows", [])]
         _update_table(out / "diagnosis.parquet", rows, fstore.DIAGNOSIS_COLUMNS, None, kept_paths.__contains__,
                       path_col="recording")
-    notes = notes if notes is not None else stream
     if notes is not None and (kept or dropped or removed):
         said = [f"{len(kept)} recording(s) of earlier runs that this SOURCE does not cover kept"
                 + (f" ({gone} no longer at their path: --prune drops them)" if gone else "")] if kept else []

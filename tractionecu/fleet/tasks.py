@@ -36,7 +36,7 @@ import shutil
 import time
 import traceback
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -46,17 +46,19 @@ KINDS = ("replay", "diagnose")
 
 
 # ----------------------------------------------------------------------------- keys
-def content_hash(path: str | Path) -> str:
-    """SHA-256 over the recording's files: for a directory every regular file in it (names and
-    contents, sorted by name); for a capture file the file and the GNSS log ``tractionecu replay``
-    reads beside it."""
+def recording_files(path: str | Path) -> list[Path]:
+    """The files of a recording: for a directory every regular file in it, sorted by name; for a capture
+    file the file and the GNSS log ``tractionecu replay`` reads beside it."""
     p = Path(path)
     if p.is_dir():
-        files = sorted(f for f in p.iterdir() if f.is_file())
-    else:
-        files = [p] + [f for f in (p.with_suffix(".nmea"), p.parent / "gps.nmea") if f.is_file()]
+        return sorted(f for f in p.iterdir() if f.is_file())
+    return [p] + [f for f in (p.with_suffix(".nmea"), p.parent / "gps.nmea") if f.is_file()]
+
+
+def content_hash(path: str | Path) -> str:
+    """SHA-256 over the recording's files (:func:`recording_files`), names and contents."""
     h = hashlib.sha256()
-    for f in files:
+    for f in recording_files(path):
         h.update(f.name.encode() + b"\0")
         with open(f, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
@@ -73,6 +75,35 @@ def software_version() -> str:
     for f in sorted(root.rglob("*.py")):
         h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes())
     return f"{__version__}+{h.hexdigest()[:12]}"
+
+
+def copies(refs: Sequence[Any]) -> list[tuple[Any, Any]]:
+    """(copy, original) of every recording of ``refs`` with an earlier one's machine, date and field whose
+    files are byte for byte that one's (same names and :func:`content_hash`): one drive filed twice, with
+    one task key (:func:`task_key`), so one output for both.  Only recordings whose file names and sizes
+    agree are hashed here; one that cannot be read is left to its task."""
+    alike: dict[tuple[Any, ...], list[Any]] = {}
+    for r in refs:
+        try:
+            sig = (r.machine, r.date, r.field, *((f.name, f.stat().st_size) for f in recording_files(r.path)))
+        except OSError:
+            continue
+        alike.setdefault(sig, []).append(r)
+    out = []
+    for group in alike.values():
+        if len(group) < 2:
+            continue
+        first: dict[str, Any] = {}
+        for r in group:
+            try:
+                h = content_hash(r.path)
+            except OSError:
+                continue
+            if h in first:
+                out.append((r, first[h]))
+            else:
+                first[h] = r
+    return out
 
 
 def task_key(kind: str, chash: str, options: dict[str, Any]) -> str:
@@ -347,5 +378,5 @@ def diagnosis_rows(rep: dict[str, Any], ref: dict[str, str], chash: str) -> list
     return rows
 
 
-__all__ = ["KINDS", "content_hash", "diagnose_task", "diagnosis_rows", "replay_task", "rho_s_of_field",
+__all__ = ["KINDS", "content_hash", "copies", "diagnose_task", "diagnosis_rows", "replay_task", "rho_s_of_field",
            "run_task", "software_version", "task_key"]
