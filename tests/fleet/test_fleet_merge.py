@@ -137,3 +137,22 @@ def test_a_recording_beyond_the_farm_maps_range_is_named(tmp_path: Path) -> None
     assert summary["recordings"] == 0
     assert "beyond the farm map's range (50 km from its origin)" in out.getvalue()
     assert "far/rec (1200 epochs)" in out.getvalue()
+
+
+def test_a_recording_that_put_nothing_in_the_farm_map_is_named(tmp_path: Path) -> None:
+    """A recording without its GNSS log was replayed "ok" (valid share 0) and left out of the farm map without
+    a word: "replay: 2/2 recordings", then "farm map … from 1 recordings", exit 0."""
+    import io
+
+    from tractionecu.fleet.runner import build_farm_map
+
+    recs = [{"kind": "replay", "status": "ok", "machine": "a", "date": "2026-07-11", "path": "m/nogps", "key": "k1",
+             "map_samples": 0, "map_beyond_range": 0, "valid_share": 0.0},
+            {"kind": "replay", "status": "ok", "machine": "a", "date": "2026-07-11", "path": "far/rec", "key": "k2",
+             "map_samples": 0, "map_beyond_range": 1200, "valid_share": 0.9}]
+    out = io.StringIO()
+    assert build_farm_map(tmp_path, recs, stream=out)["recordings"] == 0
+    said = out.getvalue()
+    assert "fleet map: 1 recording(s) replayed put no sample in the farm map (no GNSS position, or no valid " \
+           "estimate at one): m/nogps (valid estimates at 0% of steps)" in said
+    assert said.count("far/rec") == 1                     # named once, as beyond the range

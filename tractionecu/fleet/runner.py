@@ -329,6 +329,16 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
         print(f"fleet map: {len(far)} recording(s) have GNSS epochs beyond the farm map's range "
               f"({DEFAULT_MAX_RANGE_M / 1000.0:.0f} km from its origin), which are not mapped: {which}"
               + (" …" if len(far) > 5 else "") + "; map that farm into another OUT, or give --origin", file=stream)
+    empty = [r for r in recs if r.get("status") == "ok" and not r.get("map_samples") and r not in far]
+    if empty and stream is not None:
+        # replayed, yet nothing of them in the farm map: the count of recordings it is made from says only that
+        def valid(r: dict[str, Any]) -> str:
+            v = r.get("valid_share")
+            return "" if v is None or not math.isfinite(float(v)) else f" (valid estimates at {float(v):.0%} of steps)"
+
+        which = ", ".join(f"{r['path']}{valid(r)}" for r in empty[:5]) + (" …" if len(empty) > 5 else "")
+        print(f"fleet map: {len(empty)} recording(s) replayed put no sample in the farm map (no GNSS position, or "
+              f"no valid estimate at one): {which}", file=stream)
     keys = [r["key"] for r in ok]
     dirs = {r["key"]: out / "tasks" / "replay" / r["key"] / "farm_map" for r in ok}
     farm = out / "farm_map"
