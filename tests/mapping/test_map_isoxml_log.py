@@ -197,8 +197,15 @@ def test_a_farm_map_of_two_machines_at_the_same_times_logs_each_ones_values(tmp_
         dirs.append(d)
     merge_maps(dirs, tmp_path / "farm")
     out = export_isoxml(tmp_path / "farm", tmp_path / "TASKDATA")
-    recs = _decode_tlg((out.parent / "TLG00001.BIN").read_bytes(), _parse_header(out.parent / "TLG00001.XML"))
-    assert len(recs) == 2 * t.size
+    # one time log per machine: the second machine's time ran back to the first one's start inside TLG00001
+    logs = [_decode_tlg((out.parent / f"{n}.BIN").read_bytes(), _parse_header(out.parent / f"{n}.XML"))
+            for n in ("TLG00001", "TLG00002")]
+    assert not (out.parent / "TLG00003.BIN").exists()
+    assert 'A="TLG00002" B="%d"' % (out.parent / "TLG00002.BIN").stat().st_size in out.read_text()
+    for log in logs:
+        stamp = np.array([r["days"] * 86400.0 + r["ms"] / 1000.0 for r in log])
+        assert len(log) == t.size and np.all(np.diff(stamp) > 0)
+    recs = logs[0] + logs[1]
     north = np.array([r["north"] for r in recs])
     got_a = np.array([r["dlv"][1] for r in recs]) * ISO_SCALE["a"]
     first = north < 0.5 * (north.min() + north.max())   # the first machine's pass, 30 m south of the other

@@ -9,7 +9,9 @@ Logged data (:func:`export_isoxml_log`, format ``isoxml``)
         "time interval", a designator) and a ``DVP`` per layer giving offset
         0, scale, decimals and unit; one ``TSK`` with status 4 (completed)
         holding a ``TIM`` (start, stop, type 4 effective) and the ``TLG``
-        ``TLG00001`` (type 1, binary).
+        ``TLG00001`` (type 1, binary), and a further ``TLG00002``, ... wherever the
+        track's time runs back (a farm map's machines at the same hours), so that
+        the time of every log runs forward.
     ``TLG00001.XML``
         The binary's header: ``TIM`` (A empty: start in the binary, D = 4)
         with ``PTN`` (A, B, D empty: north, east and status in the binary)
@@ -234,13 +236,19 @@ def export_isoxml_log(store: MapStore, out_dir: os.PathLike[str] | str, names: S
     quant = [_quantise(values[:, k], scale) for k, (_, _, scale) in enumerate(table)]
     head = struct.Struct("<IHiiBB")
     dlv = struct.Struct("<Bi")
-    buf = bytearray()
-    for i in range(len(track)):
-        ok = [k for k in range(len(table)) if np.isfinite(values[i, k])]
-        buf += head.pack(int(ms[i]), int(days[i]), int(north[i]), int(east[i]), 1, 1 + len(ok))
-        buf += dlv.pack(0, 1 if track[i, 3] else 0)
-        for k in ok:
-            buf += dlv.pack(1 + k, int(quant[k][i]))
+    # one time log per stretch whose time runs forward: a farm map's track is its machines' tracks one after
+    # the other, and a time log whose time runs back (two machines at the same hours) is not a time log
+    cuts = np.flatnonzero(np.diff(utc) < 0.0) + 1
+    bufs = []
+    for seg in np.split(np.arange(len(track)), cuts):
+        buf = bytearray()
+        for i in seg:
+            ok = [k for k in range(len(table)) if np.isfinite(values[i, k])]
+            buf += head.pack(int(ms[i]), int(days[i]), int(north[i]), int(east[i]), 1, 1 + len(ok))
+            buf += dlv.pack(0, 1 if track[i, 3] else 0)
+            for k in ok:
+                buf += dlv.pack(1 + k, int(quant[k][i]))
+        bufs.append(bytes(buf))
 
     tim = ET.Element("TIM", {"A": "", "D": "4"})
     ET.SubElement(tim, "PTN", {"A": "", "B": "", "D": ""})
@@ -255,13 +263,19 @@ def export_isoxml_log(store: MapStore, out_dir: os.PathLike[str] | str, names: S
     _device(root, [(DDI_ACTUAL_WORK_STATE, "work state (mapped)", None, "")] + _layer_entries(table))
     tsk = ET.SubElement(root, "TSK", {"A": "TSK1", "B": task_name, "G": "4"})
     ET.SubElement(tsk, "TIM", {"A": stamp(float(np.min(utc))), "B": stamp(float(np.max(utc))), "D": "4"})
-    ET.SubElement(tsk, "TLG", {"A": ISO_TLG_FILENAME, "B": str(len(buf)), "C": "1"})
+    names = [f"TLG{k:05d}" for k in range(1, len(bufs) + 1)]
+    for name, buf in zip(names, bufs):
+        ET.SubElement(tsk, "TLG", {"A": name, "B": str(len(buf)), "C": "1"})
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / f"{ISO_TLG_FILENAME}.BIN", bytes(buf))
-    atomic_write_bytes(out / f"{ISO_TLG_FILENAME}.XML", _xml_bytes(tim))
+    for name, buf in zip(names, bufs):
+        atomic_write_bytes(out / f"{name}.BIN", buf)
+        atomic_write_bytes(out / f"{name}.XML", _xml_bytes(tim))
     atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
+    for f in out.glob("TLG[0-9][0-9][0-9][0-9][0-9].*"):      # an earlier export's further time logs
+        if f.stem not in names and f.suffix in (".BIN", ".XML"):
+            f.unlink()
     return out / "TASKDATA.XML"
 
 
