@@ -92,7 +92,6 @@ ISO_DDI_COVERAGE = 0xE1FF
 DDI_ACTUAL_WORK_STATE = 0x008D
 """ISO 11783-11 DDI 141, Actual Work State."""
 ISO_GRID_FILENAME = "GRD00001"
-ISO_TLG_FILENAME = "TLG00001"
 GRID_NO_DATA = -2**31
 """Value of every layer in a grid cell without data."""
 DET_ID = "DET-1"
@@ -263,18 +262,18 @@ def export_isoxml_log(store: MapStore, out_dir: os.PathLike[str] | str, names: S
     _device(root, [(DDI_ACTUAL_WORK_STATE, "work state (mapped)", None, "")] + _layer_entries(table))
     tsk = ET.SubElement(root, "TSK", {"A": "TSK1", "B": task_name, "G": "4"})
     ET.SubElement(tsk, "TIM", {"A": stamp(float(np.min(utc))), "B": stamp(float(np.max(utc))), "D": "4"})
-    names = [f"TLG{k:05d}" for k in range(1, len(bufs) + 1)]
-    for name, buf in zip(names, bufs):
+    logs = [f"TLG{k:05d}" for k in range(1, len(bufs) + 1)]          # TLG00001, TLG00002, ...
+    for name, buf in zip(logs, bufs):
         ET.SubElement(tsk, "TLG", {"A": name, "B": str(len(buf)), "C": "1"})
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for name, buf in zip(names, bufs):
+    for name, buf in zip(logs, bufs):
         atomic_write_bytes(out / f"{name}.BIN", buf)
         atomic_write_bytes(out / f"{name}.XML", _xml_bytes(tim))
     atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
     for f in out.glob("TLG[0-9][0-9][0-9][0-9][0-9].*"):      # an earlier export's further time logs
-        if f.stem not in names and f.suffix in (".BIN", ".XML"):
+        if f.stem not in logs and f.suffix in (".BIN", ".XML"):
             f.unlink()
     return out / "TASKDATA.XML"
 
