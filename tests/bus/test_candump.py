@@ -113,6 +113,21 @@ def test_line_cut_in_the_middle_and_binary_garbage(tmp_path):
     assert stats.rejected["garbage"] == 1
 
 
+def test_last_line_cut_after_whole_data_bytes_is_truncated(tmp_path):
+    # a logger losing power mid-line: 4 of the 8 data bytes written, no line break
+    p = tmp_path / "cut.log"
+    good = format_line(1.0, "can0", 0x0CFF1080, True, bytes(8))
+    p.write_text(good + "\n" + good[:-8])
+    stats = ReadStats()
+    got = list(read_candump(p, stats))
+    assert len(got) == 1 and stats.rejected["truncated"] == 1 and stats.examples["truncated"] == [2]
+    p.write_text(good + "\n" + good)               # all 8 bytes there: only the line break is missing
+    stats = ReadStats()
+    assert len(list(read_candump(p, stats))) == 2 and not stats.rejected
+    short = format_line(2.0, "can0", 0x123, False, b"\x01\x02")
+    assert len(list(iter_candump([good, short]))) == 2        # lines given without breaks: read as they are
+
+
 def test_equal_timestamps_are_accepted():
     lines = ["(1.000000) can0 123#00", "(1.000000) can0 124#00"]
     assert len(list(iter_candump(lines))) == 2

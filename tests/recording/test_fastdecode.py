@@ -227,6 +227,16 @@ def test_mutated_lines_decode_identically(tmp_path, codec, seed):
     assert_same(path, codec)
 
 
+def test_last_line_cut_mid_data_is_truncated_not_a_short_frame(tmp_path, codec):
+    lines = _frames(codec, 40)
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(lines) + "\n" + lines[0][:-8])    # 4 data bytes, no line break
+    sig, st = assert_same(path, codec)
+    rs = st.files["can.log"]
+    assert dict(rs.rejected) == {"truncated": 1} and rs.examples["truncated"] == [len(lines) + 1]
+    assert not st.decode_errors
+
+
 def test_read_in_chunks_equals_one_piece(tmp_path, codec, monkeypatch):
     from tractionecu.recording import fastdecode
     path = tmp_path / "can.log"

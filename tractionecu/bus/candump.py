@@ -16,7 +16,10 @@ use is skipped and counted in :class:`ReadStats` under one of these reasons
 ==================  =======================================================
 ``garbage``         not a candump line at all
 ``truncated``       starts like one but stops early (no interface, no
-                    ``#``, odd number of data digits)
+                    ``#``, odd number of data digits), or is the last line
+                    of a file, without its line break, with fewer than 8
+                    data bytes (a logger cut while writing it; candump
+                    writes each line whole with its line break)
 ``bad_timestamp``   the ``(...)`` field is not a number
 ``bad_hex``         non-hex digits, or an identifier that is neither 3 nor 8
                     digits (or exceeds 29 bits)
@@ -129,14 +132,27 @@ def _classify(line: str) -> tuple[str | None, Frame | None]:
     return None, Frame(t, channel, can_id, is_ext, bytes.fromhex(payload))
 
 
+def classify_unterminated(line: str) -> tuple[str | None, Frame | None]:
+    """:func:`_classify` for the last line of a file that has no line break after it: the logger stopped
+    while writing it, so a frame of fewer than 8 data bytes may have lost the rest of its data
+    (``truncated``); 8 bytes are all a classic frame has, and such a line is read."""
+    reason, frame = _classify(line)
+    if frame is not None and len(frame.data) < 8:
+        return "truncated", None
+    return reason, frame
+
+
 def iter_candump(
-    lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1
+    lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1, file: bool = False
 ) -> Iterator[Frame]:
     """Yield frames from candump ``-L`` text lines, counting rejects in ``stats``.
 
     Blank lines are skipped without being counted as rejects.  A frame
     whose timestamp is earlier than the previous accepted frame's is
     rejected as ``time_backwards`` (equal timestamps are accepted).
+    ``file``: the lines are a text file's, each ended by its line break
+    but the last one, which is read by :func:`classify_unterminated`
+    when it has none.
     """
     st = stats if stats is not None else ReadStats()
     last_t = -math.inf
@@ -144,7 +160,8 @@ def iter_candump(
         st.lines += 1
         if not line.strip():
             continue
-        reason, frame = _classify(line)
+        cut = file and not line.endswith("\n")
+        reason, frame = classify_unterminated(line) if cut else _classify(line)
         if reason is None and frame is not None and frame.t < last_t:
             reason = "time_backwards"
         if reason is not None:
@@ -167,7 +184,7 @@ def read_candump(path: str | Path, stats: ReadStats | None = None) -> Iterator[F
     if not st.source:
         st.source = p.name
     with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
-        yield from iter_candump(fh, st)
+        yield from iter_candump(fh, st, file=True)
 
 
 def format_line(t: float, channel: str, can_id: int, is_extended: bool, data: bytes) -> str:

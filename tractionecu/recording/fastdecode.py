@@ -65,7 +65,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..bus import j1939
-from ..bus.candump import ReadStats, _classify
+from ..bus.candump import ReadStats, _classify, classify_unterminated
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..errors import DecodeError, UnknownFrame
@@ -282,8 +282,10 @@ def _canonical_np(A: np.ndarray, width: int):
     return ok, n_us.astype(np.float64) / 1e6, can_id, payload
 
 
-def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: ReadStats, parts: list) -> None:
-    """Classify one chunk of lines (numbered from lineno0 + 1) into frames and rejects."""
+def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: ReadStats, parts: list,
+                unterminated: bool = False) -> None:
+    """Classify one chunk of lines (numbered from lineno0 + 1) into frames and rejects; ``unterminated``:
+    the chunk is the file's last line, without a line break after it (:func:`.candump.classify_unterminated`)."""
     n = len(lines)
     rs.lines += n
     if isinstance(lines, _Uniform):                   # one width: all lines or none are candidates
@@ -310,7 +312,7 @@ def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: Read
         line = lines[i]
         if not line.strip():
             continue
-        reason, frame = _classify(line)
+        reason, frame = classify_unterminated(line) if unterminated else _classify(line)
         if reason is not None:
             rejects.append((i, reason))
             continue
@@ -381,7 +383,7 @@ def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUN
             lineno0 += len(lines)
             yield FrameTable(*parts.pop())
     if carry:
-        _scan_lines(["".join(carry)], lineno0, state, rs, parts)
+        _scan_lines(["".join(carry)], lineno0, state, rs, parts, unterminated=True)
         yield FrameTable(*parts.pop())
 
 
