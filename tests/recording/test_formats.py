@@ -407,6 +407,27 @@ def test_one_bad_line_of_a_text_capture_is_counted_and_the_rest_read(captures, t
     assert "bad_line: 1 (can.capture line 300)" in rec.stats.files["can.capture"].describe()
 
 
+@pytest.mark.parametrize("cut", [3, 12, 24, 35, 44, 57])
+def test_an_asc_whose_last_line_is_cut_counts_it(captures, tmp_path, cut):
+    """A logger losing power: no ``End TriggerBlock`` and the last frame's line cut ``cut`` characters early.
+    Cut in its data it was read as a frame with fewer bytes than its DLC (a decode error of its message);
+    cut before them python-can skipped it, and neither was counted."""
+    d = tmp_path / "asc"
+    shutil.copytree(captures["asc"], d)
+    good = read_frames(captures["asc"] / "can.capture", ReadStats())[0]
+    text = (d / "can.capture").read_text()
+    text = text[:text.rindex("End TriggerBlock")].rstrip("\n")
+    n_lines = text.count("\n") + 1
+    (d / "can.capture").write_text(text[:-cut])
+    rs = ReadStats()
+    table, _ = read_frames(d / "can.capture", rs)
+    assert dict(rs.rejected) == {"truncated": 1} and rs.examples["truncated"] == [n_lines]
+    assert len(table.t) == len(good.t) - 1 and (table.dlc == 8).all()
+    (d / "can.capture").write_text(text)             # whole, only the last line break is missing: all read
+    rs = ReadStats()
+    assert len(read_frames(d / "can.capture", rs)[0].t) == len(good.t) and not rs.rejected
+
+
 def test_trc_lines_python_can_skips_and_a_truncated_blf_are_counted(captures, tmp_path):
     d = tmp_path / "trc"
     shutil.copytree(captures["trc"], d)

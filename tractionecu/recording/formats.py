@@ -179,6 +179,7 @@ class _Lines:
     def __init__(self, fh: Any) -> None:
         self.fh = fh
         self.n = 0                                   # lines of the file taken so far
+        self.last = ""                               # the last of them
         self.front: list[str] = []
 
     def __iter__(self) -> "_Lines":
@@ -189,6 +190,7 @@ class _Lines:
             return self.front.pop()
         line = next(self.fh)
         self.n += 1
+        self.last = line
         return line
 
     def close(self) -> None:
@@ -203,7 +205,8 @@ _RESUMED_ASC_STATE = ("base", "_converted_base", "relative_timestamp", "date", "
 def _python_can_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
     """Messages of a capture python-can reads.  Text captures (ASC, python-can CSV) are read line-tolerant:
     python-can's readers end at the first line they cannot parse, so a bad line is counted (``bad_line``, with
-    its line number) and the reading goes on after it, as the candump reader does.  TRC lines python-can
+    its line number) and the reading goes on after it, as the candump reader does; a last line without its
+    line break (cut while written) that gives no message is counted ``truncated``.  TRC lines python-can
     skips itself are counted from its log; a BLF shorter than its header says is counted ``truncated``."""
     import can
 
@@ -258,6 +261,7 @@ def _text_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
         state: dict[str, Any] = {}
         header = None
         last_bad = -1
+        read = -1                                     # the line of the last message read
         while True:
             if fmt == "asc":
                 reader = can.ASCReader(lines, relative_timestamp=False)
@@ -274,8 +278,13 @@ def _text_messages(p: Path, fmt: str, rs: ReadStats) -> Iterator[tuple]:
                 for m in it:
                     if fmt == "asc" and not state:
                         state = {k: getattr(reader, k) for k in _RESUMED_ASC_STATE if hasattr(reader, k)}
+                    read = lines.n
                     yield (m.timestamp, m.arbitration_id, m.is_extended_id, bytes(m.data), m.dlc,
                            m.is_error_frame, m.is_remote_frame, m.is_fd, lines.n)
+                tail = lines.last.strip()
+                if (tail and not lines.last.endswith("\n") and read != lines.n and last_bad != lines.n
+                        and tail.lower() != "end triggerblock"):
+                    rs.reject("truncated", lines.n, lines.last)   # cut while written, and skipped by the reader
                 return
             except (ValueError, TypeError, IndexError, KeyError, binascii.Error) as e:
                 if lines.n == last_bad:             # no line taken since the last one: give up, as before
@@ -378,11 +387,11 @@ def _mf4_messages(p: Path) -> tuple[Iterator[tuple], bool]:
 
 def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
     """A :class:`FrameTable` of decoded messages ``(t, id, ext, data, dlc, error, remote, fd[, line])``;
-    rejects counted like the candump reader's, the frame's position standing for its line unless the
-    message carries its line number."""
+    rejects counted like the candump reader's (a frame with fewer data bytes than its DLC is ``truncated``),
+    the frame's position standing for its line unless the message carries its line number."""
     cols: tuple[list, ...] = ([], [], [], [], [], [])
     last = -math.inf
-    for k, (t, cid, ext, data, _dlc, err, rtr, fd, *line) in enumerate(messages, start=1):
+    for k, (t, cid, ext, data, dlc, err, rtr, fd, *line) in enumerate(messages, start=1):
         rs.lines += 1
         k = line[0] if line else k                     # a text format's own line number
         t = float(t)
@@ -395,6 +404,8 @@ def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
             reason = "rtr"
         elif len(data) > 8:
             reason = "dlc_gt_8"
+        elif dlc is not None and len(data) < min(int(dlc), 8):
+            reason = "truncated"                       # fewer data bytes than its DLC: a line cut short
         elif not math.isfinite(t) or t < 0:
             reason = "bad_timestamp"
         elif cid > (0x1FFFFFFF if ext else 0x7FF):
