@@ -13,7 +13,7 @@ from tractionecu.bus import j1939
 from tractionecu.bus.candump import format_line
 from tractionecu.bus.dbc import Codec
 from tractionecu.errors import RecordingError
-from tractionecu.recording.reader import RecordingStats, _read_can
+from tractionecu.recording.reader import RecordingStats, _read_can, read_recording
 from tractionecu.recording.reference import read_can_per_frame
 
 REPO = Path(__file__).resolve().parents[2]
@@ -235,6 +235,35 @@ def test_last_line_cut_mid_data_is_truncated_not_a_short_frame(tmp_path, codec):
     rs = st.files["can.log"]
     assert dict(rs.rejected) == {"truncated": 1} and rs.examples["truncated"] == [len(lines) + 1]
     assert not st.decode_errors
+
+
+@pytest.mark.parametrize("echo_s", [0.0, 0.0004])
+def test_a_capture_holding_every_frame_twice_says_so(tmp_path, codec, monkeypatch, echo_s):
+    """A logger echoing its frames (the same time) or two loggers' captures merged (0.4 ms apart): every rate
+    was twice the bus's and nothing said so."""
+    from tractionecu.recording import fastdecode
+    from tractionecu.recording.summary import summarize
+
+    lines = _frames(codec, 200)
+    doubled = []
+    for ln in lines:
+        t = float(ln[1:ln.index(")")])
+        doubled += [ln, f"({t + echo_s:017.6f}){ln[ln.index(')') + 1:]}"]
+    doubled.sort(key=lambda ln: float(ln[1:ln.index(")")]))       # time order, each pair in file order
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(doubled) + "\n")
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", 997)               # pairs split between blocks too
+    _, st = assert_same(path, codec)
+    rs = st.files["can.log"]
+    assert rs.repeated == len(lines) and rs.frames == 2 * len(lines) and not rs.rejected
+    assert rs.repeated_lines == [2, 4, 6, 8, 10] if echo_s == 0 else len(rs.repeated_lines) == 5
+    (note,) = rs.notes()
+    assert f"{len(lines)} of {2 * len(lines)} (50.0 %" in note and "holds its frames twice" in note
+    rec = read_recording(path, clock="keep")
+    assert note in summarize(rec)
+    path.write_text("\n".join(lines) + "\n")                         # each frame once: no note
+    _, st = assert_same(path, codec)
+    assert st.files["can.log"].repeated == 0 and st.files["can.log"].notes() == []
 
 
 def test_read_in_chunks_equals_one_piece(tmp_path, codec, monkeypatch):

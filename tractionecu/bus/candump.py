@@ -37,11 +37,11 @@ The writer formats exactly like can-utils: ``%08X`` for 29-bit IDs,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Iterable, Iterator, NamedTuple
 
-from ..counting import RejectCounter
+from ..counting import MAX_EXAMPLES, RejectCounter
 
 REJECT_REASONS = (
     "garbage",
@@ -58,6 +58,14 @@ REJECT_REASONS = (
 _HEX = frozenset("0123456789abcdefABCDEF")
 _CAN_ERR_FLAG = 0x20000000
 
+REPEAT_WINDOW_S = 1e-3
+"""A frame with the identifier, length and data of the one before it of its identifier and length, at most
+this later [s], is a repeat (:attr:`ReadStats.repeated`): a bus sends a message's next frame a period later, a logger echoing its
+frames or two loggers' captures merged write one frame twice."""
+
+REPEAT_SHARE = 0.1
+"""Share of the frames repeated above which the capture is said to hold its frames twice."""
+
 
 class Frame(NamedTuple):
     """One CAN frame: time [s, epoch], interface, identifier, 29-bit?, data."""
@@ -72,9 +80,32 @@ class Frame(NamedTuple):
 @dataclass
 class ReadStats(RejectCounter):
     """Counts of lines read, frames accepted and lines rejected by reason
-    (see :class:`~tractionecu.counting.RejectCounter`)."""
+    (see :class:`~tractionecu.counting.RejectCounter`); ``repeated``: the accepted frames that repeat the
+    one before them of their identifier (:data:`REPEAT_WINDOW_S`), with the first line numbers in
+    ``repeated_lines`` (counted by the recording reader, not by :func:`iter_candump`)."""
 
     frames: int = 0
+    repeated: int = 0
+    repeated_lines: list[int] = field(default_factory=list)
+
+    def repeat(self, lineno: int) -> None:
+        """Count one repeated frame."""
+        self.repeated += 1
+        if len(self.repeated_lines) < MAX_EXAMPLES:
+            self.repeated_lines.append(lineno)
+
+    def notes(self) -> list[str]:
+        """The repeated frames, one line (they are read as they are, and every message rate counts them)."""
+        if not self.repeated:
+            return []
+        src = f"{self.source} " if self.source else ""
+        more = ", ..." if self.repeated > len(self.repeated_lines) else ""
+        share = self.repeated / max(self.frames, 1)
+        why = (": the capture holds its frames twice (a logger echoing its frames, or two loggers' captures "
+               "merged), and the message rates count both" if share >= REPEAT_SHARE else "")
+        return [f"frames repeating the one before them of their identifier (same data, within "
+                f"{REPEAT_WINDOW_S * 1e3:g} ms): {self.repeated} of {self.frames} ({100.0 * share:.1f} %; "
+                f"{src}line {', '.join(map(str, self.repeated_lines))}{more}){why}"]
 
 
 def _classify(line: str) -> tuple[str | None, Frame | None]:

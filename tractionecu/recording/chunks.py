@@ -24,7 +24,7 @@ from typing import Iterator
 
 import numpy as np
 
-from ..bus.candump import ReadStats
+from ..bus.candump import REPEAT_WINDOW_S, ReadStats
 from ..bus.dbc import Codec
 from ..bus.transport import Reassembler
 from ..counting import MAX_EXAMPLES
@@ -68,11 +68,13 @@ def _candump_blocks(path: Path, rs: ReadStats, chunk_chars: int) -> Iterator[Fra
 
 
 class ChunkDecoder:
-    """Decode frame blocks in order; ``stats`` ends as for the capture decoded in one piece (module doc)."""
+    """Decode frame blocks in order; ``stats`` ends as for the capture decoded in one piece (module doc).
+    ``rs``: the capture's line counts, in which the repeated frames are counted (:class:`Repeats`)."""
 
-    def __init__(self, codec: Codec, stats: RecordingStats) -> None:
+    def __init__(self, codec: Codec, stats: RecordingStats, rs: ReadStats | None = None) -> None:
         self.codec = codec
         self.stats = stats
+        self.repeats = None if rs is None else Repeats(rs)
         self.tp = Reassembler()
         self.claims: dict = {}
         self.t_prev = math.nan
@@ -87,6 +89,8 @@ class ChunkDecoder:
         ``messages`` holds the block's frames per message, name -> (lineno, t, sa)."""
         st = self.stats
         n = len(table)
+        if self.repeats is not None:
+            self.repeats.add(table)
         messages, signals, _ = decode_table(table, self.codec, st, MAX_EXAMPLES, tp=self.tp, claims=self.claims,
                                             want=want)
         self.messages = messages
@@ -119,6 +123,53 @@ class ChunkDecoder:
         self.stats.address_claims = sorted(
             (AddressClaim(sa, name, t, n, line) for (sa, _), (t, n, line, name) in self.claims.items()),
             key=lambda c: (c.t_first, c.sa))
+
+
+class Repeats:
+    """Counts in ``rs`` (:meth:`ReadStats.repeat`) the frames whose identifier (11- or 29-bit), length and data
+    are those of the frame before them of that identifier and length, at most :data:`REPEAT_WINDOW_S` later,
+    block by block in file order.  Between blocks it keeps the last frame of each identifier seen within the
+    window of the last block's end, so memory does not grow with the identifiers a bus flood sends."""
+
+    def __init__(self, rs: ReadStats) -> None:
+        self.rs = rs
+        self.key, self.t, self.payload = np.empty(0, dtype=np.int64), np.empty(0), np.empty(0, dtype=np.uint64)
+
+    def add(self, table: FrameTable) -> None:
+        """Count the repeats of one block (accepted frames, times not decreasing)."""
+        n = len(table)
+        if not n:
+            return
+        key = (table.can_id * 2 + table.ext) * 16 + table.dlc
+        order = np.argsort(key, kind="stable")
+        k, t = key[order], table.t[order]
+        first = np.ones(n, dtype=bool)                # the first frame of its key in the block
+        first[1:] = k[1:] != k[:-1]
+        cand = np.zeros(n, dtype=bool)
+        cand[1:] = ~first[1:] & (t[1:] - t[:-1] <= REPEAT_WINDOW_S)
+        idx = np.flatnonzero(cand)
+        pl = table.payload
+        rep = [idx[pl[order[idx]] == pl[order[idx - 1]]]]
+        if self.key.size:                             # the first of a key against the last before the block
+            fi = np.flatnonzero(first)
+            j = np.minimum(np.searchsorted(self.key, k[fi]), self.key.size - 1)
+            hit = (self.key[j] == k[fi]) & (t[fi] - self.t[j] <= REPEAT_WINDOW_S)
+            fi, j = fi[hit], j[hit]
+            rep.append(fi[pl[order[fi]] == self.payload[j]])
+        lines = np.sort(table.lineno[order[np.concatenate(rep)]])
+        if lines.size:
+            self.rs.repeated += int(lines.size)
+            self.rs.repeated_lines += lines[:max(MAX_EXAMPLES - len(self.rs.repeated_lines), 0)].tolist()
+        end = float(table.t[-1]) - REPEAT_WINDOW_S
+        last = np.ones(n, dtype=bool)                 # the last frame of each key, if recent enough
+        last[:-1] = first[1:]
+        last &= t >= end
+        keep = (self.t >= end) & np.isin(self.key, k, invert=True)
+        key_new = np.concatenate([self.key[keep], k[last]])
+        o = np.argsort(key_new, kind="stable")
+        self.key = key_new[o]
+        self.t = np.concatenate([self.t[keep], t[last]])[o]
+        self.payload = np.concatenate([self.payload[keep], pl[order[last]]])[o]
 
 
 def _add_times(ms: MessageStats, arr: np.ndarray, sa: np.ndarray) -> None:

@@ -402,7 +402,7 @@ def _read_can(path: Path, codec: Codec, stats: RecordingStats,
     rs = ReadStats(source=path.name)
     stats.files[path.name] = rs
     stats.can_format, blocks = open_tables(path, rs)
-    dec = ChunkDecoder(codec, stats)
+    dec = ChunkDecoder(codec, stats, rs)
     parts: dict[str, list] = {}
     stubs: dict[str, list] = {}
     held = None if hold is None else hold.names | {src for target, src, _ in hold.mapping if target in hold.names}

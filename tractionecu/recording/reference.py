@@ -13,11 +13,12 @@ from __future__ import annotations
 import math
 from collections import Counter
 from pathlib import Path
+from typing import Iterable, Iterator
 
 import numpy as np
 
 from ..bus import j1939
-from ..bus.candump import ReadStats, read_candump
+from ..bus.candump import REPEAT_WINDOW_S, Frame, ReadStats, read_candump
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import with_reassembled
 from ..counting import MAX_EXAMPLES
@@ -43,6 +44,18 @@ class _SeriesBuilder:
         )
 
 
+def _counting_repeats(frames: Iterable[Frame], rs: ReadStats) -> Iterator[Frame]:
+    """``frames``, each repeat of the frame before it of its identifier counted in ``rs`` (:class:`.chunks.Repeats`)."""
+    last: dict[tuple[int, bool, int], tuple[float, bytes]] = {}
+    for f in frames:
+        key = (f.can_id, f.is_extended, len(f.data))
+        prev = last.get(key)
+        if prev is not None and prev[1] == f.data and f.t - prev[0] <= REPEAT_WINDOW_S:
+            rs.repeat(rs.lines)
+        last[key] = (f.t, f.data)
+        yield f
+
+
 def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[str, Series]:
     """Read and decode ``can.log`` frame by frame (candump line reader, :meth:`Codec.decode` per frame).
 
@@ -54,7 +67,8 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
     times: dict[str, list[float]] = {}
     claims: dict[tuple[int, int], AddressClaim] = {}
     try:
-        for frame in with_reassembled(read_candump(path, rs), lambda pgn: codec.message_for_pgn(pgn) is not None):
+        frames = _counting_repeats(read_candump(path, rs), rs)
+        for frame in with_reassembled(frames, lambda pgn: codec.message_for_pgn(pgn) is not None):
             lineno = rs.lines
             if not math.isfinite(stats.can_t_first):
                 stats.can_t_first = frame.t
