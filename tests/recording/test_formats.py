@@ -333,6 +333,50 @@ def test_python_can_mf4_writer_output_decodes_like_candump(short_recording, tmp_
         np.testing.assert_array_equal(rec.signals[name].t, s.t, err_msg=name)
 
 
+def test_an_mf4_cut_before_its_channel_descriptions_is_refused_saying_so(mf4_capture, tmp_path, capsys):
+    """A finalised MF4 cut at half its length: refused with asammdf's 'ValueError: seek out of range' alone,
+    asammdf's own traceback on standard output and a failing ``MDF4.__del__``'s on standard error."""
+    raw = (mf4_capture / "can.mf4").read_bytes()
+    (tmp_path / "can.mf4").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(RecordingError, match=rf"an MF4 file cut short: it ends at {len(raw) // 2} bytes"):
+        read_frames(tmp_path / "can.mf4", ReadStats())
+    import gc
+
+    gc.collect()
+    out, err = capsys.readouterr()
+    assert out == "" and "Traceback" not in err
+
+
+def test_an_mf4_whose_last_frame_lost_its_data_bytes_is_read_up_to_it(mf4_capture, monkeypatch):
+    """A logger's unfinalised MF4 cut inside its last record: the data bytes channel holds one sample fewer
+    than the time stamps, and asammdf's 'samples and timestamps length mismatch' refused the whole file."""
+    from asammdf import MDF
+
+    whole = read_frames(mf4_capture / "can.mf4", ReadStats())[0]
+    get = MDF.get
+
+    def short(self, name, *a, **kw):
+        got = get(self, name, *a, **kw)
+        return (got[0][:-1], *got[1:]) if name == "CAN_DataFrame.DataBytes" else got
+
+    monkeypatch.setattr(MDF, "get", short)
+    rs = ReadStats()
+    table, _ = read_frames(mf4_capture / "can.mf4", rs)
+    assert len(table.t) == len(whole.t) - 1 and np.array_equal(table.t, whole.t[:-1])
+    assert dict(rs.rejected) == {"truncated": 1} and "without their data bytes" in rs.texts["truncated"]
+
+
+def test_the_real_unfinalised_mf4_cut_inside_a_record_reads_every_whole_frame(tmp_path):
+    real = DATA.parents[2] / "shared" / "data" / "css-electronics-j1939" / "engine-bus-with-gnss.MF4"
+    if not real.is_file():
+        pytest.skip("the shared data set is not beside the checkout")
+    pytest.importorskip("asammdf")
+    (tmp_path / "cut.mf4").write_bytes(real.read_bytes()[:2_000_001])
+    rs = ReadStats()
+    table, _ = read_frames(tmp_path / "cut.mf4", rs)
+    assert len(table.t) == 55215 and dict(rs.rejected) == {"truncated": 1}
+
+
 def test_the_real_unfinalised_mf4_is_recognised():
     real = DATA.parents[2] / "shared" / "data" / "css-electronics-j1939" / "engine-bus-with-gnss.MF4"
     if not real.is_file():

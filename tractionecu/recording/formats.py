@@ -41,9 +41,13 @@ GNSS epochs by :mod:`.clock`.
 from __future__ import annotations
 
 import binascii
+import contextlib
+import gc
+import io
 import logging
 import math
 import re
+import sys
 from calendar import timegm
 from datetime import datetime, timezone
 from pathlib import Path
@@ -159,7 +163,10 @@ def read_frames(path: str | Path, rs: ReadStats, fmt: str | None = None) -> tupl
         if fmt == "candump-screen":
             return scan_screen(p, rs)
         if fmt == "mf4":
-            rows, local = _mf4_messages(p)
+            rows, local, cut = _mf4_messages(p)
+            if cut:
+                rs.reject("truncated", 0, f"{cut} frame(s) at the end without their data bytes (the file ends "
+                                          "inside them: a logger that lost power while writing?)")
             return _table(rows, rs), (MF4_LOCAL if local else fmt)
         if fmt == "polycan":
             return _table(_polycan_messages(p, rs), rs), fmt
@@ -341,16 +348,21 @@ def _polycan_messages(p: Path, rs: ReadStats) -> Iterator[tuple]:
             yield (t, cid, True, data, len(data), False, False, False, lineno)
 
 
-def _mf4_messages(p: Path) -> tuple[Iterator[tuple], bool]:
-    """Frames of the bus-logging channel groups (``CAN_DataFrame``) of an ASAM MDF 4 file, and whether its
-    start time is a local time without a zone.  Such a start time is read as UTC: taken in the zone of the
-    computer reading it, the same file started at 19:01Z, 17:01Z or 00:01Z by that computer's setting."""
+def _mf4_messages(p: Path) -> tuple[Iterator[tuple], bool, int]:
+    """Frames of the bus-logging channel groups (``CAN_DataFrame``) of an ASAM MDF 4 file, whether its
+    start time is a local time without a zone, and how many frames at the end of a group were cut off
+    (a channel, e.g. the data bytes, holding fewer samples than the group's time stamps: the file ends
+    inside its last records, as a logger's unfinalised file does when power is lost).  Such a start time is
+    read as UTC: taken in the zone of the computer reading it, the same file started at 19:01Z, 17:01Z or
+    00:01Z by that computer's setting."""
     try:
         from asammdf import MDF
     except ImportError:
         raise RecordingError(f"{p}: an MF4 (ASAM MDF 4) file; reading it needs asammdf: "
                              "pip install 'tractionecu[mf4]'") from None
-    mdf = MDF(str(p))
+    mdf = _open_mdf(MDF, p)
+    cut = 0
+    groups = 0
     try:
         st = mdf.header.start_time
         local = st.tzinfo is None
@@ -360,29 +372,62 @@ def _mf4_messages(p: Path) -> tuple[Iterator[tuple], bool]:
             names = {ch.name for ch in group.channels}
             if "CAN_DataFrame.ID" not in names or "CAN_DataFrame.DataBytes" not in names:
                 continue
+            groups += 1
 
             def get(name: str, gi: int = gi):
-                return mdf.get(name, group=gi, raw=True)
+                return mdf.get(name, group=gi, raw=True, samples_only=True)[0]
 
+            stamps = np.asarray(mdf.get_master(gi), dtype=np.float64)
             ids = get("CAN_DataFrame.ID")
-            data = get("CAN_DataFrame.DataBytes").samples
-            t = start + ids.timestamps
-            ide = get("CAN_DataFrame.IDE").samples if "CAN_DataFrame.IDE" in names else None
-            dlc = get("CAN_DataFrame.DataLength").samples if "CAN_DataFrame.DataLength" in names else None
+            data = get("CAN_DataFrame.DataBytes")
+            ide = get("CAN_DataFrame.IDE") if "CAN_DataFrame.IDE" in names else None
+            dlc = get("CAN_DataFrame.DataLength") if "CAN_DataFrame.DataLength" in names else None
             if dlc is None and "CAN_DataFrame.DLC" in names:
-                dlc = get("CAN_DataFrame.DLC").samples
-            for k in range(ids.samples.size):
-                cid = int(ids.samples[k])
+                dlc = get("CAN_DataFrame.DLC")
+            cols = [stamps, ids, data] + [c for c in (ide, dlc) if c is not None]
+            n = min(len(c) for c in cols)
+            cut += max(len(c) for c in cols) - n
+            t = start + stamps
+            for k in range(n):
+                cid = int(ids[k])
                 ext = bool(ide[k]) if ide is not None else cid > 0x7FF
                 row = bytes(np.asarray(data[k], dtype=np.uint8).tobytes())
-                n = int(dlc[k]) if dlc is not None else len(row)
-                rows.append((float(t[k]), cid & 0x1FFFFFFF, ext, row[:n], n, False, False, n > 8))
+                m = int(dlc[k]) if dlc is not None else len(row)
+                rows.append((float(t[k]), cid & 0x1FFFFFFF, ext, row[:m], m, False, False, m > 8))
         rows.sort(key=lambda r: r[0])
     finally:
         mdf.close()
-    if not rows:
+    if not groups:
         raise RecordingError(f"{p}: an MF4 file without a CAN bus-logging channel group (CAN_DataFrame)")
-    return iter(rows), local
+    if not rows:
+        raise RecordingError(f"{p}: an MF4 file whose CAN bus-logging channel group holds no whole frame"
+                             + (f" ({cut} cut off at the file's end)" if cut else ""))
+    return iter(rows), local, cut
+
+
+def _open_mdf(MDF: Any, p: Path) -> Any:
+    """``MDF(p)``; a file asammdf cannot open raises :class:`RecordingError` saying why, and a file cut before
+    the blocks its header points to is named as cut.  (What asammdf prints on a damaged file, to standard
+    output, and the half-built reader's failing ``__del__`` are kept out of the command's output.)"""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):
+            return MDF(str(p))
+    except Exception as e:  # asammdf on a damaged file
+        why = f"{type(e).__name__}: {e}"
+        past_end = isinstance(e, ValueError) and "out of range" in str(e)
+        hook, sys.unraisablehook = sys.unraisablehook, (lambda _u: None)
+        try:
+            e.__traceback__ = None
+            del e
+            gc.collect()
+        finally:
+            sys.unraisablehook = hook
+    size = p.stat().st_size
+    if past_end:
+        raise RecordingError(f"{p}: an MF4 file cut short: it ends at {size} bytes, before blocks its header "
+                             "points to (a logger that lost power, a copy that stopped), and cannot be read "
+                             f"without them ({why})")
+    raise RecordingError(f"{p}: cannot read as mf4 ({size} bytes; cut short or damaged?): {why}")
 
 
 def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
