@@ -669,9 +669,11 @@ class CsvTarget(Target):
                 st = ReadStats()
                 back = sum(1 for _ in read_candump(self.out, st))
                 # rows out of time order are converted as they come and then refused by the candump reader
-                if back + st.rejected["time_backwards"] != n or st.total_rejected != st.rejected["time_backwards"]:
+                order = st.rejected["time_backwards"] + st.rejected["time_ahead"]
+                if back + order != n or st.total_rejected != order:
                     raise ContractViolation(f"PolyCAN -> candump wrote {n} frames, read back {back}, rejected {dict(st.rejected)}")
                 self.counts["reject:candump_readback:time_backwards"] += st.rejected["time_backwards"]
+                self.counts["reject:candump_readback:time_ahead"] += st.rejected["time_ahead"]
                 self.counts["ok:frames"] += n
                 return self.size(case)
             if kind == "contract":

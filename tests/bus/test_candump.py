@@ -128,6 +128,28 @@ def test_last_line_cut_after_whole_data_bytes_is_truncated(tmp_path):
     assert len(list(iter_candump([good, short]))) == 2        # lines given without breaks: read as they are
 
 
+def test_a_lone_time_stamp_ahead_is_rejected_not_every_frame_after_it():
+    """One line whose seconds were 100 000 s ahead (a corrupted digit) made every later line time_backwards:
+    74 % of a 60 s capture was left out, and replay advised splitting it where 'its clock restarted'."""
+    lines = [format_line(1000.0 + 0.01 * k, "can0", 0x0CFF1080, True, bytes(8)) for k in range(300)]
+    lines[100] = format_line(101000.0, "can0", 0x0CFF1080, True, bytes(8))
+    lines[0] = format_line(5000.0, "can0", 0x0CFF1080, True, bytes(8))              # the first line too
+    stats = ReadStats()
+    got = list(iter_candump(lines, stats))
+    assert len(got) == 298 and dict(stats.rejected) == {"time_ahead": 2}
+    assert stats.examples["time_ahead"] == [1, 101]
+    # a capture whose time jumps two hours and goes on from there keeps every frame
+    jump = [format_line(1000.0 + 0.01 * k + (7200.0 if k >= 150 else 0.0), "can0", 0x0CFF1080, True, bytes(8))
+            for k in range(300)]
+    stats = ReadStats()
+    assert len(list(iter_candump(jump, stats))) == 300 and not stats.rejected
+    # a frame slightly ahead stays the time_backwards of the frames after it, as before
+    small = [format_line(t, "can0", 0x0CFF1080, True, bytes(8)) for t in (1.0, 1.5, 1.2, 1.6)]
+    stats = ReadStats()
+    assert [f.t for f in iter_candump(small, stats)] == [1.0, 1.5, 1.6]
+    assert dict(stats.rejected) == {"time_backwards": 1}
+
+
 def test_equal_timestamps_are_accepted():
     lines = ["(1.000000) can0 123#00", "(1.000000) can0 124#00"]
     assert len(list(iter_candump(lines))) == 2

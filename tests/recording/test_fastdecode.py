@@ -266,6 +266,24 @@ def test_a_capture_holding_every_frame_twice_says_so(tmp_path, codec, monkeypatc
     assert st.files["can.log"].repeated == 0 and st.files["can.log"].notes() == []
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_lone_time_stamps_ahead_decode_identically_across_blocks(tmp_path, codec, monkeypatch, seed):
+    from tractionecu.recording import fastdecode
+
+    rng = random.Random(seed)
+    lines = _frames(codec, 200)
+    spikes = sorted(rng.sample(range(len(lines)), 6)) + ([0] if seed % 2 else [len(lines) - 1])
+    for i in spikes:
+        lines[i] = f"({float(lines[i][1:18]) + rng.choice([1.5, 3600.0, 1e5]):017.6f})" + lines[i][19:]
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(lines) + "\n")
+    monkeypatch.setattr(fastdecode, "CHUNK_CHARS", rng.choice([997, 4001, 1 << 20]))
+    _, st = assert_same(path, codec)
+    rs = st.files["can.log"]
+    assert rs.rejected["time_ahead"] >= 6 and rs.frames >= len(lines) - 7 - rs.rejected["time_backwards"]
+    assert rs.rejected["time_backwards"] <= 2
+
+
 def test_read_in_chunks_equals_one_piece(tmp_path, codec, monkeypatch):
     from tractionecu.recording import fastdecode
     path = tmp_path / "can.log"

@@ -472,6 +472,26 @@ def test_an_asc_whose_last_line_is_cut_counts_it(captures, tmp_path, cut):
     assert len(read_frames(d / "can.capture", rs)[0].t) == len(good.t) and not rs.rejected
 
 
+@pytest.mark.parametrize("fmt", ["csv", "screen-ta"])
+def test_a_lone_time_stamp_ahead_costs_one_frame_not_the_rest(captures, tmp_path, fmt):
+    d = tmp_path / fmt
+    shutil.copytree(captures[fmt], d)
+    good = read_frames(captures[fmt] / "can.capture", ReadStats())[0]
+
+    def ahead(ln: str) -> str:                        # the time stamp a day ahead
+        if fmt == "csv":
+            t, rest = ln.split(",", 1)
+            return f"{float(t) + 86400.0:.6f},{rest}"
+        a, b = ln.index("(") + 1, ln.index(")")
+        return f"{ln[:a]}{float(ln[a:b]) + 86400.0:.6f}{ln[b:]}"
+
+    _damage_line(d / "can.capture", 300, ahead)
+    rs = ReadStats()
+    table, _ = read_frames(d / "can.capture", rs)
+    assert dict(rs.rejected) == {"time_ahead": 1} and rs.examples["time_ahead"] == [300]
+    assert len(table.t) == len(good.t) - 1
+
+
 def test_trc_lines_python_can_skips_and_a_truncated_blf_are_counted(captures, tmp_path):
     d = tmp_path / "trc"
     shutil.copytree(captures["trc"], d)

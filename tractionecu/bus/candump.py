@@ -28,6 +28,11 @@ use is skipped and counted in :class:`ReadStats` under one of these reasons
 ``rtr``             remote frame (``ID#R``): carries no data
 ``error_frame``     identifier with the CAN error flag (0x20000000)
 ``time_backwards``  timestamp earlier than the previous accepted frame
+``time_ahead``      timestamp more than :data:`TIME_SPIKE_S` ahead of the
+                    previous accepted frame, and the next frame is again
+                    more than that behind it: one time stamp out of line (a
+                    corrupted digit), which would otherwise have rejected
+                    every frame after it as ``time_backwards``
 ==================  =======================================================
 
 The writer formats exactly like can-utils: ``%08X`` for 29-bit IDs,
@@ -53,10 +58,16 @@ REJECT_REASONS = (
     "rtr",
     "error_frame",
     "time_backwards",
+    "time_ahead",
 )
 
 _HEX = frozenset("0123456789abcdefABCDEF")
 _CAN_ERR_FLAG = 0x20000000
+
+TIME_SPIKE_S = 1.0
+"""A frame stamped more than this [s] after the previous accepted one is held until the next frame: when that
+one is again more than this before it, the held frame is ``time_ahead`` (a lone time stamp out of line), else
+it is accepted (the capture's time jumped)."""
 
 REPEAT_WINDOW_S = 1e-3
 """A frame with the identifier, length and data of the one before it of its identifier and length, at most
@@ -176,32 +187,81 @@ def classify_unterminated(line: str) -> tuple[str | None, Frame | None]:
 def iter_candump(
     lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1, file: bool = False
 ) -> Iterator[Frame]:
-    """Yield frames from candump ``-L`` text lines, counting rejects in ``stats``.
+    """Yield frames from candump ``-L`` text lines, counting rejects in ``stats`` (:func:`iter_numbered`)."""
+    for _lineno, frame in iter_numbered(lines, stats, first_lineno, file):
+        yield frame
+
+
+def iter_numbered(
+    lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1, file: bool = False
+) -> Iterator[tuple[int, Frame]]:
+    """Yield ``(line number, frame)`` from candump ``-L`` text lines, counting rejects in ``stats``.
 
     Blank lines are skipped without being counted as rejects.  A frame
     whose timestamp is earlier than the previous accepted frame's is
-    rejected as ``time_backwards`` (equal timestamps are accepted).
+    rejected as ``time_backwards`` (equal timestamps are accepted); one
+    more than :data:`TIME_SPIKE_S` ahead of it is held until the next
+    frame decides whether it is ``time_ahead`` or accepted.
     ``file``: the lines are a text file's, each ended by its line break
     but the last one, which is read by :func:`classify_unterminated`
     when it has none.
     """
     st = stats if stats is not None else ReadStats()
     last_t = -math.inf
+    held: tuple[int, str, Frame] | None = None        # a frame stamped far ahead, until the next one
     for lineno, line in enumerate(lines, start=first_lineno):
         st.lines += 1
         if not line.strip():
             continue
         cut = file and not line.endswith("\n")
         reason, frame = classify_unterminated(line) if cut else _classify(line)
+        if reason is None and frame is not None and held is not None:
+            if held[2].t - frame.t > TIME_SPIKE_S:
+                st.reject("time_ahead", held[0], held[1])
+            else:
+                last_t = held[2].t
+                st.frames += 1
+                yield held[0], held[2]
+            held = None
         if reason is None and frame is not None and frame.t < last_t:
             reason = "time_backwards"
         if reason is not None:
             st.reject(reason, lineno, line)
             continue
         assert frame is not None
+        if frame.t - last_t > TIME_SPIKE_S:
+            held = (lineno, line, frame)
+            continue
         last_t = frame.t
         st.frames += 1
-        yield frame
+        yield lineno, frame
+    if held is not None:
+        st.frames += 1
+        yield held[0], held[2]
+
+
+def time_order(times: Iterable[float]) -> list[str | None]:
+    """:func:`iter_numbered`'s time rule over the times of frames in file order: for each, None (accepted),
+    ``time_backwards`` or ``time_ahead``."""
+    out: list[str | None] = []
+    last_t = -math.inf
+    held, held_t = -1, 0.0                            # the frame held, if any: its position and time
+    for k, t in enumerate(times):
+        if held >= 0:
+            if held_t - t > TIME_SPIKE_S:
+                out[held] = "time_ahead"
+            else:
+                last_t = held_t
+            held = -1
+        if t < last_t:
+            out.append("time_backwards")
+            continue
+        out.append(None)
+        if t - last_t > TIME_SPIKE_S:
+            held, held_t = k, t
+            continue
+        last_t = t
+    return out
 
 
 def read_candump(path: str | Path, stats: ReadStats | None = None) -> Iterator[Frame]:
@@ -210,12 +270,18 @@ def read_candump(path: str | Path, stats: ReadStats | None = None) -> Iterator[F
     Undecodable bytes are replaced, so binary garbage is counted, not fatal.
     ``OSError`` from opening the file propagates.
     """
+    for _lineno, frame in read_numbered(path, stats):
+        yield frame
+
+
+def read_numbered(path: str | Path, stats: ReadStats | None = None) -> Iterator[tuple[int, Frame]]:
+    """:func:`read_candump` with each frame's line number (:func:`iter_numbered`)."""
     p = Path(path)
     st = stats if stats is not None else ReadStats()
     if not st.source:
         st.source = p.name
     with open(p, "r", encoding="utf-8-sig", errors="replace", newline=None) as fh:
-        yield from iter_candump(fh, st, file=True)
+        yield from iter_numbered(fh, st, file=True)
 
 
 def format_line(t: float, channel: str, can_id: int, is_extended: bool, data: bytes) -> str:

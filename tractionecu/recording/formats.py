@@ -55,7 +55,7 @@ from typing import Any, Iterable, Iterator
 
 import numpy as np
 
-from ..bus.candump import ReadStats
+from ..bus.candump import ReadStats, time_order
 from ..errors import RecordingError
 from .fastdecode import FrameTable
 
@@ -435,7 +435,7 @@ def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
     rejects counted like the candump reader's (a frame with fewer data bytes than its DLC is ``truncated``),
     the frame's position standing for its line unless the message carries its line number."""
     cols: tuple[list, ...] = ([], [], [], [], [], [])
-    last = -math.inf
+    texts: list[str] = []
     for k, (t, cid, ext, data, dlc, err, rtr, fd, *line) in enumerate(messages, start=1):
         rs.lines += 1
         k = line[0] if line else k                     # a text format's own line number
@@ -455,15 +455,19 @@ def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
             reason = "bad_timestamp"
         elif cid > (0x1FFFFFFF if ext else 0x7FF):
             reason = "bad_hex"
-        elif t < last:
-            reason = "time_backwards"
         if reason is not None:
             rs.reject(reason, k, f"t={t} id={cid:X} data={bytes(data).hex().upper()}")
             continue
-        last = t
-        rs.frames += 1
+        texts.append(f"t={t} id={cid:X} data={bytes(data).hex().upper()}")
         for col, v in zip(cols, (k, t, cid, ext, len(data), int.from_bytes(bytes(data), "little"))):
             col.append(v)
+    order = time_order(cols[1])                        # time going back, a lone time stamp ahead
+    if any(order):
+        for k, why, text in zip(cols[0], order, texts):
+            if why is not None:
+                rs.reject(why, k, text)
+        cols = tuple([v for v, why in zip(c, order) if why is None] for c in cols)
+    rs.frames += len(cols[0])
     return FrameTable(np.asarray(cols[0], dtype=np.int64), np.asarray(cols[1], dtype=np.float64),
                       np.asarray(cols[2], dtype=np.int64), np.asarray(cols[3], dtype=bool),
                       np.asarray(cols[4], dtype=np.int64), np.asarray(cols[5], dtype=np.uint64))
@@ -554,13 +558,10 @@ def scan_screen(path: str | Path, rs: ReadStats) -> tuple[FrameTable, str]:
     if len(modes) > 1:
         raise RecordingError(f"{p}: candump screen output mixes date-time and numeric time stamps")
     keep = np.ones(t.size, dtype=bool)
-    last = -math.inf
-    for i in range(t.size):
-        if t[i] < last:
+    for i, why in enumerate(time_order(t.tolist())):
+        if why is not None:
             keep[i] = False
-            rs.reject("time_backwards", rows[i][0], rows[i][5])
-        else:
-            last = t[i]
+            rs.reject(why, rows[i][0], rows[i][5])
     rs.frames += int(keep.sum())
     sel = [r for r, k in zip(rows, keep) if k]
     table = FrameTable(np.asarray([r[0] for r in sel], dtype=np.int64), t[keep],

@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from ..bus import j1939
-from ..bus.candump import REPEAT_WINDOW_S, Frame, ReadStats, read_candump
+from ..bus.candump import REPEAT_WINDOW_S, Frame, ReadStats, read_numbered
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import with_reassembled
 from ..counting import MAX_EXAMPLES
@@ -44,14 +44,16 @@ class _SeriesBuilder:
         )
 
 
-def _counting_repeats(frames: Iterable[Frame], rs: ReadStats) -> Iterator[Frame]:
-    """``frames``, each repeat of the frame before it of its identifier counted in ``rs`` (:class:`.chunks.Repeats`)."""
+def _counting_repeats(frames: Iterable[tuple[int, Frame]], rs: ReadStats, line: list[int]) -> Iterator[Frame]:
+    """The frames of ``(line number, frame)`` pairs, each repeat of the frame before it of its identifier counted
+    in ``rs`` (:class:`.chunks.Repeats`); ``line[0]`` the line number of the last frame taken."""
     last: dict[tuple[int, bool, int], tuple[float, bytes]] = {}
-    for f in frames:
+    for lineno, f in frames:
+        line[0] = lineno
         key = (f.can_id, f.is_extended, len(f.data))
         prev = last.get(key)
         if prev is not None and prev[1] == f.data and f.t - prev[0] <= REPEAT_WINDOW_S:
-            rs.repeat(rs.lines)
+            rs.repeat(lineno)
         last[key] = (f.t, f.data)
         yield f
 
@@ -67,9 +69,10 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
     times: dict[str, list[float]] = {}
     claims: dict[tuple[int, int], AddressClaim] = {}
     try:
-        frames = _counting_repeats(read_candump(path, rs), rs)
+        line = [0]                              # a reassembled message's: its last packet's
+        frames = _counting_repeats(read_numbered(path, rs), rs, line)
         for frame in with_reassembled(frames, lambda pgn: codec.message_for_pgn(pgn) is not None):
-            lineno = rs.lines
+            lineno = line[0]
             if not math.isfinite(stats.can_t_first):
                 stats.can_t_first = frame.t
             stats.can_t_last = frame.t
