@@ -295,3 +295,27 @@ def test_a_byte_order_mark_costs_no_line(tmp_path, codec):
     st, gst = rec.stats.files["can.log"], rec.stats.files["gps.nmea"]
     assert st.total_rejected == 0 and gst.total_rejected == 0 and gst.prefixed_count == 0
     assert len(rec.gps) == len(ref.gps) and st.frames == ref.stats.files["can.log"].frames
+
+
+def test_inspect_lists_the_most_frequent_unknown_pgns_of_a_flood(tmp_path):
+    """A flood of random identifiers printed one line per unknown PGN: 8056 lines for 60 s at 5 kHz."""
+    import random
+
+    from tractionecu.recording.summary import MAX_UNKNOWN_PGNS, summarize
+
+    rng = random.Random(3)
+    lines = [format_line(1000.0 + 0.001 * k, "can0", 0x0CFE0000 | (0x100 * k) % 0x10000 | 0x42, True, bytes(8))
+             for k in range(200)]
+    lines += [format_line(1000.3 + 0.001 * k, "can0", 0x18F00000 | rng.getrandbits(16), True, bytes(8))
+              for k in range(2000)]
+    lines.sort(key=lambda ln: float(ln[1:18]))
+    (tmp_path / "can.log").write_text("\n".join(lines) + "\n")
+    rec = read_recording(tmp_path / "can.log", clock="keep")
+    text = summarize(rec)
+    pgn_lines = [ln for ln in text.splitlines() if ln.startswith("    PGN ")]
+    more = [ln for ln in text.splitlines() if ln.startswith("    ... ")]
+    assert len(pgn_lines) == MAX_UNKNOWN_PGNS and len(more) == 1
+    n = len(rec.stats.unknown_pgns)
+    assert f"{n - MAX_UNKNOWN_PGNS} more PGNs" in more[0]
+    listed = sum(int(ln.split()[3]) for ln in pgn_lines) + int(more[0].split()[4])
+    assert listed == rec.stats.unknown_frames

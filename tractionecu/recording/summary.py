@@ -15,6 +15,10 @@ from .containers import Recording, RecordingStats
 _PGN_NOTES = {PGN_TP_CM: "  (transport protocol: connection management)",
               PGN_TP_DT: "  (transport protocol: data)"}
 
+MAX_UNKNOWN_PGNS = 40
+"""Unknown PGNs listed one a line, the most frequent; the rest are summed in one line (a bus flood of random
+identifiers has tens of thousands)."""
+
 
 def _fmt_t(t: float) -> str:
     if not math.isfinite(t):
@@ -59,9 +63,14 @@ def summarize(recording: Recording) -> str:
         out.append(
             f"  unknown PGNs skipped: {st.unknown_frames} frames, {len(st.unknown_pgns)} PGNs"
         )
-        for pgn, n in sorted(st.unknown_pgns.items()):
+        shown = sorted(st.unknown_pgns.items(), key=lambda kv: (-kv[1], kv[0]))[:MAX_UNKNOWN_PGNS]
+        for pgn, n in sorted(shown):
             srcs = ",".join(f"0x{sa:02X}" for sa in sorted(st.unknown_pgn_sources.get(pgn, ())))
             out.append(f"    PGN {pgn:>6} (0x{pgn:05X}) {n:>7} frames  from {srcs}{_PGN_NOTES.get(pgn, '')}")
+        if len(st.unknown_pgns) > len(shown):
+            rest = st.unknown_frames - sum(n for _, n in shown)
+            out.append(f"    ... {len(st.unknown_pgns) - len(shown)} more PGNs, {rest} frames (the "
+                       f"{len(shown)} most frequent are listed)")
     if st.non_extended_frames:
         out.append(f"  11-bit frames skipped: {st.non_extended_frames}")
     if st.decode_errors:
