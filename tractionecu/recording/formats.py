@@ -84,6 +84,11 @@ _DATETIME = re.compile(r"^(\d{4})-(\d{2})-(\d{2}) (\d{2}):(\d{2}):(\d{2})(?:\.(\
 
 
 # --------------------------------------------------------------------------- detection
+_COMPRESSED = ((b"\x1f\x8b", "gzip", "gunzip"), (b"\xfd7zXZ\x00", "xz", "unxz"), (b"BZh", "bzip2", "bunzip2"),
+               (b"\x28\xb5\x2f\xfd", "zstd", "unzstd"), (b"\x04\x22\x4d\x18", "lz4", "unlz4"))
+"""Magic numbers of compressed files a logger's capture is kept in (each file format's own specification)."""
+
+
 def detect(path: str | Path) -> str:
     """The capture format of ``path`` (one of :data:`FORMATS`), judged by content.
 
@@ -103,8 +108,9 @@ def detect(path: str | Path) -> str:
         return "mf4"
     if head.startswith(b"SQLite format 3\x00"):
         return "sqlite"
-    if head.startswith(b"\x1f\x8b"):
-        raise RecordingError(f"{p}: a gzip-compressed file; decompress it first (gunzip), then read it")
+    for magic, kind, tool in _COMPRESSED:
+        if head.startswith(magic):
+            raise RecordingError(f"{p}: a file compressed with {kind}; decompress it first ({tool}), then read it")
     if _binary(head):
         raise RecordingError(f"{p}: binary data starting {head[:8]!r}, not a CAN capture format read here; "
                              + CONVERT_HINT)
