@@ -183,6 +183,14 @@ def test_simulate_refuses_an_effect_on_the_physical_truth(tmp_path, capsys):
     assert "Traceback" not in err and not out.exists()
 
 
+def test_simulate_refuses_an_effect_given_twice(tmp_path, capsys):
+    """``--effect grade=2 --effect grade=0.5`` simulated grade 0.5 alone, without a word."""
+    out = tmp_path / "rec"
+    assert main(["simulate", "--scenario", "paper-straight", "--effect", "grade=2", "--effect", "grade=0.5",
+                 "--duration", "1", "--out", str(out)]) == 1
+    assert "--effect grade: given more than once" in capsys.readouterr().err and not out.exists()
+
+
 @pytest.mark.parametrize("rate", ["0", "nan", "inf", "1e9", "0.5"])
 def test_replay_refuses_a_step_rate_outside_the_services_range(rate, short_recording, tmp_path, capsys):
     """``--rate 1e9`` ended in a traceback after asking numpy for 149 GiB; inf passed the > 0 test too."""

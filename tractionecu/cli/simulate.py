@@ -41,7 +41,12 @@ def run(args: argparse.Namespace) -> int:
             not (out / "truth.toml").is_file():
         raise ConfigError(f"--out {out}: holds a recording that was not simulated (can.log, gps.nmea or {EXPORT_CSV} "
                           "without truth.toml); the simulation would overwrite it: choose another directory")
-    effects = dict(parse_effect_arg(e) for e in args.effect)
+    parsed = [parse_effect_arg(e) for e in args.effect]
+    twice = sorted({n for n, _ in parsed if sum(m == n for m, _ in parsed) > 1})
+    if twice:                             # the last one was kept without a word
+        raise ConfigError(f"--effect {', '.join(twice)}: given more than once; give each effect once, with all "
+                          "its parameters (--effect NAME:P=V,Q=W)")
+    effects = dict(parsed)
     scn = scenarios.get(args.scenario, seed=args.seed, effects=effects, duration_s=args.duration)
     mech = scn.truth == "physical" and scn.physical is not None and scn.physical.drivetrain.kind != "hub"
     if args.truth is not None:

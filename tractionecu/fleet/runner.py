@@ -360,8 +360,8 @@ def build_farm_map(out: str | Path, recs: Sequence[dict[str, Any]], formats: Seq
         if left_out and stream is not None:
             # a recording that changed, was dropped (--prune) or whose replay failed leaves the farm map
             print(f"fleet map: the farm map was rebuilt from {len(keys)} recording(s); {len(left_out)} "
-                  "recording(s) of the earlier farm map are not among them (changed, dropped, or their replay "
-                  "failed) and are no longer in it", file=stream)
+                  "recording(s) of the earlier farm map are not among them (changed, replayed by another software "
+                  "version, which makes every task new, dropped, or their replay failed) and are no longer in it", file=stream)
     summary["map_dir"] = str(farm)
     exports = {}
     if formats:
