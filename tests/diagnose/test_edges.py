@@ -188,3 +188,25 @@ def test_without_gnss_the_radar_stands_in_and_no_clock_skew_is_tested(make_recor
     assert any("radar's ground speed (GBSD) stands in" in n for n in d.notes)
     cs = d.candidate("clock_skew")
     assert cs is not None and not cs.testable and "no GNSS" in cs.reason
+
+
+def test_a_can_clock_moved_onto_gnss_time_is_said_in_the_notes(make_recording, tmp_path):
+    """A capture whose CAN clock ran an hour behind the GNSS log: the reader found the offset and moved every
+    CAN time by +3600 s, replay and inspect said so, diagnosis said nothing (its notes held only the altitude
+    range), while it tests a CAN-to-GNSS clock skew on those times."""
+    import shutil
+
+    from tractionecu.diagnose import data as ddata
+
+    src = make_recording("paper-three-soils", 2, 60.0)
+    rec = tmp_path / "rec"
+    shutil.copytree(src, rec)
+    lines = (src / "can.log").read_text().splitlines()
+    with open(rec / "can.log", "w") as f:
+        for ln in lines:
+            t = float(ln[1:ln.index(")")])
+            f.write(f"({t - 3600.0:.6f}){ln[ln.index(')') + 1:]}\n")
+    assert not any(n.startswith("clock:") for n in ddata.load(src).notes)
+    notes = ddata.load(rec).notes
+    clock = [n for n in notes if n.startswith("clock:")]
+    assert len(clock) == 1 and "CAN clock offset +3599.9" in clock[0] and clock[0].endswith("applied")

@@ -495,6 +495,9 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
     else:
         veh = VehicleParams()
         notes.append("no vehicle.toml: package default vehicle parameters used")
+    if getattr(rec.stats, "clock_note", ""):
+        # the CAN-to-GNSS clock offset the reader applied (or found and kept), as replay and inspect say it
+        notes.append(f"clock: {rec.stats.clock_note}")
     notes += skipped_input_notes(rec)
     fr = frame_from_recording(rec, veh, rate_hz, blocks)
     fr.notes[:0] = notes
