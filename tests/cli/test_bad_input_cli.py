@@ -532,3 +532,18 @@ def test_ctrl_c_stops_run_simulate_while_it_simulates(tmp_path):
     assert rc == 130, rest
     assert "playing on virtual CAN" not in rest
     assert not (tmp_path / "st" / "simulation" / "can.log").exists()      # stopped before the end, not after it
+
+
+@pytest.mark.parametrize("arg", [["--time-offset", "nan"], ["--time-offset", "inf"], ["--reference-torque", "inf"],
+                                 ["--reference-torque", "1e300"], ["--reference-torque", "-1"]])
+def test_diagnose_refuses_a_time_offset_or_reference_torque_that_is_no_number(arg, tmp_path, capsys):
+    """``--time-offset nan`` on a 1 Hz export ended in "no signal with more than two samples", and
+    ``--reference-torque inf`` in the verdict untestable, "missing signals: engine_torque" (exit 4): the value
+    given was reported as the export's data."""
+    export = Path(__file__).resolve().parents[1] / "data" / "csv" / "css_engine_gnss_1hz.csv"
+    args = ["--reference-torque", "1000"] if arg[0] == "--time-offset" else []
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(export), "--csv-mapping", "auto", "--out", str(out), *args, *arg]) == 1
+    err = capsys.readouterr().err
+    assert f"tractionecu diagnose: error: {arg[0]}: must be" in err and "Traceback" not in err
+    assert not out.exists()

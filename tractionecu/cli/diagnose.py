@@ -12,11 +12,15 @@ report is written either way.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
 from .inspect import add_dbc_option
 from .replay import EXIT_MISSING_SIGNALS
+
+REFERENCE_TORQUE_MAX_NM = 64255.0
+"""Largest engine reference torque J1939 SPN 544 can carry [N·m] (the vehicle file's bound too)."""
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +45,15 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..bus.dbc import extra_dbcs
     from ..diagnose import diagnose_path
+    from ..errors import ConfigError
 
+    # a value that is no finite number reached the export's times or torques and was reported as its data
+    # ("no signal with more than two samples", "missing signals: engine_torque")
+    if not math.isfinite(args.time_offset):
+        raise ConfigError(f"--time-offset: must be a finite number of seconds, got {args.time_offset}")
+    if args.reference_torque is not None and not 0.0 < args.reference_torque <= REFERENCE_TORQUE_MAX_NM:
+        raise ConfigError(f"--reference-torque: must be > 0 and at most {REFERENCE_TORQUE_MAX_NM:.0f} N·m "
+                          f"(J1939 SPN 544's range), got {args.reference_torque}")
     csv_mapping = args.csv_mapping
     if args.csv_timezone is not None:
         from ..recording.csv_import import mapping_named
