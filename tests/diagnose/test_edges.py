@@ -210,3 +210,26 @@ def test_a_can_clock_moved_onto_gnss_time_is_said_in_the_notes(make_recording, t
     notes = ddata.load(rec).notes
     clock = [n for n in notes if n.startswith("clock:")]
     assert len(clock) == 1 and "CAN clock offset +3599.9" in clock[0] and clock[0].endswith("applied")
+
+
+def _without_draft(src, dst):
+    """A copy of recording ``src`` whose capture lost its rear hitch status (PGN 65093, the draft)."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    lines = (src / "can.log").read_text().splitlines(keepends=True)
+    kept = [ln for ln in lines if " 0CFE4582#" not in ln]
+    assert len(kept) < len(lines)
+    (dst / "can.log").write_text("".join(kept))
+    return dst
+
+
+def test_a_hub_recording_without_its_draft_is_diagnosed_not_a_traceback(make_recording, tmp_path):
+    """A hub tractor's capture without the rear hitch status (the draft message not logged) ended in
+    "TypeError: unsupported operand type(s) for -: 'float' and 'NoneType'" in the force balance."""
+    from tractionecu.diagnose.engine import diagnose
+
+    rec = _without_draft(make_recording("paper-three-soils", 2, 60.0), tmp_path / "rec")
+    d = diagnose(rec)
+    assert d.features.frame.fdx is None
+    assert d.verdict in ("none", "effect", "ambiguous", "unexplained", "untestable")

@@ -1095,7 +1095,9 @@ def compute(fr: Frame) -> Features:
         ws = wheel_state(fr, omega_dot, None)
         # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
         # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not know).
-        a_bal = balance_acceleration(fr, ws.fx_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
+        # (no draft signal: no pull subtracted, as the channels take it, :func:`.channels.draft_of`)
+        fdx = np.nan_to_num(fr.fdx) if fr.fdx is not None else 0.0
+        a_bal = balance_acceleration(fr, ws.fx_sum - fdx, fr.vehicle.mass_kg)
         v_int = speed_integral(fr, a_bal)
         v_ref = fused_speed(fr, v_int, valid)
         accel = a_bal + smooth_derivative(v_ref - v_int, fr.dt)
