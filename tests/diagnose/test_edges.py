@@ -233,3 +233,17 @@ def test_a_hub_recording_without_its_draft_is_diagnosed_not_a_traceback(make_rec
     d = diagnose(rec)
     assert d.features.frame.fdx is None
     assert d.verdict in ("none", "effect", "ambiguous", "unexplained", "untestable")
+
+
+def test_a_recording_replay_refuses_keeps_its_diagnosis(make_recording, tmp_path):
+    """The estimator view (a second view, replay's estimator over the recording) raised replay's "the
+    recording has no DraftForce" after every fit was done: exit 1, no report.json, the diagnosis lost."""
+    import json
+
+    from tractionecu.diagnose import diagnose_path
+
+    rec = _without_draft(make_recording("paper-three-soils", 2, 60.0), tmp_path / "rec")
+    rep = diagnose_path(rec, tmp_path / "out")
+    assert rep["estimator"] == {"skipped": "not run: replay needs DraftForce, which this recording lacks"}
+    assert "estimator view not run: replay needs DraftForce, which this recording lacks" in rep["notes"]
+    assert json.loads((tmp_path / "out" / "report.json").read_text())["verdict"] == rep["verdict"]

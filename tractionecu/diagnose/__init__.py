@@ -64,9 +64,17 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     release_memos(d.problem.channels.values())   # the fits are done: memos only spare recomputation
     est = None
     if estimator and not is_csv and p.is_dir():
+        from ..pipeline.replay import MissingSignals
         from .innovations import estimator_view
 
-        est = estimator_view(p, d.features)
+        try:
+            est = estimator_view(p, d.features)
+        except MissingSignals as exc:
+            # The second view needs what replay needs (a hub drive: the draft and the front-axle load); the
+            # fits above do not, and their report is not dropped for it.
+            why = f"not run: replay needs {', '.join(exc.missing)}, which this recording lacks"
+            est = {"skipped": why}
+            d.notes.append(f"estimator view {why}")
     return _report.write(d, out, est)
 
 

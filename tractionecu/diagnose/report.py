@@ -25,7 +25,8 @@
 - ``steps``: the augmentation, step by step, and why it stopped;
 - ``open_world``: structure left after the named effects (channel, where, when, how big) and the
   held-out sparse regression of it on measured signals (:mod:`.openworld`);
-- ``statement``, ``grade_check``, ``notes``, and ``estimator`` when the innovation view ran.
+- ``statement``, ``grade_check``, ``notes``, and ``estimator`` when the innovation view ran (``{"skipped": why}``
+  when replay cannot run the recording: the signals its profile needs are missing).
 
 Figures: ``residual_before_after.png``, ``residual_map.png``, ``ranking.png``.
 """
