@@ -247,3 +247,19 @@ def test_a_recording_replay_refuses_keeps_its_diagnosis(make_recording, tmp_path
     assert rep["estimator"] == {"skipped": "not run: replay needs DraftForce, which this recording lacks"}
     assert "estimator view not run: replay needs DraftForce, which this recording lacks" in rep["notes"]
     assert json.loads((tmp_path / "out" / "report.json").read_text())["verdict"] == rep["verdict"]
+
+
+def test_without_a_draft_signal_the_unknown_pull_is_named_as_no_fault(make_recording, tmp_path):
+    """A healthy hub tractor whose hitch status was not logged: the pull, taken as zero, was taken up as
+    faults, "effect: drivetrain" with η = 0.5 at its lower bound and a mass of +2140 kg (120 s of
+    paper-three-soils), and on this 60-s recording, through the force-integrated ground speed the slip is
+    taken against, "effect: relaxation", σ = 3.6 m.  The channels whose equation holds the pull are not
+    built, and the ground speed is the spline through the GNSS speed; the slip's channels are tested."""
+    from tractionecu.diagnose.engine import diagnose
+
+    rec = _without_draft(make_recording("paper-three-soils", 2, 60.0), tmp_path / "rec")
+    d = diagnose(rec)
+    assert {"speed", "gps_speed", "front_load", "draft"}.isdisjoint(d.problem.channels)
+    assert "slip" in d.problem.channels and d.features.v_int is not None and not d.features.v_int.any()
+    assert any(n.startswith("no draft signal: the pull is unknown") for n in d.notes)
+    assert d.verdict == "none" and not [e for e in d.effects if e.get("named")]

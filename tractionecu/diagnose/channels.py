@@ -1034,9 +1034,17 @@ def build_channels(feat: Features) -> list[Channel]:
     out: list[Channel] = []
     wc = _WheelCache(feat)
     wheels = fr.has("omega", "md", "fzf")
+    # Without a draft signal the pull is unknown: the speed equation, the force-integrated speed and the
+    # front-axle load's transfer would each take it up as a fault (a healthy hub tractor whose hitch status
+    # was not logged was named "drivetrain η = 0.5" and "mass +2140 kg").
+    pull = fr.fdx is not None
+    if not pull and wheels:
+        feat.notes.append("no draft signal: the pull is unknown, so the speed equation, the GNSS speed against the "
+                          "force-integrated speed and the front-axle load are not tested; the slip is")
     if wheels and feat.v_gps is not None:
-        out.append(SpeedChannel(feat, wc))
-        out.append(GpsSpeedChannel(feat, wc))
+        if pull:
+            out.append(SpeedChannel(feat, wc))
+            out.append(GpsSpeedChannel(feat, wc))
         out.append(SlipChannel(feat, wc))
         if fr.hf_omega is not None:
             wf = WheelForceChannel(feat, wc)
@@ -1045,7 +1053,7 @@ def build_channels(feat: Features) -> list[Channel]:
             wf.use_class(slip_ch.soil)
             wf.share_rows(slip_ch)
             out.append(wf)
-    if fr.has("fzf") and not fr.fzf_modelled:
+    if fr.has("fzf") and not fr.fzf_modelled and pull:
         out.append(FrontLoadChannel(feat))
     if fr.has("fdx") and fr.work is not None and (feat.segment >= 0).any():
         ch = DraftChannel(feat)

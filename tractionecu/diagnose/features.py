@@ -1092,13 +1092,18 @@ def compute(fr: Frame) -> Features:
         omega_dot = np.where(np.isfinite(omega_dot), omega_dot, smooth_derivative(np.nan_to_num(fr.omega), fr.dt))
     v_ref = accel = v_int = None
     if have_wheels and v_gps is not None:
-        ws = wheel_state(fr, omega_dot, None)
-        # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
-        # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not know).
-        # (no draft signal: no pull subtracted, as the channels take it, :func:`.channels.draft_of`)
-        fdx = np.nan_to_num(fr.fdx) if fr.fdx is not None else 0.0
-        a_bal = balance_acceleration(fr, ws.fx_sum - fdx, fr.vehicle.mass_kg)
-        v_int = speed_integral(fr, a_bal)
+        if fr.fdx is not None:
+            ws = wheel_state(fr, omega_dot, None)
+            # Bin-mean acceleration of the force balance, (Σ F_h − F_dx)/m (the wheels' own where they stand or
+            # creep), plus the slope of the slow correction b = v_ref − v_int (resistances the balance does not
+            # know).
+            a_bal = balance_acceleration(fr, ws.fx_sum - np.nan_to_num(fr.fdx), fr.vehicle.mass_kg)
+            v_int = speed_integral(fr, a_bal)
+        else:
+            # No draft signal: the pull is unknown, so is the force balance (taken without the pull, its speed
+            # ran ahead whenever the implement pulled and the slip's lag was named a tyre relaxation of 3.6 m);
+            # the ground speed is the slow correction alone, the spline through the GNSS speed.
+            a_bal = v_int = np.zeros(n)
         v_ref = fused_speed(fr, v_int, valid)
         accel = a_bal + smooth_derivative(v_ref - v_int, fr.dt)
     elif v_gps is not None:
