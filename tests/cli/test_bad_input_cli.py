@@ -547,3 +547,22 @@ def test_diagnose_refuses_a_time_offset_or_reference_torque_that_is_no_number(ar
     err = capsys.readouterr().err
     assert f"tractionecu diagnose: error: {arg[0]}: must be" in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_an_interrupted_diagnosis_leaves_the_earlier_report_with_its_figures(short_recording, tmp_path, monkeypatch):
+    """Ctrl-C while the figures were drawn, in a folder an earlier diagnosis had written: report.json and
+    report.md were the new ones already, beside the earlier diagnosis's figures."""
+    from tractionecu.diagnose import report
+
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--no-estimator", "--out", str(out), str(short_recording)]) in (0, 4)
+    (out / "report.md").write_text("the earlier report\n")
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert set(before) == {"report.json", "report.md", "residual_before_after.png", "residual_map.png", "ranking.png"}
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(report, "plot_ranking", interrupted)
+    assert main(["diagnose", "--no-estimator", "--out", str(out), str(short_recording)]) == 130
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before

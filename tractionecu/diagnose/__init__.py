@@ -100,10 +100,10 @@ def _write_reduced(fr, out: Path, note: str | None = None) -> dict:
     if note:
         fr.notes.append(note)
     rep = _report._num(diagnose_reduced(fr))
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "report.json").write_text(json.dumps(rep, indent=2, ensure_ascii=False), encoding="utf-8")
-    (out / "report.md").write_text(_report.to_markdown(rep), encoding="utf-8")
-    _report.plot_reduced(rep, fr, out)
+    with _report.staged(out) as st:
+        (st / "report.json").write_text(json.dumps(rep, indent=2, ensure_ascii=False), encoding="utf-8")
+        (st / "report.md").write_text(_report.to_markdown(rep), encoding="utf-8")
+        _report.plot_reduced(rep, fr, st)
     return rep
 
 

@@ -35,9 +35,12 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import shutil
+from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -323,16 +326,34 @@ def to_markdown(rep: dict) -> str:
     return "\n".join(L)
 
 
-def write(d: Diagnosis, out: str | Path, estimator: dict | None = None) -> dict:
-    """Write report.json, report.md and the figures into ``out``; returns the JSON dict."""
+@contextmanager
+def staged(out: str | Path) -> Iterator[Path]:
+    """A folder inside ``out`` that the report and its figures are written into, moved over the earlier ones
+    once all are written (``report.json`` last): a diagnosis interrupted while writing (Ctrl-C, a figure that
+    fails) leaves the earlier report with its own figures, never a new report beside an earlier one's figures."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    stage = out / ".report.partial"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir()
+    try:
+        yield stage
+        for p in sorted(stage.iterdir(), key=lambda q: q.name == "report.json"):
+            os.replace(p, out / p.name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def write(d: Diagnosis, out: str | Path, estimator: dict | None = None) -> dict:
+    """Write report.json, report.md and the figures into ``out`` (through :func:`staged`); returns the JSON
+    dict."""
     rep = to_json(d, estimator)
-    (out / "report.json").write_text(json.dumps(rep, indent=2, ensure_ascii=False), encoding="utf-8")
-    (out / "report.md").write_text(to_markdown(rep), encoding="utf-8")
-    plot_before_after(d, out / "residual_before_after.png")
-    plot_map(d, out / "residual_map.png")
-    plot_ranking(d, out / "ranking.png")
+    with staged(out) as st:
+        (st / "report.json").write_text(json.dumps(rep, indent=2, ensure_ascii=False), encoding="utf-8")
+        (st / "report.md").write_text(to_markdown(rep), encoding="utf-8")
+        plot_before_after(d, st / "residual_before_after.png")
+        plot_map(d, st / "residual_map.png")
+        plot_ranking(d, st / "ranking.png")
     return rep
 
 
