@@ -566,3 +566,13 @@ def test_an_interrupted_diagnosis_leaves_the_earlier_report_with_its_figures(sho
     monkeypatch.setattr(report, "plot_ranking", interrupted)
     assert main(["diagnose", "--no-estimator", "--out", str(out), str(short_recording)]) == 130
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+@pytest.mark.parametrize("arg", [["--csv-mapping", "auto"], ["--csv-timezone", "+02:00"]])
+def test_diagnose_says_a_csv_option_does_not_fit_a_recording_directory(arg, short_recording, tmp_path, capsys):
+    """``diagnose REC --csv-mapping auto`` on a recording directory: "REC: cannot read: Is a directory"."""
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(short_recording), "--out", str(out), *arg]) == 1
+    err = capsys.readouterr().err
+    assert "for a decoded CSV export" in err and "is a recording directory" in err and "Is a directory" not in err
+    assert not out.exists()

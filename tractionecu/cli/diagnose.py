@@ -54,6 +54,10 @@ def run(args: argparse.Namespace) -> int:
     if args.reference_torque is not None and not 0.0 < args.reference_torque <= REFERENCE_TORQUE_MAX_NM:
         raise ConfigError(f"--reference-torque: must be > 0 and at most {REFERENCE_TORQUE_MAX_NM:.0f} N·m "
                           f"(J1939 SPN 544's range), got {args.reference_torque}")
+    if (args.csv_mapping or args.csv_timezone) and Path(args.recording).is_dir():
+        # (it was read as one: "REC: cannot read: Is a directory")
+        raise ConfigError(f"--csv-mapping, --csv-timezone: for a decoded CSV export; {args.recording} is a "
+                          "recording directory (give the export's file, or leave these options out)")
     csv_mapping = args.csv_mapping
     if args.csv_timezone is not None:
         from ..recording.csv_import import mapping_named
