@@ -576,3 +576,13 @@ def test_diagnose_says_a_csv_option_does_not_fit_a_recording_directory(arg, shor
     err = capsys.readouterr().err
     assert "for a decoded CSV export" in err and "is a recording directory" in err and "Is a directory" not in err
     assert not out.exists()
+
+
+def test_diagnose_help_gives_the_verdicts_and_exit_statuses(capsys):
+    """``diagnose --help`` named neither the verdicts nor that untestable exits 4."""
+    with pytest.raises(SystemExit) as ex:
+        main(["diagnose", "--help"])
+    assert ex.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert "effect, ambiguous, none, unexplained" in out and "untestable" in out
+    assert "exit status: 0 with a verdict, 4 with the verdict untestable" in out

@@ -19,12 +19,23 @@ from pathlib import Path
 from .inspect import add_dbc_option
 from .replay import EXIT_MISSING_SIGNALS
 
+EPILOG = """\
+writes OUT/report.json, OUT/report.md and three figures; the verdict is one of
+effect, ambiguous, none, unexplained (a located mismatch no library effect
+explains) or untestable (nothing could be tested: too short, standing, or
+without the signals any effect acts on).
+
+exit status: 0 with a verdict, 4 with the verdict untestable (the report is
+written either way), 1 on an error (nothing written), 130 when interrupted
+(the folder's earlier report left whole)."""
+
 REFERENCE_TORQUE_MAX_NM = 64255.0
 """Largest engine reference torque J1939 SPN 544 can carry [N·m] (the vehicle file's bound too)."""
 
 
 def add_subparser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks")
+    p = sub.add_parser("diagnose", help="locate and name the physics a recording shows and the model lacks",
+                       formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EPILOG)
     p.add_argument("recording", help="recording directory (can.log, gps.nmea, vehicle.toml) or a decoded CSV export")
     p.add_argument("--out", required=True, help="directory for report.json, report.md and the figures")
     p.add_argument("--vehicle", default=None, help="vehicle.toml (default: the recording's own)")
