@@ -193,6 +193,11 @@ def test_without_ec1_replay_names_the_reference_torque_or_takes_the_declared_one
     err = capsys.readouterr().err
     assert "not replayed: profile mechanical (the one the estimator runs, vehicle.toml" in err and "Traceback" not in err
     assert "missing: EngineReferenceTorque" in err
+    from tractionecu.pipeline.replay import MissingSignals, replay
+
+    with pytest.raises(MissingSignals, match="the estimator's mechanical profile needs them") as e:   # said "hub"
+        replay(rec)
+    assert e.value.profile == "mechanical" and e.value.missing == ["EngineReferenceTorque"]
     scn = scenarios.SCENARIOS["mechanical-three-soils"]
     scn = scn() if callable(scn) else scn
     tref = scn.physical.drivetrain.mech.engine.reference_torque_nm                  # the engine's data sheet

@@ -364,7 +364,7 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
          compiled: bool | None = None, hold_bytes: int | None = None) -> tuple[Any, Any, BatchSink]:
     from .gnss import GnssGate
     from .replay import MissingSignals, machine_of
-    from .signals import required_missing
+    from .signals import estimator_profile, required_missing
     from ..recording.reader import held_signals, read_recording, stream_signals
 
     check_rate(rate_hz)                                # before the capture is read
@@ -372,7 +372,7 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     vehicle, s0 = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
-        raise MissingSignals(read_recording(recording) if streamed else rec, missing)
+        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
     cfg = cfg or EstimatorConfig()
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()

@@ -64,7 +64,7 @@ from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
 from .select import estimator_for, groups_for
-from .signals import GNSS_SPEED, required_missing
+from .signals import GNSS_SPEED, estimator_profile, required_missing
 from .steps import GNSS_COURSE, GRID_MARGIN_S, GRID_MAX_GAP_S, build_grid
 from .survey import survey_keep
 
@@ -89,11 +89,12 @@ __all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recor
 class MissingSignals(ConfigError):
     """The recording lacks signals replay cannot run without; ``recording`` and ``missing`` (signal names)."""
 
-    def __init__(self, recording: Recording, missing: list[str]) -> None:
+    def __init__(self, recording: Recording, missing: list[str], profile: str = "hub") -> None:
         self.recording = recording
         self.missing = missing
-        super().__init__(f"{recording.path}: the recording has no {', '.join(missing)}: the estimator's hub "
-                         f"profile needs them (tractionecu inspect lists what the recording holds)")
+        self.profile = profile
+        super().__init__(f"{recording.path}: the recording has no {', '.join(missing)}: the estimator's "
+                         f"{profile} profile needs them (tractionecu inspect lists what the recording holds)")
 
 
 RATE_HZ = (1.0, 1000.0)
@@ -164,7 +165,7 @@ def recording_grid(rec: Recording, rate_hz: float, vehicle: VehicleParams | None
     check_rate(rate_hz)
     missing = required_missing(rec, vehicle)
     if missing:
-        raise MissingSignals(rec, missing)
+        raise MissingSignals(rec, missing, estimator_profile(vehicle))
     ws = rec.signals[groups_for(vehicle).anchor].t
     # The grid ends with the data that drives the estimator: never more than a wheel-speed gap past the
     # last wheel-speed frame, whatever other signal runs on (or whatever time an odd clock put there).
@@ -217,7 +218,7 @@ def replay_streamed(recording: str | Path, *, rate_hz: float = 100.0, cfg: Estim
     vehicle, sensors = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
-        raise MissingSignals(read_recording(recording), missing)
+        raise MissingSignals(read_recording(recording), missing, estimator_profile(vehicle))
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), _Sink(keep_all=False),
                on_estimate)
     names = {nm for grp in run.groups for nm in grp.names}
@@ -612,9 +613,10 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     out = Path(out_dir)
     streamed = not isinstance(recording, Recording)
     rec = read_recording(recording, keep=survey_keep) if streamed else recording
-    missing = required_missing(rec, machine_of(rec)[0])
+    vehicle = machine_of(rec)[0]
+    missing = required_missing(rec, vehicle)
     if missing:
-        raise MissingSignals(read_recording(recording) if streamed else rec, missing)
+        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
     if write_map:
         from ..mapping.from_replay import check_map_dir
 
