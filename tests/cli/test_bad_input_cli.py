@@ -586,3 +586,14 @@ def test_diagnose_help_gives_the_verdicts_and_exit_statuses(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "effect, ambiguous, none, unexplained" in out and "untestable" in out
     assert "exit status: 0 with a verdict, 4 with the verdict untestable" in out
+
+
+def test_ctrl_c_while_the_commands_are_imported_exits_130_without_a_traceback(monkeypatch):
+    """The subcommands' imports take seconds on a cold start; Ctrl-C then printed an import's traceback."""
+    from tractionecu.cli import main as cli_main
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli_main, "build_parser", interrupted)
+    assert cli_main.main(["inspect", "x"]) == 130

@@ -66,7 +66,10 @@ def _unavailable(name: str, exc: Exception):
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI with ``argv`` (default: ``sys.argv[1:]``); returns the exit code."""
-    parser = build_parser()
+    try:
+        parser = build_parser()        # imports every subcommand's modules: seconds on a cold start
+    except KeyboardInterrupt:          # Ctrl-C then printed an import's traceback
+        return 130
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
