@@ -40,7 +40,7 @@ class RejectCounter:
         """Count one rejected line."""
         self.rejected[reason] += 1
         ex = self.examples.setdefault(reason, [])
-        if len(ex) < MAX_EXAMPLES:
+        if len(ex) < MAX_EXAMPLES and (not ex or ex[-1] != lineno):   # a line with two bad cells: named once
             ex.append(lineno)
         if text and reason not in self.texts:
             t = text.rstrip("\r\n")

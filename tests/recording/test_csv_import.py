@@ -81,6 +81,14 @@ def test_bad_rows_and_cells_are_counted(tmp_path):
     assert "bad_value: 1 (s.csv line 3)" in summarize(rec)
 
 
+def test_a_line_with_two_bad_cells_is_named_once(tmp_path):
+    """A row holding both ``inf`` and ``ERR`` was listed twice among the examples ("line 2, 2, 13")."""
+    p = tmp_path / "s.csv"
+    p.write_text("t,DraftForce,FrontAxleLoad\n0.0,inf,ERR\n0.1,100,200\n0.2,abc,300\n")
+    st = import_csv(p).stats.files["s.csv"]
+    assert st.rejected["bad_value"] == 3 and st.examples["bad_value"] == [2, 4]
+
+
 def test_custom_mapping_and_units(tmp_path):
     p = tmp_path / "c.csv"
     p.write_text("time_ms\tspeed_kmh\tdraft_kN\n1000\t7.2\t12.5\n")
