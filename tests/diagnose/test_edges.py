@@ -263,3 +263,18 @@ def test_without_a_draft_signal_the_unknown_pull_is_named_as_no_fault(make_recor
     assert "slip" in d.problem.channels and d.features.v_int is not None and not d.features.v_int.any()
     assert any(n.startswith("no draft signal: the pull is unknown") for n in d.notes)
     assert d.verdict == "none" and not [e for e in d.effects if e.get("named")]
+
+
+def test_without_gnss_positions_the_one_soil_is_said(make_recording, tmp_path):
+    """Without its GNSS log a healthy recording of three soils came out "unexplained" (a slow resistive force,
+    the soils' change) with nothing saying the field had no cells."""
+    import shutil
+
+    from tractionecu.diagnose.engine import diagnose
+
+    rec = tmp_path / "rec"
+    shutil.copytree(make_recording("paper-three-soils", 2, 60.0), rec)
+    (rec / "gps.nmea").unlink()
+    d = diagnose(rec)
+    assert d.features.n_cells == 1
+    assert any(n.startswith("no GNSS positions: the soil is taken as one for the whole recording") for n in d.notes)

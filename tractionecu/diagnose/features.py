@@ -1139,6 +1139,10 @@ def compute(fr: Frame) -> Features:
         cell, n_cells = _cells(np.nan_to_num(u), np.nan_to_num(w), okp, fr.rate_hz)
     else:
         cell, n_cells = np.zeros(n, dtype=np.int64), 1
+        # one soil for the whole recording: a field of several soils then leaves a slow resistive force that
+        # no effect explains (a healthy recording without its GNSS log came out "unexplained" without a word)
+        notes.append("no GNSS positions: the soil is taken as one for the whole recording (no cells on the "
+                     "field), so a change of soil shows as an unexplained resistive force")
     fold = held_out_folds(fr.t)
     feat = Features(fr, valid, omega_dot, v_gps, v_ref, accel, theta, grade, segment, direction, cell,
                     n_cells, fold, u, w, notes)
