@@ -1040,7 +1040,8 @@ def build_channels(feat: Features) -> list[Channel]:
     pull = fr.fdx is not None
     if not pull and wheels:
         feat.notes.append("no draft signal: the pull is unknown, so the speed equation, the GNSS speed against the "
-                          "force-integrated speed and the front-axle load are not tested; the slip is")
+                          "force-integrated speed and the front-axle load are not tested; the slip is taken against "
+                          "the GNSS speed's spline")
     if wheels and feat.v_gps is not None:
         if pull:
             out.append(SpeedChannel(feat, wc))
