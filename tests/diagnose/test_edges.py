@@ -278,3 +278,26 @@ def test_without_gnss_positions_the_one_soil_is_said(make_recording, tmp_path):
     d = diagnose(rec)
     assert d.features.n_cells == 1
     assert any(n.startswith("no GNSS positions: the soil is taken as one for the whole recording") for n in d.notes)
+
+
+def test_the_reference_torque_given_stands_in_for_a_missing_ec1_on_the_bus(make_recording, tmp_path):
+    """``diagnose --reference-torque`` was read for a CSV export only: a mechanical capture without EC1 (its
+    5 s broadcast before the logger started) came out "untestable", the option ignored."""
+    import shutil
+    import tomllib
+
+    from tractionecu.diagnose import diagnose_path
+
+    src = make_recording("mechanical-no-draft", 11, 45.0)
+    rec = tmp_path / "no-ec1"
+    shutil.copytree(src, rec)
+    lines = (src / "can.log").read_text().splitlines(keepends=True)
+    kept = [ln for ln in lines if not any(f" {i}#" in ln for i in ("1CEBFF00", "1CECFF00"))]   # EC1 over BAM
+    assert len(kept) < len(lines)
+    (rec / "can.log").write_text("".join(kept))
+    assert diagnose_path(rec, tmp_path / "d0", estimator=False)["verdict"] == "untestable"
+    tref = tomllib.loads((src / "truth.toml").read_text())["physical"]["drivetrain"]["mech"]["engine"][
+        "reference_torque_nm"]
+    rep = diagnose_path(rec, tmp_path / "d", reference_torque_nm=tref, estimator=False)
+    assert rep["verdict"] == "none" and rep["slip_model"]["detected"]
+    assert f"engine reference torque {tref:g} N·m as given (the bus sends no EC1)" in rep["notes"]

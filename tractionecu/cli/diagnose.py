@@ -46,7 +46,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--csv-timezone", default=None,
                    help="zone of CSV date-times that name none: UTC (default), +02:00 or Europe/Berlin")
     p.add_argument("--reference-torque", type=float, default=None,
-                   help="engine reference torque [N·m] for percent-torque CSV columns (J1939 SPN 544)")
+                   help="engine reference torque [N·m] (J1939 SPN 544) for percent-torque CSV columns, and for "
+                        "a bus recording whose capture holds no EC1")
     p.add_argument("--time-offset", type=float, default=0.0, help="added to the CSV time column [s]")
     p.add_argument("--no-estimator", action="store_true", help="skip the estimator-innovation view")
     add_dbc_option(p)

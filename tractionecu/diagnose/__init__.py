@@ -19,7 +19,8 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
     A CSV export (``csv_mapping`` a :class:`~tractionecu.recording.csv_import.CsvMapping` or the
     name of one, ``"contract"``, ``"j1939"`` or ``"auto"``, or a path ending in ``.csv``) goes
     through :func:`tractionecu.recording.csv_import.import_csv` (percent engine torque over
-    ``reference_torque_nm``, else the vehicle file's ``[drivetrain] engine_reference_torque_nm``);
+    ``reference_torque_nm``, else the vehicle file's ``[drivetrain] engine_reference_torque_nm``; on a bus
+    recording ``reference_torque_nm`` stands in for that key, used where the bus sends no EC1);
     engine-level exports without per-wheel data get the reduced analysis of :mod:`.reduced`, and so does a
     bus recording that leaves the full analysis no channel but carries the engine-level signals (a
     mechanical tractor without draft sensing).  Returns the ``report.json`` dict.
@@ -47,7 +48,8 @@ def diagnose_path(recording: str | Path, out: str | Path, *, vehicle: str | Path
             return _write_reduced(fr, out)
         source = fr
     else:
-        source = _data.load(p, vehicle)
+        # the reference torque given stands in for EC1's on the bus too (it was read for an export only)
+        source = _data.load(p, vehicle, reference_torque_nm=reference_torque_nm)
     from .engine import diagnose
     from .reduced import ENGINE_LEVEL
 

@@ -33,7 +33,8 @@ from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle
 from ..errors import RecordingError
 from ..pipeline.gnss import GnssGate
 from ..pipeline.signals import (DRAFT, DRIVE_TORQUES, ENGINE_PERCENT_TORQUE, ENGINE_REFERENCE_TORQUE, FRONT_AXLE_LOAD,
-                                GROUND_BASED_SPEED, IN_WORK, VEHICLE_SPEED, WHEEL_BASED_SPEED, WHEEL_SPEEDS)
+                                GROUND_BASED_SPEED, IN_WORK, VEHICLE_SPEED, WHEEL_BASED_SPEED, WHEEL_SPEEDS,
+                                signal_state)
 from ..recording.containers import MAX_TABLE_ROWS
 from ..pipeline.survey import survey_keep
 from ..recording.reader import Recording, read_recording, stream_signals
@@ -465,11 +466,13 @@ def _track_heading(fr: Frame) -> NDArray[np.float64] | None:
 
 
 def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | None = None,
-         rate_hz: float | None = None) -> Frame:
+         rate_hz: float | None = None, reference_torque_nm: float | None = None) -> Frame:
     """Read a recording directory (or take a Recording) and its vehicle file into a :class:`Frame`.
 
     ``vehicle`` defaults to the recording's ``vehicle.toml``; without one the
-    package defaults are used and a note says so.
+    package defaults are used and a note says so.  ``reference_torque_nm`` [N·m] stands in for the vehicle
+    file's ``[drivetrain] engine_reference_torque_nm``: the engine's reference torque where the bus sends no
+    EC1 (SPN 544).
     """
     blocks = None
     if isinstance(path, Recording):
@@ -495,6 +498,12 @@ def load(path: str | Path | Recording, vehicle: VehicleParams | str | Path | Non
     else:
         veh = VehicleParams()
         notes.append("no vehicle.toml: package default vehicle parameters used")
+    if reference_torque_nm is not None:
+        from dataclasses import replace
+
+        veh = replace(veh, drivetrain=replace(veh.drivetrain, engine_reference_torque_nm=float(reference_torque_nm)))
+        if signal_state(rec, ENGINE_REFERENCE_TORQUE) != "found":
+            notes.append(f"engine reference torque {float(reference_torque_nm):g} N·m as given (the bus sends no EC1)")
     if getattr(rec.stats, "clock_note", ""):
         # the CAN-to-GNSS clock offset the reader applied (or found and kept), as replay and inspect say it
         notes.append(f"clock: {rec.stats.clock_note}")
