@@ -39,6 +39,17 @@ def test_tree_machine_date_from_path(tmp_path: Path) -> None:
     }
 
 
+def test_a_folder_with_a_gnss_log_but_no_can_capture_is_named(tmp_path: Path, caplog) -> None:
+    """A logger that lost its CAN side left a folder with gps.nmea alone: it was no recording, without a word."""
+    _rec(tmp_path / "m1" / "2026-07-10" / "a")
+    lost = tmp_path / "m1" / "2026-07-11" / "b"
+    lost.mkdir(parents=True)
+    (lost / "gps.nmea").write_text(GGA + RMC, encoding="utf-8")
+    with caplog.at_level("WARNING", logger="tractionecu.fleet.sources"):
+        assert [Path(r.path).name for r in discover(tmp_path)] == ["a"]
+    assert f"fleet: {lost} holds a GNSS log but no CAN capture (can.log): not a recording" in caplog.text
+
+
 def test_output_inside_the_tree_is_not_searched(tmp_path: Path) -> None:
     _rec(tmp_path / "m1" / "2026-07-10" / "a")
     _rec(tmp_path / "out" / "m9" / "2026-01-01" / "z")

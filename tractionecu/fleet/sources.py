@@ -30,6 +30,7 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import glob as _glob
+import logging
 import re
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
@@ -40,6 +41,8 @@ import numpy as np
 from ..errors import ConfigError
 from ..gnss.fix import fix_rank
 from ..mapping.from_replay import ORIGIN_FIXES
+
+log = logging.getLogger(__name__)
 
 CAPTURE_SUFFIXES = (".blf", ".asc", ".trc", ".mf4", ".mdf", ".log")
 """Capture files taken as recordings outside a recording directory (the reader knows the format by
@@ -162,13 +165,19 @@ def _walk(root: Path, exclude: Path | None) -> list[Path]:
             continue
         try:
             entries = sorted(d.iterdir())
-        except OSError:
+        except OSError as e:          # left out without a word before
+            log.warning("fleet: %s cannot be listed (%s): its recordings are left out", d, e.strerror or e)
             continue
+        captures = 0
         for e in entries:
             if e.is_dir():
                 stack.append(e)
             elif e.suffix.lower() in CAPTURE_SUFFIXES and e.is_file():
                 found.append(e)
+                captures += 1
+        if not captures and (d / "gps.nmea").is_file():
+            # a logger that lost its CAN side: the folder was no recording, without a word
+            log.warning("fleet: %s holds a GNSS log but no CAN capture (can.log): not a recording, left out", d)
     return sorted(found)
 
 
