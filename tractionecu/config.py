@@ -644,9 +644,11 @@ def load_vehicle(path: str | Path) -> VehicleParams:
         return veh
 
 
-ENGINE_ONLY_KEYS = ("final_drive_ratio", "gear_ratio", "engine_friction_percent", "engine_reference_torque_nm",
-                    "engine_inertia_kgm2", "front_lead", "front_drive", "wheel_speeds", "wheel_speed_radius_m")
-"""``[drivetrain]`` keys that only the machine-level estimator of an engine-driven kind reads."""
+ENGINE_ONLY_KEYS = ("final_drive_ratio", "gear_ratio", "engine_inertia_kgm2", "front_lead", "front_drive",
+                    "wheel_speeds", "wheel_speed_radius_m")
+"""``[drivetrain]`` keys that only the machine-level estimator of an engine-driven kind reads (the engine's
+reference and friction torques are not among them: diagnosis of an engine-level export reads them whatever the
+kind)."""
 
 
 def _check_hub_sensing(dt: DrivetrainSpec) -> None:
