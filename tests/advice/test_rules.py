@@ -200,3 +200,37 @@ def test_the_ballast_target_holds_the_last_s_star_inside_the_band() -> None:
     late = EfficiencyReport(100.0, 0x01, rho_s=0.07)                 # a minute and more without one
     adv.update(late, 2.5, None)
     assert adv._target(late, band) == (pytest.approx(0.10), "band middle")
+
+
+def test_advice_given_stays_until_the_slip_is_back_well_inside_the_band() -> None:
+    """A window's mean slip wandering about the band's 12 % gave and withdrew the ballast advice 31 times in ten
+    minutes (four times within 0.3 s); given, it now stays until the slip is back below 11 %."""
+    eng = AdviceEngine(VehicleParams(), AdviceSettings(distance_m=50.0))
+    t = drive(eng, 30.0, 0.17)
+    assert "add_ballast" in {r.kind for r in eng.advice}
+    t = drive(eng, 60.0, 0.115, t0=t)                    # inside the band, not yet below 11 %
+    add = {r.kind: r for r in eng.advice}["add_ballast"]
+    assert "not yet back below 11%" in add.text and "above the 8%–12% band over" not in add.text
+    drive(eng, 60.0, 0.105, t0=t)
+    assert eng.advice == []
+    fresh = AdviceEngine(VehicleParams(), AdviceSettings(distance_m=50.0))
+    drive(fresh, 60.0, 0.115)                            # never above the band: nothing to hold
+    assert fresh.advice == []
+
+
+def test_a_slip_wandering_about_the_band_edge_does_not_flicker_the_advice() -> None:
+    rng = np.random.default_rng(0)
+    eng = AdviceEngine(VehicleParams(), AdviceSettings(distance_m=100.0))
+    P = np.full(10, 1e-5)
+    P[4], P[9] = 0.02 ** 2, 0.004 ** 2
+    x, on, changes = 0.0, False, []
+    for k in range(6000):                                # 10 min, slip about 12 % ± 2 % (τ ≈ 5 s)
+        x = 0.98 * x + rng.normal(0, 0.004)
+        s = np.full(4, 0.12 + x) + rng.normal(0, 0.003, 4)
+        eng.feed(SimpleNamespace(t=0.1 * k, mu=STUBBLE.mu(s, 0.7), slip=s, rho_s=0.07, v=2.5, P_diag=P, a=0.7,
+                                 soil_class="stubble", status=0, valid=True))
+        if bool(eng.advice) != on:
+            on = not on
+            changes.append(0.1 * k)
+    assert changes and len(changes) <= 6
+    assert min(np.diff(changes)) > 10.0

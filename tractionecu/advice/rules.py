@@ -18,6 +18,8 @@ Two triggers (issue: "what farmers act on today"):
 2. **η far below η(s*)** for minutes: the mean of η* − η over the last
    ``eta_minutes`` minutes (while s* and η are valid) exceeds ``eta_loss``.
 
+Advice given stays until its trigger is well off (:data:`HOLD_BAND_SHARE`, :data:`HOLD_LOSS_SHARE`).
+
 Each trigger gives recommendations by the side of the optimum it is on.  The amounts use the pull P
 averaged over the window (not the instant's), and advice whose window has held no pulling for
 :data:`EXPIRY_S` is withdrawn.
@@ -73,6 +75,15 @@ FRONT_SHARE: dict[str, tuple[float, float]] = {
 tractor the front axle's lead makes its slip the larger one whatever the weights.  A two-wheel drive's
 traction ballast goes on its driven rear axle (its 25–30 % front is for steering, not for pull); tracks
 are ballasted as a whole."""
+
+HOLD_BAND_SHARE = 0.25
+"""Hysteresis of the slip band: advice given for a slip above the band stays until the window's slip is back
+below the band's upper end by this share of the band's width (an MFWD's 12 % less 1 %: 11 %), one for a slip
+below it until the slip is above the lower end by as much [-].  Without it a window's mean slip wandering about
+12 % gave and withdrew "add ballast, about 1000 kg" five times in ten minutes, once for 6.7 s."""
+
+HOLD_LOSS_SHARE = 0.8
+"""... and advice given for an efficiency loss stays while the loss is above this share of ``eta_loss`` [-]."""
 
 EXPIRY_S = 60.0
 """Advice whose window holds no pulling for this long [s] is withdrawn (the field, or its end, is left: road
@@ -220,19 +231,30 @@ class Advisor:
         slip, loss, side, d = self._window_means()
         out: list[Recommendation] = []
         ev_base: dict[str, float | str] = {"band_lo": lo, "band_hi": hi, "axle_type": self.s.axle_type}
+        # hysteresis (HOLD_BAND_SHARE, HOLD_LOSS_SHARE): advice given stays until the slip is back well inside
+        was_high = any(r.kind == "add_ballast" for r in self.active)
+        was_low = any(r.kind == "remove_ballast" for r in self.active)
+        m = HOLD_BAND_SHARE * (hi - lo)
+        hi_off, lo_off = (hi - m if was_high else hi), (lo + m if was_low else lo)
+        loss_on = self.s.eta_loss * (HOLD_LOSS_SHARE if was_low else 1.0)
         if d >= self.s.distance_m * 0.999 and math.isfinite(slip):
             ev = {**ev_base, "mean_slip": slip, "distance_m": d, "eta_loss_mean": loss}
-            if slip > hi and not (rep.s_star_valid and slip < rep.s_star_lo):
+            if slip > hi_off and not (rep.s_star_valid and slip < rep.s_star_lo):
                 # (above the band but below the identified optimum: the curve says more slip pays here)
-                out += self._too_high(rep, curve, f"slip {slip:.1%} above the {lo:.0%}–{hi:.0%} band over {d:.0f} m",
-                                      ev, slip_axles, (lo, hi))
-            elif slip < lo and math.isfinite(loss) and loss >= self.s.eta_loss:
-                out += self._too_low(rep, curve, f"slip {slip:.1%} below the {lo:.0%}–{hi:.0%} band over {d:.0f} m, "
-                                                 f"{loss:.3f} of efficiency lost", ev)
+                why = (f"slip {slip:.1%} above the {lo:.0%}–{hi:.0%} band over {d:.0f} m" if slip > hi else
+                       f"slip {slip:.1%} over {d:.0f} m, not yet back below {hi_off:.0%} since it rose above the "
+                       f"{lo:.0%}–{hi:.0%} band")
+                out += self._too_high(rep, curve, why, ev, slip_axles, (lo, hi))
+            elif slip < lo_off and math.isfinite(loss) and loss >= loss_on:
+                why = (f"slip {slip:.1%} below the {lo:.0%}–{hi:.0%} band over {d:.0f} m" if slip < lo else
+                       f"slip {slip:.1%} over {d:.0f} m, not yet back above {lo_off:.0%} since it fell below the "
+                       f"{lo:.0%}–{hi:.0%} band")
+                out += self._too_low(rep, curve, f"{why}, {loss:.3f} of efficiency lost", ev)
         if not out and self._eta:
             span = self._eta[-1][0] - self._eta[0][0]
             mean_loss = self._eta_sum / len(self._eta)
-            if span >= 0.95 * self.s.eta_minutes * 60.0 and mean_loss >= self.s.eta_loss and math.isfinite(side):
+            eta_on = self.s.eta_loss * (HOLD_LOSS_SHARE if was_high or was_low else 1.0)
+            if span >= 0.95 * self.s.eta_minutes * 60.0 and mean_loss >= eta_on and math.isfinite(side):
                 ev = {**ev_base, "eta_loss_mean": mean_loss, "minutes": span / 60.0, "mean_slip": slip,
                       "mean_slip_minus_s_star": side}
                 why = f"η {mean_loss:.3f} below η(s*) for {span / 60:.1f} min"
