@@ -138,7 +138,8 @@ def test_ballast_to_remove_is_at_most_what_is_carried() -> None:
     assert none.advice[0].text.startswith("No ballast to remove (none declared carried)")
 
 
-@pytest.mark.parametrize("front, where, words", [(0.30, "front", "on the front axle"), (0.60, "rear", "on the rear axle"),
+@pytest.mark.parametrize("front, where, words", [(0.10, "front", "on the front axle"), (0.60, "rear", "on the rear axle"),
+                                                 (0.30, "front and rear", "of it on the front axle and"),
                                                  (0.38, "front and rear", "on both axles, keeping 35%–40% of the weight on the front")])
 def test_ballast_goes_towards_the_static_front_share_not_the_slipping_axle(front, where, words) -> None:
     """The front axle slipping more (an MFWD's lead makes it so) sent every ballast to the front, 60 % of the
@@ -149,6 +150,23 @@ def test_ballast_goes_towards_the_static_front_share_not_the_slipping_axle(front
     add = {r.kind: r for r in eng.advice}["add_ballast"]
     assert add.evidence["where"] == where and words in add.text
     assert "gear" not in {r.kind: r for r in eng.advice}["shallower_depth"].text
+
+
+@pytest.mark.parametrize("front", [0.42, 0.30])
+def test_ballast_brings_the_front_share_to_the_range_not_past_it(front) -> None:
+    """``ballast-needed``'s 4.3 t MFWD tractor at 42 % front was told "about 2328 kg, on the rear axle", which
+    leaves 27 % on the front; the amount is now split so that the front share ends at the range's nearer end."""
+    veh = VehicleParams(mass_kg=4300.0, static_front_fraction=front)
+    eng = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
+    drive(eng, 40.0, 0.17)
+    add = {r.kind: r for r in eng.advice}["add_ballast"]
+    ev = add.evidence
+    b, bf = ev["ballast_kg"], ev["ballast_front_kg"]
+    assert b > 1000 and 0 < bf < b and ev["ballast_rear_kg"] == pytest.approx(b - bf)
+    share = (front * 4300.0 + bf) / (4300.0 + b)
+    assert share == pytest.approx(0.40 if front > 0.40 else 0.35, abs=1e-4)
+    assert ev["where"] == "front and rear"
+    assert f"{bf:.0f} kg of it on the front axle and {b - bf:.0f} kg on the rear" in add.text
 
 
 def test_advice_expires_when_nothing_is_pulled_for_a_minute() -> None:
