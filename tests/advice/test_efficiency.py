@@ -10,6 +10,7 @@ import pytest
 
 from tractionecu.advice import efficiency as eff
 from tractionecu.advice.bus import MESSAGE, efficiency_frame
+from tractionecu.advice.engine import AdviceEngine
 from tractionecu.bus.dbc import default_codec
 from tractionecu.config import VehicleParams
 from tractionecu.model.mucurve import SOIL_CLASSES
@@ -242,3 +243,17 @@ def test_the_page_gets_no_slip_or_pull_the_estimate_does_not_support() -> None:
     assert held["slip"] is None and held["slip_ok"] is False and held["pull_n"] is None
     still = trk.update(estimate(0.2, 0.08, status=0x400, v=0.0)).as_dict()   # standstill
     assert still["slip"] is None and still["pull_n"] is None
+
+
+def test_a_curve_of_another_form_gets_its_own_optimum_at_once() -> None:
+    """The estimator's curve became a fit whose parameters it gave as unknown (σ(p) = 161 on ``ballast-needed``):
+    the class curve's s* was still sent as valid until the next once-a-second optimum."""
+    eng = AdviceEngine(VehicleParams())
+    for k in range(12):
+        rep = eng.feed(estimate(0.1 * k, 0.12))
+    assert rep.s_star_valid
+    fit = estimate(1.25, 0.12)
+    fit.curve = SimpleNamespace(a=0.706, p=-2.026, alpha1=-14.27, alpha2=-10.98, names=("a", "p", "alpha1", "alpha2"),
+                                cov=np.diag([0.04, 161.0, 169.0, 71.0]) ** 2)
+    rep = eng.feed(fit)                            # 0.25 s after the last optimum: the cheap path
+    assert rep.flags & eff.INTERVAL_WIDE and not rep.s_star_valid and math.isnan(rep.s_star)

@@ -400,7 +400,7 @@ class EfficiencyTracker:
         self._excited_t = -math.inf
         self._slip_seen_t = -math.inf
         self._sigma_a = math.nan
-        self._cache: tuple[tuple[float, ...], tuple[float, float, float, float]] | None = None
+        self._cache: tuple[tuple[Any, ...], tuple[float, float, float, float]] | None = None
 
     def wheel_loads(self, pull_n: float) -> NDArray[np.float64]:
         """F_z per wheel [N]: the static split, the rear gaining pull·h_hitch/L from the front (physics.md)."""
@@ -462,8 +462,12 @@ class EfficiencyTracker:
                 curve = replace(curve, sigma_a=self._sigma_a, names=("a",))
             rep.sigma_a = curve.sigma_a if curve.cov is None else math.sqrt(max(float(curve.covariance()[1][0, 0]), 0.0))
             var_rho = float(P[9]) if P.shape[-1] > 9 else math.nan
-            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_s, var_rho, curve.theta)
-            if with_optimum or self._cache is None:
+            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_s, var_rho, curve.theta,
+                   curve.class_name, curve.names)
+            # a curve of another form (a class, a fitted shape) is a new curve: its s* is computed now (the last
+            # one's s* was reported as valid for up to a second after the estimator's curve became a fit whose
+            # parameters it gave as unknown)
+            if with_optimum or self._cache is None or self._cache[0][-2:] != key[-2:]:
                 if math.isfinite(rho_s):
                     self._cache = (key, optimum_with_interval(curve, rho_s, c.rho_t, var_rho))
             if self._cache is not None:
