@@ -252,3 +252,25 @@ def test_a_slip_wandering_about_the_band_edge_does_not_flicker_the_advice() -> N
             changes.append(0.1 * k)
     assert changes and len(changes) <= 6
     assert min(np.diff(changes)) > 10.0
+
+
+def test_the_ballast_is_sized_on_the_curve_its_target_s_star_came_from() -> None:
+    """On ``ballast-needed`` the amount went from 1181 to 4098 kg within 0.3 s: the target stayed the s* of the
+    class curve while μ there was read on the estimator's new fit, whose parameters it gave as unknown."""
+    eng = AdviceEngine(VehicleParams(), AdviceSettings(distance_m=50.0))
+    t = drive(eng, 40.0, 0.17)
+    before = {r.kind: r for r in eng.advice}["add_ballast"].evidence
+    assert before["target"] == "s*"
+    fit = SimpleNamespace(a=0.706, p=-2.026, alpha1=-14.27, alpha2=-10.98, names=("a", "p", "alpha1", "alpha2"),
+                          cov=np.diag([0.04, 161.0, 169.0, 71.0]) ** 2)
+    P = np.full(10, 1e-5)
+    P[4], P[9] = 0.02 ** 2, 0.004 ** 2
+    for k in range(50):                                  # 5 s on the fit: its s* is not identified
+        s = np.full(4, 0.17)
+        eng.feed(SimpleNamespace(t=t + 0.1 * k, mu=STUBBLE.mu(s, 0.7), slip=s, rho_s=0.07, v=2.5, P_diag=P, a=0.706,
+                                 soil_class="stubble", status=0, valid=True, curve=fit))
+    assert eng.report is not None and not eng.report.s_star_valid
+    ev = {r.kind: r for r in eng.advice}["add_ballast"].evidence
+    assert ev["target_slip"] == pytest.approx(before["target_slip"])
+    assert ev["mu_at_target"] == pytest.approx(float(STUBBLE.mu(ev["target_slip"], 0.7)), rel=0.02)
+    assert ev["ballast_kg"] == pytest.approx(before["ballast_kg"], rel=0.05)

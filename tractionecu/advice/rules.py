@@ -153,7 +153,8 @@ class Advisor:
         # Σd, Σd·slip, Σd (loss known), Σd·loss, Σd·(s − s*), Σd (pull known), Σd·pull over the window
         self._sums = [0.0] * 7
         self._n_added = 0
-        self._s_star_seen: tuple[float, float] | None = None      # (t, s*) of the last identified s*
+        # (t, s*, curve) of the last identified s*
+        self._s_star_seen: tuple[float, float, CurveParams | None] | None = None
         self._eta: deque[tuple[float, float]] = deque()
         self._eta_sum = 0.0
         self._t: float | None = None
@@ -168,7 +169,7 @@ class Advisor:
         self._t = t
         self.last_report = rep
         if rep.s_star_valid and math.isfinite(rep.s_star):
-            self._s_star_seen = (t, rep.s_star)
+            self._s_star_seen = (t, rep.s_star, curve)
         if self._dist and math.isfinite(t) and t - self._dist[-1][4] > EXPIRY_S:
             # nothing pulled for a minute: the window (and the advice it gave) is about ground left behind
             self._dist.clear()
@@ -276,6 +277,16 @@ class Advisor:
             return min(max(seen[1], lo), hi), ("s*" if lo <= seen[1] <= hi else "s* brought into the band")
         return 0.5 * (lo + hi), "band middle"
 
+    def _sizing_curve(self, rep: EfficiencyReport, curve: CurveParams | None) -> CurveParams | None:
+        """The curve μ(s_t) is read on: the one the target s* was identified on while :meth:`_target` holds that
+        s*, else the present one.  Sized on the present curve with the s* of another, the amount went from 1181
+        to 4098 kg within 0.3 s on ``ballast-needed`` when the estimator's curve became a fit whose parameters
+        it reported as unknown (σ(p) = 161) and s* no longer identified."""
+        seen = self._s_star_seen
+        if seen is not None and seen[2] is not None and rep.t - seen[0] <= EXPIRY_S:
+            return seen[2]
+        return curve
+
     def _weight_for(self, rep: EfficiencyReport, curve: CurveParams | None, s_t: float, pull: float) -> float:
         """W' = P/(μ(s_t) − ρ_s) [N] (module doc), P = ``pull`` the window's mean pull; NaN without a curve."""
         if curve is None or not (math.isfinite(pull) and math.isfinite(rep.rho_s)):
@@ -323,6 +334,7 @@ class Advisor:
     def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
                   slip_axles: tuple[float, float], band: tuple[float, float]) -> list[Recommendation]:
         s_t, target = self._target(rep, band)
+        curve = self._sizing_curve(rep, curve)
         pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t, pull)
         w_driven = self._driven_weight(pull)
