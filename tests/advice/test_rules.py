@@ -274,3 +274,25 @@ def test_the_ballast_is_sized_on_the_curve_its_target_s_star_came_from() -> None
     assert ev["target_slip"] == pytest.approx(before["target_slip"])
     assert ev["mu_at_target"] == pytest.approx(float(STUBBLE.mu(ev["target_slip"], 0.7)), rel=0.02)
     assert ev["ballast_kg"] == pytest.approx(before["ballast_kg"], rel=0.05)
+
+
+def test_more_draft_is_what_the_rated_power_allows_at_this_speed() -> None:
+    """From 9.2 kN at 12.6 km/h the paper's 80 kW tractor was told to pull 9.9 kN more: 103 kW at its wheels.
+    The draft advised is now bounded by the wheel power times η(s*) over the speed (eq. 7)."""
+    veh = VehicleParams()                                      # 80 kW, hub drive (efficiency 1)
+    slow = AdviceEngine(veh, AdviceSettings(distance_m=100.0))
+    drive(slow, 60.0, 0.04, a=0.58, rho_s=0.10, v=2.5)
+    free = {r.kind: r for r in slow.advice}["more_pull"]
+    assert "as much as" not in free.text and free.evidence["draft_to_add_n"] > 9e3
+    fast = AdviceEngine(veh, AdviceSettings(distance_m=100.0))
+    drive(fast, 60.0, 0.04, a=0.58, rho_s=0.10, v=3.5)
+    r = {r.kind: r for r in fast.advice}["more_pull"]
+    ev = r.evidence
+    total = ev["pull_n"] + ev["draft_to_add_n"]
+    assert 0 < ev["draft_to_add_n"] < free.evidence["draft_to_add_n"]
+    assert total * 3.5 / ev["eta_star"] == pytest.approx(veh.rated_power_w, rel=1e-3)
+    assert "as much as the 80 kW at the wheels at 12.6 km/h allow" in r.text
+    used = AdviceEngine(veh, AdviceSettings(distance_m=100.0))
+    drive(used, 30.0, 0.04, a=0.58, rho_s=0.10, v=6.5)
+    r = {r.kind: r for r in used.advice}["more_pull"]
+    assert r.text.startswith("Or, in a lower gear, pull more") and "kN" not in r.text.split(":")[0]

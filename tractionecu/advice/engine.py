@@ -32,8 +32,10 @@ class AdviceEngine:
         if vehicle is not None and math.isnan(settings.tyre_pressure_pa):
             from dataclasses import replace
             settings = replace(settings, tyre_pressure_pa=float(vehicle.tyre_pressure_pa))
+        power = (float(vehicle.rated_power_w) * float(vehicle.drivetrain.efficiency) if vehicle is not None
+                 else math.nan)
         self.advisor = Advisor(settings, weight_n=eff.weight_n, front_fraction=eff.front_fraction,
-                               wheelbase_m=eff.wheelbase_m, hitch_height_m=eff.hitch_height_m)
+                               wheelbase_m=eff.wheelbase_m, hitch_height_m=eff.hitch_height_m, wheel_power_w=power)
         self.optimum_period_s = optimum_period_s
         self._t_opt = -math.inf
         self.report: EfficiencyReport | None = None

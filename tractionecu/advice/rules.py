@@ -140,7 +140,8 @@ class Advisor:
     """Turns a stream of :class:`EfficiencyReport` (about 10 Hz) into recommendations (module doc)."""
 
     def __init__(self, settings: AdviceSettings | None = None, *, weight_n: float = 6300 * G,
-                 front_fraction: float = 0.4, wheelbase_m: float = 2.5, hitch_height_m: float = 0.5) -> None:
+                 front_fraction: float = 0.4, wheelbase_m: float = 2.5, hitch_height_m: float = 0.5,
+                 wheel_power_w: float = math.nan) -> None:
         self.s = settings or AdviceSettings()
         if self.s.axle_type not in SLIP_BANDS:
             raise ValueError(f"axle type {self.s.axle_type!r}: not one of {', '.join(SLIP_BANDS)}")
@@ -148,6 +149,10 @@ class Advisor:
         self.front_fraction = front_fraction
         self.L = wheelbase_m
         self.h = hitch_height_m
+        self.wheel_power_w = wheel_power_w
+        """Most power the drivetrain puts on the wheels [W]: the rated power times the drivetrain's efficiency
+        (the vehicle's); NaN: not known, the draft advised is not bounded by it."""
+        self._v = math.nan                          # ground speed of the last pulling report [m/s]
         # (d, slip, loss or nan, s − s*, t, pull or nan)
         self._dist: deque[tuple[float, float, float, float, float, float]] = deque()
         # Σd, Σd·slip, Σd (loss known), Σd·loss, Σd·(s − s*), Σd (pull known), Σd·pull over the window
@@ -175,6 +180,7 @@ class Advisor:
             self._dist.clear()
             self._sums = [0.0] * 7
         if rep.slip_ok and math.isfinite(v):
+            self._v = abs(v)
             dd = abs(v) * dt
             loss = rep.eta_lost if rep.s_star_valid else math.nan
             side = rep.slip - rep.s_star if rep.s_star_valid else math.nan
@@ -399,9 +405,24 @@ class Advisor:
             txt = f"Remove ballast if any is carried: {why}."
         more = (float(curve.mu(s_t)) - rep.rho_s) * w_driven - pull if curve is not None and math.isfinite(
             pull) else math.nan
-        # (a higher gear at the same pull leaves the slip, and η(s), where they are: more pull moves them)
-        mtxt = ("Or pull more with the same weight, a wider or deeper implement"
-                + (f": about {more / 1e3:.1f} kN more draft" if math.isfinite(more) and more > 0 else "")
-                + f": {why}.")
+        # the pull the drivetrain's power allows at this speed: drawbar power = η(s*) × wheel power (eq. 7); from
+        # 9.2 kN at 12.6 km/h an 80 kW tractor was told to pull 9.9 kN more, 103 kW at its wheels
+        v, power = self._v, self.wheel_power_w
+        pull_max = (power * rep.eta_star / v if math.isfinite(power) and math.isfinite(rep.eta_star)
+                    and math.isfinite(v) and v > 0.1 else math.nan)
+        more_max = pull_max - pull if math.isfinite(pull) else math.nan
+        limited = math.isfinite(more) and math.isfinite(more_max) and more_max < more
+        if limited:
+            more = more_max
+        at = f"{power / 1e3:.0f} kW at the wheels at {v * 3.6:.1f} km/h"
+        if limited and not more > 0:
+            mtxt = (f"Or, in a lower gear, pull more with the same weight, a wider or deeper implement: the "
+                    f"{at} are used up: {why}.")
+        else:
+            # (a higher gear at the same pull leaves the slip, and η(s), where they are: more pull moves them)
+            mtxt = ("Or pull more with the same weight, a wider or deeper implement"
+                    + (f": about {more / 1e3:.1f} kN more draft" if math.isfinite(more) and more > 0 else "")
+                    + (f", as much as the {at} allow" if limited else "") + f": {why}.")
         return [Recommendation("remove_ballast", txt, why, {**e, "ballast_kg": ballast_kg}),
-                Recommendation("more_pull", mtxt, why, {**e, "draft_to_add_n": more})]
+                Recommendation("more_pull", mtxt, why, {**e, "draft_to_add_n": more, "wheel_power_w": power,
+                                                        "speed_mps": v, "pull_power_limit_n": pull_max})]
