@@ -257,3 +257,28 @@ def test_a_curve_of_another_form_gets_its_own_optimum_at_once() -> None:
                                 cov=np.diag([0.04, 161.0, 169.0, 71.0]) ** 2)
     rep = eng.feed(fit)                            # 0.25 s after the last optimum: the cheap path
     assert rep.flags & eff.INTERVAL_WIDE and not rep.s_star_valid and math.isnan(rep.s_star)
+
+
+def test_a_front_drive_switched_off_gives_the_rear_axles_efficiency() -> None:
+    """The machine-level estimator gives no front slip with the MFWD disengaged; the tracker read that as "not
+    pulling", so a tractor working with its front drive off had no η, s* or advice.  The front wheels roll
+    (F_h = −ρ_t F_z, no power), the rear wheels carry the machine's μ with the front's rolling loss."""
+    veh = VehicleParams()
+    cfg = eff.efficiency_config_for(veh)
+    trk = eff.EfficiencyTracker(cfg)
+    s_r, rho_s, W = 0.09, 0.07, cfg.weight_n
+    fz = trk.wheel_loads(W * 0.3)                   # (the loads' split as the tracker takes it, at this pull)
+    mu_r = float(STUBBLE.mu(s_r, 0.7))
+    mu_m = (mu_r * fz[2:].sum() - cfg.rho_t * fz[:2].sum()) / W          # ΣF_h / ΣF_z
+    est = estimate(0.0, s_r, rho_s=rho_s)
+    est.mu, est.slip, est.front_engaged = np.full(4, mu_m), np.array([np.nan, np.nan, s_r, s_r]), False
+    trk.wheel_loads = lambda pull: fz                # the split fixed, so that the expected values are exact
+    rep = trk.update(est)
+    assert not rep.flags & eff.NOT_PULLING and rep.slip_ok and rep.slip == pytest.approx(s_r)
+    fzf, fzr = fz[:2].sum(), fz[2:].sum()
+    eta_true = (mu_r * fzr - cfg.rho_t * fzf - rho_s * W) / ((mu_r + cfg.rho_t) * fzr / (1 - s_r))
+    assert rep.eta == pytest.approx(eta_true, rel=1e-9) and math.isnan(rep.eta_front)
+    assert rep.pull_n == pytest.approx(W * (mu_m - rho_s))
+    rho_eff = (cfg.rho_t * fzf + rho_s * W) / fzr
+    assert rep.s_star_valid and rep.s_star == pytest.approx(eff.optimum(curve(0.7), rho_eff, cfg.rho_t)[0], abs=1e-6)
+    assert rep.s_star > eff.optimum(curve(0.7), rho_s, cfg.rho_t)[0]      # the rolling front asks for more slip

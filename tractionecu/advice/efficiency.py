@@ -427,19 +427,33 @@ class EfficiencyTracker:
         fz0 = self.wheel_loads(0.0)
         pull = float(np.sum(fz0 * (mu - rho_s)))
         fz = self.wheel_loads(pull)
+        # the resistance s* is sought against, its variance's scale and the weight it is pulled with
+        rho_opt, var_scale, w_opt = rho_s, 1.0, c.weight_n
+        driven = np.ones(4, dtype=bool)
+        if getattr(est, "front_engaged", True) is False:
+            # MFWD disengaged (the machine-level estimator's μ is ΣF_h/ΣF_z, the front slip unknown): the front
+            # wheels roll undriven, F_h = −ρ_t F_z, and take no power; the rear wheels' μ follows.  Read with a
+            # front slip of NaN as "not pulling", a tractor working with its front drive off had no η, s* or advice.
+            fzf, fzr = float(fz[:2].sum()), float(fz[2:].sum())
+            mu_r = (float(np.mean(mu)) * c.weight_n + c.rho_t * fzf) / fzr
+            mu = np.array([-c.rho_t, -c.rho_t, mu_r, mu_r])
+            s = np.array([0.0, 0.0, s[2], s[3]])
+            driven[:2] = False
+            # η(s) of the rear axle with the front's rolling loss: eq. 7 with ρ_s' = (ρ_t F_zf + ρ_s m g)/F_zr
+            rho_opt, var_scale, w_opt = (c.rho_t * fzf + rho_s * c.weight_n) / fzr, (c.weight_n / fzr) ** 2, fzr
         rep.pull_n = float(np.sum(fz * (mu - rho_s)))
-        rep.slip = float(np.sum(fz * s) / np.sum(fz))
+        rep.slip = float(np.sum(fz[driven] * s[driven]) / np.sum(fz[driven]))
         pulling = (math.isfinite(v) and abs(v) >= c.min_speed_mps and bool(np.isfinite(mu).all())
-                   and bool(np.isfinite(s).all()) and float(np.mean(mu)) >= c.min_mu)
+                   and bool(np.isfinite(s).all()) and float(np.mean(mu[driven])) >= c.min_mu)
         if not math.isfinite(rho_s):
             flags |= NO_RHO_S if status & DRAFT_NOT_SEPARATED else ESTIMATE_INVALID
         rep.slip_ok = bool(pulling and not status & SLIP_INVALID_STATUS and math.isfinite(rep.slip))
         if not pulling:
             flags |= NOT_PULLING
         else:
-            rep.eta_wheels = [float(x) for x in eta_wheels(mu, s, rho_s, c.rho_t)]
+            rep.eta_wheels = [float(x) if d else math.nan for x, d in zip(eta_wheels(mu, s, rho_s, c.rho_t), driven)]
             rep.eta = eta_machine(mu, s, fz, rho_s, c.rho_t)
-            rep.eta_front = eta_machine(mu[:2], s[:2], fz[:2], rho_s, c.rho_t)
+            rep.eta_front = eta_machine(mu[:2], s[:2], fz[:2], rho_s, c.rho_t) if driven[0] else math.nan
             rep.eta_rear = eta_machine(mu[2:], s[2:], fz[2:], rho_s, c.rho_t)
         if rep.slip_ok and rep.slip >= c.excitation_slip:
             self._excited_t = t
@@ -461,15 +475,15 @@ class EfficiencyTracker:
             if curve.cov is None:
                 curve = replace(curve, sigma_a=self._sigma_a, names=("a",))
             rep.sigma_a = curve.sigma_a if curve.cov is None else math.sqrt(max(float(curve.covariance()[1][0, 0]), 0.0))
-            var_rho = float(P[9]) if P.shape[-1] > 9 else math.nan
-            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_s, var_rho, curve.theta,
+            var_rho = (float(P[9]) if P.shape[-1] > 9 else math.nan) * var_scale
+            key = (curve.a, curve.p, curve.alpha1, curve.alpha2, curve.sigma_a, rho_opt, var_rho, curve.theta,
                    curve.class_name, curve.names)
             # a curve of another form (a class, a fitted shape) is a new curve: its s* is computed now (the last
             # one's s* was reported as valid for up to a second after the estimator's curve became a fit whose
             # parameters it gave as unknown)
             if with_optimum or self._cache is None or self._cache[0][-2:] != key[-2:]:
-                if math.isfinite(rho_s):
-                    self._cache = (key, optimum_with_interval(curve, rho_s, c.rho_t, var_rho))
+                if math.isfinite(rho_opt):
+                    self._cache = (key, optimum_with_interval(curve, rho_opt, c.rho_t, var_rho))
             if self._cache is not None:
                 s_star, e_star, ss, se = self._cache[1]
                 if not (math.isfinite(s_star) and ss <= c.max_sigma_s_star):
@@ -477,7 +491,7 @@ class EfficiencyTracker:
                 rep.s_star, rep.eta_star, rep.eta_star_sigma = s_star, e_star, se
                 rep.s_star_lo, rep.s_star_hi = s_star - 2 * ss, s_star + 2 * ss
                 if math.isfinite(s_star):
-                    rep.pull_at_s_star_n = (float(curve.mu(s_star)) - rho_s) * c.weight_n
+                    rep.pull_at_s_star_n = (float(curve.mu(s_star)) - rho_opt) * w_opt
         rep.flags = flags
         if flags & S_STAR_BITS:
             rep.s_star = rep.s_star_lo = rep.s_star_hi = rep.eta_star = rep.eta_star_sigma = math.nan
