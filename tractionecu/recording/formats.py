@@ -441,7 +441,6 @@ def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
     rejects counted like the candump reader's (a frame with fewer data bytes than its DLC is ``truncated``),
     the frame's position standing for its line unless the message carries its line number."""
     cols: tuple[list, ...] = ([], [], [], [], [], [])
-    texts: list[str] = []
     for k, (t, cid, ext, data, dlc, err, rtr, fd, *line) in enumerate(messages, start=1):
         rs.lines += 1
         k = line[0] if line else k                     # a text format's own line number
@@ -464,14 +463,15 @@ def _table(messages: Iterable[tuple], rs: ReadStats) -> FrameTable:
         if reason is not None:
             rs.reject(reason, k, f"t={t} id={cid:X} data={bytes(data).hex().upper()}")
             continue
-        texts.append(f"t={t} id={cid:X} data={bytes(data).hex().upper()}")
         for col, v in zip(cols, (k, t, cid, ext, len(data), int.from_bytes(bytes(data), "little"))):
             col.append(v)
     order = time_order(cols[1])                        # time going back, a lone time stamp ahead
     if any(order):
-        for k, why, text in zip(cols[0], order, texts):
+        # (the text of a rejected frame made from its columns: one string per frame cost the memory of a
+        # whole capture's text beside its table)
+        for k, t, cid, n, pl, why in zip(cols[0], cols[1], cols[2], cols[4], cols[5], order):
             if why is not None:
-                rs.reject(why, k, text)
+                rs.reject(why, k, f"t={t} id={cid:X} data={int(pl).to_bytes(n, 'little').hex().upper()}")
         cols = tuple([v for v, why in zip(c, order) if why is None] for c in cols)
     rs.frames += len(cols[0])
     return FrameTable(np.asarray(cols[0], dtype=np.int64), np.asarray(cols[1], dtype=np.float64),
