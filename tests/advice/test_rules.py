@@ -296,3 +296,41 @@ def test_more_draft_is_what_the_rated_power_allows_at_this_speed() -> None:
     drive(used, 30.0, 0.04, a=0.58, rho_s=0.10, v=6.5)
     r = {r.kind: r for r in used.advice}["more_pull"]
     assert r.text.startswith("Or, in a lower gear, pull more") and "kN" not in r.text.split(":")[0]
+
+
+def _drive_front_off(eng: AdviceEngine, seconds: float, slip: float, engaged: bool, a: float = 0.7,
+                     rho_s: float = 0.07, v: float = 2.5) -> None:
+    """10 Hz machine-level estimates (one μ for the machine, ΣF_h/ΣF_z) of an MFWD tractor whose rear wheels
+    slip by ``slip`` on the true curve; with the front drive off the front wheels roll (F_h = −ρ_t F_z)."""
+    veh = VehicleParams()
+    P = np.full(10, 1e-5)
+    P[4] = 0.02 ** 2
+    P[9] = 0.004 ** 2
+    f = veh.static_front_fraction
+    mu_r = float(STUBBLE.mu(slip, a))
+    mu_m = mu_r if engaged else mu_r * (1.0 - f) - veh.rho_t * f
+    s = np.full(4, slip) if engaged else np.array([np.nan, np.nan, slip, slip])
+    for k in range(int(seconds * 10)):
+        eng.feed(SimpleNamespace(t=0.1 * k, mu=np.full(4, mu_m), slip=s, rho_s=rho_s, v=v, P_diag=P, a=a,
+                                 soil_class="stubble", status=0x4000, valid=True, front_engaged=engaged))
+
+
+def test_an_mfwd_with_its_front_drive_off_is_advised_as_a_two_wheel_drive() -> None:
+    """With the front drive disengaged an MFWD pulls on its rear wheels: its slip is held to a two-wheel
+    drive's band and its ballast goes on the rear axle, against that axle's weight (it had no advice at all:
+    the front slip the machine-level estimator does not give read as "not pulling")."""
+    veh = VehicleParams()
+    on = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
+    _drive_front_off(on, 40.0, 0.13, engaged=True)
+    assert "add_ballast" in {r.kind for r in on.advice}                   # above the MFWD's 8-12 %
+    off = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
+    _drive_front_off(off, 40.0, 0.13, engaged=False)
+    assert off.report.slip_ok and off.advice == []                        # inside a 2WD's 10-15 %
+    off = AdviceEngine(veh, AdviceSettings(axle_type="mfwd", distance_m=50.0))
+    _drive_front_off(off, 40.0, 0.20, engaged=False)
+    add = {r.kind: r for r in off.advice}["add_ballast"]
+    adv = off.advisor
+    rear = veh.weight_n * (1.0 - adv.front_fraction) + add.evidence["pull_n"] * adv.h / adv.L
+    assert add.evidence["weight_driven_n"] == pytest.approx(rear)
+    assert add.evidence["where"] == "rear" and add.evidence["axle_type"] == "2wd"
+    assert adv.declared.axle_type == "mfwd"

@@ -52,7 +52,8 @@ class AdviceEngine:
         s = np.asarray(getattr(est, "slip", [math.nan] * 4), dtype=float)
         axles = (float(np.mean(s[:2])), float(np.mean(s[2:])))
         before = {r.kind for r in self.advice}
-        self.advice = self.advisor.update(rep, float(getattr(est, "v", math.nan)), curve_of(est), axles)
+        self.advice = self.advisor.update(rep, float(getattr(est, "v", math.nan)), curve_of(est), axles,
+                                          front_driven=getattr(est, "front_engaged", True) is not False)
         after = {r.kind for r in self.advice}
         for r in self.advice:
             if r.kind not in before:

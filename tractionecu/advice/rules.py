@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from .efficiency import G, CurveParams, EfficiencyReport
@@ -142,7 +142,7 @@ class Advisor:
     def __init__(self, settings: AdviceSettings | None = None, *, weight_n: float = 6300 * G,
                  front_fraction: float = 0.4, wheelbase_m: float = 2.5, hitch_height_m: float = 0.5,
                  wheel_power_w: float = math.nan) -> None:
-        self.s = settings or AdviceSettings()
+        self.s = self.declared = settings or AdviceSettings()
         if self.s.axle_type not in SLIP_BANDS:
             raise ValueError(f"axle type {self.s.axle_type!r}: not one of {', '.join(SLIP_BANDS)}")
         self.weight_n = weight_n
@@ -167,8 +167,15 @@ class Advisor:
         self.last_report: EfficiencyReport | None = None
 
     def update(self, rep: EfficiencyReport, v: float, curve: CurveParams | None,
-               slip_axles: tuple[float, float] = (math.nan, math.nan)) -> list[Recommendation]:
-        """Add one report (ground speed ``v`` [m/s], the identified ``curve``, front and rear slip); the advice now."""
+               slip_axles: tuple[float, float] = (math.nan, math.nan), front_driven: bool = True
+               ) -> list[Recommendation]:
+        """Add one report (ground speed ``v`` [m/s], the identified ``curve``, front and rear slip); the advice now.
+
+        ``front_driven`` False (an MFWD's front drive disengaged, as the machine-level estimator finds it): the
+        tractor pulls as a two-wheel drive, and is advised as one (its slip band, the rear axle's weight, the
+        ballast on the rear axle) while it does."""
+        self.s = (self.declared if front_driven or self.declared.axle_type != "mfwd"
+                  else replace(self.declared, axle_type="2wd"))
         t = rep.t
         dt = 0.0 if self._t is None or not math.isfinite(t) else min(max(t - self._t, 0.0), 1.0)
         self._t = t
