@@ -131,3 +131,27 @@ def test_a_seed_offset_redraws_the_recording_and_keeps_the_case(monkeypatch, tmp
     assert seen[1].seed == seen[0].seed + 1000
     assert seen[1].name == seen[0].name and seen[1].vehicle == seen[0].vehicle
     assert (seen[1].plan.x == seen[0].plan.x).all() and seen[1].effects == seen[0].effects
+
+
+def test_a_missed_effect_counts_as_no_rmse_reduction_not_as_no_recording():
+    """An effect recording where the diagnosis fitted nothing (verdict ``none``, no winner, no joint fit) had
+    ``rmse_reduction`` None, and the suite's median left the recording out: a miss raised the median instead
+    of counting as the 0 the nominal model reduces."""
+    from types import SimpleNamespace
+
+    from tractionecu.evaluation.suite import score_case
+
+    case = {c.name: c for c in all_cases()}["gps_latency_a"]
+    (name,) = case.concealed()
+    chans = {"gnss_speed": SimpleNamespace(name="gnss_speed", effects=(name,)),
+             "front_load": SimpleNamespace(name="front_load", effects=("mass",))}
+    null = SimpleNamespace(sse={"gnss_speed": 4.0, "front_load": 9.0})
+    d = SimpleNamespace(effects=[], verdict="none", effect=None, ambiguous_between=[], candidates=[], joint=None,
+                        joint_heldout=None, winner=None, problem=SimpleNamespace(channels=chans), null_heldout=null,
+                        open_world={}, candidate=lambda n: None)
+    row = score_case(case, d)
+    assert not row["correct"]
+    assert row["rmse_reduction"] == 0.0 and row["affected_signal"] == "gnss_speed"
+    found = {"kind": "effect", "correct": True, "covered": {}, "rmse_reduction": 0.8}
+    s = summarize([found, dict(found, rmse_reduction=0.6), {**row, "covered": {}}])
+    assert s["median_heldout_rmse_reduction"] == pytest.approx(0.6)      # 0.7 with the miss left out

@@ -479,7 +479,8 @@ def score_case(case: Case, d) -> dict:
     - ``covered``: per true parameter of a concealed effect (``effect.param``), whether its 95 %
       interval holds the true value (nominal cases: the load-transfer heights);
     - ``rmse_reduction``: 1 − RMSE_after/RMSE_before on held-out data of the final model (the joint
-      fit, else the winner), on the channel where the reduction is largest.
+      fit, else the winner, else -- nothing fitted -- the nominal model itself, which reduces nothing:
+      0), on the channel where the reduction is largest among those the concealed effects act on.
     """
     conc = case.concealed()
     rep = _reported(d)
@@ -551,6 +552,11 @@ def score_case(case: Case, d) -> dict:
     row["covered"] = cov
     row["fitted"] = fitted
     final = d.joint_heldout or (d.winner.heldout if d.winner is not None else None)
+    if final is None:
+        # Nothing fitted (the effect missed, or only listed as ambiguous): the final model is the nominal one
+        # and its held-out RMSE the null's.  Left out, a missed effect dropped out of the median instead of
+        # counting as the 0 it reduced.
+        final = d.null_heldout
     best, best_red = None, None
     if final is not None and conc:
         for ch in d.problem.channels.values():
