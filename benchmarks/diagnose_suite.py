@@ -76,7 +76,7 @@ def run_case(name: str, workdir: str, reuse: bool, simulate_only: bool = False, 
                 "verdict": "error", "effect": None, "ambiguous_between": [], "reported": [],
                 "correct": False, "covered": {}, "fitted": {}, "error": f"{type(exc).__name__}: {exc}"}
     t2 = time.perf_counter()
-    row = score_case(case, d)
+    row = score_case(case, d, seed_offset)
     row["simulate_s"] = round(t1 - t0, 2)
     row["diagnose_s"] = round(t2 - t1, 2)
     return row

@@ -468,8 +468,9 @@ def _fit_of(d, name: str):
     return cr.fit.params, cr.fit.ci95, cr.fit.at_bound.get(name, {})
 
 
-def score_case(case: Case, d) -> dict:
-    """Compare one diagnosis (:class:`~tractionecu.diagnose.engine.Diagnosis`) with the concealed truth.
+def score_case(case: Case, d, seed_offset: int = 0) -> dict:
+    """Compare one diagnosis (:class:`~tractionecu.diagnose.engine.Diagnosis`) of ``case`` (written with
+    ``seed_offset``) with the concealed truth.
 
     - ``correct``: nulls and nominal cases: verdict ``none`` (no effect or fault named);
       confounded: verdict ``ambiguous``; effect cases: every concealed effect is among the reported
@@ -487,7 +488,7 @@ def score_case(case: Case, d) -> dict:
     # What the plant has against the nominal model without any concealed effect (the physical truth
     # model's rolling radius): reported at its true size, it is neither a false alarm nor an absent effect.
     plant = {}
-    for key, (lo_t, hi_t) in inherent(case).items():
+    for key, (lo_t, hi_t) in inherent(case, seed_offset).items():
         name, par = key.split(".", 1)
         got = _fit_of(d, name) if name in rep else None
         if got is not None and par in got[1]:
@@ -577,26 +578,29 @@ def _identified(name: str, k: str, lo: float, hi: float) -> bool:
     return identified(name, k, float(lo), float(hi))
 
 
-def inherent(case: Case) -> dict[str, tuple[float, float]]:
+def inherent(case: Case, seed_offset: int = 0) -> dict[str, tuple[float, float]]:
     """Deviations the plant of a case has from the nominal model with nothing concealed, as
     ``{"effect.param": (low, high)}``: for the independent truth model, the rolling radius, whose
     tyre deflects under load by its own law (``sim.tyre.rolling_radius``) while the nominal model uses
-    the vehicle file's eq. 9 radius; the range is r_truth/r_nominal − 1 over the static front and rear
-    wheel loads, at the tyre pressure the file declares.  The paper truth model has none."""
+    the radius of the vehicle file the recording carries (``sim.physwriter``: eq. 9 through the rear radius
+    its owner calibrated, off the truth's inside its tolerance, drawn per seed, hence ``seed_offset`` as
+    :func:`write_case` takes it); the range is r_truth/r_nominal − 1 over the static front and rear wheel
+    loads, at the tyre pressure the file declares.  The paper truth model has none."""
     if case.truth_model == "paper":
         return {}
     from ..config import G
     from ..model.vehicle import rolling_radius
     from ..sim import tyre as ty
+    from ..sim.physwriter import _declared_vehicle
 
     scn = case.scenario()
-    veh = scn.vehicle
+    if seed_offset:
+        scn = replace(scn, seed=scn.seed + int(seed_offset))
     tyre = scn.physical.tyre if scn.physical is not None else ty.TyreSpec()
+    # The file as written, before any edit of the case (a concealed mass error is the case's effect, not the
+    # plant's); at the pressure it declares: a concealed pressure error is the case's effect too.
+    veh = _declared_vehicle(scn) if scn.physical is not None else scn.vehicle
     f = veh.static_front_fraction
-    # At the pressure the file declares: a concealed pressure error is the case's effect, not the plant's.
-    p_decl = getattr(scn.physical, "declared_tyre_pressure_pa", None) if scn.physical is not None else None
-    if p_decl is not None:
-        veh = replace(veh, tyre_pressure_pa=float(p_decl))
     p = veh.tyre_pressure_pa
     eps = []
     for fz in (f * veh.mass_kg * G / 2, (1 - f) * veh.mass_kg * G / 2):
