@@ -74,7 +74,10 @@ def run_case(name: str, workdir: str, reuse: bool, simulate_only: bool = False, 
     except Exception as exc:  # a crash is a result of the suite: counted as wrong, with its message
         return {"case": name, "kind": case.kind, "truth_model": case.truth_model, "truth": None,
                 "verdict": "error", "effect": None, "ambiguous_between": [], "reported": [],
-                "correct": False, "covered": {}, "fitted": {}, "error": f"{type(exc).__name__}: {exc}"}
+                "correct": False, "covered": {}, "fitted": {}, "error": f"{type(exc).__name__}: {exc}",
+                # nothing fitted reduces nothing: an effect recording that crashed counts as 0 in the median
+                # (as one where nothing was fitted), not as no recording
+                **({"rmse_reduction": 0.0} if case.kind in ("effect", "characteristic") else {})}
     t2 = time.perf_counter()
     row = score_case(case, d, seed_offset)
     row["simulate_s"] = round(t1 - t0, 2)

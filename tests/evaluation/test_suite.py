@@ -165,3 +165,29 @@ def test_a_missed_effect_counts_as_no_rmse_reduction_not_as_no_recording():
     found = {"kind": "effect", "correct": True, "covered": {}, "rmse_reduction": 0.8}
     s = summarize([found, dict(found, rmse_reduction=0.6), {**row, "covered": {}}])
     assert s["median_heldout_rmse_reduction"] == pytest.approx(0.6)      # 0.7 with the miss left out
+
+
+def test_a_crashed_effect_recording_counts_as_no_rmse_reduction(monkeypatch, tmp_path):
+    """A crash is a result of the suite: an effect recording whose diagnosis raised had no RMSE reduction and
+    dropped out of the median, which a crash could so raise."""
+    import importlib.util
+    from pathlib import Path
+
+    from tractionecu.evaluation import suite as S
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "diagnose_suite.py"
+    spec = importlib.util.spec_from_file_location("diagnose_suite_bench", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+
+    def crash(rec):
+        raise FloatingPointError("diagnosis failed")
+
+    monkeypatch.setattr(bench, "diagnose", crash)
+    monkeypatch.setattr(bench, "write_case", lambda case, rec, seed_offset=0: None)
+    effect = next(c for c in S.all_cases() if c.kind == "effect")
+    null = next(c for c in S.all_cases() if c.kind == "null")
+    rows = [bench.run_case(effect.name, str(tmp_path), reuse=False), bench.run_case(null.name, str(tmp_path), reuse=False)]
+    assert rows[0]["verdict"] == "error" and rows[0]["rmse_reduction"] == 0.0 and "rmse_reduction" not in rows[1]
+    assert S.summarize(rows + [{**rows[0], "case": "x", "rmse_reduction": 0.8, "correct": True}])[
+        "median_heldout_rmse_reduction"] == pytest.approx(0.4)
