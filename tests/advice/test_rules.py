@@ -99,6 +99,20 @@ def test_eta_far_below_the_optimum_for_minutes() -> None:
     assert eng.advice[0].evidence["minutes"] >= 1.9
 
 
+def test_the_minutes_of_efficiency_start_again_after_a_stop() -> None:
+    """After a stop of 60-120 s the minutes of η before it were still in the window: back at work, the η
+    advice came within seconds, the window's two minutes spanning the stop."""
+    eng = AdviceEngine(VehicleParams(), AdviceSettings(axle_type="tracks", distance_m=100.0, eta_minutes=2.0))
+    t = drive(eng, 100.0, 0.04, a=0.58, rho_s=0.10)
+    assert eng.advice == []
+    P = np.full(10, 1e-5)
+    for k in range(800):                      # 80 s at standstill: nothing pulled, the window withdrawn
+        eng.feed(SimpleNamespace(t=t + 0.1 * k, mu=np.zeros(4), slip=np.zeros(4), rho_s=0.10, v=0.0, P_diag=P,
+                                 a=0.58, soil_class="stubble", status=0, valid=True))
+    drive(eng, 30.0, 0.04, a=0.58, rho_s=0.10, t0=t + 80.0)
+    assert eng.advice == []                   # half a minute of work, not two
+
+
 def test_the_identified_optimum_outranks_the_band() -> None:
     # tracks' band ends at 5 %, but on this curve s* ≈ 11 %: more slip pays, so no ballast is asked for
     eng = AdviceEngine(VehicleParams(), AdviceSettings(axle_type="tracks", distance_m=50.0, eta_minutes=10.0))

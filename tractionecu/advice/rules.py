@@ -183,9 +183,12 @@ class Advisor:
         if rep.s_star_valid and math.isfinite(rep.s_star):
             self._s_star_seen = (t, rep.s_star, curve)
         if self._dist and math.isfinite(t) and t - self._dist[-1][4] > EXPIRY_S:
-            # nothing pulled for a minute: the window (and the advice it gave) is about ground left behind
+            # nothing pulled for a minute: the window (and the advice it gave) is about ground left behind; so
+            # are the minutes of η (kept, they spanned the stop and gave the η advice a few seconds after it)
             self._dist.clear()
             self._sums = [0.0] * 7
+            self._eta.clear()
+            self._eta_sum = 0.0
         if rep.slip_ok and math.isfinite(v):
             self._v = abs(v)
             dd = abs(v) * dt
