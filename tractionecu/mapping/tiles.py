@@ -159,6 +159,42 @@ def atomic_write_bytes(path: os.PathLike[str] | str, data: bytes) -> None:
     fsync_dir(path.parent)
 
 
+class DirectoryLock:
+    """The advisory exclusive lock of a directory (flock on the directory itself: no file is left in it), taken
+    without waiting by :func:`lock_directory`; :meth:`close` releases it.  A replay's output directory and the
+    service's state directory each take one (a map has its own, ``.lock``, beside its tiles)."""
+
+    def __init__(self, directory: os.PathLike[str] | str, busy: str) -> None:
+        self.directory = Path(directory)
+        self._fd: int | None = os.open(self.directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - non-POSIX
+            return
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            self.close()
+            raise MapStoreError(f"{directory}: {busy}") from None
+
+    def close(self) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
+
+    def __enter__(self) -> DirectoryLock:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def lock_directory(directory: os.PathLike[str] | str, busy: str) -> DirectoryLock:
+    """Take the lock of ``directory`` (:class:`DirectoryLock`); :class:`MapStoreError` "``directory``: ``busy``"
+    when another process holds it."""
+    return DirectoryLock(directory, busy)
+
+
 def remove_stray_temporaries(directory: Path) -> list[Path]:
     """Delete temp files left by an interrupted write; returns what was removed."""
     removed = []
@@ -306,11 +342,13 @@ def read_track(path: os.PathLike[str] | str) -> tuple[np.ndarray, int]:
 
 __all__ = [
     "CorruptTileError",
+    "DirectoryLock",
     "MapStoreError",
     "atomic_write_bytes",
     "decode_tile",
     "encode_tile",
     "iter_tile_files",
+    "lock_directory",
     "read_manifest",
     "read_tile",
     "read_track",

@@ -60,6 +60,7 @@ import numpy as np
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_toml
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
+from ..mapping.tiles import lock_directory
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
@@ -622,6 +623,21 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
 
         check_map_dir(out / "map")                        # before the run: an owner's folder is never replaced
     out.mkdir(parents=True, exist_ok=True)
+    # One replay at a time in a directory: two wrote one estimates.csv.partial (the second truncated the
+    # first's, whose later rows left a hole of NUL bytes in the estimates.csv it moved into place)
+    lockf = lock_directory(out, "another replay is writing into this directory: choose another --out")
+    try:
+        return _replay_locked(rec, out, streamed, wall0, rate_hz, cfg, sensors, gate, write_map, on_estimate,
+                              keep_arrays)
+    finally:
+        lockf.close()
+
+
+def _replay_locked(rec: Recording, out: Path, streamed: bool, wall0: float, rate_hz: float,
+                   cfg: EstimatorConfig | None, sensors: SensorSpec | None, gate: GnssGate | None, write_map: bool,
+                   on_estimate: Callable[[Estimate], None] | None, keep_arrays: bool | None,
+                   ) -> tuple[dict[str, Any], Recording, ReplayResult]:
+    """:func:`replay_to_dir` once the recording is read and ``out`` is locked."""
     read_s = time.perf_counter() - wall0
     vehicle, s0 = machine_of(rec)
     sensors = sensors or s0
