@@ -124,14 +124,23 @@ def run(args: argparse.Namespace) -> int:
     if ignored:
         print(f"tractionecu run: {', '.join(ignored)}: not used with --simulate (the simulation plays on its own "
               "virtual CAN bus and NMEA pty, with the scenario's vehicle file)", file=sys.stderr)
+    from ..service.daemon import hold_state_dir
     from ..sim.player import simulate_recording
 
-    rec_dir = cfg.state_dir() / "simulation"
-    print(f"simulating {args.scenario} (seed {args.seed}) into {rec_dir} ...", file=sys.stdout, flush=True)
-    # in the main thread, before the event loop: Ctrl-C stops it at once (run in the loop's executor, Ctrl-C
-    # waited for the whole simulation, a first run's kernel compilation included, and then said nothing)
-    simulate_recording(args.scenario, args.seed, rec_dir, args.duration)
-    return asyncio.run(simulate_main(cfg, args, rec_dir))
+    state = cfg.state_dir()
+    state.mkdir(parents=True, exist_ok=True)
+    # held from before the simulation is written: a second run --simulate on the same state directory wrote its
+    # simulation over the one the first was playing (which lost half its frames) and only then was refused
+    release = hold_state_dir(state)
+    try:
+        rec_dir = state / "simulation"
+        print(f"simulating {args.scenario} (seed {args.seed}) into {rec_dir} ...", file=sys.stdout, flush=True)
+        # in the main thread, before the event loop: Ctrl-C stops it at once (run in the loop's executor, Ctrl-C
+        # waited for the whole simulation, a first run's kernel compilation included, and then said nothing)
+        simulate_recording(args.scenario, args.seed, rec_dir, args.duration)
+        return asyncio.run(simulate_main(cfg, args, rec_dir))
+    finally:
+        release()
 
 
 async def simulate_main(cfg, args: argparse.Namespace, rec_dir) -> int:

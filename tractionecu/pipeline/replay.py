@@ -625,7 +625,8 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     out.mkdir(parents=True, exist_ok=True)
     # One replay at a time in a directory: two wrote one estimates.csv.partial (the second truncated the
     # first's, whose later rows left a hole of NUL bytes in the estimates.csv it moved into place)
-    lockf = lock_directory(out, "another replay is writing into this directory: choose another --out")
+    lockf = lock_directory(out, "another replay is writing into this directory, or a service runs on it as its "
+                                "state directory: choose another --out")
     try:
         return _replay_locked(rec, out, streamed, wall0, rate_hz, cfg, sensors, gate, write_map, on_estimate,
                               keep_arrays)

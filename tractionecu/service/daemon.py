@@ -65,11 +65,13 @@ import asyncio
 import functools
 import logging
 import math
+import os
 import signal
 import sys
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 from typing import IO, Any, Callable, Iterable
 
 import can
@@ -83,6 +85,7 @@ from ..bus import j1939
 from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS
 from ..errors import ConfigError
+from ..mapping.tiles import lock_directory
 from ..pipeline.gnss import gate_from_config
 from ..pipeline.signals import INPUT_MESSAGES, MACHINE_INPUT_MESSAGES
 from ..pipeline.steps import StepAssembler
@@ -143,6 +146,36 @@ READY_GPS_WAIT_S = 30.0
 """Longest wait for the GNSS receiver after the CAN bus is open before ``READY=1`` [s]: well inside the unit's
 ``TimeoutStartSec`` (120 s), so that an unplugged receiver or a wrong ``gps.port`` is a status to show, not a
 start that systemd fails and restarts every two minutes."""
+
+
+STATE_BUSY = ("another tractionecu service runs on this state directory (a second instance of the unit, or a "
+              "second run --simulate): stop it or give another --state-dir")
+_state_locks: dict[str, list[Any]] = {}
+
+
+def hold_state_dir(state: Path) -> Callable[[], None]:
+    """Take the state directory's lock (:func:`~tractionecu.mapping.tiles.lock_directory`) for this process and
+    return its release; a second process is refused (:class:`~tractionecu.mapping.tiles.MapStoreError`, by
+    name).  Within one process it is taken again freely: ``run --simulate`` holds it while it writes the
+    simulation, and its service (and the one it starts again with a longer lead) take it after."""
+    key = os.path.realpath(state)
+    held = _state_locks.get(key)
+    if held is None:
+        held = _state_locks[key] = [lock_directory(state, STATE_BUSY), 0]
+    held[1] += 1
+    released = False
+
+    def release() -> None:
+        nonlocal released
+        if released:
+            return
+        released = True
+        held[1] -= 1
+        if held[1] == 0 and _state_locks.get(key) is held:
+            del _state_locks[key]
+            held[0].close()
+
+    return release
 
 
 class Readiness:
@@ -297,12 +330,13 @@ class Service:
         self.started_mono = time.monotonic()
         self.exit_code = 0
         self._stop: asyncio.Event | None = None
+        self._state_release: Callable[[], None] | None = None
         self.lifecycle = Lifecycle(self.parts())
 
     def parts(self) -> list[Part]:
         """The parts in start-up order (module doc); shutdown runs them backwards."""
         parts: list[Part] = [
-            Hook("state", start=self._write_state),
+            Hook("state", start=self._write_state, stop=self._release_state),
             Hook("estimator", start=self.estimation.build_estimator),
         ]
         if self.map is not None:
@@ -337,9 +371,21 @@ class Service:
         state = self.cfg.state_dir(self.env)
         try:
             state.mkdir(parents=True, exist_ok=True)
-            (state / "run-config.toml").write_text(to_toml(self.cfg), encoding="utf-8")
         except OSError as e:
             raise ConfigError(f"service.state_dir: cannot write {state}: {e}") from e
+        # one service per state directory, from its start: a second one started before the map existed ran on
+        # beside the first, retrying the map it could not open for as long as it ran
+        self._state_release = hold_state_dir(state)
+        try:
+            (state / "run-config.toml").write_text(to_toml(self.cfg), encoding="utf-8")
+        except OSError as e:
+            self._release_state()
+            raise ConfigError(f"service.state_dir: cannot write {state}: {e}") from e
+
+    def _release_state(self) -> None:
+        release, self._state_release = self._state_release, None
+        if release is not None:
+            release()
 
     async def _warm_up(self) -> None:
         if self.warm_up_estimator:
