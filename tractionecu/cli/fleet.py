@@ -22,8 +22,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
+from typing import Any
 
 from ..errors import ConfigError
+from ..mapping.tiles import lock_directory
 
 EXIT_SOME_FAILED = 5
 DESCRIPTION = """\
@@ -94,6 +97,18 @@ def run(args: argparse.Namespace) -> int:
     if not refs:
         raise ConfigError(f"{args.source}: no recording found (a directory with can.log, a capture file, a manifest)")
     stream = None if args.no_progress else sys.stderr
+    # one run at a time in OUT: two removed each other's task directories, Parquet files and farm map as they
+    # went (both exit 5, the estimates and map samples tables left empty, the farm map with one recording)
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    lock = lock_directory(args.out, "another fleet run is writing into this directory: wait for it to end or "
+                                    "choose another --out")
+    try:
+        return _run_locked(args, runner, refs, origin, stream)
+    finally:
+        lock.close()
+
+
+def _run_locked(args: argparse.Namespace, runner: Any, refs: list, origin: Any, stream: Any) -> int:
     client = runner.make_client(args.workers, args.memory_limit, args.scheduler)
     failed: list[dict] = []
     try:
