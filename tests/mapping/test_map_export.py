@@ -242,3 +242,36 @@ def test_the_geojson_track_is_broken_between_stretches_driven(tmp_path):
     (track,) = [f for f in doc["features"] if f["properties"]["kind"] == "track"]
     assert track["geometry"]["type"] == "MultiLineString" and len(track["geometry"]["coordinates"]) == 2
     assert all(len(line) == n for line in track["geometry"]["coordinates"])
+
+
+_FULL_DISK = """
+import resource, sys
+from tractionecu.mapping.export import export_geotiff
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[3]), resource.RLIM_INFINITY))
+try:
+    export_geotiff(sys.argv[1], sys.argv[2])
+except OSError as e:
+    print("OSError", e.errno)
+else:
+    print("written")
+"""
+
+
+def test_a_geotiff_the_disk_cannot_hold_is_an_error_and_the_earlier_one_stays(noise_free_map, tmp_path):
+    """GDAL only prints a write that fails (a full disk: ``_tiffWriteProc: No space left on device``): the
+    export moved the file it closed, empty, over the earlier map.tif and said it was written.  The GeoTIFF is
+    now made in memory and written with the atomic write: the write raises and the earlier file is left as it
+    was.  The disk is a file size limit here (RLIMIT_FSIZE in a child process: EFBIG, as ENOSPC)."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("rasterio")
+    d = noise_free_map[0]
+    out = export_geotiff(d, tmp_path / "map.tif")
+    before = out.read_bytes()
+    assert len(before) > 4096
+    p = subprocess.run([sys.executable, "-c", _FULL_DISK, str(d), str(out), "4096"], capture_output=True,
+                       text=True, timeout=120)
+    assert p.stdout.split() == ["OSError", "27"], p.stdout + p.stderr      # EFBIG
+    assert out.read_bytes() == before
+    assert [f.name for f in tmp_path.iterdir()] == ["map.tif"]            # no temporary left beside it

@@ -125,6 +125,7 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
                    fill_kwargs: Mapping[str, Any] | None = None) -> Path:
     """Write a multi-band GeoTIFF (one band per layer) with the map's CRS."""
     rasterio = _require("rasterio", "GeoTIFF export")
+    from rasterio.io import MemoryFile
     from rasterio.transform import from_origin
 
     store = open_store(store_or_dir)
@@ -135,14 +136,15 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
     north = store.frame.northing0 + (row0 + rows) * res
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.tmp.{os.getpid()}")
     profile = dict(driver="GTiff", width=cols, height=rows, count=len(names), dtype="float32",
                    crs=store.frame.crs, transform=from_origin(west, north, res, res), nodata=float("nan"),
                    compress="deflate", predictor=3)
     if rows >= 256 and cols >= 256:
         profile.update(tiled=True, blockxsize=256, blockysize=256)
-    try:
-        with rasterio.open(tmp, "w", **profile) as dst:
+    # made in memory and written with the one atomic write: GDAL only prints a failed write (a full disk) and
+    # the file it closed, empty, was moved over the earlier map.tif, the export saying it was written
+    with MemoryFile() as mem:
+        with mem.open(**profile) as dst:
             for b, n in enumerate(names, start=1):
                 dst.write(grids[n].mean[::-1].astype(np.float32), b)
                 dst.set_band_description(b, n)
@@ -152,10 +154,8 @@ def export_geotiff(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
                             units="dimensionless", origin_lat=str(store.frame.origin_lat),
                             origin_lon=str(store.frame.origin_lon),
                             estimate_levels=",".join(sorted(store.estimate_levels)) or "unknown")
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        data = mem.read()
+    atomic_write_bytes(out, data)
     return out
 
 
