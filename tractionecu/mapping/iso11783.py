@@ -78,7 +78,7 @@ from numpy.typing import NDArray
 
 from .projection import meridian_radius, normal_radius
 from .store import LayerGrid, MapStore
-from .tiles import atomic_write_bytes
+from .tiles import DirectoryLock, atomic_write_bytes, lock_directory
 
 ISO_DDI = {"a": 0xE100, "p": 0xE101, "alpha1": 0xE102, "alpha2": 0xE103, "rho_s": 0xE104, "mu": 0xE105}
 ISO_SCALE = {"a": 1e-4, "p": 1e-4, "alpha1": 1e-3, "alpha2": 1e-3, "rho_s": 1e-5, "mu": 1e-4}
@@ -180,6 +180,17 @@ def _quantise(v: NDArray[np.float64], scale: float) -> NDArray[np.int64]:
     return q.astype(np.int64)
 
 
+EXPORT_LOCK_WAIT_S = 30.0
+"""How long an export waits for another one writing into the same TASKDATA directory [s]."""
+
+
+def _export_lock(out: Path) -> DirectoryLock:
+    """The TASKDATA directory's lock while its files are written: two exports into one directory (the default
+    ``DIR/export/TASKDATA`` of one map) interleaved their files, and one's TASKDATA.XML named time logs of the
+    length of the other's, or one the other had removed as an earlier export's."""
+    return lock_directory(out, "another export is writing into this directory", wait_s=EXPORT_LOCK_WAIT_S)
+
+
 # ------------------------------------------------------------------ logged data
 def track_utc(store: MapStore, t: NDArray[np.float64]) -> NDArray[np.float64]:
     """Track times [s] as Unix time UTC (see the module docstring)."""
@@ -268,13 +279,14 @@ def export_isoxml_log(store: MapStore, out_dir: os.PathLike[str] | str, names: S
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for name, buf in zip(logs, bufs):
-        atomic_write_bytes(out / f"{name}.BIN", buf)
-        atomic_write_bytes(out / f"{name}.XML", _xml_bytes(tim))
-    atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
-    for f in out.glob("TLG[0-9][0-9][0-9][0-9][0-9].*"):      # an earlier export's further time logs
-        if f.stem not in logs and f.suffix in (".BIN", ".XML"):
-            f.unlink()
+    with _export_lock(out):
+        for name, buf in zip(logs, bufs):
+            atomic_write_bytes(out / f"{name}.BIN", buf)
+            atomic_write_bytes(out / f"{name}.XML", _xml_bytes(tim))
+        atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
+        for f in out.glob("TLG[0-9][0-9][0-9][0-9][0-9].*"):      # an earlier export's further time logs
+            if f.stem not in logs and f.suffix in (".BIN", ".XML"):
+                f.unlink(missing_ok=True)
     return out / "TASKDATA.XML"
 
 
@@ -369,8 +381,9 @@ def export_isoxml_grid(store: MapStore, grids: Mapping[str, LayerGrid], out_dir:
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(out / f"{ISO_GRID_FILENAME}.BIN", payload)
-    atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
+    with _export_lock(out):
+        atomic_write_bytes(out / f"{ISO_GRID_FILENAME}.BIN", payload)
+        atomic_write_bytes(out / "TASKDATA.XML", _xml_bytes(root))
     return out / "TASKDATA.XML"
 
 

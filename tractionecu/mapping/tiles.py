@@ -63,6 +63,7 @@ import json
 import os
 import re
 import struct
+import time
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -164,18 +165,23 @@ class DirectoryLock:
     without waiting by :func:`lock_directory`; :meth:`close` releases it.  A replay's output directory and the
     service's state directory each take one (a map has its own, ``.lock``, beside its tiles)."""
 
-    def __init__(self, directory: os.PathLike[str] | str, busy: str) -> None:
+    def __init__(self, directory: os.PathLike[str] | str, busy: str, wait_s: float = 0.0) -> None:
         self.directory = Path(directory)
         self._fd: int | None = os.open(self.directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
         try:
             import fcntl
         except ImportError:  # pragma: no cover - non-POSIX
             return
-        try:
-            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            self.close()
-            raise MapStoreError(f"{directory}: {busy}") from None
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return
+            except OSError:
+                if time.monotonic() >= deadline:
+                    self.close()
+                    raise MapStoreError(f"{directory}: {busy}") from None
+            time.sleep(0.05)
 
     def close(self) -> None:
         if self._fd is not None:
@@ -189,10 +195,10 @@ class DirectoryLock:
         self.close()
 
 
-def lock_directory(directory: os.PathLike[str] | str, busy: str) -> DirectoryLock:
-    """Take the lock of ``directory`` (:class:`DirectoryLock`); :class:`MapStoreError` "``directory``: ``busy``"
-    when another process holds it."""
-    return DirectoryLock(directory, busy)
+def lock_directory(directory: os.PathLike[str] | str, busy: str, wait_s: float = 0.0) -> DirectoryLock:
+    """Take the lock of ``directory`` (:class:`DirectoryLock`), waiting up to ``wait_s`` [s] for another holder
+    to release it; :class:`MapStoreError` "``directory``: ``busy``" when another process still holds it."""
+    return DirectoryLock(directory, busy, wait_s)
 
 
 def remove_stray_temporaries(directory: Path) -> list[Path]:
