@@ -458,3 +458,28 @@ def test_a_second_service_on_a_state_directory_is_refused_at_its_start(tmp_path:
     svc._write_state()                                     # the lock went with the process that held it
     assert (state / "run-config.toml").is_file()
     svc._release_state()
+
+
+async def test_a_full_disk_at_start_leaves_the_service_running(tmp_path: Path, monkeypatch) -> None:
+    """With the state directory's disk full the service did not start (``service.state_dir: cannot write``, exit
+    1, restarted by systemd again and again: no estimate on the bus), for the record of its configuration it
+    writes there.  It now starts and broadcasts, the write counted and logged; the earlier run-config.toml
+    is left whole (it was truncated to 0 bytes)."""
+    import errno
+
+    from tractionecu.service import daemon
+
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "run-config.toml").write_text("# the earlier run's\n", encoding="utf-8")
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(daemon, "atomic_write_bytes", full)
+    rig = Rig(tmp_path, StandIn())
+    async with rig:
+        await asyncio.wait_for(rig.svc.ready.wait(), 10)
+        await until(lambda: rig.svc.stats["broadcasts"] >= 3)
+    assert rig.svc.stats["state_write_errors"] == 1
+    assert (state / "run-config.toml").read_text(encoding="utf-8") == "# the earlier run's\n"

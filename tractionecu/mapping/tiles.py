@@ -58,6 +58,7 @@ off when the next writer opens the map.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import os
@@ -127,6 +128,10 @@ def iter_tile_files(directory: Path) -> Iterator[tuple[tuple[int, int], Path]]:
 
 
 # ---------------------------------------------------------------- atomic I/O
+DISK_FULL_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG})
+"""Write errors of a disk that is full (or a quota or file size limit reached): passing, not a configuration error."""
+
+
 def fsync_dir(directory: os.PathLike[str] | str) -> None:
     """fsync a directory so that a rename in it is durable (no-op where unsupported)."""
     try:

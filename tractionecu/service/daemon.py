@@ -85,7 +85,7 @@ from ..bus import j1939
 from ..bus.dbc import Codec
 from ..bus.transport import TRANSPORT_PGNS
 from ..errors import ConfigError
-from ..mapping.tiles import lock_directory
+from ..mapping.tiles import DISK_FULL_ERRNOS, atomic_write_bytes, lock_directory
 from ..pipeline.gnss import gate_from_config
 from ..pipeline.signals import INPUT_MESSAGES, MACHINE_INPUT_MESSAGES
 from ..pipeline.steps import StepAssembler
@@ -377,8 +377,16 @@ class Service:
         # beside the first, retrying the map it could not open for as long as it ran
         self._state_release = hold_state_dir(state)
         try:
-            (state / "run-config.toml").write_text(to_toml(self.cfg), encoding="utf-8")
+            atomic_write_bytes(state / "run-config.toml", to_toml(self.cfg).encode("utf-8"))
         except OSError as e:
+            if e.errno in DISK_FULL_ERRNOS:
+                # a record of the configuration, not a reason to stop: on a full disk the service estimates and
+                # broadcasts, and the map keeps its tiles in memory until it can write them (the service did not
+                # start at all, exit 1, restarted by systemd again and again)
+                self.stats["state_write_errors"] += 1
+                log.warning("service.state_dir: cannot write %s: %s; running without it", state / "run-config.toml",
+                            e)
+                return
             self._release_state()
             raise ConfigError(f"service.state_dir: cannot write {state}: {e}") from e
 
