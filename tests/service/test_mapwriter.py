@@ -55,3 +55,34 @@ async def test_positions_beyond_the_maps_range_are_said_not_dropped_silently(tmp
     assert mw.stats["beyond_range"] > 20 and mw.stats["added"] == 0
     assert mw.state.startswith("NOT MAPPING: 64 km from the map's origin")
     await mw.close()
+
+
+async def test_a_full_disk_when_a_map_with_a_set_origin_is_made_leaves_it_to_be_made_later(tmp_path, monkeypatch):
+    """With ``map.origin_lat/lon`` set the map is made at start: on a full disk its manifest could not be written
+    and the service stopped with a traceback (exit 1).  The map is now opened again later, as one that could not
+    be opened at its first fix, and at the set origin, not at the fix."""
+    import dataclasses
+    import errno
+
+    from tractionecu.mapping import store as store_module
+    from tractionecu.service import mapwriter
+
+    def full(directory, manifest):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(mapwriter, "OPEN_RETRY_MIN_S", 0.05)
+    monkeypatch.setattr(store_module, "write_manifest", full)
+    cfg = dataclasses.replace(MapConfig(), origin_lat=47.88, origin_lon=11.0, window_half_s=0.3)
+    mw = MapWriter(cfg, tmp_path / "map")
+    await mw.open()
+    assert mw.store is None and mw.stats["open_errors"] == 1 and mw.state.startswith("ERROR: cannot open")
+    monkeypatch.undo()                                          # space again
+    mw._open_backoff_s = 0.05
+    for k in range(40):
+        fix = GpsSample(k * 0.1, k * 0.1, 47.8801 + k * 1e-6, 11.0001, 500.0, 2.5, 0.0, 4, 0.8, 12)
+        mw.add(_est(k * 0.1), fix)
+        await asyncio.sleep(0.01)
+    assert mw.store is not None and mw.state == "writing"
+    assert (mw.store.frame.origin_lat, mw.store.frame.origin_lon) == (47.88, 11.0)
+    assert mw.stats["added"] > 0
+    await mw.close()

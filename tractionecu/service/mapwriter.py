@@ -33,7 +33,7 @@ from typing import Any
 
 from ..counting import WarnOnce
 from ..mapping.sampler import CentredSampler
-from ..mapping.tiles import MANIFEST_NAME
+from ..mapping.tiles import DISK_FULL_ERRNOS, MANIFEST_NAME
 from ..model.mucurve import curve_class
 from .config import MapConfig
 from .gps import GpsSample
@@ -98,15 +98,23 @@ class MapWriter:
         range are refused (None once one is mapped again)."""
 
     async def open(self) -> None:
-        """Resume an existing map (tiles read in the worker thread), or wait for the first fix."""
-        loop = asyncio.get_running_loop()
-        if math.isfinite(self.cfg.origin_lat):
-            await self._open_at(loop, self.cfg.origin_lat, self.cfg.origin_lon)
-        elif (self.directory / MANIFEST_NAME).exists():
-            from ..mapping.store import MapStore
+        """Resume an existing map (tiles read in the worker thread), or wait for the first fix.
 
-            self.store = await loop.run_in_executor(self._pool, lambda: MapStore.open(self.directory))
-            self._log_resume()
+        A full disk (the new map's manifest cannot be written) does not stop the service: the map is opened
+        again, as one that could not be opened at its first fix (:meth:`_opened`)."""
+        loop = asyncio.get_running_loop()
+        try:
+            if math.isfinite(self.cfg.origin_lat):
+                await self._open_at(loop, self.cfg.origin_lat, self.cfg.origin_lon)
+            elif (self.directory / MANIFEST_NAME).exists():
+                from ..mapping.store import MapStore
+
+                self.store = await loop.run_in_executor(self._pool, lambda: MapStore.open(self.directory))
+                self._log_resume()
+        except OSError as e:
+            if e.errno not in DISK_FULL_ERRNOS:
+                raise
+            self._open_failed(e)
 
     async def _open_at(self, loop: asyncio.AbstractEventLoop, lat: float, lon: float) -> None:
         from ..mapping.store import MapStore
@@ -138,7 +146,9 @@ class MapWriter:
         if self.store is None and self._opening is None:
             loop = asyncio.get_running_loop()
             if loop.time() >= self._open_retry_mono:
-                self._opening = asyncio.ensure_future(self._open_at(loop, fix.lat_deg, fix.lon_deg))
+                lat, lon = ((self.cfg.origin_lat, self.cfg.origin_lon) if math.isfinite(self.cfg.origin_lat)
+                            else (fix.lat_deg, fix.lon_deg))
+                self._opening = asyncio.ensure_future(self._open_at(loop, lat, lon))
                 self._opening.add_done_callback(self._opened)
         try:
             ready = self.sampler.push(est.t, fix.lat_deg, fix.lon_deg, fix.fix_quality, fix.hdop, est)
@@ -199,19 +209,22 @@ class MapWriter:
             return
         e = fut.exception()
         if e is not None:
-            # retried with a doubling wait: the samples meanwhile wait in the sampler's window or are
-            # counted (waiting_for_store); one error line, not one per 10 Hz sample
-            self.stats["open_errors"] += 1
-            self.last_error = f"cannot open: {e}"
-            self._warn("open", "map %s: cannot open: %s; retrying every %g s at most", self.directory, e,
-                       OPEN_RETRY_MAX_S, level=logging.ERROR)
-            self._open_retry_mono = asyncio.get_running_loop().time() + self._open_backoff_s
-            self._open_backoff_s = min(2 * self._open_backoff_s, OPEN_RETRY_MAX_S)
-            self._opening = None
+            self._open_failed(e)
         else:
             self._warn.forget("open")
             self._open_backoff_s = OPEN_RETRY_MIN_S
             self.last_error = ""
+
+    def _open_failed(self, e: BaseException) -> None:
+        # retried with a doubling wait: the samples meanwhile wait in the sampler's window or are
+        # counted (waiting_for_store); one error line, not one per 10 Hz sample
+        self.stats["open_errors"] += 1
+        self.last_error = f"cannot open: {e}"
+        self._warn("open", "map %s: cannot open: %s; retrying every %g s at most", self.directory, e,
+                   OPEN_RETRY_MAX_S, level=logging.ERROR)
+        self._open_retry_mono = asyncio.get_running_loop().time() + self._open_backoff_s
+        self._open_backoff_s = min(2 * self._open_backoff_s, OPEN_RETRY_MAX_S)
+        self._opening = None
 
     @property
     def state(self) -> str:
