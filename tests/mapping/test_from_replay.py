@@ -42,3 +42,42 @@ def test_a_machine_without_a_draft_sensor_is_mapped_and_flagged(tmp_path, make_r
     assert np.isfinite(mu).sum() > 50 and not np.isfinite(rho).any()
     doc = json.loads(export_geojson(store, tmp_path / "map.geojson").read_text())
     assert list(doc["estimate_levels"]) == ["machine"] and "no per-wheel precision" in doc["estimate_levels"]["machine"]
+
+
+_SERVICE_MAP = """
+import sys
+from tractionecu.mapping.store import MapStore
+st = MapStore(sys.argv[1], 47.88, 11.0)
+st.add(47.8801, 11.0001, {"a": 0.7}, 1.7e9, fix_quality=4, hdop=0.8)
+st.flush(force=True)
+print("open", flush=True)
+sys.stdin.read()
+st.close()
+"""
+
+
+def test_a_replay_never_replaces_a_map_open_for_writing(tmp_path, short_recording, capsys):
+    """``replay --out D`` while a service wrote its map in ``D/map`` (its ``map.directory`` there) deleted that
+    map and made its own in its place; the service went on writing its tiles, in its own frame, into the
+    replay's map (the tiles it held only on disk and its track so far lost).  A map another process has open
+    for writing is now refused by name, before the replay runs, and left as it was."""
+    import subprocess
+    import sys
+
+    from tractionecu.mapping.tiles import MANIFEST_NAME
+
+    out = tmp_path / "out"
+    out.mkdir()
+    service = subprocess.Popen([sys.executable, "-c", _SERVICE_MAP, str(out / "map")], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, text=True)
+    try:
+        assert service.stdout.readline().strip() == "open"
+        before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+        assert main(["replay", str(short_recording), "--out", str(out)]) == 1
+        assert "map is open for writing by another process" in capsys.readouterr().err
+        assert {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+        assert not (out / "estimates.csv").exists()
+    finally:
+        service.communicate("", timeout=30)
+    assert (out / "map" / MANIFEST_NAME).is_file()
+    assert main(["replay", str(short_recording), "--out", str(out)]) == 0   # the map closed: a replay replaces it

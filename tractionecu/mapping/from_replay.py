@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import ConfigError
 from ..gnss.fix import fix_accepted
 from .sampler import DEFAULT_HALF_WINDOW_S, STATUS_NO_PAIR, centred_map_values
-from .store import STATUS_FILTER_LOST, MapStore
+from .store import STATUS_FILTER_LOST, MapStore, lock_map
 from .tiles import MANIFEST_NAME
 
 
@@ -42,7 +42,8 @@ REFUSED_WORDS = {
 
 
 def check_map_dir(map_dir: Path) -> None:
-    """Refuse a ``map`` directory a replay may not replace: one that holds files but no map manifest.
+    """Refuse a ``map`` directory a replay may not replace: one that holds files but no map manifest, or a map
+    another process has open for writing (:class:`~.tiles.MapStoreError`).
 
     Every map store writes its manifest when it is created, so a replay's map, even one cut short, has one;
     a directory without it is the owner's own (field boundaries, notes) and is never deleted.
@@ -54,6 +55,8 @@ def check_map_dir(map_dir: Path) -> None:
     if d.exists() and not d.is_dir():
         raise ConfigError(f"{d}: exists and is not a directory; a replay writes its map there: move it or choose "
                           "another --out")
+    if (d / MANIFEST_NAME).exists():
+        lock_map(d).close()          # a map open for writing (a service's, its map.directory there) is not replaced
 
 
 ORIGIN_FIXES = 25
@@ -97,7 +100,14 @@ def write_replay_map(out: Path, rec: Any, arrays: dict[str, Any], *, resolution_
     map_dir = out / "map"
     if store is None and map_dir.exists():          # also when this replay maps nothing: never another's map
         check_map_dir(map_dir)
-        shutil.rmtree(map_dir)
+        # under the map's lock: a service writing it (its map.directory there) had its map deleted and went on
+        # writing its tiles, in its own frame, into the map the replay made in its place
+        lock = lock_map(map_dir) if (map_dir / MANIFEST_NAME).exists() else None
+        try:
+            shutil.rmtree(map_dir)
+        finally:
+            if lock is not None:
+                lock.close()
     if len(gps) == 0:
         summary["map_samples"] = 0
         return summary

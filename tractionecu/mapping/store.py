@@ -152,8 +152,9 @@ class _Tile:
         return self.version != self.saved_version
 
 
-def _lock_file(directory: Path) -> Any:
-    """Advisory exclusive lock so that only one writer uses a map directory."""
+def lock_map(directory: Path) -> Any:
+    """Advisory exclusive lock so that only one writer uses a map directory (close the returned file to release
+    it); :class:`MapStoreError` if another process has the map open for writing."""
     f = open(directory / LOCK_NAME, "a+b")
     try:
         import fcntl
@@ -277,7 +278,7 @@ class MapStore:
                 raise MapStoreError(f"{self.directory}: no map manifest")
         else:
             (self.directory / TILES_DIRNAME).mkdir(parents=True, exist_ok=True)
-            self._lockf = _lock_file(self.directory)
+            self._lockf = lock_map(self.directory)
         try:
             if existing:
                 old = read_manifest(self.directory)
@@ -884,4 +885,5 @@ def open_store(store_or_dir: MapStore | os.PathLike[str] | str) -> MapStore:
     return MapStore.open(d, read_only=True)
 
 
-__all__ = ["DEFAULT_MAX_RANGE_M", "CorruptTileError", "LayerGrid", "MapStore", "MapStoreError", "open_store"]
+__all__ = ["DEFAULT_MAX_RANGE_M", "CorruptTileError", "LayerGrid", "MapStore", "MapStoreError", "lock_map",
+           "open_store"]
