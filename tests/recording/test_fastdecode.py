@@ -304,3 +304,24 @@ def test_empty_and_frameless_files_fail_the_same(tmp_path, codec):
         _, _, err = _read(_read_can, path, codec)
         assert err is not None
         assert_same(path, codec)
+
+
+def test_a_flood_of_unknown_pgns_keeps_the_sources_of_the_first_ones_only(tmp_path, codec, monkeypatch):
+    """Every unknown PGN kept the set of its source addresses: a flood of random identifiers (2¹⁸ PGNs from 256
+    addresses each) could hold tens of millions of entries.  The sources of the first PGNs are kept, the frames
+    of every PGN counted; both readers agree, and the summary says which sources were not kept."""
+    from tractionecu.recording import containers
+    from tractionecu.recording.reader import read_recording
+    from tractionecu.recording.summary import summarize
+
+    monkeypatch.setattr(containers, "MAX_UNKNOWN_PGN_SOURCES", 3)
+    rng = random.Random(7)
+    pgns = [0xFF00 + k for k in range(0x40, 0x48)]            # proprietary B PGNs the contract does not use
+    lines = [format_line(1.7e9 + 0.001 * k, "can0", (6 << 26) | (p << 8) | rng.randrange(256), True, bytes(8))
+             for k, p in enumerate(pgns * 3)]
+    path = tmp_path / "can.log"
+    path.write_text("".join(ln if ln.endswith("\n") else ln + "\n" for ln in lines))
+    _, st = assert_same(path, codec)
+    assert sum(st.unknown_pgns.values()) == 24 and len(st.unknown_pgns) == 8
+    assert list(st.unknown_pgn_sources) == pgns[:3]
+    assert "(sources not kept)" in summarize(read_recording(path))

@@ -170,6 +170,11 @@ class MessageStats:
         return (self.count - 1) / span
 
 
+MAX_UNKNOWN_PGN_SOURCES = 1024
+"""Unknown PGNs whose source addresses are kept (:meth:`RecordingStats.add_unknown_sources`); a real bus
+carries a few dozen."""
+
+
 @dataclass
 class RecordingStats:
     """Everything counted while reading.
@@ -215,6 +220,17 @@ class RecordingStats:
     def unknown_frames(self) -> int:
         """Frames skipped because their PGN is not in the DBC."""
         return sum(self.unknown_pgns.values())
+
+    def add_unknown_sources(self, pgn: int, sources: Iterable[int]) -> None:
+        """The source addresses of an unknown PGN's frames, for the first :data:`MAX_UNKNOWN_PGN_SOURCES` unknown
+        PGNs (a flood of random identifiers sends up to 2¹⁸ PGNs from 256 addresses each: tens of millions of
+        entries); later ones are counted in :attr:`unknown_pgns` without their sources."""
+        have = self.unknown_pgn_sources.get(pgn)
+        if have is None:
+            if len(self.unknown_pgn_sources) >= MAX_UNKNOWN_PGN_SOURCES:
+                return
+            have = self.unknown_pgn_sources[pgn] = set()
+        have.update(sources)
 
 
 @dataclass

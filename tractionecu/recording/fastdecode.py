@@ -585,7 +585,7 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
     # unknown PGNs and their sources, in order of first appearance
     for p in sorted(unknown_first, key=unknown_first.__getitem__):
         rows = np.flatnonzero(ext & (pgn == p))
-        stats.unknown_pgn_sources.setdefault(p, set()).update(np.unique(sa[rows]).tolist())
+        stats.add_unknown_sources(p, np.unique(sa[rows]).tolist())
     counts = stats.unknown_pgns
     stats.unknown_pgns = Counter({p: counts[p] for p in sorted(counts, key=lambda q: unknown_first.get(q, -1))})
     # frames that need Codec.decode: wrong length (counted) or a layout not handled above, and the
@@ -603,7 +603,7 @@ def decode_table(table: FrameTable, codec: Codec, stats, max_examples: int, *, t
             msg, values = codec.decode(can_id, data, is_ext)
         except UnknownFrame:                            # pragma: no cover - PGN known above
             stats.unknown_pgns[p] += 1
-            stats.unknown_pgn_sources.setdefault(p, set()).add(int(sa[i]))
+            stats.add_unknown_sources(p, (int(sa[i]),))
             continue
         except DecodeError:
             info = codec.message_for_pgn(p) if is_ext else codec.message_for_std_id(can_id)

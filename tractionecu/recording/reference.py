@@ -94,7 +94,7 @@ def read_can_per_frame(path: Path, codec: Codec, stats: RecordingStats) -> dict[
                 msg, values = codec.decode(frame.can_id, frame.data, frame.is_extended)
             except UnknownFrame:
                 stats.unknown_pgns[cid.pgn] += 1
-                stats.unknown_pgn_sources.setdefault(cid.pgn, set()).add(cid.sa)
+                stats.add_unknown_sources(cid.pgn, (cid.sa,))
                 continue
             except DecodeError:
                 info = codec.message_for_pgn(cid.pgn) if cid is not None else codec.message_for_std_id(frame.can_id)

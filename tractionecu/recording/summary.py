@@ -65,7 +65,8 @@ def summarize(recording: Recording) -> str:
         )
         shown = sorted(st.unknown_pgns.items(), key=lambda kv: (-kv[1], kv[0]))[:MAX_UNKNOWN_PGNS]
         for pgn, n in sorted(shown):
-            srcs = ",".join(f"0x{sa:02X}" for sa in sorted(st.unknown_pgn_sources.get(pgn, ())))
+            kept = st.unknown_pgn_sources.get(pgn)
+            srcs = ",".join(f"0x{sa:02X}" for sa in sorted(kept)) if kept is not None else "(sources not kept)"
             out.append(f"    PGN {pgn:>6} (0x{pgn:05X}) {n:>7} frames  from {srcs}{_PGN_NOTES.get(pgn, '')}")
         if len(st.unknown_pgns) > len(shown):
             rest = st.unknown_frames - sum(n for _, n in shown)
