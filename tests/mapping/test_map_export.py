@@ -275,3 +275,36 @@ def test_a_geotiff_the_disk_cannot_hold_is_an_error_and_the_earlier_one_stays(no
     assert p.stdout.split() == ["OSError", "27"], p.stdout + p.stderr      # EFBIG
     assert out.read_bytes() == before
     assert [f.name for f in tmp_path.iterdir()] == ["map.tif"]            # no temporary left beside it
+
+
+def _noisy_map(d, soils: bool, seed: int = 3):
+    """The passes above with a noisy `a` (σ 0.03 per sample, as a converged estimate's) and no soil classes
+    declared: one soil (a 0.7 everywhere), or the three soils."""
+    rng = np.random.default_rng(seed)
+    st = MapStore(d, *ORIGIN)
+    x, y = passes()
+    lat, lon = st.to_latlon(x, y)
+    sid = soil_xy(x, y)
+    for i in range(len(x)):
+        a = (SOIL_A[int(sid[i])] if soils else 0.7) + rng.normal(0.0, 0.03)
+        assert st.add(float(lat[i]), float(lon[i]), {"a": a, "rho_s": 0.08}, 0.1 * i)
+    st.close()
+    return d
+
+
+def test_a_map_of_one_soil_without_classes_is_one_zone(tmp_path):
+    """A map carries no soil classes (replay's and the service's do not): the exports cut a field of one soil
+    into three "natural" classes of its noise, 678 GeoJSON zones on a noisy line.  Classes closer than twice
+    the spread of a's samples in a cell are one; the three soils of the field above stay three."""
+    from tractionecu.mapping.soil import natural_classes
+
+    rng = np.random.default_rng(0)
+    one = rng.normal(0.7, 0.01, 500)
+    assert len(natural_classes(one, 3)) == 3 and len(natural_classes(one, 3, spread=0.03)) == 1
+    three = np.concatenate([rng.normal(m, 0.01, 200) for m in (0.42, 0.60, 0.75)])
+    assert natural_classes(three, 3, spread=0.03) == pytest.approx([0.42, 0.60, 0.75], abs=0.01)
+    for soils, n in ((False, 1), (True, 3)):
+        d = _noisy_map(tmp_path / f"map{n}", soils)
+        doc = json.loads(export_geojson(d, tmp_path / f"z{n}.geojson").read_text())
+        zones = {f["properties"]["soil"] for f in doc["features"] if f["properties"]["kind"] == "soil_zone"}
+        assert len(zones) == n, zones

@@ -39,6 +39,7 @@ GeoJSON (RFC 7946, WGS84 lon/lat)
 from __future__ import annotations
 
 import json
+import math
 import os
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -109,13 +110,15 @@ def _grids(store: MapStore, layers: Sequence[str], filled: bool,
     return out, ext
 
 
-def _soil_classes(store: MapStore, soil_classes: Mapping[str, float] | None,
-                  a_values: NDArray[np.float64]) -> dict[str, float]:
+def _soil_classes(store: MapStore, soil_classes: Mapping[str, float] | None, ga: LayerGrid) -> dict[str, float]:
     if soil_classes:
         return {str(k): float(getattr(v, "a_typical", v)) for k, v in soil_classes.items()}
     if store.soil_classes:
         return dict(store.soil_classes)
-    centres = natural_classes(a_values, 3)
+    # up to three classes, fewer where they lie within the spread of a's samples in one cell (the measured
+    # cells' median standard deviation): a field of one soil is one class, not three of its noise
+    sd = np.sqrt(ga.var[(ga.count >= 2) & np.isfinite(ga.var)])
+    centres = natural_classes(ga.mean, 3, spread=float(np.median(sd)) if sd.size else math.nan)
     return {f"a≈{c:.2f}": float(c) for c in centres}
 
 
@@ -220,7 +223,7 @@ def export_png(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os.Pat
     g = grids[layer]
     ga = grids["a"]
     raw = store.grid(layer, (int(round(g.x0 / g.res)), int(round(g.y0 / g.res)), g.shape[1], g.shape[0]))
-    classes = _soil_classes(store, soil_classes, ga.mean)
+    classes = _soil_classes(store, soil_classes, ga)
     cnames = list(classes)
     ca = np.array([classes[n] for n in cnames])
     h, w = g.shape
@@ -323,7 +326,7 @@ def export_geojson(store_or_dir: MapStore | os.PathLike[str] | str, out_path: os
     names = list(store.layers)
     grids, (col0, row0, cols, rows) = _grids(store, names, True, fill_kwargs)
     ga = grids["a"] if "a" in grids else grids[names[0]]
-    classes = _soil_classes(store, soil_classes, ga.mean)
+    classes = _soil_classes(store, soil_classes, ga)
     cnames = list(classes)
     ca = np.array([classes[n] for n in cnames])
     cls = classify_by_a(ga.mean, ca).astype(np.int32)

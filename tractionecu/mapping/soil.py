@@ -7,6 +7,7 @@ whose typical ``a`` [-] is nearest to the cell's ``a``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -45,16 +46,27 @@ def classify_by_a(a: ArrayLike, typical_a: ArrayLike) -> NDArray[np.int64]:
     return out
 
 
-def natural_classes(a: ArrayLike, k: int = 3, iterations: int = 50) -> NDArray[np.float64]:
-    """k class centres of ``a`` by 1-D k-means (deterministic, quantile start).
+def natural_classes(a: ArrayLike, k: int = 3, iterations: int = 50, spread: float = math.nan) -> NDArray[np.float64]:
+    """Up to k class centres of ``a`` by 1-D k-means (deterministic, quantile start).
 
-    Used by the exports when a map carries no soil classes.
+    Used by the exports when a map carries no soil classes.  ``spread``: the typical standard deviation of a's
+    samples within one cell; fewer classes are taken while two centres lie closer than twice it (a field of
+    one soil, whose cells differ by the estimate's noise alone, was cut into three classes: 678 zones).
     """
     v = np.asarray(a, dtype=np.float64)
     v = np.sort(v[np.isfinite(v)])
     if v.size == 0:
         return np.zeros(0)
     k = max(1, min(int(k), np.unique(v).size))
+    for kk in range(k, 0, -1):
+        c = _kmeans(v, kk, iterations)
+        if kk == 1 or not math.isfinite(spread) or np.min(np.diff(c)) >= 2.0 * spread:
+            return c
+    return c  # pragma: no cover - the loop returns at kk == 1
+
+
+def _kmeans(v: NDArray[np.float64], k: int, iterations: int) -> NDArray[np.float64]:
+    """k sorted centres of the sorted values ``v`` by 1-D k-means from the quantiles."""
     c = np.quantile(v, (np.arange(k) + 0.5) / k)
     for _ in range(iterations):
         lab = classify_by_a(v, c)
