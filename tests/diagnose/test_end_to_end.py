@@ -185,6 +185,8 @@ def test_real_engine_export_of_a_standing_machine_says_why_nothing_can_be_diagno
     assert "GNSS speed at most 0.92 m/s" in rep["statement"]
     assert all(not c["testable"] and c["reason"] for c in rep["candidates"])
     assert "does not drive" in (out / "report.md").read_text()
+    # the full analysis' keys, empty (a tool reading `effects` found none in an engine-level report)
+    assert rep["effects"] == [] and rep["steps"] == [] and rep["open_world"] is None
 
 
 def test_an_export_takes_the_reference_torque_the_vehicle_file_declares(tmp_path):

@@ -149,6 +149,7 @@ def test_reduced_diagnosis_names_a_zero_slip_offset_and_brings_a_into_range():
     assert 0.3 <= sm["a"]["value"] <= 1.1 and sm["a"]["ci95"][0] < a_true < sm["a"]["ci95"][1]
     assert any(e["name"] == "zero_slip_offset" and e["named"] for e in rep["effects"])
     assert "zero-slip" in rep["statement"].lower() or "zero_slip_offset" in rep["statement"]
+    assert rep["steps"] == [] and rep["open_world"] is None       # the full analysis' keys, empty
 
 
 def test_the_reports_tyre_note_gives_the_radius_the_data_measure_and_the_laws_ranges():

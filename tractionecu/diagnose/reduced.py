@@ -149,7 +149,8 @@ def diagnose_reduced(fr: Frame) -> dict:
                 "statement": f"Cannot diagnose: {reason}.", "candidates": cands, "parameters": {},
                 "parameters_of": None, "signals": {}, "slip_model": None,
                 "locate": {"lead_channel": None, "change_points": [], "regimes": [], "signature_correlation": {}},
-                "grade_check": {}, "notes": fr.notes, "detect_threshold": None}
+                "grade_check": {}, "notes": fr.notes, "detect_threshold": None,
+                "effects": [], "steps": [], "open_world": None}     # the full analysis' keys, empty
     t = fr.t[ok]
     vw = fr.v_wheel_bus[ok]
     vg = fr.v_gps[ok]
@@ -360,6 +361,7 @@ def diagnose_reduced(fr: Frame) -> dict:
                       "formula": "μ(s) = a g(s) (paper eq. 14)", "plain": "wheel slip under load",
                       "parameters": {"a": {"value": a_hat, "ci95": ci_a, "unit": "-"}}, "trades_off_with": []}]
                     if slip_found else []) + effects,
+        "steps": [], "open_world": None,        # no augmentation, no open world on engine-level signals
         "signals": signals,
         "locate": {"lead_channel": "ground_speed", "change_points": [], "regimes": [], "signature_correlation": corr},
         "grade_check": {}, "detect_threshold": DETECT_LLR, "notes": list(fr.notes) + [
