@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Iterable, Iterator, NamedTuple
+from typing import IO, Any, Iterable, Iterator, NamedTuple
 
 from ..counting import MAX_EXAMPLES, RejectCounter
 
@@ -184,6 +184,43 @@ def classify_unterminated(line: str) -> tuple[str | None, Frame | None]:
     return reason, frame
 
 
+class TimeRule:
+    """The time rule of a capture's frames in file order (module doc: ``time_backwards``, ``time_ahead``), one
+    for every reader: :meth:`push` a frame's key and time [s], get the decisions made now, in file order, as
+    ``(key, reason)`` with reason None for an accepted frame.  A frame stamped more than :data:`TIME_SPIKE_S`
+    after the last accepted one is held: its decision comes with the next frame's (``time_ahead`` when that
+    one is again more than that before it), or with :meth:`end` (accepted).  ``t_max`` is the last accepted
+    time, ``held`` the ``(key, time)`` held."""
+
+    def __init__(self) -> None:
+        self.t_max = -math.inf
+        self.held: tuple[Any, float] | None = None
+
+    def push(self, key: Any, t: float) -> list[tuple[Any, str | None]]:
+        out: list[tuple[Any, str | None]] = []
+        if self.held is not None:
+            hk, ht = self.held
+            self.held = None
+            if ht - t > TIME_SPIKE_S:
+                out.append((hk, "time_ahead"))
+            else:
+                self.t_max = ht
+                out.append((hk, None))
+        if t < self.t_max:
+            out.append((key, "time_backwards"))
+        elif t - self.t_max > TIME_SPIKE_S:
+            self.held = (key, t)
+        else:
+            self.t_max = t
+            out.append((key, None))
+        return out
+
+    def end(self) -> list[tuple[Any, str | None]]:
+        """The frame still held at the end (no frame came after it): accepted."""
+        held, self.held = self.held, None
+        return [] if held is None else [(held[0], None)]
+
+
 def iter_candump(
     lines: Iterable[str], stats: ReadStats | None = None, first_lineno: int = 1, file: bool = False
 ) -> Iterator[Frame]:
@@ -207,60 +244,37 @@ def iter_numbered(
     when it has none.
     """
     st = stats if stats is not None else ReadStats()
-    last_t = -math.inf
-    held: tuple[int, str, Frame] | None = None        # a frame stamped far ahead, until the next one
+    rule = TimeRule()
     for lineno, line in enumerate(lines, start=first_lineno):
         st.lines += 1
         if not line.strip():
             continue
         cut = file and not line.endswith("\n")
         reason, frame = classify_unterminated(line) if cut else _classify(line)
-        if reason is None and frame is not None and held is not None:
-            if held[2].t - frame.t > TIME_SPIKE_S:
-                st.reject("time_ahead", held[0], held[1])
-            else:
-                last_t = held[2].t
-                st.frames += 1
-                yield held[0], held[2]
-            held = None
-        if reason is None and frame is not None and frame.t < last_t:
-            reason = "time_backwards"
         if reason is not None:
             st.reject(reason, lineno, line)
             continue
         assert frame is not None
-        if frame.t - last_t > TIME_SPIKE_S:
-            held = (lineno, line, frame)
-            continue
-        last_t = frame.t
+        for (ln, text, fr), why in rule.push((lineno, line, frame), frame.t):
+            if why is None:
+                st.frames += 1
+                yield ln, fr
+            else:
+                st.reject(why, ln, text)
+    for (ln, _text, fr), _why in rule.end():
         st.frames += 1
-        yield lineno, frame
-    if held is not None:
-        st.frames += 1
-        yield held[0], held[2]
+        yield ln, fr
 
 
 def time_order(times: Iterable[float]) -> list[str | None]:
-    """:func:`iter_numbered`'s time rule over the times of frames in file order: for each, None (accepted),
+    """:class:`TimeRule` over the times of frames in file order: for each, None (accepted),
     ``time_backwards`` or ``time_ahead``."""
     out: list[str | None] = []
-    last_t = -math.inf
-    held, held_t = -1, 0.0                            # the frame held, if any: its position and time
+    rule = TimeRule()
     for k, t in enumerate(times):
-        if held >= 0:
-            if held_t - t > TIME_SPIKE_S:
-                out[held] = "time_ahead"
-            else:
-                last_t = held_t
-            held = -1
-        if t < last_t:
-            out.append("time_backwards")
-            continue
         out.append(None)
-        if t - last_t > TIME_SPIKE_S:
-            held, held_t = k, t
-            continue
-        last_t = t
+        for j, why in rule.push(k, t):
+            out[j] = why
     return out
 
 

@@ -54,7 +54,6 @@ dict — equals the per-frame reader's (:func:`.reference.read_can_per_frame`);
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import weakref
 from collections import Counter
@@ -65,7 +64,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..bus import j1939
-from ..bus.candump import TIME_SPIKE_S, ReadStats, _classify, classify_unterminated
+from ..bus.candump import TIME_SPIKE_S, ReadStats, TimeRule, _classify, classify_unterminated
 from ..bus.dbc import NETWORK_MANAGEMENT_PGNS, Codec
 from ..bus.transport import TRANSPORT_PGNS, Reassembler, message_id
 from ..errors import DecodeError, UnknownFrame
@@ -338,19 +337,20 @@ def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: Read
         order = np.argsort(idx, kind="stable")
         idx, t, cid, ext, dlc, pl = idx[order], t[order], cid[order], ext[order], dlc[order], pl[order]
     # time going backwards: earlier than the last accepted frame = the running maximum before it
-    prev = np.maximum.accumulate(np.concatenate([[state["t_max"]], t]))[:-1]
-    if state["held"] is not None or (t - prev > TIME_SPIKE_S).any():
-        # a frame stamped far ahead is held until the next one (candump.iter_candump): frame by frame
+    rule: TimeRule = state["rule"]
+    prev = np.maximum.accumulate(np.concatenate([[rule.t_max], t]))[:-1]
+    if rule.held is not None or (t - prev > TIME_SPIKE_S).any():
+        # a frame stamped far ahead is held until the next one (candump.TimeRule): frame by frame
         keep, back, ahead, held_in = _time_order(t, state)
         idx_abs = idx + (lineno0 + 1)
         if ahead is not None:                          # the frame held from the block before, out of line
             rs.reject("time_ahead", ahead[0], ahead[1])
         rejects += [(i, "time_backwards") for i in idx[back].tolist()]
         rejects += [(int(idx[j]), "time_ahead") for j in held_in]
-        if state["held"] is not None and state["held"][2] is None:     # held at this block's last frame
-            j = state["held"][0]
-            state["held"] = (int(idx_abs[j]), lines[int(idx[j])], (float(t[j]), int(cid[j]), bool(ext[j]),
-                                                                   int(dlc[j]), int(pl[j])))
+        if rule.held is not None and not isinstance(rule.held[0], tuple):    # held at this block's last frame
+            j, th = rule.held
+            rule.held = ((int(idx_abs[j]), lines[int(idx[j])], (float(t[j]), int(cid[j]), bool(ext[j]),
+                                                                int(dlc[j]), int(pl[j]))), th)
         cols = [a[keep] for a in (idx_abs, t, cid, ext, dlc, pl)]
         front = state.pop("front", None)               # the frame held from the block before, accepted
         if front is not None:
@@ -362,7 +362,7 @@ def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: Read
         return
     if t.size:
         back = t < prev
-        state["t_max"] = max(state["t_max"], float(t.max()))
+        rule.t_max = max(rule.t_max, float(t.max()))
         if back.any():
             rejects += [(i, "time_backwards") for i in idx[back].tolist()]
             keep = ~back
@@ -374,57 +374,39 @@ def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: Read
 
 
 def _time_order(t: np.ndarray, state: dict):
-    """:func:`.candump.iter_candump`'s time rule over one block's frames ``t`` (in line order), frame by frame:
-    (kept mask, time_backwards mask, the frame held from the block before when it was out of line (its line
-    number and text), the block's positions found out of line).  ``state``: ``t_max`` the last accepted time,
-    ``held`` the frame held, ``(line number, text, (t, id, ext, dlc, payload))`` from the block before or
-    ``(position, None, None)`` for one of this block (left so for the caller when it is the block's last);
-    a frame held from the block before and accepted is left in ``state["front"]``."""
-    n = t.size
-    keep = np.zeros(n, dtype=bool)
-    back = np.zeros(n, dtype=bool)
+    """The capture's :class:`~.candump.TimeRule` (``state["rule"]``) over one block's frames ``t`` (in line
+    order): (kept mask, time_backwards mask, the frame held from the block before when it was out of line (its
+    line number and text), the block's positions found out of line).  The rule's keys are a frame's position in
+    the block, or ``(line number, text, (t, id, ext, dlc, payload))`` for one held from the block before; such a
+    frame accepted is left in ``state["front"]``."""
+    keep = np.zeros(t.size, dtype=bool)
+    back = np.zeros(t.size, dtype=bool)
     ahead = None
     held_in: list[int] = []
-    t_max = state["t_max"]
-    held = state["held"]
+    rule: TimeRule = state["rule"]
     for j, tj in enumerate(t.tolist()):
-        if held is not None:
-            th = held[2][0] if held[2] is not None else float(t[held[0]])
-            if th - tj > TIME_SPIKE_S:
-                if held[2] is None:
-                    held_in.append(held[0])
+        for key, why in rule.push(j, tj):
+            if isinstance(key, tuple):                  # the frame held from the block before
+                if why is None:
+                    state["front"] = (key[0], *key[2])
                 else:
-                    ahead = (held[0], held[1])
+                    ahead = (key[0], key[1])
+            elif why is None:
+                keep[key] = True
+            elif why == "time_backwards":
+                back[key] = True
             else:
-                t_max = th
-                if held[2] is None:
-                    keep[held[0]] = True
-                else:
-                    state["front"] = (held[0], *held[2])
-            held = None
-        if tj < t_max:
-            back[j] = True
-            continue
-        if tj - t_max > TIME_SPIKE_S:
-            held = (j, None, None)
-            continue
-        t_max = tj
-        keep[j] = True
-    state["t_max"] = t_max
-    state["held"] = held
+                held_in.append(key)
     return keep, back, ahead, held_in
 
 
 def _held_table(state: dict, rs: ReadStats) -> "FrameTable | None":
     """The frame still held at the end of the file (accepted: no frame came after it), as a table."""
-    held = state["held"]
-    if held is None:
-        return None
-    state["held"] = None
-    rs.frames += 1
-    t, cid, ext, dlc, pl = held[2]
-    return FrameTable(np.asarray([held[0]], dtype=np.int64), np.asarray([t]), np.asarray([cid], dtype=np.int64),
-                      np.asarray([ext]), np.asarray([dlc], dtype=np.int64), np.asarray([pl], dtype=np.uint64))
+    for (lineno, _text, (t, cid, ext, dlc, pl)), _why in state["rule"].end():
+        rs.frames += 1
+        return FrameTable(np.asarray([lineno], dtype=np.int64), np.asarray([t]), np.asarray([cid], dtype=np.int64),
+                          np.asarray([ext]), np.asarray([dlc], dtype=np.int64), np.asarray([pl], dtype=np.uint64))
+    return None
 
 
 def empty_table() -> FrameTable:
@@ -437,7 +419,7 @@ def iter_candump_tables(path: str | Path, rs: ReadStats, chunk_chars: int = CHUN
     """The accepted frames of a candump file, one :class:`FrameTable` per block of about ``chunk_chars``
     characters (whole lines), in file order; counted in ``rs`` as by :func:`scan_candump`.  Memory is that
     of one block, whatever the file's length.  OSError propagates."""
-    state: dict = {"t_max": -math.inf, "held": None}
+    state: dict = {"rule": TimeRule()}
     lineno0 = 0
     carry: list[str] = []                  # the text after the last line break, in pieces (a long line
     parts: list = []                       # is joined once, not once per block)
