@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -71,3 +74,30 @@ def make_recording(tmp_path_factory: pytest.TempPathFactory):
 def short_recording(make_recording) -> Path:
     """A 12 s ``paper-straight`` recording: acceleration, then steady work on the first soil."""
     return make_recording("paper-straight", 3, SHORT_S)
+
+
+_HOLD_LOCK = """
+import sys
+from tractionecu.mapping.tiles import lock_directory
+lock = lock_directory(sys.argv[1], "busy")
+print("locked", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.fixture
+def locked_elsewhere():
+    """``with locked_elsewhere(directory):`` another process holds ``directory``'s lock
+    (:func:`tractionecu.mapping.tiles.lock_directory`: a replay's output, a fleet's OUT, a TASKDATA directory,
+    the service's state directory) until the block ends; the lock goes with that process."""
+    @contextmanager
+    def hold(directory):
+        holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(directory)], stdin=subprocess.PIPE,
+                                  stdout=subprocess.PIPE, text=True)
+        try:
+            assert holder.stdout.readline().strip() == "locked"
+            yield
+        finally:
+            holder.communicate("", timeout=30)
+
+    return hold

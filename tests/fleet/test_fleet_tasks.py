@@ -209,33 +209,16 @@ def test_a_copy_of_a_recording_counts_once(tmp_path: Path, short_recordings: dic
     assert int(farm.grid("a", farm.extent()).count.sum()) == int((samples["accepted"] & samples["a"].notna()).sum())
 
 
-_HOLD_LOCK = """
-import sys
-from tractionecu.mapping.tiles import lock_directory
-lock = lock_directory(sys.argv[1], "busy")
-print("locked", flush=True)
-sys.stdin.read()
-"""
-
-
-def test_a_second_fleet_run_on_one_out_is_refused(tmp_path: Path, fleet_tree: Path, capsys) -> None:
+def test_a_second_fleet_run_on_one_out_is_refused(tmp_path: Path, fleet_tree: Path, capsys, locked_elsewhere) -> None:
     """Two ``fleet map`` runs on one OUT removed each other's task directories, Parquet files and farm map as
     they went: both exited 5 (a recording each 'failed': its estimates.csv gone from under its replay), the
     estimates and map samples tables were left with no row and the farm map with one recording of two.  A run
     now holds OUT's lock: a second one, while another process holds it, is refused by name and writes nothing."""
-    import subprocess
-    import sys
-
     from tractionecu.cli.main import main
 
     out = tmp_path / "out"
     out.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(out)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "locked"
+    with locked_elsewhere(out):
         assert main(["fleet", "map", str(fleet_tree), "--out", str(out), "--workers", "0", "--no-progress"]) == 1
         assert "another fleet run is writing into this directory" in capsys.readouterr().err
         assert list(out.iterdir()) == []
-    finally:
-        holder.communicate("", timeout=30)

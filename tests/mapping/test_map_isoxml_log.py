@@ -213,23 +213,12 @@ def test_a_farm_map_of_two_machines_at_the_same_times_logs_each_ones_values(tmp_
     assert np.allclose(got_a[first], 0.6, atol=1e-3) and np.allclose(got_a[~first], 0.9, atol=1e-3)
 
 
-_HOLD_LOCK = """
-import sys
-from tractionecu.mapping.tiles import lock_directory
-lock = lock_directory(sys.argv[1], "busy")
-print("locked", flush=True)
-sys.stdin.read()
-"""
-
-
-def test_an_export_waits_for_another_writing_the_same_taskdata(logged_map, tmp_path, monkeypatch):
+def test_an_export_waits_for_another_writing_the_same_taskdata(logged_map, tmp_path, monkeypatch, locked_elsewhere):
     """Two exports into one TASKDATA directory (the default ``DIR/export/TASKDATA`` of one map, exported twice at
     once while the service writes it) interleaved their files: one's TASKDATA.XML named time logs of the length
     of the other's, or a TLG00002 the other had removed as an earlier export's (1 of 20 pairs of exports).  An
     export now writes its files under the directory's lock: while another process holds it, nothing is
     written; the export goes on once it is released, or after a wait is refused by name."""
-    import subprocess
-    import sys
     import threading
 
     from tractionecu.mapping import iso11783
@@ -238,10 +227,7 @@ def test_an_export_waits_for_another_writing_the_same_taskdata(logged_map, tmp_p
     d = logged_map[0]
     out = tmp_path / "TASKDATA"
     out.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(out)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "locked"
+    with locked_elsewhere(out):
         monkeypatch.setattr(iso11783, "EXPORT_LOCK_WAIT_S", 0.2)
         with pytest.raises(MapStoreError, match="another export is writing into this directory"):
             export_isoxml(d, out)
@@ -252,7 +238,5 @@ def test_an_export_waits_for_another_writing_the_same_taskdata(logged_map, tmp_p
         th.start()
         th.join(0.5)
         assert th.is_alive() and list(out.iterdir()) == []      # waiting, nothing written
-    finally:
-        holder.communicate("", timeout=30)
     th.join(30)
     assert done and {p.name for p in out.iterdir()} == {"TASKDATA.XML", "TLG00001.XML", "TLG00001.BIN"}

@@ -224,37 +224,20 @@ def test_a_long_recording_replays_within_a_memory_limit(rec, tmp_path):
     assert n == pytest.approx(length * 100, rel=0.01)
 
 
-_HOLD_LOCK = """
-import sys
-from tractionecu.mapping.tiles import lock_directory
-lock = lock_directory(sys.argv[1], "busy")
-print("locked", flush=True)
-sys.stdin.read()
-"""
-
-
-def test_a_replay_into_a_directory_another_replay_writes_is_refused(short_recording, tmp_path):
+def test_a_replay_into_a_directory_another_replay_writes_is_refused(short_recording, tmp_path, locked_elsewhere):
     """Two replays into one directory both wrote ``estimates.csv.partial``: the second truncated the first's, which
     went on writing at its offset and moved a file with a hole of NUL bytes over ``estimates.csv`` (exit 0);
     the second then failed on the rename.  A replay now holds its output directory's lock while it runs: a
     second one, in another process, is refused by name and the estimates written before are left whole."""
-    import subprocess
-    import sys
-
     from tractionecu.mapping.tiles import MapStoreError
 
     run = tmp_path / "run"
     replay_to_dir(short_recording, run, write_map=False)
     before = (run / "estimates.csv").read_bytes()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(run)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "locked"
+    with locked_elsewhere(run):
         with pytest.raises(MapStoreError, match="another replay is writing into this directory"):
             replay_to_dir(short_recording, run, write_map=False)
         assert main(["replay", str(short_recording), "--out", str(run), "--no-map"]) == 1
-    finally:
-        holder.communicate("", timeout=30)
     assert (run / "estimates.csv").read_bytes() == before
     assert sorted(p.name for p in run.iterdir()) == ["config.toml", "estimates.csv"]
     replay_to_dir(short_recording, run, write_map=False)      # the lock goes with the process that held it

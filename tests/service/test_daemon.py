@@ -416,35 +416,20 @@ def test_broadcast_values_clipped_to_the_dbc_range_are_in_the_counters(tmp_path:
     assert svc.counters()["broadcast_clipped"] == {"SoilRollingResistance": 1}
 
 
-_HOLD_STATE = """
-import sys
-from pathlib import Path
-from tractionecu.service.daemon import hold_state_dir
-hold_state_dir(Path(sys.argv[1]))
-print("locked", flush=True)
-sys.stdin.read()
-"""
-
-
-def test_a_second_service_on_a_state_directory_is_refused_at_its_start(tmp_path: Path, capsys) -> None:
+def test_a_second_service_on_a_state_directory_is_refused_at_its_start(tmp_path: Path, capsys,
+                                                                          locked_elsewhere) -> None:
     """A second service on one state directory (a second instance of the unit, ``run --simulate`` twice) was
     refused only when it came to open the map: one started before the map existed ran on beside the first,
     retrying the map for as long as it ran, and a second ``run --simulate`` first wrote its simulation over the
     one the first was playing (which lost half its frames).  The state directory is now locked by the service
     from its start, and by ``run --simulate`` from before it writes the simulation: the second one is refused
     by name and writes nothing there."""
-    import subprocess
-    import sys
-
     from tractionecu.cli.main import main
     from tractionecu.mapping.tiles import MapStoreError
 
     state = tmp_path / "state"
     state.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", _HOLD_STATE, str(state)], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, text=True)
-    try:
-        assert holder.stdout.readline().strip() == "locked"
+    with locked_elsewhere(state):
         cfg = with_overrides(ServiceConfig(), gps={"source": "none"}, service={"state_dir": str(state)},
                              can={"interface": "virtual", "channel": f"svc-{uuid.uuid4().hex[:8]}"})
         with pytest.raises(MapStoreError, match="another tractionecu service runs on this state directory"):
@@ -452,8 +437,6 @@ def test_a_second_service_on_a_state_directory_is_refused_at_its_start(tmp_path:
         assert main(["run", "--simulate", "--duration", "5", "--no-web", "--state-dir", str(state)]) == 1
         assert "another tractionecu service runs on this state directory" in capsys.readouterr().err
         assert list(state.iterdir()) == []                 # no run-config.toml, no simulation, no map
-    finally:
-        holder.communicate("", timeout=30)
     svc = Service(cfg, env={}, warm_up_estimator=False)
     svc._write_state()                                     # the lock went with the process that held it
     assert (state / "run-config.toml").is_file()
