@@ -143,6 +143,9 @@ class Advisor:
                  front_fraction: float = 0.4, wheelbase_m: float = 2.5, hitch_height_m: float = 0.5,
                  wheel_power_w: float = math.nan) -> None:
         self.s = self.declared = settings or AdviceSettings()
+        # an MFWD whose front drive is off is advised as a two-wheel drive (:meth:`update`)
+        self._front_off = (replace(self.declared, axle_type="2wd") if self.declared.axle_type == "mfwd"
+                           else self.declared)
         if self.s.axle_type not in SLIP_BANDS:
             raise ValueError(f"axle type {self.s.axle_type!r}: not one of {', '.join(SLIP_BANDS)}")
         self.weight_n = weight_n
@@ -174,8 +177,7 @@ class Advisor:
         ``front_driven`` False (an MFWD's front drive disengaged, as the machine-level estimator finds it): the
         tractor pulls as a two-wheel drive, and is advised as one (its slip band, the rear axle's weight, the
         ballast on the rear axle) while it does."""
-        self.s = (self.declared if front_driven or self.declared.axle_type != "mfwd"
-                  else replace(self.declared, axle_type="2wd"))
+        self.s = self.declared if front_driven else self._front_off
         t = rep.t
         dt = 0.0 if self._t is None or not math.isfinite(t) else min(max(t - self._t, 0.0), 1.0)
         self._t = t
