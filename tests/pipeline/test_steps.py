@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from tractionecu.estimation.estimator import Estimator
+from tractionecu.estimation.smoother import FixedLagSmoother
 from tractionecu.gnss.nmea import checksum
 from tractionecu.pipeline.gnss import GnssGate
 from tractionecu.pipeline.replay import machine_of, recording_grid, replay
@@ -65,6 +66,7 @@ def _daemon_estimates(rec, nmea_lines: list[tuple[float, str]], grid, gate: Gnss
     """Estimates of the daemon's incremental path (module doc) over ``grid``."""
     vehicle, sensors = machine_of(rec)
     est = Estimator(vehicle, sensors=sensors)
+    smoother = FixedLagSmoother.from_config(est.cfg)      # the service's loop delivers through it, as replay
     asm = StepAssembler()
     stream = NmeaStream(GpsConfig(), lambda s: asm.push_speed(s.t, s.speed_mps, s.course_deg)
                         if s.speed_mps is not None else None, gate)
@@ -82,7 +84,8 @@ def _daemon_estimates(rec, nmea_lines: list[tuple[float, str]], grid, gate: Gnss
                 stream.feed((payload + "\r\n").encode("ascii"), t_ev)  # type: ignore[operator]
             j += 1
         inputs, meas = asm.take(t)
-        out.append(est.step(t, inputs, meas))
+        out.extend(smoother.push(est.step(t, inputs, meas)))
+    out.extend(smoother.flush())
     return out, asm, stream
 
 

@@ -16,7 +16,11 @@ in one call each.  They compute the same quantities as the numpy code in
   function its ``step`` calls) in one call, used when the filter's process
   model is ``FilterModel.step``;
 * :func:`update_block` — the closed-form update of a contiguous block of
-  states with a diagonal R, per-component NIS gate and bounds.
+  states with a diagonal R, per-component NIS gate and bounds;
+* :func:`cross_gain`, :func:`predict_model_gain`, :func:`gain_compose` — the
+  prediction's smoother gain G = C P⁻¹, C the cross-covariance of the state
+  before and after the prediction (Särkkä 2008, the unscented RTS smoother),
+  for the fixed-lag smoother (:mod:`.smoother`).
 
 and, for the estimator's bookkeeping around the filter (the same operations
 as the numpy code they replace, which stays the fallback; bit for bit, see
@@ -105,6 +109,78 @@ def mean_cov(sf, Wm, Wc, Q, x, P):                     # pragma: no cover - comp
     return finite
 
 
+def cross_gain(sig, sf, Wc, x0, x1, P1, G):              # pragma: no cover - compiled
+    """The unscented RTS smoother's gain of one prediction into G (n, n); False if P1 is not positive definite.
+
+    sig (2n+1, n): the sigma points of the state before the prediction (mean x0); sf: the same points
+    propagated (mean x1, covariance P1 with the process noise).  C = Σ W_c (χ − x0)(χ_f − x1)ᵀ (the
+    cross-covariance), G = C P1⁻¹ from P1's Cholesky factor (Särkkä 2008, "Unscented Rauch–Tung–Striebel
+    smoother", IEEE TAC 53(3), eq. 13)."""
+    npt, n = sf.shape
+    C = np.zeros((n, n))
+    for i in range(npt):
+        w = Wc[i]
+        for a in range(n):
+            da = w * (sig[i, a] - x0[a])
+            if da == 0.0:
+                continue
+            for b in range(n):
+                C[a, b] += da * (sf[i, b] - x1[b])
+    L = np.zeros((n, n))
+    for j in range(n):
+        s = P1[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:              # also NaN
+            return False
+        d = math.sqrt(s)
+        L[j, j] = d
+        for i in range(j + 1, n):
+            t = P1[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / d
+    # G P1 = C, i.e. P1 Gᵀ = Cᵀ: row a of G solves L Lᵀ g = C[a]
+    y = np.empty(n)
+    for a in range(n):
+        for i in range(n):
+            t = C[a, i]
+            for k in range(i):
+                t -= L[i, k] * y[k]
+            y[i] = t / L[i, i]
+        for i in range(n - 1, -1, -1):
+            t = y[i]
+            for k in range(i + 1, n):
+                t -= L[k, i] * G[a, k]
+            G[a, i] = t / L[i, i]
+    for a in range(n):
+        for b in range(n):
+            if not math.isfinite(G[a, b]):
+                return False
+    return True
+
+
+def gain_compose(G, Gs, first):                             # pragma: no cover - compiled
+    """G ← Gs when ``first``, else G ← G Gs: the gain over the sub-steps of one step (no update between them,
+    so the smoother passes each in turn: x̂ₖ = xₖ + G₁(x̂ₘ − x⁻ₘ), x̂ₘ = x⁻ₘ + G₂(x̂ₖ₊₁ − x⁻ₖ₊₁))."""
+    n = G.shape[0]
+    if first:
+        for a in range(n):
+            for b in range(n):
+                G[a, b] = Gs[a, b]
+        return
+    T = np.empty((n, n))
+    for a in range(n):
+        for b in range(n):
+            s = 0.0
+            for k in range(n):
+                s += G[a, k] * Gs[k, b]
+            T[a, b] = s
+    for a in range(n):
+        for b in range(n):
+            G[a, b] = T[a, b]
+
+
 def _model_tag() -> int:
     """A number that changes with the source of FilterModel's compiled RK4 (and its helpers).
 
@@ -140,6 +216,27 @@ def _make_predict_model(tag: int):
         return 0
 
     return predict_model
+
+
+def _make_predict_model_gain(tag: int):
+    def predict_model_gain(x, P, u, dt, Q, w, kc, sig, xo, Po, G):  # pragma: no cover - compiled
+        """predict_model, and the prediction's smoother gain into G (:func:`cross_gain`).
+
+        Returns predict_model's code, or 3 when the prediction is done but its gain is not (P⁻ not positive
+        definite or the gain not finite: the smoother's chain breaks there)."""
+        if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
+            return 4
+        npt = sig.shape[0]
+        if not sigma_points(x, P, w[0], sig):
+            return 1
+        sf = _rk4_points(sig, u, kc, dt)
+        if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
+            return 2
+        if not cross_gain(sig, sf, w[1 + npt:1 + 2 * npt], x, xo, Po, G):
+            return 3
+        return 0
+
+    return predict_model_gain
 
 
 def update_block(x, P, z, R, i0, gate, lo, hi, xn, Pn, work, small):  # pragma: no cover - compiled
@@ -505,6 +602,9 @@ _rk4_points = _vehicle._rk4_points
 sigma_points = compiled(sigma_points)
 mean_cov = compiled(mean_cov)
 predict_model = compiled(_make_predict_model(_model_tag()))
+cross_gain = compiled(cross_gain)
+gain_compose = compiled(gain_compose)
+predict_model_gain = compiled(_make_predict_model_gain(_model_tag()))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
 add_kappa_noise = compiled(add_kappa_noise)
@@ -544,6 +644,11 @@ def warm_up() -> None:
     w = np.full(1 + 2 * (2 * n + 1), 0.05)
     sig = np.empty((2 * n + 1, n))
     predict_model(x, P, u, 0.01, P, w, kc, sig, np.empty(n), np.empty((n, n)))
+    G = np.empty((n, n))
+    predict_model_gain(x, P, u, 0.01, P, w, kc, sig, np.empty(n), np.empty((n, n)), G)
+    cross_gain(sig, sig, w[22:], x, x, P, G)
+    gain_compose(G, P, True)
+    gain_compose(G, P, False)
     _rk4_points(sig, u, kc, 0.01)
     _rk4_points(sig[:1].copy(), u, kc, 0.01)
     sigma_points(x, P, 1.0, sig)

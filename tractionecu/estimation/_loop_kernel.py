@@ -101,6 +101,10 @@ OUT_T, OUT_MU, OUT_RHO, OUT_SLIP, OUT_V, OUT_OM, OUT_P, OUT_NIS, OUT_ADAPT, OUT_
     OUT_LOST, OUT_SIGMU, OUT_SIGRHO, OUT_RAD, OUT_CS, OUT_HASX, OUT_HASSYS = (0, 1, 5, 6, 10, 11, 15, 25, 26, 27,
                                                                           28, 29, 30, 31, 35, 36, 42, 43, 44)
 N_OUT = 45
+# the fixed-lag smoother's transition of each step (Estimate.transition, .smoother), only with smoothing on:
+# link, x⁺ (10), x⁻ (10), G (100)
+OUT_SM_LINK, OUT_SM_XF, OUT_SM_XP, OUT_SM_G = 45, 46, 56, 66
+N_OUT_SM = 166
 
 # ----------------------------------------------------------------------------- layout of F and I
 F_NAMES = (
@@ -150,6 +154,9 @@ F_NAMES = (
     # the radius calibration's screen (RadiusCalibration._sample_ok): min_speed, max_accel, max_turn_rel, max_mu;
     # its state as of the last epoch screened here: _period, _t_last, rejections not yet added to its count
     ("c_cal", 4), ("cal", 3),
+    # the fixed-lag smoother (Estimate.transition): this step's gain over its sub-steps, a sub-step's gain, the
+    # last estimate's x⁺, this step's prior x⁻
+    ("sm_g", 100), ("sm_gs", 100), ("sm_xf", 10), ("sm_xp", 10),
 )
 I_NAMES = (
     ("stage", 1), ("k", 1), ("status", 1), ("predict_only", 1), ("has_om", 1), ("om_fin", 1), ("has_vmeas", 1),
@@ -166,6 +173,9 @@ I_NAMES = (
     # the curve update compiled (_curve_kernel.ce_update, in the loop: 1) or in Python (0); with the shape
     # identification; the kernel's code when it returns EV_CURVEJ; the current shape-information snapshot
     ("curve_jit", 1), ("curve_shape", 1), ("curve_r", 1), ("curve_info", 1),
+    # the fixed-lag smoother: on (EstimatorConfig.smoother_lag_s > 0); this step's prediction links to the last
+    # estimate; the last estimate had a filter (sm_xf holds its x⁺)
+    ("sm_on", 1), ("sm_link", 1), ("sm_has", 1),
 )
 COUNTERS = ("steps", "updates", "gated", "rejected_inputs", "rejected_measurements", "chol_repairs", "resets",
             "gap_resets", "lost")
@@ -235,6 +245,7 @@ F_L_T: int; F_L_VMEAS: int; F_L_VWHEEL: int; F_L_DT: int; F_L_H: int; F_L_OLD_MD
 F_L_TOLD_MD: int; F_L_OLD_FDX: int; F_L_TOLD_FDX: int; F_L_ROM: int; F_L_WL: int; F_L_Z: int; F_L_R: int  # noqa: E702
 F_L_BUF: int; F_L_V: int; F_L_SINCE: int; F_L_S: int; F_L_RHO: int; F_L_SIG_MU: int; F_L_SIG_S: int  # noqa: E702
 F_C_TRACK: int; F_L_LOAD: int; F_C_CAL: int; F_CAL: int  # noqa: E702
+F_SM_G: int; F_SM_GS: int; F_SM_XF: int; F_SM_XP: int; I_SM_ON: int; I_SM_LINK: int; I_SM_HAS: int  # noqa: E702
 I_STAGE: int; I_K: int; I_STATUS: int; I_PREDICT_ONLY: int; I_HAS_OM: int; I_OM_FIN: int  # noqa: E702
 I_HAS_VMEAS: int; I_UPDATED: int; I_WHEEL_OUT: int; I_GROUND_OUT: int; I_N_SUB: int; I_SUB: int  # noqa: E702
 I_FOH_MD: int; I_FOH_FDX: int; I_UKF: int; I_LOST: int; I_CONV: int; I_HAS_HELD: int; I_WIN_N: int  # noqa: E702
@@ -759,16 +770,36 @@ def _mk_stage_predict(tag):
         xn = F[F_XN:F_XN + 10]
         Pn = F[F_PN:F_PN + 100].reshape((10, 10))
         sig = F[F_SIG:F_SIG + 210].reshape((21, 10))
+        sm = I[I_SM_ON] != 0
+        if sm and I[I_SUB] == 0:
+            # the smoother's link (Estimator.step): the prediction starts from the last estimate's x⁺
+            link = I[I_SM_HAS] != 0
+            for j in range(10):
+                if not x[j] == F[F_SM_XF + j]:
+                    link = False
+            I[I_SM_LINK] = 1 if link else 0
+        G = F[F_SM_G:F_SM_G + 100].reshape((10, 10))
+        Gs = F[F_SM_GS:F_SM_GS + 100].reshape((10, 10))
         while I[I_SUB] < n_sub:
             Q = _make_Q(F, I, h)
             I[I_REPAIRED_LAST] = 0
-            code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43], F[F_C_KC:F_C_KC + 18],
-                                          sig, xn, Pn)
+            if sm:
+                code = _kernels.predict_model_gain(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43],
+                                                   F[F_C_KC:F_C_KC + 18], sig, xn, Pn, Gs)
+                if code == 3:              # predicted, without its gain: the chain breaks here
+                    I[I_SM_LINK] = 0
+                    code = 0
+                elif code == 0 and I[I_SM_LINK] != 0:
+                    _kernels.gain_compose(G, Gs, I[I_SUB] == 0)
+            else:
+                code = _kernels.predict_model(x, P, F[F_U:F_U + 7], h, Q, F[F_C_W:F_C_W + 43],
+                                              F[F_C_KC:F_C_KC + 18], sig, xn, Pn)
             if code == 0:
                 x[:] = xn
                 P[:, :] = Pn
                 I[I_SUB] += 1
                 continue
+            I[I_SM_LINK] = 0
             if code == 1:
                 return EV_PREDICT          # the driver predicts this sub-step on the Python filter (its repair)
             return EV_RECOVER
@@ -830,6 +861,9 @@ def _stage_after_predict(F, I):                                           # prag
     if I[I_UKF] and (I[I_FOH_MD] or I[I_FOH_FDX]):
         _foh(F, I, t, F[F_T])
     F[F_T] = t
+    if I[I_SM_LINK]:
+        for j in range(10):
+            F[F_SM_XP + j] = F[F_X + j]
     return ST_UPDATE
 
 
@@ -1532,6 +1566,17 @@ def _stage_estimate3(F, I, OUT, k):                                       # prag
     row[OUT_CS] = I[I_CS_VER]
     row[OUT_HASX] = 1.0
     row[OUT_HASSYS] = 1.0 if has_sys else 0.0
+    if I[I_SM_ON]:
+        link = I[I_SM_LINK] != 0
+        row[OUT_SM_LINK] = 1.0 if link else 0.0
+        for j in range(10):
+            xj = F[F_X + j]
+            row[OUT_SM_XF + j] = xj
+            F[F_SM_XF + j] = xj
+            row[OUT_SM_XP + j] = F[F_SM_XP + j] if link else math.nan
+        for j in range(100):
+            row[OUT_SM_G + j] = F[F_SM_G + j] if link else math.nan
+        I[I_SM_HAS] = 1
     if I[I_F_CAL] and I[I_HAS_VMEAS] and I[I_HAS_OM]:
         if I[I_CAL_OPEN] == 0 and _cal_rejects(F, row):
             # RadiusCalibration.push of an epoch it rejects while no block is open: the epoch period's
@@ -1563,6 +1608,7 @@ def _stage_none(F, I, OUT, k):                                            # prag
     if I[I_WIN_N]:
         _win_reset(I)
     status |= NOT_CONVERGED
+    I[I_SM_HAS] = 0
     row = OUT[k]
     row[:] = math.nan
     row[OUT_T] = F[F_L_T]
@@ -1594,6 +1640,7 @@ def _mkrun(tag):
             st = I[I_STAGE]
             if st == ST_BEGIN:
                 F[F_L_SINCE] = math.nan
+                I[I_SM_LINK] = 0
                 nxt = _stage_begin(F, I, RB, IN, k)
                 if nxt == EV_INIT:
                     I[I_STAGE] = ST_AFTER_INIT

@@ -266,6 +266,8 @@ class CompiledLoop:
         I[io["f_adapt"]] = bool(cfg.adaptation)
         I[io["f_input_noise"]] = bool(cfg.input_noise)
         I[io["f_sup"]] = bool(cfg.supervisor)
+        I[io["sm_on"]] = bool(est._smooth)          # each row carries its transition (Estimate.transition)
+        self._n_out = K.N_OUT_SM if est._smooth else K.N_OUT
         # the systematic uncertainty compiled, or (with a pull-angle tolerance: math.hypot) in Python
         I[io["f_unc"]] = 0 if unc is None else (2 if unc.u_tan != 0.0 else 1)
         from .supervisor import RULES
@@ -389,6 +391,22 @@ class CompiledLoop:
             for col, x in ((K.OUT_RHO, e.rho_s), (K.OUT_V, e.v), (K.OUT_ADAPT, e.adapt)):
                 if not (row[col] == x or (math.isnan(row[col]) and math.isnan(x))):
                     worst = max(worst, abs(float(row[col]) - float(x)))
+            if loop._n_out == K.N_OUT_SM:      # the smoother's transitions
+                tr = e.transition
+                link = row[K.OUT_SM_LINK]
+                if tr is None:
+                    if link == link:
+                        worst = math.inf
+                    continue
+                if link != (1.0 if tr[0] else 0.0):
+                    worst = math.inf
+                    break
+                parts = [(K.OUT_SM_XF, tr[1])]
+                if tr[0]:
+                    parts += [(K.OUT_SM_XP, tr[2]), (K.OUT_SM_G, tr[3].ravel())]
+                for col, val in parts:
+                    d = np.abs(row[col:col + val.size] - val)
+                    worst = max(worst, float(d.max()) if np.isfinite(d).all() else math.inf)
         res = (worst <= tol, worst)
         _CHECKED[key] = res
         return res
@@ -398,7 +416,7 @@ class CompiledLoop:
         """Step every row of ``IN`` (:meth:`block_inputs`); the estimates (n, N_OUT)."""
         K = self.K
         n = IN.shape[0]
-        OUT = np.empty((n, K.N_OUT))
+        OUT = np.empty((n, self._n_out))
         I = self.I
         I[K.I_K] = 0
         I[K.I_STAGE] = K.ST_BEGIN
@@ -470,6 +488,11 @@ class CompiledLoop:
         arr["soil_class"] = names[inv].tolist()
         arr["curve_key"] = key
         arr["lost_since"] = OUT[:, K.OUT_LOST]
+        if self._n_out == K.N_OUT_SM:          # the transitions, for the fixed-lag smoother (.smoother)
+            arr["sm_link"] = OUT[:, K.OUT_SM_LINK] == 1.0
+            arr["sm_xf"] = OUT[:, K.OUT_SM_XF:K.OUT_SM_XF + 10]
+            arr["sm_xp"] = OUT[:, K.OUT_SM_XP:K.OUT_SM_XP + 10]
+            arr["sm_G"] = OUT[:, K.OUT_SM_G:K.OUT_SM_G + 100].reshape(n, 10, 10)
         return arr
 
     def resolve_curves(self, arr: dict[str, Any]) -> dict[str, Any]:

@@ -125,6 +125,10 @@ class EstimatorConfig:
                                               "innovation statistics that estimate the mode's variance in the "
                                               "wheel-speed samples, which R_ω then takes in (Estimator._ring_noise; "
                                               "0: off) [s]", 0.0, 600.0)
+    smoother_lag_s: float = setting(0.05, "fixed-lag smoothing of the reported μ and ρ_s (estimation/smoother.py): each "
+                                          "estimate is revised by the steps up to this much later (unscented RTS) "
+                                          "and delivered that much later; 0: the filter's own estimates at once [s]",
+                                    0.0, 1.0)
     # reported uncertainty (estimation/uncertainty.py)
     systematic_uncertainty: bool = setting(True, "add the sensor tolerances (SensorSpec *_tol_*) to the reported σ of "
                                                  "μ and ρ_s and the GNSS latency bound to the GNSS speed noise")

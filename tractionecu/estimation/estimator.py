@@ -165,7 +165,8 @@ def status_names(status: int) -> list[str]:
 class Estimate:
     """One estimator output (docs/architecture.md).
 
-    Read-only by contract: consumers never change it.  It is not a frozen
+    Read-only by contract: consumers never change it (the fixed-lag smoother, the estimator's last stage,
+    revises ``mu`` and ``rho_s`` before it delivers it, :mod:`.smoother`).  It is not a frozen
     dataclass because a frozen one costs 1.2 µs more to build (one
     ``object.__setattr__`` per field), at 100 Hz on the estimator's path, and
     its arrays were never frozen anyway.
@@ -219,6 +220,11 @@ class Estimate:
     kappa: float = 0.0
     """Path curvature of the rear-axle centre used as the filter's input [1/m], positive in a left turn
     (:mod:`.kinematics`); 0 when not known."""
+    transition: Any = None
+    """For the fixed-lag smoother (:mod:`.smoother`, ``EstimatorConfig.smoother_lag_s`` > 0), on a step with a
+    filter: (link, x⁺, x⁻, G): whether this step's prediction started from the previous estimate's x⁺ and has
+    its gain, the state after this step's update x⁺, the prior x⁻ it was updated from and the prediction's
+    gain G (None without link).  The smoother drops it when it delivers the estimate; None otherwise."""
 
     @property
     def sigma_mu(self) -> NDArray[np.float64]:
@@ -354,6 +360,7 @@ class Estimator:
         self._ones4 = np.ones(4)
         self._monitor = DivergenceMonitor(cfg.lost_after_s, cfg.lost_nis_alpha, cfg.rho_max,
                                           max(cfg.direction_min_speed_mps, cfg.standstill_speed_mps))
+        self._smooth = cfg.smoother_lag_s > 0.0       # each estimate carries its transition (.smoother)
         self.reset()
 
     # ------------------------------------------------------------------ lifecycle
@@ -423,6 +430,12 @@ class Estimator:
                          "chol_repairs": 0, "resets": 0, "gap_resets": 0, "lost": 0, "rejected_times": 0,
                          "time_backwards": 0, "repeated_measurements": 0}
         self._monitor.reset()
+        # the fixed-lag smoother's transition of the step (Estimate.transition): the last estimate's x⁺, and
+        # this step's link, prior and gain
+        self._sm_xf: NDArray[np.float64] | None = None
+        self._sm_link = False
+        self._sm_xp: NDArray[np.float64] | None = None
+        self._sm_G: NDArray[np.float64] | None = None
 
     # ------------------------------------------------------------------ noise
     def _loads(self) -> None:
@@ -538,8 +551,10 @@ class Estimator:
             fx = self.model.step_hub
             lo = np.concatenate([lo, np.full(N_STATE_HUB - N_STATE, -np.inf)])
             hi = np.concatenate([hi, np.full(N_STATE_HUB - N_STATE, np.inf)])
-        return UnscentedFilter(fx, x0, P0, range(5), alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa, x_lo=lo,
-                               x_hi=hi, gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+        ukf = UnscentedFilter(fx, x0, P0, range(5), alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa, x_lo=lo,
+                              x_hi=hi, gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+        ukf.track_gain = self._smooth
+        return ukf
 
     def _set_hub(self, on: bool) -> None:
         """Switch the filter between the paper's ten states and the two-inertia hub's 18 (model doc), keeping
@@ -621,6 +636,7 @@ class Estimator:
             self.ukf = UnscentedFilter(self.model.step, x0, np.diag(sd * sd), range(5), alpha=cfg.alpha,
                                        beta=cfg.beta, kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi,
                                        gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+            self.ukf.track_gain = self._smooth
         else:                                   # the declared two-inertia hub, while it is followed (_set_hub)
             self.ukf = None
             self._set_hub(self._hub_wanted())
@@ -650,6 +666,7 @@ class Estimator:
         predict_only = False
         counters = self.counters
         counters["steps"] += 1
+        self._sm_link = False
         if not math.isfinite(t):
             # a time that is no time: the step is refused, the state untouched (one NaN time stamp had made
             # the supervisor's acceleration NaN for good and re-initialised the filter on every later step)
@@ -819,18 +836,35 @@ class Estimator:
         if dt > 0.0:
             n_sub = max(1, int(math.ceil(dt / cfg.max_step_s - 1e-9)))
             h = dt / n_sub
+            # the smoother's link: this prediction starts from the last estimate's state, every sub-step has its gain
+            xf = self._sm_xf
+            link = self._smooth and xf is not None and xf.shape == ukf.x.shape and bool(np.array_equal(ukf.x, xf))
+            G = None
             try:
                 for _ in range(n_sub):
                     ukf.predict(u, h, self._Q(h))
+                    if link:
+                        gs = ukf.last_gain
+                        if gs is None:
+                            link = False
+                        elif G is None:
+                            G = gs
+                        else:
+                            _kernels.gain_compose(G, gs, False)
             except EstimatorError:
                 self._recover(t)
                 status |= COV_REPAIRED
                 ukf = self.ukf
+                link = False
             if ukf.repaired_last:
                 status |= COV_REPAIRED
             if foh:
                 self._first_order_hold(foh, t, self.t)
             self.t = t
+            if link:
+                self._sm_link = True
+                self._sm_xp = ukf.x.copy()
+                self._sm_G = G
         # ---- update
         # the same measurement again at the time it was already applied (a caller stepping one time stamp
         # twice) is no new information: applied again it shrank P, σ_ω by half after five repeats
@@ -1382,6 +1416,7 @@ class Estimator:
         if self._lost:
             status |= FILTER_LOST
         if x is None or ukf is None:
+            self._sm_xf = None
             if self._win_n:
                 self._win_reset()
             nan4 = np.full(4, np.nan)
@@ -1400,6 +1435,7 @@ class Estimator:
             c_rho *= f2
         kap = float(self._u[IU_KAPPA])
         P = ukf.P
+        x_state = x                     # the filter's whole state (the smoother's transition)
         if self._hub_on:
             # the two-inertia hub: the wheels' speeds (ω, slip eq. 6) are the rims', the rest the paper's states
             x = x[_HUB_OUT]
@@ -1484,6 +1520,13 @@ class Estimator:
         if self._sys_flag:
             status |= UNVERIFIED
         rad = self._rad
+        tr = None
+        if self._smooth:
+            xf = x_state.copy()
+            xp = self._sm_xp
+            link = self._sm_link and xp is not None and xp.shape == xf.shape
+            tr = (link, xf, xp if link else None, self._sm_G if link else None)
+            self._sm_xf = xf
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index, math.nan,
-                        self._sys_var, rad[0], rad[1], rad[2], cs, kap)
+                        self._sys_var, rad[0], rad[1], rad[2], cs, kap, tr)

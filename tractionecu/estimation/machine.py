@@ -118,6 +118,9 @@ __all__ = ["DRAFT_NOT_SEPARATED", "MACHINE_LEVEL", "MACHINE_UNSUPPORTED", "Machi
 
 N_MACHINE = 4
 IX_W, IX_V, IX_MU, IX_RHO = 0, 1, 2, 3
+SMOOTH_INDEX = (IX_MU, IX_MU, IX_MU, IX_MU, IX_RHO)
+"""The state index of each reported μ1..4 and ρ_s (the fixed-lag smoother's, Estimate.transition)."""
+_EYE = np.eye(N_MACHINE)
 _OUT_W, _OUT_V, _OUT_VR = 0, 1, 2
 
 
@@ -283,6 +286,7 @@ class MachineEstimator:
         self.vehicle = vehicle
         self.dt = dt
         self.cfg = cfg = cfg or EstimatorConfig()
+        self._smooth = getattr(cfg, "smoother_lag_s", 0.0) > 0.0    # estimates carry transitions (.smoother)
         self.sensors = sp = sensors or SensorSpec()
         self.ms = machine_sensors or MachineSensors()
         self.validity = validity or MachineValidity()
@@ -424,6 +428,13 @@ class MachineEstimator:
                          "time_backwards": 0}
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
+        # the fixed-lag smoother's transition (Estimate.transition, as the hub estimator's): the last estimate's
+        # x⁺ and its μ and ρ_s as made, this step's link, prior and gain
+        self._sm_xf: NDArray[np.float64] | None = None
+        self._sm_raw: tuple[NDArray[np.float64], float] | None = None
+        self._sm_link = False
+        self._sm_xp: NDArray[np.float64] | None = None
+        self._sm_G: NDArray[np.float64] | None = None
 
     # ------------------------------------------------------------------ drivetrain terms
     def ratio(self) -> float:
@@ -558,9 +569,15 @@ class MachineEstimator:
             self.counters["held_steps"] += 1
             e = copy.copy(last)
             e.t, e.nis, e.nis_dof = t, math.nan, 0
+            if self._sm_raw is not None and self._sm_xf is not None:
+                # the same state at a later time: to the smoother a step whose prediction is the identity (the
+                # smoother may have revised ``last`` already: the held copy carries the values as made)
+                e.mu, e.rho_s = self._sm_raw
+                e.transition = (True, self._sm_xf, self._sm_xf, _EYE, SMOOTH_INDEX)
             return e
         cfg = self.cfg
         self._last = None
+        self._sm_link = False
         status = MACHINE_LEVEL | (0 if self.draft else DRAFT_NOT_SEPARATED)
         predict_only = False
         counters = self.counters
@@ -774,9 +791,20 @@ class MachineEstimator:
             n_sub = max(1, int(math.ceil(dt_s / cfg.max_step_s - 1e-9)))
             h = dt_s / n_sub
             Q = self._Q(h, u, rates.period("Te"))
+            xf = self._sm_xf
+            link = self._smooth and xf is not None and bool(np.array_equal(ukf.x, xf))
+            G = None
             try:
                 for _ in range(n_sub):
                     ukf.predict(u, h, Q)
+                    if link:
+                        gs = ukf.last_gain
+                        if gs is None:
+                            link = False
+                        elif G is None:
+                            G = gs
+                        else:
+                            G = G @ gs
             except EstimatorError:
                 counters["resets"] += 1
                 self.ukf = None
@@ -784,6 +812,8 @@ class MachineEstimator:
             if ukf.repaired_last:
                 status |= COV_REPAIRED
             self.t = t
+            if link:
+                self._sm_link, self._sm_xp, self._sm_G = True, ukf.x.copy(), G
         # ---- update
         updated = False
         if not predict_only and (z_w is not None or zv):
@@ -917,6 +947,7 @@ class MachineEstimator:
         self.ukf = UnscentedFilter(self.fx, x0, np.diag(sd * sd), (IX_W, IX_V, IX_V), alpha=cfg.alpha,
                                    beta=cfg.beta, kappa=cfg.kappa, x_lo=self._lo, x_hi=self._hi,
                                    gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
+        self.ukf.track_gain = self._smooth
         self._u_last = np.array([M, a_w, fzd, c_free, fdx, J])
         self._i_last = i_tot
         self.t_init = t
@@ -971,6 +1002,7 @@ class MachineEstimator:
         cs = self._curve_state
         if x is None or ukf is None:
             self._conv = False
+            self._sm_xf = self._sm_raw = None
             nan4 = np.full(4, np.nan)
             return MachineEstimate(t, nan4, math.nan, math.nan, cs.class_name, nan4.copy(), math.nan, nan4.copy(),
                                    np.full(10, np.nan), math.nan, self._f, status | NOT_CONVERGED, False, 0,
@@ -1021,11 +1053,19 @@ class MachineEstimator:
         pd = np.array([var_w_f, var_w_f, pw, pw, pv, var_mu, var_mu, var_mu, var_mu,
                        prho + (self.dt.efficiency_tolerance * mu) ** 2 if self.draft else math.nan])
         nis, dof = (ukf.last_nis, ukf.last_dof) if updated else (math.nan, 0)
-        self._last = MachineEstimate(t, np.full(4, mu), rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
+        tr = None
+        mu4 = np.full(4, mu)
+        if self._smooth:
+            xs = x.copy()
+            link = self._sm_link
+            tr = (link, xs, self._sm_xp if link else None, self._sm_G if link else None, SMOOTH_INDEX)
+            self._sm_xf, self._sm_raw = xs, (mu4, rho_s)
+        self._last = MachineEstimate(t, mu4, rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
                                np.array([w_f, w_f, w, w]), pd, nis, self._adapt_mu, status,
                                (status & INVALID_MASK) == 0, dof, cs.class_index, radius_scale=_NAN2, radius_halfwidth=_NAN2,
                                radius_applied=np.full(2, self._radius.applied[1]), curve_state=cs, level=self.level,
-                               resistance=resistance, total_ratio=i_tot, front_engaged=self.engaged)
+                               resistance=resistance, total_ratio=i_tot, front_engaged=self.engaged,
+                               transition=tr)
         return self._last
 
 

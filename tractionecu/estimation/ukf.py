@@ -95,6 +95,17 @@ def merwe_sigma_points(x: NDArray[np.float64], P: NDArray[np.float64], lam: floa
     return sig
 
 
+def _gain_numpy(sig: NDArray[np.float64], sf: NDArray[np.float64], Wc: NDArray[np.float64],
+               x0: NDArray[np.float64], x1: NDArray[np.float64], P1: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """:func:`._kernels.cross_gain` in numpy (the path without numba): G = C P1⁻¹, or None."""
+    C = ((sig - x0).T * Wc) @ (sf - x1)
+    L, info = dpotrf(P1, lower=1, clean=1)
+    if info != 0:
+        return None
+    G = np.linalg.solve(L.T, np.linalg.solve(L, C.T)).T
+    return G if bool(np.isfinite(G).all()) else None
+
+
 class UnscentedFilter:
     """UKF with vectorised sigma-point propagation and partial, gated measurement updates.
 
@@ -176,6 +187,12 @@ class UnscentedFilter:
         self.clamp_events = 0
         """Number of steps on which the mean was clamped into its bounds."""
         self.repaired_last = False
+        self.track_gain = False
+        """Compute each prediction's smoother gain (``last_gain``; the fixed-lag smoother, :mod:`.smoother`)."""
+        self.last_gain: NDArray[np.float64] | None = None
+        """G = C P⁻¹ of the last prediction (C the cross-covariance of the state before and after it, P⁻ its
+        predicted covariance; :func:`._kernels.cross_gain`), with ``track_gain``; None when not tracked, when
+        the prediction repaired its covariance or when P⁻ was not positive definite."""
         self.last_nis = math.nan
         self.last_dof = 0
         self.last_gated = 0
@@ -274,21 +291,39 @@ class UnscentedFilter:
         zero), so clamping is done after the update only.
         """
         self.repaired_last = False
+        track = self.track_gain
+        self.last_gain = None
         model = self._model
         if model is not None and u.dtype == np.float64 and u.shape in ((6,), (7,)):
             n = self.n
             x = np.empty(n)
             P = np.empty((n, n))
-            code = _kernels.predict_model(self.x, self.P, np.ascontiguousarray(u), float(dt),
-                                          np.ascontiguousarray(Q, dtype=np.float64), self._w, model._kc,
-                                          self._sig, x, P)
-            if code == 0:
-                self.x = x
-                self.P = P
-                return
+            if track:
+                G = np.empty((n, n))
+                code = _kernels.predict_model_gain(self.x, self.P, np.ascontiguousarray(u), float(dt),
+                                                   np.ascontiguousarray(Q, dtype=np.float64), self._w, model._kc,
+                                                   self._sig, x, P, G)
+                if code == 0 or code == 3:
+                    if code == 0:
+                        self.last_gain = G
+                    self.x = x
+                    self.P = P
+                    return
+            else:
+                code = _kernels.predict_model(self.x, self.P, np.ascontiguousarray(u), float(dt),
+                                              np.ascontiguousarray(Q, dtype=np.float64), self._w, model._kc,
+                                              self._sig, x, P)
+                if code == 0:
+                    self.x = x
+                    self.P = P
+                    return
             if code == 2:
                 raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
-        sf = self.fx(self.sigma_points(), u, dt)
+        x0 = self.x
+        sig0 = self.sigma_points()
+        if track:
+            sig0 = sig0.copy()           # the process model may reuse the array
+        sf = self.fx(sig0, u, dt)
         if JIT and sf.dtype == np.float64 and sf.shape == self._sig.shape:
             n = self.n
             x = np.empty(n)
@@ -298,6 +333,10 @@ class UnscentedFilter:
                 raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
             self.x = x
             self.P = P
+            if track and not self.repaired_last:
+                G = np.empty((n, n))
+                if _kernels.cross_gain(sig0, np.ascontiguousarray(sf), self.Wc, x0, x, P, G):
+                    self.last_gain = G
             return
         x = self.Wm @ sf
         d = sf - x
@@ -315,6 +354,8 @@ class UnscentedFilter:
             raise EstimatorError("non-finite prediction (process model returned NaN/Inf)")
         self.x = x
         self.P = P
+        if track and not self.repaired_last:
+            self.last_gain = _gain_numpy(sig0, sf, self.Wc, x0, x, P)
 
     # ------------------------------------------------------------------ update
     def _fast_entry(self, idx: slice) -> tuple:

@@ -268,6 +268,14 @@ def _batch_run_class() -> type:
         loop: Any = None
         """The compiled loop (:class:`~tractionecu.estimation.compiled_loop.CompiledLoop`), or None."""
 
+        def _flush(self) -> None:
+            if self.loop is None:
+                super()._flush()
+                return
+            arr = self.smoother.flush_arrays()
+            if arr is not None:
+                self.sink.keep_arrays(arr)
+
         def _step(self, grid: np.ndarray) -> None:
             n = grid.size
             if n == 0:
@@ -293,7 +301,9 @@ def _batch_run_class() -> type:
                         wall = time.perf_counter()
                         out = loop.step_block(args[a:a + BLOCK])
                         self.loop_seconds += time.perf_counter() - wall
-                        self.sink.keep_arrays(loop.arrays(out))
+                        arr = self.smoother.push_arrays(loop.arrays(out))
+                        if arr is not None:
+                            self.sink.keep_arrays(arr)
                     finally:
                         if gc_on:
                             gc.enable()
@@ -305,7 +315,7 @@ def _batch_run_class() -> type:
                 target = inputs if is_input else meas
                 for k in np.flatnonzero(new).tolist():
                     target[k][key] = vals[k]
-            step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
+            step, keep, cb, smooth = self.est.step, self.sink.keep, self.on_estimate, self.smoother.push
             gc_on = gc.isenabled()
             if gc_on:
                 # the loop makes next to no reference cycles (5 objects over a 60 s replay); the collector's
@@ -315,12 +325,13 @@ def _batch_run_class() -> type:
             try:
                 if cb is None:
                     for t, i, m in zip(grid.tolist(), inputs, meas):
-                        keep(step(t, i, m))
+                        for e in smooth(step(t, i, m)):
+                            keep(e)
                 else:
                     for t, i, m in zip(grid.tolist(), inputs, meas):
-                        e = step(t, i, m)
-                        keep(e)
-                        cb(e)
+                        for e in smooth(step(t, i, m)):
+                            keep(e)
+                            cb(e)
             finally:
                 if gc_on:
                     gc.enable()

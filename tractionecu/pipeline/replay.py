@@ -60,6 +60,7 @@ import numpy as np
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_toml
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
+from ..estimation.smoother import FixedLagSmoother
 from ..mapping.tiles import lock_directory
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
@@ -326,6 +327,7 @@ class _Run:
                  cfg: EstimatorConfig, gate: GnssGate, sink: "_Sink",
                  on_estimate: Callable[[Estimate], None] | None) -> None:
         self.est, g = estimator_for(rec, vehicle, cfg, sensors)      # hub or machine level (.select)
+        self.smoother = FixedLagSmoother.from_config(cfg)           # the estimates, smoothed and delivered later
         self.anchor, self.inputs = g.anchor, g.inputs
         self.gnss: Counter[str] = Counter()
         self.gps_mask = gate.track_mask(rec.gps, self.gnss)
@@ -365,7 +367,16 @@ class _Run:
         """No block to come: the steps up to the grid's end (:func:`recording_grid`)."""
         if not math.isnan(self.ws_last):
             self._step(self.grid.take(math.inf, min(self.t_end, self.ws_last + GRID_MAX_GAP_S)))
+        self._flush()
         self.sink.close()
+
+    def _flush(self) -> None:
+        """The estimates the smoother still holds, to the sink."""
+        keep, cb = self.sink.keep, self.on_estimate
+        for e in self.smoother.flush():
+            keep(e)
+            if cb is not None:
+                cb(e)
 
     def _step(self, grid: np.ndarray) -> None:
         if grid.size == 0:
@@ -374,7 +385,7 @@ class _Run:
         if self.speed.t.size:
             streams.append((GNSS_SPEED, False, *self.speed.at(grid)))
             streams.append((GNSS_COURSE, False, *self.course.at(grid)))
-        step, keep, cb = self.est.step, self.sink.keep, self.on_estimate
+        step, keep, cb, smooth = self.est.step, self.sink.keep, self.on_estimate, self.smoother.push
         wall = time.perf_counter()
         for k, t in enumerate(grid.tolist()):
             inputs: dict[str, Any] = {}
@@ -382,10 +393,10 @@ class _Run:
             for key, is_input, vals, new in streams:
                 if new[k]:
                     (inputs if is_input else meas)[key] = vals[k]
-            e = step(t, inputs, meas)
-            keep(e)
-            if cb is not None:
-                cb(e)
+            for e in smooth(step(t, inputs, meas)):
+                keep(e)
+                if cb is not None:
+                    cb(e)
         self.loop_seconds += time.perf_counter() - wall
 
 

@@ -188,7 +188,9 @@ class EstimationLoop(TaskPart):
     Attributes
     ----------
     estimator, last_estimate:
-        The estimator (built by :meth:`build_estimator`) and its last estimate.
+        The estimator (built by :meth:`build_estimator`) and its last estimate delivered: the fixed-lag
+        smoother (:mod:`tractionecu.estimation.smoother`, ``[estimator] smoother_lag_s``) delivers each
+        estimate that much later, revised by the steps in between.
     grid_t0:
         ``g0`` once the grid is phased, else None.
     max_tick_delay_s:
@@ -227,6 +229,7 @@ class EstimationLoop(TaskPart):
         self.stats: Counter[str] = Counter() if stats is None else stats
         self.machine: tuple[Any, Any] | None = None
         self.estimator: Any = None
+        self.smoother: Any = None
         self.last_estimate: Any = None
         self.grid_t0: float | None = None
         self.max_tick_delay_s = 0.0
@@ -236,8 +239,12 @@ class EstimationLoop(TaskPart):
     # ------------------------------------------------------------ the estimator
     def build_estimator(self) -> Any:
         """Build the estimator for the configured machine (:func:`estimator_machine`); returns it."""
+        from ..estimation.smoother import FixedLagSmoother
+
         self.machine = estimator_machine(self.cfg)
         self.estimator = self.factory(*self.machine)
+        ecfg = getattr(self.estimator, "cfg", None)
+        self.smoother = FixedLagSmoother.from_config(ecfg) if ecfg is not None else None
         return self.estimator
 
     async def warm_up(self) -> float:
@@ -268,7 +275,8 @@ class EstimationLoop(TaskPart):
         return await done
 
     def step(self, t: float) -> Any:
-        """Step the estimator at grid time ``t`` [s] with what the assembler holds; the estimate or None.
+        """Step the estimator at grid time ``t`` [s] with what the assembler holds; the latest estimate the
+        smoother delivers (of a time up to ``smoother_lag_s`` and a step earlier), or None.
 
         An estimator that raises is counted (``estimator_errors``), logged
         once and reset; the loop goes on.
@@ -281,9 +289,7 @@ class EstimationLoop(TaskPart):
             # after the gap gets the latest samples, as replay's does.
             self.stats["no_data_steps"] += 1
             self._warn("no_data", "no wheel speeds for %.1f s: estimation paused until they return", t - la)
-            est = self.estimator.no_data(t)
-            self.last_estimate = est
-            return est
+            return self._deliver(t, self.estimator.no_data(t))
         self._warn.forget("no_data")
         inputs, meas = self.steps.take(t)
         try:
@@ -295,16 +301,24 @@ class EstimationLoop(TaskPart):
                 self.estimator.reset()
             return None
         self.stats["steps"] += 1
-        self.last_estimate = est
-        since = getattr(est, "lost_since", math.nan)
-        if not math.isnan(since):      # the filter had lost the vehicle since then
-            self.stats["filter_lost"] += 1
-            g0 = self.grid_t0 if self.grid_t0 is not None else t      # the status line's t
-            self._warn("lost", "estimator lost the vehicle at t %.1f s (since %.1f s); re-initialised", t - g0,
-                       since - g0)
-            if self.map is not None:
-                self.map.discard_since(since)
-        return est
+        return self._deliver(t, est)
+
+    def _deliver(self, t: float, est: Any) -> Any:
+        """``est`` through the smoother; the last estimate it delivers (None: none yet)."""
+        out = [est] if self.smoother is None else self.smoother.push(est)
+        for e in out:
+            since = getattr(e, "lost_since", math.nan)
+            if not math.isnan(since):      # the filter had lost the vehicle since then
+                self.stats["filter_lost"] += 1
+                g0 = self.grid_t0 if self.grid_t0 is not None else t      # the status line's t
+                self._warn("lost", "estimator lost the vehicle at t %.1f s (since %.1f s); re-initialised",
+                           e.t - g0, since - g0)
+                if self.map is not None:
+                    self.map.discard_since(since)
+        if not out:
+            return None
+        self.last_estimate = out[-1]
+        return out[-1]
 
     # ------------------------------------------------------------ the loop
     def behind_text(self, now_m: float) -> str:
@@ -399,7 +413,7 @@ class EstimationLoop(TaskPart):
             if k % bc_every == 0 and self.broadcast is not None:
                 self.broadcast(est if anchored else None)
             if anchored and est is not None and self.map is not None and k % map_every == 0:
-                self.map.add(est, None if self.fixes is None else self.fixes.fix_at(t_k))
+                self.map.add(est, None if self.fixes is None else self.fixes.fix_at(est.t))
             if self.after_step is not None:
                 self.after_step()
             now_m = loop.time()

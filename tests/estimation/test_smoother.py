@@ -1,0 +1,247 @@
+"""The fixed-lag smoother (:mod:`tractionecu.estimation.smoother`).
+
+On a linear-Gaussian model the unscented filter is the Kalman filter and the unscented RTS smoother the RTS
+smoother: the smoother's states are checked against a textbook Kalman filter and RTS smoother written here in
+numpy, over windows of every length.  Then the delivery rules (the lag, the chain's breaks, the held values, the
+flush) and the two ways in (one by one and as arrays), and on a simulated recording of the physical truth, whose
+force builds up through a relaxation length, that the smoothed μ is nearer the truth than the filter's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tractionecu.estimation.config import EstimatorConfig
+from tractionecu.estimation.smoother import FixedLagSmoother
+from tractionecu.estimation.ukf import UnscentedFilter
+
+N = 10                     # the estimator's state size (μ at 5..8, ρ_s at 9)
+
+
+@dataclasses.dataclass
+class Est:
+    """The fields of an Estimate the smoother reads and writes."""
+    t: float
+    mu: np.ndarray
+    rho_s: float
+    transition: Any = None
+
+
+def _linear_run(steps: int, seed: int = 0, breaks: tuple[int, ...] = ()) -> tuple[list[Est], dict[str, np.ndarray]]:
+    """A linear model x' = F x + w, y = x[0:5] + v filtered by UnscentedFilter with its gains tracked: the
+    estimates (with their transitions) and, for the check, the filter's own x⁺, P⁺, x⁻, P⁻ per step.  At the
+    steps in ``breaks`` the state is nudged after the update (the next prediction no longer starts from the
+    estimate's x⁺: a break of the chain)."""
+    rng = np.random.default_rng(seed)
+    F = np.eye(N) + 0.02 * rng.standard_normal((N, N))
+    Q = np.diag(rng.uniform(1e-4, 1e-3, N))
+    R = np.full(5, 1e-2)
+
+    def fx(sig: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        return sig @ F.T
+
+    ukf = UnscentedFilter(fx, np.zeros(N), np.eye(N), range(5))
+    ukf.track_gain = True
+    x_true = rng.standard_normal(N)
+    out: list[Est] = []
+    rec: dict[str, list[np.ndarray]] = {"xf": [], "Pf": [], "xp": [], "Pp": []}
+    xf_prev = None
+    for k in range(steps):
+        x_true = F @ x_true + rng.multivariate_normal(np.zeros(N), Q)
+        link = False
+        G = None
+        if k > 0:
+            link = xf_prev is not None and bool(np.array_equal(ukf.x, xf_prev))
+            ukf.predict(np.zeros(6), 0.01, Q)
+            G = ukf.last_gain
+            link = link and G is not None
+        xp, Pp = ukf.x.copy(), ukf.P.copy()
+        ukf.update(x_true[:5] + rng.normal(0.0, 0.1, 5), slice(0, 5), R)
+        xf = ukf.x.copy()
+        rec["xf"].append(xf)
+        rec["Pf"].append(ukf.P.copy())
+        rec["xp"].append(xp)
+        rec["Pp"].append(Pp)
+        out.append(Est(0.01 * k, xf[5:9].copy(), float(xf[9]), (link, xf, xp if link else None, G if link else None)))
+        xf_prev = xf
+        if k in breaks:
+            ukf.x = ukf.x + 1e-6
+    return out, {key: np.array(v) for key, v in rec.items()} | {"F": F}
+
+
+def _orig(ests: list[Est]) -> list[Est]:
+    """Copies of the estimates as the filter made them (the smoother revises its input in place)."""
+    return [Est(e.t, e.mu.copy(), e.rho_s, e.transition) for e in ests]
+
+
+def _rts(rec: dict[str, np.ndarray], k: int, j: int) -> np.ndarray:
+    """The textbook RTS smoother's mean at step k given the steps up to j (Rauch, Tung, Striebel 1965)."""
+    F = rec["F"]
+    s = rec["xf"][j]
+    for i in range(j, k, -1):
+        Gi = rec["Pf"][i - 1] @ F.T @ np.linalg.inv(rec["Pp"][i])
+        s = rec["xf"][i - 1] + Gi @ (s - rec["xp"][i])
+    return s
+
+
+@pytest.mark.parametrize("lag_steps", [1, 3, 7, 40])
+def test_linear_gaussian_equals_the_rts_smoother(lag_steps: int) -> None:
+    ests, rec = _linear_run(60)
+    orig = _orig(ests)
+    sm = FixedLagSmoother(0.01 * lag_steps + 1e-9)
+    got = []
+    for e in ests:
+        got.extend(sm.push(e))
+    got.extend(sm.flush())
+    assert [g.t for g in got] == [e.t for e in ests]
+    assert all(g.transition is None for g in got)
+    for k, g in enumerate(got):
+        ref = _rts(rec, k, min(k + lag_steps, len(ests) - 1))
+        assert np.allclose(g.mu, ref[5:9], rtol=0, atol=1e-9)
+        assert abs(g.rho_s - ref[9]) <= 1e-9
+    # smoothing changes the estimates (it is not the identity), most where the window is longest
+    dev = np.array([np.abs(g.mu - e.mu).max() for g, e in zip(got, orig)])
+    assert dev[:-1].min() > 0.0 and dev[-1] == 0.0
+
+
+def test_estimates_are_delivered_after_the_lag_and_in_order() -> None:
+    ests, _ = _linear_run(30)
+    sm = FixedLagSmoother(0.05 + 1e-9)
+    seen: list[float] = []
+    for k, e in enumerate(ests):
+        out = sm.push(e)
+        # a step is due once a step more than the lag after it has arrived: k − 6 at 100 Hz and 0.05 s
+        assert [o.t for o in out] == ([ests[k - 6].t] if k >= 6 else [])
+        seen.extend(o.t for o in out)
+    seen.extend(o.t for o in sm.flush())
+    assert seen == [e.t for e in ests]
+    assert sm.flush() == []
+
+
+def test_a_break_ends_the_window_there() -> None:
+    ests, rec = _linear_run(30, breaks=(12,))
+    orig = _orig(ests)
+    assert ests[13].transition[0] is False and ests[12].transition[0] is True
+    sm = FixedLagSmoother(10.0)                 # the window would reach the end but for the break
+    got = [o for e in ests for o in sm.push(e)]
+    assert [o.t for o in got] == [e.t for e in ests[:13]]      # due at the break
+    got += sm.flush()
+    for k in (0, 5, 12):
+        assert np.allclose(got[k].mu, _rts(rec, k, 12)[5:9], rtol=0, atol=1e-9)
+    assert np.array_equal(got[12].mu, orig[12].mu)              # the last step before the break: its own
+    assert np.allclose(got[13].mu, _rts(rec, 13, 29)[5:9], rtol=0, atol=1e-9)
+
+
+def test_held_values_follow_the_smoothed_value_they_were_held_from_and_no_filter_passes() -> None:
+    ests, _ = _linear_run(20)
+    held = ests[10].rho_s
+    for k in (11, 12, 13):                       # ρ_s held at standstill: the filter's x⁺ moves on
+        ests[k] = dataclasses.replace(ests[k], rho_s=held)
+    nan4 = np.full(4, np.nan)
+    ests[16] = Est(ests[16].t, nan4, math.nan, None)          # a step without a filter
+    orig = _orig(ests)
+    sm = FixedLagSmoother(0.03 + 1e-9)
+    got = [o for e in ests for o in sm.push(e)] + sm.flush()
+    assert got[10].rho_s != held
+    assert got[11].rho_s == got[12].rho_s == got[13].rho_s == got[10].rho_s
+    assert np.isnan(got[16].mu).all() and math.isnan(got[16].rho_s)
+    assert np.array_equal(got[15].mu, orig[15].mu)             # the step before no filter is not revised
+    assert sm.smoothed == 19
+
+
+def test_arrays_equal_one_by_one() -> None:
+    ests, _ = _linear_run(50, breaks=(20,))
+    ests[30] = dataclasses.replace(ests[30], rho_s=ests[29].rho_s)
+    ests2 = _orig(ests)
+    one = FixedLagSmoother(0.05 + 1e-9, (-0.1, 1.2), (0.0, 0.3))
+    a = [o for e in ests2 for o in one.push(e)] + one.flush()
+
+    def block(es: list[Est]) -> dict[str, Any]:
+        return {"t": np.array([e.t for e in es]), "mu": np.array([e.mu for e in es]),
+                "rho_s": np.array([e.rho_s for e in es]), "valid": np.ones(len(es), dtype=bool),
+                "sm_link": np.array([e.transition[0] for e in es]),
+                "sm_xf": np.array([e.transition[1] for e in es]),
+                "sm_xp": np.array([e.transition[2] if e.transition[0] else np.full(N, np.nan) for e in es]),
+                "sm_G": np.array([e.transition[3] if e.transition[0] else np.full((N, N), np.nan) for e in es])}
+
+    arr = FixedLagSmoother(0.05 + 1e-9, (-0.1, 1.2), (0.0, 0.3))
+    parts = [arr.push_arrays(block(ests[i:i + 7])) for i in range(0, 50, 7)] + [arr.flush_arrays()]
+    parts = [p for p in parts if p is not None]
+    assert not any(k.startswith("sm_") for p in parts for k in p)
+    mu = np.concatenate([p["mu"] for p in parts])
+    rho = np.concatenate([p["rho_s"] for p in parts])
+    assert np.array_equal(mu, np.array([e.mu for e in a]))
+    assert np.array_equal(rho, np.array([e.rho_s for e in a]))
+    assert arr.smoothed == one.smoothed
+
+
+def test_lag_zero_passes_everything_at_once() -> None:
+    ests, _ = _linear_run(5)
+    sm = FixedLagSmoother(0.0)
+    for e, e0 in zip(ests, _orig(ests)):
+        (o,) = sm.push(e)
+        assert np.array_equal(o.mu, e0.mu) and o.rho_s == e0.rho_s and o.transition is None
+    with pytest.raises(ValueError, match="lag"):
+        FixedLagSmoother(math.nan)
+
+
+def test_the_estimator_config_takes_the_lag_and_checks_it() -> None:
+    assert EstimatorConfig().smoother_lag_s == 0.05
+    sm = FixedLagSmoother.from_config(EstimatorConfig(smoother_lag_s=0.1))
+    assert sm.lag_s == 0.1
+    from tractionecu.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="smoother_lag_s"):
+        EstimatorConfig(smoother_lag_s=-0.01)
+
+
+def test_smoothing_brings_mu_nearer_the_physical_truth(tmp_path) -> None:
+    """The physical truth's tyre force builds up through its relaxation length: the filter's random-walk μ trails
+    it, and the steps after each estimate take the lag back (docs/results/estimator.md)."""
+    from tractionecu.evaluation.scoring import read_truth
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.recording.reader import read_recording
+    from tractionecu.sim.player import simulate_recording
+
+    simulate_recording("physical-declared-exact", 0, tmp_path / "rec", duration_s=40.0)
+    rec = read_recording(tmp_path / "rec")
+    tr = read_truth(rec.truth_csv_path, rec.truth_toml_path)
+    errs = {}
+    for lag in (0.0, 0.05):
+        a = replay(rec, cfg=EstimatorConfig(smoother_lag_s=lag)).arrays
+        k = np.clip(np.searchsorted(tr.t, a["t"] + 1e-9, side="right") - 1, 0, len(tr.t) - 1)
+        mt = tr.mu[k]
+        ok = a["valid"][:, None] & (np.abs(mt) >= 0.05)
+        errs[lag] = float(np.mean((np.abs(a["mu"] - mt) / np.abs(mt))[ok]))
+    assert errs[0.05] < 0.9 * errs[0.0]
+
+
+def test_the_machine_level_estimator_is_smoothed_too(tmp_path) -> None:
+    """The mechanical tractor's machine-level μ (one state for the four wheels, SMOOTH_INDEX): its estimates
+    carry transitions with their state index, and smoothing brings μ nearer the truth's ΣF/ΣF_z."""
+    from tractionecu.estimation.machine import SMOOTH_INDEX
+    from tractionecu.evaluation.machine_score import machine_scorecard
+    from tractionecu.evaluation.scoring import read_truth
+    from tractionecu.pipeline.replay import machine_of, replay
+    from tractionecu.recording.reader import read_recording
+    from tractionecu.sim.player import simulate_recording
+
+    simulate_recording("mechanical-three-soils", 0, tmp_path / "rec", duration_s=60.0)
+    rec = read_recording(tmp_path / "rec")
+    tr = read_truth(rec.truth_csv_path, rec.truth_toml_path)
+    mass = machine_of(rec)[0].mass_kg
+    seen = []
+    errs = {}
+    for lag in (0.0, 0.05):
+        a = replay(rec, cfg=EstimatorConfig(smoother_lag_s=lag),
+                   on_estimate=seen.append if lag else None).arrays
+        errs[lag] = machine_scorecard(a, tr, rec.truth_csv_path, mass)["mu_mean_abs_rel_error"]
+    assert all(e.transition is None for e in seen)              # dropped on delivery
+    assert all(np.unique(e.mu[np.isfinite(e.mu)]).size <= 1 for e in seen)   # still one μ for the machine
+    assert errs[0.05] < 0.9 * errs[0.0]
+    assert SMOOTH_INDEX == (2, 2, 2, 2, 3)
