@@ -118,14 +118,17 @@ def cross_gain(sig, sf, Wc, x0, x1, P1, G):              # pragma: no cover - co
     smoother", IEEE TAC 53(3), eq. 13)."""
     npt, n = sf.shape
     C = np.zeros((n, n))
-    for i in range(npt):
+    df = np.empty(n)
+    for i in range(1, npt):          # the centre point is the mean: χ₀ − x0 = 0
         w = Wc[i]
+        for b in range(n):
+            df[b] = sf[i, b] - x1[b]
         for a in range(n):
             da = w * (sig[i, a] - x0[a])
-            if da == 0.0:
+            if da == 0.0:            # (χ − x0 is a column of P's lower Cholesky factor: zero above its row)
                 continue
             for b in range(n):
-                C[a, b] += da * (sf[i, b] - x1[b])
+                C[a, b] += da * df[b]
     L = np.zeros((n, n))
     for j in range(n):
         s = P1[j, j]

@@ -838,7 +838,8 @@ class Estimator:
             h = dt / n_sub
             # the smoother's link: this prediction starts from the last estimate's state, every sub-step has its gain
             xf = self._sm_xf
-            link = self._smooth and xf is not None and xf.shape == ukf.x.shape and bool(np.array_equal(ukf.x, xf))
+            # (bytes: array_equal costs 2.7 µs; a state is never NaN here, a repaired or restarted one has no link)
+            link = self._smooth and xf is not None and xf.shape == ukf.x.shape and ukf.x.tobytes() == xf.tobytes()
             G = None
             try:
                 for _ in range(n_sub):

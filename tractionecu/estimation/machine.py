@@ -792,7 +792,7 @@ class MachineEstimator:
             h = dt_s / n_sub
             Q = self._Q(h, u, rates.period("Te"))
             xf = self._sm_xf
-            link = self._smooth and xf is not None and bool(np.array_equal(ukf.x, xf))
+            link = self._smooth and xf is not None and ukf.x.tobytes() == xf.tobytes()
             G = None
             try:
                 for _ in range(n_sub):

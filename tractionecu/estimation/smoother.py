@@ -48,13 +48,13 @@ from ..model.vehicle import IX_MU, IX_RHO, compiled
 __all__ = ["FixedLagSmoother", "smooth_rows"]
 
 
-def smooth_rows(T, LINK, XF, XP, G, lag, k0, k1, nrows, out):         # pragma: no cover - compiled
+def smooth_rows(T, LINK, XF, XP, G, bound, k0, k1, nrows, out):      # pragma: no cover - compiled
     """The smoothed states of rows k0..k1−1 into out (k1 − k0, n) (module doc).
 
     T (nrows,) times [s]; LINK (nrows,) 1 where row j's prediction continues row j−1's state; XF (nrows, n) the
     states after each row's update (NaN: the row has no filter); XP the priors, G (nrows, n, n) the gains of
-    the rows that link.  A row's window: the rows after it while they link and lie within ``lag`` [s] of it (the
-    caller's bound, :data:`LAG_TOLERANCE_S` included)."""
+    the rows that link.  A row's window: the rows after it while they link and lie within ``bound`` [s] of it
+    (the lag and :data:`LAG_TOLERANCE_S`)."""
     n = XF.shape[1]
     s = np.empty(n)
     d = np.empty(n)
@@ -65,7 +65,7 @@ def smooth_rows(T, LINK, XF, XP, G, lag, k0, k1, nrows, out):         # pragma: 
                 o[a] = math.nan
             continue
         j = k
-        while j + 1 < nrows and LINK[j + 1] != 0 and T[j + 1] - T[k] <= lag:
+        while j + 1 < nrows and LINK[j + 1] != 0 and T[j + 1] - T[k] <= bound:
             j += 1
         for a in range(n):
             s[a] = XF[j, a]
@@ -81,7 +81,90 @@ def smooth_rows(T, LINK, XF, XP, G, lag, k0, k1, nrows, out):         # pragma: 
             o[a] = s[a]
 
 
+def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, out):  # pragma: no cover - compiled
+    """Deliver the first m of the meta[0] buffered rows: their reported μ1..4, ρ_s (RAW) revised into out (m, 5),
+    then the rows left moved to the front.
+
+    A value equal to its state (IDX: the state index of each) takes the smoothed state, clipped into
+    lims (lo 5, hi 5), and becomes the last own value (carry: as reported 5, as delivered 5); a value equal to
+    the last own one as reported (held by the estimator) takes it as delivered; any other stays.  meta: rows,
+    the last break, estimates revised (counted here).  S (≥ m, n): work space for the smoothed states."""
+    nrows = meta[0]
+    smooth_rows(T, LINK, XF, XP, G, bound, 0, m, nrows, S)
+    for k in range(m):
+        o = out[k]
+        for c in range(5):
+            o[c] = RAW[k, c]
+        if not XF[k, 0] == XF[k, 0]:
+            continue
+        own = False
+        for c in range(5):
+            j = IDX[c]
+            v = RAW[k, c]
+            if v == XF[k, j]:
+                val = S[k, j]
+                if val < lims[c]:
+                    val = lims[c]
+                if val > lims[5 + c]:
+                    val = lims[5 + c]
+                carry[c] = v
+                carry[5 + c] = val
+                o[c] = val
+                own = True
+            elif v == carry[c]:
+                o[c] = carry[5 + c]
+        if own:
+            meta[2] += 1
+    left = nrows - m
+    n = XF.shape[1]
+    for r in range(left):
+        q = m + r
+        T[r] = T[q]
+        LINK[r] = LINK[q]
+        for a in range(n):
+            XF[r, a] = XF[q, a]
+            XP[r, a] = XP[q, a]
+            for b in range(n):
+                G[r, a, b] = G[q, a, b]
+        for c in range(5):
+            RAW[r, c] = RAW[q, c]
+    meta[0] = left
+    meta[1] = meta[1] - m if meta[1] > m else 0
+
+
+def push_row(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, t, link, xf, xp, Gr, mu, rho, S,
+             out):                                                         # pragma: no cover - compiled
+    """Buffer one row (xf NaN: no filter; xp, Gr read only with ``link``; the reported μ (4,) and ρ_s) and deliver
+    the rows now due (:func:`deliver_rows`); returns how many."""
+    k = meta[0]
+    n = XF.shape[1]
+    T[k] = t
+    if link:
+        LINK[k] = 1
+        for a in range(n):
+            XP[k, a] = xp[a]
+            for b in range(n):
+                G[k, a, b] = Gr[a, b]
+    else:
+        LINK[k] = 0
+        meta[1] = k
+    for a in range(n):
+        XF[k, a] = xf[a]
+    for c in range(4):
+        RAW[k, c] = mu[c]
+    RAW[k, 4] = rho
+    meta[0] = k + 1
+    due = meta[1]
+    while due < k and not (t - T[due] <= bound):
+        due += 1
+    if due:
+        deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, due, S, out)
+    return due
+
+
 smooth_rows = compiled(smooth_rows)
+deliver_rows = compiled(deliver_rows)
+push_row = compiled(push_row)
 
 STATE_INDEX = (IX_MU.start, IX_MU.start + 1, IX_MU.start + 2, IX_MU.start + 3, IX_RHO)
 """The state index of each reported μ1..4 and ρ_s: the hub estimator's (a transition's fifth element, when
@@ -106,66 +189,54 @@ class FixedLagSmoother:
         # the window's bound: the lag and a microsecond (a grid of t0 + k/rate carries round-off: a step 0.05 s
         # after another at 100 Hz lay either side of a bound of exactly 0.05 s)
         self._bound = lag_s + LAG_TOLERANCE_S
-        self._mu_lo, self._mu_hi = (float(b) for b in mu_bounds)
-        self._rho_lo, self._rho_hi = (float(b) for b in rho_bounds)
-        self.smoothed = 0
-        """Estimates delivered with their μ or ρ_s revised."""
+        lo, hi = (float(b) for b in mu_bounds)
+        rlo, rhi = (float(b) for b in rho_bounds)
+        self._lims = np.array([lo] * 4 + [rlo] + [hi] * 4 + [rhi])
         self._n = 0              # state size of the buffers (0: none yet)
         self._idx = STATE_INDEX  # the state index of each reported μ1..4 and ρ_s
+        self._IDX = np.array(STATE_INDEX, dtype=np.int64)
         self._cap = 0
-        self._items: list[Any] = []        # pending estimates (push) or row payload (push_arrays)
-        self._len = 0            # rows in the buffers; the pending ones are [0, _len)
-        self._last_break = 0     # the rows before this one are due (a later row broke their chain)
+        self._items: list[Any] = []        # the pending estimates (push)
+        # rows buffered, the last break (the rows before it are due: a later row broke their chain), estimates
+        # revised
+        self._meta = np.zeros(3, dtype=np.int64)
         self._tail: dict[str, Any] | None = None   # push_arrays: the pending rows' arrays
-        # per μ1..4, ρ_s: the last delivered value that was the filter's own, as reported and as smoothed
-        # (a held value equal to the first is delivered as the second)
-        self._raw = np.full(5, np.nan)
-        self._sm = np.full(5, np.nan)
+        # per μ1..4, ρ_s: the last delivered value that was the filter's own, as reported and as delivered (a held
+        # value equal to the first is delivered as the second)
+        self._carry = np.full(10, np.nan)
 
     @classmethod
     def from_config(cls, cfg: Any) -> "FixedLagSmoother":
         """The smoother of an :class:`~.config.EstimatorConfig` (its lag and state bounds)."""
         return cls(cfg.smoother_lag_s, (cfg.mu_min, cfg.mu_max), (cfg.rho_min, cfg.rho_max))
 
+    @property
+    def smoothed(self) -> int:
+        """Estimates delivered with their μ or ρ_s revised."""
+        return int(self._meta[2])
+
     # ------------------------------------------------------------------ buffers
     def _alloc(self, n: int, cap: int) -> None:
-        T = np.full(cap, np.nan)
-        LINK = np.zeros(cap, dtype=np.int8)
-        XF = np.full((cap, n), np.nan)
-        XP = np.full((cap, n), np.nan)
-        G = np.zeros((cap, n, n))
-        if self._len and self._n == n:
-            m = self._len
-            T[:m], LINK[:m], XF[:m], XP[:m], G[:m] = self._T[:m], self._LINK[:m], self._XF[:m], self._XP[:m], self._G[:m]
-        self._T, self._LINK, self._XF, self._XP, self._G = T, LINK, XF, XP, G
+        m = int(self._meta[0]) if self._n == n else 0
+        bufs = (np.full(cap, np.nan), np.zeros(cap, dtype=np.int8), np.full((cap, n), np.nan),
+                np.full((cap, n), np.nan), np.zeros((cap, n, n)), np.full((cap, 5), np.nan))
+        if m:
+            for new, old in zip(bufs, (self._T, self._LINK, self._XF, self._XP, self._G, self._RAW)):
+                new[:m] = old[:m]
+        self._T, self._LINK, self._XF, self._XP, self._G, self._RAW = bufs
+        self._S = np.empty((cap, n))
+        self._out = np.empty((cap, 5))
+        self._nan_x = np.full(n, np.nan)
+        self._nan_g = np.full((n, n), np.nan)
         self._n, self._cap = n, cap
+        self._meta[0] = m
+        self._meta[1] = min(int(self._meta[1]), m)
 
-    def _drop(self, m: int) -> None:
-        """Forget the first m rows (delivered)."""
-        left = self._len - m
-        if left:
-            for a in (self._T, self._LINK, self._XF, self._XP, self._G):
-                a[:left] = a[m:self._len]
-        self._len = left
-        self._last_break = max(0, self._last_break - m)
-
-    def _due(self) -> int:
-        """How many of the first rows are due: those before the last break of their chain, and those more than
-        the lag before the newest row."""
-        m = self._len
-        if m == 0:
-            return 0
-        due = self._last_break
-        t_new = self._T[m - 1]
-        T = self._T
-        while due < m - 1 and not (t_new - T[due] <= self._bound):
-            due += 1
-        return due
-
-    def _states(self, m: int) -> NDArray[np.float64]:
-        out = np.empty((m, self._n))
-        smooth_rows(self._T, self._LINK, self._XF, self._XP, self._G, self._bound, 0, m, self._len, out)
-        return out
+    def _deliver(self, m: int) -> np.ndarray:
+        """Rows [0, m) delivered: their μ1..4, ρ_s as (m, 5) (a view: read before the next call)."""
+        deliver_rows(self._T, self._LINK, self._XF, self._XP, self._G, self._RAW, self._IDX, self._meta,
+                     self._carry, self._lims, self._bound, m, self._S, self._out)
+        return self._out[:m]
 
     # ------------------------------------------------------------------ one by one
     def push(self, e: Any) -> list[Any]:
@@ -186,138 +257,92 @@ class FixedLagSmoother:
             out = self.flush()
             self._alloc(n, 64)
             self._idx = idx
+            self._IDX = np.array(idx, dtype=np.int64)
             link = False
-        if self._len == self._cap:
+        if self._meta[0] == self._cap:
             self._alloc(self._n, 2 * self._cap)
-        k = self._len
-        self._T[k] = e.t
-        if link:
-            self._LINK[k] = 1
-            self._XP[k] = xp
-            self._G[k] = G
-        else:
-            self._LINK[k] = 0
-            self._last_break = k
-        if xf is not None:
-            self._XF[k] = xf
-        else:
-            self._XF[k] = np.nan
-        self._len = k + 1
+        due = push_row(self._T, self._LINK, self._XF, self._XP, self._G, self._RAW, self._IDX, self._meta,
+                       self._carry, self._lims, self._bound, float(e.t), bool(link),
+                       xf if xf is not None else self._nan_x, xp if link else self._nan_x,
+                       G if link else self._nan_g, e.mu, float(e.rho_s), self._S, self._out)
         self._items.append(e)
-        due = self._due()
         if due:
-            out.extend(self._deliver(due))
+            out.extend(self._hand_out(self._out[:due]))
         return out
 
     def flush(self) -> list[Any]:
         """Every pending estimate, smoothed with the steps there are (the end of a run)."""
         if self._tail is not None:
             raise RuntimeError("flush() after push_arrays(): use flush_arrays()")
-        return self._deliver(self._len) if self._len else []
+        m = int(self._meta[0])
+        return self._hand_out(self._deliver(m)) if m else []
 
-    def _deliver(self, m: int) -> list[Any]:
-        S = self._states(m)
-        XF = self._XF
-        out = []
-        for k in range(m):
-            e = self._items[k]
-            if XF[k, 0] == XF[k, 0]:
-                e.mu, e.rho_s = self._revise(e.mu, e.rho_s, XF[k], S[k])
+    def _hand_out(self, vals: np.ndarray) -> list[Any]:
+        items = self._items
+        if vals.shape[0] == 1:                 # the usual case: one step in, one out
+            e = items.pop(0)
+            e.mu = vals[0, :4].copy()
+            e.rho_s = float(vals[0, 4])
             if getattr(e, "transition", None) is not None:
                 e.transition = None
-            out.append(e)
-        del self._items[:m]
-        self._drop(m)
+            return [e]
+        m = vals.shape[0]
+        out = items[:m]
+        del items[:m]
+        for e, v in zip(out, vals):
+            e.mu = v[:4].copy()
+            e.rho_s = float(v[4])
+            if getattr(e, "transition", None) is not None:
+                e.transition = None
         return out
-
-    def _revise(self, mu: NDArray[np.float64], rho: float, xf: NDArray[np.float64],
-                s: NDArray[np.float64]) -> tuple[NDArray[np.float64], float]:
-        new = mu.copy()
-        raw, sm = self._raw, self._sm
-        changed = False
-        idx = self._idx
-        for c in range(5):
-            j = idx[c]
-            v = rho if c == 4 else float(mu[c])
-            if v == xf[j]:
-                lo, hi = (self._rho_lo, self._rho_hi) if c == 4 else (self._mu_lo, self._mu_hi)
-                out = min(max(float(s[j]), lo), hi)
-                raw[c], sm[c] = v, out
-                changed = True
-            elif v == raw[c]:                 # held from the last own value
-                out = float(sm[c])
-            else:
-                continue
-            if c == 4:
-                rho = out
-            else:
-                new[c] = out
-        if changed:
-            self.smoothed += 1
-        return new, rho
 
     # ------------------------------------------------------------------ blocks of arrays
     def push_arrays(self, arr: dict[str, Any]) -> dict[str, Any] | None:
         """Take a block of estimates as arrays (``t``, ``mu`` (N, 4), ``rho_s``, …, and the transitions
-        ``sm_link`` (N,), ``sm_xf`` (N, n), ``sm_xp`` (N, n), ``sm_G`` (N, n, n)); return the rows now due as
-        arrays without the ``sm_*`` keys, or None when none is due."""
+        ``sm_link`` (N,), ``sm_xf`` (N, n), ``sm_xp`` (N, n), ``sm_G`` (N, n, n); the hub estimator's state) and
+        return the rows now due as arrays without the ``sm_*`` keys, or None when none is due."""
         if self._items:
             raise RuntimeError("push_arrays() after push(): one smoother takes one kind of input")
         if self.lag_s == 0.0:
             return _strip(arr)
         tail = arr if self._tail is None else _concat([self._tail, arr])
         xf = np.asarray(tail["sm_xf"], dtype=float)
-        n = xf.shape[1]
-        m = xf.shape[0]
+        m, n = xf.shape
         if m > self._cap or n != self._n:
             self._alloc(n, max(64, 2 * m))
-        self._len = m
         self._T[:m] = tail["t"]
         self._LINK[:m] = tail["sm_link"]
         self._XF[:m] = xf
         self._XP[:m] = tail["sm_xp"]
         self._G[:m] = tail["sm_G"]
+        self._RAW[:m, :4] = tail["mu"]
+        self._RAW[:m, 4] = tail["rho_s"]
         breaks = np.flatnonzero(self._LINK[:m] == 0)
-        self._last_break = int(breaks[-1]) if breaks.size else 0
-        due = self._due()
+        self._meta[0] = m
+        self._meta[1] = int(breaks[-1]) if breaks.size else 0
+        # due: the rows before the last break, and those more than the lag before the newest row (push_row's rule)
+        due = int(self._meta[1])
+        if m:
+            late = ~(self._T[m - 1] - self._T[:m - 1] <= self._bound)
+            due = max(due, int(np.argmin(late)) if not late.all() else m - 1)
         self._tail = tail
         return self._deliver_arrays(due) if due else None
 
     def flush_arrays(self) -> dict[str, Any] | None:
         """Every pending row as arrays (the end of a run), or None."""
-        if self._tail is None or self._len == 0:
+        if self._tail is None or self._meta[0] == 0:
             return None
-        return self._deliver_arrays(self._len)
+        return self._deliver_arrays(int(self._meta[0]))
 
     def _deliver_arrays(self, m: int) -> dict[str, Any]:
         tail = self._tail
         assert tail is not None
-        S = self._states(m)
+        vals = self._deliver(m)
         head = {k: v[:m] for k, v in tail.items()}
         rest = {k: v[m:] for k, v in tail.items()}
-        XF = self._XF[:m]
-        idx = list(STATE_INDEX)                   # (the compiled loop: the hub estimator)
-        R = np.column_stack([np.asarray(head["mu"], dtype=float), np.asarray(head["rho_s"], dtype=float)])
-        X = XF[:, idx]
-        lo = np.array([self._mu_lo] * 4 + [self._rho_lo])
-        hi = np.array([self._mu_hi] * 4 + [self._rho_hi])
-        own = R == X                                           # False on rows without a filter (NaN)
-        val = np.where(own, np.clip(S[:, idx], lo, hi), R)
-        # a held value: the smoothed value of the last own one it equals (:meth:`_revise`)
-        last = np.maximum.accumulate(np.where(own, np.arange(m)[:, None], -1), axis=0)
-        cols = np.arange(5)
-        li = np.maximum(last, 0)
-        lr = np.where(last >= 0, R[li, cols], self._raw)
-        ls = np.where(last >= 0, val[li, cols], self._sm)
-        val = np.where(~own & (R == lr), ls, val)
-        if m:                                  # the last own values, for the next rows
-            self._raw = lr[-1].copy()
-            self._sm = ls[-1].copy()
-        self.smoothed += int(np.count_nonzero(own.any(axis=1)))
-        head["mu"] = val[:, :4]
-        head["rho_s"] = val[:, 4].copy()
-        self._drop(m)
-        self._tail = rest if self._len else None
+        head["mu"] = vals[:, :4].copy()
+        head["rho_s"] = vals[:, 4].copy()
+        self._tail = rest if self._meta[0] else None
         return _strip(head)
 
 

@@ -116,22 +116,28 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
     drive does not reach every kernel (the curvature's noise needs a turn,
     covariance matching's ratio a full window), so every filter kernel is
     compiled first (:func:`~tractionecu.estimation._kernels.warm_up`), then the
-    drive compiles the machine's own model.
+    drive compiles the machine's own model, and its estimates go through the
+    fixed-lag smoother (its kernels) as the loop's do.
     """
     import numpy as np
 
     from ..estimation import _kernels
+    from ..estimation.smoother import FixedLagSmoother
 
     t0 = time.perf_counter()
     _kernels.warm_up()
     est = factory(vehicle, sensors)
+    cfg = getattr(est, "cfg", None)
+    smoother = FixedLagSmoother.from_config(cfg) if cfg is not None else FixedLagSmoother(0.0)
+    push = smoother.push
     if getattr(est, "level", None) == "machine":          # the machine-level estimator's keys
         for k in range(60):
             t = 0.01 * k
             meas = {"we": 200.0 + 0.1 * k, "vwb": 2.5, **({"v": 2.4, "vr": 2.4} if k % 10 == 0 else {})}
             inputs = {"Te": 60.0, "Tref": 400.0, "gear": 4.0, "Fzf": 25000.0, "Fdx": 12000.0} if k % 7 else {}
-            est.step(t, inputs, meas if k % 5 else {})
-        est.step(1.0, {"Te": math.nan}, {"v": 2.4})
+            push(est.step(t, inputs, meas if k % 5 else {}))
+        push(est.step(1.0, {"Te": math.nan}, {"v": 2.4}))
+        smoother.flush()
         return time.perf_counter() - t0
     md = np.full(4, 900.0)
     om = np.full(4, 3.2)
@@ -141,8 +147,9 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
         if k % 10 == 0:
             meas["v"] = 2.4
         inputs = {"Md": md, "Fzf": 25000.0, "Fdx": 12000.0} if k % 7 else {}
-        est.step(t, inputs, meas if k % 5 else {})
-    est.step(1.0, {"Md": md, "Fzf": math.nan}, {"v": 2.4})
+        push(est.step(t, inputs, meas if k % 5 else {}))
+    push(est.step(1.0, {"Md": md, "Fzf": math.nan}, {"v": 2.4}))
+    smoother.flush()
     return time.perf_counter() - t0
 
 
