@@ -62,7 +62,13 @@ pickups, sensor biases, GNSS latency; README "Truth models").  Per row:
 Also reported: ``estimator_step_us`` (full AUKF-FS step with adaptation,
 supervisor, curve; wall time) and ``estimator_step_cpu_us`` (the same steps in
 the process's CPU time, which a machine shared with other jobs inflates less;
-both the best of three passes over 10 000 steps, each with a fresh estimator),
+both the best of five passes over 10 000 steps, each with a fresh estimator;
+the default configuration, so with the fixed-lag smoother's gains computed in the
+prediction), beside them in the same run ``estimator_step_cpu_us_without_smoother_gains``
+(``smoother_lag_s`` 0: the filter alone, the baseline), ``estimator_step_cpu_us_with_smoother_delivery``
+(each estimate also through ``FixedLagSmoother.push``, as replay and the service run it)
+and ``smoother_gain_ratio_cpu`` / ``smoother_cost_ratio_cpu`` (the first and the last over the baseline;
+the three take turns pass by pass),
 ``load_average_1min`` (the machine's load when the figures were taken), ``ukf_step_us``, ``filterpy_step_us``,
 ``model_call_us_21_points`` / ``model_call_us_1_point`` (the floor set by
 ``FilterModel.step``), ``ukf_first_step_s`` (the first step of ours in the
@@ -329,7 +335,15 @@ def time_model(data: dict) -> tuple[float, float]:
     return best21, best1
 
 
-def time_estimator(rec_dir: Path, data: dict, n: int = 10000, repeats: int = 3) -> float:
+def time_estimator(rec_dir: Path, data: dict, n: int = 10000, repeats: int = 3,
+                   variants: dict[str, tuple[EstimatorConfig, bool]] | None = None) -> dict[str, tuple[float, float]]:
+    """(wall, CPU) seconds per ``Estimator.step`` of each variant (name: (configuration, through the smoother)),
+    the best of ``repeats`` passes, each a fresh estimator over the same steps.  The variants take turns pass by
+    pass, so a machine whose speed drifts (other jobs, its clock) slows them alike.  Default: the default
+    configuration alone.  Through the smoother each estimate also goes to ``FixedLagSmoother.push``, as replay
+    and the service deliver it."""
+    from tractionecu.estimation.smoother import FixedLagSmoother
+
     rec = read_recording(rec_dir)
     grid = recording_grid(rec, 100.0)
     steps = []
@@ -339,19 +353,26 @@ def time_estimator(rec_dir: Path, data: dict, n: int = 10000, repeats: int = 3) 
         if data["new_v"][k]:
             meas["v"] = float(data["v"][k])
         steps.append((float(grid[k]), inp, meas))
-    # best of ``repeats`` passes, each a fresh estimator over the same steps: on a machine shared with
-    # other jobs the least disturbed pass is the closest to the estimator's own cost (wall and CPU alike)
-    wall = cpu = math.inf
+    variants = variants or {"default": (EstimatorConfig(), False)}
+    best = {name: [math.inf, math.inf] for name in variants}
+    # best of ``repeats`` passes: on a machine shared with other jobs the least disturbed pass is the closest to
+    # the estimator's own cost (wall and CPU alike)
     for _ in range(repeats):
-        est = Estimator(data["vehicle"], EstimatorConfig())
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        for s in steps:
-            est.step(*s)
-        cpu = min(cpu, time.process_time() - c0)
-        wall = min(wall, time.perf_counter() - t0)
-    time_estimator.cpu_s = cpu / len(steps)     # type: ignore[attr-defined]
-    return wall / len(steps)
+        for name, (cfg, smooth) in variants.items():
+            est = Estimator(data["vehicle"], cfg)
+            t0 = time.perf_counter()
+            c0 = time.process_time()
+            if smooth:
+                push = FixedLagSmoother.from_config(cfg).push
+                for s in steps:
+                    push(est.step(*s))
+            else:
+                for s in steps:
+                    est.step(*s)
+            b = best[name]
+            b[1] = min(b[1], (time.process_time() - c0) / len(steps))
+            b[0] = min(b[0], (time.perf_counter() - t0) / len(steps))
+    return {name: (b[0], b[1]) for name, b in best.items()}
 
 
 def uncertainty_figures(work: Path, seed: int) -> dict:
@@ -388,7 +409,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"filterpy comparison over {args.steps} steps ...", flush=True)
         worst, t_o, t_f, first = run_pair(data, args.steps, cfg, sensors)
         m21, m1 = time_model(data)
-        est_us = time_estimator(rec_dir, data)
+        # the default step, beside the baseline of the same run (the filter without the smoother's gains,
+        # smoother_lag_s 0) and the step with the smoother's delivery as replay and the service run it
+        times = time_estimator(rec_dir, data, repeats=5, variants={
+            "default": (EstimatorConfig(), False), "baseline": (EstimatorConfig(smoother_lag_s=0.0), False),
+            "delivered": (EstimatorConfig(), True)})
+        est_us, est_cpu = times["default"]
+        base_cpu, sm_cpu = times["baseline"][1], times["delivered"][1]
         print("replay ...", flush=True)
         t_replay = time.perf_counter()
         res, rec, _result = replay_to_dir(rec_dir, work / "run", rate_hz=100.0)
@@ -403,7 +430,11 @@ def main(argv: list[str] | None = None) -> int:
             "ukf_step_us": t_o * 1e6,
             "filterpy_step_us": t_f * 1e6,
             "estimator_step_us": est_us * 1e6,
-            "estimator_step_cpu_us": time_estimator.cpu_s * 1e6,      # type: ignore[attr-defined]
+            "estimator_step_cpu_us": est_cpu * 1e6,
+            "estimator_step_cpu_us_without_smoother_gains": base_cpu * 1e6,
+            "estimator_step_cpu_us_with_smoother_delivery": sm_cpu * 1e6,
+            "smoother_gain_ratio_cpu": est_cpu / base_cpu,
+            "smoother_cost_ratio_cpu": sm_cpu / base_cpu,
             "load_average_1min": os.getloadavg()[0],
             "model_call_us_21_points": m21 * 1e6,
             "model_call_us_1_point": m1 * 1e6,
