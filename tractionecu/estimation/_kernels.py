@@ -55,11 +55,13 @@ NOT_PD = 2
 """update_block: the innovation covariance is not positive definite (nothing computed)."""
 
 
-def sigma_points(x, P, sqrt_c, sig):                     # pragma: no cover - compiled
-    """Fill sig (2n+1, n) with the scaled sigma points of N(x, P); False if P is not positive definite."""
-    n = x.shape[0]
-    L = np.zeros((n, n))
+def cholesky(P, L):                                      # pragma: no cover - compiled
+    """The lower Cholesky factor of P into L (zero above the diagonal; column by column, LAPACK ``potf2``
+    order); False if P is not positive definite."""
+    n = P.shape[0]
     for j in range(n):
+        for i in range(j):
+            L[i, j] = 0.0
         s = P[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
@@ -72,6 +74,15 @@ def sigma_points(x, P, sqrt_c, sig):                     # pragma: no cover - co
             for k in range(j):
                 t -= L[i, k] * L[j, k]
             L[i, j] = t / d
+    return True
+
+
+def sigma_points(x, P, sqrt_c, sig):                     # pragma: no cover - compiled
+    """Fill sig (2n+1, n) with the scaled sigma points of N(x, P); False if P is not positive definite."""
+    n = x.shape[0]
+    L = np.empty((n, n))
+    if not cholesky(P, L):
+        return False
     for j in range(n):
         sig[0, j] = x[j]
     for k in range(n):
@@ -129,20 +140,9 @@ def cross_gain(sig, sf, Wc, x0, x1, P1, G):              # pragma: no cover - co
                 continue
             for b in range(n):
                 C[a, b] += da * df[b]
-    L = np.zeros((n, n))
-    for j in range(n):
-        s = P1[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:              # also NaN
-            return False
-        d = math.sqrt(s)
-        L[j, j] = d
-        for i in range(j + 1, n):
-            t = P1[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / d
+    L = np.empty((n, n))
+    if not cholesky(P1, L):
+        return False
     # G P1 = C, i.e. P1 Gᵀ = Cᵀ: row a of G solves L Lᵀ g = C[a]
     y = np.empty(n)
     for a in range(n):
@@ -200,28 +200,42 @@ def _model_tag() -> int:
     return int(hashlib.sha256(src.encode("utf-8")).hexdigest()[:15], 16)
 
 
-def _make_predict_model(tag: int):
-    def predict_model(x, P, u, dt, Q, w, kc, sig, xo, Po):  # pragma: no cover - compiled
-        """Predict through FilterModel's compiled RK4 in one call: sigma points into sig, x̂ into xo, P into Po.
-
-        w = [√(n+λ), W_m (2n+1), W_c (2n+1)]; kc: FilterModel's constants.
-        Returns 0, 1 if P is not positive definite (nothing computed: the caller
-        repairs it) or 2 if the prediction is not finite.
-        """
+def _make_predict_points(tag: int):
+    def predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po):  # pragma: no cover - compiled
+        """The sigma points into sig, propagated through FilterModel's compiled RK4, x̂ into xo and P into Po:
+        (code, the propagated points), code 0, 1 if P is not positive definite (nothing computed: the caller
+        repairs it) or 2 if the prediction is not finite."""
         if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
-            return 3
+            return 3, sig
         npt = sig.shape[0]
         if not sigma_points(x, P, w[0], sig):
-            return 1
+            return 1, sig
         sf = _rk4_points(sig, u, kc, dt)
         if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
-            return 2
-        return 0
+            return 2, sf
+        return 0, sf
 
-    return predict_model
+    return predict_points
 
 
-def _make_predict_model_gain(tag: int):
+def _make_predict_model(tag: int, gain: bool):
+    """predict_model (``gain`` False) or predict_model_gain, closed over the model's tag (:func:`_model_tag`:
+    they carry the model's compiled RK4 in their machine code)."""
+    if not gain:
+        def predict_model(x, P, u, dt, Q, w, kc, sig, xo, Po):      # pragma: no cover - compiled
+            """Predict through FilterModel's compiled RK4 in one call: sigma points into sig, x̂ into xo, P into Po.
+
+            w = [√(n+λ), W_m (2n+1), W_c (2n+1)]; kc: FilterModel's constants.
+            Returns 0, 1 if P is not positive definite (nothing computed: the caller
+            repairs it) or 2 if the prediction is not finite.
+            """
+            if tag < 0:              # never: ties this function (and its cache entry) to the model's source
+                return 3
+            code, _ = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po)
+            return code
+
+        return predict_model
+
     def predict_model_gain(x, P, u, dt, Q, w, kc, sig, xo, Po, G):  # pragma: no cover - compiled
         """predict_model, and the prediction's smoother gain into G (:func:`cross_gain`).
 
@@ -229,12 +243,10 @@ def _make_predict_model_gain(tag: int):
         definite or the gain not finite: the smoother's chain breaks there)."""
         if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
             return 4
+        code, sf = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po)
+        if code != 0:
+            return code
         npt = sig.shape[0]
-        if not sigma_points(x, P, w[0], sig):
-            return 1
-        sf = _rk4_points(sig, u, kc, dt)
-        if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
-            return 2
         if not cross_gain(sig, sf, w[1 + npt:1 + 2 * npt], x, xo, Po, G):
             return 3
         return 0
@@ -602,12 +614,14 @@ def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover -
 
 _rk4_points = _vehicle._rk4_points
 
+cholesky = compiled(cholesky, inline=True)
 sigma_points = compiled(sigma_points)
 mean_cov = compiled(mean_cov)
-predict_model = compiled(_make_predict_model(_model_tag()))
+_predict_points = compiled(_make_predict_points(_model_tag()), inline=True)
+predict_model = compiled(_make_predict_model(_model_tag(), False))
 cross_gain = compiled(cross_gain)
 gain_compose = compiled(gain_compose)
-predict_model_gain = compiled(_make_predict_model_gain(_model_tag()))
+predict_model_gain = compiled(_make_predict_model(_model_tag(), True))
 update_block = compiled(update_block)
 add_torque_noise = compiled(add_torque_noise)
 add_kappa_noise = compiled(add_kappa_noise)

@@ -840,18 +840,9 @@ class Estimator:
             xf = self._sm_xf
             # (bytes: array_equal costs 2.7 µs; a state is never NaN here, a repaired or restarted one has no link)
             link = self._smooth and xf is not None and xf.shape == ukf.x.shape and ukf.x.tobytes() == xf.tobytes()
-            G = None
             try:
-                for _ in range(n_sub):
-                    ukf.predict(u, h, self._Q(h))
-                    if link:
-                        gs = ukf.last_gain
-                        if gs is None:
-                            link = False
-                        elif G is None:
-                            G = gs
-                        else:
-                            _kernels.gain_compose(G, gs, False)
+                G = ukf.predict_steps(u, h, n_sub, self._Q)
+                link = link and G is not None
             except EstimatorError:
                 self._recover(t)
                 status |= COV_REPAIRED

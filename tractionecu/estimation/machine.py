@@ -793,18 +793,9 @@ class MachineEstimator:
             Q = self._Q(h, u, rates.period("Te"))
             xf = self._sm_xf
             link = self._smooth and xf is not None and ukf.x.tobytes() == xf.tobytes()
-            G = None
             try:
-                for _ in range(n_sub):
-                    ukf.predict(u, h, Q)
-                    if link:
-                        gs = ukf.last_gain
-                        if gs is None:
-                            link = False
-                        elif G is None:
-                            G = gs
-                        else:
-                            G = G @ gs
+                G = ukf.predict_steps(u, h, n_sub, lambda _h: Q)
+                link = link and G is not None
             except EstimatorError:
                 counters["resets"] += 1
                 self.ukf = None

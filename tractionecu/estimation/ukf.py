@@ -357,6 +357,26 @@ class UnscentedFilter:
         if track and not self.repaired_last:
             self.last_gain = _gain_numpy(sig0, sf, self.Wc, x0, x, P)
 
+    def predict_steps(self, u: NDArray[np.float64], h: float, n_sub: int,
+                      q_of: Callable[[float], NDArray[np.float64]]) -> NDArray[np.float64] | None:
+        """``n_sub`` predictions of ``h`` [s] each, the process noise of each ``q_of(h)`` taken just before it;
+        returns their smoother gain (the sub-steps' gains multiplied, :func:`._kernels.gain_compose`: no update
+        between them), or None when gains are not tracked or one of them has none (``last_gain``)."""
+        G = None
+        ok = self.track_gain
+        for _ in range(n_sub):
+            self.predict(u, h, q_of(h))
+            if ok:
+                gs = self.last_gain
+                if gs is None:
+                    ok = False
+                    G = None
+                elif G is None:
+                    G = gs
+                else:
+                    _kernels.gain_compose(G, gs, False)
+        return G
+
     # ------------------------------------------------------------------ update
     def _fast_entry(self, idx: slice) -> tuple:
         """(the slice, fast spec or None, index array) of an output slice; the spec is
