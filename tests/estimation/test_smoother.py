@@ -170,8 +170,12 @@ def test_arrays_equal_one_by_one() -> None:
                 "sm_G": np.array([e.transition[3] if e.transition[0] else np.full((N, N), np.nan) for e in es])}
 
     arr = FixedLagSmoother(0.05 + 1e-9, (-0.1, 1.2), (0.0, 0.3))
-    parts = [arr.push_arrays(block(ests[i:i + 7])) for i in range(0, 50, 7)] + [arr.flush_arrays()]
-    parts = [p for p in parts if p is not None]
+    blocks = [block(ests[i:i + 7]) for i in range(0, 50, 7)]
+    kept = [{k: v.copy() for k, v in b.items()} for b in blocks]
+    parts = [p for b in blocks for p in arr.push_arrays(b)] + arr.flush_arrays()
+    # the blocks given are left as they were (the smoothing moved rows within its own copies; it once shifted the
+    # first block's times in place and delivered rows 1-5 smoothed against the wrong window)
+    assert all(np.array_equal(b[k], c[k], equal_nan=True) for b, c in zip(blocks, kept) for k in b)
     assert not any(k.startswith("sm_") for p in parts for k in p)
     mu = np.concatenate([p["mu"] for p in parts])
     rho = np.concatenate([p["rho_s"] for p in parts])
@@ -245,3 +249,27 @@ def test_the_machine_level_estimator_is_smoothed_too(tmp_path) -> None:
     assert all(np.unique(e.mu[np.isfinite(e.mu)]).size <= 1 for e in seen)   # still one μ for the machine
     assert errs[0.05] < 0.9 * errs[0.0]
     assert SMOOTH_INDEX == (2, 2, 2, 2, 3)
+
+
+def test_the_model_path_gain_equals_the_general_cross_covariance() -> None:
+    """predict_model_gain takes the gain from P's Cholesky factor and the sigma-point pairs (pair_gain); the general
+    sum over every sigma point (cross_gain, the process-model path's) gives the same gain."""
+    from tractionecu.config import VehicleParams
+    from tractionecu.estimation import _kernels as K
+    from tractionecu.model.vehicle import FilterModel
+
+    model = FilterModel(VehicleParams())
+    ukf = UnscentedFilter(model.step, np.zeros(N), np.eye(N), range(5))
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((N, N)) * 0.02
+    P = A @ A.T + np.diag(np.full(N, 1e-4))
+    x = np.array([3.1, 3.0, 3.2, 3.15, 2.4, 0.31, 0.29, 0.35, 0.33, 0.06])
+    u = np.array([2100.0, 2000.0, 3100.0, 3000.0, 25000.0, 10000.0, 0.01])
+    Q = np.diag(np.full(N, 1e-6))
+    sig, xo, Po, G = np.empty((2 * N + 1, N)), np.empty(N), np.empty((N, N)), np.empty((N, N))
+    assert K.predict_model_gain(x, P, u, 0.01, Q, ukf._w, model._kc, sig, xo, Po, G) == 0
+    sf = model.step(sig, u, 0.01)
+    ref = np.empty((N, N))
+    assert K.cross_gain(sig, sf, ukf.Wc, x, xo, Po, ref)
+    assert np.allclose(G, ref, rtol=1e-9, atol=1e-12)
+    assert np.abs(G).max() > 0.1                    # a gain, not zeros

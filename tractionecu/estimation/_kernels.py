@@ -80,7 +80,12 @@ def cholesky(P, L):                                      # pragma: no cover - co
 def sigma_points(x, P, sqrt_c, sig):                     # pragma: no cover - compiled
     """Fill sig (2n+1, n) with the scaled sigma points of N(x, P); False if P is not positive definite."""
     n = x.shape[0]
-    L = np.empty((n, n))
+    return sigma_factor(x, P, sqrt_c, sig, np.empty((n, n)))
+
+
+def sigma_factor(x, P, sqrt_c, sig, L):                  # pragma: no cover - compiled
+    """:func:`sigma_points`, P's lower Cholesky factor into L (n, n) as well."""
+    n = x.shape[0]
     if not cholesky(P, L):
         return False
     for j in range(n):
@@ -140,27 +145,61 @@ def cross_gain(sig, sf, Wc, x0, x1, P1, G):              # pragma: no cover - co
                 continue
             for b in range(n):
                 C[a, b] += da * df[b]
+    return gain_solve(C, P1, G)
+
+
+def gain_solve(C, P1, G):                                   # pragma: no cover - compiled
+    """G = C P1⁻¹ into G; False if P1 is not positive definite or G is not finite.
+
+    P1⁻¹ = L⁻ᵀ L⁻¹ from P1's Cholesky factor L, then one product: the row-by-row triangular solves it replaces
+    chain every operation on the one before (1.8 µs at n = 10); these products are independent along a row."""
+    n = C.shape[0]
     L = np.empty((n, n))
     if not cholesky(P1, L):
         return False
-    # G P1 = C, i.e. P1 Gᵀ = Cᵀ: row a of G solves L Lᵀ g = C[a]
-    y = np.empty(n)
+    Li = np.zeros((n, n))                 # L⁻¹, lower triangular
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            t = 0.0
+            for k in range(j, i):
+                t -= L[i, k] * Li[k, j]
+            Li[i, j] = t / L[i, i]
+    Pi = np.zeros((n, n))                 # P1⁻¹ = Σ_k Li[k]ᵀ Li[k] (row k of L⁻¹ is zero beyond k)
+    for k in range(n):
+        for a in range(k + 1):
+            lka = Li[k, a]
+            for b in range(k + 1):
+                Pi[a, b] += lka * Li[k, b]
     for a in range(n):
-        for i in range(n):
-            t = C[a, i]
-            for k in range(i):
-                t -= L[i, k] * y[k]
-            y[i] = t / L[i, i]
-        for i in range(n - 1, -1, -1):
-            t = y[i]
-            for k in range(i + 1, n):
-                t -= L[k, i] * G[a, k]
-            G[a, i] = t / L[i, i]
+        for b in range(n):
+            G[a, b] = 0.0
+        for k in range(n):
+            cak = C[a, k]
+            for b in range(n):
+                G[a, b] += cak * Pi[k, b]
     for a in range(n):
         for b in range(n):
             if not math.isfinite(G[a, b]):
                 return False
     return True
+
+
+def pair_gain(Lp, sf, wc_sqrt_c, P1, G):                 # pragma: no cover - compiled
+    """:func:`cross_gain` of a prediction whose sigma points are x ± √c L[:, k] with one weight W_c for all of
+    them but the centre (Van der Merwe's), from P's Cholesky factor Lp itself: then
+    C = W_c √c Σ_k L[:, k] (χ_f,k − χ_f,n+k)ᵀ, half the products of the general sum (``wc_sqrt_c`` = W_c √c)."""
+    n = Lp.shape[0]
+    C = np.zeros((n, n))
+    d = np.empty(n)
+    for k in range(n):
+        for b in range(n):
+            d[b] = wc_sqrt_c * (sf[1 + k, b] - sf[1 + n + k, b])
+        for a in range(k, n):            # L is lower triangular
+            la = Lp[a, k]
+            for b in range(n):
+                C[a, b] += la * d[b]
+    return gain_solve(C, P1, G)
 
 
 def gain_compose(G, Gs, first):                             # pragma: no cover - compiled
@@ -201,14 +240,14 @@ def _model_tag() -> int:
 
 
 def _make_predict_points(tag: int):
-    def predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po):  # pragma: no cover - compiled
-        """The sigma points into sig, propagated through FilterModel's compiled RK4, x̂ into xo and P into Po:
-        (code, the propagated points), code 0, 1 if P is not positive definite (nothing computed: the caller
-        repairs it) or 2 if the prediction is not finite."""
+    def predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po, L):  # pragma: no cover - compiled
+        """The sigma points into sig (P's Cholesky factor into L), propagated through FilterModel's compiled RK4,
+        x̂ into xo and P into Po: (code, the propagated points), code 0, 1 if P is not positive definite (nothing
+        computed: the caller repairs it) or 2 if the prediction is not finite."""
         if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
             return 3, sig
         npt = sig.shape[0]
-        if not sigma_points(x, P, w[0], sig):
+        if not sigma_factor(x, P, w[0], sig, L):
             return 1, sig
         sf = _rk4_points(sig, u, kc, dt)
         if not mean_cov(sf, w[1:1 + npt], w[1 + npt:1 + 2 * npt], Q, xo, Po):
@@ -231,7 +270,8 @@ def _make_predict_model(tag: int, gain: bool):
             """
             if tag < 0:              # never: ties this function (and its cache entry) to the model's source
                 return 3
-            code, _ = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po)
+            n = x.shape[0]
+            code, _ = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po, np.empty((n, n)))
             return code
 
         return predict_model
@@ -243,11 +283,13 @@ def _make_predict_model(tag: int, gain: bool):
         definite or the gain not finite: the smoother's chain breaks there)."""
         if tag < 0:                  # never: ties this function (and its cache entry) to the model's source
             return 4
-        code, sf = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po)
+        n = x.shape[0]
+        L = np.empty((n, n))
+        code, sf = _predict_points(x, P, u, dt, Q, w, kc, sig, xo, Po, L)
         if code != 0:
             return code
-        npt = sig.shape[0]
-        if not cross_gain(sig, sf, w[1 + npt:1 + 2 * npt], x, xo, Po, G):
+        # the Merwe sigma points: one W_c beyond the centre, the gain from P's factor (pair_gain)
+        if not pair_gain(L, sf, w[2 + 2 * n + 1] * w[0], Po, G):
             return 3
         return 0
 
@@ -615,11 +657,14 @@ def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover -
 _rk4_points = _vehicle._rk4_points
 
 cholesky = compiled(cholesky, inline=True)
+sigma_factor = compiled(sigma_factor, inline=True)
 sigma_points = compiled(sigma_points)
 mean_cov = compiled(mean_cov)
 _predict_points = compiled(_make_predict_points(_model_tag()), inline=True)
 predict_model = compiled(_make_predict_model(_model_tag(), False))
+gain_solve = compiled(gain_solve)
 cross_gain = compiled(cross_gain)
+pair_gain = compiled(pair_gain)
 gain_compose = compiled(gain_compose)
 predict_model_gain = compiled(_make_predict_model(_model_tag(), True))
 update_block = compiled(update_block)

@@ -297,53 +297,79 @@ class FixedLagSmoother:
         return out
 
     # ------------------------------------------------------------------ blocks of arrays
-    def push_arrays(self, arr: dict[str, Any]) -> dict[str, Any] | None:
+    def push_arrays(self, arr: dict[str, Any]) -> list[dict[str, Any]]:
         """Take a block of estimates as arrays (``t``, ``mu`` (N, 4), ``rho_s``, …, and the transitions
         ``sm_link`` (N,), ``sm_xf`` (N, n), ``sm_xp`` (N, n), ``sm_G`` (N, n, n); the hub estimator's state) and
-        return the rows now due as arrays without the ``sm_*`` keys, or None when none is due."""
+        return the rows now due, in order, as blocks of arrays without the ``sm_*`` keys (the rows held from the
+        last block first, then the new block's: a block is never copied whole)."""
         if self._items:
             raise RuntimeError("push_arrays() after push(): one smoother takes one kind of input")
         if self.lag_s == 0.0:
-            return _strip(arr)
-        tail = arr if self._tail is None else _concat([self._tail, arr])
-        xf = np.asarray(tail["sm_xf"], dtype=float)
-        m, n = xf.shape
-        if m > self._cap or n != self._n:
-            self._alloc(n, max(64, 2 * m))
-        self._T[:m] = tail["t"]
-        self._LINK[:m] = tail["sm_link"]
-        self._XF[:m] = xf
-        self._XP[:m] = tail["sm_xp"]
-        self._G[:m] = tail["sm_G"]
-        self._RAW[:m, :4] = tail["mu"]
-        self._RAW[:m, 4] = tail["rho_s"]
-        breaks = np.flatnonzero(self._LINK[:m] == 0)
-        self._meta[0] = m
-        self._meta[1] = int(breaks[-1]) if breaks.size else 0
-        # due: the rows before the last break, and those more than the lag before the newest row (push_row's rule)
-        due = int(self._meta[1])
-        if m:
-            late = ~(self._T[m - 1] - self._T[:m - 1] <= self._bound)
-            due = max(due, int(np.argmin(late)) if not late.all() else m - 1)
-        self._tail = tail
-        return self._deliver_arrays(due) if due else None
+            return [_strip(arr)]
+        parts = [arr] if self._tail is None else [self._tail, arr]
+        return self._arrays_due(parts, final=False)
 
-    def flush_arrays(self) -> dict[str, Any] | None:
-        """Every pending row as arrays (the end of a run), or None."""
-        if self._tail is None or self._meta[0] == 0:
-            return None
-        return self._deliver_arrays(int(self._meta[0]))
+    def flush_arrays(self) -> list[dict[str, Any]]:
+        """Every pending row as blocks of arrays (the end of a run)."""
+        if self._tail is None:
+            return []
+        return self._arrays_due([self._tail], final=True)
 
-    def _deliver_arrays(self, m: int) -> dict[str, Any]:
-        tail = self._tail
-        assert tail is not None
-        vals = self._deliver(m)
-        head = {k: v[:m] for k, v in tail.items()}
-        rest = {k: v[m:] for k, v in tail.items()}
-        head["mu"] = vals[:, :4].copy()
-        head["rho_s"] = vals[:, 4].copy()
-        self._tail = rest if self._meta[0] else None
-        return _strip(head)
+    def _arrays_due(self, parts: list[dict[str, Any]], final: bool) -> list[dict[str, Any]]:
+        """The rows of ``parts`` now due (all with ``final``), smoothed; the rest kept as the tail."""
+        self._tail = None
+
+        def cat(key: str, dtype: Any = float) -> np.ndarray:
+            # a new array (deliver_rows moves rows within it: the caller's must stay as they are)
+            vals = [np.asarray(p[key], dtype=dtype) for p in parts]
+            return np.array(vals[0], dtype=dtype, order="C") if len(vals) == 1 else np.concatenate(vals)
+
+        T = cat("t")
+        m = T.shape[0]
+        if m == 0:
+            return []
+        LINK = cat("sm_link", np.int8)
+        XF, XP, G = cat("sm_xf"), cat("sm_xp"), cat("sm_G")
+        RAW = np.column_stack([cat("mu"), cat("rho_s")])
+        breaks = np.flatnonzero(LINK == 0)
+        last_break = int(breaks[-1]) if breaks.size else 0
+        if final:
+            due = m
+        else:
+            # the rows before the last break, and those more than the lag before the newest row (push_row's rule)
+            late = ~(T[m - 1] - T[:m - 1] <= self._bound)
+            due = max(last_break, int(np.argmin(late)) if not late.all() else m - 1)
+        meta = self._meta
+        meta[0], meta[1] = m, last_break
+        out: list[dict[str, Any]] = []
+        if due:
+            vals = np.empty((due, 5))
+            idx = np.asarray(STATE_INDEX, dtype=np.int64)           # (the compiled loop: the hub estimator)
+            deliver_rows(T, LINK, XF, XP, G, RAW, idx, meta, self._carry, self._lims, self._bound, due,
+                         np.empty((due, XF.shape[1])), vals)
+        # the due rows part by part (views), the rest as the new tail (copies: a block is not kept alive)
+        left = m - due
+        k = 0
+        rest: list[dict[str, Any]] = []
+        for p in parts:
+            n_p = len(p["t"])
+            take = min(max(due - k, 0), n_p)
+            if take:
+                head = {key: v[:take] for key, v in p.items() if not key.startswith("sm_")}
+                head["mu"] = vals[k:k + take, :4].copy()
+                head["rho_s"] = vals[k:k + take, 4].copy()
+                out.append(head)
+            if take < n_p:
+                rest.append({key: (v[take:].copy() if isinstance(v, np.ndarray) else list(v[take:]))
+                             for key, v in p.items()})
+            k += n_p
+        if left:
+            # the transitions of the rows left, as deliver_rows moved them to the front
+            tail = _concat(rest) if len(rest) > 1 else rest[0]
+            tail["sm_link"] = LINK[:left].copy()
+            tail["sm_xf"], tail["sm_xp"], tail["sm_G"] = XF[:left].copy(), XP[:left].copy(), G[:left].copy()
+            self._tail = tail
+        return out
 
 
 def _strip(arr: dict[str, Any]) -> dict[str, Any]:

@@ -272,8 +272,7 @@ def _batch_run_class() -> type:
             if self.loop is None:
                 super()._flush()
                 return
-            arr = self.smoother.flush_arrays()
-            if arr is not None:
+            for arr in self.smoother.flush_arrays():
                 self.sink.keep_arrays(arr)
 
         def _step(self, grid: np.ndarray) -> None:
@@ -301,8 +300,7 @@ def _batch_run_class() -> type:
                         wall = time.perf_counter()
                         out = loop.step_block(args[a:a + BLOCK])
                         self.loop_seconds += time.perf_counter() - wall
-                        arr = self.smoother.push_arrays(loop.arrays(out))
-                        if arr is not None:
+                        for arr in self.smoother.push_arrays(loop.arrays(out)):
                             self.sink.keep_arrays(arr)
                     finally:
                         if gc_on:
