@@ -77,6 +77,18 @@ def cholesky(P, L):                                      # pragma: no cover - co
     return True
 
 
+def lower_inverse(L, Li):                                # pragma: no cover - compiled
+    """The inverse of the lower triangular L into Li (zero above its diagonal on entry), column by column."""
+    n = L.shape[0]
+    for j in range(n):
+        Li[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, n):
+            t = 0.0
+            for k in range(j, i):
+                t -= L[i, k] * Li[k, j]
+            Li[i, j] = t / L[i, i]
+
+
 def sigma_points(x, P, sqrt_c, sig):                     # pragma: no cover - compiled
     """Fill sig (2n+1, n) with the scaled sigma points of N(x, P); False if P is not positive definite."""
     n = x.shape[0]
@@ -158,13 +170,7 @@ def gain_solve(C, P1, G):                                   # pragma: no cover -
     if not cholesky(P1, L):
         return False
     Li = np.zeros((n, n))                 # L⁻¹, lower triangular
-    for j in range(n):
-        Li[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, n):
-            t = 0.0
-            for k in range(j, i):
-                t -= L[i, k] * Li[k, j]
-            Li[i, j] = t / L[i, i]
+    lower_inverse(L, Li)
     Pi = np.zeros((n, n))                 # P1⁻¹ = Σ_k Li[k]ᵀ Li[k] (row k of L⁻¹ is zero beyond k)
     for k in range(n):
         for a in range(k + 1):
@@ -322,28 +328,11 @@ def update_block(x, P, z, R, i0, gate, lo, hi, xn, Pn, work, small):  # pragma: 
             S[a, b] = P[i0 + a, i0 + b]
         S[a, a] += R[a]
     # S⁻¹ from the Cholesky factor: S = L Lᵀ, S⁻¹ = L⁻ᵀ L⁻¹
-    L = np.zeros((m, m))
-    for j in range(m):
-        s = S[j, j]
-        for k in range(j):
-            s -= L[j, k] * L[j, k]
-        if not s > 0.0:
-            return NOT_PD, math.nan, False
-        dj = math.sqrt(s)
-        L[j, j] = dj
-        for i in range(j + 1, m):
-            t = S[i, j]
-            for k in range(j):
-                t -= L[i, k] * L[j, k]
-            L[i, j] = t / dj
+    L = np.empty((m, m))
+    if not cholesky(S, L):
+        return NOT_PD, math.nan, False
     Li = np.zeros((m, m))            # L⁻¹ (lower)
-    for j in range(m):
-        Li[j, j] = 1.0 / L[j, j]
-        for i in range(j + 1, m):
-            t = 0.0
-            for k in range(j, i):
-                t -= L[i, k] * Li[k, j]
-            Li[i, j] = t / L[i, i]
+    lower_inverse(L, Li)
     for a in range(m):
         for b in range(a, m):
             t = 0.0
@@ -657,6 +646,7 @@ def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover -
 _rk4_points = _vehicle._rk4_points
 
 cholesky = compiled(cholesky, inline=True)
+lower_inverse = compiled(lower_inverse, inline=True)
 sigma_factor = compiled(sigma_factor, inline=True)
 sigma_points = compiled(sigma_points)
 mean_cov = compiled(mean_cov)
