@@ -43,6 +43,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ..columns import concat
 from ..model.vehicle import IX_MU, IX_RHO, compiled
 
 __all__ = ["FixedLagSmoother", "smooth_rows"]
@@ -365,7 +366,7 @@ class FixedLagSmoother:
             k += n_p
         if left:
             # the transitions of the rows left, as deliver_rows moved them to the front
-            tail = _concat(rest) if len(rest) > 1 else rest[0]
+            tail = concat(rest) if len(rest) > 1 else rest[0]
             tail["sm_link"] = LINK[:left].copy()
             tail["sm_xf"], tail["sm_xp"], tail["sm_G"] = XF[:left].copy(), XP[:left].copy(), G[:left].copy()
             self._tail = tail
@@ -375,13 +376,3 @@ class FixedLagSmoother:
 def _strip(arr: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in arr.items() if not k.startswith("sm_")}
 
-
-def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
-    out = {}
-    for k in parts[0]:
-        vals = [p[k] for p in parts]
-        if isinstance(vals[0], np.ndarray):
-            out[k] = np.concatenate(vals)
-        else:
-            out[k] = [x for v in vals for x in v]
-    return out

@@ -62,6 +62,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from ..columns import concat
 from ..errors import ConfigError
 from ..estimation.estimator import Estimate, EstimatorConfig
 from .replay import _Sink, _rows, check_rate, stepped_seconds
@@ -254,8 +255,7 @@ def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
         out.update(nis_dof=np.empty(0, dtype=np.int64), status=np.empty(0, dtype=np.int64),
                    valid=np.empty(0, dtype=bool), soil_class=[], curve=[], curve_path=[])
         return out
-    return {name: (np.concatenate([p[name] for p in parts]) if isinstance(parts[0][name], np.ndarray)
-                   else [x for p in parts for x in p[name]]) for name in parts[0]}
+    return concat(parts)
 
 
 # ----------------------------------------------------------------------------- the run

@@ -57,6 +57,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from ..columns import concat
 from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_toml
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
@@ -552,9 +553,7 @@ def _concat(parts: list[dict[str, Any]]) -> dict[str, Any]:
         out.update(nis_dof=np.empty(0, dtype=np.int64), status=np.empty(0, dtype=np.int64),
                    valid=np.empty(0, dtype=bool), soil_class=[])
         return out
-    out = {name: (np.concatenate([p[name] for p in parts]) if isinstance(parts[0][name], np.ndarray)
-                  else [x for p in parts for x in p[name]]) for name in parts[0]}
-    return out
+    return concat(parts)
 
 
 # ----------------------------------------------------------------------------- run directory
