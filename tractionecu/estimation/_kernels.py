@@ -17,10 +17,11 @@ in one call each.  They compute the same quantities as the numpy code in
   model is ``FilterModel.step``;
 * :func:`update_block` — the closed-form update of a contiguous block of
   states with a diagonal R, per-component NIS gate and bounds;
-* :func:`cross_gain`, :func:`predict_model_gain`, :func:`gain_compose` — the
-  prediction's smoother gain G = C P⁻¹, C the cross-covariance of the state
-  before and after the prediction (Särkkä 2008, the unscented RTS smoother),
-  for the fixed-lag smoother (:mod:`.smoother`).
+* :func:`predict_model_gain` (with :func:`pair_gain`), :func:`cross_gain`,
+  :func:`gain_solve`, :func:`gain_compose` — the prediction's smoother gain
+  G = C P⁻¹, C the cross-covariance of the state before and after the
+  prediction (Särkkä 2008, the unscented RTS smoother), for the fixed-lag
+  smoother (:mod:`.smoother`).
 
 and, for the estimator's bookkeeping around the filter (the same operations
 as the numpy code they replace, which stays the fallback; bit for bit, see

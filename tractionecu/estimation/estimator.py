@@ -431,9 +431,8 @@ class Estimator:
                          "time_backwards": 0, "repeated_measurements": 0}
         self._monitor.reset()
         # the fixed-lag smoother's transition of the step (Estimate.transition): the last estimate's x⁺, and
-        # this step's link, prior and gain
+        # this step's prior and gain (a prior only where the step's prediction links to that x⁺)
         self._sm_xf: NDArray[np.float64] | None = None
-        self._sm_link = False
         self._sm_xp: NDArray[np.float64] | None = None
         self._sm_G: NDArray[np.float64] | None = None
 
@@ -666,7 +665,7 @@ class Estimator:
         predict_only = False
         counters = self.counters
         counters["steps"] += 1
-        self._sm_link = False
+        self._sm_xp = None
         if not math.isfinite(t):
             # a time that is no time: the step is refused, the state untouched (one NaN time stamp had made
             # the supervisor's acceleration NaN for good and re-initialised the filter on every later step)
@@ -854,7 +853,6 @@ class Estimator:
                 self._first_order_hold(foh, t, self.t)
             self.t = t
             if link:
-                self._sm_link = True
                 self._sm_xp = ukf.x.copy()
                 self._sm_G = G
         # ---- update
@@ -1516,7 +1514,7 @@ class Estimator:
         if self._smooth:
             xf = x_state.copy()
             xp = self._sm_xp
-            link = self._sm_link and xp is not None and xp.shape == xf.shape
+            link = xp is not None and xp.shape == xf.shape
             tr = (link, xf, xp if link else None, self._sm_G if link else None)
             self._sm_xf = xf
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,

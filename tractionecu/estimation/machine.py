@@ -429,10 +429,9 @@ class MachineEstimator:
         self._last: MachineEstimate | None = None
         self._hold_until = -math.inf
         # the fixed-lag smoother's transition (Estimate.transition, as the hub estimator's): the last estimate's
-        # x⁺ and its μ and ρ_s as made, this step's link, prior and gain
+        # x⁺ and its μ and ρ_s as made, this step's prior and gain (a prior only where its prediction links)
         self._sm_xf: NDArray[np.float64] | None = None
         self._sm_raw: tuple[NDArray[np.float64], float] | None = None
-        self._sm_link = False
         self._sm_xp: NDArray[np.float64] | None = None
         self._sm_G: NDArray[np.float64] | None = None
 
@@ -577,7 +576,7 @@ class MachineEstimator:
             return e
         cfg = self.cfg
         self._last = None
-        self._sm_link = False
+        self._sm_xp = None
         status = MACHINE_LEVEL | (0 if self.draft else DRAFT_NOT_SEPARATED)
         predict_only = False
         counters = self.counters
@@ -804,7 +803,7 @@ class MachineEstimator:
                 status |= COV_REPAIRED
             self.t = t
             if link:
-                self._sm_link, self._sm_xp, self._sm_G = True, ukf.x.copy(), G
+                self._sm_xp, self._sm_G = ukf.x.copy(), G
         # ---- update
         updated = False
         if not predict_only and (z_w is not None or zv):
@@ -1048,7 +1047,7 @@ class MachineEstimator:
         mu4 = np.full(4, mu)
         if self._smooth:
             xs = x.copy()
-            link = self._sm_link
+            link = self._sm_xp is not None
             tr = (link, xs, self._sm_xp if link else None, self._sm_G if link else None, SMOOTH_INDEX)
             self._sm_xf, self._sm_raw = xs, (mu4, rho_s)
         self._last = MachineEstimate(t, mu4, rho_s, cs.a, cs.class_name, np.array(s, dtype=float), v,
