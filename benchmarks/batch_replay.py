@@ -8,7 +8,7 @@ average is printed beside):
 * ``engine``: the recording decoded once in memory, then :func:`tractionecu.pipeline.replay.replay`
   (the step path's loop and sink) against :func:`tractionecu.pipeline.batch.replay_batch`;
 * ``path``: from the recording's path, what ``tractionecu replay`` and the fleet run:
-  :func:`~tractionecu.pipeline.replay.replay_to_dir` (streamed decoding, the 100 Hz loop,
+  :func:`~tractionecu.pipeline.rundir.replay_to_dir` (streamed decoding, the 100 Hz loop,
   ``estimates.csv``, the map) against :func:`~tractionecu.pipeline.batch.replay_batch_rows` (streamed
   decoding, the loop, the 1 Hz rows and the map's steps) and the map;
 * ``fleet task``: :func:`tractionecu.fleet.tasks.replay_task` on each path (Parquet, the farm-frame
@@ -56,7 +56,8 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     from tractionecu.estimation import _kernels
     from tractionecu.pipeline.batch import max_differences, replay_batch, replay_batch_rows
     from tractionecu.mapping.from_replay import write_replay_map
-    from tractionecu.pipeline.replay import replay, replay_to_dir
+    from tractionecu.pipeline.replay import replay
+    from tractionecu.pipeline.rundir import replay_to_dir
     from tractionecu.recording.reader import read_recording
 
     _kernels.warm_up()
@@ -68,7 +69,7 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     diff = max_differences(step_res.arrays, batch_res.arrays)
 
     def path_step() -> Any:
-        return replay_to_dir(path, scratch / "step", keep_arrays=False)
+        return replay_to_dir(path, scratch / "step", keep_arrays=False, compiled=False)
 
     def path_batch() -> Any:
         b = replay_batch_rows(path)

@@ -19,10 +19,12 @@ Figures (printed and written as JSON keys):
     same noise settings, adaptation and gating off.
 ``replay_realtime_factor``
     simulated seconds per wall second of ``tractionecu replay``'s work on a
-    full ``paper-three-soils`` recording (``pipeline.replay.replay_to_dir``
+    full ``paper-three-soils`` recording (``pipeline.rundir.replay_to_dir``
     and ``evaluation.replay.score_replay``): CAN decoding, NMEA parsing and
-    GPS alignment, the 100 Hz estimator, ``estimates.csv``, the map and the
-    scorecards.
+    GPS alignment, the 100 Hz estimator (its compiled loop, the default),
+    ``estimates.csv``, the map and the scorecards.  Beside it, in the same run,
+    ``replay_step_path_realtime_factor`` (``--step-path``: ``Estimator.step``
+    per step, the same estimates) and their ratio ``replay_speedup_vs_step_path``.
 
 Scenario families (issue 13; ``--families``, on by default): one row per
 scenario family and truth model, each recording simulated with ``--seed``
@@ -97,7 +99,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter  # noqa: E402
 
 from tractionecu.evaluation.replay import score_replay  # noqa: E402
-from tractionecu.pipeline.replay import recording_grid, replay_to_dir  # noqa: E402
+from tractionecu.pipeline.replay import recording_grid  # noqa: E402
+from tractionecu.pipeline.rundir import replay_to_dir  # noqa: E402
 from tractionecu.pipeline.signals import DRAFT, DRIVE_TORQUES, FRONT_AXLE_LOAD, WHEEL_SPEEDS  # noqa: E402
 from tractionecu.pipeline.steps import arrivals  # noqa: E402
 from tractionecu.config import SensorSpec, load_vehicle  # noqa: E402
@@ -417,15 +420,21 @@ def main(argv: list[str] | None = None) -> int:
         est_us, est_cpu = times["default"]
         base_cpu, sm_cpu = times["baseline"][1], times["delivered"][1]
         print("replay ...", flush=True)
-        t_replay = time.perf_counter()
-        res, rec, _result = replay_to_dir(rec_dir, work / "run", rate_hz=100.0)
-        res.update(score_replay(work / "run", rec, _result.arrays, plot=False, summary=res))
-        res["wall_seconds"] = time.perf_counter() - t_replay   # read, estimate, write, map and scorecards
+        walls = {}
+        for name, compiled in (("step", False), ("default", None)):      # the step path first: the baseline
+            t_replay = time.perf_counter()
+            res, rec, _result = replay_to_dir(rec_dir, work / f"run-{name}", rate_hz=100.0, compiled=compiled)
+            res.update(score_replay(work / f"run-{name}", rec, _result.arrays, plot=False, summary=res))
+            walls[name] = time.perf_counter() - t_replay   # read, estimate, write, map and scorecards
+        res["wall_seconds"] = walls["default"]
         res["realtime_factor"] = res["sim_seconds"] / res["wall_seconds"]
+        print(f"replay loop: {res['loop']}", flush=True)
         figures = {
             "ukf_step_speedup_vs_filterpy": t_f / t_o,
             "max_rel_state_diff_vs_filterpy": worst,
             "replay_realtime_factor": res["realtime_factor"],
+            "replay_step_path_realtime_factor": res["sim_seconds"] / walls["step"],
+            "replay_speedup_vs_step_path": walls["step"] / walls["default"],
             "replay_loop_realtime_factor": res["sim_seconds"] / res["loop_seconds"],
             "ukf_step_us": t_o * 1e6,
             "filterpy_step_us": t_f * 1e6,

@@ -55,7 +55,7 @@ def make_season(work: Path, n: int, machines: int, duration: float, client) -> P
 
 
 def _warm(path: str, out: str, batch: bool = False) -> int:
-    from tractionecu.pipeline.replay import replay_to_dir
+    from tractionecu.pipeline.rundir import replay_to_dir
 
     replay_to_dir(path, out, keep_arrays=False)
     if batch:
@@ -94,7 +94,7 @@ def merge_check(season_out: Path, recs: list[dict], work: Path) -> dict:
     from tractionecu.fleet.merge import max_difference, merge_maps
     from tractionecu.mapping.from_replay import write_replay_map
     from tractionecu.mapping.store import MapStore
-    from tractionecu.pipeline.replay import replay_to_dir
+    from tractionecu.pipeline.rundir import replay_to_dir
 
     ok = sorted((r for r in recs if r.get("status") == "ok" and r.get("map_samples")),
                 key=lambda r: (r["machine"], r["date"], r["path"]))

@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import independent_sim as isim  # noqa: E402
 
-from tractionecu.pipeline.replay import replay_to_dir  # noqa: E402
+from tractionecu.pipeline.rundir import replay_to_dir  # noqa: E402
 
 WHEELS = ("FL", "FR", "RL", "RR")
 SLIP_UNCERTAIN = 0x2000

@@ -72,6 +72,16 @@ def test_replay_of_a_clean_recording_reports_no_skips(short_recording, tmp_path,
     assert "skipped" not in capsys.readouterr().out
 
 
+def test_replay_says_which_loop_ran_and_the_step_path_writes_the_same_estimates(short_recording, tmp_path, capsys):
+    """``tractionecu replay`` runs the compiled loop; ``--step-path`` the daemon's Estimator.step: the same
+    estimates.csv, byte for byte, and the summary's first line names the loop."""
+    assert main(["replay", "--no-map", "--out", str(tmp_path / "fast"), str(short_recording)]) == 0
+    assert "; loop: compiled)" in capsys.readouterr().out
+    assert main(["replay", "--no-map", "--step-path", "--out", str(tmp_path / "step"), str(short_recording)]) == 0
+    assert "; loop: python: compiled=False)" in capsys.readouterr().out
+    assert ((tmp_path / "fast" / "estimates.csv").read_bytes() == (tmp_path / "step" / "estimates.csv").read_bytes())
+
+
 def test_a_replay_into_an_earlier_output_leaves_no_product_of_the_earlier_one(short_recording, tmp_path, capsys):
     """An output directory reused for a recording without GNSS (or with --no-map) kept the earlier
     recording's map, scorecard.json and map_scorecard.json beside the new estimates.csv, and replay said

@@ -183,7 +183,7 @@ def test_replay_marks_the_lost_period_and_the_map_skips_it(base, tmp_path, monke
     """ρ_s thrown to its bound: the filter slows to a crawl while the wheels turn at 2.5 m/s and the GNSS
     speed is refused (the behaviour seen after a reverse).  It is declared lost 1 s later, and the replay
     marks the lost period from its start: not valid, and no map sample comes from it."""
-    import tractionecu.pipeline.replay as pr
+    import tractionecu.pipeline.rundir as pr
     from tractionecu.mapping.store import open_store
 
     f0 = _t0(base) + FAULT_AT_S

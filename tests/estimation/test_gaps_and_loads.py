@@ -5,7 +5,8 @@ an absurd grid (hundreds of TiB); the estimator now restarts after a gap instead
 import numpy as np
 import pytest
 
-from tractionecu.pipeline.replay import recording_grid, replay_to_dir
+from tractionecu.pipeline.replay import recording_grid
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.config import VehicleParams
 from tractionecu.errors import RecordingError
 from tractionecu.estimation.estimator import INPUT_REJECTED, NOT_CONVERGED, Estimator, EstimatorConfig

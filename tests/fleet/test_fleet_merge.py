@@ -75,7 +75,7 @@ def test_merged_map_of_two_machines_equals_one_map_fed_in_sequence(tmp_path: Pat
     """Two replays on the same field: their per-recording stores merged equal, within 1e-9, one store
     fed by both replays in sequence (counts exactly)."""
     from tractionecu.mapping.from_replay import write_replay_map
-    from tractionecu.pipeline.replay import replay_to_dir
+    from tractionecu.pipeline.rundir import replay_to_dir
 
     runs = []
     for name, rec_dir in short_recordings.items():

@@ -16,7 +16,8 @@ import pytest
 
 from tractionecu.pipeline.batch import BatchSink, max_differences, replay_batch, replay_batch_rows
 from tractionecu.estimation.estimator import FILTER_LOST
-from tractionecu.pipeline.replay import _Sink, replay, replay_to_dir
+from tractionecu.pipeline.replay import _Sink, replay
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.recording.reader import read_recording
 
 TOL = 1e-9
@@ -101,7 +102,7 @@ def test_batch_rows_are_the_step_paths_rows_at_the_rate_and_the_maps(three_soils
                   rows)
     assert out["steps"] == a["t"].size and out["valid_steps"] == int(a["valid"].sum())
     # the map's steps: those the step path's replay_to_dir keeps for its map
-    _, _, res = replay_to_dir(three_soils, tmp_path / "run", keep_arrays=False, write_map=True)
+    _, _, res = replay_to_dir(three_soils, tmp_path / "run", keep_arrays=False, write_map=True, compiled=False)
     m = res.arrays
     assert np.array_equal(out["map"]["t"], m["t"]) and m["t"].size > 100
     _assert_equal(m, out["map"])

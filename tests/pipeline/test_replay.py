@@ -11,7 +11,8 @@ import pytest
 from tractionecu.cli.main import main
 from tractionecu.evaluation.replay import score_replay
 from tractionecu.evaluation.scoring import r_squared
-from tractionecu.pipeline.replay import CSV_COLUMNS, replay, replay_to_dir
+from tractionecu.pipeline.replay import CSV_COLUMNS, replay
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.recording.reader import read_recording
 from tractionecu.sim import scenarios
 from tractionecu.sim.simulator import simulate
@@ -126,17 +127,24 @@ def _nmea_speed_spike(src, dst, t0_frac: float, seconds: float, knots: float = 2
 
 
 @pytest.mark.parametrize("keep_arrays", [True, False], ids=["arrays-kept", "streamed-only"])
-def test_a_streamed_replay_writes_what_the_in_memory_one_writes(rec, tmp_path, monkeypatch, keep_arrays):
+@pytest.mark.parametrize("loop", [dict(compiled=False), dict(), dict(hold_bytes=0)],
+                         ids=["step-path", "compiled-one-pass", "compiled-streamed"])
+def test_a_streamed_replay_writes_what_the_in_memory_one_writes(rec, tmp_path, monkeypatch, keep_arrays, loop):
     """Read in blocks of 30 000 characters, with a lost filter whose period starts before the block it is
-    declared in: the same estimates.csv bytes, map tiles and arrays as the recording replayed in memory."""
+    declared in: the same estimates.csv bytes, map tiles and arrays as the recording replayed in memory on the
+    step path, whichever loop replays it from its path (the compiled one with the capture decoded once, or
+    decoded again block by block)."""
     from tractionecu.recording import fastdecode
 
     _nmea_speed_spike(rec, tmp_path / "rec", 0.5, 3.0)
     mem_rec = read_recording(tmp_path / "rec")
-    s_mem, _, r_mem = replay_to_dir(mem_rec, tmp_path / "mem")
-    assert r_mem.counters["lost"] >= 1
+    s_mem, _, r_mem = replay_to_dir(mem_rec, tmp_path / "mem", compiled=False)
+    assert r_mem.counters["lost"] >= 1 and s_mem["loop"] == "python: compiled=False"
     monkeypatch.setattr(fastdecode, "CHUNK_CHARS", 30_000)
-    s_str, survey, r_str = replay_to_dir(tmp_path / "rec", tmp_path / "str", keep_arrays=keep_arrays)
+    s_str, survey, r_str = replay_to_dir(tmp_path / "rec", tmp_path / "str", keep_arrays=keep_arrays, **loop)
+    assert s_str["loop"] == ("python: compiled=False" if loop.get("compiled") is False else "compiled")
+    assert s_str["decode"].startswith("streamed" if loop.get("compiled") is False or "hold_bytes" in loop
+                                      else "one pass")
     assert (tmp_path / "str" / "estimates.csv").read_bytes() == (tmp_path / "mem" / "estimates.csv").read_bytes()
     assert r_str.counters == r_mem.counters and r_str.steps == r_mem.steps
     assert s_str["sim_seconds"] == s_mem["sim_seconds"] and s_str["map_samples"] == s_mem["map_samples"] > 0

@@ -9,7 +9,8 @@ import pytest
 from tractionecu.bus.candump import format_line
 from tractionecu.bus.dbc import WHEELS, default_codec
 from tractionecu.cli.replay import missing_report, profile_note
-from tractionecu.pipeline.replay import MissingSignals, recording_grid, replay_to_dir
+from tractionecu.pipeline.replay import MissingSignals, recording_grid
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.pipeline.signals import (REPLAY_REQUIRED, missing_signals, motion, profile_status, signal_state,
                                           source_of)
 from tractionecu.recording.reader import read_recording

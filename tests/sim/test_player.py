@@ -14,7 +14,7 @@ from tractionecu.bus.dbc import WHEELS, default_codec
 from tractionecu.cli.main import main
 from tractionecu.estimation.config import EstimatorConfig
 from tractionecu.estimation.smoother import LAG_TOLERANCE_S
-from tractionecu.pipeline.replay import replay_to_dir
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.mapping.store import MapStore
 from tractionecu.service.broadcast import MESSAGES
 from tractionecu.service.config import ServiceConfig, with_overrides

@@ -38,7 +38,7 @@ from tractionecu.bus.candump import read_candump
 from tractionecu.bus.dbc import WHEELS, default_codec
 from tractionecu.estimation.config import EstimatorConfig
 from tractionecu.estimation.smoother import LAG_TOLERANCE_S
-from tractionecu.pipeline.replay import replay_to_dir
+from tractionecu.pipeline.rundir import replay_to_dir
 from tractionecu.mapping.store import MapStore
 from tractionecu.service.config import default_name
 from tractionecu.sim.player import nmea_schedule

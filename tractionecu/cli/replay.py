@@ -1,8 +1,11 @@
 """``tractionecu replay REC --out RUN [--rate 100] [--plot] [--dbc FILE ...]``: run the estimator over a recording.
 
-The work is the pipeline's (:func:`tractionecu.pipeline.replay.replay_to_dir`:
+The work is the pipeline's (:func:`tractionecu.pipeline.rundir.replay_to_dir`:
 the step grid phased to the wheel-speed frames, the step rule and GNSS gate
-the daemon applies, ``estimates.csv``, ``config.toml``, the map).  With a
+the daemon applies, ``estimates.csv``, ``config.toml``, the map).  The
+estimator runs in batch replay's compiled loop where it covers the machine,
+and ``--step-path`` runs the daemon's own ``Estimator.step`` instead: the same
+estimates, float for float, slower (the summary's first line says which ran).  With a
 simulated recording (``truth.csv``), the evaluation side
 (:func:`tractionecu.evaluation.replay.score_replay`) adds ``scorecard.json``
 (also printed as a table), ``map_scorecard.json`` and, with ``--plot``, the
@@ -60,6 +63,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="estimator configuration ([estimator] table, optional [estimator.fuzzy])")
     p.add_argument("--classes", default=None, metavar="A,B,...",
                    help="surface classes to fit (overrides the configuration), e.g. stubble,grassland,tilled,road")
+    p.add_argument("--step-path", action="store_true",
+                   help="run the daemon's Estimator.step per step instead of the compiled loop (same estimates)")
     add_dbc_option(p)
     p.set_defaults(func=run)
 
@@ -68,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     from ..bus.dbc import extra_dbcs
     from ..config import replace
     from ..estimation.estimator import EstimatorConfig, load_estimator_config
-    from ..pipeline.replay import MissingSignals, replay_to_dir
+    from ..pipeline.replay import MissingSignals
+    from ..pipeline.rundir import replay_to_dir
 
     cfg = load_estimator_config(args.config) if args.config else EstimatorConfig()
     if args.classes:
@@ -87,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
             # --plot draws every step: without truth.csv the streamed replay kept only the map's steps (none
             # with --no-map), and the figures failed on an empty array
             summary, rec, res = replay_to_dir(args.recording, args.out, rate_hz=args.rate, cfg=cfg,
-                                              write_map=not args.no_map, keep_arrays=True if args.plot else None)
+                                              write_map=not args.no_map, keep_arrays=True if args.plot else None,
+                                              compiled=False if args.step_path else None)
     except MissingSignals as e:
         print("\n".join(missing_report(e.recording, e.missing)), file=sys.stderr)
         return EXIT_MISSING_SIGNALS
@@ -287,7 +294,7 @@ def profile_note(rec: Any) -> list[str]:
 def format_summary(res: dict[str, Any]) -> str:
     """The scorecard (if any) and run figures as a plain-text table."""
     lines = [f"replay: {res['steps']} steps, {res['sim_seconds']:.1f} s simulated in {res['wall_seconds']:.2f} s "
-             f"({res['realtime_factor']:.0f}x real time)"]
+             f"({res['realtime_factor']:.0f}x real time; loop: {res.get('loop', 'step path')})"]
     sc = res.get("scorecard")
     if sc:
         from ..evaluation.scoring import R2_TARGET_SLIP_SPAN

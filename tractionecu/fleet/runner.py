@@ -224,7 +224,7 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
     ``recordings.parquet``, ``failures.parquet`` and, for diagnosis, ``diagnosis.parquet``.  Returns the
     task records.  ``batch``: replay on the batch path (:mod:`tractionecu.pipeline.batch`: the same
     estimates, kept as arrays, Parquet written from them at full precision, no ``estimates.csv``;
-    ``keep_csv`` takes the step path).
+    ``keep_csv`` writes each replay's ``estimates.csv`` as ``tractionecu replay`` does, Parquet from its text).
 
     OUT accumulates a season: a run updates the recordings of its SOURCE and keeps, in every table, dataset
     and the farm map, the recordings of earlier runs that this SOURCE does not cover (a day's folder run

@@ -12,7 +12,7 @@ those (:mod:`.runner`).
 
 Replay (:func:`replay_task`) writes
 
-* the replay's own output (:func:`~tractionecu.pipeline.replay.replay_to_dir`, streamed, bounded
+* the replay's own output (:func:`~tractionecu.pipeline.rundir.replay_to_dir`, streamed, bounded
   memory) in ``replay/`` (``estimates.csv`` removed once converted, unless ``keep_csv``);
 * the estimates at ``estimate_rate_hz`` (the first step at or after each 1/rate boundary; 0: every
   step) to ``OUT/estimates/machine=M/date=D/<hash>.parquet`` and the map's 10 Hz samples to
@@ -193,7 +193,7 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
     """Replay one recording (module doc); returns the recording's row of the recordings table."""
     from ..mapping.from_replay import write_replay_map
     from ..mapping.store import MapStore
-    from ..pipeline.replay import replay_to_dir
+    from ..pipeline.rundir import replay_to_dir
     from . import store as fstore
     from .sources import field_of_fix
 
@@ -255,7 +255,7 @@ def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float
                   ) -> tuple[dict[str, Any], Any, dict[str, Any], np.ndarray, dict[str, Any]]:
     """The batch path (:func:`tractionecu.pipeline.batch.replay_batch_rows`): the estimates at ``est_rate``
     and the map's steps as arrays, no ``estimates.csv``; ``config.toml`` and the recording's own map in
-    ``run_dir`` as :func:`~tractionecu.pipeline.replay.replay_to_dir` writes them.  Returns (summary, recording,
+    ``run_dir`` as :func:`~tractionecu.pipeline.rundir.replay_to_dir` writes them.  Returns (summary, recording,
     map arrays, GNSS mask, rows)."""
     from ..pipeline.batch import replay_batch_rows
     from ..estimation.config import EstimatorConfig

@@ -77,7 +77,8 @@ VECTORS = (("mu", 4), ("slip", 4), ("omega", 4), ("P_diag", 10))
 _FIELDS = attrgetter(*SCALARS, "nis_dof", "status", "valid", "mu", "slip", "omega", "P_diag", "sys_var",
                      "radius_scale", "radius_halfwidth", "radius_applied", "soil_class", "curve_state")
 
-__all__ = ["BLOCK", "BatchSink", "max_differences", "replay_batch", "replay_batch_rows"]
+__all__ = ["BLOCK", "BatchSink", "counters", "drive", "loop_choice", "max_differences", "open_recording",
+           "replay_batch", "replay_batch_rows"]
 
 
 class _Ready:
@@ -104,8 +105,10 @@ class BatchSink(_Sink):
     """
 
     def __init__(self, *, keep_all: bool = True, rate_hz: float | None = None, hold_s: float = math.inf,
-                 map_times: np.ndarray | None = None, block: int = BLOCK) -> None:
-        super().__init__(keep_all, None, hold_s, map_times)
+                 map_times: np.ndarray | None = None, block: int = BLOCK, csv_fh: Any = None) -> None:
+        if csv_fh is not None and rate_hz is not None:
+            raise ValueError("a batch sink writes estimates.csv (csv_fh) or selects rate rows (rate_hz), not both")
+        super().__init__(keep_all, csv_fh, hold_s, map_times)
         self.block = int(block)
         self.rate_hz = rate_hz
         self.rate_rows: list[dict[str, Any]] = []
@@ -148,13 +151,30 @@ class BatchSink(_Sink):
         self._flush()
 
     def _pends(self) -> bool:
-        return self.rate_hz is not None
+        return self.rate_hz is not None or self.fh is not None
 
     def _age(self, upto: float) -> None:
-        self._release(upto)
+        if self.fh is not None:
+            self._write(upto)
+        else:
+            self._release(upto)
 
     def _end(self) -> None:
-        self._release(math.inf)
+        if self.fh is not None:
+            _Sink._end(self)
+        else:
+            self._release(math.inf)
+
+    def _write(self, upto: float) -> None:
+        """The step path's writing of the pending blocks older than ``upto`` [s] to ``estimates.csv``, each block's
+        identified curves resolved first (its ``curve_path`` column)."""
+        if self.resolve is not None:
+            for b in self.pending:
+                if not float(b["t"][-1]) < upto:
+                    break
+                if "curve_key" in b:
+                    self.resolve(b)
+        super()._write(upto)
 
     # ------------------------------------------------------------------ conversion
     def _to_arrays(self, b: list[Estimate]) -> dict[str, Any]:
@@ -338,7 +358,7 @@ def _batch_run_class() -> type:
     return _BatchRun
 
 
-def _open(recording: Any, hold_bytes: int | None = None) -> tuple[Any, bool, Any]:
+def open_recording(recording: Any, hold_bytes: int | None = None) -> tuple[Any, bool, Any]:
     """(recording, streamed, held blocks or None): a :class:`~tractionecu.recording.reader.Recording` as it
     is; a path surveyed (:func:`~tractionecu.pipeline.survey.survey_keep`) with the blocks of the replay's
     signals held for the one pass (module doc, "Decoding"), unless they pass ``hold_bytes`` (default
@@ -371,13 +391,12 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
          gate: Any, on_estimate: Callable[[Estimate], None] | None,
          make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None,
          compiled: bool | None = None, hold_bytes: int | None = None) -> tuple[Any, Any, BatchSink]:
-    from .gnss import GnssGate
     from .replay import MissingSignals, machine_of
     from .signals import estimator_profile, required_missing
-    from ..recording.reader import held_signals, read_recording, stream_signals
+    from ..recording.reader import read_recording
 
     check_rate(rate_hz)                                # before the capture is read
-    rec, streamed, hold = _open(recording, hold_bytes)
+    rec, streamed, hold = open_recording(recording, hold_bytes)
     vehicle, s0 = machine_of(rec)
     missing = required_missing(rec, vehicle)
     if missing:
@@ -385,6 +404,21 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     cfg = cfg or EstimatorConfig()
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()
+    run = drive(rec, streamed, hold, sink, rate_hz=rate_hz, cfg=cfg, sensors=sensors, gate=gate,
+                on_estimate=on_estimate, compiled=compiled)
+    return rec, run, sink
+
+
+def drive(rec: Any, streamed: bool, hold: Any, sink: BatchSink, *, rate_hz: float, cfg: EstimatorConfig,
+          sensors: Any, gate: Any, on_estimate: Callable[[Estimate], None] | None, compiled: bool | None) -> Any:
+    """The estimator over a recording opened by :func:`open_recording` (``rec``, ``streamed``, ``hold``) into ``sink``:
+    the loop of :func:`loop_choice`, the capture's blocks as :func:`open_recording` holds them or streamed again.
+    Returns the run (``est``, ``loop``, ``loop_used``, ``decode``, ``gps_mask``, ``gnss``, ``loop_seconds``)."""
+    from .gnss import GnssGate
+    from .replay import machine_of
+    from ..recording.reader import held_signals, stream_signals
+
+    vehicle, s0 = machine_of(rec)
     run = _batch_run_class()(rec, rate_hz, vehicle, sensors or s0, cfg, gate or GnssGate(), sink, on_estimate)
     run.loop_used = loop_choice(run.est, compiled, on_estimate)
     if run.loop_used == "compiled":
@@ -404,7 +438,7 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
     else:
         run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
     run.close()
-    return rec, run, sink
+    return run
 
 
 def loop_choice(est: Any, compiled: bool | None, on_estimate: Any = None) -> str:
@@ -428,7 +462,8 @@ def loop_choice(est: Any, compiled: bool | None, on_estimate: Any = None) -> str
     return "compiled"
 
 
-def _counters(run: Any) -> dict[str, int]:
+def counters(run: Any) -> dict[str, int]:
+    """The estimator's counters of a run of :func:`drive` (the compiled loop's, or the estimator's own)."""
     return run.loop.counters if run.loop is not None else dict(run.est.counters)
 
 
@@ -446,7 +481,7 @@ def replay_batch(recording: Any, *, rate_hz: float = 100.0, cfg: EstimatorConfig
 
     rec, run, sink = _run(recording, BatchSink(keep_all=True), rate_hz=rate_hz, cfg=cfg, sensors=sensors,
                           gate=gate, on_estimate=on_estimate, compiled=compiled, hold_bytes=hold_bytes)
-    res = ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, _counters(run), run.gnss, run.loop_seconds)
+    res = ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, counters(run), run.gnss, run.loop_seconds)
     res.loop = run.loop_used                  # type: ignore[attr-defined]
     res.decode = run.decode                   # type: ignore[attr-defined]
     return res
@@ -481,7 +516,7 @@ def replay_batch_rows(recording: str | Path | Any, *, rate_hz: float = 100.0, es
             "sim_seconds": stepped_seconds(sink.t_last - sink.t_first if sink.rows > 1 else 0.0, sink.rows,
                                            float(rate_hz)),
             "valid_steps": sink.steps_valid, "steps_finite": sink.steps_finite, "gps_mask": run.gps_mask,
-            "counters": _counters(run), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
+            "counters": counters(run), "gnss": dict(run.gnss), "loop_seconds": run.loop_seconds,
             "radius_calibration": est.calibration_summary() if hasattr(est, "calibration_summary") else {},
             "loop": run.loop_used, "decode": run.decode}
 

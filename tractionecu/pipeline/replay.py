@@ -1,4 +1,4 @@
-"""The replay engine: a recording through the estimator, in memory or into a run directory.
+"""The replay engine: a recording through the estimator step by step, as the daemon runs it.
 
 :func:`replay` decodes nothing itself: it takes a
 :class:`~tractionecu.recording.reader.Recording`, gates its GNSS track with
@@ -10,30 +10,21 @@ without files.
 
 Streaming
 ---------
-Both feed one step function (:class:`_Run`) with blocks of signals: the grid
+Every replay feeds one step function (:class:`_Run`) with blocks of signals: the grid
 of :func:`~.steps.build_grid` is handed out as the anchor frames arrive
 (:class:`_GridStream`, the same float arithmetic) and each group's latest
 sample is taken by :func:`~.steps.vector_steps`' rule, block by block
 (:class:`_Group`).  :func:`replay` feeds the whole recording as one block;
-:func:`replay_to_dir` given a path reads the capture twice: a survey
+:func:`replay_streamed` given a path reads the capture twice: a survey
 (:func:`~tractionecu.recording.reader.read_recording` keeping whole only the
 speeds, :mod:`.survey`) for the signals present, the statistics and the clock
 offset, then block by block
-(:func:`~tractionecu.recording.reader.stream_signals`).  ``estimates.csv`` is
-written as the steps age past the window a lost filter may reach back
-(``lost_after_s`` + ``max_gap_s`` + 1 s); the map keeps the step at or after
-each GNSS epoch, the one :func:`~tractionecu.mapping.from_replay.write_replay_map`
-samples.  Peak memory does not grow with the recording's length (but for
-the GNSS track and those map steps, 10 Hz); the results are the in-memory
-replay's, byte for byte (``tests/pipeline/test_replay.py``).
-
-:func:`replay_to_dir` is ``tractionecu replay``'s job: read the recording,
-replay it and write
-
-* ``estimates.csv`` — one row per step (columns :data:`CSV_COLUMNS`);
-* ``config.toml`` — the resolved vehicle, sensor and estimator configuration;
-* ``map/`` — tiles of the estimates at the accepted GNSS epochs
-  (:func:`tractionecu.mapping.from_replay.write_replay_map`).
+(:func:`~tractionecu.recording.reader.stream_signals`).  The sink (:class:`_Sink`)
+writes ``estimates.csv`` (:data:`CSV_COLUMNS`) as the steps age past the window a
+lost filter may reach back (``lost_after_s`` + ``max_gap_s`` + 1 s) and keeps the
+step at or after each GNSS epoch for the map.  Batch replay (:mod:`.batch`) runs
+the same function with a compiled loop, and ``tractionecu replay``'s run directory
+(:mod:`.rundir`) is written by either.
 
 A recording without the signals replay needs (:data:`~.signals.REPLAY_REQUIRED`:
 the hub profile's wheel speeds and drive torques, the one profile the
@@ -48,7 +39,6 @@ Scoring against simulated truth is not here: it is the evaluation side's
 from __future__ import annotations
 
 import math
-import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -62,7 +52,6 @@ from ..config import SensorSpec, VehicleParams, load_sensors, load_vehicle, to_t
 from ..errors import ConfigError
 from ..estimation.estimator import FILTER_LOST, Estimate, EstimatorConfig
 from ..estimation.smoother import FixedLagSmoother
-from ..mapping.tiles import lock_directory
 from ..model.vehicle import N_STATE, STATE_NAMES, WHEELS
 from ..recording.reader import Recording, read_recording, stream_signals
 from .gnss import GnssGate
@@ -86,7 +75,7 @@ CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_c
 """Columns of ``estimates.csv``."""
 
 __all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recording_grid", "replay",
-           "replay_streamed", "replay_to_dir", "write_estimates_csv"]
+           "replay_streamed", "resolved_config", "write_estimates_csv"]
 
 
 class MissingSignals(ConfigError):
@@ -575,7 +564,9 @@ def _write_rows(fh: Any, arrays: dict[str, Any]) -> None:
     fl = "%.3f" + ",%.6g" * 6 + ",%s,"
     fr = ",".join(["%.6g"] * 20) + ",%d,%.4g,%d,%d"
     cls = arrays["soil_class"]
-    paths = [c.path if c is not None else "" for c in arrays.get("curve", [None] * len(cls))]
+    paths = arrays.get("curve_path")
+    if paths is None:
+        paths = [c.path if c is not None else "" for c in arrays.get("curve", [None] * len(cls))]
     rows = [fl % (*a, c) + fr % tuple(b) + "," + p for a, c, b, p in zip(left, cls, right, paths)]
     fh.write("\n".join([r + x for r, x in zip(rows, _uncertainty_cells(arrays))]))
     fh.write("\n")
@@ -596,109 +587,3 @@ def resolved_config(vehicle: VehicleParams, sensors: SensorSpec, cfg: EstimatorC
             + to_toml(sensors, "sensors") + "\n" + cfg.to_toml()
             + f"\n[replay]\nrate_hz = {float(rate_hz)!r}\ngrid_margin_s = {GRID_MARGIN_S!r}\n"
             + f"gnss_min_fix_quality = {gate.min_fix_quality}\ngnss_max_hdop = {float(gate.max_hdop)!r}\n")
-
-
-def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
-                  cfg: EstimatorConfig | None = None, sensors: SensorSpec | None = None,
-                  gate: GnssGate | None = None, write_map: bool = True,
-                  on_estimate: Callable[[Estimate], None] | None = None, keep_arrays: bool | None = None,
-                  ) -> tuple[dict[str, Any], Recording, ReplayResult]:
-    """Read, replay and write ``estimates.csv``, ``config.toml`` and the map (module doc).
-
-    A recording given by its path is streamed: a survey (:func:`read_recording` keeping whole only the
-    few signals of :data:`~.survey.SURVEY_FULL`) finds the signals, statistics and clock offset, then the capture is
-    read again block by block (:func:`~tractionecu.recording.reader.stream_signals`) into the estimator,
-    and ``estimates.csv`` is written as the steps age past the lost-filter window.  Memory does not grow
-    with the recording's length but for the GNSS track and the map's samples (one step per GNSS epoch).
-    The result's ``arrays`` hold every step only with ``keep_arrays`` (default: when the recording has
-    ``truth.csv`` to score, or was given in memory); otherwise the map's steps.
-
-    Returns the run summary (``steps``, ``sim_seconds``, ``read_seconds``,
-    ``loop_seconds``, ``write_seconds``, ``wall_seconds``,
-    ``realtime_factor``, ``counters``, ``gnss_gated``, output paths and map
-    counts), the recording (for a streamed one, its survey: signals not in
-    :data:`~.survey.SURVEY_FULL` are stubs of two samples) and the result.
-    """
-    wall0 = time.perf_counter()
-    check_rate(rate_hz)                                # before the capture is read
-    out = Path(out_dir)
-    streamed = not isinstance(recording, Recording)
-    rec = read_recording(recording, keep=survey_keep) if streamed else recording
-    vehicle = machine_of(rec)[0]
-    missing = required_missing(rec, vehicle)
-    if missing:
-        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
-    if write_map:
-        from ..mapping.from_replay import check_map_dir
-
-        check_map_dir(out / "map")                        # before the run: an owner's folder is never replaced
-    out.mkdir(parents=True, exist_ok=True)
-    # One replay at a time in a directory: two wrote one estimates.csv.partial (the second truncated the
-    # first's, whose later rows left a hole of NUL bytes in the estimates.csv it moved into place)
-    lockf = lock_directory(out, "another replay is writing into this directory, or a service runs on it as its "
-                                "state directory: choose another --out")
-    try:
-        return _replay_locked(rec, out, streamed, wall0, rate_hz, cfg, sensors, gate, write_map, on_estimate,
-                              keep_arrays)
-    finally:
-        lockf.close()
-
-
-def _replay_locked(rec: Recording, out: Path, streamed: bool, wall0: float, rate_hz: float,
-                   cfg: EstimatorConfig | None, sensors: SensorSpec | None, gate: GnssGate | None, write_map: bool,
-                   on_estimate: Callable[[Estimate], None] | None, keep_arrays: bool | None,
-                   ) -> tuple[dict[str, Any], Recording, ReplayResult]:
-    """:func:`replay_to_dir` once the recording is read and ``out`` is locked."""
-    read_s = time.perf_counter() - wall0
-    vehicle, s0 = machine_of(rec)
-    sensors = sensors or s0
-    cfg = cfg or EstimatorConfig()
-    gate = gate or GnssGate()
-    if keep_arrays is None:
-        keep_arrays = not streamed or rec.truth_csv_path is not None
-    csv_path = out / "estimates.csv"
-    # Written beside and renamed over estimates.csv when the run is through: a replay interrupted (Ctrl-C,
-    # a read error) leaves the previous run's estimates.csv whole, with the products that belong to it.
-    part_path = out / "estimates.csv.partial"
-    try:
-        with open(part_path, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(",".join(CSV_COLUMNS) + "\n")
-            sink = _Sink(keep_all=keep_arrays, csv_fh=fh, hold_s=cfg.lost_after_s + cfg.max_gap_s + 1.0,
-                         map_times=rec.gps.t if write_map and len(rec.gps) else None)
-            run = _Run(rec, rate_hz, vehicle, sensors, cfg, gate, sink, on_estimate)
-            if streamed:
-                names = {nm for grp in run.groups for nm in grp.names}
-                for block, before in stream_signals(rec, names=sorted(names)):
-                    run.feed(block, before)
-            else:
-                run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
-            run.close()
-        os.replace(part_path, csv_path)
-    except BaseException:
-        part_path.unlink(missing_ok=True)
-        raise
-    if sink.late_lost:                                    # pragma: no cover - hold_s covers the lost window
-        raise RuntimeError(f"{sink.late_lost} lost periods reached estimates already written")
-    arrays = sink.arrays() if keep_arrays else sink.map_arrays()
-    res = ReplayResult(arrays, float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss, run.loop_seconds,
-                       sink.rows, sink.t_last - sink.t_first if sink.rows > 1 else 0.0)
-    t_w = time.perf_counter()
-    cfg_path = out / "config.toml"
-    cfg_path.write_text(resolved_config(vehicle, sensors, cfg, rate_hz, gate), encoding="utf-8")
-    summary_map: dict[str, Any] = {}
-    if write_map:
-        from ..mapping.from_replay import write_replay_map
-
-        summary_map = write_replay_map(out, rec, sink.map_arrays() if keep_arrays else arrays,
-                                       gps_mask=res.gps_mask)
-    wall = time.perf_counter() - wall0
-    sim_s = res.sim_seconds
-    summary: dict[str, Any] = {
-        "recording": str(rec.path), "steps": res.steps, "rate_hz": float(rate_hz), "sim_seconds": sim_s,
-        "read_seconds": read_s, "loop_seconds": res.loop_seconds, "write_seconds": time.perf_counter() - t_w,
-        "counters": res.counters, "gnss_gated": dict(res.gnss), "estimates_csv": str(csv_path),
-        "config": str(cfg_path), **summary_map, "wall_seconds": wall,
-        "radius_calibration": run.est.calibration_summary() if hasattr(run.est, "calibration_summary") else {},
-        "realtime_factor": sim_s / wall if wall > 0 else float("inf"),
-    }
-    return summary, rec, res
