@@ -60,7 +60,7 @@ def test_batch_fleet_replay_equals_the_step_path(tmp_path: Path, fleet_tree: Pat
 
 def test_cli_flag_batch_and_keep_csv(tmp_path: Path, fleet_tree: Path, capsys) -> None:
     """`fleet replay --batch` writes no estimates.csv (its Parquet comes from the arrays); with --keep-csv the
-    task takes the step path, which writes and keeps it."""
+    task writes it as `tractionecu replay` does, and keeps it."""
     from tractionecu.cli.main import main
 
     out = tmp_path / "out"
@@ -75,3 +75,36 @@ def test_cli_flag_batch_and_keep_csv(tmp_path: Path, fleet_tree: Path, capsys) -
     main(["fleet", "replay", str(fleet_tree), "--out", str(out2), "--workers", "0", "--batch", "--keep-csv",
           "--no-progress"])
     assert all((r / "estimates.csv").is_file() for r in (out2 / "tasks" / "replay").glob("*/replay"))
+
+
+def test_cli_config_reaches_every_replay_and_its_task_key(tmp_path: Path, fleet_tree: Path, capsys) -> None:
+    """`fleet replay --config TOML` replays with that estimator configuration (the fleet had no way to set one:
+    every task ran the defaults): each task's config.toml holds it, the estimates follow it, and it is part of
+    the task key, so the default run's tasks are not taken for it.  A bad file stops the run before any replay."""
+    from tractionecu.cli.main import main
+
+    cfg = tmp_path / "estimator.toml"
+    cfg.write_text("[estimator]\nsmoother_lag_s = 0.0\n", encoding="utf-8")
+    runs = {}
+    for name, extra in (("default", []), ("lag0", ["--config", str(cfg)])):
+        out = tmp_path / name
+        assert main(["fleet", "replay", str(fleet_tree), "--out", str(out), "--workers", "0", "--batch",
+                     "--no-progress", *extra]) == 5
+        runs[name] = out
+    capsys.readouterr()
+    keys = {name: sorted(p.name for p in (out / "tasks" / "replay").iterdir()) for name, out in runs.items()}
+    assert len(keys["lag0"]) == len(keys["default"]) == 3 and not set(keys["lag0"]) & set(keys["default"])
+    for r in (runs["lag0"] / "tasks" / "replay").glob("*/replay"):
+        assert "smoother_lag_s = 0.0" in (r / "config.toml").read_text()
+    for r in (runs["default"] / "tasks" / "replay").glob("*/replay"):
+        assert "smoother_lag_s = 0.05" in (r / "config.toml").read_text()
+    a, b = _table(runs["default"], "estimates"), _table(runs["lag0"], "estimates")
+    assert len(a) == len(b) >= 36 and a["t"].equals(b["t"])
+    assert not np.allclose(a["mu_FL"], b["mu_FL"], equal_nan=True)        # the filter alone, not smoothed
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[estimator]\nsmoother_lag_s = -1.0\n", encoding="utf-8")
+    assert main(["fleet", "replay", str(fleet_tree), "--out", str(tmp_path / "bad"), "--workers", "0",
+                 "--no-progress", "--config", str(bad)]) == 1
+    assert "smoother_lag_s" in capsys.readouterr().err
+    assert not (tmp_path / "bad" / "tasks").exists()

@@ -5,7 +5,8 @@ machine and date from the path or the manifest's columns).  Tasks run one per re
 cluster (``--workers N``, ``--memory-limit`` per worker) or an existing one (``--scheduler ADDRESS``),
 are retried when a worker dies (``--retries``), and skip recordings whose output matches the input's
 content hash and the software version.  A failing recording goes to ``DIR/failures.parquet`` and the
-run goes on.
+run goes on.  ``--config TOML`` sets the replays' estimator configuration (``tractionecu replay --config``'s
+``[estimator]`` table; part of the task key).
 
 * ``replay`` — estimates at ``--estimate-rate-hz`` (default 1 Hz) and the map's 10 Hz samples to
   Parquet partitioned by machine and date, ``recordings.parquet`` (hours, radius calibration, ρ_s);
@@ -62,7 +63,9 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--keep-csv", action="store_true", help="keep each replay's estimates.csv (as tractionecu replay writes it)")
     p.add_argument("--batch", action="store_true",
                    help="replay on the batch path: the same estimates kept as arrays, Parquet at full precision, "
-                        "no estimates.csv (the daemon's step path otherwise)")
+                        "no estimates.csv (otherwise estimates.csv as tractionecu replay writes it)")
+    p.add_argument("--config", metavar="TOML", default=None,
+                   help="estimator configuration of the replays ([estimator] table, as tractionecu replay --config)")
     p.add_argument("--format", action="append", default=None, choices=FORMATS_ALL,
                    help="farm map export format (repeatable; default: all)")
     p.add_argument("--no-diagnose", action="store_true", help="drift: only the replay's series")
@@ -93,6 +96,11 @@ def run(args: argparse.Namespace) -> int:
     from ..fleet.sources import discover
 
     origin = _origin(args.origin)
+    estimator = None
+    if args.config is not None:          # read and checked before any recording is looked at
+        from ..estimation.config import load_estimator_config
+
+        estimator = load_estimator_config(args.config)
     refs = discover(args.source, exclude=args.out)
     if not refs:
         raise ConfigError(f"{args.source}: no recording found (a directory with can.log, a capture file, a manifest)")
@@ -103,12 +111,12 @@ def run(args: argparse.Namespace) -> int:
     lock = lock_directory(args.out, "another fleet run is writing into this directory: wait for it to end or "
                                     "choose another --out")
     try:
-        return _run_locked(args, runner, refs, origin, stream)
+        return _run_locked(args, runner, refs, origin, stream, estimator)
     finally:
         lock.close()
 
 
-def _run_locked(args: argparse.Namespace, runner: Any, refs: list, origin: Any, stream: Any) -> int:
+def _run_locked(args: argparse.Namespace, runner: Any, refs: list, origin: Any, stream: Any, estimator: Any) -> int:
     client = runner.make_client(args.workers, args.memory_limit, args.scheduler)
     failed: list[dict] = []
     try:
@@ -116,7 +124,7 @@ def _run_locked(args: argparse.Namespace, runner: Any, refs: list, origin: Any, 
         if args.action in ("replay", "map", "drift"):
             recs = runner.run_kind("replay", args.source, args.out, rate_hz=args.rate,
                                    estimate_rate_hz=args.estimate_rate_hz, origin=origin, keep_csv=args.keep_csv,
-                                   batch=args.batch, **kw)
+                                   batch=args.batch, estimator=estimator, **kw)
             failed += [r for r in recs if r.get("status") != "ok"]
             hours = sum(float(r.get("hours") or 0.0) for r in recs if r.get("status") == "ok")
             print(f"replay: {len(recs) - len(failed)}/{len(recs)} recordings, {hours:.2f} h; "

@@ -219,12 +219,14 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
              rate_hz: float = 100.0, estimate_rate_hz: float = 1.0, origin: tuple[float, float] | None = None,
              keep_csv: bool = False, stream: TextIO | None = sys.stderr,
              refs: Sequence[RecordingRef] | None = None, batch: bool = False,
-             prune: bool = False, notes: TextIO | None = None) -> list[dict[str, Any]]:
+             prune: bool = False, notes: TextIO | None = None, estimator: Any = None) -> list[dict[str, Any]]:
     """Run ``kind`` (``replay`` or ``diagnose``) over every recording of ``source`` into ``out``; update
     ``recordings.parquet``, ``failures.parquet`` and, for diagnosis, ``diagnosis.parquet``.  Returns the
     task records.  ``batch``: replay on the batch path (:mod:`tractionecu.pipeline.batch`: the same
     estimates, kept as arrays, Parquet written from them at full precision, no ``estimates.csv``;
     ``keep_csv`` writes each replay's ``estimates.csv`` as ``tractionecu replay`` does, Parquet from its text).
+    ``estimator``: the replays' :class:`~tractionecu.estimation.config.EstimatorConfig` (default: the documented
+    one); given, its TOML text is one of the tasks' options, so a changed configuration re-runs them.
 
     OUT accumulates a season: a run updates the recordings of its SOURCE and keeps, in every table, dataset
     and the farm map, the recordings of earlier runs that this SOURCE does not cover (a day's folder run
@@ -247,6 +249,8 @@ def run_kind(kind: str, source: str | Path, out: str | Path, *, client: Any = No
         options: dict[str, Any] = {"rate_hz": float(rate_hz), "estimate_rate_hz": float(estimate_rate_hz),
                                    "origin": list(org) if org is not None else None, "keep_csv": bool(keep_csv),
                                    "batch": bool(batch)}
+        if estimator is not None:
+            options["estimator"] = estimator.to_toml()
     elif kind == "diagnose":
         options = {}
     else:

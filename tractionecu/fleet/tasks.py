@@ -199,11 +199,12 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
 
     rate = float(options.get("rate_hz", 100.0))
     est_rate = float(options.get("estimate_rate_hz", 1.0))
+    cfg = estimator_config(options)
     if options.get("batch", False) and not options.get("keep_csv", False):
-        summary, rec, map_arrays, gps_mask, rows = _replay_batch(ref["path"], tdir / "replay", rate, est_rate)
+        summary, rec, map_arrays, gps_mask, rows = _replay_batch(ref["path"], tdir / "replay", rate, est_rate, cfg)
     else:
         summary, rec, res = replay_to_dir(ref["path"], tdir / "replay", rate_hz=rate, write_map=True,
-                                          keep_arrays=False)
+                                          keep_arrays=False, cfg=cfg)
         map_arrays, gps_mask, rows = res.arrays, res.gps_mask, None
     gps = rec.gps
     ok = np.isfinite(gps.lat) & np.isfinite(gps.lon) if len(gps) else np.zeros(0, bool)
@@ -251,23 +252,34 @@ def replay_task(ref: dict[str, str], key: str, chash: str, tdir: Path, out: Path
     return row
 
 
-def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float
+def estimator_config(options: dict[str, Any]) -> Any:
+    """The replays' estimator configuration: the TOML text of the task's ``estimator`` option, else the default."""
+    import tomllib
+
+    from ..estimation.config import EstimatorConfig
+
+    text = options.get("estimator")
+    if text is None:
+        return EstimatorConfig()
+    return EstimatorConfig.from_mapping(tomllib.loads(text)["estimator"])
+
+
+def _replay_batch(path: str, run_dir: Path, rate: float, est_rate: float, cfg: Any
                   ) -> tuple[dict[str, Any], Any, dict[str, Any], np.ndarray, dict[str, Any]]:
     """The batch path (:func:`tractionecu.pipeline.batch.replay_batch_rows`): the estimates at ``est_rate``
     and the map's steps as arrays, no ``estimates.csv``; ``config.toml`` and the recording's own map in
     ``run_dir`` as :func:`~tractionecu.pipeline.rundir.replay_to_dir` writes them.  Returns (summary, recording,
     map arrays, GNSS mask, rows)."""
     from ..pipeline.batch import replay_batch_rows
-    from ..estimation.config import EstimatorConfig
     from ..mapping.from_replay import write_replay_map
     from ..pipeline.gnss import GnssGate
     from ..pipeline.replay import machine_of, resolved_config
 
-    b = replay_batch_rows(path, rate_hz=rate, estimate_rate_hz=est_rate)
+    b = replay_batch_rows(path, rate_hz=rate, estimate_rate_hz=est_rate, cfg=cfg)
     rec = b["recording"]
     run_dir.mkdir(parents=True, exist_ok=True)
     vehicle, sensors = machine_of(rec)
-    (run_dir / "config.toml").write_text(resolved_config(vehicle, sensors, EstimatorConfig(), rate, GnssGate()),
+    (run_dir / "config.toml").write_text(resolved_config(vehicle, sensors, cfg, rate, GnssGate()),
                                          encoding="utf-8")
     summary = {"steps": b["steps"], "sim_seconds": b["sim_seconds"], "loop_seconds": b["loop_seconds"],
                "steps_finite": b["steps_finite"], "valid_steps": b["valid_steps"],
