@@ -7,12 +7,13 @@ average is printed beside):
 
 * ``engine``: the recording decoded once in memory, then :func:`tractionecu.pipeline.replay.replay`
   (the step path's loop and sink) against :func:`tractionecu.pipeline.batch.replay_batch`;
-* ``path``: from the recording's path, what ``tractionecu replay`` and the fleet run:
-  :func:`~tractionecu.pipeline.rundir.replay_to_dir` (streamed decoding, the 100 Hz loop,
-  ``estimates.csv``, the map) against :func:`~tractionecu.pipeline.batch.replay_batch_rows` (streamed
-  decoding, the loop, the 1 Hz rows and the map's steps) and the map;
-* ``fleet task``: :func:`tractionecu.fleet.tasks.replay_task` on each path (Parquet, the farm-frame
-  map), when pyarrow is installed.
+* ``path``: from the recording's path: :func:`~tractionecu.pipeline.rundir.replay_to_dir` on the step path
+  (``compiled=False``: streamed decoding, ``Estimator.step`` at 100 Hz, ``estimates.csv``, the map) against
+  :func:`~tractionecu.pipeline.batch.replay_batch_rows` (decoding, the loop, the 1 Hz rows and the map's
+  steps) and the map;
+* ``fleet task``: :func:`tractionecu.fleet.tasks.replay_task` without and with ``batch`` (Parquet, the
+  farm-frame map), when pyarrow is installed: without, the task writes ``estimates.csv`` as ``tractionecu
+  replay`` does (through the compiled loop where it covers the machine) and its Parquet from that text.
 
 Real time per core = the recording's span / CPU seconds.  The equality line is the batch path's
 contract: the largest absolute difference over every estimate column between the two ``engine`` runs
@@ -271,9 +272,10 @@ def report(m: dict[str, Any]) -> list[str]:
     lines = []
     for name, c in m["cases"].items():
         s, b = c["step"], c["batch"]
-        lines.append(f"{name}: step path {s['cpu_s']:.2f} s CPU ({s['x_per_core']:.0f}x real time per core; wall "
+        first = "estimates.csv path" if name == "fleet task" else "step path"
+        lines.append(f"{name}: {first} {s['cpu_s']:.2f} s CPU ({s['x_per_core']:.0f}x real time per core; wall "
                      f"{s['wall_s']:.2f} s), batch {b['cpu_s']:.2f} s CPU ({b['x_per_core']:.0f}x; wall "
-                     f"{b['wall_s']:.2f} s): batch / step {s['cpu_s'] / b['cpu_s']:.2f}; {c['load_before']} before, "
+                     f"{b['wall_s']:.2f} s): batch / {first} {s['cpu_s'] / b['cpu_s']:.2f}; {c['load_before']} before, "
                      f"{c['load_after']} after")
     lines.append(f"batch path's estimator loop: {m.get('loop', 'python')}")
     bd = m.get("breakdown")

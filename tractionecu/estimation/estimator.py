@@ -166,7 +166,7 @@ class Estimate:
     """One estimator output (docs/architecture.md).
 
     Read-only by contract: consumers never change it (the fixed-lag smoother, the estimator's last stage,
-    revises ``mu`` and ``rho_s`` before it delivers it, :mod:`.smoother`).  It is not a frozen
+    revises ``mu``, ``rho_s`` and a live ``slip`` before it delivers it, :mod:`.smoother`).  It is not a frozen
     dataclass because a frozen one costs 1.2 µs more to build (one
     ``object.__setattr__`` per field), at 100 Hz on the estimator's path, and
     its arrays were never frozen anyway.
@@ -224,7 +224,9 @@ class Estimate:
     """For the fixed-lag smoother (:mod:`.smoother`, ``EstimatorConfig.smoother_lag_s`` > 0), on a step with a
     filter: (link, x⁺, x⁻, G): whether this step's prediction started from the previous estimate's x⁺ and has
     its gain, the state after this step's update x⁺, the prior x⁻ it was updated from and the prediction's
-    gain G (None without link).  The smoother drops it when it delivers the estimate; None otherwise."""
+    gain G (None without link); with the two-inertia hub a fifth element, the state index of the reported μ, ρ_s,
+    ω (the rims') and v (:data:`.smoother.STATE_INDEX`).  The smoother drops it when it delivers the estimate;
+    None otherwise."""
 
     @property
     def sigma_mu(self) -> NDArray[np.float64]:
@@ -282,6 +284,9 @@ _SL_WV = slice(0, 5)
 _SL_V = slice(4, 5)
 _HUB_OUT = np.array([10, 11, 12, 13, 4, 5, 6, 7, 8, 9])
 """States of the two-inertia hub model the estimate reports, in the paper's order (rim speeds for ω)."""
+_HUB_SMOOTH_INDEX = (5, 6, 7, 8, 9, 10, 11, 12, 13, 4)
+"""The two-inertia hub's state index of each reported μ1..4, ρ_s, ω1..4 (the rims') and v (the fixed-lag
+smoother's, :data:`.smoother.STATE_INDEX`)."""
 
 
 def _curve_slope_params(cs: Any) -> tuple[float, float, float, float, float]:
@@ -1516,6 +1521,8 @@ class Estimator:
             xp = self._sm_xp
             link = xp is not None and xp.shape == xf.shape
             tr = (link, xf, xp if link else None, self._sm_G if link else None)
+            if self._hub_on:            # the reported wheel speeds are the rims' (the smoother's slip)
+                tr += (_HUB_SMOOTH_INDEX,)
             self._sm_xf = xf
         return Estimate(t, mu, rho, cs.a, cs.class_name, s, v, omega, pd, nis,
                         self._adapt_mu, status, (status & INVALID_MASK) == 0, dof, cs.class_index, math.nan,

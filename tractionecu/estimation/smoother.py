@@ -18,9 +18,13 @@ J1939 broadcast every 100 ms, so the delay stays within one of their periods.
 
 What changes: μ per wheel and ρ_s, where the estimate reports the filter's state, clipped into their bounds;
 a value the estimator holds (ρ_s at standstill: the last value from moving) holds the smoothed value of the
-estimate it was held from, so it still equals what was shown before the hold.  Nothing else: the
-slip, v, σ (the filter's; a smoothed covariance would be smaller, so the reported σ stays an upper bound),
-the status and the μ(s) curve, which the estimator identifies from its own states.
+estimate it was held from, so it still equals what was shown before the hold.  And each wheel's slip where it is
+eq. 6 at the step's own state: the same equation at the smoothed wheel speed and v, with the step's own wheel
+factor k_i/r_i (the turn's ground-speed factor over the rolling radius at its load, :func:`_slip_at`); a slip
+the estimator held, averaged over the last metres or froze at standstill stays (on the physical truth the slip
+error falls by 4–12 %, docs/results/estimator.md).  Nothing else: v and ω (the filter's), σ (a smoothed covariance
+would be smaller, so the reported σ stays an upper bound), the status and the μ(s) curve, which the estimator
+identifies from its own states and slips.
 
 The window ends, and the estimate is delivered as smoothed by fewer steps, where the chain of the filter
 breaks: a step whose prediction did not start from the previous estimate's state (a restart, a gap, a lost
@@ -44,7 +48,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..columns import concat
-from ..model.vehicle import IX_MU, IX_RHO, compiled
+from ..model.vehicle import IX_MU, IX_OMEGA, IX_RHO, IX_V, compiled
+from .estimator import SLIP_AVERAGED, SLIP_UNCERTAIN, STANDSTILL
 
 __all__ = ["FixedLagSmoother", "smooth_rows"]
 
@@ -83,18 +88,20 @@ def smooth_rows(T, LINK, XF, XP, G, bound, k0, k1, nrows, out):      # pragma: n
 
 
 def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, out):  # pragma: no cover - compiled
-    """Deliver the first m of the meta[0] buffered rows: their reported μ1..4, ρ_s (RAW) revised into out (m, 5),
-    then the rows left moved to the front.
+    """Deliver the first m of the meta[0] buffered rows: their reported μ1..4, ρ_s and slip1..4 (RAW) revised
+    into out (m, 9), then the rows left moved to the front.
 
-    A value equal to its state (IDX: the state index of each) takes the smoothed state, clipped into
-    lims (lo 5, hi 5), and becomes the last own value (carry: as reported 5, as delivered 5); a value equal to
-    the last own one as reported (held by the estimator) takes it as delivered; any other stays.  meta: rows,
-    the last break, estimates revised (counted here).  S (≥ m, n): work space for the smoothed states."""
+    A value equal to its state (IDX[0:5]: the state index of each μ and ρ_s) takes the smoothed state, clipped
+    into lims (lo 5, hi 5), and becomes the last own value (carry: as reported 5, as delivered 5); a value equal
+    to the last own one as reported (held by the estimator) takes it as delivered; any other stays.  A live slip
+    (RAW[:, 14] ≠ 0) whose wheel speed and v (RAW 9..13) are the states IDX[5:10] (IDX[5] < 0: none) is eq. 6
+    again at the smoothed speeds, with the row's own wheel factor k_i/r_i (:func:`_slip_at`).  meta: rows, the
+    last break, estimates revised (counted here).  S (≥ m, n): work space for the smoothed states."""
     nrows = meta[0]
     smooth_rows(T, LINK, XF, XP, G, bound, 0, m, nrows, S)
     for k in range(m):
         o = out[k]
-        for c in range(5):
+        for c in range(9):
             o[c] = RAW[k, c]
         if not XF[k, 0] == XF[k, 0]:
             continue
@@ -114,10 +121,15 @@ def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, o
                 own = True
             elif v == carry[c]:
                 o[c] = carry[5 + c]
+        if IDX[5] >= 0 and RAW[k, 14] != 0.0 and RAW[k, 13] == XF[k, IDX[9]]:
+            for i in range(4):
+                if RAW[k, 9 + i] == XF[k, IDX[5 + i]]:
+                    o[5 + i] = _slip_at(RAW[k, 5 + i], RAW[k, 9 + i], RAW[k, 13], S[k, IDX[5 + i]], S[k, IDX[9]])
         if own:
             meta[2] += 1
     left = nrows - m
     n = XF.shape[1]
+    w = RAW.shape[1]
     for r in range(left):
         q = m + r
         T[r] = T[q]
@@ -127,16 +139,33 @@ def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, o
             XP[r, a] = XP[q, a]
             for b in range(n):
                 G[r, a, b] = G[q, a, b]
-        for c in range(5):
+        for c in range(w):
             RAW[r, c] = RAW[q, c]
     meta[0] = left
     meta[1] = meta[1] - m if meta[1] > m else 0
 
 
-def push_row(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, t, link, xf, xp, Gr, mu, rho, S,
-             out):                                                         # pragma: no cover - compiled
-    """Buffer one row (xf NaN: no filter; xp, Gr read only with ``link``; the reported μ (4,) and ρ_s) and deliver
-    the rows now due (:func:`deliver_rows`); returns how many."""
+def _slip_at(s, w, v, ws, vs):                                           # pragma: no cover - compiled
+    """Eq. 6's slip s of a wheel at speed w [rad/s] on a ground speed v [m/s], again at the smoothed speeds ws, vs.
+
+    The estimator's slip is 1 − ρ (driving, ρ ≤ 1) or −1 + 1/ρ (braking) of ρ = |k v|/|r ω|, so ρ|ω|/|v| is the
+    wheel's own factor |k|/|r| (its ground-speed factor in the turn over its rolling radius at this step's load):
+    the same factor at ws, vs gives the slip of the smoothed speeds.  Where a speed is near 0 (|v|, |ω| < 1e-6:
+    the estimator's own 0/0) or s is not a number, s stays."""
+    if not (abs(v) > 1e-6 and abs(w) > 1e-6 and abs(vs) > 1e-6 and abs(ws) > 1e-6 and s == s):
+        return s
+    rho = 1.0 - s if s >= 0.0 else 1.0 / (1.0 + s)
+    r2 = rho * abs(w) / abs(v) * abs(vs) / abs(ws)
+    if r2 <= 1.0:
+        return 1.0 - r2
+    return -1.0 + 1.0 / r2
+
+
+def push_row(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, t, link, xf, xp, Gr, mu, rho, slip, omega,
+             v, live, S, out):                                             # pragma: no cover - compiled
+    """Buffer one row (xf NaN: no filter; xp, Gr read only with ``link``; the reported μ (4,), ρ_s, slip (4,),
+    ω (4,), v and whether the slip is live: :data:`RAW_COLUMNS`) and deliver the rows now due
+    (:func:`deliver_rows`); returns how many."""
     k = meta[0]
     n = XF.shape[1]
     T[k] = t
@@ -153,7 +182,11 @@ def push_row(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, t, link, xf
         XF[k, a] = xf[a]
     for c in range(4):
         RAW[k, c] = mu[c]
+        RAW[k, 5 + c] = slip[c]
+        RAW[k, 9 + c] = omega[c]
     RAW[k, 4] = rho
+    RAW[k, 13] = v
+    RAW[k, 14] = 1.0 if live else 0.0
     meta[0] = k + 1
     due = meta[1]
     while due < k and not (t - T[due] <= bound):
@@ -164,12 +197,20 @@ def push_row(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, t, link, xf
 
 
 smooth_rows = compiled(smooth_rows)
+_slip_at = compiled(_slip_at)
 deliver_rows = compiled(deliver_rows)
 push_row = compiled(push_row)
 
-STATE_INDEX = (IX_MU.start, IX_MU.start + 1, IX_MU.start + 2, IX_MU.start + 3, IX_RHO)
-"""The state index of each reported μ1..4 and ρ_s: the hub estimator's (a transition's fifth element, when
-there is one, gives another estimator's: the machine level's μ is one state)."""
+STATE_INDEX = (IX_MU.start, IX_MU.start + 1, IX_MU.start + 2, IX_MU.start + 3, IX_RHO,
+               IX_OMEGA.start, IX_OMEGA.start + 1, IX_OMEGA.start + 2, IX_OMEGA.start + 3, IX_V)
+"""The state index of each reported μ1..4 and ρ_s, then of each wheel speed ω1..4 and v the slip rests on: the
+hub estimator's.  A transition's fifth element, when there is one, gives another estimator's: the two-inertia
+hub's wheel speeds are its rims', and an index of five (the machine level's μ is one state) revises no slip."""
+RAW_COLUMNS = 15
+"""Per buffered row: the reported μ1..4, ρ_s, slip1..4, ω1..4, v, and 1 where the slip is live (0: held,
+averaged over the last metres or at standstill, :data:`SLIP_NOT_LIVE`)."""
+SLIP_NOT_LIVE = SLIP_UNCERTAIN | SLIP_AVERAGED | STANDSTILL
+"""Status bits of an estimate whose slip is not eq. 6 at its own state (a held or averaged value): never revised."""
 LAG_TOLERANCE_S = 1e-6
 """Steps this much later than the lag still count as within it (the round-off of a step grid's times)."""
 
@@ -194,7 +235,7 @@ class FixedLagSmoother:
         rlo, rhi = (float(b) for b in rho_bounds)
         self._lims = np.array([lo] * 4 + [rlo] + [hi] * 4 + [rhi])
         self._n = 0              # state size of the buffers (0: none yet)
-        self._idx = STATE_INDEX  # the state index of each reported μ1..4 and ρ_s
+        self._idx = STATE_INDEX  # the state index of each reported μ1..4, ρ_s, ω1..4, v
         self._IDX = np.array(STATE_INDEX, dtype=np.int64)
         self._cap = 0
         self._items: list[Any] = []        # the pending estimates (push)
@@ -220,13 +261,13 @@ class FixedLagSmoother:
     def _alloc(self, n: int, cap: int) -> None:
         m = int(self._meta[0]) if self._n == n else 0
         bufs = (np.full(cap, np.nan), np.zeros(cap, dtype=np.int8), np.full((cap, n), np.nan),
-                np.full((cap, n), np.nan), np.zeros((cap, n, n)), np.full((cap, 5), np.nan))
+                np.full((cap, n), np.nan), np.zeros((cap, n, n)), np.full((cap, RAW_COLUMNS), np.nan))
         if m:
             for new, old in zip(bufs, (self._T, self._LINK, self._XF, self._XP, self._G, self._RAW)):
                 new[:m] = old[:m]
         self._T, self._LINK, self._XF, self._XP, self._G, self._RAW = bufs
         self._S = np.empty((cap, n))
-        self._out = np.empty((cap, 5))
+        self._out = np.empty((cap, 9))
         self._nan_x = np.full(n, np.nan)
         self._nan_g = np.full((n, n), np.nan)
         self._n, self._cap = n, cap
@@ -234,7 +275,7 @@ class FixedLagSmoother:
         self._meta[1] = min(int(self._meta[1]), m)
 
     def _deliver(self, m: int) -> np.ndarray:
-        """Rows [0, m) delivered: their μ1..4, ρ_s as (m, 5) (a view: read before the next call)."""
+        """Rows [0, m) delivered: their μ1..4, ρ_s, slip1..4 as (m, 9) (a view: read before the next call)."""
         deliver_rows(self._T, self._LINK, self._XF, self._XP, self._G, self._RAW, self._IDX, self._meta,
                      self._carry, self._lims, self._bound, m, self._S, self._out)
         return self._out[:m]
@@ -252,7 +293,7 @@ class FixedLagSmoother:
             return [e]
         link, xf, xp, G = tr[:4] if tr is not None else (False, None, None, None)
         n = xf.shape[0] if xf is not None else self._n
-        idx = tr[4] if tr is not None and len(tr) > 4 else self._idx if xf is None else STATE_INDEX
+        idx = _index(tr[4]) if tr is not None and len(tr) > 4 else self._idx if xf is None else STATE_INDEX
         out: list[Any] = []
         if n != self._n or idx != self._idx:    # another state: nothing before links to it
             out = self.flush()
@@ -262,10 +303,14 @@ class FixedLagSmoother:
             link = False
         if self._meta[0] == self._cap:
             self._alloc(self._n, 2 * self._cap)
+        slip = getattr(e, "slip", None)        # (an estimate with a slip has ω, v and a status)
+        live = slip is not None and not e.status & SLIP_NOT_LIVE
         due = push_row(self._T, self._LINK, self._XF, self._XP, self._G, self._RAW, self._IDX, self._meta,
                        self._carry, self._lims, self._bound, float(e.t), bool(link),
                        xf if xf is not None else self._nan_x, xp if link else self._nan_x,
-                       G if link else self._nan_g, e.mu, float(e.rho_s), self._S, self._out)
+                       G if link else self._nan_g, e.mu, float(e.rho_s),
+                       slip if slip is not None else _NAN4, e.omega if live else _NAN4,
+                       float(e.v) if live else math.nan, live, self._S, self._out)
         self._items.append(e)
         if due:
             out.extend(self._hand_out(self._out[:due]))
@@ -280,19 +325,15 @@ class FixedLagSmoother:
 
     def _hand_out(self, vals: np.ndarray) -> list[Any]:
         items = self._items
-        if vals.shape[0] == 1:                 # the usual case: one step in, one out
-            e = items.pop(0)
-            e.mu = vals[0, :4].copy()
-            e.rho_s = float(vals[0, 4])
-            if getattr(e, "transition", None) is not None:
-                e.transition = None
-            return [e]
         m = vals.shape[0]
-        out = items[:m]
-        del items[:m]
+        out = [items.pop(0)] if m == 1 else items[:m]     # (m 1: the usual case, one step in, one out)
+        if m > 1:
+            del items[:m]
         for e, v in zip(out, vals):
             e.mu = v[:4].copy()
             e.rho_s = float(v[4])
+            if getattr(e, "slip", None) is not None and not (v[5:9] == e.slip).all():
+                e.slip = v[5:9].copy()
             if getattr(e, "transition", None) is not None:
                 e.transition = None
         return out
@@ -331,7 +372,12 @@ class FixedLagSmoother:
             return []
         LINK = cat("sm_link", np.int8)
         XF, XP, G = cat("sm_xf"), cat("sm_xp"), cat("sm_G")
-        RAW = np.column_stack([cat("mu"), cat("rho_s")])
+        if "slip" in parts[0]:
+            RAW = np.column_stack([cat("mu"), cat("rho_s"), cat("slip"), cat("omega"), cat("v"),
+                                   (cat("status", np.int64) & SLIP_NOT_LIVE) == 0])
+        else:                                   # no slip to revise
+            RAW = np.column_stack([cat("mu"), cat("rho_s"), np.full((m, RAW_COLUMNS - 5), np.nan)])
+            RAW[:, RAW_COLUMNS - 1] = 0.0
         breaks = np.flatnonzero(LINK == 0)
         last_break = int(breaks[-1]) if breaks.size else 0
         if final:
@@ -344,7 +390,7 @@ class FixedLagSmoother:
         meta[0], meta[1] = m, last_break
         out: list[dict[str, Any]] = []
         if due:
-            vals = np.empty((due, 5))
+            vals = np.empty((due, 9))
             idx = np.asarray(STATE_INDEX, dtype=np.int64)           # (the compiled loop: the hub estimator)
             deliver_rows(T, LINK, XF, XP, G, RAW, idx, meta, self._carry, self._lims, self._bound, due,
                          np.empty((due, XF.shape[1])), vals)
@@ -359,6 +405,8 @@ class FixedLagSmoother:
                 head = {key: v[:take] for key, v in p.items() if not key.startswith("sm_")}
                 head["mu"] = vals[k:k + take, :4].copy()
                 head["rho_s"] = vals[k:k + take, 4].copy()
+                if "slip" in p:
+                    head["slip"] = vals[k:k + take, 5:9].copy()
                 out.append(head)
             if take < n_p:
                 rest.append({key: (v[take:].copy() if isinstance(v, np.ndarray) else list(v[take:]))
@@ -371,6 +419,14 @@ class FixedLagSmoother:
             tail["sm_xf"], tail["sm_xp"], tail["sm_G"] = XF[:left].copy(), XP[:left].copy(), G[:left].copy()
             self._tail = tail
         return out
+
+
+_NAN4 = np.full(4, np.nan)
+
+
+def _index(idx: tuple[int, ...]) -> tuple[int, ...]:
+    """A transition's state index as ten entries (μ1..4, ρ_s, ω1..4, v): one of five revises no slip (−1)."""
+    return tuple(idx) if len(idx) == 10 else tuple(idx) + (-1,) * 5
 
 
 def _strip(arr: dict[str, Any]) -> dict[str, Any]:
