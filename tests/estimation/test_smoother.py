@@ -202,8 +202,9 @@ def _slip(w: np.ndarray, v: float, c: np.ndarray) -> np.ndarray:
 
 def test_a_live_slip_is_eq6_at_the_smoothed_speeds_and_a_held_one_stays() -> None:
     """The slip of each estimate is eq. 6 again at the textbook RTS smoother's wheel speeds and v, with the step's
-    own wheel factor; a slip the estimator held, averaged or froze at standstill (its status bits) stays as it was,
-    and an estimator whose index names no wheel speeds (the machine level's five) revises none."""
+    own wheel factor; a slip the estimator could not support, averaged or froze at standstill (its status bits)
+    stays as it was unless it is the last live slip held, which holds that slip's smoothed value; and an estimator
+    whose index names no wheel speeds (the machine level's five) revises none."""
     from tractionecu.estimation.estimator import SLIP_AVERAGED, SLIP_UNCERTAIN, STANDSTILL
 
     ests, rec = _linear_run(30)
@@ -218,8 +219,9 @@ def test_a_live_slip_is_eq6_at_the_smoothed_speeds_and_a_held_one_stays() -> Non
             if index is not None:
                 tr += (index,)
             w, v = tr[1][:4], float(tr[1][4])
-            status = {5: SLIP_UNCERTAIN, 6: SLIP_AVERAGED, 7: STANDSTILL}.get(k, 0)
+            status = {5: SLIP_UNCERTAIN, 6: SLIP_AVERAGED, 7: STANDSTILL, 8: STANDSTILL}.get(k, 0)
             out.append(EstS(e.t, e.mu.copy(), e.rho_s, tr, _slip(w, v, c), w.copy(), v, status))
+        out[8].slip = out[4].slip.copy()          # held at standstill: the last live slip (step 4's)
         return out
 
     rich = estimates()
@@ -230,6 +232,9 @@ def test_a_live_slip_is_eq6_at_the_smoothed_speeds_and_a_held_one_stays() -> Non
     for k in range(30):
         if k in (5, 6, 7):
             assert np.array_equal(got[k].slip, orig[k])
+            continue
+        if k == 8:                                # the held slip holds the smoothed value it was held from
+            assert np.array_equal(got[8].slip, got[4].slip) and not np.array_equal(got[8].slip, orig[8])
             continue
         xs = _rts(rec, k, min(k + lag, 29)) + shift
         np.testing.assert_allclose(got[k].slip, _slip(xs[:4], xs[4], c), rtol=0, atol=1e-9)

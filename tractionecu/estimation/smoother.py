@@ -21,7 +21,8 @@ a value the estimator holds (ρ_s at standstill: the last value from moving) hol
 estimate it was held from, so it still equals what was shown before the hold.  And each wheel's slip where it is
 eq. 6 at the step's own state: the same equation at the smoothed wheel speed and v, with the step's own wheel
 factor k_i/r_i (the turn's ground-speed factor over the rolling radius at its load, :func:`_slip_at`); a slip
-the estimator held, averaged over the last metres or froze at standstill stays (on the physical truth the slip
+the estimator averaged over the last metres stays, and one it holds (standstill, a slip it cannot support) holds
+the smoothed value of the slip it was held from (on the physical truth the slip
 error falls by 4–12 %, docs/results/estimator.md).  Nothing else: v and ω (the filter's), σ (a smoothed covariance
 would be smaller, so the reported σ stays an upper bound), the status and the μ(s) curve, which the estimator
 identifies from its own states and slips.
@@ -95,8 +96,10 @@ def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, o
     into lims (lo 5, hi 5), and becomes the last own value (carry: as reported 5, as delivered 5); a value equal
     to the last own one as reported (held by the estimator) takes it as delivered; any other stays.  A live slip
     (RAW[:, 14] ≠ 0) whose wheel speed and v (RAW 9..13) are the states IDX[5:10] (IDX[5] < 0: none) is eq. 6
-    again at the smoothed speeds, with the row's own wheel factor k_i/r_i (:func:`_slip_at`).  meta: rows, the
-    last break, estimates revised (counted here).  S (≥ m, n): work space for the smoothed states."""
+    again at the smoothed speeds, with the row's own wheel factor k_i/r_i (:func:`_slip_at`), and becomes the
+    wheel's last own slip (carry 10..13 as reported, 14..17 as delivered); a slip that is not live and equals the
+    last own one as reported (held) takes it as delivered.  meta: rows, the last break, estimates revised (counted
+    here).  S (≥ m, n): work space for the smoothed states."""
     nrows = meta[0]
     smooth_rows(T, LINK, XF, XP, G, bound, 0, m, nrows, S)
     for k in range(m):
@@ -121,10 +124,18 @@ def deliver_rows(T, LINK, XF, XP, G, RAW, IDX, meta, carry, lims, bound, m, S, o
                 own = True
             elif v == carry[c]:
                 o[c] = carry[5 + c]
-        if IDX[5] >= 0 and RAW[k, 14] != 0.0 and RAW[k, 13] == XF[k, IDX[9]]:
-            for i in range(4):
-                if RAW[k, 9 + i] == XF[k, IDX[5 + i]]:
-                    o[5 + i] = _slip_at(RAW[k, 5 + i], RAW[k, 9 + i], RAW[k, 13], S[k, IDX[5 + i]], S[k, IDX[9]])
+        if IDX[5] >= 0:
+            if RAW[k, 14] != 0.0 and RAW[k, 13] == XF[k, IDX[9]]:
+                for i in range(4):
+                    if RAW[k, 9 + i] == XF[k, IDX[5 + i]]:
+                        val = _slip_at(RAW[k, 5 + i], RAW[k, 9 + i], RAW[k, 13], S[k, IDX[5 + i]], S[k, IDX[9]])
+                        carry[10 + i] = RAW[k, 5 + i]
+                        carry[14 + i] = val
+                        o[5 + i] = val
+            elif RAW[k, 14] == 0.0:
+                for i in range(4):
+                    if RAW[k, 5 + i] == carry[10 + i]:
+                        o[5 + i] = carry[14 + i]
         if own:
             meta[2] += 1
     left = nrows - m
@@ -244,8 +255,8 @@ class FixedLagSmoother:
         self._meta = np.zeros(3, dtype=np.int64)
         self._tail: dict[str, Any] | None = None   # push_arrays: the pending rows' arrays
         # per μ1..4, ρ_s: the last delivered value that was the filter's own, as reported and as delivered (a held
-        # value equal to the first is delivered as the second)
-        self._carry = np.full(10, np.nan)
+        # value equal to the first is delivered as the second); then the same per wheel's slip
+        self._carry = np.full(18, np.nan)
 
     @classmethod
     def from_config(cls, cfg: Any) -> "FixedLagSmoother":
