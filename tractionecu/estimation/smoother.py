@@ -23,7 +23,7 @@ eq. 6 at the step's own state: the same equation at the smoothed wheel speed and
 factor k_i/r_i (the turn's ground-speed factor over the rolling radius at its load, :func:`_slip_at`); a slip
 the estimator averaged over the last metres stays, and one it holds (standstill, a slip it cannot support) holds
 the smoothed value of the slip it was held from (on the physical truth the slip
-error falls by 4–12 %, docs/results/estimator.md).  Nothing else: v and ω (the filter's), σ (a smoothed covariance
+error falls by 3–12 %, docs/results/estimator.md).  Nothing else: v and ω (the filter's), σ (a smoothed covariance
 would be smaller, so the reported σ stays an upper bound), the status and the μ(s) curve, which the estimator
 identifies from its own states and slips.
 
