@@ -343,7 +343,7 @@ class FixedLagSmoother:
         for e, v in zip(out, vals):
             e.mu = v[:4].copy()
             e.rho_s = float(v[4])
-            if getattr(e, "slip", None) is not None and not (v[5:9] == e.slip).all():
+            if getattr(e, "slip", None) is not None:
                 e.slip = v[5:9].copy()
             if getattr(e, "transition", None) is not None:
                 e.transition = None
