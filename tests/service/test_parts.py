@@ -358,6 +358,45 @@ def test_a_silent_bus_pauses_the_estimator_instead_of_integrating_held_torques()
     assert est_loop.estimator.counters["gap_resets"] == 1 and math.isfinite(e.v) and abs(e.v - 2.5) < 0.5
 
 
+async def test_a_stop_delivers_and_maps_what_the_smoother_still_held() -> None:
+    """The smoother holds the last 0.05 s of estimates until the steps after them arrive: a stop dropped them (the
+    page and the map ended 60 ms early).  The stop now flushes them: the last is the loop's last estimate and the
+    map gets those due at its 10 Hz after the last one it was given."""
+    from tractionecu.estimation.estimator import Estimator
+
+    class MapStandIn:
+        def __init__(self) -> None:
+            self.added: list = []
+
+        def add(self, e, fix) -> None:
+            self.added.append(e)
+
+        def discard_since(self, t: float) -> None:
+            pass
+
+    mp = MapStandIn()
+    est_loop, steps = loop_part(Estimator(VehicleParams()), map_writer=mp)
+    r = VehicleParams().r0_m
+    t_last = 0.0
+    for k in range(300):                                 # 3 s at 100 Hz
+        t = k / 100.0
+        steps.push_signals(t, {**{f"WheelSpeed_{w}": 2.6 / r for w in WHEELS},
+                               **{f"DriveTorque_{w}": 2500.0 for w in WHEELS},
+                               "FrontAxleLoad": 25e3, "DraftForce": 8e3})
+        if k % 10 == 0:
+            steps.push_speed(t, 2.5)
+        t_last = t + 0.005
+        est_loop.step(t_last)
+    delivered = est_loop.last_estimate
+    assert t_last - delivered.t == pytest.approx(0.06)    # six steps held
+    est_loop._t_mapped = delivered.t - 0.05               # as if the loop had mapped the estimate 50 ms before
+    await est_loop.stop()                                 # (the loop's task never started)
+    assert est_loop.last_estimate.t == pytest.approx(t_last) and est_loop.last_estimate.transition is None
+    assert [e.t for e in mp.added] == [pytest.approx(delivered.t + 0.05)]     # 0.1 s after the last mapped
+    assert est_loop.stats["mapped_at_stop"] == 1
+    assert est_loop.flush_smoother() == []                # nothing twice
+
+
 def test_loop_step_counts_an_estimator_failure_and_resets_it() -> None:
     est = StandIn(fail_at=2)
     est_loop, _ = loop_part(est)

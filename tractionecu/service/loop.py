@@ -238,6 +238,7 @@ class EstimationLoop(TaskPart):
         self.estimator: Any = None
         self.smoother: Any = None
         self.last_estimate: Any = None
+        self._t_mapped: float | None = None      # the time of the last estimate given to the map [s]
         self.grid_t0: float | None = None
         self.max_tick_delay_s = 0.0
         self._last_wd = -math.inf
@@ -312,7 +313,11 @@ class EstimationLoop(TaskPart):
 
     def _deliver(self, t: float, est: Any) -> Any:
         """``est`` through the smoother; the last estimate it delivers (None: none yet)."""
-        out = [est] if self.smoother is None else self.smoother.push(est)
+        return self._delivered(t, [est] if self.smoother is None else self.smoother.push(est))
+
+    def _delivered(self, t: float, out: list[Any]) -> Any:
+        """The estimates ``out`` the smoother delivered at grid time ``t`` [s]: a lost filter's period is taken
+        off the map; the last of them (None: none) becomes ``last_estimate``."""
         for e in out:
             since = getattr(e, "lost_since", math.nan)
             if not math.isnan(since):      # the filter had lost the vehicle since then
@@ -326,6 +331,34 @@ class EstimationLoop(TaskPart):
             return None
         self.last_estimate = out[-1]
         return out[-1]
+
+    async def stop(self) -> None:
+        """Stop the loop, then deliver what the smoother still holds (:meth:`flush_smoother`)."""
+        await super().stop()
+        self.flush_smoother()
+
+    def flush_smoother(self) -> list[Any]:
+        """The estimates of the run's last ``smoother_lag_s`` that the smoother still holds, smoothed with the steps
+        there are: the last becomes ``last_estimate``, and the map gets those due at its rate after the last one it
+        was given (a stop no longer drops them).  Returns them."""
+        if self.smoother is None:
+            return []
+        try:
+            out = self.smoother.flush()
+        except Exception as e:  # noqa: BLE001 -- a stop must go on; nothing the map holds is lost
+            self._warn("flush", "the smoother's last estimates were not delivered at the stop: %r", e)
+            return []
+        if not out:
+            return out
+        self._delivered(out[-1].t, out)
+        if self.map is not None:
+            period = 1.0 / self.cfg.map.rate_hz - 0.5 / self.cfg.estimation.rate_hz
+            for e in out:
+                if self._t_mapped is None or e.t - self._t_mapped >= period:
+                    self.map.add(e, None if self.fixes is None else self.fixes.fix_at(e.t))
+                    self._t_mapped = e.t
+                    self.stats["mapped_at_stop"] += 1
+        return out
 
     # ------------------------------------------------------------ the loop
     def behind_text(self, now_m: float) -> str:
@@ -421,6 +454,7 @@ class EstimationLoop(TaskPart):
                 self.broadcast(est if anchored else None)
             if anchored and est is not None and self.map is not None and k % map_every == 0:
                 self.map.add(est, None if self.fixes is None else self.fixes.fix_at(est.t))
+                self._t_mapped = est.t
             if self.after_step is not None:
                 self.after_step()
             now_m = loop.time()
