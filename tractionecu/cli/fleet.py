@@ -60,7 +60,8 @@ def add_subparser(sub: argparse._SubParsersAction) -> None:
                    help="rate of the estimates written to Parquet [Hz] (default: %(default)s; 0: every step)")
     p.add_argument("--origin", default=None, metavar="LAT,LON",
                    help="farm map origin [deg] (default: the existing farm map's, else the first recording's first fix)")
-    p.add_argument("--keep-csv", action="store_true", help="keep each replay's estimates.csv (as tractionecu replay writes it)")
+    p.add_argument("--keep-csv", action="store_true",
+                   help="keep each replay's estimates.csv (as tractionecu replay writes it)")
     p.add_argument("--batch", action="store_true",
                    help="replay on the batch path: the same estimates kept as arrays, Parquet at full precision, "
                         "no estimates.csv (otherwise estimates.csv as tractionecu replay writes it)")

@@ -411,9 +411,10 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
 
 def drive(rec: Any, streamed: bool, hold: Any, sink: BatchSink, *, rate_hz: float, cfg: EstimatorConfig,
           sensors: Any, gate: Any, on_estimate: Callable[[Estimate], None] | None, compiled: bool | None) -> Any:
-    """The estimator over a recording opened by :func:`open_recording` (``rec``, ``streamed``, ``hold``) into ``sink``:
-    the loop of :func:`loop_choice`, the capture's blocks as :func:`open_recording` holds them or streamed again.
-    Returns the run (``est``, ``loop``, ``loop_used``, ``decode``, ``gps_mask``, ``gnss``, ``loop_seconds``)."""
+    """The estimator over a recording opened by :func:`open_recording` (``rec``, ``streamed``, ``hold``) into
+    ``sink``: the loop of :func:`loop_choice`, the capture's blocks as :func:`open_recording` holds them or
+    streamed again.  Returns the run (``est``, ``loop``, ``loop_used``, ``decode``, ``gps_mask``, ``gnss``,
+    ``loop_seconds``)."""
     from .gnss import GnssGate
     from .replay import machine_of
     from ..recording.reader import held_signals, stream_signals
