@@ -10,10 +10,12 @@
 Two loops give the same estimates, float for float (:mod:`.batch`'s contract):
 
 * ``compiled`` (the default where it covers the machine, :func:`~.batch.loop_choice`): batch replay's
-  loop, the capture decoded once (its blocks held up to a bound, else streamed again block by block);
+  loop, the capture read twice as the step path reads it (:data:`HOLD_BYTES`);
 * ``step``: the step path the daemon runs (:class:`~.replay._Run`), one
-  :meth:`Estimator.step <tractionecu.estimation.estimator.Estimator.step>` per grid time, the capture
-  read twice (a survey, then block by block).  It is what runs with an ``on_estimate`` callback (it needs the
+  :meth:`Estimator.step <tractionecu.estimation.estimator.Estimator.step>` per grid time.
+
+The capture is read twice: a survey (the signals present, the statistics, the clock offset), then block by
+block into the loop.  It is what runs with an ``on_estimate`` callback (it needs the
   :class:`~tractionecu.estimation.estimator.Estimate` objects), with ``compiled=False`` or where the compiled
   loop does not cover the machine; the summary's ``loop`` says which ran and why.
 
@@ -42,7 +44,13 @@ from .replay import (CSV_COLUMNS, MissingSignals, ReplayResult, _Run, _Sink, che
 from .signals import estimator_profile, required_missing
 from .survey import survey_keep
 
-__all__ = ["replay_to_dir"]
+__all__ = ["HOLD_BYTES", "replay_to_dir"]
+
+HOLD_BYTES = 0
+"""The bound of the decoded blocks :func:`replay_to_dir`'s pass holds [B]: none by default, the capture is decoded
+again block by block after the survey.  Holding them saved no time here (a 1.04 h replay took 8.2 s of CPU
+either way, the decoding being compiled) and cost memory: a 4-hour replay, which must stay within 600 MB, peaked
+at 623 MB with its 140 MiB of blocks held, and at 505 MB streamed."""
 
 
 def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
@@ -55,8 +63,9 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
 
     ``compiled``: None or True the compiled loop where it covers the machine, False the step path
     (:func:`~.batch.loop_choice`); ``hold_bytes``: the bound of the decoded blocks the compiled loop's single
-    pass holds (:func:`~.batch.open_recording`).  Memory does not grow with the recording's length but for
-    the held blocks (bounded), the GNSS track and the map's samples (one step per GNSS epoch).  The result's
+    pass holds (:func:`~.batch.open_recording`; default :data:`HOLD_BYTES`).  Memory does not grow with the
+    recording's length but for the held blocks (bounded), the GNSS track and the map's samples (one step per
+    GNSS epoch).  The result's
     ``arrays`` hold every step only with ``keep_arrays`` (default: when the recording has ``truth.csv`` to
     score, or was given in memory); otherwise the map's steps.
 
@@ -74,7 +83,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
     if step_path:
         rec = read_recording(recording, keep=survey_keep) if streamed else recording
     else:
-        rec, streamed, hold = batch.open_recording(recording, hold_bytes)
+        rec, streamed, hold = batch.open_recording(recording, HOLD_BYTES if hold_bytes is None else hold_bytes)
     vehicle = machine_of(rec)[0]
     missing = required_missing(rec, vehicle)
     if missing:
