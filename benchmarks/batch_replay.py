@@ -27,7 +27,10 @@ runs compiled in the loop), the curve's slope for an averaged slip, the radius c
 strengths, the general update, the filter's initialisation), and around it (the blocks' step arguments,
 the sink), and how often each return happened.
 
-    python benchmarks/batch_replay.py [--duration 60] [--seed 0] [--repeat 3] [--work DIR] [--json OUT]
+``--config TOML`` runs every path with that estimator configuration (the fleet's ``--config``): with
+``smoother_lag_s = 0.0`` the figures of the filter without the fixed-lag smoother.
+
+    python benchmarks/batch_replay.py [--duration 60] [--seed 0] [--repeat 3] [--work DIR] [--json OUT] [--config TOML]
 """
 
 from __future__ import annotations
@@ -52,8 +55,9 @@ def _cpu(fn: Callable[[], Any]) -> tuple[float, float, Any]:
     return time.process_time() - c0, time.perf_counter() - w0, out
 
 
-def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
-    """The figures of the module doc on the recording at ``path`` (a directory with can.log)."""
+def measure(path: Path, repeat: int = 3, fleet: bool = True, cfg: Any = None) -> dict[str, Any]:
+    """The figures of the module doc on the recording at ``path`` (a directory with can.log), every path run with
+    the estimator configuration ``cfg`` (None: the default)."""
     from tractionecu.estimation import _kernels
     from tractionecu.pipeline.batch import max_differences, replay_batch, replay_batch_rows
     from tractionecu.mapping.from_replay import write_replay_map
@@ -64,21 +68,21 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     _kernels.warm_up()
     scratch = Path(tempfile.mkdtemp(prefix="batch_bench_"))
     rec = read_recording(path)
-    step_res = replay(rec)                                  # also warms both paths' first-use costs
+    step_res = replay(rec, cfg=cfg)                         # also warms both paths' first-use costs
     span = step_res.sim_seconds
-    batch_res = replay_batch(rec)
+    batch_res = replay_batch(rec, cfg=cfg)
     diff = max_differences(step_res.arrays, batch_res.arrays)
 
     def path_step() -> Any:
-        return replay_to_dir(path, scratch / "step", keep_arrays=False, compiled=False)
+        return replay_to_dir(path, scratch / "step", keep_arrays=False, compiled=False, cfg=cfg)
 
     def path_batch() -> Any:
-        b = replay_batch_rows(path)
+        b = replay_batch_rows(path, cfg=cfg)
         write_replay_map(scratch / "batch", b["recording"], b["map"], gps_mask=b["gps_mask"])
         return b
 
     cases: dict[str, tuple[Callable[[], Any], Callable[[], Any]]] = {
-        "engine": (lambda: replay(rec), lambda: replay_batch(rec)),
+        "engine": (lambda: replay(rec, cfg=cfg), lambda: replay_batch(rec, cfg=cfg)),
         "path": (path_step, path_batch),
     }
     if fleet:
@@ -94,7 +98,8 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
                     d = Path(tempfile.mkdtemp(dir=scratch))
                     (d / "task").mkdir()
                     return replay_task(ref, "k", "0" * 64, d / "task", d, {
-                        "rate_hz": 100.0, "estimate_rate_hz": 1.0, "origin": [52.0, 13.0], "batch": batch})
+                        "rate_hz": 100.0, "estimate_rate_hz": 1.0, "origin": [52.0, 13.0], "batch": batch,
+                        **({} if cfg is None else {"estimator": cfg.to_toml()})})
                 return run
 
             cases["fleet task"] = (task(False), task(True))
@@ -116,7 +121,7 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
         out["cases"][name]["load_after"] = _load()
     shutil.rmtree(scratch, ignore_errors=True)
     if out["loop"] == "compiled":
-        out["breakdown"] = breakdown(rec, repeat)
+        out["breakdown"] = breakdown(rec, repeat, cfg)
     try:
         out["filter_core_floor"] = filter_core_floor(rec, repeat)
     except ImportError:                                       # without numba there is no compiled core
@@ -124,19 +129,19 @@ def measure(path: Path, repeat: int = 3, fleet: bool = True) -> dict[str, Any]:
     return out
 
 
-def breakdown(rec: Any, repeat: int = 3) -> dict[str, Any]:
+def breakdown(rec: Any, repeat: int = 3, cfg: Any = None) -> dict[str, Any]:
     """CPU time per step of an instrumented :func:`~tractionecu.pipeline.batch.replay_batch` of ``rec`` (the run
     of smallest total of ``repeat``), split into the compiled loop, each kind of return to Python (with its
     count) and the rest (module doc)."""
     best: dict[str, Any] = {}
     for _ in range(repeat):
-        b = _breakdown_once(rec)
+        b = _breakdown_once(rec, cfg)
         if not best or b["total_us"] < best["total_us"]:
             best = b
     return best
 
 
-def _breakdown_once(rec: Any) -> dict[str, Any]:
+def _breakdown_once(rec: Any, cfg: Any = None) -> dict[str, Any]:
     from tractionecu.estimation import compiled_loop as cl
     from tractionecu.pipeline.batch import replay_batch
 
@@ -161,7 +166,7 @@ def _breakdown_once(rec: Any) -> dict[str, Any]:
         setattr(cl.CompiledLoop, n, staticmethod(w) if isinstance(f, staticmethod) else w)
     try:
         c0 = time.process_time()
-        res = replay_batch(rec)
+        res = replay_batch(rec, cfg=cfg)
         total = time.process_time() - c0
     finally:
         for n, f in saved.items():
@@ -314,15 +319,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, default=None, help="directory for the recording (kept, reused)")
     ap.add_argument("--no-fleet", action="store_true", help="skip the fleet task case")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--config", type=Path, default=None, metavar="TOML",
+                    help="estimator configuration of every path ([estimator] table, as tractionecu replay and "
+                         "fleet take it), e.g. smoother_lag_s = 0.0")
     a = ap.parse_args(argv)
+    cfg = None
+    if a.config is not None:
+        from tractionecu.estimation.config import load_estimator_config
+
+        cfg = load_estimator_config(a.config)
     work = a.work or Path(tempfile.mkdtemp(prefix="batch_replay_"))
     work.mkdir(parents=True, exist_ok=True)
     rec = work / f"paper-three-soils_s{a.seed}_{int(a.duration)}s"
     if not (rec / "can.log").is_file():
         _simulate(rec, a.seed, a.duration)
     print(f"batch replay benchmark: paper-three-soils seed {a.seed}, {a.duration:.0f} s; best CPU time of "
-          f"{a.repeat}; {_load()}", flush=True)
-    m = measure(rec, a.repeat, fleet=not a.no_fleet)
+          f"{a.repeat}; {_load()}" + (f"; estimator configuration {a.config}" if cfg is not None else ""), flush=True)
+    m = measure(rec, a.repeat, fleet=not a.no_fleet, cfg=cfg)
     for line in report(m):
         print(line, flush=True)
     print(_load())
