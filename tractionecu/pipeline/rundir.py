@@ -10,14 +10,14 @@
 Two loops give the same estimates, float for float (:mod:`.batch`'s contract):
 
 * ``compiled`` (the default where it covers the machine, :func:`~.batch.loop_choice`): batch replay's
-  loop, the capture read twice as the step path reads it (:data:`HOLD_BYTES`);
+  loop;
 * ``step``: the step path the daemon runs (:class:`~.replay._Run`), one
-  :meth:`Estimator.step <tractionecu.estimation.estimator.Estimator.step>` per grid time.
+  :meth:`Estimator.step <tractionecu.estimation.estimator.Estimator.step>` per grid time.  It is what runs
+  with an ``on_estimate`` callback (it needs the :class:`~tractionecu.estimation.estimator.Estimate`
+  objects), with ``compiled=False`` or where the compiled loop does not cover the machine.
 
-The capture is read twice: a survey (the signals present, the statistics, the clock offset), then block by
-block into the loop.  It is what runs with an ``on_estimate`` callback (it needs the
-  :class:`~tractionecu.estimation.estimator.Estimate` objects), with ``compiled=False`` or where the compiled
-  loop does not cover the machine; the summary's ``loop`` says which ran and why.
+The summary's ``loop`` says which ran and why.  Either way the capture is read twice: a survey (the signals
+present, the statistics, the clock offset), then block by block into the loop (:data:`HOLD_BYTES`).
 
 Either way ``estimates.csv`` is written as the steps age past the window a lost filter may reach back
 (``lost_after_s`` + ``max_gap_s`` + 1 s), beside the file it replaces and renamed over it when the run is
@@ -50,7 +50,7 @@ HOLD_BYTES = 0
 """The bound of the decoded blocks :func:`replay_to_dir`'s pass holds [B]: none by default, the capture is decoded
 again block by block after the survey.  Holding them saved no time here (a 1.04 h replay took 8.2 s of CPU
 either way, the decoding being compiled) and cost memory: a 4-hour replay, which must stay within 600 MB, peaked
-at 623 MB with its 140 MiB of blocks held, and at 505 MB streamed."""
+at 623 MB with its 140 MiB of blocks held, and at 485–505 MB streamed."""
 
 
 def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
