@@ -153,6 +153,36 @@ def test_paper_three_soils_every_column(make_recording):
     assert a["valid"].sum() > 1000 and np.isfinite(a["a"]).any()
 
 
+def test_the_curve_cache_stays_bounded_and_changes_nothing(make_recording, monkeypatch, tmp_path):
+    """The run directory resolves every row's curve (estimates.csv's curve_path): the loop kept one curve per
+    version of the run, 31 000 over a 1.04 h replay, and the replay's memory grew with it (4.04 h: 494 MB peak, 446 MB
+    bounded).  Bounded to a few versions, the cache is refilled on demand and every row is as before."""
+    import tractionecu.estimation.compiled_loop as CL
+    import tractionecu.pipeline.batch as batch_module
+    from tractionecu.pipeline.rundir import replay_to_dir
+
+    path = make_recording("paper-three-soils", 0, 20.0)
+    _, _, ref = replay_to_dir(path, tmp_path / "ref", write_map=False, keep_arrays=True)
+    calls = []                          # (cache size before, versions asked, cache size after) per call
+    orig = CL.CompiledLoop.resolve_curves
+
+    def resolve(self, arr):
+        n0, keys = len(self._curves), len(set(np.asarray(arr.get("curve_key", [])).tolist()))
+        out = orig(self, arr)
+        calls.append((n0, keys, len(self._curves)))
+        return out
+
+    monkeypatch.setattr(CL, "CURVE_CACHE_MAX", 8)
+    monkeypatch.setattr(CL.CompiledLoop, "resolve_curves", resolve)
+    monkeypatch.setattr(batch_module, "BLOCK", 256)          # blocks of 256 steps: many calls over 20 s
+    summary, _, got = replay_to_dir(path, tmp_path / "small", write_map=False, keep_arrays=True)
+    assert summary["loop"] == "compiled" and len(calls) > 3
+    assert all(after <= (n0 if n0 <= 8 else 0) + keys for n0, keys, after in calls)
+    assert any(n0 > 8 and after < n0 for n0, _, after in calls)        # cleared at least once
+    assert (tmp_path / "small" / "estimates.csv").read_bytes() == (tmp_path / "ref" / "estimates.csv").read_bytes()
+    assert got.arrays["curve_path"] == ref.arrays["curve_path"]
+
+
 def test_soil_segments_close_within_the_loop(make_recording):
     """90 s of paper-three-soils (two soil segments close there: test_curve_speed's reference pins the count): the
     change test fires within the compiled curve update, the segment closes in Python and the pairs go on in the

@@ -105,6 +105,10 @@ def check_steps(vehicle: Any, seconds: float = 4.0, rate_hz: float = 100.0) -> l
 
 _CHECKED: dict[str, tuple[bool, float]] = {}
 
+CURVE_CACHE_MAX = 4096
+"""Curves kept by :meth:`CompiledLoop.resolve_curves` for the versions it resolved (a block of 4096 steps has
+about 400 at the curve's 10 Hz); past it the cache starts again."""
+
 
 class _CurveStates:
     """The curve states of the compiled curve update, by version (``I[I_CS_VER]``), made on demand from its records
@@ -502,6 +506,10 @@ class CompiledLoop:
         if key is None:
             return arr
         cache = self._curves
+        if len(cache) > CURVE_CACHE_MAX:
+            # the versions of earlier blocks are seldom asked for again (a map's rows, once): a replay resolves
+            # every row's, and the cache had kept one curve per version of the run (31 000 over a 1.04 h replay)
+            cache.clear()
         uniq, inv = np.unique(np.asarray(key, dtype=np.int64), return_inverse=True)
         curves = np.empty(uniq.size, dtype=object)
         paths = np.empty(uniq.size, dtype=object)

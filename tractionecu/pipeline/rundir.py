@@ -50,7 +50,8 @@ HOLD_BYTES = 0
 """The bound of the decoded blocks :func:`replay_to_dir`'s pass holds [B]: none by default, the capture is decoded
 again block by block after the survey.  Holding them saved no time here (a 1.04 h replay took 8.2 s of CPU
 either way, the decoding being compiled) and cost memory: a 4-hour replay, which must stay within 600 MB, peaked
-at 623 MB with its 140 MiB of blocks held, and at 485–505 MB streamed."""
+at 623 MB with its 140 MiB of blocks held, and at 485–505 MB streamed (427 MB once the compiled loop's curve
+cache was bounded, :data:`~tractionecu.estimation.compiled_loop.CURVE_CACHE_MAX`)."""
 
 
 def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rate_hz: float = 100.0,
