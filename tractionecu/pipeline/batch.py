@@ -391,16 +391,11 @@ def _run(recording: Any, sink: BatchSink | None, *, rate_hz: float, cfg: Estimat
          gate: Any, on_estimate: Callable[[Estimate], None] | None,
          make_sink: Callable[[Any, EstimatorConfig], BatchSink] | None = None,
          compiled: bool | None = None, hold_bytes: int | None = None) -> tuple[Any, Any, BatchSink]:
-    from .replay import MissingSignals, machine_of
-    from .signals import estimator_profile, required_missing
-    from ..recording.reader import read_recording
+    from .replay import checked
 
     check_rate(rate_hz)                                # before the capture is read
     rec, streamed, hold = open_recording(recording, hold_bytes)
-    vehicle, s0 = machine_of(rec)
-    missing = required_missing(rec, vehicle)
-    if missing:
-        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
+    checked(rec, recording, streamed)
     cfg = cfg or EstimatorConfig()
     if sink is None:
         sink = make_sink(rec, cfg) if make_sink is not None else BatchSink()
@@ -417,7 +412,7 @@ def drive(rec: Any, streamed: bool, hold: Any, sink: BatchSink, *, rate_hz: floa
     ``loop_seconds``)."""
     from .gnss import GnssGate
     from .replay import machine_of
-    from ..recording.reader import held_signals, stream_signals
+    from ..recording.reader import held_signals
 
     vehicle, s0 = machine_of(rec)
     run = _batch_run_class()(rec, rate_hz, vehicle, sensors or s0, cfg, gate or GnssGate(), sink, on_estimate)
@@ -428,17 +423,14 @@ def drive(rec: Any, streamed: bool, hold: Any, sink: BatchSink, *, rate_hz: floa
         run.loop = CompiledLoop(run.est)
         sink.resolve = run.loop.resolve_curves
     run.decode = "in memory: the recording given decoded"
+    blocks = None
     if streamed:
-        names = sorted({nm for grp in run.groups for nm in grp.names})
+        names = run.signal_names()
         one = hold is not None and hold.blocks is not None and set(names) <= hold.names
         run.decode = _decode_note(hold, one)
-        blocks = held_signals(rec, hold, names) if one else stream_signals(rec, names=names)
+        blocks = held_signals(rec, hold, names) if one else None      # (None: decoded again, streamed)
         hold = None                            # the held blocks go as they are fed
-        for block, before in blocks:
-            run.feed(block, before)
-    else:
-        run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
-    run.close()
+    run.feed_recording(rec, streamed, blocks)
     return run
 
 

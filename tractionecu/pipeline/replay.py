@@ -74,7 +74,7 @@ CSV_COLUMNS = tuple(["t"] + [f"mu_{w}" for w in WHEELS] + ["rho_s", "a", "soil_c
                     + list(UNCERTAINTY_COLUMNS))
 """Columns of ``estimates.csv``."""
 
-__all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "machine_of", "recording_grid", "replay",
+__all__ = ["CSV_COLUMNS", "MissingSignals", "ReplayResult", "checked", "machine_of", "recording_grid", "replay",
            "replay_streamed", "resolved_config", "write_estimates_csv"]
 
 
@@ -171,6 +171,17 @@ def machine_of(rec: Recording) -> tuple[VehicleParams, SensorSpec]:
     return load_vehicle(rec.vehicle_toml_path), load_sensors(rec.vehicle_toml_path)
 
 
+def checked(rec: Recording, recording: Any, streamed: bool) -> Recording:
+    """``rec``, the recording ``recording`` as read (its survey when ``streamed``), if it has the signals its
+    machine's estimator needs (:func:`~.signals.required_missing`); else :class:`MissingSignals`, before
+    anything is written, with the recording read whole for the caller's report."""
+    vehicle = machine_of(rec)[0]
+    missing = required_missing(rec, vehicle)
+    if missing:
+        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
+    return rec
+
+
 def replay(rec: Recording | str | Path, *, rate_hz: float = 100.0, vehicle: VehicleParams | None = None,
            sensors: SensorSpec | None = None, cfg: EstimatorConfig | None = None, gate: GnssGate | None = None,
            on_estimate: Callable[[Estimate], None] | None = None) -> ReplayResult:
@@ -192,8 +203,7 @@ def replay(rec: Recording | str | Path, *, rate_hz: float = 100.0, vehicle: Vehi
     recording_grid(rec, rate_hz, vehicle)             # the checks (rate, required signals)
     sink = _Sink(keep_all=True)
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), sink, on_estimate)
-    run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
-    run.close()
+    run.feed_recording(rec, streamed=False)
     return ReplayResult(sink.arrays(), float(rate_hz), run.gps_mask, dict(run.est.counters), run.gnss,
                         run.loop_seconds)
 
@@ -206,17 +216,11 @@ def replay_streamed(recording: str | Path, *, rate_hz: float = 100.0, cfg: Estim
     :func:`replay_to_dir` streams it, so memory does not grow with the recording's length.  Returns the
     survey (:func:`replay_to_dir`'s) and the estimator's counters."""
     check_rate(rate_hz)                                # before the capture is read
-    rec = read_recording(recording, keep=survey_keep)
+    rec = checked(read_recording(recording, keep=survey_keep), recording, streamed=True)
     vehicle, sensors = machine_of(rec)
-    missing = required_missing(rec, vehicle)
-    if missing:
-        raise MissingSignals(read_recording(recording), missing, estimator_profile(vehicle))
     run = _Run(rec, rate_hz, vehicle, sensors, cfg or EstimatorConfig(), gate or GnssGate(), _Sink(keep_all=False),
                on_estimate)
-    names = {nm for grp in run.groups for nm in grp.names}
-    for block, before in stream_signals(rec, names=sorted(names)):
-        run.feed(block, before)
-    run.close()
+    run.feed_recording(rec, streamed=True)
     return rec, dict(run.est.counters)
 
 
@@ -352,6 +356,23 @@ class _Run:
         if math.isinf(before):
             return
         self._step(self.grid.take(before))
+
+    def feed_recording(self, rec: Recording, streamed: bool, blocks: Any = None) -> None:
+        """Every signal of ``rec``, then :meth:`close`: the blocks ``blocks`` gives ((signals, before) pairs) when
+        given, else the capture decoded again block by block when ``streamed`` (``rec`` is its survey), else
+        ``rec`` whole as one block."""
+        if blocks is None and streamed:
+            blocks = stream_signals(rec, names=self.signal_names())
+        if blocks is None:
+            self.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
+        else:
+            for block, before in blocks:
+                self.feed(block, before)
+        self.close()
+
+    def signal_names(self) -> list[str]:
+        """The signals the run steps on (its groups'), sorted."""
+        return sorted({nm for grp in self.groups for nm in grp.names})
 
     def close(self) -> None:
         """No block to come: the steps up to the grid's end (:func:`recording_grid`)."""

@@ -27,7 +27,6 @@ raises :class:`~.replay.MissingSignals` before anything is written.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from pathlib import Path
@@ -36,12 +35,10 @@ from typing import Any, Callable
 from ..estimation.estimator import Estimate, EstimatorConfig
 from ..config import SensorSpec
 from ..mapping.tiles import lock_directory
-from ..recording.reader import Recording, read_recording, stream_signals
+from ..recording.reader import Recording, read_recording
 from . import batch
 from .gnss import GnssGate
-from .replay import (CSV_COLUMNS, MissingSignals, ReplayResult, _Run, _Sink, check_rate, machine_of,
-                     resolved_config)
-from .signals import estimator_profile, required_missing
+from .replay import CSV_COLUMNS, ReplayResult, _Run, _Sink, check_rate, checked, machine_of, resolved_config
 from .survey import survey_keep
 
 __all__ = ["HOLD_BYTES", "replay_to_dir"]
@@ -85,10 +82,7 @@ def replay_to_dir(recording: str | Path | Recording, out_dir: str | Path, *, rat
         rec = read_recording(recording, keep=survey_keep) if streamed else recording
     else:
         rec, streamed, hold = batch.open_recording(recording, HOLD_BYTES if hold_bytes is None else hold_bytes)
-    vehicle = machine_of(rec)[0]
-    missing = required_missing(rec, vehicle)
-    if missing:
-        raise MissingSignals(read_recording(recording) if streamed else rec, missing, estimator_profile(vehicle))
+    checked(rec, recording, streamed)
     if write_map:
         from ..mapping.from_replay import check_map_dir
 
@@ -133,15 +127,9 @@ def _replay_locked(rec: Recording, out: Path, streamed: bool, hold: Any, wall0: 
                 run = _Run(rec, rate_hz, vehicle, sensors, cfg, gate, sink, on_estimate)
                 run.loop_used = ("python: an on_estimate callback needs the Estimate objects" if on_estimate
                                  else "python: compiled=False")
-                run.decode = "in memory: the recording given decoded"
-                if streamed:
-                    run.decode = "streamed: a survey, then the capture decoded again block by block"
-                    names = {nm for grp in run.groups for nm in grp.names}
-                    for block, before in stream_signals(rec, names=sorted(names)):
-                        run.feed(block, before)
-                else:
-                    run.feed({name: (s.t, s.value) for name, s in rec.signals.items()}, math.inf)
-                run.close()
+                run.decode = ("streamed: a survey, then the capture decoded again block by block" if streamed
+                              else "in memory: the recording given decoded")
+                run.feed_recording(rec, streamed)
                 counters = dict(run.est.counters)
             else:
                 sink = batch.BatchSink(keep_all=keep_arrays, csv_fh=fh, hold_s=hold_s, map_times=map_times)
