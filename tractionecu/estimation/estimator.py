@@ -284,9 +284,10 @@ _SL_WV = slice(0, 5)
 _SL_V = slice(4, 5)
 _HUB_OUT = np.array([10, 11, 12, 13, 4, 5, 6, 7, 8, 9])
 """States of the two-inertia hub model the estimate reports, in the paper's order (rim speeds for ω)."""
-_HUB_SMOOTH_INDEX = (5, 6, 7, 8, 9, 10, 11, 12, 13, 4)
-"""The two-inertia hub's state index of each reported μ1..4, ρ_s, ω1..4 (the rims') and v (the fixed-lag
-smoother's, :data:`.smoother.STATE_INDEX`)."""
+_HUB_SMOOTH_INDEX = tuple(int(_HUB_OUT[i]) for i in (*range(IX_MU.start, IX_MU.stop), IX_RHO,
+                                                     *range(IX_OMEGA.start, IX_OMEGA.stop), IX_V))
+"""The two-inertia hub's state index of each reported μ1..4, ρ_s, ω1..4 (the rims') and v, in the order of the
+fixed-lag smoother's :data:`.smoother.STATE_INDEX`: where :data:`_HUB_OUT` puts each."""
 
 
 def _curve_slope_params(cs: Any) -> tuple[float, float, float, float, float]:
