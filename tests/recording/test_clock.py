@@ -162,3 +162,26 @@ def test_a_drive_that_repeats_itself_keeps_its_logged_times(short_recording, tmp
     off = check_offset(late, raw.gps.t, raw.gps.speed, (raw.stats.can_t_first, raw.stats.can_t_last))
     assert not off.found and "not applied" in off.reason and "-3.0" in off.reason
     assert check_offset(late, raw.gps.t, raw.gps.speed).found      # without the spans: found
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_refinement_correlates_every_offset_as_one_at_a_time(seed, monkeypatch):
+    """The fine search's correlations in passes (``_corr_many``) are ``_corr_at``'s, offset by offset: where
+    the speeds overlap in part, not at all, or one is constant, and across pass boundaries."""
+    from tractionecu.recording import clock
+
+    rng = np.random.default_rng(seed)
+    ct = np.sort(rng.uniform(0.0, 300.0, 3000))
+    cv = np.cumsum(rng.normal(0.0, 0.1, ct.size))
+    gt = np.arange(0.0, 300.0, 0.1) + rng.uniform(-5.0, 5.0)
+    gv = np.interp(gt - 0.3, ct, cv) + rng.normal(0.0, 0.05, gt.size)
+    offs = np.concatenate([np.arange(-0.4, 0.4, 0.001), [296.0, 299.99, 1e4]])   # a few samples, none
+    monkeypatch.setattr(clock, "FINE_CHUNK", 7 * gt.size + 5)                  # passes of 7 offsets
+    for c in (cv, np.full(ct.size, 2.5)):
+        one = np.array([clock._corr_at(ct, c, gt, gv, o)[0] for o in offs])
+        many = clock._corr_many(ct, c, gt, gv, offs)
+        assert np.array_equal(np.isnan(one), np.isnan(many))
+        assert np.allclose(one, many, rtol=0.0, atol=1e-12, equal_nan=True)
+    assert np.isfinite(one).sum() == 0 and np.isfinite(many).sum() == 0       # a constant CAN speed
+    r = clock._corr_many(ct, cv, gt, gv, offs)
+    assert abs(offs[int(np.nanargmax(r))] - 0.3) < 0.02

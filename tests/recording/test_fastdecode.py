@@ -284,6 +284,36 @@ def test_lone_time_stamps_ahead_decode_identically_across_blocks(tmp_path, codec
     assert rs.rejected["time_backwards"] <= 2
 
 
+@pytest.mark.parametrize("first", ["ordinary", "next_backwards", "ahead", "next_ahead"])
+def test_the_first_frame_is_decided_as_the_rule_does_without_going_frame_by_frame(tmp_path, codec, monkeypatch,
+                                                                                  first):
+    """The rule holds a capture's first frame (ahead of no time) until the next; the vectorised reader decides
+    it from the next frame at once, and only a block with a frame really ahead goes frame by frame."""
+    from tractionecu.recording import fastdecode
+
+    lines = _frames(codec, 200)
+
+    def shift(i: int, dt: float) -> None:
+        lines[i] = f"({float(lines[i][1:18]) + dt:017.6f})" + lines[i][19:]
+
+    if first == "next_backwards":
+        shift(1, -0.5)
+    elif first == "ahead":
+        shift(0, 3600.0)
+    elif first == "next_ahead":
+        shift(1, 3600.0)
+    path = tmp_path / "can.log"
+    path.write_text("\n".join(lines) + "\n")
+    calls = []
+    real = fastdecode._time_order
+    monkeypatch.setattr(fastdecode, "_time_order", lambda t, state: calls.append(t.size) or real(t, state))
+    _, st = assert_same(path, codec)
+    rs = st.files["can.log"]
+    assert rs.rejected["time_backwards"] == (1 if first == "next_backwards" else 0)
+    assert rs.rejected["time_ahead"] == (1 if first in ("ahead", "next_ahead") else 0)
+    assert bool(calls) == (first in ("ahead", "next_ahead"))
+
+
 def test_read_in_chunks_equals_one_piece(tmp_path, codec, monkeypatch):
     from tractionecu.recording import fastdecode
     path = tmp_path / "can.log"

@@ -191,6 +191,35 @@ def _corr_at(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray, off
     return float(np.corrcoef(x, y)[0, 1]), int(m.sum())
 
 
+FINE_CHUNK = 1 << 20
+"""Interpolated samples per pass of :func:`_corr_many` (8 MiB of floats: the refinement's memory is bounded
+whatever the recording's length)."""
+
+
+def _corr_many(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray,
+               offs: np.ndarray) -> np.ndarray:
+    """:func:`_corr_at`'s correlation at every offset of ``offs`` (NaN where it is), the offsets in passes of
+    at most :data:`FINE_CHUNK` interpolated samples: one interpolation per pass, not one call per offset."""
+    out = np.full(offs.size, np.nan)
+    per = max(1, FINE_CHUNK // max(gt.size, 1))
+    for a in range(0, offs.size, per):
+        o = offs[a:a + per]
+        tc = gt[None, :] - o[:, None]
+        m = (tc >= ct[0]) & (tc <= ct[-1])
+        n = m.sum(axis=1)
+        x = np.interp(tc, ct, cv)
+        x[~m] = 0.0
+        y = np.where(m, gv[None, :], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            dx = np.where(m, x - (x.sum(axis=1) / n)[:, None], 0.0)
+            dy = np.where(m, y - (y.sum(axis=1) / n)[:, None], 0.0)
+            sxx, syy = (dx * dx).sum(axis=1), (dy * dy).sum(axis=1)
+            r = (dx * dy).sum(axis=1) / np.sqrt(sxx * syy)
+        r[(n < 5) | ~(sxx > 0.0) | ~(syy > 0.0)] = np.nan
+        out[a:a + per] = r
+    return out
+
+
 def estimate_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray) -> ClockOffset:
     """The offset from the CAN clock to GNSS time (module doc); ``reason`` says why when not found."""
     src = can_speed(signals)
@@ -214,7 +243,7 @@ def estimate_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray) 
     k = int(np.nanargmax(r)) - (b.size - 1)           # b[j] matches a[j + k]
     coarse = float(gt[0] - (ct[0] + k * STEP_S))
     offs = coarse + np.arange(-2 * STEP_S, 2 * STEP_S + FINE_STEP_S / 2, FINE_STEP_S)
-    rs = np.array([_corr_at(ct, cv, gt, gv, o)[0] for o in offs])
+    rs = _corr_many(ct, cv, gt, gv, offs)
     if not np.isfinite(rs).any():
         return ClockOffset(math.nan, math.nan, math.nan, name, "the speeds do not overlap at the best lag")
     i = int(np.nanargmax(rs))

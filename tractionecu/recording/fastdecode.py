@@ -338,6 +338,11 @@ def _scan_lines(lines: list[str] | _Uniform, lineno0: int, state: dict, rs: Read
         idx, t, cid, ext, dlc, pl = idx[order], t[order], cid[order], ext[order], dlc[order], pl[order]
     # time going backwards: earlier than the last accepted frame = the running maximum before it
     rule: TimeRule = state["rule"]
+    if (rule.held is None and rule.t_max == -np.inf and t.size >= 2 and np.isfinite(t[0])
+            and not t[0] - t[1] > TIME_SPIKE_S):
+        # the capture's first frame: the rule holds it (it is "ahead" of no time at all) and the next frame
+        # accepts it, as here, so the block does not go frame by frame for it
+        rule.t_max = float(t[0])
     prev = np.maximum.accumulate(np.concatenate([[rule.t_max], t]))[:-1]
     if rule.held is not None or (t - prev > TIME_SPIKE_S).any():
         # a frame stamped far ahead is held until the next one (candump.TimeRule): frame by frame
