@@ -53,6 +53,39 @@ def test_slip_above_the_band_over_the_distance_asks_for_ballast() -> None:
     assert "lower_tyre_pressure" not in kinds
 
 
+def test_ballast_advised_stays_within_the_permissible_mass() -> None:
+    """The pull asks for more than 500 kg; the permissible mass leaves 200 kg of room, then none."""
+    veh = VehicleParams()
+    mass = veh.weight_n / 9.80665
+    free = AdviceEngine(veh, AdviceSettings(distance_m=100.0))
+    drive(free, 50.0, 0.16)
+    need = free.advice[0].evidence["ballast_kg"]
+    assert need > 500
+    eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_mass_kg=mass + 200.0))
+    drive(eng, 50.0, 0.16)
+    r = eng.advice[0]
+    assert r.kind == "add_ballast" and r.evidence["ballast_kg"] == pytest.approx(200.0)
+    assert r.evidence["ballast_needed_kg"] == pytest.approx(need)       # the same pull, the same need
+    assert r.evidence["ballast_front_kg"] + r.evidence["ballast_rear_kg"] == pytest.approx(200.0)
+    assert f"about 200 kg (no more: the permissible mass is {mass + 200:.0f} kg; this pull needs about {need:.0f} kg)" \
+        in r.text
+    # at the permissible mass (or over it): no ballast, the alternatives say why
+    for limit in (mass, mass - 300.0):
+        eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_mass_kg=limit))
+        drive(eng, 50.0, 0.16)
+        kinds = [x.kind for x in eng.advice]
+        assert "add_ballast" not in kinds and kinds[0] == "shallower_depth"
+        first = eng.advice[0].text
+        assert first.startswith("Work shallower") and f"permissible mass of {limit:.0f} kg: no ballast" in first
+    eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_mass_kg=mass, tyre_pressure_min_pa=1.2e5))
+    drive(eng, 50.0, 0.16)
+    first, second = eng.advice[:2]
+    assert first.kind == "lower_tyre_pressure" and first.text.startswith("Lower the tyre pressure")
+    assert "no ballast can be added" in first.text
+    assert second.kind == "shallower_depth" and second.text.startswith("Or work shallower")
+    assert "permissible" not in second.text
+
+
 def test_tyre_pressure_only_when_the_profile_allows() -> None:
     veh = VehicleParams()            # 1.6 bar
     eng = AdviceEngine(veh, AdviceSettings(distance_m=50.0, tyre_pressure_min_pa=1.2e5))

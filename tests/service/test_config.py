@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import math
 import tomllib
+from dataclasses import fields
 from pathlib import Path
 
 import pytest
@@ -131,3 +133,14 @@ def test_a_one_sided_slip_band_must_still_run_upwards_and_a_kpa_pressure_is_name
     with pytest.raises(ConfigError, match=r"advice.tyre_pressure_min_pa = 80: .* the key is in Pa \(80 kPa = 80000"):
         from_dict({"advice": {"tyre_pressure_min_pa": 80}})
     assert from_dict({"advice": {"tyre_pressure_min_pa": 80000}}).advice.tyre_pressure_min_pa == 80000
+    adv = from_dict({"advice": {"max_mass_kg": 11500.0, "ballast_kg": 400.0, "axle_type": "4wd"}}).advice
+    assert adv.max_mass_kg == 11500.0
+    # the service's advice gets every key of [advice] the advice's settings have (one had been left out)
+    st = adv.settings()
+    assert (st.max_mass_kg, st.ballast_kg, st.axle_type) == (11500.0, 400.0, "4wd")
+    shared = {f.name for f in fields(type(st))} & {f.name for f in fields(adv)}
+    assert shared >= {"axle_type", "slip_min", "slip_max", "distance_m", "eta_loss", "eta_minutes",
+                      "tyre_pressure_min_pa", "ballast_kg", "max_mass_kg"}
+    assert math.isnan(from_dict({}).advice.max_mass_kg)
+    with pytest.raises(ConfigError, match="advice.max_mass_kg"):
+        from_dict({"advice": {"max_mass_kg": -1.0}})

@@ -31,7 +31,10 @@ averaged over the window (not the instant's), and advice whose window has held n
   drive's rear axle with the pull's load transfer, its ballast on the rear).  Where: towards the axle type's static front share
   (:data:`FRONT_SHARE`; the axles' slips do not say it: an MFWD front axle's
   lead makes its slip the larger one whatever the weights), then the tyre
-  pressures of the tyre's load table for the new axle loads.  Or, without
+  pressures of the tyre's load table for the new axle loads.  At most up to
+  the machine's permissible mass (``max_mass_kg``, where declared): the
+  advice says how much more the pull needs, and at that mass it gives no
+  ballast at all, only the alternatives, saying why.  Or, without
   ballast, **lower the tyre pressure** if the tyre profile allows it at the
   present load (``tyre_pressure_min_pa`` > 0): a longer contact patch raises
   the pull at a given slip.  Or a **shallower working depth**: the draft to
@@ -114,6 +117,9 @@ class AdviceSettings:
     ballast_kg: float = math.nan
     """Ballast the machine carries now [kg] (front weights, wheel weights, liquid); NaN: not declared, and then
     no amount of ballast to remove is given (only what the pull needs against what the machine weighs)."""
+    max_mass_kg: float = math.nan
+    """The machine's permissible total mass [kg] (its registration document or operator's manual: tyres,
+    axles and brakes are rated for it); NaN: not declared, and then the ballast advised is not limited."""
 
     def band(self) -> tuple[float, float]:
         lo, hi = SLIP_BANDS[self.axle_type]
@@ -356,7 +362,12 @@ class Advisor:
         pull = self.window_pull()
         w_new = self._weight_for(rep, curve, s_t, pull)
         w_driven = self._driven_weight(pull)
-        ballast_kg = (w_new - w_driven) / G if math.isfinite(w_new) else math.nan
+        ballast_kg = need_kg = (w_new - w_driven) / G if math.isfinite(w_new) else math.nan
+        # the permissible mass caps the ballast: what the pull needs beyond it cannot be loaded on
+        room_kg = self.s.max_mass_kg - self.weight_n / G
+        capped = math.isfinite(room_kg) and math.isfinite(need_kg) and need_kg > room_kg
+        if capped:
+            ballast_kg = max(room_kg, 0.0)
         transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
         sf, sr = slip_axles
         where, words, front_kg = self._where(ballast_kg)
@@ -364,27 +375,38 @@ class Advisor:
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
              "weight_n": self.weight_n, "weight_driven_n": w_driven, "weight_needed_n": w_new, "load_transfer_n": transfer,
              "slip_front": sf, "slip_rear": sr, "front_share": self.front_fraction}
+        if capped:
+            e.update(ballast_needed_kg=need_kg, max_mass_kg=self.s.max_mass_kg)
         amount = (f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0
                   else "amount not estimated" + (" (curve not identified)" if curve is None else ""))
+        limit = (f" (no more: the permissible mass is {self.s.max_mass_kg:.0f} kg; this pull needs about "
+                 f"{need_kg:.0f} kg)" if capped else "")
         p, pmin = self.s.tyre_pressure_pa, self.s.tyre_pressure_min_pa
         after = ("; then set the tyre pressures the tyre's load table gives for the new axle loads"
                  if pmin > 0 else "")
-        recs = [Recommendation("add_ballast", f"Add ballast, {amount}, {words}{after}: {why}.", why,
-                               {**e, "ballast_kg": ballast_kg, "where": where, "ballast_front_kg": front_kg,
-                                "ballast_rear_kg": ballast_kg - front_kg})]
+        recs: list[Recommendation] = []
+        if not capped or ballast_kg >= 0.5:
+            recs.append(Recommendation("add_ballast", f"Add ballast, {amount}{limit}, {words}{after}: {why}.", why,
+                                       {**e, "ballast_kg": ballast_kg, "where": where, "ballast_front_kg": front_kg,
+                                        "ballast_rear_kg": ballast_kg - front_kg}))
+        full = ("" if recs else f" (the machine is at its permissible mass of {self.s.max_mass_kg:.0f} kg: no "
+                                f"ballast can be added; this pull needs about {need_kg:.0f} kg more)")
         if pmin > 0 and math.isfinite(p) and p - self.s.tyre_pressure_step_pa >= pmin:
             # an alternative to the ballast, at the present loads (more load needs more pressure, not less)
             p_new = max(pmin, p - self.s.tyre_pressure_step_pa)
+            lead = "Or, without adding ballast, lower" if recs else "Lower"
             recs.append(Recommendation("lower_tyre_pressure",
-                                       f"Or, without adding ballast, lower the tyre pressure from {p / 1e5:.2f} to "
+                                       f"{lead} the tyre pressure from {p / 1e5:.2f} to "
                                        f"{p_new / 1e5:.2f} bar (the tyre's minimum for the present load "
-                                       f"{pmin / 1e5:.2f} bar): {why}.", why,
+                                       f"{pmin / 1e5:.2f} bar){'' if recs else full}: {why}.", why,
                                        {**e, "tyre_pressure_pa": p, "tyre_pressure_new_pa": p_new,
                                         "tyre_pressure_min_pa": pmin}))
         shed = (pull - (float(curve.mu(s_t)) - rep.rho_s) * w_driven) if curve is not None else math.nan
         # (a lower gear at the same pull leaves the slip where it is: only less draft or more weight moves it)
         txt = (f"or work shallower: shed about {shed / 1e3:.1f} kN of draft"
                if math.isfinite(shed) and shed > 0 else "or work shallower")
+        if not recs:                      # the first recommendation: it says why there is no ballast
+            txt = txt[3:] + full
         recs.append(Recommendation("shallower_depth", txt[0].upper() + txt[1:] + f": {why}.", why,
                                    {**e, "draft_to_shed_n": shed}))
         return recs

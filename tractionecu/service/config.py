@@ -270,6 +270,17 @@ class AdviceConfig:
     max_sigma_s_star: float = setting(0.01, "s* is sent only with a standard error up to this [-]", 0.0001, 1.0)
     ballast_kg: float = setting(math.nan, "ballast the machine carries now [kg]; NaN = not declared (no amount of "
                                           "ballast to remove is given)", 0.0, 100000.0, nan_ok=True)
+    max_mass_kg: float = setting(math.nan, "the machine's permissible total mass [kg] (registration document, "
+                                           "operator's manual); ballast advised stays within it; NaN = not declared",
+                                 100.0, 200000.0, nan_ok=True)
+
+    def settings(self) -> Any:
+        """The advice's thresholds (:class:`~tractionecu.advice.rules.AdviceSettings`): every key of this table
+        that names one of its fields (the rest, the tyre pressure now, are the vehicle's)."""
+        from ..advice.rules import AdviceSettings
+
+        names = {f.name for f in fields(AdviceSettings)}
+        return AdviceSettings(**{f.name: getattr(self, f.name) for f in fields(self) if f.name in names})
 
     def __post_init__(self) -> None:
         validate(self, "advice")

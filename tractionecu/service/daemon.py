@@ -79,7 +79,6 @@ import can
 from ..advice.bus import efficiency_frame
 from ..advice.efficiency import efficiency_config_for
 from ..advice.engine import AdviceEngine
-from ..advice.rules import AdviceSettings
 from ..aio import cancel_and_wait
 from ..bus import j1939
 from ..bus.dbc import Codec
@@ -438,11 +437,8 @@ class Service:
 
         a = self.cfg.advice
         vehicle = self.estimation.machine[0] if self.estimation.machine else VehicleParams()
-        settings = AdviceSettings(axle_type=a.axle_type, slip_min=a.slip_min, slip_max=a.slip_max,
-                                  distance_m=a.distance_m, eta_loss=a.eta_loss, eta_minutes=a.eta_minutes,
-                                  tyre_pressure_min_pa=a.tyre_pressure_min_pa, ballast_kg=a.ballast_kg)
         eff = efficiency_config_for(vehicle, max_sigma_s_star=a.max_sigma_s_star)
-        return AdviceEngine(vehicle, settings, eff=eff)
+        return AdviceEngine(vehicle, a.settings(), eff=eff)
 
     def _send_efficiency(self, report: Any) -> bool:
         """``TECU_EstEfficiency`` from our claimed address, if the claim allows (as the estimate broadcast)."""
