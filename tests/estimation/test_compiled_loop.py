@@ -96,8 +96,10 @@ def test_state_after_every_step_equals_the_python_estimator():
     assert statuses & INPUT_REJECTED and statuses & MEAS_GATED and statuses & NOT_CONVERGED
     assert est.counters["gap_resets"] == 1 and est.counters["rejected_inputs"] >= 2
     assert loop.events["init"] == 2 and loop.events["update"] >= 3
-    # the curve updated compiled within the loop (no return to Python for it), the supervisor's new strengths
-    assert loop.I[K.I_CS_VER] > 0 and loop.events["curve"] == 0 and loop.events["fuzzy"] > 0 and est._cal.rejected > 0
+    # the curve updated compiled within the loop (no return to Python for it), the supervisor's new strengths'
+    # centroids too (in its memo)
+    assert loop.I[K.I_CS_VER] > 0 and loop.events["curve"] == 0 and est._cal.rejected > 0
+    assert "fuzzy" not in loop.events and loop.I[K.I_FZ_N] > 1
 
 
 def test_curve_update_in_the_loop_with_full_records_and_history():

@@ -78,7 +78,8 @@ def test_covariance_matching_kernels_equal_numpy(monkeypatch, strided):
 
 @needs_jit
 def test_fuzzy_intensity_equal_numpy(monkeypatch):
-    """The compiled aggregation and the memo give the numpy centroid bit for bit, NaN included."""
+    """The compiled rule strengths and the memo give the numpy path's intensity bit for bit, NaN included; the
+    centroid is one function for both (the compiled loop calls it too), checked below."""
     fz = FuzzySupervisor()
     rng = np.random.default_rng(5)
     acc = np.concatenate([rng.uniform(0.0, 0.5, 300), [0.0, 0.06, 0.15, 0.3, 1.0, math.nan, math.inf]])
@@ -91,6 +92,30 @@ def test_fuzzy_intensity_equal_numpy(monkeypatch):
             got = fz.intensity(e1, e2)
             assert _same(got, ref), (rep, e1, e2)
             assert _same(fz.factor(e1, e2), FuzzySupervisor().factor(e1, e2))
+
+
+@needs_jit
+def test_fuzzy_centroid_compiled_equals_its_python_and_numpy():
+    """The centroid compiled gives its Python source's floats bit for bit (the same sums in grid order), and
+    numpy's aggregate and dot products to rounding; 0.5 for an empty set, NaN for a NaN strength."""
+    from tractionecu.estimation import _kernels
+
+    fz = FuzzySupervisor()
+    tab = fz.centroid_table
+    rng = np.random.default_rng(6)
+    cases = [tuple(rng.uniform(0.0, 1.0, 3)) for _ in range(300)] + [(1.0, 0.0, 0.0), (0.0, 0.0, 0.0),
+                                                                      (0.0, 0.0, 1.0), (math.nan, 0.5, 0.5)]
+    for s0, s1, s2 in cases:
+        got = _kernels.fuzzy_centroid(s0, s1, s2, tab)
+        assert _same(got, _kernels.fuzzy_centroid.py_func(s0, s1, s2, tab)), (s0, s1, s2)
+        agg = np.max(np.minimum(np.array([s0, s1, s2])[:, None], fz.out_mf), axis=0)
+        area = float(agg @ fz._w)
+        ref = 0.5 if area <= 0.0 else float(agg @ fz._xw) / area
+        if math.isnan(s0):
+            assert math.isnan(got)
+        else:
+            assert got == pytest.approx(ref, rel=1e-13, abs=0.0), (s0, s1, s2)
+    assert _kernels.fuzzy_centroid(0.0, 0.0, 0.0, tab) == 0.5
 
 
 def test_dynamics_monitor_gain_cache():

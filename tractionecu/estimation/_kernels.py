@@ -31,8 +31,8 @@ as the numpy code they replace, which stays the fallback; bit for bit, see
   (:meth:`~.estimator.Estimator._rebuild_Q`);
 * :func:`cm_push`, :func:`cm_ratio` — covariance matching's window and its
   ratio (:class:`~.supervisor.CovarianceMatching`);
-* :func:`fuzzy_strengths`, :func:`fuzzy_aggregate` — the fuzzy supervisor's
-  rule strengths and aggregated output set (:class:`~.supervisor.FuzzySupervisor`).
+* :func:`fuzzy_strengths`, :func:`fuzzy_centroid` — the fuzzy supervisor's
+  rule strengths and the centroid of its aggregated output set (:class:`~.supervisor.FuzzySupervisor`).
 
 Results go into output arrays the caller allocates (returning arrays from
 compiled code costs more than passing them in); inputs are not changed.
@@ -619,29 +619,35 @@ def fuzzy_strengths(e1, e2, a1, a2, a3, m1, m2, m3, rules, out):  # pragma: no c
             out[k] = _fmax(out[k], _fmin(pi, qj))
 
 
-def fuzzy_aggregate(s0, s1, s2, out_mf, agg):               # pragma: no cover - compiled
-    """The aggregated output set (FuzzySupervisor.intensity): agg (G,) = max_k min(s_k, out_mf[k]) for the
-    three rule strengths s_k (clip, then aggregate); NaN everywhere when a strength is NaN (as numpy)."""
-    g = out_mf.shape[1]
+def fuzzy_centroid(s0, s1, s2, fz):                            # pragma: no cover - compiled
+    """The defuzzified intensity c of the rule strengths s_k (FuzzySupervisor.intensity): the centroid of the
+    aggregated output set agg (G,) = max_k min(s_k, out_mf[k]) (clip, then aggregate) by the trapezoid rule,
+    Σ agg·x·w / Σ agg·w, summed in grid order; 0.5 where the set is empty, NaN for a NaN strength.  ``fz`` (5, G): the three output sets, the
+    trapezoid weights w and x·w over the universe's grid x."""
     if s0 != s0 or s1 != s1 or s2 != s2:
-        for j in range(g):
-            agg[j] = math.nan
-        return
+        return math.nan
+    g = fz.shape[1]
+    area = 0.0
+    num = 0.0
     for j in range(g):
-        a = out_mf[0, j]
+        a = fz[0, j]
         if s0 < a:
             a = s0
-        b = out_mf[1, j]
+        b = fz[1, j]
         if s1 < b:
             b = s1
-        c = out_mf[2, j]
+        c = fz[2, j]
         if s2 < c:
             c = s2
         if b > a:
             a = b
         if c > a:
             a = c
-        agg[j] = a
+        area += a * fz[3, j]
+        num += a * fz[4, j]
+    if area <= 0.0:
+        return 0.5
+    return num / area
 
 
 _rk4_points = _vehicle._rk4_points
@@ -670,7 +676,7 @@ _fmax = compiled(_fmax, inline=True)
 _tri = compiled(_tri, inline=True)
 _trap = compiled(_trap, inline=True)
 fuzzy_strengths = compiled(fuzzy_strengths)
-fuzzy_aggregate = compiled(fuzzy_aggregate)
+fuzzy_centroid = compiled(fuzzy_centroid)
 
 _warm = False
 
@@ -719,6 +725,6 @@ def warm_up() -> None:
     cm_push(emp, emp.copy(), 0, x, x)
     cm_push(emp, emp.copy(), 0, sig[:, 0], sig[:, 1])
     cm_ratio(emp, emp + 1.0, 0.1, 10.0, np.empty(n))
-    fuzzy_aggregate(1.0, 0.0, 0.0, np.ones((3, 11)), np.empty(11))
+    fuzzy_centroid(1.0, 0.0, 0.0, np.ones((5, 11)))
     fuzzy_strengths(0.1, 3000.0, 0.06, 0.15, 0.3, 2000.0, 5000.0, 1e4, np.zeros((3, 3), dtype=np.int64), np.empty(3))
     _warm = True

@@ -12,7 +12,7 @@ path's order and with its operations (the same floats, bit for bit where the equ
 * ``WIN`` (cap, 19): the averaged slip's cumulative sums (time, distance, Σ P_vv Δt, 16 per-wheel sums).
 
 A step is a sequence of stages.  Where the step path calls an object this module does not port (the μ(s)
-curve, the radius calibration, the adaptation's fuzzy factor and the systematic uncertainty, the filter's
+curve, the radius calibration, the systematic uncertainty with a pull-angle tolerance, the filter's
 initialisation, the slope of the identified curve, a repaired or gated update), :func:`run` stores what
 the object needs, sets the stage to resume at and returns the event's code; the driver
 (:mod:`.compiled_loop`) calls the same Python object the step path calls, writes its result into the
@@ -66,7 +66,6 @@ EV_CURVE = 106       # μ(s) curve update
 EV_SLIPWIN = 107     # averaged slip: the identified curve's slope at the candidate stretches (into EV)
 EV_CAL = 108         # radius calibration at a GNSS epoch
 EV_WINFULL = 109     # the averaged slip's buffer is full: the driver enlarges it
-EV_FUZZY = 110       # the fuzzy supervisor's intensity of strengths not in the memo (FuzzySupervisor.intensity)
 EV_SYSTEMATIC = 111  # systematic uncertainty with a pull-angle tolerance (its math.hypot stays in Python)
 EV_HASCURVE = 112    # whether the latest curve state has an identified curve (CurveState.curve), asked when needed
 EV_CURVEJ = 113      # the compiled μ(s) curve update needs Python: a soil segment's close, the once-a-second span and
@@ -1014,9 +1013,10 @@ def _stage_divergence(F, I, CM):                                          # prag
 
 def _mk_stage_adapt(tag):
     """_stage_adapt closed over the dependency tag (:func:`_dep_tag`)."""
-    def _stage_adapt(F, I, CM):                                               # pragma: no cover - compiled
+    def _stage_adapt(F, I, CM, FZ):                                           # pragma: no cover - compiled
         """The adaptation period (Estimator.step): A_k (CovarianceMatching.compute), the fuzzy supervisor's rule
-        strengths and its memo; EV_FUZZY for strengths not in the memo."""
+        strengths and their intensity (FuzzySupervisor.intensity: its memo, else the centroid over ``FZ``, its
+        ``centroid_table``, entered into the memo)."""
         if tag < 0:                  # never: ties the compiled code (and its cache entry) to the kernels' source
             raise AssertionError("dependency tag")
         if I[I_F_ADAPT]:
@@ -1037,7 +1037,18 @@ def _mk_stage_adapt(tag):
             if F[o] == st[0] and F[o + 1] == st[1] and F[o + 2] == st[2]:
                 F[F_FZ_C] = F[o + 3]
                 return ST_ADAPT2
-        return EV_FUZZY
+        c = _kernels.fuzzy_centroid(st[0], st[1], st[2], FZ)
+        j = I[I_FZ_N]
+        if j >= MEMO:
+            j = 0
+        o = F_FZ_MEMO + 4 * j
+        F[o] = st[0]
+        F[o + 1] = st[1]
+        F[o + 2] = st[2]
+        F[o + 3] = c
+        I[I_FZ_N] = j + 1
+        F[F_FZ_C] = c
+        return ST_ADAPT2
     return _stage_adapt
 
 
@@ -1627,9 +1638,10 @@ def _stage_none(F, I, OUT, k):                                            # prag
 
 def _mkrun(tag):
     """run closed over the dependency tag (:func:`_dep_tag`)."""
-    def run(F, I, IN, OUT, EV, CM, RB, WIN, n, CV):                           # pragma: no cover - compiled
+    def run(F, I, IN, OUT, EV, CM, RB, WIN, n, CV, FZ):                       # pragma: no cover - compiled
         """Step the estimator from step I[I_K] (at stage I[I_STAGE]) until step n or an event (module doc).
-        ``CV``: the compiled curve update's state (:func:`_curve_jit`; with I[I_CURVE_JIT] 0 it is not used).
+        ``CV``: the compiled curve update's state (:func:`_curve_jit`; with I[I_CURVE_JIT] 0 it is not used);
+        ``FZ``: the fuzzy supervisor's centroid table (FuzzySupervisor.centroid_table).
 
         Returns EV_DONE when every step up to n is done, else the event's code; the stage to resume at is
         in I[I_STAGE] (the driver sets it when its handler decides)."""
@@ -1668,11 +1680,7 @@ def _mkrun(tag):
             elif st == ST_DIVERGENCE:
                 I[I_STAGE] = _stage_divergence(F, I, CM)
             elif st == ST_ADAPT:
-                nxt = _stage_adapt(F, I, CM)
-                if nxt == EV_FUZZY:
-                    I[I_STAGE] = ST_ADAPT2
-                    return EV_FUZZY
-                I[I_STAGE] = nxt
+                I[I_STAGE] = _stage_adapt(F, I, CM, FZ)
             elif st == ST_ADAPT2:
                 nxt = _stage_adapt2(F, I)
                 if nxt == EV_SYSTEMATIC:

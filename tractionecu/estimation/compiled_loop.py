@@ -25,10 +25,10 @@ identically:
   classes, a subclass) is updated in Python at every update.  The identified curve's slope when an averaged slip is
   weighed stays in Python;
 * the radius calibration at GNSS epochs (:class:`~.calibration.RadiusCalibration`);
-* the fuzzy supervisor's intensity for rule strengths not seen before (:class:`~.supervisor.FuzzySupervisor`;
-  the compiled loop keeps a memo of them, as the supervisor does), and the systematic uncertainty
-  (:class:`~.uncertainty.SystematicUncertainty`) only with a declared pull-angle tolerance (else it is
-  compiled, with covariance matching's ratio and the rest of the adaptation period);
+* the systematic uncertainty (:class:`~.uncertainty.SystematicUncertainty`) only with a declared pull-angle
+  tolerance (else it is compiled, with covariance matching's ratio, the fuzzy supervisor's intensity (the
+  centroid by the function :class:`~.supervisor.FuzzySupervisor` calls, :func:`._kernels.fuzzy_centroid`) and
+  the rest of the adaptation period);
 * the filter's initialisation (:meth:`Estimator._init_filter`), a prediction whose covariance needs
   the Cholesky repair, a non-finite prediction (:meth:`Estimator._recover`) and an update that the
   compiled block update leaves to the general path (a gated or non-finite component): these run on
@@ -293,16 +293,17 @@ class CompiledLoop:
         I[io["curve_jit"]] = int(self._jit)
         I[io["curve_shape"]] = int(ce.shape is not None)
         self._cv = self._curve_arrays()
+        self._fz = est._fuzzy.centroid_table
         self._curves: dict[int, tuple[Any, str]] = {}
         self._cal_blocks = 0
         self._radius_sigma()
         self._handlers = {K.EV_INIT: self._ev_init, K.EV_PREDICT: self._ev_predict, K.EV_RECOVER: self._ev_recover,
-                          K.EV_UPDATE: self._ev_update, K.EV_FUZZY: self._ev_fuzzy,
+                          K.EV_UPDATE: self._ev_update,
                           K.EV_SYSTEMATIC: self._ev_systematic, K.EV_CURVE: self._ev_curve,
                           K.EV_SLIPWIN: self._ev_slipwin, K.EV_CAL: self._ev_cal, K.EV_WINFULL: self._ev_winfull,
                           K.EV_HASCURVE: self._ev_hascurve, K.EV_CURVEJ: self._ev_curvefit}
         self._ev_names = {K.EV_INIT: "init", K.EV_PREDICT: "predict", K.EV_RECOVER: "recover", K.EV_UPDATE: "update",
-                          K.EV_FUZZY: "fuzzy", K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",
+                          K.EV_SYSTEMATIC: "systematic", K.EV_CURVE: "curve",
                           K.EV_SLIPWIN: "slipwin", K.EV_CAL: "cal", K.EV_WINFULL: "winfull",
                           K.EV_HASCURVE: "hascurve", K.EV_CURVEJ: "curvefit"}
         self.events = {name: 0 for name in self._ev_names.values()}
@@ -428,7 +429,7 @@ class CompiledLoop:
         F, EV, CM, RB = self.F, self.EV, self.CM, self.RB
         handlers, names, events = self._handlers, self._ev_names, self.events
         while True:
-            ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n, self._cv)
+            ev = run(F, I, IN, OUT, EV, CM, RB, self.WIN, n, self._cv, self._fz)
             if ev == K.EV_DONE:
                 self._cal_sync()
                 return OUT
@@ -640,21 +641,6 @@ class CompiledLoop:
         if unc is not None:
             ur = est._cal.radius_sigma(unc.u_r) if est._cal is not None else (unc.u_r, unc.u_r)
             self.F[self.K.F_UR:self.K.F_UR + 2] = ur
-
-    def _ev_fuzzy(self, IN: np.ndarray, OUT: np.ndarray) -> None:
-        """The fuzzy supervisor's intensity for rule strengths not in the compiled memo, from the estimator's
-        own FuzzySupervisor (FuzzySupervisor.factor's argument: |dv/dt|, |dM/dt|)."""
-        K, F, I = self.K, self.F, self.I
-        d = K.F_DYN
-        c = self.est._fuzzy.intensity(abs(float(F[d + 3])), abs(float(F[d + 4])))
-        n = int(I[K.I_FZ_N])
-        if n >= K.MEMO:
-            n = 0
-        o = K.F_FZ_MEMO + 4 * n
-        F[o:o + 3] = F[K.F_FZ_ST:K.F_FZ_ST + 3]
-        F[o + 3] = c
-        I[K.I_FZ_N] = n + 1
-        F[K.F_FZ_C] = c
 
     def _ev_systematic(self, IN: np.ndarray, OUT: np.ndarray) -> None:
         """Estimator._systematic on the estimator's SystematicUncertainty (a declared pull-angle tolerance)."""

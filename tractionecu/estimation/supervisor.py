@@ -183,6 +183,8 @@ class FuzzySupervisor:
         self._w = np.full(self.grid.size, h)          # trapezoid-rule weights
         self._w[[0, -1]] = 0.5 * h
         self._xw = self.grid * self._w
+        self.centroid_table = np.ascontiguousarray(np.vstack([self.out_mf, self._w, self._xw]))
+        """(5, G): the output sets, the trapezoid weights w and x·w (:func:`._kernels.fuzzy_centroid`'s ``fz``)."""
         self._log_ratio = math.log(c.factor_max / c.factor_min)
         self._memo: dict[tuple[float, float, float], float] = {}
         self._st = np.empty(3)
@@ -224,13 +226,8 @@ class FuzzySupervisor:
         c = self._memo.get(key)
         if c is not None:
             return c
-        if JIT:
-            agg = np.empty(self.grid.size)
-            _kernels.fuzzy_aggregate(key[0], key[1], key[2], self.out_mf, agg)
-        else:
-            agg = np.max(np.minimum(np.array(strength)[:, None], self.out_mf), axis=0)   # clip + aggregate
-        area = float(agg @ self._w)
-        c = 0.5 if area <= 0.0 else float(agg @ self._xw) / area
+        # the centroid summed in grid order by one function, compiled or not: the compiled loop calls the same
+        c = _kernels.fuzzy_centroid(key[0], key[1], key[2], self.centroid_table)
         if len(self._memo) >= 64:
             self._memo.clear()
         self._memo[key] = c
