@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    python benchmarks/independent_truth.py --json OUT [--only straight,curves ...] [--keep DIR] [--seed N]
+    python benchmarks/independent_truth.py --json OUT [--only straight,curves ...] [--keep DIR] [--seed N] [--variants]
 
 Each case is simulated by ``benchmarks/independent_sim.py`` (its module doc: a tanh tyre curve, its own load
 transfer, Ackermann wheel speeds, traction control, datasheet sensor noise), replayed as ``tractionecu replay``
@@ -24,6 +24,19 @@ biased     ``straight`` with every sensor error at its tolerance at once: torque
            axle-load offset −300 N, draft offset +300 N, hub efficiency 0.94 declared 0.96 ± 0.02
 mechanical the mechanical tractor (EEC1, ETC2, CCVS1, EBC2, GBSD, hitch) on the two soils, 160 s
 ========== ================================================================================================
+
+``--variants`` adds recordings no setting of the estimator was ever tried on (each with its own seed, the
+``--seed`` option aside):
+
+========================= ======================================================================================
+stuck-mud                 firm soil, then mud (μ_max 0.50, s_c 0.20, ρ_s 0.12) under a 30 kN draft, 60 s
+straight-seed7            ``straight`` with the simulator's seed 7
+straight-usb-jitter       ``straight`` with the frames delivered in 8 ms USB batches, stamped on arrival
+straight-gnss-latency-0.1 ``straight`` with the GNSS epochs 0.1 s late (not declared)
+straight-no-tcs           ``straight`` without the drive's traction control
+curves-seed5              ``curves`` with the simulator's seed 5
+stops-seed3               ``stops`` with the simulator's seed 3
+========================= ======================================================================================
 """
 
 from __future__ import annotations
@@ -57,6 +70,17 @@ CASES: dict[str, tuple[str, dict]] = {
                              "axle_off": -300.0, "draft_off": 300.0, "eta_true": 0.94, "eta_decl": 0.96,
                              "eta_tol": 0.02}),
     "mechanical": ("mech2", {}),
+}
+
+
+VARIANTS: dict[str, tuple[str, dict]] = {
+    "stuck-mud": ("stuck", {}),
+    "straight-seed7": ("straight2", {"seed": 7}),
+    "straight-usb-jitter": ("straight2", {"jitter": "usb"}),
+    "straight-gnss-latency-0.1": ("straight2", {"gps_latency": 0.1}),
+    "straight-no-tcs": ("straight2", {"tcs": False}),
+    "curves-seed5": ("curve30", {"seed": 5}),
+    "stops-seed3": ("stops", {"seed": 3}),
 }
 
 
@@ -113,28 +137,30 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated cases (default: all; module doc)")
     ap.add_argument("--keep", default=None, help="keep recordings and replays in this directory")
     ap.add_argument("--seed", type=int, default=0, help="the simulator's seed")
+    ap.add_argument("--variants", action="store_true", help="also the variants never tried before (module doc)")
     args = ap.parse_args(argv)
     only = [c for c in args.only.split(",") if c]
-    unknown = [c for c in only if c not in CASES]
+    cases = {**CASES, **(VARIANTS if args.variants or any(c in VARIANTS for c in only) else {})}
+    unknown = [c for c in only if c not in cases]
     if unknown:
-        ap.error(f"unknown case(s) {', '.join(unknown)}; cases: {', '.join(CASES)}")
+        ap.error(f"unknown case(s) {', '.join(unknown)}; cases: {', '.join({**CASES, **VARIANTS})}")
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="tecu-indep-"))
     work.mkdir(parents=True, exist_ok=True)
     rows = []
-    print(f"{'case':11s} {'valid_work':>10s} {'mu_err':>7s} {'mu_bias':>8s} {'mu_2s':>6s} {'rho_err':>8s} "
+    print(f"{'case':25s} {'valid_work':>10s} {'mu_err':>7s} {'mu_bias':>8s} {'mu_2s':>6s} {'rho_err':>8s} "
           f"{'rho_2s':>6s} {'slip_err':>8s} {'rev_n':>6s} {'rev_wrong':>9s} {'still_valid':>11s}", flush=True)
-    for name, (scenario, changes) in CASES.items():
+    for name, (scenario, changes) in cases.items():
         if only and name not in only:
             continue
-        cfg = {**isim.SCEN[scenario], **changes, "seed": args.seed}
+        cfg = {**isim.SCEN[scenario], "seed": args.seed, **changes}
         rec, run = work / f"rec-{name}", work / f"run-{name}"
         t0 = time.perf_counter()
         isim.run(dict(cfg), str(rec))
         replay_to_dir(str(rec), run, write_map=False)
         r = score(rec, run, machine=bool(cfg.get("mech")))
-        r.update(case=name, scenario=scenario, changes=changes, seed=args.seed, seconds=time.perf_counter() - t0)
+        r.update(case=name, scenario=scenario, changes=changes, seed=cfg["seed"], seconds=time.perf_counter() - t0)
         rows.append(r)
-        print(f"{name:11s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% {r['mu_bias'] * 100:+7.2f}% "
+        print(f"{name:25s} {r['valid_work'] * 100:9.2f}% {r['mu_err'] * 100:6.2f}% {r['mu_bias'] * 100:+7.2f}% "
               f"{r['mu_cover'] * 100:5.1f}% {r['rho_err']:8.4f} {r['rho_cover'] * 100:5.1f}% {r['slip_err']:8.4f} "
               f"{r['rev_steps']:6d} {r['rev_wrong_sign']:9d} {r['still_valid']:11d}", flush=True)
     Path(args.json).write_text(json.dumps({"truth": "independent (benchmarks/independent_sim.py)", "rows": rows},
