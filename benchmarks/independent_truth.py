@@ -36,6 +36,10 @@ straight-gnss-latency-0.1 ``straight`` with the GNSS epochs 0.1 s late (not decl
 straight-no-tcs           ``straight`` without the drive's traction control
 curves-seed5              ``curves`` with the simulator's seed 5
 stops-seed3               ``stops`` with the simulator's seed 3
+mechanical-seed7          ``mechanical`` with the simulator's seed 7
+mechanical-usb-jitter     ``mechanical`` with the frames in 8 ms USB batches
+mechanical-eta-0.86       ``mechanical`` with a drive line of efficiency 0.86 where the vehicle file declares
+                          0.90 ± 0.03: outside the declared tolerance
 ========================= ======================================================================================
 """
 
@@ -81,6 +85,9 @@ VARIANTS: dict[str, tuple[str, dict]] = {
     "straight-no-tcs": ("straight2", {"tcs": False}),
     "curves-seed5": ("curve30", {"seed": 5}),
     "stops-seed3": ("stops", {"seed": 3}),
+    "mechanical-seed7": ("mech2", {"seed": 7}),
+    "mechanical-usb-jitter": ("mech2", {"jitter": "usb"}),
+    "mechanical-eta-0.86": ("mech2", {"eta_true": 0.86}),
 }
 
 
