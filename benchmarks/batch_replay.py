@@ -23,8 +23,9 @@ The batch path's estimator loop is the compiled one (:mod:`tractionecu.estimatio
 covers the machine, else the step path's Python estimator; the ``loop`` line says which ran and why.
 ``where the time goes`` is an instrumented batch run (the best of ``--repeat``): the CPU time per step in the compiled
 loop, in each return to Python (the μ(s) curve's segment close and once-a-second fit ("curvefit"; its update itself
-runs compiled in the loop), the curve's slope for an averaged slip, the radius calibration, the general update, the filter's initialisation), and around it (the blocks' step arguments,
-the sink), and how often each return happened.
+runs compiled in the loop), the curve's slope for an averaged slip, the radius calibration, the general update,
+the filter's initialisation), and around it (the blocks' step arguments, the sink), and how often each return
+happened.
 
 ``--config TOML`` runs every path with that estimator configuration (the fleet's ``--config``): with
 ``smoother_lag_s = 0.0`` the figures of the filter without the fixed-lag smoother.

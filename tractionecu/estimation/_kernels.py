@@ -622,8 +622,8 @@ def fuzzy_strengths(e1, e2, a1, a2, a3, m1, m2, m3, rules, out):  # pragma: no c
 def fuzzy_centroid(s0, s1, s2, fz):                            # pragma: no cover - compiled
     """The defuzzified intensity c of the rule strengths s_k (FuzzySupervisor.intensity): the centroid of the
     aggregated output set agg (G,) = max_k min(s_k, out_mf[k]) (clip, then aggregate) by the trapezoid rule,
-    Σ agg·x·w / Σ agg·w, summed in grid order; 0.5 where the set is empty, NaN for a NaN strength.  ``fz`` (5, G): the three output sets, the
-    trapezoid weights w and x·w over the universe's grid x."""
+    Σ agg·x·w / Σ agg·w, summed in grid order; 0.5 where the set is empty, NaN for a NaN strength.
+    ``fz`` (5, G): the three output sets, the trapezoid weights w and x·w over the universe's grid x."""
     if s0 != s0 or s1 != s1 or s2 != s2:
         return math.nan
     g = fz.shape[1]

@@ -191,9 +191,9 @@ def _corr_at(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray, off
     return float(np.corrcoef(x, y)[0, 1]), int(m.sum())
 
 
-FINE_CHUNK = 1 << 20
-"""Interpolated samples per pass of :func:`_corr_many` (8 MiB of floats: the refinement's memory is bounded
-whatever the recording's length)."""
+FINE_CHUNK = 1 << 18
+"""Interpolated samples per pass of :func:`_corr_many`: its arrays hold at most this many floats each (2 MiB),
+whatever the recording's length."""
 
 
 def _corr_many(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray,
