@@ -241,7 +241,8 @@ def test_service_config_to_toml_reads_back_equal() -> None:
     cfg = with_overrides(ServiceConfig(), can={"interface": "virtual", "channel": "vcan0", "options": {"bitrate": 250000}},
                          gps={"source": "none"}, map={"origin_lat": 47.5, "origin_lon": -110.5},
                          advice={"slip_min": 0.08, "slip_max": 0.12, "ballast_kg": 250.0,
-                                                 "max_mass_kg": 9000.0},
+                                                 "max_mass_kg": 9000.0, "max_front_axle_kg": 4000.0,
+                                                 "max_rear_axle_kg": 6000.0},
                          sensors={"gps_speed_sigma": 0.05, "torque_sigma_rel": 0.02},
                          broadcast={"name": "0xA000FF007D001092"}, service={"state_dir": "/tmp/x"})
     back = from_dict(tomllib.loads(service_toml(cfg)))
@@ -253,7 +254,8 @@ def test_service_config_to_toml_reads_back_equal() -> None:
     assert dataclasses.replace(defaults, map=ServiceConfig().map, advice=ServiceConfig().advice) == ServiceConfig()
     assert math.isnan(defaults.map.origin_lat) and math.isnan(defaults.map.origin_lon)
     assert math.isnan(defaults.advice.slip_min) and math.isnan(defaults.advice.slip_max)
-    assert math.isnan(defaults.advice.ballast_kg) and math.isnan(defaults.advice.max_mass_kg)
+    assert all(math.isnan(getattr(defaults.advice, k))
+               for k in ("ballast_kg", "max_mass_kg", "max_front_axle_kg", "max_rear_axle_kg"))
     assert service_toml(defaults) == service_toml(ServiceConfig())
     assert defaults.sensor_overrides() == {}
 

@@ -66,9 +66,10 @@ def test_ballast_advised_stays_within_the_permissible_mass() -> None:
     r = eng.advice[0]
     assert r.kind == "add_ballast" and r.evidence["ballast_kg"] == pytest.approx(200.0)
     assert r.evidence["ballast_needed_kg"] == pytest.approx(need)       # the same pull, the same need
+    assert r.evidence["max_mass_kg"] == mass + 200.0 and "max_front_axle_kg" not in r.evidence   # (not declared)
     assert r.evidence["ballast_front_kg"] + r.evidence["ballast_rear_kg"] == pytest.approx(200.0)
-    assert f"about 200 kg (no more: the permissible mass is {mass + 200:.0f} kg; this pull needs about {need:.0f} kg)" \
-        in r.text
+    assert (f"about 200 kg (limited by the permissible mass of {mass + 200:.0f} kg; this pull needs about "
+            f"{need:.0f} kg)") in r.text
     # at the permissible mass (or over it): no ballast, the alternatives say why
     for limit in (mass, mass - 300.0):
         eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_mass_kg=limit))
@@ -76,14 +77,62 @@ def test_ballast_advised_stays_within_the_permissible_mass() -> None:
         kinds = [x.kind for x in eng.advice]
         assert "add_ballast" not in kinds and kinds[0] == "shallower_depth"
         first = eng.advice[0].text
-        assert first.startswith("Work shallower") and f"permissible mass of {limit:.0f} kg: no ballast" in first
+        assert first.startswith("Work shallower")
+        assert f"no ballast can be added within the permissible mass of {limit:.0f} kg" in first
     eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_mass_kg=mass, tyre_pressure_min_pa=1.2e5))
     drive(eng, 50.0, 0.16)
     first, second = eng.advice[:2]
     assert first.kind == "lower_tyre_pressure" and first.text.startswith("Lower the tyre pressure")
-    assert "no ballast can be added" in first.text
+    assert "no ballast can be added within the permissible mass" in first.text
     assert second.kind == "shallower_depth" and second.text.startswith("Or work shallower")
     assert "permissible" not in second.text
+
+
+def test_ballast_advised_stays_within_the_permissible_axle_loads() -> None:
+    """An axle at its permissible load passes its share of the ballast to the other; with both at their limits
+    the amount is what they allow; a two-wheel drive's stays on its rear axle."""
+    veh = VehicleParams()
+    mass = veh.weight_n / 9.80665
+    free = AdviceEngine(veh, AdviceSettings(distance_m=100.0))
+    drive(free, 50.0, 0.16)
+    r0 = free.advice[0]
+    need, ff = r0.evidence["ballast_kg"], r0.evidence["front_share"]
+    assert need > 500 and r0.evidence["ballast_front_kg"] > 100      # this machine's ballast goes partly forward
+    front, rear = ff * mass, (1.0 - ff) * mass                          # the static axle loads [kg]
+    # the front axle has 100 kg of room: the rest goes on the rear, the amount stays
+    eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_front_axle_kg=front + 100.0))
+    drive(eng, 50.0, 0.16)
+    r = eng.advice[0]
+    assert r.kind == "add_ballast"
+    assert r.evidence["ballast_front_kg"] == pytest.approx(100.0)
+    assert r.evidence["ballast_kg"] == pytest.approx(need)
+    assert r.evidence["ballast_rear_kg"] == pytest.approx(need - 100.0)
+    assert (f"about {need:.0f} kg, 100 kg of it on the front axle and {need - 100.0:.0f} kg on the rear, within the "
+            f"permissible axle loads (front {front + 100.0:.0f} kg, rear not declared)") in r.text
+    assert "limited by" not in r.text and "ballast_needed_kg" not in r.evidence     # the amount is the pull's
+    # both axles limited: what they allow, no more
+    eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_front_axle_kg=front + 100.0,
+                                           max_rear_axle_kg=rear + 150.0))
+    drive(eng, 50.0, 0.16)
+    r = eng.advice[0]
+    assert r.evidence["ballast_kg"] == pytest.approx(250.0)
+    assert r.evidence["ballast_front_kg"] == pytest.approx(100.0)
+    assert r.evidence["ballast_rear_kg"] == pytest.approx(150.0)
+    assert r.evidence["ballast_needed_kg"] == pytest.approx(need)
+    assert f"about 250 kg (limited by the permissible axle loads (front {front + 100.0:.0f} kg, rear" in r.text
+    assert r.text.count("permissible axle loads") == 1
+    # both at their limits: no ballast, the alternative says why
+    eng = AdviceEngine(veh, AdviceSettings(distance_m=100.0, max_front_axle_kg=front, max_rear_axle_kg=rear))
+    drive(eng, 50.0, 0.16)
+    assert [x.kind for x in eng.advice] == ["shallower_depth"]
+    assert "no ballast can be added within the permissible axle loads" in eng.advice[0].text
+    # a two-wheel drive: on the driven rear axle only, up to its limit
+    eng = AdviceEngine(veh, AdviceSettings(axle_type="2wd", distance_m=100.0, max_front_axle_kg=front + 1000.0,
+                                           max_rear_axle_kg=rear + 150.0))
+    drive(eng, 50.0, 0.18)
+    r = eng.advice[0]
+    assert r.kind == "add_ballast" and r.evidence["ballast_front_kg"] == 0.0
+    assert r.evidence["ballast_kg"] == pytest.approx(150.0) and "on the rear axle" in r.text
 
 
 def test_tyre_pressure_only_when_the_profile_allows() -> None:

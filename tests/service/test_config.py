@@ -133,14 +133,16 @@ def test_a_one_sided_slip_band_must_still_run_upwards_and_a_kpa_pressure_is_name
     with pytest.raises(ConfigError, match=r"advice.tyre_pressure_min_pa = 80: .* the key is in Pa \(80 kPa = 80000"):
         from_dict({"advice": {"tyre_pressure_min_pa": 80}})
     assert from_dict({"advice": {"tyre_pressure_min_pa": 80000}}).advice.tyre_pressure_min_pa == 80000
-    adv = from_dict({"advice": {"max_mass_kg": 11500.0, "ballast_kg": 400.0, "axle_type": "4wd"}}).advice
+    adv = from_dict({"advice": {"max_mass_kg": 11500.0, "ballast_kg": 400.0, "axle_type": "4wd",
+                                "max_front_axle_kg": 5000.0, "max_rear_axle_kg": 7500.0}}).advice
     assert adv.max_mass_kg == 11500.0
     # the service's advice gets every key of [advice] the advice's settings have (one had been left out)
     st = adv.settings()
     assert (st.max_mass_kg, st.ballast_kg, st.axle_type) == (11500.0, 400.0, "4wd")
+    assert (st.max_front_axle_kg, st.max_rear_axle_kg) == (5000.0, 7500.0)
     shared = {f.name for f in fields(type(st))} & {f.name for f in fields(adv)}
     assert shared >= {"axle_type", "slip_min", "slip_max", "distance_m", "eta_loss", "eta_minutes",
-                      "tyre_pressure_min_pa", "ballast_kg", "max_mass_kg"}
+                      "tyre_pressure_min_pa", "ballast_kg", "max_mass_kg", "max_front_axle_kg", "max_rear_axle_kg"}
     assert math.isnan(from_dict({}).advice.max_mass_kg)
     with pytest.raises(ConfigError, match="advice.max_mass_kg"):
         from_dict({"advice": {"max_mass_kg": -1.0}})

@@ -32,9 +32,12 @@ averaged over the window (not the instant's), and advice whose window has held n
   (:data:`FRONT_SHARE`; the axles' slips do not say it: an MFWD front axle's
   lead makes its slip the larger one whatever the weights), then the tyre
   pressures of the tyre's load table for the new axle loads.  At most up to
-  the machine's permissible mass (``max_mass_kg``, where declared): the
-  advice says how much more the pull needs, and at that mass it gives no
-  ballast at all, only the alternatives, saying why.  Or, without
+  the machine's permissible mass (``max_mass_kg``, where declared) and the
+  permissible axle loads (``max_front_axle_kg``, ``max_rear_axle_kg``: the
+  static axle loads with the ballast stay within them; an axle at its limit
+  passes its share to the other while that one has room): the advice says
+  how much more the pull needs, and at the limits it gives no ballast at
+  all, only the alternatives, saying why.  Or, without
   ballast, **lower the tyre pressure** if the tyre profile allows it at the
   present load (``tyre_pressure_min_pa`` > 0): a longer contact patch raises
   the pull at a given slip.  Or a **shallower working depth**: the draft to
@@ -120,6 +123,10 @@ class AdviceSettings:
     max_mass_kg: float = math.nan
     """The machine's permissible total mass [kg] (its registration document or operator's manual: tyres,
     axles and brakes are rated for it); NaN: not declared, and then the ballast advised is not limited."""
+    max_front_axle_kg: float = math.nan
+    """Permissible load of the front axle [kg] (registration document, operator's manual); NaN: not declared."""
+    max_rear_axle_kg: float = math.nan
+    """Permissible load of the rear axle [kg]; NaN: not declared."""
 
     def band(self) -> tuple[float, float]:
         lo, hi = SLIP_BANDS[self.axle_type]
@@ -355,6 +362,44 @@ class Advisor:
         return ("front and rear", f"{x:.0f} kg of it on the front axle and {ballast_kg - x:.0f} kg on the rear, for "
                                   f"{end:.0%} of the weight on the front", x)
 
+    def _axle_limits(self, ballast_kg: float, front_kg: float) -> tuple[float, float] | None:
+        """(front, rear) kilograms of ``ballast_kg`` within the permissible axle loads, or None when the split
+        ``front_kg`` already keeps both static axle loads within them (or neither limit is declared, or the split
+        is not known).  An axle at its limit passes its share to the other while that one has room; what neither
+        takes is left off."""
+        lim_f, lim_r = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
+        if not (math.isfinite(ballast_kg) and ballast_kg > 0) or (math.isnan(lim_f) and math.isnan(lim_r)):
+            return None
+        m = self.weight_n / G
+        ff = self.front_fraction
+        if not (math.isfinite(front_kg) and math.isfinite(ff)):
+            return None
+        room_f = max(lim_f - ff * m, 0.0) if math.isfinite(lim_f) else math.inf
+        room_r = max(lim_r - (1.0 - ff) * m, 0.0) if math.isfinite(lim_r) else math.inf
+        f, r = front_kg, ballast_kg - front_kg
+        if f <= room_f + 0.5 and r <= room_r + 0.5:
+            return None
+        if self.s.axle_type == "2wd":          # traction ballast on the driven rear axle only
+            return 0.0, min(ballast_kg, room_r)
+        if f > room_f:
+            r, f = r + (f - room_f), room_f
+        if r > room_r:
+            f, r = min(f + (r - room_r), room_f), room_r
+        return f, r
+
+    def _limits_text(self) -> str:
+        """The declared limits, in words: "the permissible mass of 9000 kg and the permissible axle loads (front
+        4000 kg, rear not declared)"."""
+        parts = []
+        if math.isfinite(self.s.max_mass_kg):
+            parts.append(f"the permissible mass of {self.s.max_mass_kg:.0f} kg")
+        lf, lr = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
+        if math.isfinite(lf) or math.isfinite(lr):
+            parts.append("the permissible axle loads (front "
+                         + (f"{lf:.0f} kg" if math.isfinite(lf) else "not declared") + ", rear "
+                         + (f"{lr:.0f} kg" if math.isfinite(lr) else "not declared") + ")")
+        return " and ".join(parts)
+
     def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
                   slip_axles: tuple[float, float], band: tuple[float, float]) -> list[Recommendation]:
         s_t, target = self._target(rep, band)
@@ -371,16 +416,32 @@ class Advisor:
         transfer = pull * self.h / self.L if math.isfinite(pull) else math.nan
         sf, sr = slip_axles
         where, words, front_kg = self._where(ballast_kg)
+        axle = self._axle_limits(ballast_kg, front_kg)
+        if axle is not None:              # placed (and perhaps cut) by the permissible axle loads
+            front_kg, rear_kg = axle
+            capped = capped or front_kg + rear_kg < ballast_kg - 0.5
+            ballast_kg = front_kg + rear_kg
+            if front_kg >= 0.5 and rear_kg >= 0.5:
+                where = "front and rear"
+                words = f"{front_kg:.0f} kg of it on the front axle and {rear_kg:.0f} kg on the rear"
+            else:
+                where = "front" if front_kg >= 0.5 else "rear"
+                words = f"on the {where} axle"
+            if not capped:                # (a cut amount names the limits already)
+                lf, lr = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
+                words += (", within the permissible axle loads (front " + (f"{lf:.0f} kg" if math.isfinite(lf) else
+                          "not declared") + ", rear " + (f"{lr:.0f} kg" if math.isfinite(lr) else "not declared") + ")")
         e = {**ev, "target_slip": s_t, "target": target, "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
              "weight_n": self.weight_n, "weight_driven_n": w_driven, "weight_needed_n": w_new, "load_transfer_n": transfer,
              "slip_front": sf, "slip_rear": sr, "front_share": self.front_fraction}
-        if capped:
-            e.update(ballast_needed_kg=need_kg, max_mass_kg=self.s.max_mass_kg)
+        if capped:                        # what the pull needs, and the limits declared
+            e["ballast_needed_kg"] = need_kg
+            e.update({k: v for k, v in (("max_mass_kg", self.s.max_mass_kg), ("max_front_axle_kg",
+                      self.s.max_front_axle_kg), ("max_rear_axle_kg", self.s.max_rear_axle_kg)) if math.isfinite(v)})
         amount = (f"about {ballast_kg:.0f} kg" if math.isfinite(ballast_kg) and ballast_kg > 0
                   else "amount not estimated" + (" (curve not identified)" if curve is None else ""))
-        limit = (f" (no more: the permissible mass is {self.s.max_mass_kg:.0f} kg; this pull needs about "
-                 f"{need_kg:.0f} kg)" if capped else "")
+        limit = (f" (limited by {self._limits_text()}; this pull needs about {need_kg:.0f} kg)" if capped else "")
         p, pmin = self.s.tyre_pressure_pa, self.s.tyre_pressure_min_pa
         after = ("; then set the tyre pressures the tyre's load table gives for the new axle loads"
                  if pmin > 0 else "")
@@ -389,8 +450,8 @@ class Advisor:
             recs.append(Recommendation("add_ballast", f"Add ballast, {amount}{limit}, {words}{after}: {why}.", why,
                                        {**e, "ballast_kg": ballast_kg, "where": where, "ballast_front_kg": front_kg,
                                         "ballast_rear_kg": ballast_kg - front_kg}))
-        full = ("" if recs else f" (the machine is at its permissible mass of {self.s.max_mass_kg:.0f} kg: no "
-                                f"ballast can be added; this pull needs about {need_kg:.0f} kg more)")
+        full = ("" if recs else f" (no ballast can be added within {self._limits_text()}; this pull needs about "
+                                f"{need_kg:.0f} kg more)")
         if pmin > 0 and math.isfinite(p) and p - self.s.tyre_pressure_step_pa >= pmin:
             # an alternative to the ballast, at the present loads (more load needs more pressure, not less)
             p_new = max(pmin, p - self.s.tyre_pressure_step_pa)

@@ -273,6 +273,11 @@ class AdviceConfig:
     max_mass_kg: float = setting(math.nan, "the machine's permissible total mass [kg] (registration document, "
                                            "operator's manual); ballast advised stays within it; NaN = not declared",
                                  100.0, 200000.0, nan_ok=True)
+    max_front_axle_kg: float = setting(math.nan, "permissible load of the front axle [kg]; ballast advised keeps the "
+                                                 "static axle load within it; NaN = not declared",
+                                       10.0, 100000.0, nan_ok=True)
+    max_rear_axle_kg: float = setting(math.nan, "permissible load of the rear axle [kg]; NaN = not declared",
+                                      10.0, 100000.0, nan_ok=True)
 
     def settings(self) -> Any:
         """The advice's thresholds (:class:`~tractionecu.advice.rules.AdviceSettings`): every key of this table
