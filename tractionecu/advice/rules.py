@@ -393,12 +393,15 @@ class Advisor:
         parts = []
         if math.isfinite(self.s.max_mass_kg):
             parts.append(f"the permissible mass of {self.s.max_mass_kg:.0f} kg")
-        lf, lr = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
-        if math.isfinite(lf) or math.isfinite(lr):
-            parts.append("the permissible axle loads (front "
-                         + (f"{lf:.0f} kg" if math.isfinite(lf) else "not declared") + ", rear "
-                         + (f"{lr:.0f} kg" if math.isfinite(lr) else "not declared") + ")")
+        if math.isfinite(self.s.max_front_axle_kg) or math.isfinite(self.s.max_rear_axle_kg):
+            parts.append(self._axle_text())
         return " and ".join(parts)
+
+    def _axle_text(self) -> str:
+        """The permissible axle loads in words: "the permissible axle loads (front 4000 kg, rear not declared)"."""
+        lf, lr = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
+        return ("the permissible axle loads (front " + (f"{lf:.0f} kg" if math.isfinite(lf) else "not declared")
+                + ", rear " + (f"{lr:.0f} kg" if math.isfinite(lr) else "not declared") + ")")
 
     def _too_high(self, rep: EfficiencyReport, curve: CurveParams | None, why: str, ev: dict[str, float | str],
                   slip_axles: tuple[float, float], band: tuple[float, float]) -> list[Recommendation]:
@@ -428,9 +431,7 @@ class Advisor:
                 where = "front" if front_kg >= 0.5 else "rear"
                 words = f"on the {where} axle"
             if not capped:                # (a cut amount names the limits already)
-                lf, lr = self.s.max_front_axle_kg, self.s.max_rear_axle_kg
-                words += (", within the permissible axle loads (front " + (f"{lf:.0f} kg" if math.isfinite(lf) else
-                          "not declared") + ", rear " + (f"{lr:.0f} kg" if math.isfinite(lr) else "not declared") + ")")
+                words += ", within " + self._axle_text()
         e = {**ev, "target_slip": s_t, "target": target, "pull_n": pull, "rho_s": rep.rho_s, "a": rep.a,
              "mu_at_target": float(curve.mu(s_t)) if curve is not None else math.nan,
              "weight_n": self.weight_n, "weight_driven_n": w_driven, "weight_needed_n": w_new, "load_transfer_n": transfer,
