@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -164,10 +165,24 @@ def test_a_drive_that_repeats_itself_keeps_its_logged_times(short_recording, tmp
     assert check_offset(late, raw.gps.t, raw.gps.speed).found      # without the spans: found
 
 
+def _corr_at(ct, cv, gt, gv, off):
+    """The refinement's correlation at one offset, one interpolation and ``np.corrcoef`` (the search's own code
+    before it went in passes)."""
+    tc = gt - off
+    m = (tc >= ct[0]) & (tc <= ct[-1])
+    if m.sum() < 5:
+        return math.nan
+    x = np.interp(tc[m], ct, cv)
+    y = gv[m]
+    if x.std() <= 0 or y.std() <= 0:
+        return math.nan
+    return float(np.corrcoef(x, y)[0, 1])
+
+
 @pytest.mark.parametrize("seed", range(3))
 def test_the_refinement_correlates_every_offset_as_one_at_a_time(seed, monkeypatch):
-    """The fine search's correlations in passes (``_corr_many``) are ``_corr_at``'s, offset by offset: where
-    the speeds overlap in part, not at all, or one is constant, and across pass boundaries."""
+    """The fine search's correlations in passes (``_corr_many``) are those of one offset at a time: where the
+    speeds overlap in part, not at all, or one is constant, and across pass boundaries."""
     from tractionecu.recording import clock
 
     rng = np.random.default_rng(seed)
@@ -178,7 +193,7 @@ def test_the_refinement_correlates_every_offset_as_one_at_a_time(seed, monkeypat
     offs = np.concatenate([np.arange(-0.4, 0.4, 0.001), [296.0, 299.99, 1e4]])   # a few samples, none
     monkeypatch.setattr(clock, "FINE_CHUNK", 7 * gt.size + 5)                  # passes of 7 offsets
     for c in (cv, np.full(ct.size, 2.5)):
-        one = np.array([clock._corr_at(ct, c, gt, gv, o)[0] for o in offs])
+        one = np.array([_corr_at(ct, c, gt, gv, o) for o in offs])
         many = clock._corr_many(ct, c, gt, gv, offs)
         assert np.array_equal(np.isnan(one), np.isnan(many))
         assert np.allclose(one, many, rtol=0.0, atol=1e-12, equal_nan=True)

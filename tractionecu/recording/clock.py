@@ -179,18 +179,6 @@ def _ncc(a: np.ndarray, b: np.ndarray, min_n: int) -> np.ndarray:
     return r
 
 
-def _corr_at(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray, off: float) -> tuple[float, int]:
-    tc = gt - off
-    m = (tc >= ct[0]) & (tc <= ct[-1])
-    if m.sum() < 5:
-        return math.nan, int(m.sum())
-    x = np.interp(tc[m], ct, cv)
-    y = gv[m]
-    if x.std() <= 0 or y.std() <= 0:
-        return math.nan, int(m.sum())
-    return float(np.corrcoef(x, y)[0, 1]), int(m.sum())
-
-
 FINE_CHUNK = 1 << 18
 """Interpolated samples per pass of :func:`_corr_many`: its arrays hold at most this many floats each (2 MiB),
 whatever the recording's length."""
@@ -198,8 +186,10 @@ whatever the recording's length."""
 
 def _corr_many(ct: np.ndarray, cv: np.ndarray, gt: np.ndarray, gv: np.ndarray,
                offs: np.ndarray) -> np.ndarray:
-    """:func:`_corr_at`'s correlation at every offset of ``offs`` (NaN where it is), the offsets in passes of
-    at most :data:`FINE_CHUNK` interpolated samples: one interpolation per pass, not one call per offset."""
+    """The correlation of the GNSS speed ``gv`` at its epochs ``gt`` with the CAN speed ``cv`` interpolated at
+    ``gt − offset`` where that lies within the CAN times ``ct``, for every offset of ``offs``; NaN where fewer than
+    5 epochs overlap or either speed is constant there.  The offsets go in passes of at most :data:`FINE_CHUNK`
+    interpolated samples: one interpolation per pass, not one call per offset."""
     out = np.full(offs.size, np.nan)
     per = max(1, FINE_CHUNK // max(gt.size, 1))
     for a in range(0, offs.size, per):
@@ -255,9 +245,10 @@ def estimate_offset(signals: Mapping, gps_t: np.ndarray, gps_speed: np.ndarray) 
         if den < 0:
             off += FINE_STEP_S * 0.5 * (y0 - y2) / den
             curv = den / FINE_STEP_S ** 2
-    _, n = _corr_at(ct, cv, gt, gv, off)
     tc = gt - off
-    speed_std = float(gv[(tc >= ct[0]) & (tc <= ct[-1])].std()) if n else 0.0
+    inside = (tc >= ct[0]) & (tc <= ct[-1])             # the GNSS epochs the CAN speed overlaps at the offset
+    n = int(inside.sum())
+    speed_std = float(gv[inside].std()) if n else 0.0
     floor = FINE_STEP_S / math.sqrt(12.0)
     sigma = math.sqrt(max(1.0 - rmax, 0.0) / (n * -curv)) if curv < 0 and n else math.inf
     sigma = max(sigma, floor)
