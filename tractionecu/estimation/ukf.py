@@ -174,6 +174,8 @@ class UnscentedFilter:
         self._w = np.concatenate([[self._sqrt_c], self.Wm, self.Wc])
         # The project's own process model: predict runs in one compiled call (same RK4 code as fx).
         owner = getattr(fx, "__self__", None)
+        self.gain_n: int | None = None
+        """The smoother's gain over the first ``gain_n`` states only (their marginal); None: all."""
         self._model = owner if (JIT and isinstance(owner, FilterModel) and n == 10
                                 and getattr(fx, "__func__", None) is FilterModel.step) else None
         self._fast: dict[int, tuple] = {}
@@ -334,8 +336,15 @@ class UnscentedFilter:
             self.x = x
             self.P = P
             if track and not self.repaired_last:
-                G = np.empty((n, n))
-                if _kernels.cross_gain(sig0, np.ascontiguousarray(sf), self.Wc, x0, x, P, G):
+                g = self.gain_n or n
+                G = np.empty((g, g))
+                if g == n:
+                    ok = _kernels.cross_gain(sig0, np.ascontiguousarray(sf), self.Wc, x0, x, P, G)
+                else:
+                    ok = _kernels.cross_gain(np.ascontiguousarray(sig0[:, :g]), np.ascontiguousarray(sf[:, :g]),
+                                             self.Wc, np.ascontiguousarray(x0[:g]), x[:g].copy(),
+                                             np.ascontiguousarray(P[:g, :g]), G)
+                if ok:
                     self.last_gain = G
             return
         x = self.Wm @ sf
@@ -355,7 +364,8 @@ class UnscentedFilter:
         self.x = x
         self.P = P
         if track and not self.repaired_last:
-            self.last_gain = _gain_numpy(sig0, sf, self.Wc, x0, x, P)
+            g = self.gain_n or self.n
+            self.last_gain = _gain_numpy(sig0[:, :g], sf[:, :g], self.Wc, x0[:g], x[:g], P[:g, :g])
 
     def predict_steps(self, u: NDArray[np.float64], h: float, n_sub: int,
                       q_of: Callable[[float], NDArray[np.float64]]) -> NDArray[np.float64] | None:

@@ -121,6 +121,25 @@ The carcass term's slip is the rim's.  J_m + J_w = J and k → ∞ give back
 eq. 2.  The hub's mode (≈ 14–16 Hz on the physical truth) is integrated
 with RK4 in sub-steps of at most 0.5/ω_max (:func:`hub_substeps`), well
 inside RK4's stability bound (ω h < 2.8).
+
+Period-mean wheel speeds (beyond the paper, whose wheel speeds are samples
+of ω): an ECU that measures speed by period counting reports the angle the
+toothed ring turned over its sample period T, over T, the mean speed of the
+period; at 100 Hz that is the speed ≈ 5 ms earlier, at 20 Hz a mean over
+50 ms, which lags the carcass mode (5.8–6.5 Hz) by π f_c T ≈ 1 rad.  The
+period-mean filter (26 states) takes the sample for what it is: x[18:22]
+are the angles φ_i the motors turned since the last sample, φ̇_i = ω_m,i
+(by the trapezoid over each step), the measurement is φ_i = T ω̄_i with
+R_ω T², and after each sample φ_i restarts from 0, known exactly (its rows
+and columns of P zeroed; the standard treatment of an integrating sensor,
+e.g. Gelb 1974, "Applied Optimal Estimation", ch. 4 on augmented states, or
+the delta-range measurements of GNSS/INS filters).  Over 50 ms between
+samples the carcass's relaxed slips σ̄_i can no longer be moved outside the
+filter from its mean after each step (a loop the filter does not see: at
+20 Hz it rang the filter's own carcass mode until the gate rejected the
+samples); they are states too, x[22:26], each sigma point relaxing its own
+towards the slips of its rims' mean speed over the step, against the mean
+speed v̄ as the carcass term (:func:`_rk4_hub_pm`).
 """
 
 from __future__ import annotations
@@ -183,6 +202,12 @@ IX_OMEGA_W = slice(10, 14)
 IX_TWIST = slice(14, 18)
 """Hub twists θ_i [rad] at the wheel side (module doc "Two-inertia hub")."""
 N_STATE_HUB = 18
+IX_PMEAN = slice(18, 22)
+"""Angles φ_i [rad] the motors turned since the last wheel-speed sample (module doc "Period-mean wheel
+speeds")."""
+IX_RELAX = slice(22, 26)
+"""Relaxed slips σ̄_i [-] of the carcass model, filter states of the period-mean filter (module doc)."""
+N_STATE_PMEAN = 26
 HUB_STEP_WH = 0.5
 """Largest ω_max·h of one RK4 sub-step of the hub model [-] (:func:`hub_substeps`)."""
 
@@ -962,6 +987,39 @@ def _rk4_hub(x, u, kc, hc, dt, nsub):                        # pragma: no cover 
     return out
 
 
+def _rk4_hub_pm(x, u, kc, hc, dt, nsub, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, kap):  # pragma: no cover
+    """The period-mean filter's process model for every row of x (N, 26) (module doc "Period-mean wheel
+    speeds"): the two-inertia hub's RK4 (:func:`_rk4_hub`) with the row's own relaxed slips x[22:26] in the
+    carcass term, the motors' angles x[18:22] by the trapezoid of the motor speeds over dt, and the relaxed
+    slips relaxed over dt towards the slips of the rims' mean speeds against the mean speed v̄ = kc[15]
+    (:func:`_relax_slips`, the slope through each wheel's own μ)."""
+    npt = x.shape[0]
+    out = np.empty_like(x)
+    kk = kc.copy()
+    row = np.empty((1, 18))
+    xs = np.empty(10)
+    for j in range(npt):
+        for q in range(kc.shape[0]):
+            kk[q] = kc[q]
+        for i in range(4):
+            kk[11 + i] = x[j, 22 + i]
+        for q in range(18):
+            row[0, q] = x[j, q]
+        r = _rk4_hub(row, u, kk, hc, dt, nsub)
+        for q in range(18):
+            out[j, q] = r[0, q]
+        for q in range(10):
+            xs[q] = r[0, q]
+        for i in range(4):
+            out[j, 18 + i] = x[j, 18 + i] + (0.5 * dt) * (x[j, i] + r[0, i])
+            xs[i] = 0.5 * (x[j, 10 + i] + r[0, 10 + i])
+        xs[4] = kc[15]
+        _relax_slips(xs, kk, kap, dt, ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, False, True)
+        for i in range(4):
+            out[j, 22 + i] = kk[11 + i]
+    return out
+
+
 RELAX_SCALE_BOUNDS = (0.5, 2.0)
 """Bounds of a wheel's μ level over the identified curve's, μ̂_i/μ(σ̄_i), in :func:`relax_slips_own` [-]."""
 
@@ -990,3 +1048,4 @@ relax_slips_own = compiled(relax_slips_own)
 _rk4_points = compiled(_rk4_points)
 _hub_deriv = compiled(_hub_deriv, inline=True)
 _rk4_hub = compiled(_rk4_hub)
+_rk4_hub_pm = compiled(_rk4_hub_pm)
