@@ -280,6 +280,26 @@ def test_the_estimator_config_takes_the_lag_and_checks_it() -> None:
         EstimatorConfig(smoother_lag_s=-0.01)
 
 
+@pytest.mark.parametrize("rate_hz, lag", [(100.0, 0.05), (50.0, 0.05), (20.0, 0.1), (10.0, 0.2)])
+def test_the_lag_holds_two_wheel_speed_periods(rate_hz: float, lag: float) -> None:
+    """The hub estimator's smoother holds at least MIN_WHEEL_PERIODS of the declared wheel-speed period beside
+    the configured lag; lag 0 (off) stays off, and the machine-level estimator keeps the configured lag."""
+    from tractionecu.config import SensorSpec, VehicleParams
+    from tractionecu.estimation.estimator import Estimator
+    from tractionecu.estimation.smoother import MIN_WHEEL_PERIODS
+
+    est = Estimator(VehicleParams(), sensors=SensorSpec(wheel_rate_hz=rate_hz))
+    assert FixedLagSmoother.for_estimator(est).lag_s == pytest.approx(lag, rel=1e-12)
+    assert lag == max(0.05, MIN_WHEEL_PERIODS / rate_hz)
+    off = Estimator(VehicleParams(), EstimatorConfig(smoother_lag_s=0.0), sensors=SensorSpec(wheel_rate_hz=rate_hz))
+    assert FixedLagSmoother.for_estimator(off).lag_s == 0.0
+    assert FixedLagSmoother.for_estimator(object()).lag_s == 0.0
+
+    class Machine:                      # no per-wheel rate: the configured lag
+        cfg = EstimatorConfig()
+    assert FixedLagSmoother.for_estimator(Machine()).lag_s == 0.05
+
+
 def test_smoothing_brings_mu_and_slip_nearer_the_physical_truth(tmp_path) -> None:
     """The physical truth's tyre force builds up through its relaxation length: the filter's random-walk μ trails
     it, and the steps after each estimate take the lag back (docs/results/estimator.md).  The slip of the smoothed

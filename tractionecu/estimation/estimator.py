@@ -345,6 +345,9 @@ class Estimator:
         self.vehicle = vehicle
         self.cfg = cfg = cfg or EstimatorConfig()
         self.sensors = sensors or SensorSpec()
+        self.smoother_wheel_rate_hz = self.sensors.wheel_rate_hz
+        """The declared wheel-speed rate the fixed-lag smoother's lag holds two periods of
+        (:meth:`.smoother.FixedLagSmoother.for_estimator`)."""
         self.model = FilterModel(vehicle)
         self.m = vehicle.mass_kg
         self.J = vehicle.wheel_inertia_kgm2

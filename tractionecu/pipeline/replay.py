@@ -321,7 +321,7 @@ class _Run:
                  cfg: EstimatorConfig, gate: GnssGate, sink: "_Sink",
                  on_estimate: Callable[[Estimate], None] | None) -> None:
         self.est, g = estimator_for(rec, vehicle, cfg, sensors)      # hub or machine level (.select)
-        self.smoother = FixedLagSmoother.from_config(cfg)           # the estimates, smoothed and delivered later
+        self.smoother = FixedLagSmoother.for_estimator(self.est)   # the estimates, smoothed and delivered later
         self.anchor, self.inputs = g.anchor, g.inputs
         self.gnss: Counter[str] = Counter()
         self.gps_mask = gate.track_mask(rec.gps, self.gnss)

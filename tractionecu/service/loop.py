@@ -127,8 +127,7 @@ def warm_up(factory: EstimatorFactory, vehicle: Any, sensors: Any = None) -> flo
     t0 = time.perf_counter()
     _kernels.warm_up()
     est = factory(vehicle, sensors)
-    cfg = getattr(est, "cfg", None)
-    smoother = FixedLagSmoother.from_config(cfg) if cfg is not None else FixedLagSmoother(0.0)
+    smoother = FixedLagSmoother.for_estimator(est)
     push = smoother.push
     if getattr(est, "level", None) == "machine":          # the machine-level estimator's keys
         for k in range(60):
@@ -251,8 +250,8 @@ class EstimationLoop(TaskPart):
 
         self.machine = estimator_machine(self.cfg)
         self.estimator = self.factory(*self.machine)
-        ecfg = getattr(self.estimator, "cfg", None)
-        self.smoother = FixedLagSmoother.from_config(ecfg) if ecfg is not None else None
+        self.smoother = (FixedLagSmoother.for_estimator(self.estimator)
+                         if getattr(self.estimator, "cfg", None) is not None else None)
         return self.estimator
 
     async def warm_up(self) -> float:
