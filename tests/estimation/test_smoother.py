@@ -375,3 +375,33 @@ def test_the_model_path_gain_equals_the_general_cross_covariance() -> None:
     assert K.cross_gain(sig, sf, ukf.Wc, x, xo, Po, ref)
     assert np.allclose(G, ref, rtol=1e-9, atol=1e-12)
     assert np.abs(G).max() > 0.1                    # a gain, not zeros
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_a_gain_over_the_leading_states_is_their_marginal(jit: bool, monkeypatch) -> None:
+    """UnscentedFilter.gain_n: the smoother's gain over the first gain_n states (the period-mean filter's hub
+    states) is C (P⁻)⁻¹ of those states' sigma points alone; the states after them (angles restarted at each
+    sample) take no part, compiled or numpy."""
+    from tractionecu.estimation import _kernels as K
+    from tractionecu.estimation import ukf as U
+
+    monkeypatch.setattr(U, "JIT", jit and K.JIT)
+    rng = np.random.default_rng(8)
+    A = rng.standard_normal((6, 6)) * 0.1
+    F = np.eye(6) + 0.05 * rng.standard_normal((6, 6))
+
+    def fx(x, u, dt):
+        return x @ F.T + 0.01 * np.sin(x)
+
+    ukf = UnscentedFilter(fx, rng.standard_normal(6), A @ A.T + 0.01 * np.eye(6), range(3))
+    ukf.track_gain = True
+    ukf.gain_n = 4
+    x0 = ukf.x.copy()
+    sig0 = ukf.sigma_points().copy()
+    ukf.predict(np.zeros(6), 0.01, 1e-4 * np.eye(6))
+    G = ukf.last_gain
+    assert G.shape == (4, 4)
+    sf = fx(sig0, None, 0.01)
+    C = ((sig0[:, :4] - x0[:4]).T * ukf.Wc) @ (sf[:, :4] - ukf.x[:4])
+    np.testing.assert_allclose(G, C @ np.linalg.inv(ukf.P[:4, :4]), rtol=1e-9, atol=1e-12)
+    assert np.abs(G).max() > 0.5
