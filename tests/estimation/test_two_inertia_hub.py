@@ -278,7 +278,7 @@ def test_relaxation_through_each_wheels_own_mu():
 def test_period_mean_kernel_is_the_hub_step_with_each_rows_relaxed_slips():
     """_rk4_hub_pm, row by row: step_hub with the row's own σ̄ in the carcass term (v̄ the model's), the angles
     by the trapezoid of the motor speeds, σ̄ relaxed (relax_slips_own) towards the slips of the rims' mean speed
-    over the step against v̄; compiled and plain Python alike."""
+    over the step against v̄; FilterModel.step_hub_pm compiled and in numpy alike."""
     from tractionecu.model.mucurve import SOIL_CLASSES
 
     model = V.FilterModel(hub_vehicle())
@@ -309,9 +309,15 @@ def test_period_mean_kernel_is_the_hub_step_with_each_rows_relaxed_slips():
                           0.5, False)
         np.testing.assert_allclose(y[j, 22:26], m.relaxed_slip, rtol=1e-13)
     assert np.abs(y[:, 22:26] - x[:, 22:26]).max() > 1e-4           # the slips did relax
-    plain = getattr(V._rk4_hub_pm, "py_func", None)
-    if plain is not None:
-        np.testing.assert_allclose(plain(x, *args), y, rtol=1e-12, atol=1e-14)
+    # FilterModel.step_hub_pm: the compiled kernel, and without numba its numpy form, the same
+    np.testing.assert_array_equal(model.step_hub_pm(x, u, dt, a, c.p, c.alpha1, c.alpha2, c0, 0.05, 1.0, 0.5), y)
+    jit = V.JIT
+    try:
+        V.JIT = False
+        ynp = model.step_hub_pm(x, u, dt, a, c.p, c.alpha1, c.alpha2, c0, 0.05, 1.0, 0.5)
+    finally:
+        V.JIT = jit
+    np.testing.assert_allclose(ynp, y, rtol=1e-12, atol=1e-14)
 
 
 def test_period_mean_filter_restarts_its_angles_at_each_sample():

@@ -79,8 +79,8 @@ from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_PMEAN, IX_RELAX, IX_RHO, IX_TWIST, IX_V,
-                             N_INPUT, N_STATE, N_STATE_HUB, N_STATE_PMEAN, FilterModel, _relax_slips, _rk4_hub_pm,
-                             hub_substeps, relax_slips, relax_slips_own, wheel_radii, wheel_speed_factor_slopes)
+                             N_INPUT, N_STATE, N_STATE_HUB, N_STATE_PMEAN, FilterModel, _relax_slips, relax_slips,
+                             relax_slips_own, wheel_radii, wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
 from .config import EstimatorConfig, load_estimator_config  # noqa: F401  (load_estimator_config: re-exported)
@@ -1249,14 +1249,7 @@ class Estimator:
         """Process model of the period-mean filter for sigma points x (N, 26) over dt [s]
         (:func:`~tractionecu.model.vehicle._rk4_hub_pm`, model doc "Period-mean wheel speeds"), with the
         relaxation lengths of the identified curve as :meth:`_relax` takes them."""
-        model = self.model
-        hc = model._hc
-        ff, fr, rdf, rdr = model.load_floats(float(u[4]), float(u[5]))
-        a, p, al1, al2, c0 = self._pm_curve
-        kap = float(u[IU_KAPPA]) if u.shape[0] > IU_KAPPA else 0.0
-        return _rk4_hub_pm(np.ascontiguousarray(x), np.ascontiguousarray(u, dtype=np.float64), model._kc, hc,
-                           float(dt), hub_substeps(float(hc[4]), dt), ff, fr, rdf, rdr, a, p, al1, al2, c0,
-                           RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, kap)
+        return self.model.step_hub_pm(x, u, dt, *self._pm_curve, RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M)
 
     def _pm_reset(self, ukf: UnscentedFilter, t: float) -> None:
         """A wheel-speed sample at t ends the period of the period-mean filter's angles: they start again from

@@ -516,9 +516,10 @@ class FilterModel:
         return x[..., :5]
 
     def rhs_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], fz: NDArray[np.float64] | None = None,
-                r_d: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+                r_d: NDArray[np.float64] | None = None, sbar: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """dx/dt of the two-inertia hub model (module doc), x (..., 18), u (7,) or (6,); numpy.  The loads, when
-        not given, with the lateral load transfer at the states' own speeds."""
+        not given, with the lateral load transfer at the states' own speeds; the carcass term's relaxed slips
+        σ̄ the model's, or ``sbar`` (..., 4) (each row's own: the period-mean filter's)."""
         k_h, c_h, jm, jw = self.hub
         if fz is None or r_d is None:
             fz, r_d = self.loads(u, x[..., IX_V])
@@ -540,8 +541,40 @@ class FilterModel:
         dx[..., IX_V] = (fx - u[..., IU_FDX] - x[..., IX_RHO] * self.m * G * np.sign(x[..., IX_V])) / self.m  # eq. 8
         if self.cx != 0.0:
             vi = kw * self._kc[15]
-            dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(ww, vi, r_d) - self._kc[11:15]) / fz
+            sb = self._kc[11:15] if sbar is None else sbar
+            dx[..., IX_MU] = self.cx * np.abs(vi) * (slip(ww, vi, r_d) - sb) / fz
         return dx
+
+    def step_hub_pm(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float, a: float, p: float,
+                    al1: float, al2: float, c0: float, lmin: float, lmax: float, ldef: float) -> NDArray[np.float64]:
+        """The period-mean filter's process model for sigma points x (N, 26) over dt [s] (module doc
+        "Period-mean wheel speeds"; the relaxation's curve a, p, α1, α2, c0 and length bounds as
+        :func:`relax_slips_own` takes them): compiled (:func:`_rk4_hub_pm`), else numpy, the same steps."""
+        n = hub_substeps(float(self._hc[4]), dt)
+        ff, fr, rdf, rdr = self.load_floats(float(u[4]), float(u[5]))
+        kap = float(u[IU_KAPPA]) if u.shape[0] > IU_KAPPA else 0.0
+        if JIT and x.dtype == np.float64 and u.dtype == np.float64:
+            return _rk4_hub_pm(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, self._hc, float(dt), n,
+                               ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, kap)
+        h = dt / n
+        y = np.array(x[:, :N_STATE_HUB], dtype=float)
+        sb = x[:, IX_RELAX]
+        fz, r_d = self.loads(u, y[..., IX_V])          # held over the step, as step_hub
+        for _ in range(n):
+            y = rk4(lambda z: self.rhs_hub(z, u, fz, r_d, sb), y, h)
+        out = np.empty(x.shape)
+        out[:, :N_STATE_HUB] = y
+        out[:, IX_PMEAN] = x[:, IX_PMEAN] + (0.5 * dt) * (x[:, IX_OMEGA] + y[:, IX_OMEGA])
+        kk = self._kc.copy()
+        xs = np.empty(N_STATE)
+        for j in range(x.shape[0]):                    # the relaxation of each row's own σ̄ (a scalar kernel)
+            kk[11:15] = x[j, IX_RELAX]
+            xs[:] = y[j, :N_STATE]
+            xs[IX_OMEGA] = 0.5 * (x[j, IX_OMEGA_W] + y[j, IX_OMEGA_W])
+            xs[IX_V] = self._kc[15]
+            _relax_slips(xs, kk, kap, float(dt), ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, False, True)
+            out[j, IX_RELAX] = kk[11:15]
+        return out
 
     def step_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
         """RK4 over dt [s] in :func:`hub_substeps` sub-steps for the two-inertia hub states x (N, 18) (module
