@@ -418,8 +418,8 @@ def recording_20_10(tmp_path_factory):
 
 def test_period_mean_filter_follows_the_carcass_ring_at_20_hz(recording_20_10, monkeypatch):
     """physical-declared-exact at 20/10 Hz, 40 s: the period-mean filter against the paper's model with the
-    ring noise (the carcass term off at f_c T 0.33, as before it): scorecard μ error 3.04 → 1.56 %, the rear
-    wheels' in work 3.2 → 1.1 % (measured when written)."""
+    ring noise (the carcass term off at f_c T 0.33, as before it), both with the smoother's lag of two periods:
+    scorecard μ error 2.46 → 1.18 %, the rear wheels' in work 2.5 → 0.8 % (measured when written)."""
     import tractionecu.estimation.estimator as E
     from tractionecu.evaluation.scoring import read_truth, scorecard
     from tractionecu.pipeline.replay import replay
