@@ -342,6 +342,9 @@ def test_period_mean_filter_restarts_its_angles_at_each_sample():
             np.testing.assert_allclose(x[18:22], x[:4] * (t - t_s), rtol=0.02)
             seen += 1
     assert seen > 100
+    # the relaxed slips are slips: an update cannot take them past eq. 6's range
+    assert (est.ukf.x_lo[22:26] == -1.0).all() and (est.ukf.x_hi[22:26] == 1.0).all()
+    assert np.isinf(est.ukf.x_lo[18:22]).all()
 
 
 def test_period_mean_filter_reads_a_sample_as_the_mean_of_its_period():

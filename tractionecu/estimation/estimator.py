@@ -614,6 +614,7 @@ class Estimator:
             hi = np.concatenate([hi, np.full(n - N_STATE, np.inf)])
             if self._pm:
                 meas = [*range(IX_PMEAN.start, IX_PMEAN.stop), IX_V]
+                lo[IX_RELAX], hi[IX_RELAX] = -1.0, 1.0          # relaxed slips are slips (eq. 6's range)
         ukf = UnscentedFilter(fx, x0, P0, meas, alpha=cfg.alpha, beta=cfg.beta, kappa=cfg.kappa, x_lo=lo,
                               x_hi=hi, gate_chi2=self._gate, gate_max_consecutive=cfg.gate_max_consecutive)
         ukf.track_gain = self._smooth
