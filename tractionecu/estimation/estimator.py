@@ -79,7 +79,7 @@ from ..config import G, SensorSpec, VehicleParams
 from ..errors import EstimatorError
 from ..model.mucurve import SOIL_CLASSES
 from ..model.vehicle import (IU_KAPPA, IX_MU, IX_OMEGA, IX_OMEGA_W, IX_PMEAN, IX_RELAX, IX_RHO, IX_TWIST, IX_V,
-                             N_INPUT, N_STATE, N_STATE_HUB, N_STATE_PMEAN, FilterModel, _relax_slips, relax_slips,
+                             N_INPUT, N_STATE, N_STATE_HUB, N_STATE_PMEAN, FilterModel, relax_slips,
                              relax_slips_own, wheel_radii, wheel_speed_factor_slopes)
 from . import _kernels
 from ._kernels import JIT
@@ -345,9 +345,6 @@ class Estimator:
         self.vehicle = vehicle
         self.cfg = cfg = cfg or EstimatorConfig()
         self.sensors = sensors or SensorSpec()
-        self.smoother_wheel_rate_hz = self.sensors.wheel_rate_hz
-        """The declared wheel-speed rate the fixed-lag smoother's lag holds two periods of
-        (:meth:`.smoother.FixedLagSmoother.for_estimator`)."""
         self.model = FilterModel(vehicle)
         self.m = vehicle.mass_kg
         self.J = vehicle.wheel_inertia_kgm2
@@ -570,6 +567,12 @@ class Estimator:
             _kernels.add_kappa_noise(Q, self.ukf.x, self._u, self.model._kc, math.inf, IX_OMEGA_W.start,
                                      self._kappa_var * BIAS_TAU_S * dt)
         return Q
+
+    @property
+    def smoother_wheel_rate_hz(self) -> float:
+        """The declared wheel-speed rate [Hz] the fixed-lag smoother's lag holds two periods of
+        (:meth:`.smoother.FixedLagSmoother.for_estimator`)."""
+        return self.sensors.wheel_rate_hz
 
     def _hub_wanted(self) -> bool:
         """Whether the filter should carry the declared two-inertia hub: with the carcass term (the hub changes
@@ -1242,8 +1245,8 @@ class Estimator:
         kk = self.model._kc.copy()
         xs = x[:N_STATE].copy()
         xs[IX_OMEGA] = x[IX_OMEGA_W]
-        _relax_slips(xs, kk, float(self._u[IU_KAPPA]), 0.0, ff, fr, rdf, rdr, math.nan, 0.0, -1.0, -1.0, 0.0,
-                     RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, True, True)
+        relax_slips(xs, kk, float(self._u[IU_KAPPA]), 0.0, ff, fr, rdf, rdr, math.nan, 0.0, -1.0, -1.0,
+                    RELAX_MIN_M, RELAX_MAX_M, RELAX_DEFAULT_M, True)
         return kk[11:15].copy()
 
     def _fx_pm(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:

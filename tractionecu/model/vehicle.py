@@ -556,12 +556,7 @@ class FilterModel:
         if JIT and x.dtype == np.float64 and u.dtype == np.float64:
             return _rk4_hub_pm(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, self._hc, float(dt), n,
                                ff, fr, rdf, rdr, a, p, al1, al2, c0, lmin, lmax, ldef, kap)
-        h = dt / n
-        y = np.array(x[:, :N_STATE_HUB], dtype=float)
-        sb = x[:, IX_RELAX]
-        fz, r_d = self.loads(u, y[..., IX_V])          # held over the step, as step_hub
-        for _ in range(n):
-            y = rk4(lambda z: self.rhs_hub(z, u, fz, r_d, sb), y, h)
+        y = self.step_hub(x[:, :N_STATE_HUB], u, dt, sbar=x[:, IX_RELAX])
         out = np.empty(x.shape)
         out[:, :N_STATE_HUB] = y
         out[:, IX_PMEAN] = x[:, IX_PMEAN] + (0.5 * dt) * (x[:, IX_OMEGA] + y[:, IX_OMEGA])
@@ -576,17 +571,19 @@ class FilterModel:
             out[j, IX_RELAX] = kk[11:15]
         return out
 
-    def step_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float) -> NDArray[np.float64]:
+    def step_hub(self, x: NDArray[np.float64], u: NDArray[np.float64], dt: float,
+                 sbar: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """RK4 over dt [s] in :func:`hub_substeps` sub-steps for the two-inertia hub states x (N, 18) (module
-        doc); compiled with numba (:func:`_rk4_hub`), else numpy (:meth:`rhs_hub`)."""
+        doc); compiled with numba (:func:`_rk4_hub`), else numpy (:meth:`rhs_hub`; with ``sbar`` (N, 4) each
+        row's own relaxed slips in the carcass term, always numpy: :meth:`step_hub_pm`'s fallback)."""
         n = hub_substeps(float(self._hc[4]), dt)
-        if JIT and x.ndim == 2 and x.dtype == np.float64 and u.dtype == np.float64:
+        if JIT and sbar is None and x.ndim == 2 and x.dtype == np.float64 and u.dtype == np.float64:
             return _rk4_hub(np.ascontiguousarray(x), np.ascontiguousarray(u), self._kc, self._hc, float(dt), n)
         h = dt / n
         y = np.array(x, dtype=float)
         fz, r_d = self.loads(u, y[..., IX_V])          # held over the step (module doc)
         for _ in range(n):
-            y = rk4(lambda z: self.rhs_hub(z, u, fz, r_d), y, h)
+            y = rk4(lambda z: self.rhs_hub(z, u, fz, r_d, sbar), y, h)
         return y
 
 
