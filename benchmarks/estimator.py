@@ -366,7 +366,7 @@ def time_estimator(rec_dir: Path, data: dict, n: int = 10000, repeats: int = 3,
             t0 = time.perf_counter()
             c0 = time.process_time()
             if smooth:
-                push = FixedLagSmoother.from_config(cfg).push
+                push = FixedLagSmoother.for_estimator(est).push
                 for s in steps:
                     push(est.step(*s))
             else:

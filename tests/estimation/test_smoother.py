@@ -283,7 +283,7 @@ def test_the_estimator_config_takes_the_lag_and_checks_it() -> None:
 @pytest.mark.parametrize("rate_hz, lag", [(100.0, 0.05), (50.0, 0.05), (20.0, 0.1), (10.0, 0.2)])
 def test_the_lag_holds_two_wheel_speed_periods(rate_hz: float, lag: float) -> None:
     """The hub estimator's smoother holds at least MIN_WHEEL_PERIODS of the declared wheel-speed period beside
-    the configured lag; lag 0 (off) stays off, and the machine-level estimator keeps the configured lag."""
+    the configured lag; lag 0 (off) stays off; an object without a wheel-speed rate keeps the configured lag."""
     from tractionecu.config import SensorSpec, VehicleParams
     from tractionecu.estimation.estimator import Estimator
     from tractionecu.estimation.smoother import MIN_WHEEL_PERIODS
@@ -295,9 +295,23 @@ def test_the_lag_holds_two_wheel_speed_periods(rate_hz: float, lag: float) -> No
     assert FixedLagSmoother.for_estimator(off).lag_s == 0.0
     assert FixedLagSmoother.for_estimator(object()).lag_s == 0.0
 
-    class Machine:                      # no per-wheel rate: the configured lag
+    class NoRate:                       # no wheel-speed rate: the configured lag
         cfg = EstimatorConfig()
-    assert FixedLagSmoother.for_estimator(Machine()).lag_s == 0.05
+    assert FixedLagSmoother.for_estimator(NoRate()).lag_s == 0.05
+
+
+def test_the_machine_levels_lag_holds_two_periods_of_its_wheel_speeds() -> None:
+    """The machine-level estimator reads its wheel speeds from CCVS1, WBSD and EBC2 every 100 ms: its smoother's
+    lag holds two of those periods, 0.2 s, beside a shorter configured lag; a longer one and 0 (off) stay."""
+    from tractionecu.config import DrivetrainSpec, VehicleParams
+    from tractionecu.estimation.machine import MachineEstimator
+
+    veh = VehicleParams(drivetrain=DrivetrainSpec(kind="mechanical", final_drive_ratio=20.0))
+    assert FixedLagSmoother.for_estimator(MachineEstimator(veh)).lag_s == pytest.approx(0.2, rel=1e-12)
+    longer = MachineEstimator(veh, EstimatorConfig(smoother_lag_s=0.5))
+    assert FixedLagSmoother.for_estimator(longer).lag_s == 0.5
+    off = MachineEstimator(veh, EstimatorConfig(smoother_lag_s=0.0))
+    assert FixedLagSmoother.for_estimator(off).lag_s == 0.0
 
 
 def test_smoothing_brings_mu_and_slip_nearer_the_physical_truth(tmp_path) -> None:

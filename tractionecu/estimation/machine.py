@@ -435,6 +435,13 @@ class MachineEstimator:
         self._sm_xp: NDArray[np.float64] | None = None
         self._sm_G: NDArray[np.float64] | None = None
 
+    @property
+    def smoother_wheel_rate_hz(self) -> float:
+        """The rate [Hz] of the wheel speeds this estimator reads, CCVS1's, WBSD's and EBC2's 100 ms (and GBSD's
+        ground speed): the fixed-lag smoother's lag holds two of their periods, as the hub estimator's holds two
+        of its wheel speeds' (:meth:`.smoother.FixedLagSmoother.for_estimator`)."""
+        return 1.0 / WHEEL_SPEED_WINDOW_S
+
     # ------------------------------------------------------------------ drivetrain terms
     def ratio(self) -> float:
         """Engine to rear wheel speed ratio i = i_g·i_f [-] in use: ETC2's gear ratio times the final drive,
