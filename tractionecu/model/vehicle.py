@@ -172,15 +172,27 @@ JIT = njit is not None
 
 
 def compiled(fn, inline: bool = False):
-    """``fn`` compiled with numba (cached on disk when a cache directory is writable), or ``fn`` itself
-    without numba.  Float division by zero gives inf/NaN as in numpy (``error_model="numpy"``)."""
+    """``fn`` compiled with numba (cached on disk when a cache directory is writable, in the directory of its
+    module's version: :mod:`.jitcache`), or ``fn`` itself without numba.  Float division by zero gives inf/NaN
+    as in numpy (``error_model="numpy"``)."""
     if njit is None:
         return fn
+    import inspect
+
+    from numba.core import config as numba_config
+
+    from .jitcache import kernel_cache_dir
+
     kw = {"error_model": "numpy", "inline": "always" if inline else "never"}
+    saved = numba_config.CACHE_DIR
+    # numba picks the cache directory when the function is decorated (its locator keeps it)
+    numba_config.CACHE_DIR = kernel_cache_dir(inspect.getfile(fn)) or saved
     try:
         return njit(cache=True, **kw)(fn)
     except RuntimeError:     # numba found no writable cache directory (see README): compile per process
         return njit(**kw)(fn)
+    finally:
+        numba_config.CACHE_DIR = saved
 
 N_WHEELS = 4
 WHEELS = ("FL", "FR", "RL", "RR")
