@@ -249,3 +249,24 @@ def test_a_replay_into_a_directory_another_replay_writes_is_refused(short_record
     assert sorted(p.name for p in run.iterdir()) == ["config.toml", "estimates.csv"]
     replay_to_dir(short_recording, run, write_map=False)      # the lock goes with the process that held it
     assert (run / "estimates.csv").read_bytes() == before
+
+
+def test_a_replay_reads_its_vehicle_file_once_while_it_is_unchanged(rec, tmp_path, monkeypatch):
+    """The check, the run directory's writer and the loop each asked for the machine: three reads of
+    ``vehicle.toml`` per replay.  One now; an edited file is read again."""
+    import shutil
+
+    from tractionecu.pipeline import replay as replay_mod
+
+    copy = tmp_path / "rec"
+    shutil.copytree(rec, copy)
+    calls = []
+    real = replay_mod.load_vehicle
+    monkeypatch.setattr(replay_mod, "load_vehicle", lambda p: calls.append(p) or real(p))
+    replay_to_dir(copy, tmp_path / "a", write_map=False)
+    assert len(calls) == 1
+    text = (copy / "vehicle.toml").read_text()
+    (copy / "vehicle.toml").write_text(text + "\n# edited\n")      # another size: read again
+    replay_to_dir(copy, tmp_path / "b", write_map=False)
+    assert len(calls) == 2
+    assert (tmp_path / "a" / "estimates.csv").read_bytes() == (tmp_path / "b" / "estimates.csv").read_bytes()

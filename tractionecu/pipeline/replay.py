@@ -39,6 +39,7 @@ Scoring against simulated truth is not here: it is the evaluation side's
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -164,11 +165,29 @@ def recording_grid(rec: Recording, rate_hz: float, vehicle: VehicleParams | None
     return build_grid(ws, min(float(rec.t_end), float(ws[-1]) + GRID_MAX_GAP_S), rate_hz)
 
 
+_MACHINES: dict[tuple[str, int, int], tuple[VehicleParams, SensorSpec]] = {}
+"""The vehicle files read, by path, modification time and size (both results are frozen dataclasses)."""
+_MACHINES_MAX = 16
+
+
 def machine_of(rec: Recording) -> tuple[VehicleParams, SensorSpec]:
-    """The recording's ``vehicle.toml`` (vehicle and ``[sensors]``), else the documented defaults."""
-    if rec.vehicle_toml_path is None:
+    """The recording's ``vehicle.toml`` (vehicle and ``[sensors]``), else the documented defaults.  A replay asks
+    three times (the check, the run directory's writer, the loop): the file is read once while it is unchanged."""
+    path = rec.vehicle_toml_path
+    if path is None:
         return VehicleParams(), SensorSpec()
-    return load_vehicle(rec.vehicle_toml_path), load_sensors(rec.vehicle_toml_path)
+    try:
+        st = os.stat(path)
+    except OSError:
+        return load_vehicle(path), load_sensors(path)       # its own clear error
+    key = (os.path.abspath(path), st.st_mtime_ns, st.st_size)
+    got = _MACHINES.get(key)
+    if got is None:
+        got = (load_vehicle(path), load_sensors(path))
+        if len(_MACHINES) >= _MACHINES_MAX:
+            _MACHINES.clear()
+        _MACHINES[key] = got
+    return got
 
 
 def checked(rec: Recording, recording: Any, streamed: bool) -> Recording:
