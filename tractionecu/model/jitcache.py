@@ -1,15 +1,19 @@
 """Where the compiled kernels are cached on disk: one directory per module and version of its sources.
 
 numba's on-disk cache (``cache=True``) keeps a compiled function until the file that defines it changes. It does
-not look at the files the function calls into or takes constants from: a kernel of ``estimation/_loop_kernel.py``
-compiles in the functions of ``estimation/_kernels.py`` and ``model/vehicle.py`` and constants of
-``estimation/kinematics.py``, and after an edit of those alone numba loads the old machine code (seen as a crash,
-``NRT_adapt_ndarray_to_python``, and it could as well be old numbers silently). :func:`kernel_cache_dir` gives
-each kernel module a cache directory named by a fingerprint of its own source and of every package module it
-imports, following the imports of those that define kernels themselves: an edit anywhere a kernel's code or
-constants come from gives a new directory, so a fresh compile. Directories of older versions of the same module
-(same source tree) are removed when a new one is made, once nothing has been written to them for
-:data:`PRUNE_AGE_S` (a process of the older version may still be running and compiling into them).
+not look at the files the function calls into or takes constants from. Two modules had guarded some of their
+functions by hand: ``estimation/_kernels.py``'s predict functions and ``estimation/_loop_kernel.py``'s stages
+close over a hash of a listed set of sources (``_kernels._model_tag``, ``_loop_kernel._dep_tag``). Every other
+cross-file kernel had no guard (``_kernels.estimate_outputs`` compiles in ``model/vehicle.py``'s
+``wheel_radii``, ``_kernels.add_kappa_noise`` its ``_radius`` and ``_wheel_terms``), and the lists had to be kept
+by hand. After an edit of such a callee alone numba loads the caller's old machine code (a
+crash, ``NRT_adapt_ndarray_to_python``, was seen once in a development tree; old numbers would be silent).
+:func:`kernel_cache_dir` gives each kernel module a cache directory named by a fingerprint of its own source and
+of every package module it imports, following the imports of those that define kernels themselves: an edit
+anywhere a kernel's code or constants come from gives a new directory, so a fresh compile (the two hand-kept tags
+are now a second guard for the functions they cover). Directories of older versions of the same module (same
+source tree) are removed when a new one is made, once nothing has been written to them for :data:`PRUNE_AGE_S`
+(a process of the older version may still be running and compiling into them).
 
 The base directory is ``NUMBA_CACHE_DIR`` where set (the systemd unit's), else the package's own ``__pycache__``,
 else ``$XDG_CACHE_HOME/tractionecu`` (``~/.cache/tractionecu``); none writable: numba's own choice (its locators
